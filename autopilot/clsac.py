@@ -1,0 +1,293 @@
+"""Closed-loop Reference Model Simple Adaptive Control (CL-SAC), Jana & Bhat 2017, sections 2-3.
+
+Every equation of the control law lives in this file.  Per control step k (period T), with the
+measured output y[k] and the command u_m[k]:
+
+    y_d[k] = C_d x_d[k]                         PFC output, D(s) = 1/C(s) (paper sec. 2 and 5)
+    y_a    = y[k] + y_d[k]                      augmented output, computed from the controller's own
+                                                past (applied) commands (paper sec. 5, Fig. "Details")
+    y_m    = C_m x_m[k]                         reference model output (paper eq. clrm2)
+    e      = y_m - y_a                          output error e_my (paper sec. 3)
+    K_pe = e e^T G_pe,  K_px = e x_m^T G_px,  K_pu = e u_m^T G_pu           (paper sec. 2-3)
+    u_raw  = (K_pe + K_Ie) e + (K_px + K_Ix) x_m + (K_pu + K_Iu) u_m          (paper eq. saccontrol)
+    u      = clip(u_raw, -u_limit, +u_limit)    the command actually applied
+
+then the states move to k+1 (exact zero-order-hold discretisation: the controller only knows its
+signals at the samples and holds them, just as the servo holds u, so each update is the exact
+solution of the continuous law over one period for held inputs):
+
+    x_d[k+1] = e^{A_d T} x_d + A_d^{-1}(e^{A_d T} - I) B_d u                 PFC driven by applied u
+    x_m[k+1] = e^{A_c T} x_m + A_c^{-1}(e^{A_c T} - I)(B_m u_m + L_v y_a),  A_c = A_m - L_v C_m
+                                                                             (paper eq. clrm1)
+    K_Ie[k+1] = e^{-sigma T} K_Ie + (1 - e^{-sigma T})/sigma * e e^T G_Ie   (K_Ie' = e e^T G_Ie - sigma K_Ie)
+    K_Ix[k+1] = K_Ix + T e x_m^T G_Ix                                          (K_Ix' = e x_m^T G_Ix)
+    K_Iu[k+1] = K_Iu + T e u_m^T G_Iu                                          (K_Iu' = e u_m^T G_Iu)
+
+SAC (paper sec. 2) is exactly this with L_v = 0: A_c = A_m and the y_a term vanishes.
+
+Saturation (a choice the paper does not make, documented here): the PFC is always driven by the
+clipped command, so y_a describes the plant that is really being driven.  With ``anti_windup`` on,
+while |u_raw| > u_limit each integral channel whose increment would push u_raw further past the
+limit is not integrated that step (conditional integration); the sigma decay of K_Ie still acts.
+
+The open-loop model x_m,ol' = A_m x_m,ol + B_m u_m is run alongside for telemetry and the
+``ise_ref`` metric; it does not feed the law.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+from scipy.linalg import expm
+from scipy.signal import tf2ss
+
+from autopilot.config import ClSacConfig, NonFiniteInputError
+
+TELEMETRY_FIELDS = (
+    "um", "y", "ym", "ym_ol", "ya", "y_pfc", "e", "u_raw", "u", "saturated",
+    "kpe", "kie", "ke", "kpx", "kix", "kx", "kpu", "kiu", "ku",
+)
+
+
+def zoh(a: np.ndarray, b: np.ndarray, dt: float) -> tuple[np.ndarray, np.ndarray]:
+    """Exact ZOH pair (e^{A dt}, int_0^dt e^{A s} ds B) via the block exponential (Van Loan)."""
+    n, m = b.shape
+    block = np.zeros((n + m, n + m))
+    block[:n, :n] = a
+    block[:n, n:] = b
+    phi = expm(block * dt)
+    return phi[:n, :n], phi[:n, n:]
+
+
+def pfc_state_space(num, den) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Controllable-canonical (A_d, B_d, C_d) of the strictly proper PFC D(s) = num/den."""
+    a, b, c, d = tf2ss(np.asarray(num, dtype=float), np.asarray(den, dtype=float))
+    assert np.allclose(d, 0.0), "PFC must be strictly proper"
+    return a, b, c
+
+
+class ClSac:
+    """The CL-SAC controller: call once per control step with the measured output and the command.
+
+    Example::
+
+        ctrl = ClSac(ClSacConfig())            # the paper's CL-SAC, L_v = 20, 100 Hz
+        u = ctrl(phi_measured, phi_command)    # rudder command in rad, already limited
+
+    After each call the internals are attributes (``e``, ``ym``, ``ym_ol``, ``ya``, ``y_pfc``,
+    ``u_raw``, ``u``, ``saturated`` and the gains ``kpe``, ``kie``, ``ke`` ... ``ku``); for the SISO
+    loop they are floats, for MIMO numpy arrays.  ``telemetry()`` returns them as a tuple ordered
+    like ``TELEMETRY_FIELDS``.  ``reset()`` returns to the initial conditions; ``hold(u)`` advances
+    only the PFC with a command applied by someone else (failsafe), adaptation frozen.
+    """
+
+    def __init__(self, config: ClSacConfig | None = None, *, fast: bool | None = None):
+        self.config = cfg = config or ClSacConfig()
+        m, n_m, m_m = cfg.dims()
+        self._m, self._nm, self._mm = m, n_m, m_m
+        T = cfg.dt
+        self.dt = T
+        am = np.atleast_2d(np.asarray(cfg.am, dtype=float))
+        bm = np.atleast_2d(np.asarray(cfg.bm, dtype=float))
+        cm = np.atleast_2d(np.asarray(cfg.cm, dtype=float))
+        lv = np.atleast_2d(np.asarray(cfg.lv, dtype=float))
+        if lv.shape == (1, 1) and (n_m, m) != (1, 1):
+            lv = lv[0, 0] * np.eye(n_m, m)
+
+        def gam(v, n):
+            g = np.atleast_2d(np.asarray(v, dtype=float))
+            return g[0, 0] * np.eye(n) if g.shape == (1, 1) else g
+
+        self._G = {
+            "pe": gam(cfg.gamma_pe, m), "ie": gam(cfg.gamma_ie, m),
+            "px": gam(cfg.gamma_px, n_m), "ix": gam(cfg.gamma_ix, n_m),
+            "pu": gam(cfg.gamma_pu, m_m), "iu": gam(cfg.gamma_iu, m_m),
+        }
+        # Reference models (paper eq. clrm1; open loop eq. olrm1): inputs [u_m, y_a] held over T.
+        self._am, self._bm, self._cm, self._lv = am, bm, cm, lv
+        self._phi_m, gam_m = zoh(am - lv @ cm, np.hstack([bm, lv]), T)
+        self._gam_mu, self._gam_my = gam_m[:, :m_m], gam_m[:, m_m:]
+        self._phi_ol, self._gam_ol = zoh(am, bm, T)
+        # PFC D(s) per output channel (paper sec. 5: D(s) = 10/(4s + 40)).
+        ad, bd, cd = pfc_state_space(cfg.pfc_num, cfg.pfc_den)
+        self._nd = ad.shape[0]
+        self._phi_d, self._gam_d = zoh(ad, bd, T)
+        self._cd = cd
+        # sigma-modification: K_Ie' = e e^T G_Ie - sigma K_Ie, exact for held e.
+        self._decay = math.exp(-cfg.sigma * T)
+        self._gain_ie = (1.0 - self._decay) / cfg.sigma if cfg.sigma > 0 else T
+        self._umax = float(cfg.u_limit_rad)
+        self._aw = bool(cfg.anti_windup)
+        self._ki0 = (
+            np.broadcast_to(np.atleast_2d(np.asarray(cfg.ki_e0, dtype=float)), (m, m)).copy(),
+            np.broadcast_to(np.atleast_2d(np.asarray(cfg.ki_x0, dtype=float)), (m, n_m)).copy(),
+            np.broadcast_to(np.atleast_2d(np.asarray(cfg.ki_u0, dtype=float)), (m, m_m)).copy(),
+        )
+        siso = cfg.is_siso and self._nd == 1
+        self._fast = siso if fast is None else (bool(fast) and siso)
+        if self._fast:
+            # Scalar coefficients for the SISO roll loop (same equations, Python floats: ~3 us a step).
+            self._s = dict(
+                phi_m=float(self._phi_m[0, 0]), g_mu=float(self._gam_mu[0, 0]), g_my=float(self._gam_my[0, 0]),
+                phi_ol=float(self._phi_ol[0, 0]), g_ol=float(self._gam_ol[0, 0]),
+                cm=float(cm[0, 0]), bm=float(bm[0, 0]),
+                phi_d=float(self._phi_d[0, 0]), g_d=float(self._gam_d[0, 0]), cd=float(cd[0, 0]),
+                gpe=float(self._G["pe"][0, 0]), gie=float(self._G["ie"][0, 0]),
+                gpx=float(self._G["px"][0, 0]), gix=float(self._G["ix"][0, 0]),
+                gpu=float(self._G["pu"][0, 0]), giu=float(self._G["iu"][0, 0]),
+            )
+        self.reset()
+
+    # ------------------------------------------------------------------ state
+    def reset(self) -> None:
+        """Back to the initial conditions: reference models, PFC at zero, K_I = K_I(0)."""
+        m, n_m, m_m = self._m, self._nm, self._mm
+        self.steps = 0
+        self.frozen = False
+        if self._fast:
+            self.xm = 0.0
+            self.xm_ol = 0.0
+            self.xd = 0.0
+            self.kie = float(self._ki0[0][0, 0])
+            self.kix = float(self._ki0[1][0, 0])
+            self.kiu = float(self._ki0[2][0, 0])
+            zero = 0.0
+            self.um = self.y = self.ym = self.ym_ol = self.ya = self.y_pfc = self.e = zero
+            self.u_raw = self.u = zero
+            self.kpe = self.kpx = self.kpu = zero
+            self.ke, self.kx, self.ku = self.kie, self.kix, self.kiu
+        else:
+            self.xm = np.zeros(n_m)
+            self.xm_ol = np.zeros(n_m)
+            self.xd = np.zeros((self._nd, m))  # one PFC per output channel
+            self.kie, self.kix, self.kiu = (k.copy() for k in self._ki0)
+            self.um = np.zeros(m_m)
+            self.y = self.ym = self.ym_ol = self.ya = self.y_pfc = self.e = np.zeros(m)
+            self.u_raw = self.u = np.zeros(m)
+            self.kpe, self.kpx, self.kpu = np.zeros((m, m)), np.zeros((m, n_m)), np.zeros((m, m_m))
+            self.ke, self.kx, self.ku = self.kie.copy(), self.kix.copy(), self.kiu.copy()
+        self.saturated = False
+
+    def telemetry(self) -> tuple:
+        """The internals after the last step, ordered like ``TELEMETRY_FIELDS``."""
+        return (
+            self.um, self.y, self.ym, self.ym_ol, self.ya, self.y_pfc, self.e, self.u_raw, self.u, self.saturated,
+            self.kpe, self.kie, self.ke, self.kpx, self.kix, self.kx, self.kpu, self.kiu, self.ku,
+        )
+
+    # ------------------------------------------------------------------ step
+    def __call__(self, y, um):
+        return self.step(y, um)
+
+    def step(self, y, um):
+        """One control step: measured output ``y`` and command ``um`` in; the applied command out."""
+        if self._fast:
+            return self._step_siso(y, um)
+        return self._step_matrix(y, um)
+
+    def hold(self, u_applied=0.0) -> None:
+        """Failsafe step: someone else applies ``u_applied``; only the PFC follows it (adaptation frozen)."""
+        if self._fast:
+            s = self._s
+            self.xd = s["phi_d"] * self.xd + s["g_d"] * float(u_applied)
+            self.u = self.u_raw = float(u_applied)
+        else:
+            u = np.broadcast_to(np.asarray(u_applied, dtype=float), (self._m,))
+            self.xd = self._phi_d @ self.xd + self._gam_d @ u[None, :]
+            self.u = self.u_raw = u.copy()
+        self.frozen = True
+
+    def _step_siso(self, y, um):
+        y = float(y)
+        um = float(um)
+        if not (math.isfinite(y) and math.isfinite(um)):
+            raise NonFiniteInputError(f"controller inputs must be finite, got y={y!r}, um={um!r}")
+        s = self._s
+        xm = self.xm
+        y_pfc = s["cd"] * self.xd  # y_d = C_d x_d
+        ya = y + y_pfc  # y_a = y_p + D(s) u_p
+        ym = s["cm"] * xm  # y_m = C_m x_m
+        e = ym - ya  # e_my = y_m - y_a
+        kpe = e * e * s["gpe"]  # K_pe = e e^T G_pe
+        kpx = e * xm * s["gpx"]  # K_px = e x_m^T G_px
+        kpu = e * um * s["gpu"]  # K_pu = e u_m^T G_pu
+        ke = kpe + self.kie
+        kx = kpx + self.kix
+        ku = kpu + self.kiu
+        u_raw = ke * e + kx * xm + ku * um  # u_p = K_e e + K_x x_m + K_u u_m
+        umax = self._umax
+        u = umax if u_raw > umax else (-umax if u_raw < -umax else u_raw)
+        sat = u != u_raw
+        # Integral gains, exact ZOH updates (module docstring).
+        die = self._gain_ie * (e * e * s["gie"])
+        dix = self.dt * (e * xm * s["gix"])
+        diu = self.dt * (e * um * s["giu"])
+        if sat and self._aw:
+            # Conditional integration: skip channels whose increment pushes u_raw further past the limit.
+            if die * e * u_raw > 0:
+                die = 0.0
+            if dix * xm * u_raw > 0:
+                dix = 0.0
+            if diu * um * u_raw > 0:
+                diu = 0.0
+        self.kie = self._decay * self.kie + die
+        self.kix = self.kix + dix
+        self.kiu = self.kiu + diu
+        # Reference models and PFC to k+1 (paper eq. clrm1, olrm1; D(s) driven by the applied u).
+        self.xm = s["phi_m"] * xm + (s["g_mu"] * um + s["g_my"] * ya)
+        ym_ol = s["cm"] * self.xm_ol  # open-loop y_m,ol at step k (telemetry, ise_ref)
+        self.xm_ol = s["phi_ol"] * self.xm_ol + s["g_ol"] * um
+        self.xd = s["phi_d"] * self.xd + s["g_d"] * u
+        # Expose what this step used.
+        self.um, self.y, self.ym, self.ym_ol, self.ya, self.y_pfc, self.e = um, y, ym, ym_ol, ya, y_pfc, e
+        self.u_raw, self.u, self.saturated = u_raw, u, sat
+        self.kpe, self.kpx, self.kpu, self.ke, self.kx, self.ku = kpe, kpx, kpu, ke, kx, ku
+        self.frozen = False
+        self.steps += 1
+        return u
+
+    def _step_matrix(self, y, um):
+        m = self._m
+        y = np.asarray(y, dtype=float).reshape(m)
+        um = np.asarray(um, dtype=float).reshape(self._mm)
+        if not (np.all(np.isfinite(y)) and np.all(np.isfinite(um))):
+            raise NonFiniteInputError(f"controller inputs must be finite, got y={y!r}, um={um!r}")
+        G = self._G
+        xm = self.xm
+        y_pfc = (self._cd @ self.xd).reshape(m)  # y_d = C_d x_d, per channel
+        ya = y + y_pfc  # y_a = y_p + D(s) u_p
+        ym = self._cm @ xm  # y_m = C_m x_m
+        e = ym - ya  # e_my = y_m - y_a
+        kpe = np.outer(e, e) @ G["pe"]  # K_pe = e e^T G_pe
+        kpx = np.outer(e, xm) @ G["px"]  # K_px = e x_m^T G_px
+        kpu = np.outer(e, um) @ G["pu"]  # K_pu = e u_m^T G_pu
+        ke, kx, ku = kpe + self.kie, kpx + self.kix, kpu + self.kiu
+        u_raw = ke @ e + kx @ xm + ku @ um  # u_p = K_e e + K_x x_m + K_u u_m
+        u = np.clip(u_raw, -self._umax, self._umax)
+        sat_ch = u != u_raw
+        die = self._gain_ie * (np.outer(e, e) @ G["ie"])
+        dix = self.dt * (np.outer(e, xm) @ G["ix"])
+        diu = self.dt * (np.outer(e, um) @ G["iu"])
+        if self._aw and np.any(sat_ch):
+            # Conditional integration per saturated output channel (row of the gain matrices).
+            for i in np.flatnonzero(sat_ch):
+                if die[i] @ e * u_raw[i] > 0:
+                    die[i] = 0.0
+                if dix[i] @ xm * u_raw[i] > 0:
+                    dix[i] = 0.0
+                if diu[i] @ um * u_raw[i] > 0:
+                    diu[i] = 0.0
+        self.kie = self._decay * self.kie + die
+        self.kix = self.kix + dix
+        self.kiu = self.kiu + diu
+        self.xm = self._phi_m @ xm + (self._gam_mu @ um + self._gam_my @ ya)
+        ym_ol = self._cm @ self.xm_ol
+        self.xm_ol = self._phi_ol @ self.xm_ol + self._gam_ol @ um
+        self.xd = self._phi_d @ self.xd + self._gam_d @ u[None, :]
+        self.um, self.y, self.ym, self.ym_ol, self.ya, self.y_pfc, self.e = um, y, ym, ym_ol, ya, y_pfc, e
+        self.u_raw, self.u, self.saturated = u_raw, u, bool(np.any(sat_ch))
+        self.kpe, self.kpx, self.kpu, self.ke, self.kx, self.ku = kpe, kpx, kpu, ke, kx, ku
+        self.frozen = False
+        self.steps += 1
+        return u

@@ -1,0 +1,168 @@
+"""The simulated aircraft: KH2013A + rudder servo, integrated exactly with a zero-order hold.
+
+One small interface (ArduPilot SITL style): ``step(delta_command) -> state`` advances one physics step,
+``advance(delta_command, n)`` advances ``n`` steps with the command held.  No I/O here.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+from scipy.linalg import expm
+
+from sitl import model
+
+
+class AircraftConfigError(ValueError):
+    """An aircraft configuration value is out of range."""
+
+
+class NonFiniteCommandError(ValueError):
+    """A servo command was NaN or infinite."""
+
+
+@dataclass(frozen=True)
+class AircraftConfig:
+    """Simulation settings.  Defaults: 1 kHz physics, no rudder limits (the paper's linear model)."""
+
+    physics_rate_hz: float = 1000.0
+    rudder_limit_rad: float | None = None  # |delta_r| limit, applied after each physics step
+    rudder_rate_limit_rad_s: float | None = None  # |delta_r_dot| limit, applied after each physics step
+
+    def __post_init__(self) -> None:
+        if not (math.isfinite(self.physics_rate_hz) and self.physics_rate_hz > 0):
+            raise AircraftConfigError(f"physics_rate_hz must be a positive finite number, got {self.physics_rate_hz!r}")
+        for name in ("rudder_limit_rad", "rudder_rate_limit_rad_s"):
+            value = getattr(self, name)
+            if value is not None and not (math.isfinite(value) and value > 0):
+                raise AircraftConfigError(f"{name} must be positive and finite (or None), got {value!r}")
+
+    @property
+    def dt(self) -> float:
+        return 1.0 / self.physics_rate_hz
+
+
+def zoh_discretise(a: np.ndarray, b: np.ndarray, dt: float) -> tuple[np.ndarray, np.ndarray]:
+    """Exact zero-order-hold discretisation: Ad = e^{A dt}, Bd = (int_0^dt e^{A s} ds) B.
+
+    Computed as the matrix exponential of the block matrix [[A, B], [0, 0]] dt (Van Loan).
+    """
+    n, m = b.shape
+    block = np.zeros((n + m, n + m))
+    block[:n, :n] = a
+    block[:n, n:] = b
+    phi = expm(block * dt)
+    return phi[:n, :n].copy(), phi[:n, n:].copy()
+
+
+class Aircraft:
+    """KH2013A lateral dynamics with the rudder servo, x_p = [v, p, r, phi, delta_r, delta_r_dot].
+
+    Example::
+
+        ac = Aircraft()
+        for _ in range(1000):
+            x = ac.step(0.01)    # 1 s of a 0.01 rad rudder command
+    """
+
+    def __init__(self, config: AircraftConfig | None = None, x0: np.ndarray | None = None, params: dict | None = None):
+        self.config = config or AircraftConfig()
+        params = params or {}
+        self._a = np.asarray(params.get("A", model.A_P), dtype=float)
+        self._b = np.asarray(params.get("B", model.B_P), dtype=float).reshape(6, 1)
+        # x[k+1] = Ad x[k] + Bd u[k]  (exact ZOH of x' = A_p x + B_p u over one physics step)
+        self._ad, bd = zoh_discretise(self._a, self._b, self.config.dt)
+        self._bd = bd.ravel()
+        self._multi: dict[int, tuple[np.ndarray, np.ndarray]] = {}
+        self._x0 = np.zeros(6) if x0 is None else np.asarray(x0, dtype=float).copy()
+        if self._x0.shape != (6,):
+            raise AircraftConfigError(f"x0 must have 6 elements [v, p, r, phi, delta_r, delta_r_dot], got shape {self._x0.shape}")
+        self._limited = self.config.rudder_limit_rad is not None or self.config.rudder_rate_limit_rad_s is not None
+        self.reset()
+
+    def reset(self, x0: np.ndarray | None = None) -> None:
+        """Back to the initial state (or ``x0``) at t = 0."""
+        self.x = (self._x0 if x0 is None else np.asarray(x0, dtype=float)).copy()
+        self.steps = 0
+
+    @property
+    def time(self) -> float:
+        """Simulated time in seconds (steps * dt, so it never drifts)."""
+        return self.steps * self.config.dt
+
+    @property
+    def state(self) -> np.ndarray:
+        """A copy of the truth state [v, p, r, phi, delta_r, delta_r_dot]."""
+        return self.x.copy()
+
+    @property
+    def phi(self) -> float:
+        return float(self.x[model.PHI])
+
+    @property
+    def p(self) -> float:
+        return float(self.x[model.P])
+
+    @property
+    def r(self) -> float:
+        return float(self.x[model.R])
+
+    def _check(self, delta_command: float) -> float:
+        u = float(delta_command)
+        if not math.isfinite(u):
+            raise NonFiniteCommandError(f"servo command must be finite, got {delta_command!r}")
+        return u
+
+    def _apply_limits(self) -> None:
+        cfg = self.config
+        x = self.x
+        if cfg.rudder_limit_rad is not None and abs(x[model.DELTA_R]) >= cfg.rudder_limit_rad:
+            # Mechanical stop: deflection clamped, rate into the stop removed.
+            x[model.DELTA_R] = math.copysign(cfg.rudder_limit_rad, x[model.DELTA_R])
+            if x[model.DELTA_R] * x[model.DELTA_R_DOT] > 0:
+                x[model.DELTA_R_DOT] = 0.0
+        if cfg.rudder_rate_limit_rad_s is not None and abs(x[model.DELTA_R_DOT]) > cfg.rudder_rate_limit_rad_s:
+            x[model.DELTA_R_DOT] = math.copysign(cfg.rudder_rate_limit_rad_s, x[model.DELTA_R_DOT])
+
+    def step(self, delta_command: float) -> np.ndarray:
+        """Advance one physics step with the servo command held (ZOH); returns the state (a view, do not modify)."""
+        u = float(delta_command)
+        if u - u != 0.0:  # NaN or +-Inf (cheaper than math.isfinite on the hot path)
+            raise NonFiniteCommandError(f"servo command must be finite, got {delta_command!r}")
+        x = self._ad.dot(self.x)  # x[k+1] = Ad x[k] + Bd u[k]
+        x += self._bd * u
+        self.x = x
+        if self._limited:
+            self._apply_limits()
+        self.steps += 1
+        return self.x
+
+    def advance(self, delta_command: float, n: int) -> np.ndarray:
+        """Advance ``n`` physics steps with the command held.
+
+        Without rudder limits the system is linear and the n steps collapse into one exact update
+        x[k+n] = Ad^n x[k] + (sum_{i<n} Ad^i) Bd u, cached per n.  With limits it steps one by one.
+        """
+        if n < 0:
+            raise ValueError(f"n must be >= 0, got {n}")
+        u = self._check(delta_command)
+        if self._limited:
+            for _ in range(n):
+                self.step(u)
+            return self.x
+        if n == 0:
+            return self.x
+        pair = self._multi.get(n)
+        if pair is None:
+            ad_n = np.eye(6)
+            bd_n = np.zeros(6)
+            for _ in range(n):
+                bd_n = self._ad @ bd_n + self._bd
+                ad_n = self._ad @ ad_n
+            pair = (ad_n, bd_n)
+            self._multi[n] = pair
+        self.x = pair[0] @ self.x + pair[1] * u
+        self.steps += n
+        return self.x

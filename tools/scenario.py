@@ -1,0 +1,112 @@
+"""The reference scenario ``paper`` (DESIGN.md section 4) and its in-process closed loop.  No I/O."""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from autopilot.clsac import ClSac
+from autopilot.config import ClSacConfig
+from autopilot.metrics import MetricsAccumulator
+from sitl.aircraft import Aircraft, AircraftConfig
+from tools import profiles
+
+
+@dataclass(frozen=True)
+class Scenario:
+    """A square-wave roll scenario.  Defaults are the paper scenario of DESIGN.md section 4."""
+
+    name: str = "paper"
+    amplitude_rad: float = math.radians(10.0)
+    period_s: float = 10.0
+    duration_s: float = 30.0
+    control_rate_hz: float = 100.0
+    physics_rate_hz: float = 1000.0
+    u_limit_rad: float = math.radians(30.0)
+
+    def __post_init__(self) -> None:
+        for name in ("period_s", "duration_s", "control_rate_hz", "physics_rate_hz", "u_limit_rad"):
+            v = getattr(self, name)
+            if not (math.isfinite(v) and v > 0):
+                raise ValueError(f"{name} must be positive and finite, got {v!r}")
+        ratio = self.physics_rate_hz / self.control_rate_hz
+        if abs(ratio - round(ratio)) > 1e-9 or round(ratio) < 1:
+            raise ValueError(
+                f"physics_rate_hz ({self.physics_rate_hz}) must be a whole multiple of control_rate_hz ({self.control_rate_hz})"
+            )
+
+    @property
+    def steps(self) -> int:
+        """Number of control steps in the run."""
+        return int(round(self.duration_s * self.control_rate_hz))
+
+    @property
+    def physics_per_control(self) -> int:
+        return int(round(self.physics_rate_hz / self.control_rate_hz))
+
+    def command(self, t: float) -> float:
+        """u_m(t), the roll command in rad."""
+        return profiles.square(t, self.amplitude_rad, self.period_s)
+
+
+@dataclass(frozen=True)
+class RunSpec:
+    name: str
+    lv: float
+
+
+PAPER = Scenario()
+PAPER_RUNS = (
+    RunSpec("sac", 0.0),
+    RunSpec("clsac", 20.0),
+    RunSpec("clsac_lv10", 10.0),
+    RunSpec("clsac_lv50", 50.0),
+    RunSpec("clsac_lv100", 100.0),
+)
+
+
+def controller_config(scenario: Scenario, run: RunSpec, base: ClSacConfig | None = None) -> ClSacConfig:
+    base = base or ClSacConfig()
+    return base.with_(lv=run.lv, control_rate_hz=scenario.control_rate_hz, u_limit_rad=scenario.u_limit_rad)
+
+
+@dataclass
+class RunResult:
+    name: str
+    lv: float
+    metrics: dict[str, float]
+    series: dict[str, np.ndarray] = field(repr=False)
+
+
+SERIES = ("t", "um", "phi", "ym", "ym_ol", "ya", "y_pfc", "e", "u", "kpe", "kie", "ke", "kpx", "kix", "kx",
+          "kpu", "kiu", "ku", "v", "p", "r", "delta_r")
+
+
+def run_inprocess(scenario: Scenario = PAPER, run: RunSpec = PAPER_RUNS[1], base: ClSacConfig | None = None) -> RunResult:
+    """Fly the scenario with the controller and the aircraft in one process.
+
+    Order per control step k (the same as over MAVLink in lockstep): the aircraft's roll at t_k is
+    measured, the controller computes u[k], the aircraft advances one control period with u[k] held.
+    """
+    ctrl = ClSac(controller_config(scenario, run, base))
+    ac = Aircraft(AircraftConfig(physics_rate_hz=scenario.physics_rate_hz))
+    n = scenario.steps
+    nphys = scenario.physics_per_control
+    acc = MetricsAccumulator(1.0 / scenario.control_rate_hz)
+    out = np.empty((n, len(SERIES)))
+    rate = scenario.control_rate_hz
+    for k in range(n):
+        t = k / rate
+        um = scenario.command(t)
+        x = ac.x
+        phi = float(x[3])
+        u = ctrl(phi, um)
+        acc.add(phi, ctrl.ym_ol, ctrl.e, u)
+        out[k] = (t, um, phi, ctrl.ym, ctrl.ym_ol, ctrl.ya, ctrl.y_pfc, ctrl.e, u,
+                  ctrl.kpe, ctrl.kie, ctrl.ke, ctrl.kpx, ctrl.kix, ctrl.kx, ctrl.kpu, ctrl.kiu, ctrl.ku,
+                  x[0], x[1], x[2], x[4])
+        ac.advance(u, nphys)
+    series = {name: out[:, i].copy() for i, name in enumerate(SERIES)}
+    return RunResult(run.name, run.lv, acc.result(), series)
