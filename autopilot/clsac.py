@@ -106,8 +106,10 @@ class ClSac:
         }
         # Reference models (paper eq. clrm1; open loop eq. olrm1): inputs [u_m, y_a] held over T.
         self._am, self._bm, self._cm, self._lv = am, bm, cm, lv
-        self._phi_m, gam_m = zoh(am - lv @ cm, np.hstack([bm, lv]), T)
-        self._gam_mu, self._gam_my = gam_m[:, :m_m], gam_m[:, m_m:]
+        # With L_v = 0, A_m - L_v C_m is A_m exactly, so the closed-loop model is discretised by the very same
+        # call as the open-loop one and SAC comes out bit-identical; the y_a input column is then exactly zero.
+        self._phi_m, self._gam_mu = zoh(am - lv @ cm, bm, T)
+        self._gam_my = zoh(am - lv @ cm, lv, T)[1] if np.any(lv) else np.zeros((n_m, m))
         self._phi_ol, self._gam_ol = zoh(am, bm, T)
         # PFC D(s) per output channel (paper sec. 5: D(s) = 10/(4s + 40)).
         ad, bd, cd = pfc_state_space(cfg.pfc_num, cfg.pfc_den)
