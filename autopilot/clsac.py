@@ -23,6 +23,9 @@ solution of the continuous law over one period for held inputs):
     K_Ix[k+1] = K_Ix + T e x_m^T G_Ix                                          (K_Ix' = e x_m^T G_Ix)
     K_Iu[k+1] = K_Iu + T e u_m^T G_Iu                                          (K_Iu' = e u_m^T G_Iu)
 
+Optional extension (``sigma_x``, ``sigma_u`` > 0, default 0 as in the paper): the same leakage on the
+x and u channels, K_Ix' = e x_m^T G_Ix - sigma_x K_Ix, discretised like K_Ie.
+
 SAC (paper sec. 2) is exactly this with L_v = 0: A_c = A_m and the y_a term vanishes.
 
 Saturation (a choice the paper does not make, documented here): the PFC is always driven by the
@@ -117,8 +120,13 @@ class ClSac:
         self._phi_d, self._gam_d = zoh(ad, bd, T)
         self._cd = cd
         # sigma-modification: K_Ie' = e e^T G_Ie - sigma K_Ie, exact for held e.
-        self._decay = math.exp(-cfg.sigma * T)
-        self._gain_ie = (1.0 - self._decay) / cfg.sigma if cfg.sigma > 0 else T
+        def leak(sig: float) -> tuple[float, float]:
+            decay = math.exp(-sig * T)
+            return decay, ((1.0 - decay) / sig if sig > 0 else T)
+
+        self._decay, self._gain_ie = leak(cfg.sigma)
+        self._decay_x, self._gain_ix = leak(cfg.sigma_x)
+        self._decay_u, self._gain_iu = leak(cfg.sigma_u)
         self._umax = float(cfg.u_limit_rad)
         self._aw = bool(cfg.anti_windup)
         self._ki0 = (
@@ -223,8 +231,8 @@ class ClSac:
         sat = u != u_raw
         # Integral gains, exact ZOH updates (module docstring).
         die = self._gain_ie * (e * e * s["gie"])
-        dix = self.dt * (e * xm * s["gix"])
-        diu = self.dt * (e * um * s["giu"])
+        dix = self._gain_ix * (e * xm * s["gix"])
+        diu = self._gain_iu * (e * um * s["giu"])
         if sat and self._aw:
             # Conditional integration: skip channels whose increment pushes u_raw further past the limit.
             if die * e * u_raw > 0:
@@ -234,8 +242,8 @@ class ClSac:
             if diu * um * u_raw > 0:
                 diu = 0.0
         self.kie = self._decay * self.kie + die
-        self.kix = self.kix + dix
-        self.kiu = self.kiu + diu
+        self.kix = self._decay_x * self.kix + dix  # decay_x = 1 exactly when sigma_x = 0 (the paper)
+        self.kiu = self._decay_u * self.kiu + diu
         # Reference models and PFC to k+1 (paper eq. clrm1, olrm1; D(s) driven by the applied u).
         self.xm = s["phi_m"] * xm + (s["g_mu"] * um + s["g_my"] * ya)
         ym_ol = s["cm"] * self.xm_ol  # open-loop y_m,ol at step k (telemetry, ise_ref)
@@ -269,8 +277,8 @@ class ClSac:
         u = np.clip(u_raw, -self._umax, self._umax)
         sat_ch = u != u_raw
         die = self._gain_ie * (np.outer(e, e) @ G["ie"])
-        dix = self.dt * (np.outer(e, xm) @ G["ix"])
-        diu = self.dt * (np.outer(e, um) @ G["iu"])
+        dix = self._gain_ix * (np.outer(e, xm) @ G["ix"])
+        diu = self._gain_iu * (np.outer(e, um) @ G["iu"])
         if self._aw and np.any(sat_ch):
             # Conditional integration per saturated output channel (row of the gain matrices).
             for i in np.flatnonzero(sat_ch):
@@ -281,8 +289,8 @@ class ClSac:
                 if diu[i] @ um * u_raw[i] > 0:
                     diu[i] = 0.0
         self.kie = self._decay * self.kie + die
-        self.kix = self.kix + dix
-        self.kiu = self.kiu + diu
+        self.kix = self._decay_x * self.kix + dix
+        self.kiu = self._decay_u * self.kiu + diu
         self.xm = self._phi_m @ xm + (self._gam_mu @ um + self._gam_my @ ya)
         ym_ol = self._cm @ self.xm_ol
         self.xm_ol = self._phi_ol @ self.xm_ol + self._gam_ol @ um

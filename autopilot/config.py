@@ -54,6 +54,10 @@ class ClSacConfig:
     gamma_pu: float | tuple = 10.0
     gamma_iu: float | tuple = 10.0
     sigma: float = 5.0
+    # Optional sigma-modification of K_Ix and K_Iu too (not in the paper, which leaks K_Ie only: 0 = paper).
+    # Without it K_Ix, K_Iu drift over long flights (see README, "Long flights").
+    sigma_x: float = 0.0
+    sigma_u: float = 0.0
     # Initial integral gains K_I(0) (paper: 0)
     ki_e0: float | tuple = 0.0
     ki_x0: float | tuple = 0.0
@@ -84,8 +88,10 @@ class ClSacConfig:
         rate = self.control_rate_hz
         if not isinstance(rate, (int, float)) or not math.isfinite(rate) or rate <= 0:
             raise ConfigError(f"control_rate_hz must be a positive finite number, got {rate!r}")
-        if not (isinstance(self.sigma, (int, float)) and math.isfinite(self.sigma) and self.sigma >= 0):
-            raise ConfigError(f"sigma must be finite and >= 0, got {self.sigma!r}")
+        for name in ("sigma", "sigma_x", "sigma_u"):
+            v = getattr(self, name)
+            if not (isinstance(v, (int, float)) and math.isfinite(v) and v >= 0):
+                raise ConfigError(f"{name} must be finite and >= 0, got {v!r}")
         if not (isinstance(self.u_limit_rad, (int, float)) and math.isfinite(self.u_limit_rad) and self.u_limit_rad > 0):
             raise ConfigError(f"u_limit_rad must be positive and finite, got {self.u_limit_rad!r}")
         am = _as_matrix("am", self.am)

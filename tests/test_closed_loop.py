@@ -121,3 +121,17 @@ def test_metrics_against_numpy_reference():
     }
     for k, v in expect.items():
         assert res.metrics[k] == pytest.approx(v, rel=1e-10), k
+
+
+def test_long_flight_drift_and_the_optional_leakage():
+    """Paper gains leak K_Ie only: over minutes K_Ix, K_Iu drift and CL-SAC (paper PFC) diverges after ~210 s.
+    The optional sigma-modification of K_Ix, K_Iu (sigma_x = sigma_u = 0.1) keeps the same flight bounded."""
+    from autopilot.config import ClSacConfig
+
+    sc = Scenario(duration_s=300.0)
+    run = RunSpec("clsac", 20.0)
+    paper = run_inprocess(sc, run)
+    leaky = run_inprocess(sc, run, ClSacConfig(sigma_x=0.1, sigma_u=0.1))
+    late = paper.series["t"] > 250.0
+    assert np.max(np.abs(paper.series["phi"][late])) > math.radians(20.0)
+    assert np.max(np.abs(leaky.series["phi"][late])) < math.radians(13.0)
