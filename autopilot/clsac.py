@@ -43,7 +43,6 @@ import math
 
 import numpy as np
 from scipy.linalg import expm
-from scipy.signal import tf2ss
 
 from autopilot.config import ClSacConfig, NonFiniteInputError
 
@@ -64,9 +63,25 @@ def zoh(a: np.ndarray, b: np.ndarray, dt: float) -> tuple[np.ndarray, np.ndarray
 
 
 def pfc_state_space(num, den) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Controllable-canonical (A_d, B_d, C_d) of the strictly proper PFC D(s) = num/den."""
-    a, b, c, d = tf2ss(np.asarray(num, dtype=float), np.asarray(den, dtype=float))
-    assert np.allclose(d, 0.0), "PFC must be strictly proper"
+    """Controllable canonical (A_d, B_d, C_d) of the strictly proper PFC D(s) = num(s)/den(s).
+
+    den = a_0 s^n + ... + a_n (a_0 != 0), num of degree < n: with x_1 the highest derivative,
+    x' = A x + B u where A's first row is -a_1..a_n / a_0, the subdiagonal is ones, B = e_1,
+    and y = C x with C the numerator coefficients / a_0, right-aligned to length n.
+    (Hand-coded to keep scipy.signal, ~1 s of imports, out of every process's start-up.)
+    """
+    den = np.trim_zeros(np.asarray(den, dtype=float).ravel(), "f")
+    num = np.trim_zeros(np.asarray(num, dtype=float).ravel(), "f")
+    n = den.size - 1
+    if num.size > n:
+        raise ValueError("PFC must be strictly proper")
+    a = np.zeros((n, n))
+    a[0, :] = -den[1:] / den[0]
+    a[1:, :-1] = np.eye(n - 1)
+    b = np.zeros((n, 1))
+    b[0, 0] = 1.0
+    c = np.zeros((1, n))
+    c[0, n - num.size:] = num / den[0]
     return a, b, c
 
 

@@ -242,3 +242,26 @@ def test_non_finite_inputs_are_rejected_without_changing_state(y, um):
     with pytest.raises(NonFiniteInputError, match="finite"):
         ctrl(y, um)
     assert (ctrl.telemetry(), ctrl.xm, ctrl.kie) == before
+
+
+@pytest.mark.parametrize("num,den", [((10.0,), (4.0, 40.0)), ((1.0, 2.0), (1.0, 3.0, 5.0)), ((3.0,), (2.0, 1.0, 4.0, 7.0))])
+def test_pfc_realisation_has_the_given_transfer_function(num, den):
+    from scipy.signal import ss2tf
+
+    from autopilot.clsac import pfc_state_space
+
+    a, b, c = pfc_state_space(num, den)
+    n2, d2 = ss2tf(a, b, c, np.zeros((1, 1)))
+    np.testing.assert_allclose(d2, np.asarray(den) / den[0], rtol=1e-12)
+    k = len(num)
+    np.testing.assert_allclose(n2[0][-k:], np.asarray(num) / den[0], rtol=1e-12)
+    np.testing.assert_allclose(n2[0][:-k], 0.0, atol=1e-12)  # leading terms vanish: strictly proper
+
+
+def test_higher_order_pfc_runs_on_the_general_path():
+    # A second-order PFC: the SISO loop falls back to the matrix path and its y_pfc follows D(s).
+    ctrl = ClSac(ClSacConfig(pfc_num=(10.0,), pfc_den=(1.0, 12.0, 20.0)))
+    assert not ctrl._fast
+    for _ in range(5):
+        u = ctrl(0.01, 0.17)
+    assert u.shape == (1,) and np.isfinite(u).all()

@@ -1,0 +1,433 @@
+"""Run a reference scenario for every controller variant and write its metrics and figure.
+
+    python -m tools.experiment paper --out DIR [--transport inprocess|mavlink] [--runs sac,clsac,...] [--no-plot]
+
+writes ``DIR/summary.json`` (schema of DESIGN.md section 7) and ``DIR/paper.png``, and prints a table of
+the metrics of DESIGN.md section 4.  From Python::
+
+    from tools.experiment import run_experiment, write_summary
+    results = run_experiment("runs/x", transport="inprocess", runs=["sac", "clsac"], plot=False)
+
+A transport is a function ``(scenario, run, workdir) -> RunResult``; ``workdir`` is ``OUT/<run.name>``, a
+folder of that run's own (not created beforehand) for a transport that writes files (logs, tlog).  :data:`TRANSPORTS` maps
+each name to a loader returning that function, so a loader may import lazily and fail with a clear reason.
+Adding a transport is one line in :data:`TRANSPORTS`.
+"""
+
+from __future__ import annotations
+
+import argparse
+import datetime as _dt
+import json
+import math
+import os
+import sys
+import tempfile
+import time
+from pathlib import Path
+from typing import TYPE_CHECKING, Callable, Iterable, Sequence
+
+from autopilot.metrics import METRIC_NAMES
+
+if TYPE_CHECKING:
+    from tools.scenario import RunResult, RunSpec, Scenario
+
+# tools.scenario (and through it scipy) is imported only once a scenario is needed, so that --help and
+# most bad command lines answer at once instead of after ~1.5 s of imports.
+
+DEG = 180.0 / math.pi
+
+Runner = Callable[["Scenario", "RunSpec", Path], "RunResult"]
+
+
+class ExperimentError(ValueError):
+    """Bad input or an unavailable transport; the message is one line and names the value."""
+
+
+# ---------------------------------------------------------------------------------------- registry
+def _paper() -> tuple[Scenario, tuple[RunSpec, ...]]:
+    from tools.scenario import PAPER, PAPER_RUNS
+
+    return PAPER, PAPER_RUNS
+
+
+# scenario name -> loader of (scenario, its runs)
+SCENARIOS: dict[str, Callable[[], tuple[Scenario, tuple[RunSpec, ...]]]] = {
+    "paper": _paper,
+}
+
+
+def _inprocess(scenario: Scenario, run: RunSpec, workdir: Path) -> RunResult:
+    from tools.scenario import run_inprocess
+
+    return run_inprocess(scenario, run)
+
+
+def _load_inprocess() -> Runner:
+    return _inprocess
+
+
+def _load_mavlink() -> Runner:
+    """SITL + autopilot processes in lockstep (DESIGN.md section 6), provided by ``tools.launch``."""
+    try:
+        from tools.launch import run_lockstep  # noqa: PLC0415  (lazy: pulls in pymavlink and processes)
+    except ModuleNotFoundError as exc:
+        if exc.name in ("tools.launch", "tools"):
+            raise ExperimentError("transport 'mavlink' is not available yet: module tools.launch does not exist") from None
+        raise ExperimentError(f"transport 'mavlink' is not available: importing tools.launch failed: {exc}") from None
+    except ImportError as exc:
+        if "run_lockstep" in str(exc):
+            raise ExperimentError("transport 'mavlink' is not available yet: tools.launch has no run_lockstep") from None
+        raise ExperimentError(f"transport 'mavlink' is not available: importing tools.launch failed: {exc}") from None
+    return run_lockstep
+
+
+TRANSPORTS: dict[str, Callable[[], Runner]] = {
+    "inprocess": _load_inprocess,
+    "mavlink": _load_mavlink,
+}
+
+
+def get_transport(name: str) -> Runner:
+    """The runner of transport ``name``; ExperimentError if unknown or unavailable."""
+    try:
+        loader = TRANSPORTS[name]
+    except KeyError:
+        raise ExperimentError(f"unknown transport {name!r} (known: {', '.join(TRANSPORTS)})") from None
+    return loader()
+
+
+def get_scenario(name: str) -> tuple[Scenario, tuple[RunSpec, ...]]:
+    """(scenario, its runs) of scenario ``name``; ExperimentError if unknown."""
+    try:
+        loader = SCENARIOS[name]
+    except KeyError:
+        raise ExperimentError(f"unknown scenario {name!r} (known: {', '.join(SCENARIOS)})") from None
+    return loader()
+
+
+def select_runs(runs: Iterable[str | RunSpec] | None, available: Sequence[RunSpec] | None = None) -> list[RunSpec]:
+    """Resolve run names (or RunSpecs) against ``available`` (default: the paper's runs); None means all,
+    duplicates are dropped."""
+    from tools.scenario import PAPER_RUNS, RunSpec
+
+    if available is None:
+        available = PAPER_RUNS
+    if runs is None:
+        return list(available)
+    by_name = {r.name: r for r in available}
+    out: list[RunSpec] = []
+    for item in runs:
+        spec = item if isinstance(item, RunSpec) else by_name.get(str(item).strip())
+        if spec is None:
+            raise ExperimentError(f"unknown run {str(item).strip()!r} (known: {', '.join(by_name)})")
+        if spec not in out:
+            out.append(spec)
+    if not out:
+        raise ExperimentError("no runs selected")
+    return out
+
+
+def prepare_out_dir(out_dir: str | os.PathLike) -> Path:
+    """Create ``out_dir`` if needed and check that files can be written in it."""
+    path = Path(out_dir)
+    if path.exists() and not path.is_dir():
+        raise ExperimentError(f"output directory {str(path)!r} exists and is not a directory")
+    try:
+        path.mkdir(parents=True, exist_ok=True)
+        with tempfile.NamedTemporaryFile(dir=path, prefix=".write-test-"):
+            pass
+    except OSError as exc:
+        raise ExperimentError(f"cannot write to output directory {str(path)!r}: {exc.strerror or exc}") from None
+    return path
+
+
+def check_out_dir(out_dir: str | os.PathLike) -> Path:
+    """Reject an output path that cannot become a folder, without creating anything."""
+    path = Path(out_dir)
+    if path.exists():
+        if not path.is_dir():
+            raise ExperimentError(f"output directory {str(path)!r} exists and is not a directory")
+        probe = path
+    else:
+        probe = path.absolute().parent
+        while not probe.exists():
+            probe = probe.parent
+        if not probe.is_dir():
+            raise ExperimentError(f"cannot create output directory {str(path)!r}: {str(probe)!r} is not a directory")
+    if not os.access(probe, os.W_OK | os.X_OK):
+        raise ExperimentError(f"cannot write to output directory {str(path)!r}: {str(probe)!r} is not writable")
+    return path
+
+
+def default_out_dir(scenario: str = "paper", root: str | os.PathLike = "runs") -> Path:
+    """A new folder ``runs/<scenario>-YYYYmmdd-HHMMSS[-n]`` (relative to the working directory)."""
+    stamp = _dt.datetime.now().strftime("%Y%m%d-%H%M%S")
+    base = Path(root) / f"{scenario}-{stamp}"
+    path, n = base, 1
+    while path.exists():
+        path = base.with_name(f"{base.name}-{n}")
+        n += 1
+    return path
+
+
+# ---------------------------------------------------------------------------------------- analysis
+def saturation(result: RunResult, u_limit_rad: float) -> dict:
+    """Whether the rudder command reached its limit, and for which fraction of the control samples."""
+    u = result.series.get("u") if result.series else None
+    if u is not None and len(u):
+        import numpy as np
+
+        frac = float(np.mean(np.abs(np.asarray(u, dtype=float)) >= u_limit_rad * (1.0 - 1e-9)))
+        return {"saturated": frac > 0.0, "fraction": frac}
+    sat = result.metrics.get("max_abs_u", 0.0) >= u_limit_rad * (1.0 - 1e-9)
+    return {"saturated": bool(sat), "fraction": None}
+
+
+def paper_checks(results: Sequence[RunResult]) -> dict[str, dict]:
+    """The paper's section 5 claims, checked against these metrics (only those the runs allow)."""
+    by = {r.name: r for r in results}
+    checks: dict[str, dict] = {}
+    if "sac" in by and "clsac" in by:
+        s, c = by["sac"].metrics, by["clsac"].metrics
+        checks["clsac_tracks_better_than_sac"] = {
+            "holds": c["ise_ref"] < s["ise_ref"],
+            "detail": f"ise_ref clsac {c['ise_ref']:.3g} vs sac {s['ise_ref']:.3g}",
+        }
+        checks["clsac_no_more_effort_than_sac"] = {
+            "holds": c["energy"] <= s["energy"],
+            "detail": f"energy clsac {c['energy']:.3g} vs sac {s['energy']:.3g}",
+        }
+    sweep = sorted((r for r in results if r.lv > 0), key=lambda r: r.lv)
+    if len(sweep) >= 2:
+        lvs = ", ".join(f"{r.lv:g}" for r in sweep)
+        en = [r.metrics["energy"] for r in sweep]
+        ise = [r.metrics["ise_ref"] for r in sweep]
+        checks["effort_falls_as_lv_grows"] = {
+            "holds": all(b < a for a, b in zip(en, en[1:])),
+            "detail": f"energy at Lv {lvs}: " + ", ".join(f"{v:.3g}" for v in en),
+        }
+        checks["ref_tracking_worsens_as_lv_grows"] = {
+            "holds": all(b > a for a, b in zip(ise, ise[1:])),
+            "detail": f"ise_ref at Lv {lvs}: " + ", ".join(f"{v:.3g}" for v in ise),
+        }
+    return checks
+
+
+_CHECK_LABELS = {
+    "clsac_tracks_better_than_sac": "CL-SAC tracks better than SAC",
+    "clsac_no_more_effort_than_sac": "CL-SAC needs no more effort than SAC",
+    "effort_falls_as_lv_grows": "effort falls as Lv grows",
+    "ref_tracking_worsens_as_lv_grows": "open-loop model tracking worsens as Lv grows",
+}
+
+
+def _check_lines(checks: dict[str, dict]) -> list[str]:
+    return [f"{_CHECK_LABELS.get(name, name)}: {'yes' if c['holds'] else 'NO'} ({c['detail']})"
+            for name, c in checks.items()]
+
+
+# ---------------------------------------------------------------------------------------- output
+def _finite_or_none(x: float):
+    x = float(x)
+    return x if math.isfinite(x) else None
+
+
+def _versions() -> dict[str, str]:
+    import platform
+    from importlib import metadata
+
+    import numpy
+
+    out = {"python": platform.python_version(), "numpy": numpy.__version__}
+    try:
+        out["clsac-autopilot"] = metadata.version("clsac-autopilot")
+    except metadata.PackageNotFoundError:
+        pass
+    return out
+
+
+def write_summary(results: Sequence[RunResult], path: str | os.PathLike, *, scenario: Scenario | None = None,
+                  transport: str | None = None, extra: dict | None = None) -> Path:
+    """Write ``summary.json``: ``{"scenario": ..., "runs": [{"name", "Lv", "metrics": {...}}, ...]}``.
+
+    Extra top-level keys (never inside ``runs``): ``units``, ``settings``, ``transport``, ``saturation``,
+    ``paper_checks``, ``versions``, ``created`` and whatever ``extra`` holds.  Non-finite metrics are
+    written as null (strict JSON).  The file is replaced atomically.
+    """
+    if scenario is None:
+        from tools.scenario import PAPER as scenario
+    path = Path(path)
+    doc: dict = {
+        "scenario": scenario.name,
+        "runs": [
+            {
+                "name": r.name,
+                "Lv": float(r.lv),
+                "metrics": {k: _finite_or_none(r.metrics[k]) for k in METRIC_NAMES},
+            }
+            for r in results
+        ],
+        "units": {"ise_ref": "rad^2 s", "ise_crm": "rad^2 s", "energy": "rad^2 s", "tv": "rad", "max_abs_u": "rad"},
+        "settings": {
+            "amplitude_rad": scenario.amplitude_rad,
+            "period_s": scenario.period_s,
+            "duration_s": scenario.duration_s,
+            "control_rate_hz": scenario.control_rate_hz,
+            "physics_rate_hz": scenario.physics_rate_hz,
+            "u_limit_rad": scenario.u_limit_rad,
+        },
+        "saturation": {r.name: saturation(r, scenario.u_limit_rad) for r in results},
+        "paper_checks": paper_checks(results),
+        "versions": _versions(),
+        "created": _dt.datetime.now(_dt.timezone.utc).isoformat(timespec="seconds"),
+    }
+    if transport is not None:
+        doc["transport"] = transport
+    if extra:
+        for key in extra:
+            if key in ("scenario", "runs"):
+                raise ValueError(f"extra must not override {key!r}")
+        doc.update(extra)
+    tmp = path.with_name(f".{path.name}.tmp")
+    with open(tmp, "w", encoding="utf-8") as fh:
+        json.dump(doc, fh, indent=2, allow_nan=False)
+        fh.write("\n")
+    os.replace(tmp, path)
+    return path
+
+
+def format_table(results: Sequence[RunResult], scenario: Scenario | None = None) -> str:
+    """The metrics table, a saturation line and the paper's claims, as printed by the CLI."""
+    if scenario is None:
+        from tools.scenario import PAPER as scenario
+    head = (f"{'run':<12} {'Lv':>6} {'ise_ref':>11} {'ise_crm':>11} {'energy':>11} {'tv':>10} {'max|u|':>8}")
+    unit = (f"{'':<12} {'':>6} {'[rad^2 s]':>11} {'[rad^2 s]':>11} {'[rad^2 s]':>11} {'[rad]':>10} {'[deg]':>8}")
+    lines = [head, unit, "-" * len(head)]
+    for r in results:
+        m = r.metrics
+        lines.append(f"{r.name:<12} {r.lv:>6g} {m['ise_ref']:>11.4g} {m['ise_crm']:>11.4g} {m['energy']:>11.4g} "
+                     f"{m['tv']:>10.4g} {m['max_abs_u'] * DEG:>8.2f}")
+    parts = []
+    for r in results:
+        s = saturation(r, scenario.u_limit_rad)
+        if not s["saturated"]:
+            parts.append(f"{r.name} no")
+        elif s["fraction"] is None:
+            parts.append(f"{r.name} yes")
+        else:
+            parts.append(f"{r.name} yes ({100 * s['fraction']:.1f}% of samples)")
+    lines.append(f"rudder saturated (|u| at the {scenario.u_limit_rad * DEG:g} deg limit): " + "; ".join(parts))
+    checks = _check_lines(paper_checks(results))
+    if checks:
+        lines.append("paper's claims (section 5) against these numbers:")
+        lines += [f"  {c}" for c in checks]
+    return "\n".join(lines)
+
+
+# ---------------------------------------------------------------------------------------- run
+def run_experiment(out_dir: str | os.PathLike, transport: str = "inprocess", runs: Iterable[str | RunSpec] | None = None,
+                   plot: bool = True, *, scenario: str | Scenario = "paper",
+                   log: Callable[[str], None] | None = None) -> list[RunResult]:
+    """Fly the scenario's runs with ``transport``; write ``out_dir/summary.json`` and (``plot``) ``paper.png``.
+
+    ``runs``: names (or RunSpecs) of the scenario's runs, None for all.  ``log``: called with progress
+    lines (the CLI passes ``print``).  Raises ExperimentError on bad input, before flying anything.
+    Returns the RunResults (metrics and series) in run order.
+    """
+    from tools.scenario import PAPER_RUNS, Scenario
+
+    say = log or (lambda _msg: None)
+    if transport not in TRANSPORTS:
+        raise ExperimentError(f"unknown transport {transport!r} (known: {', '.join(TRANSPORTS)})")
+    if isinstance(scenario, Scenario):
+        scen, available = scenario, PAPER_RUNS
+    else:
+        scen, available = get_scenario(scenario)
+    specs = select_runs(runs, available)
+    runner = get_transport(transport)
+    out = prepare_out_dir(out_dir)
+    results: list[RunResult] = []
+    for i, spec in enumerate(specs, start=1):
+        t0 = time.perf_counter()
+        say(f"[{i}/{len(specs)}] {spec.name} (Lv={spec.lv:g}) via {transport} ...")
+        res = runner(scen, spec, out / spec.name)
+        results.append(res)
+        sat = saturation(res, scen.u_limit_rad)
+        say(f"[{i}/{len(specs)}] {spec.name} done in {time.perf_counter() - t0:.2f} s: ise_ref={res.metrics['ise_ref']:.4g}"
+            f" energy={res.metrics['energy']:.4g}" + (" (rudder saturated)" if sat["saturated"] else ""))
+    summary = write_summary(results, out / "summary.json", scenario=scen, transport=transport)
+    say(f"wrote {summary.resolve()}")
+    if plot:
+        t0 = time.perf_counter()
+        from tools.plots import save_paper_figure  # lazy: matplotlib costs ~1 s to import
+
+        png = save_paper_figure(results, out / f"{scen.name}.png", scen, notes=_check_lines(paper_checks(results)))
+        say(f"wrote {png.resolve()} ({time.perf_counter() - t0:.1f} s)")
+    return results
+
+
+# ---------------------------------------------------------------------------------------- CLI
+class _Parser(argparse.ArgumentParser):
+    """argparse with a one-line error message (no usage dump) and exit status 2."""
+
+    def error(self, message: str):  # noqa: D401
+        self.exit(2, f"{self.prog}: error: {message}\n")
+
+
+def build_parser() -> argparse.ArgumentParser:
+    p = _Parser(
+        prog="python -m tools.experiment",
+        description="Fly a reference scenario (DESIGN.md section 4) for each controller variant; write "
+                    "OUT/summary.json and OUT/<scenario>.png and print the metrics.",
+    )
+    p.add_argument("scenario", help=f"scenario name ({', '.join(SCENARIOS)})")
+    p.add_argument("--out", metavar="DIR", help="output folder (default: a new runs/<scenario>-<timestamp>/)")
+    p.add_argument("--transport", default="inprocess", metavar="NAME",
+                   help=f"how to fly it: {' | '.join(TRANSPORTS)} (default: inprocess)")
+    p.add_argument("--runs", metavar="A,B,...",
+                   help="comma-separated subset of runs (default: all; paper: sac,clsac,clsac_lv10,clsac_lv50,clsac_lv100)")
+    p.add_argument("--no-plot", action="store_true", help="do not write the figure")
+    return p
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    args = build_parser().parse_args(argv)
+    try:
+        # cheap checks first (no scenario import), then the ones that need the scenario's runs
+        if args.scenario not in SCENARIOS:
+            raise ExperimentError(f"unknown scenario {args.scenario!r} (known: {', '.join(SCENARIOS)})")
+        if args.transport not in TRANSPORTS:
+            raise ExperimentError(f"unknown transport {args.transport!r} (known: {', '.join(TRANSPORTS)})")
+        runs = None if args.runs is None else args.runs.split(",")
+        if runs is not None and any(not s.strip() for s in runs):
+            raise ExperimentError(f"--runs has an empty name in {args.runs!r}")
+        out = Path(args.out) if args.out else default_out_dir(args.scenario)
+        check_out_dir(out)
+        _, available = get_scenario(args.scenario)
+        specs = select_runs(runs, available)
+        get_transport(args.transport)  # fail before creating any folder if it is unavailable
+        out = prepare_out_dir(out)
+        t0 = time.perf_counter()
+        print(f"scenario {args.scenario!r}: {len(specs)} run(s) via {args.transport}, output in {out.resolve()}")
+        results = run_experiment(out, args.transport, specs, plot=not args.no_plot, scenario=args.scenario, log=print)
+    except ExperimentError as exc:
+        print(f"python -m tools.experiment: error: {exc}", file=sys.stderr)
+        return 2
+    except (RuntimeError, OSError) as exc:  # a transport's run failed, or the disk did
+        first = (str(exc).strip().splitlines() or [type(exc).__name__])[0]
+        print(f"python -m tools.experiment: error: {first}", file=sys.stderr)
+        return 1
+    except KeyboardInterrupt:
+        print("python -m tools.experiment: interrupted", file=sys.stderr)
+        return 130
+    scen, _ = get_scenario(args.scenario)
+    print()
+    print(format_table(results, scen))
+    print()
+    print(f"done in {time.perf_counter() - t0:.1f} s; files in {out.resolve()}")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
