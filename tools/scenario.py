@@ -10,6 +10,8 @@ import numpy as np
 from autopilot.clsac import ClSac
 from autopilot.config import ClSacConfig
 from autopilot.metrics import MetricsAccumulator
+from autopilot.protocol import quaternion_to_roll, roll_to_quaternion
+from autopilot.pwm import PwmMap
 from sitl.aircraft import Aircraft, AircraftConfig
 from tools import profiles
 
@@ -84,11 +86,16 @@ SERIES = ("t", "um", "phi", "ym", "ym_ol", "ya", "y_pfc", "e", "u", "kpe", "kie"
           "kpu", "kiu", "ku", "v", "p", "r", "delta_r")
 
 
-def run_inprocess(scenario: Scenario = PAPER, run: RunSpec = PAPER_RUNS[1], base: ClSacConfig | None = None) -> RunResult:
+def run_inprocess(scenario: Scenario = PAPER, run: RunSpec = PAPER_RUNS[1], base: ClSacConfig | None = None,
+                  wire: PwmMap | None = None) -> RunResult:
     """Fly the scenario with the controller and the aircraft in one process.
 
     Order per control step k (the same as over MAVLink in lockstep): the aircraft's roll at t_k is
     measured, the controller computes u[k], the aircraft advances one control period with u[k] held.
+
+    ``wire``: also model exactly what the MAVLink path adds, so the two compare like for like: roll and
+    the setpoint quaternion travel as float32, and the rudder command flies (and is scored) after the
+    1 us PWM quantisation of this calibration.
     """
     ctrl = ClSac(controller_config(scenario, run, base))
     ac = Aircraft(AircraftConfig(physics_rate_hz=scenario.physics_rate_hz))
@@ -102,7 +109,13 @@ def run_inprocess(scenario: Scenario = PAPER, run: RunSpec = PAPER_RUNS[1], base
         um = scenario.command(t)
         x = ac.x
         phi = float(x[3])
-        u = ctrl(phi, um)
+        if wire is None:
+            u = ctrl(phi, um)
+        else:
+            um = quaternion_to_roll(np.float32(roll_to_quaternion(um)))  # SET_ATTITUDE_TARGET.q, float32
+            phi = float(np.float32(phi))  # ATTITUDE.roll, float32
+            ctrl(phi, um)
+            u = wire.to_rad(wire.to_pwm(ctrl.u))  # SERVO_OUTPUT_RAW: whole microseconds
         acc.add(phi, ctrl.ym_ol, ctrl.e, u)
         out[k] = (t, um, phi, ctrl.ym, ctrl.ym_ol, ctrl.ya, ctrl.y_pfc, ctrl.e, u,
                   ctrl.kpe, ctrl.kie, ctrl.ke, ctrl.kpx, ctrl.kix, ctrl.kx, ctrl.kpu, ctrl.kiu, ctrl.ku,

@@ -1,0 +1,171 @@
+"""``python -m autopilot``: the CL-SAC roll autopilot process (DESIGN.md sections 5-7).
+
+Links: to the SITL (sends SERVO_OUTPUT_RAW to --sitl, receives ATTITUDE) and a GCS stream (sends
+HEARTBEAT, ATTITUDE, ATTITUDE_TARGET, SERVO_OUTPUT_RAW, STATUSTEXT to --gcs and answers whoever
+talks to it; receives SET_ATTITUDE_TARGET).  Prints its counters at exit; --stats-json writes them
+with the run metrics (computed from what flew: the attitude received and the command sent).
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import os
+import sys
+
+from autopilot.protocol import (add_cpu_argument, add_rt_priority_argument, apply_cpu, apply_rt_priority, GCS_ID, OneLineArgumentParser, endpoint, fmt_endpoint, install_stop_handlers,
+                                nonneg_float, positive_float, rate_hz)
+from autopilot.pwm import add_pwm_arguments, pwm_from_args
+
+
+def build_parser() -> OneLineArgumentParser:
+    p = OneLineArgumentParser(prog="python -m autopilot", description=__doc__.split("\n\n")[0])
+    p.add_argument("--sitl", type=endpoint, default=("127.0.0.1", 14560), metavar="HOST:PORT",
+                   help="where the SITL listens (default 127.0.0.1:14560)")
+    p.add_argument("--sitl-bind", type=endpoint, default=("127.0.0.1", 0), metavar="HOST:PORT",
+                   help="local address of the SITL link (default 127.0.0.1:0, an ephemeral port)")
+    p.add_argument("--gcs", type=endpoint, default=("127.0.0.1", 14550), metavar="HOST:PORT",
+                   help="where the GCS stream goes until a GCS talks to us (default 127.0.0.1:14550)")
+    p.add_argument("--listen", "--gcs-bind", dest="gcs_bind", type=endpoint, default=("127.0.0.1", 0),
+                   metavar="HOST:PORT", help="local address of the GCS link (default 127.0.0.1:0, ephemeral)")
+    p.add_argument("--gcs-id", action="append", default=None, metavar="SYS:COMP",
+                   help=f"accepted GCS system:component (repeatable; default {GCS_ID[0]}:{GCS_ID[1]})")
+    p.add_argument("--lockstep", action="store_true", help="one control step per SITL frame (default: real time)")
+    p.add_argument("--no-pace", dest="pace", action="store_false",
+                   help="lockstep: do not wait for GCS setpoints scheduled up to each frame's time")
+    p.add_argument("--rate", type=rate_hz, default=100.0, metavar="HZ", help="control rate (default 100)")
+    p.add_argument("--controller", choices=("sac", "clsac"), default="clsac",
+                   help="sac (Lv = 0) or clsac (Lv = 20, the paper's), default clsac")
+    p.add_argument("--lv", type=nonneg_float, default=None, help="override the closed-loop reference gain Lv")
+    p.add_argument("--name", default=None, help="run name in the stats (default: the controller)")
+    p.add_argument("--u-limit-deg", type=positive_float, default=30.0, help="rudder command limit (default 30)")
+    p.add_argument("--duration", type=nonneg_float, default=0.0, metavar="S",
+                   help="stop after S s (lockstep: sim time from the first frame; real time: of control); 0 = run until stopped")
+    p.add_argument("--telemetry-rate", type=nonneg_float, default=50.0, metavar="HZ",
+                   help="ATTITUDE/ATTITUDE_TARGET/SERVO_OUTPUT_RAW to the GCS, per control steps (default 50, 0 = off)")
+    p.add_argument("--attitude-timeout", type=positive_float, default=0.1, metavar="S",
+                   help="real time: failsafe after S s without attitude (default 0.1)")
+    p.add_argument("--setpoint-timeout", type=positive_float, default=1.0, metavar="S",
+                   help="real time: wings level after S s without setpoint (default 1.0)")
+    p.add_argument("--max-roll-deg", type=positive_float, default=45.0, help="setpoint clamp (default 45)")
+    p.add_argument("--spin-us", type=nonneg_float, default=300.0,
+                   help="real time: busy-wait this long before each deadline for precise timing (default 300)")
+    p.add_argument("--lockstep-spin-us", type=nonneg_float, default=0.0, metavar="US",
+                   help="lockstep: busy-poll this long for the next frame before sleeping (default 0)")
+    p.add_argument("--lockstep-idle-exit", type=nonneg_float, default=0.0, metavar="S",
+                   help="lockstep: exit if the SITL is silent for S s after the last frame (default 0 = never)")
+    p.add_argument("--tlog", default=None, metavar="PATH", help="write every packet sent and received to this .tlog")
+    p.add_argument("--stats-json", "--metrics-json", dest="stats_json", default=None, metavar="PATH",
+                   help="write metrics, counters and timing to this JSON file at exit")
+    p.add_argument("--series", default=None, metavar="PATH.npz",
+                   help="record every control step (setpoint, roll, command, controller internals) to this .npz at exit")
+    p.add_argument("--quiet", action="store_true", help="only the start line and the counters")
+    add_pwm_arguments(p)
+    add_cpu_argument(p)
+    add_rt_priority_argument(p)
+    return p
+
+
+def _gcs_ids(parser, values):
+    if not values:
+        return (GCS_ID,)
+    out = []
+    for v in values:
+        try:
+            a, b = v.split(":")
+            ids = (int(a), int(b))
+        except ValueError:
+            parser.error(f"--gcs-id expects SYS:COMP, got {v!r}")
+        if not (0 <= ids[0] <= 255 and 0 <= ids[1] <= 255):
+            parser.error(f"--gcs-id values must be 0..255, got {v!r}")
+        out.append(ids)
+    return tuple(out)
+
+
+def main(argv=None) -> int:
+    parser = build_parser()
+    args = parser.parse_args(argv)
+    pwm = pwm_from_args(parser, args)
+    apply_cpu(parser, args.cpu)
+    rt_note = apply_rt_priority(parser, args.rt_priority, "autopilot")
+    from autopilot.config import ClSacConfig, ConfigError
+    from autopilot.loop import Autopilot, AutopilotOptions, SeriesRecorder
+    from autopilot.tlog import TlogWriter
+
+    lv = args.lv if args.lv is not None else (0.0 if args.controller == "sac" else 20.0)
+    try:
+        cfg = ClSacConfig(control_rate_hz=args.rate, lv=lv, u_limit_rad=math.radians(args.u_limit_deg))
+    except ConfigError as exc:
+        parser.error(str(exc))
+    opts = AutopilotOptions(
+        rate_hz=args.rate, lockstep=args.lockstep, duration_s=args.duration, telemetry_rate_hz=args.telemetry_rate,
+        attitude_timeout_s=args.attitude_timeout, setpoint_timeout_s=args.setpoint_timeout,
+        max_roll_rad=math.radians(args.max_roll_deg), pace=args.pace, spin_s=args.spin_us * 1e-6,
+        sitl=args.sitl, sitl_bind=args.sitl_bind, gcs=args.gcs, gcs_bind=args.gcs_bind,
+        gcs_ids=_gcs_ids(parser, args.gcs_id), lockstep_idle_exit_s=args.lockstep_idle_exit,
+        lockstep_spin_s=args.lockstep_spin_us * 1e-6,
+        name=args.name or args.controller, verbose=not args.quiet,
+    )
+    tlog = None
+    try:
+        if args.tlog:
+            tlog = TlogWriter(args.tlog)
+        ap = Autopilot(opts, cfg, pwm, tlog=tlog)
+    except OSError as exc:
+        print(f"autopilot: error: {exc}", file=sys.stderr)
+        return 98 if getattr(exc, "errno", None) == 98 else 1
+
+    recorder = None
+    if args.series:
+        recorder = SeriesRecorder()
+        ap.hooks.append(recorder)
+
+    def stop():
+        ap.stop_requested = True
+
+    install_stop_handlers(stop)
+    mode = "lockstep" if args.lockstep else "real time"
+    print(f"autopilot: {opts.name} (Lv={lv:g}) {mode} at {args.rate:g} Hz; SITL link {fmt_endpoint(ap.sitl.local)} -> "
+          f"{fmt_endpoint(args.sitl)}; GCS link {fmt_endpoint(ap.gcs.local)} -> {fmt_endpoint(args.gcs)}{rt_note}", flush=True)
+    code = 0
+    try:
+        code = ap.run()
+    except Exception as exc:  # noqa: BLE001  (report, still write the files)
+        print(f"autopilot: error: {type(exc).__name__}: {exc}", file=sys.stderr, flush=True)
+        code = 1
+    finally:
+        stats = ap.stats()
+        if tlog is not None:
+            tlog.close()
+        ap.close()
+    if recorder is not None:
+        recorder.save(args.series)
+    _print_summary(stats)
+    if args.stats_json:
+        tmp = args.stats_json + ".tmp"
+        with open(tmp, "w") as f:
+            json.dump(stats, f, indent=1)
+        os.replace(tmp, args.stats_json)
+    return code
+
+
+def _print_summary(stats: dict) -> None:
+    from autopilot.link import format_counters
+
+    t = stats["timing"]
+
+    def f(d):
+        return "-" if not d else f"p50 {d['p50']:.3f} p99 {d['p99']:.3f} max {d['max']:.3f} ms"
+
+    ev = {k: v for k, v in stats["events"].items() if v not in (0, [], None)}
+    print(f"autopilot: {stats['steps']} steps ({stats['exit_reason']}); metrics "
+          + ", ".join(f"{k}={v:.6g}" for k, v in stats["metrics"].items()), flush=True)
+    print(f"autopilot: timing: jitter {f(t['period_jitter_ms'])}; compute {f(t['compute_ms'])}; "
+          f"in-to-out latency {f(t['latency_ms'])}; missed deadlines {t['missed_deadlines']}", flush=True)
+    print(f"autopilot: events: {ev}", flush=True)
+    for name, c in stats["links"].items():
+        print(format_counters(f"autopilot {name} link", c), flush=True)
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,123 @@
+"""``python -m sitl``: the KH2013A + rudder servo simulator behind a MAVLink endpoint on UDP.
+
+Listens for the autopilot (default 127.0.0.1:14560) and answers whoever talks to it with the
+autopilot's IDs (1:1): HEARTBEAT 1 Hz, ATTITUDE (real time: at the sensor rate; --lockstep: one per
+control frame, waiting for that frame's SERVO_OUTPUT_RAW).  Prints its counters at exit.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import sys
+
+from autopilot.protocol import (add_cpu_argument, add_rt_priority_argument, apply_cpu, apply_rt_priority, OneLineArgumentParser, default_physics_rate, endpoint, fmt_endpoint, install_stop_handlers, nonneg_float,
+                                positive_float, rate_hz)
+from autopilot.pwm import add_pwm_arguments, pwm_from_args
+
+
+def build_parser() -> OneLineArgumentParser:
+    p = OneLineArgumentParser(prog="python -m sitl", description=__doc__.split("\n\n")[0])
+    p.add_argument("--listen", type=endpoint, default=("127.0.0.1", 14560), metavar="HOST:PORT",
+                   help="UDP address to listen on for the autopilot (default 127.0.0.1:14560)")
+    p.add_argument("--lockstep", action="store_true", help="SITL is the time master, one frame per control step")
+    p.add_argument("--rate", type=rate_hz, default=100.0, metavar="HZ", help="lockstep frame (control) rate (default 100)")
+    p.add_argument("--physics-rate", type=positive_float, default=None, metavar="HZ",
+                   help="physics rate (default: the smallest whole multiple of --rate >= 1000, i.e. 1000 at 100 Hz)")
+    p.add_argument("--sensor-rate", type=positive_float, default=200.0, metavar="HZ",
+                   help="real time: ATTITUDE rate (default 200)")
+    p.add_argument("--duration", type=nonneg_float, default=0.0, metavar="S",
+                   help="sim seconds to run (0 = until stopped)")
+    p.add_argument("--start-time", type=nonneg_float, default=0.0, metavar="S",
+                   help="initial sim clock, e.g. 4290 to cross the 71.6-min time_usec wrap soon (default 0)")
+    p.add_argument("--servo-timeout", type=positive_float, default=0.5, metavar="S",
+                   help="real time: rudder neutral after S s without servo command (default 0.5)")
+    p.add_argument("--resend-timeout", type=positive_float, default=0.25, metavar="S",
+                   help="lockstep: resend the frame's ATTITUDE after S s without answer (default 0.25)")
+    p.add_argument("--give-up", type=positive_float, default=10.0, metavar="S",
+                   help="lockstep: exit with an error after S s without answer (default 10)")
+    p.add_argument("--connect-timeout", type=nonneg_float, default=0.0, metavar="S",
+                   help="lockstep: exit with an error if no autopilot shows up within S s (default 0 = wait)")
+    p.add_argument("--spin-us", type=nonneg_float, default=0.0, metavar="US",
+                   help="lockstep: busy-poll this long for each answer before sleeping (default 0)")
+    p.add_argument("--stats-json", default=None, metavar="PATH", help="write counters to this JSON file at exit")
+    p.add_argument("--series", default=None, metavar="PATH.npz",
+                   help="record the truth state after every frame / sensor message to this .npz at exit")
+    p.add_argument("--quiet", action="store_true", help="only the start line and the counters")
+    add_pwm_arguments(p)
+    add_cpu_argument(p)
+    add_rt_priority_argument(p)
+    return p
+
+
+def main(argv=None) -> int:
+    parser = build_parser()
+    args = parser.parse_args(argv)
+    pwm = pwm_from_args(parser, args)
+    apply_cpu(parser, args.cpu)
+    rt_note = apply_rt_priority(parser, args.rt_priority, "sitl")
+    if args.physics_rate is None:
+        args.physics_rate = default_physics_rate(args.rate)
+    ratio = args.physics_rate / args.rate
+    if args.lockstep and (abs(ratio - round(ratio)) > 1e-9 or round(ratio) < 1):
+        parser.error(f"--physics-rate ({args.physics_rate:g}) must be a whole multiple of --rate ({args.rate:g})")
+    k0 = args.start_time * args.rate
+    if args.lockstep and abs(k0 - round(k0)) > 1e-6:
+        parser.error(f"--start-time ({args.start_time:g}) must be a whole number of frames at --rate {args.rate:g}")
+    from sitl.endpoint import LockstepGiveUp, Sitl, SitlOptions, StateRecorder
+
+    opts = SitlOptions(
+        listen=args.listen, lockstep=args.lockstep, rate_hz=args.rate, physics_rate_hz=args.physics_rate,
+        sensor_rate_hz=args.sensor_rate, duration_s=args.duration, start_time_s=args.start_time,
+        servo_timeout_s=args.servo_timeout, resend_timeout_s=args.resend_timeout, give_up_s=args.give_up,
+        connect_timeout_s=args.connect_timeout, spin_s=args.spin_us * 1e-6, verbose=not args.quiet,
+    )
+    try:
+        sitl = Sitl(opts, pwm)
+    except OSError as exc:
+        print(f"sitl: error: cannot listen on {fmt_endpoint(args.listen)}: {exc.strerror or exc}", file=sys.stderr)
+        return 98 if getattr(exc, "errno", None) == 98 else 1
+
+    recorder = None
+    if args.series:
+        recorder = StateRecorder()
+        sitl.hooks.append(recorder)
+
+    def stop():
+        sitl.stop_requested = True
+
+    install_stop_handlers(stop)
+    mode = f"lockstep at {args.rate:g} Hz" if args.lockstep else f"real time, ATTITUDE at {args.sensor_rate:g} Hz"
+    print(f"sitl: listening on {fmt_endpoint(sitl.link.local)}; {mode}; physics {args.physics_rate:g} Hz; "
+          f"start t={args.start_time:g} s{rt_note}", flush=True)
+    code = 0
+    try:
+        code = sitl.run()
+    except LockstepGiveUp as exc:
+        print(f"sitl: error: {exc}", file=sys.stderr, flush=True)
+        code = 1
+    except Exception as exc:  # noqa: BLE001
+        print(f"sitl: error: {type(exc).__name__}: {exc}", file=sys.stderr, flush=True)
+        code = 1
+    finally:
+        stats = sitl.stats()
+        sitl.close()
+    from autopilot.link import format_counters
+
+    if recorder is not None:
+        recorder.save(args.series)
+
+    rtf = f"{stats['rtf']:.1f}x" if stats["rtf"] else "-"
+    print(f"sitl: {stats['frames']} frames, sim {stats['sim_time_s']:.3f} s in {stats['wall_s']:.3f} s wall "
+          f"(real-time factor {rtf}); {stats['exit_reason']}; events {stats['events']}", flush=True)
+    print(format_counters("sitl link", stats["link"]), flush=True)
+    if args.stats_json:
+        tmp = args.stats_json + ".tmp"
+        with open(tmp, "w") as f:
+            json.dump(stats, f, indent=1)
+        os.replace(tmp, args.stats_json)
+    return code
+
+
+if __name__ == "__main__":
+    sys.exit(main())

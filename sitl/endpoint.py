@@ -1,0 +1,352 @@
+"""The KH2013A simulator behind a MAVLink endpoint (transport and timing only; physics in ``sitl.aircraft``).
+
+Real time (:meth:`Sitl.run_realtime`): physics follows the wall clock at the physics rate (on each
+wake-up the aircraft advances by the whole physics steps elapsed, servo command held: exact ZOH),
+ATTITUDE goes out at the sensor rate, the newest valid SERVO_OUTPUT_RAW is held.  A servo message
+whose time_usec is not newer than the last applied one (wrap-aware) is stale and ignored.  If the
+autopilot is silent for ``servo_timeout_s`` the rudder goes to neutral and the SITL says so.
+
+Lockstep (:meth:`Sitl.run_lockstep`), the SITL is the time master: frame k has sim time
+t_k = K/rate (global frame K = K0 + k, K0 = start_time * rate).  Send ATTITUDE(time_boot_ms = t_k in
+ms); wait for SERVO_OUTPUT_RAW with time_usec == t_k in us mod 2**32; anything else is counted
+(stale / unexpected) and ignored; resend the same ATTITUDE bytes every ``resend_timeout_s``; give up
+after ``give_up_s`` with a clear error; then advance one control period.  After the last frame the
+end-of-run frame (t0 + duration) is sent a few times so the autopilot knows the run is over.
+
+Hook point: ``Sitl.hooks`` callables get a :class:`SitlRecord` after each frame (lockstep) or each
+ATTITUDE sent (real time).
+"""
+
+from __future__ import annotations
+
+import gc
+import select
+import sys
+import time
+from collections import Counter
+from dataclasses import dataclass
+
+from autopilot.link import UdpLink
+from autopilot.protocol import (AUTOPILOT_ID, SITL_ID, frame_ms, frame_usec, mavlink, usec_diff)
+from autopilot.pwm import PWM_VALID_RANGE, PwmMap
+from sitl.aircraft import Aircraft, AircraftConfig
+
+M = mavlink
+ATTITUDE = M.MAVLINK_MSG_ID_ATTITUDE
+HEARTBEAT = M.MAVLINK_MSG_ID_HEARTBEAT
+SERVO_OUTPUT_RAW = M.MAVLINK_MSG_ID_SERVO_OUTPUT_RAW
+
+
+class LockstepGiveUp(RuntimeError):
+    """The autopilot did not answer a lockstep frame within the give-up time."""
+
+
+@dataclass
+class SitlOptions:
+    listen: tuple = ("127.0.0.1", 14560)
+    lockstep: bool = False
+    rate_hz: float = 100.0  # lockstep frame rate (= the autopilot's control rate)
+    physics_rate_hz: float = 1000.0
+    sensor_rate_hz: float = 200.0  # real time ATTITUDE rate
+    duration_s: float = 0.0  # 0 = until stopped
+    start_time_s: float = 0.0
+    servo_timeout_s: float = 0.5
+    resend_timeout_s: float = 0.25
+    give_up_s: float = 10.0
+    spin_s: float = 0.0  # lockstep: busy-poll this long for the servo answer before sleeping in select
+    connect_timeout_s: float = 0.0  # lockstep: wait this long for the autopilot (0 = forever)
+    verbose: bool = True
+
+
+class SitlRecord:
+    """After a frame / sensor message: sim time (s), truth state x (6, a copy), applied rudder command (rad),
+    the PWM it came from, the global frame index (lockstep) or None, and the Sitl object."""
+
+    __slots__ = ("t_sim", "x", "u", "pwm", "frame", "sitl")
+
+    def __init__(self, t_sim, x, u, pwm, frame, sitl):
+        self.t_sim, self.x, self.u, self.pwm, self.frame, self.sitl = t_sim, x, u, pwm, frame, sitl
+
+
+class StateRecorder:
+    """A SITL hook that keeps (t, v, p, r, phi, delta_r, delta_r_dot, u) per frame and saves them as .npz."""
+
+    KEYS = ("t", "v", "p", "r", "phi", "delta_r", "delta_r_dot", "u")
+
+    def __init__(self):
+        self.rows: list = []
+
+    def __call__(self, rec: SitlRecord):
+        x = rec.x
+        self.rows.append((rec.t_sim, x[0], x[1], x[2], x[3], x[4], x[5], rec.u))
+
+    def save(self, path: str):
+        import numpy as np
+
+        arr = np.asarray(self.rows, dtype=float).reshape(-1, len(self.KEYS))
+        np.savez(path, **{k: arr[:, i] for i, k in enumerate(self.KEYS)})
+
+
+class Sitl:
+    def __init__(self, opts: SitlOptions, pwm: PwmMap, out=None):
+        self.opts = opts
+        self.pwm = pwm
+        self.out = out or sys.stdout
+        self.aircraft = Aircraft(AircraftConfig(physics_rate_hz=opts.physics_rate_hz))
+        self.link = UdpLink("autopilot", SITL_ID, opts.listen, None, peers=[AUTOPILOT_ID],
+                            msgids=[SERVO_OUTPUT_RAW, HEARTBEAT], learn_remote=True)
+        self.hooks: list = []
+        self.events = Counter()
+        self.stop_requested = False
+        self.u = 0.0  # applied rudder command (rad)
+        self.pwm_applied = pwm.neutral
+        self.frames = 0
+        self.wall_first_frame = None
+        self.wall_last_frame = None
+        self.sim_t0 = 0.0
+        self.exit_reason = ""
+        self._servos: list = []  # servo messages received, not yet consumed: (time_usec, msg, t_rx)
+        self._fds = [self.link.sock]  # select(2): microsecond timeouts (epoll rounds up to milliseconds)
+        self._pk_att = self.link.fast_packer(M.MAVLink_attitude_message)
+
+    # ------------------------------------------------------------------ util
+    def say(self, text: str, severity=M.MAV_SEVERITY_WARNING, send=True):
+        self.events["statustext"] += 1
+        if self.opts.verbose:
+            print(f"sitl: {text}", file=self.out, flush=True)
+        if send:
+            self.link.send(M.MAVLink_statustext_message(severity, text.encode()[:50], 0, 0))
+
+    def _heartbeat(self):
+        self.link.send(M.MAVLink_heartbeat_message(M.MAV_TYPE_GENERIC, M.MAV_AUTOPILOT_INVALID, 0, 0,
+                                                   M.MAV_STATE_ACTIVE, 3))
+
+    def _servo_pwm(self, msg) -> int | None:
+        pwm = getattr(msg, f"servo{self.pwm.channel}_raw")
+        if not PWM_VALID_RANGE[0] <= pwm <= PWM_VALID_RANGE[1]:
+            self.link.rejected["bad_pwm"] += 1
+            return None
+        return pwm
+
+    def _on_msg(self, msg, t_rx):
+        if msg.get_msgId() == SERVO_OUTPUT_RAW:
+            self._servos.append((msg.time_usec, msg, t_rx))
+
+    def _send_attitude(self, ms: int) -> bytes:
+        """ATTITUDE from the truth state: roll, pitch, yaw, rollspeed, pitchspeed, yawspeed (float32 on the wire)."""
+        x = self.aircraft.x
+        raw = self.link.pack_fast(self._pk_att, ms, float(x[3]), 0.0, 0.0, float(x[1]), 0.0, float(x[2]))
+        self.link.send_raw(raw, ATTITUDE)
+        return raw
+
+    def _wait(self, timeout: float):
+        if select.select(self._fds, (), (), max(0.0, timeout))[0]:
+            self.link.poll(self._on_msg)
+
+    # -------------------------------------------------------------- lockstep
+    def run_lockstep(self) -> int:
+        opts = self.opts
+        rate = opts.rate_hz
+        ratio = opts.physics_rate_hz / rate
+        nphys = int(round(ratio))
+        k0 = int(round(opts.start_time_s * rate))
+        self.sim_t0 = k0 / rate
+        n_frames = int(round(opts.duration_s * rate)) if opts.duration_s > 0 else 0
+        link = self.link
+        perf = time.perf_counter
+        # Wait for the autopilot to announce itself (it sends HEARTBEAT at start-up and at 1 Hz).
+        t_start = perf()
+        next_hb = t_start
+        while link.remote is None and not self.stop_requested:
+            now = perf()
+            if opts.connect_timeout_s and now - t_start > opts.connect_timeout_s:
+                self.exit_reason = f"no autopilot after {opts.connect_timeout_s:g} s"
+                raise LockstepGiveUp(f"no autopilot talked to {link.local[0]}:{link.local[1]} within "
+                                     f"{opts.connect_timeout_s:g} s")
+            self._wait(0.05)
+        if self.stop_requested:
+            self.exit_reason = "stopped by signal"
+            return 0
+        if opts.verbose:
+            print(f"sitl: autopilot at {link.remote[0]}:{link.remote[1]}; lockstep from t={self.sim_t0:.3f} s",
+                  file=self.out, flush=True)
+        ac = self.aircraft
+        ev = self.events
+        resend = opts.resend_timeout_s
+        give_up = opts.give_up_s
+        spin = opts.spin_s
+        K = k0
+        self.wall_first_frame = perf()
+        while not self.stop_requested:
+            if n_frames and self.frames >= n_frames:
+                # End-of-run frame: tells the autopilot the run is over (sent a few times, nobody answers).
+                raw = self._send_attitude(frame_ms(K, rate))
+                for _ in range(2):
+                    self._wait(0.01)
+                    link.send_raw(raw, ATTITUDE)
+                self.exit_reason = "end of run (duration reached)"
+                break
+            raw = self._send_attitude(frame_ms(K, rate))
+            expected = frame_usec(K, rate)
+            t_sent = perf()
+            t_resend = t_sent + resend
+            t_give_up = t_sent + give_up
+            pwm = None
+            servos = self._servos
+            while pwm is None:
+                if not servos:
+                    now = perf()
+                    if now >= t_give_up:
+                        self.exit_reason = f"autopilot did not answer frame t={K / rate:.3f} s"
+                        raise LockstepGiveUp(
+                            f"no SERVO_OUTPUT_RAW for frame t={K / rate:.3f} s (time_usec {expected}) after "
+                            f"{give_up:g} s, resent {ev['resends_frame']} times: is the autopilot running with "
+                            f"--lockstep --rate {rate:g} (and a GCS, or --no-pace)?")
+                    if now >= t_resend:
+                        link.send_raw(raw, ATTITUDE)
+                        ev["resends"] += 1
+                        ev["resends_frame"] += 1
+                        t_resend = now + resend
+                    if now >= next_hb:
+                        next_hb = now + 1.0
+                        self._heartbeat()
+                    if spin > 0:
+                        t_end = now + spin
+                        while not servos and perf() < t_end:
+                            self.link.poll(self._on_msg)
+                        if servos:
+                            continue
+                        now = perf()
+                    self._wait(min(t_resend, t_give_up, next_hb) - now)
+                    continue
+                usec, msg, _t_rx = servos.pop(0)
+                if usec != expected:
+                    d = usec_diff(usec, expected)
+                    ev["stale_servo" if d < 0 else "unexpected_servo"] += 1
+                    continue
+                pwm = self._servo_pwm(msg)
+            ev["resends_frame"] = 0
+            self.pwm_applied = pwm
+            self.u = u = self.pwm.to_rad(pwm)
+            ac.advance(u, nphys)
+            K += 1
+            self.frames += 1
+            self.wall_last_frame = perf()
+            if self.hooks:
+                rec = SitlRecord(K / rate, ac.x.copy(), u, pwm, K, self)
+                for h in self.hooks:
+                    h(rec)
+            now = self.wall_last_frame
+            if now >= next_hb:
+                next_hb = now + 1.0
+                self._heartbeat()
+        if self.stop_requested:
+            self.exit_reason = self.exit_reason or "stopped by signal"
+        return 0
+
+    # ------------------------------------------------------------- real time
+    def run_realtime(self) -> int:
+        opts = self.opts
+        ac = self.aircraft
+        link = self.link
+        ev = self.events
+        perf = time.perf_counter
+        phys_rate = opts.physics_rate_hz
+        sensor_period = 1.0 / opts.sensor_rate_hz
+        self.sim_t0 = opts.start_time_s
+        t0 = perf()
+        next_sensor = t0
+        next_hb = t0
+        last_usec = None
+        last_servo_wall = None
+        timed_out = False
+        self.wall_first_frame = t0
+        n_frames = int(round(opts.duration_s * opts.sensor_rate_hz)) if opts.duration_s > 0 else 0
+
+        def catch_up(now):
+            n = int((now - t0) * phys_rate) - ac.steps
+            if n > 0:
+                ac.advance(self.u, n)
+
+        while not self.stop_requested:
+            now = perf()
+            rem = next_sensor - now
+            if rem > 0:
+                self._wait(min(rem, 0.05))
+            servos = self._servos
+            while servos:
+                usec, msg, t_rx = servos.pop(0)
+                if last_usec is not None and not timed_out and usec_diff(usec, last_usec) <= 0:
+                    ev["stale_servo"] += 1
+                else:
+                    pwm = self._servo_pwm(msg)
+                    if pwm is not None:
+                        catch_up(t_rx)  # the old command held up to the moment the new one arrived
+                        last_usec = usec
+                        last_servo_wall = t_rx
+                        self.pwm_applied = pwm
+                        self.u = self.pwm.to_rad(pwm)
+                        ev["servo_applied"] += 1
+                        if timed_out:
+                            timed_out = False
+                            self.say("autopilot back: servo commands applied again", M.MAV_SEVERITY_NOTICE)
+            now = perf()
+            if now < next_sensor:
+                continue
+            catch_up(now)
+            self._send_attitude(int((self.sim_t0 + ac.steps / phys_rate) * 1000.0) & 0xFFFFFFFF)
+            self.frames += 1
+            self.wall_last_frame = now
+            next_sensor += sensor_period
+            if next_sensor < now:  # fell behind by more than a sensor period: skip, stay on the grid
+                skipped = int((now - next_sensor) / sensor_period) + 1
+                ev["sensor_slots_skipped"] += skipped
+                next_sensor += skipped * sensor_period
+            if (last_servo_wall is not None and not timed_out and now - last_servo_wall > opts.servo_timeout_s):
+                timed_out = True
+                catch_up(now)
+                self.u = 0.0
+                self.pwm_applied = self.pwm.neutral
+                ev["servo_timeouts"] += 1
+                self.say(f"autopilot silent {now - last_servo_wall:.2f} s: rudder neutral")
+            if now >= next_hb:
+                next_hb = now + 1.0
+                self._heartbeat()
+            if self.hooks:
+                rec = SitlRecord(self.sim_t0 + ac.steps / phys_rate, ac.x.copy(), self.u, self.pwm_applied, None, self)
+                for h in self.hooks:
+                    h(rec)
+            if n_frames and self.frames >= n_frames:
+                self.exit_reason = "end of run (duration reached)"
+                break
+        if self.stop_requested:
+            self.exit_reason = self.exit_reason or "stopped by signal"
+        return 0
+
+    def run(self) -> int:
+        gc.collect()
+        gc.freeze()  # the long-lived heap (numpy, scipy) stays out of the cyclic collector's full passes
+        return self.run_lockstep() if self.opts.lockstep else self.run_realtime()
+
+    def stats(self) -> dict:
+        wall = (self.wall_last_frame - self.wall_first_frame) if (self.wall_first_frame and self.wall_last_frame) else 0.0
+        if self.opts.lockstep:
+            sim = self.frames / self.opts.rate_hz
+        else:
+            sim = self.aircraft.time
+        return {
+            "mode": "lockstep" if self.opts.lockstep else "realtime",
+            "frames": self.frames,
+            "sim_t0": self.sim_t0,
+            "sim_time_s": sim,
+            "wall_s": wall,
+            "rtf": (sim / wall) if wall > 0 else None,
+            "physics_steps": self.aircraft.steps,
+            "final_state": [float(v) for v in self.aircraft.x],
+            "events": {k: v for k, v in self.events.items() if k != "resends_frame"},
+            "link": self.link.counters(),
+            "exit_reason": self.exit_reason,
+        }
+
+    def close(self):
+        self.link.close()

@@ -1,0 +1,38 @@
+"""Command lines of the MAVLink processes: --help, one-line errors on bad flags (DESIGN.md section 7)."""
+
+from __future__ import annotations
+
+import pytest
+from _mavlink_procs import run_cli
+
+MODULES = ("sitl", "autopilot", "tools.gcs", "tools.launch")
+
+
+@pytest.mark.parametrize("module", MODULES)
+def test_help(module):
+    r = run_cli(module, "--help", timeout=60)
+    assert r.returncode == 0
+    assert "usage:" in r.stdout and "--duration" in r.stdout
+
+
+@pytest.mark.parametrize("module,args,needle", [
+    ("autopilot", ["--rate", "0"], "--rate"),
+    ("autopilot", ["--rate", "abc"], "--rate"),
+    ("autopilot", ["--sitl", "127.0.0.1:70000"], "0..65535"),
+    ("autopilot", ["--controller", "pid"], "--controller"),
+    ("autopilot", ["--pwm-min", "1600"], "pwm-min"),
+    ("sitl", ["--listen", "nohostport"], "HOST:PORT"),
+    ("sitl", ["--rate", "-5"], "--rate"),
+    ("sitl", ["--lockstep", "--rate", "300", "--physics-rate", "1000"], "whole multiple"),
+    ("tools.gcs", ["--period", "nan"], "--period"),
+    ("tools.gcs", ["--csv", "/nonexistent.csv"], "--csv"),
+    ("tools.launch", ["--rate", "0"], "--rate"),
+    ("tools.launch", ["--controller", "pid"], "--controller"),
+    ("tools.launch", ["--duration", "abc"], "--duration"),
+])
+def test_bad_flags_give_one_line_error(module, args, needle):
+    r = run_cli(module, *args, timeout=60)
+    assert r.returncode != 0
+    lines = r.stderr.strip().splitlines()
+    assert len(lines) == 1, r.stderr
+    assert "error" in lines[0] and needle in lines[0]

@@ -1,0 +1,286 @@
+"""``python -m tools.gcs``: a minimal ground station that flies a roll profile (DESIGN.md sections 5-7).
+
+Listens like a ground station (default 127.0.0.1:14550), waits for the vehicle's HEARTBEAT (system 1
+component 1), then sends SET_ATTITUDE_TARGET setpoints for a roll profile: ``square`` (default
+10 deg, 10 s period, +amplitude first), ``step``, ``sine`` or ``--csv FILE`` (rows ``time_s, roll_deg``,
+held until the next row).  Prints a live line (sim time, setpoint, roll, error) about twice a second.
+
+Profile time 0 is the first sim time seen from the vehicle (ATTITUDE or SYSTEM_TIME), or --start-time.
+
+* real time (default): every 1/--setpoint-rate s, the profile value at the newest sim time, with
+  time_boot_ms = 0 ("now").
+* --lockstep: the profile is scheduled on sim time: one setpoint every --point-dt s of sim time and one
+  exactly at each discontinuity (square-wave switch, step, CSV row), each carrying time_boot_ms = the
+  sim time it applies at, kept --lookahead s ahead of the newest sim time seen.  The autopilot does not
+  step past the newest scheduled time, so the GCS paces the run and the result does not depend on speed.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import os
+import selectors
+import sys
+import time
+
+from autopilot.link import UdpLink, format_counters
+from autopilot.protocol import (AUTOPILOT_ID, GCS_ID, SETPOINT_TYPEMASK, OneLineArgumentParser, endpoint,
+                                finite_float, fmt_endpoint, install_stop_handlers, mavlink, nonneg_float,
+                                positive_float, quaternion_to_roll, roll_to_quaternion)
+from tools import profiles
+
+M = mavlink
+
+
+class Profile:
+    """A roll profile (rad) of time (s, relative to the profile's start) with its discontinuities."""
+
+    def __init__(self, kind: str = "square", amplitude_deg: float = 10.0, period_s: float = 10.0,
+                 step_time_s: float = 1.0, csv: str | None = None):
+        self.kind = "csv" if csv else kind
+        self.amplitude = math.radians(amplitude_deg)
+        self.period = period_s
+        self.step_time = step_time_s
+        if csv:
+            self.times, self.values = profiles.from_csv(csv)
+
+    def value(self, t: float) -> float:
+        k = self.kind
+        if k == "square":
+            return profiles.square(t, self.amplitude, self.period)
+        if k == "step":
+            return profiles.step(t, self.amplitude, self.step_time)
+        if k == "sine":
+            return profiles.sine(t, self.amplitude, self.period)
+        return profiles.hold(t, self.times, self.values)
+
+    def breakpoints_ms(self, a_ms: int, b_ms: int) -> list[int]:
+        """Discontinuity instants (whole ms, relative) in [a_ms, b_ms]."""
+        k = self.kind
+        if k == "square":
+            half = self.period * 500.0
+            j0 = math.ceil(a_ms / half - 1e-9)
+            out = []
+            j = j0
+            while j * half <= b_ms + 1e-9:
+                out.append(int(round(j * half)))
+                j += 1
+            return out
+        if k == "step":
+            s = int(round(self.step_time * 1000))
+            return [s] if a_ms <= s <= b_ms else []
+        if k == "csv":
+            return [int(round(t * 1000)) for t in self.times if a_ms <= round(t * 1000) <= b_ms]
+        return []
+
+
+class Gcs:
+    def __init__(self, args, profile: Profile, out=None):
+        self.args = args
+        self.profile = profile
+        self.out = out or sys.stdout
+        ids = [M.MAVLINK_MSG_ID_HEARTBEAT, M.MAVLINK_MSG_ID_ATTITUDE, M.MAVLINK_MSG_ID_ATTITUDE_TARGET,
+               M.MAVLINK_MSG_ID_STATUSTEXT, M.MAVLINK_MSG_ID_SYSTEM_TIME]
+        self.link = UdpLink("vehicle", GCS_ID, args.listen, None, peers=[AUTOPILOT_ID], msgids=ids, learn_remote=True)
+        self.sel = selectors.DefaultSelector()
+        self.sel.register(self.link.sock, selectors.EVENT_READ)
+        self.stop_requested = False
+        self.vehicle = False
+        self.vehicle_status = None
+        self.powered_off = False
+        self.sim_ms = None  # newest sim time seen (ms)
+        self.origin_ms = None if args.start_time is None else int(round(args.start_time * 1000))
+        self.roll = math.nan
+        self.target = math.nan
+        self.next_point_rel_ms = 0
+        self.points_sent = 0
+        self.statustexts = []
+        self.last_vehicle_rx = None
+
+    def _on_msg(self, msg, t_rx):
+        mid = msg.get_msgId()
+        self.last_vehicle_rx = t_rx
+        if mid == M.MAVLINK_MSG_ID_HEARTBEAT:
+            if not self.vehicle:
+                self.vehicle = True
+                print(f"gcs: vehicle {AUTOPILOT_ID[0]}:{AUTOPILOT_ID[1]} at {fmt_endpoint(self.link.remote)} "
+                      f"(type {msg.type}, status {msg.system_status})", file=self.out, flush=True)
+                self._heartbeat()
+            self.vehicle_status = msg.system_status
+            if msg.system_status == M.MAV_STATE_POWEROFF:
+                self.powered_off = True
+        elif mid == M.MAVLINK_MSG_ID_ATTITUDE:
+            self.roll = msg.roll
+            self._sim(msg.time_boot_ms)
+        elif mid == M.MAVLINK_MSG_ID_ATTITUDE_TARGET:
+            self.target = quaternion_to_roll(msg.q)
+        elif mid == M.MAVLINK_MSG_ID_SYSTEM_TIME:
+            self._sim(msg.time_boot_ms)
+        elif mid == M.MAVLINK_MSG_ID_STATUSTEXT:
+            text = msg.text if isinstance(msg.text, str) else msg.text.decode("utf-8", "replace")
+            self.statustexts.append(text)
+            print(f"gcs: vehicle says: {text}", file=self.out, flush=True)
+
+    def _sim(self, ms: int):
+        if self.sim_ms is None or ms > self.sim_ms:
+            self.sim_ms = ms
+        if self.origin_ms is None:
+            self.origin_ms = ms
+
+    def _heartbeat(self):
+        self.link.send(M.MAVLink_heartbeat_message(M.MAV_TYPE_GCS, M.MAV_AUTOPILOT_INVALID, 0, 0, M.MAV_STATE_ACTIVE, 3))
+
+    def _send_setpoint(self, time_boot_ms: int, roll: float):
+        self.link.send(M.MAVLink_set_attitude_target_message(
+            time_boot_ms, AUTOPILOT_ID[0], AUTOPILOT_ID[1], SETPOINT_TYPEMASK, roll_to_quaternion(roll),
+            0.0, 0.0, 0.0, 0.0))
+        self.points_sent += 1
+
+    def _schedule(self):
+        """Lockstep: send every scheduled point up to newest sim time + lookahead (and not past the end)."""
+        a = self.args
+        if self.origin_ms is None or self.sim_ms is None:
+            return
+        end_rel = (self.sim_ms - self.origin_ms) + int(round(a.lookahead * 1000))
+        if a.duration > 0:
+            end_rel = min(end_rel, int(round(a.duration * 1000)))
+        if self.next_point_rel_ms > end_rel:
+            return
+        step = max(1, int(round(a.point_dt * 1000)))
+        start = self.next_point_rel_ms
+        grid = set(range(start - start % step + (step if start % step else 0), end_rel + 1, step))
+        pts = sorted(grid.union(self.profile.breakpoints_ms(start, end_rel), [start] if start == 0 else []))
+        for rel in pts:
+            if rel < start:
+                continue
+            abs_ms = self.origin_ms + rel
+            # time_boot_ms 0 means "now" to the autopilot; a schedule starting at sim time 0 uses that.
+            self._send_setpoint(abs_ms, self.profile.value(rel / 1000.0))
+        self.next_point_rel_ms = end_rel + 1
+
+    def run(self) -> int:
+        a = self.args
+        perf = time.perf_counter
+        t_start = perf()
+        next_hb = t_start
+        next_print = t_start
+        next_sp = t_start
+        sp_period = 1.0 / a.setpoint_rate
+        print(f"gcs: listening on {fmt_endpoint(self.link.local)}; waiting for the vehicle's HEARTBEAT; profile "
+              f"{self.profile.kind} ({'scheduled on sim time' if a.lockstep else 'real time'})", file=self.out, flush=True)
+        while not self.stop_requested:
+            for _ in self.sel.select(0.02):
+                self.link.poll(self._on_msg)
+            now = perf()
+            if not self.vehicle:
+                if a.wait_timeout and now - t_start > a.wait_timeout:
+                    print(f"gcs: error: no vehicle HEARTBEAT on {fmt_endpoint(self.link.local)} after "
+                          f"{a.wait_timeout:g} s", file=sys.stderr, flush=True)
+                    return 1
+                continue
+            if self.powered_off:
+                print("gcs: vehicle powered off (run over)", file=self.out, flush=True)
+                return 0
+            if now - self.last_vehicle_rx > a.vehicle_timeout:
+                print(f"gcs: error: vehicle lost (nothing for {a.vehicle_timeout:g} s)", file=sys.stderr, flush=True)
+                return 1
+            if now >= next_hb:
+                next_hb = now + 1.0
+                self._heartbeat()
+            if a.lockstep:
+                self._schedule()
+                # Lockstep runs many frames per millisecond: read the telemetry in batches rather than waking
+                # for every datagram (the schedule is a second of sim time ahead, so this never stalls the run).
+                time.sleep(0.004)
+            elif now >= next_sp and self.sim_ms is not None:
+                next_sp = max(next_sp + sp_period, now)
+                self._send_setpoint(0, self.profile.value((self.sim_ms - self.origin_ms) / 1000.0))
+            if not a.quiet and now >= next_print and self.sim_ms is not None:
+                next_print = now + 1.0 / a.print_rate
+                err = self.target - self.roll
+                print(f"gcs: t={self.sim_ms / 1000.0:9.3f} s  setpoint={math.degrees(self.target):+7.2f} deg  "
+                      f"roll={math.degrees(self.roll):+7.2f} deg  error={math.degrees(err):+6.2f} deg", file=self.out,
+                      flush=True)
+            if (a.duration > 0 and self.sim_ms is not None and self.origin_ms is not None
+                    and self.sim_ms - self.origin_ms >= a.duration * 1000 and not a.lockstep):
+                print("gcs: profile done", file=self.out, flush=True)
+                return 0
+        return 0
+
+    def stats(self) -> dict:
+        return {"points_sent": self.points_sent, "origin_ms": self.origin_ms, "sim_ms": self.sim_ms,
+                "statustexts": self.statustexts[-50:], "link": self.link.counters()}
+
+
+def build_parser() -> OneLineArgumentParser:
+    p = OneLineArgumentParser(prog="python -m tools.gcs", description=__doc__.split("\n\n")[0])
+    p.add_argument("--listen", type=endpoint, default=("127.0.0.1", 14550), metavar="HOST:PORT",
+                   help="UDP address to listen on, like a ground station (default 127.0.0.1:14550)")
+    p.add_argument("profile", nargs="?", choices=("square", "step", "sine"), default="square",
+                   help="roll profile (default square)")
+    p.add_argument("--csv", default=None, metavar="FILE", help="fly a CSV profile: rows 'time_s, roll_deg'")
+    p.add_argument("--amplitude", type=finite_float, default=10.0, metavar="DEG", help="amplitude (default 10)")
+    p.add_argument("--period", type=positive_float, default=10.0, metavar="S", help="square/sine period (default 10)")
+    p.add_argument("--step-time", type=nonneg_float, default=1.0, metavar="S", help="step: switch time (default 1)")
+    p.add_argument("--duration", type=nonneg_float, default=0.0, metavar="S",
+                   help="profile length in sim seconds (0 = until the vehicle powers off)")
+    p.add_argument("--lockstep", action="store_true", help="schedule the profile on sim time (deterministic runs)")
+    p.add_argument("--start-time", type=nonneg_float, default=None, metavar="S",
+                   help="sim time of profile start (default: the first sim time seen)")
+    p.add_argument("--lookahead", type=positive_float, default=1.0, metavar="S",
+                   help="lockstep: schedule this far ahead of the newest sim time seen (default 1)")
+    p.add_argument("--point-dt", type=positive_float, default=0.1, metavar="S",
+                   help="lockstep: one scheduled setpoint every S s of sim time besides the discontinuities (default 0.1)")
+    p.add_argument("--setpoint-rate", type=positive_float, default=20.0, metavar="HZ",
+                   help="real time: setpoints per second (default 20)")
+    p.add_argument("--print-rate", type=positive_float, default=2.0, metavar="HZ", help="live line rate (default 2)")
+    p.add_argument("--wait-timeout", type=nonneg_float, default=60.0, metavar="S",
+                   help="give up if no vehicle HEARTBEAT within S s (default 60, 0 = wait forever)")
+    p.add_argument("--vehicle-timeout", type=positive_float, default=5.0, metavar="S",
+                   help="error if the vehicle goes silent for S s (default 5)")
+    p.add_argument("--stats-json", default=None, metavar="PATH", help="write counters to this JSON file at exit")
+    p.add_argument("--quiet", action="store_true", help="no live line")
+    return p
+
+
+def main(argv=None) -> int:
+    parser = build_parser()
+    args = parser.parse_args(argv)
+    if args.csv and args.profile != "square":
+        parser.error("give either a profile name or --csv, not both")
+    try:
+        profile = Profile(args.profile, args.amplitude, args.period, args.step_time, args.csv)
+    except (OSError, ValueError) as exc:
+        parser.error(f"--csv: {exc}")
+    try:
+        gcs = Gcs(args, profile)
+    except OSError as exc:
+        print(f"gcs: error: cannot listen on {fmt_endpoint(args.listen)}: {exc.strerror or exc}", file=sys.stderr)
+        return 98 if getattr(exc, "errno", None) == 98 else 1
+
+    def stop():
+        gcs.stop_requested = True
+
+    install_stop_handlers(stop)
+    code = 1
+    try:
+        code = gcs.run()
+    except Exception as exc:  # noqa: BLE001
+        print(f"gcs: error: {type(exc).__name__}: {exc}", file=sys.stderr, flush=True)
+        code = 1
+    finally:
+        stats = gcs.stats()
+        gcs.link.close()
+    print(f"gcs: {stats['points_sent']} setpoints sent", flush=True)
+    print(format_counters("gcs link", stats["link"]), flush=True)
+    if args.stats_json:
+        tmp = args.stats_json + ".tmp"
+        with open(tmp, "w") as f:
+            json.dump(stats, f, indent=1)
+        os.replace(tmp, args.stats_json)
+    return code
+
+
+if __name__ == "__main__":
+    sys.exit(main())
