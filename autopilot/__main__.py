@@ -37,6 +37,10 @@ def build_parser() -> OneLineArgumentParser:
     p.add_argument("--controller", choices=("sac", "clsac"), default="clsac",
                    help="sac (Lv = 0) or clsac (Lv = 20, the paper's), default clsac")
     p.add_argument("--lv", type=nonneg_float, default=None, help="override the closed-loop reference gain Lv")
+    p.add_argument("--pfc", choices=("paper", "robust"), default="paper",
+                   help="parallel feedforward compensator: paper = 10/(4s+40) (default), robust = 10/(s+10)")
+    p.add_argument("--sigma-xu", type=nonneg_float, default=0.0, metavar="SIGMA",
+                   help="sigma-modification of K_Ix and K_Iu (default 0, the paper; 0.1 keeps long flights bounded)")
     p.add_argument("--name", default=None, help="run name in the stats (default: the controller)")
     p.add_argument("--u-limit-deg", type=positive_float, default=30.0, help="rudder command limit (default 30)")
     p.add_argument("--duration", type=nonneg_float, default=0.0, metavar="S",
@@ -94,7 +98,8 @@ def main(argv=None) -> int:
 
     lv = args.lv if args.lv is not None else (0.0 if args.controller == "sac" else 20.0)
     try:
-        cfg = ClSacConfig(control_rate_hz=args.rate, lv=lv, u_limit_rad=math.radians(args.u_limit_deg))
+        cfg = ClSacConfig(control_rate_hz=args.rate, lv=lv, u_limit_rad=math.radians(args.u_limit_deg),
+                          sigma_x=args.sigma_xu, sigma_u=args.sigma_xu).with_pfc(args.pfc)
     except ConfigError as exc:
         parser.error(str(exc))
     opts = AutopilotOptions(

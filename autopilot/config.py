@@ -8,6 +8,15 @@ from dataclasses import dataclass, field, replace
 import numpy as np
 
 
+# Parallel feedforward compensators D(s) = num/den (highest power first).  "paper": section 5's
+# D = 1/C, C = (4s + 40)/10.  "robust": the same C at a quarter of its gain, D = 10/(s + 10): no band of
+# constant K_e > 0 makes 1 + K_e (T + D) unstable (``python -m tools.pfc --pfc robust``; README, "W-ASPR").
+PFC_PRESETS: dict[str, tuple[tuple[float, ...], tuple[float, ...]]] = {
+    "paper": ((10.0,), (4.0, 40.0)),
+    "robust": ((10.0,), (1.0, 10.0)),
+}
+
+
 class ConfigError(ValueError):
     """A configuration value is invalid; the message names the field and the value."""
 
@@ -75,6 +84,14 @@ class ClSacConfig:
     def sac(cls, **overrides) -> "ClSacConfig":
         """Plain SAC (open-loop reference model): the same law with L_v = 0 (paper section 2)."""
         return cls(**{"lv": 0.0, **overrides})
+
+    def with_pfc(self, name: str) -> "ClSacConfig":
+        """A copy using the named PFC of ``PFC_PRESETS`` ("paper" or "robust")."""
+        try:
+            num, den = PFC_PRESETS[name]
+        except KeyError:
+            raise ConfigError(f"unknown PFC {name!r} (known: {', '.join(PFC_PRESETS)})") from None
+        return self.with_(pfc_num=num, pfc_den=den)
 
     def with_(self, **changes) -> "ClSacConfig":
         """A copy with some fields changed (validated again)."""

@@ -187,3 +187,23 @@ def test_run_experiment_api(tmp_path):
     with pytest.raises(ExperimentError, match="teleport"):
         run_experiment(tmp_path / "never", transport="teleport")
     assert not (tmp_path / "never").exists()
+
+
+def test_pfc_and_leakage_options_change_the_runs(tmp_path):
+    """--pfc robust and --sigma-xu reach the controller: metrics equal in-process runs built with them."""
+    from autopilot.config import ClSacConfig
+    from tools.scenario import PAPER, RunSpec, run_inprocess
+
+    out = tmp_path / "rob"
+    r = subprocess.run([sys.executable, "-m", "tools.experiment", "paper", "--out", str(out), "--runs", "sac,clsac",
+                        "--pfc", "robust", "--sigma-xu", "0.1", "--no-plot"], cwd=ROOT, capture_output=True, text=True,
+                       timeout=120)
+    assert r.returncode == 0, r.stderr
+    doc = json.loads((out / "summary.json").read_text())
+    assert doc["controller"]["pfc"] == "robust" and doc["controller"]["sigma_xu"] == 0.1
+    base = ClSacConfig(pfc_num=(10.0,), pfc_den=(1.0, 10.0), sigma_x=0.1, sigma_u=0.1)
+    for run in doc["runs"]:
+        ref = run_inprocess(PAPER, RunSpec(run["name"], run["Lv"]), base).metrics
+        assert run["metrics"] == pytest.approx(ref, rel=1e-12)
+    # With the robust PFC, SAC no longer saturates (paper PFC: 79 % of samples at the limit).
+    assert doc["runs"][0]["metrics"]["max_abs_u"] < 0.2

@@ -52,7 +52,9 @@ def brentq(*args, **kwargs):
     return _brentq(*args, **kwargs)
 
 # Paper section 5: C(s) = (4s + 40)/10, D(s) = 1/C(s) = 10/(4s + 40).  The default everywhere.
-PAPER_PFC: tuple[tuple[float, ...], tuple[float, ...]] = ((10.0,), (4.0, 40.0))
+from autopilot.config import PFC_PRESETS as _PRESETS  # noqa: E402  (one home for the presets)
+
+PAPER_PFC: tuple[tuple[float, ...], tuple[float, ...]] = _PRESETS["paper"]
 
 # The paper's compensator at a quarter of its gain: C(s) = (4s + 40)/40 = (s + 10)/10, D(s) = 10/(s + 10)
 # (chosen with ``robust_pfc_search``, see the README).  The paper's C is within a factor 1.019 of the gain
@@ -60,7 +62,7 @@ PAPER_PFC: tuple[tuple[float, ...], tuple[float, ...]] = ((10.0,), (4.0, 40.0))
 # (-0.28 +- 58.9j) and 1 + K F is unstable for K in [0.62, 20.8] and [27.3, 1014].  With this D, F is
 # W-ASPR with zeros damped at >= 0.27, 1 + K F is stable for every K > 0, the 100 Hz ZOH loop only for
 # K > 20.0 (the sampling limit ~ 2/(hf_gain T)), and the steady-state offset is 0.069 deg at 10 deg.
-ROBUST_PFC: tuple[tuple[float, ...], tuple[float, ...]] = ((10.0,), (1.0, 10.0))
+ROBUST_PFC: tuple[tuple[float, ...], tuple[float, ...]] = _PRESETS["robust"]
 
 PFC_PRESETS = {"paper": PAPER_PFC, "robust": ROBUST_PFC}
 

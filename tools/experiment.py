@@ -328,13 +328,19 @@ def format_table(results: Sequence[RunResult], scenario: Scenario | None = None)
 # ---------------------------------------------------------------------------------------- run
 def run_experiment(out_dir: str | os.PathLike, transport: str = "inprocess", runs: Iterable[str | RunSpec] | None = None,
                    plot: bool = True, *, scenario: str | Scenario = "paper",
-                   log: Callable[[str], None] | None = None) -> list[RunResult]:
+                   log: Callable[[str], None] | None = None, pfc: str | None = None,
+                   sigma_xu: float | None = None) -> list[RunResult]:
     """Fly the scenario's runs with ``transport``; write ``out_dir/summary.json`` and (``plot``) ``paper.png``.
 
     ``runs``: names (or RunSpecs) of the scenario's runs, None for all.  ``log``: called with progress
     lines (the CLI passes ``print``).  Raises ExperimentError on bad input, before flying anything.
+    ``pfc`` (a PFC preset name) and ``sigma_xu`` (K_Ix/K_Iu leakage) apply to every run; None keeps the paper's.
     Returns the RunResults (metrics and series) in run order.
     """
+    from dataclasses import replace
+
+    from autopilot.config import PFC_PRESETS
+
     from tools.scenario import PAPER_RUNS, Scenario
 
     say = log or (lambda _msg: None)
@@ -345,6 +351,12 @@ def run_experiment(out_dir: str | os.PathLike, transport: str = "inprocess", run
     else:
         scen, available = get_scenario(scenario)
     specs = select_runs(runs, available)
+    if pfc is not None and pfc not in PFC_PRESETS:
+        raise ExperimentError(f"unknown PFC {pfc!r} (known: {', '.join(PFC_PRESETS)})")
+    if sigma_xu is not None and not (sigma_xu >= 0 and sigma_xu < float("inf")):
+        raise ExperimentError(f"--sigma-xu must be finite and >= 0, got {sigma_xu!r}")
+    specs = [replace(s, pfc=pfc if pfc is not None else s.pfc, sigma_xu=sigma_xu if sigma_xu is not None else s.sigma_xu)
+             for s in specs]
     runner = get_transport(transport)
     out = prepare_out_dir(out_dir)
     results: list[RunResult] = []
@@ -356,7 +368,9 @@ def run_experiment(out_dir: str | os.PathLike, transport: str = "inprocess", run
         sat = saturation(res, scen.u_limit_rad)
         say(f"[{i}/{len(specs)}] {spec.name} done in {time.perf_counter() - t0:.2f} s: ise_ref={res.metrics['ise_ref']:.4g}"
             f" energy={res.metrics['energy']:.4g}" + (" (rudder saturated)" if sat["saturated"] else ""))
-    summary = write_summary(results, out / "summary.json", scenario=scen, transport=transport)
+    controller = {"pfc": pfc or "paper", "pfc_num_den": PFC_PRESETS[pfc or "paper"], "sigma_xu": sigma_xu or 0.0}
+    summary = write_summary(results, out / "summary.json", scenario=scen, transport=transport,
+                            extra={"controller": controller})
     say(f"wrote {summary.resolve()}")
     if plot:
         t0 = time.perf_counter()
@@ -388,6 +402,10 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--runs", metavar="A,B,...",
                    help="comma-separated subset of runs (default: all; paper: sac,clsac,clsac_lv10,clsac_lv50,clsac_lv100)")
     p.add_argument("--no-plot", action="store_true", help="do not write the figure")
+    p.add_argument("--pfc", choices=("paper", "robust"), default=None,
+                   help="PFC for every run: paper = 10/(4s+40) (default), robust = 10/(s+10) (see python -m tools.pfc)")
+    p.add_argument("--sigma-xu", type=float, default=None, metavar="SIGMA",
+                   help="sigma-modification of K_Ix, K_Iu for every run (default 0, the paper)")
     return p
 
 
@@ -402,6 +420,8 @@ def main(argv: Sequence[str] | None = None) -> int:
         runs = None if args.runs is None else args.runs.split(",")
         if runs is not None and any(not s.strip() for s in runs):
             raise ExperimentError(f"--runs has an empty name in {args.runs!r}")
+        if args.sigma_xu is not None and not (0 <= args.sigma_xu < float("inf")):
+            raise ExperimentError(f"--sigma-xu must be finite and >= 0, got {args.sigma_xu!r}")
         out = Path(args.out) if args.out else default_out_dir(args.scenario)
         check_out_dir(out)
         _, available = get_scenario(args.scenario)
@@ -410,7 +430,8 @@ def main(argv: Sequence[str] | None = None) -> int:
         out = prepare_out_dir(out)
         t0 = time.perf_counter()
         print(f"scenario {args.scenario!r}: {len(specs)} run(s) via {args.transport}, output in {out.resolve()}")
-        results = run_experiment(out, args.transport, specs, plot=not args.no_plot, scenario=args.scenario, log=print)
+        results = run_experiment(out, args.transport, specs, plot=not args.no_plot, scenario=args.scenario, log=print,
+                                 pfc=args.pfc, sigma_xu=args.sigma_xu)
     except ExperimentError as exc:
         print(f"python -m tools.experiment: error: {exc}", file=sys.stderr)
         return 2

@@ -32,6 +32,8 @@ class LaunchConfig:
     duration: float = 30.0
     controller: str = "clsac"
     lv: float | None = None
+    pfc: str = "paper"  # autopilot.config.PFC_PRESETS key
+    sigma_xu: float = 0.0  # sigma-modification of K_Ix, K_Iu (0 = the paper)
     name: str | None = None
     rate: float = 100.0
     physics_rate: float = 1000.0
@@ -188,7 +190,7 @@ def _argvs(cfg: LaunchConfig, out: Path, sitl_port: int, gcs_port: int) -> dict[
                  "--stats-json", str(out / "sitl.json")] + pwm
     ap = py + ["autopilot", "--sitl", f"127.0.0.1:{sitl_port}", "--gcs", f"127.0.0.1:{gcs_port}",
                "--rate", repr(cfg.rate), "--controller", cfg.controller, "--lv", repr(_lv(cfg)),
-               "--name", cfg.name or cfg.controller, "--u-limit-deg", repr(cfg.u_limit_deg),
+               "--pfc", cfg.pfc, "--sigma-xu", repr(cfg.sigma_xu), "--name", cfg.name or cfg.controller, "--u-limit-deg", repr(cfg.u_limit_deg),
                "--duration", repr(cfg.duration), "--telemetry-rate", repr(_telemetry_rate(cfg)),
                "--tlog", str(out / "flight.tlog"), "--stats-json", str(out / "autopilot.json")] + pwm
     # Lockstep: the GCS schedules the profile up to the end; real time: it flies until the autopilot powers off.
@@ -336,6 +338,8 @@ def _summary(cfg, out: Path, children, failed, error, exit_code, wall) -> dict:
         "mode": "lockstep" if cfg.lockstep else "realtime",
         "controller": cfg.controller,
         "Lv": _lv(cfg),
+        "pfc": cfg.pfc,
+        "sigma_xu": cfg.sigma_xu,
         "duration_s": cfg.duration,
         "rate_hz": cfg.rate,
         "physics_rate_hz": cfg.physics_rate,
@@ -421,6 +425,7 @@ def run_lockstep(scenario, run, workdir):
 
     cfg = LaunchConfig(
         lockstep=True, duration=scenario.duration_s, controller="sac" if run.lv == 0 else "clsac", lv=run.lv,
+        pfc=run.pfc or "paper", sigma_xu=run.sigma_xu or 0.0,
         name=run.name, rate=scenario.control_rate_hz, physics_rate=scenario.physics_rate_hz, profile="square",
         amplitude=math.degrees(scenario.amplitude_rad), period=scenario.period_s,
         u_limit_deg=math.degrees(scenario.u_limit_rad), out=str(Path(workdir)), echo=False, series=True,
@@ -465,6 +470,10 @@ def build_parser():
     p.add_argument("--duration", type=positive_float, default=30.0, metavar="S", help="flight length in sim seconds (default 30)")
     p.add_argument("--controller", choices=("sac", "clsac"), default="clsac", help="default clsac")
     p.add_argument("--lv", type=nonneg_float, default=None, help="override Lv (default: 0 for sac, 20 for clsac)")
+    p.add_argument("--pfc", choices=("paper", "robust"), default="paper",
+                   help="parallel feedforward compensator: paper = 10/(4s+40) (default), robust = 10/(s+10)")
+    p.add_argument("--sigma-xu", type=nonneg_float, default=0.0, metavar="SIGMA",
+                   help="sigma-modification of K_Ix, K_Iu (default 0, the paper; 0.1 keeps long flights bounded)")
     p.add_argument("--rate", type=rate_hz, default=100.0, metavar="HZ", help="control rate (default 100)")
     p.add_argument("--physics-rate", type=positive_float, default=None, metavar="HZ",
                    help="default: the smallest whole multiple of --rate >= 1000 Hz (1000 at 100 Hz, 1200 at 400 Hz)")
@@ -506,6 +515,7 @@ def main(argv=None) -> int:
         parser.error(f"--physics-rate ({args.physics_rate:g}) must be a whole multiple of --rate ({args.rate:g})")
     cfg = LaunchConfig(
         lockstep=args.lockstep, duration=args.duration, controller=args.controller, lv=args.lv, rate=args.rate,
+        pfc=args.pfc, sigma_xu=args.sigma_xu,
         physics_rate=args.physics_rate, sensor_rate=args.sensor_rate, telemetry_rate=args.telemetry_rate,
         out=args.out, base_port=args.base_port, start_time=args.start_time, profile=args.profile,
         amplitude=args.amplitude, period=args.period, csv=args.csv, u_limit_deg=args.u_limit_deg,

@@ -55,8 +55,12 @@ class Scenario:
 
 @dataclass(frozen=True)
 class RunSpec:
+    """One run: its name, L_v, and optionally a PFC preset and the K_Ix/K_Iu leakage (None: keep the base's)."""
+
     name: str
     lv: float
+    pfc: str | None = None  # a key of autopilot.config.PFC_PRESETS
+    sigma_xu: float | None = None  # sigma_x = sigma_u
 
 
 PAPER = Scenario()
@@ -70,8 +74,12 @@ PAPER_RUNS = (
 
 
 def controller_config(scenario: Scenario, run: RunSpec, base: ClSacConfig | None = None) -> ClSacConfig:
-    base = base or ClSacConfig()
-    return base.with_(lv=run.lv, control_rate_hz=scenario.control_rate_hz, u_limit_rad=scenario.u_limit_rad)
+    cfg = (base or ClSacConfig()).with_(lv=run.lv, control_rate_hz=scenario.control_rate_hz, u_limit_rad=scenario.u_limit_rad)
+    if run.pfc is not None:
+        cfg = cfg.with_pfc(run.pfc)
+    if run.sigma_xu is not None:
+        cfg = cfg.with_(sigma_x=run.sigma_xu, sigma_u=run.sigma_xu)
+    return cfg
 
 
 @dataclass
