@@ -16,6 +16,8 @@ import sys
 from autopilot.protocol import (add_cpu_argument, add_rt_priority_argument, apply_cpu, apply_rt_priority, GCS_ID, OneLineArgumentParser, endpoint, fmt_endpoint, install_stop_handlers,
                                 nonneg_float, positive_float, rate_hz)
 from autopilot.pwm import add_pwm_arguments, pwm_from_args
+from autopilot.telemetry.flags import add_arguments as add_telemetry_arguments
+from autopilot.telemetry.flags import requested as telemetry_requested
 
 
 def build_parser() -> OneLineArgumentParser:
@@ -64,6 +66,7 @@ def build_parser() -> OneLineArgumentParser:
     p.add_argument("--series", default=None, metavar="PATH.npz",
                    help="record every control step (setpoint, roll, command, controller internals) to this .npz at exit")
     p.add_argument("--quiet", action="store_true", help="only the start line and the counters")
+    add_telemetry_arguments(p)
     add_pwm_arguments(p)
     add_cpu_argument(p)
     add_rt_priority_argument(p)
@@ -124,6 +127,15 @@ def main(argv=None) -> int:
     if args.series:
         recorder = SeriesRecorder()
         ap.hooks.append(recorder)
+    tel = None
+    if telemetry_requested(args):
+        from autopilot import telemetry as tm  # imports rerun (~1 s): only when asked for
+
+        # Our own stop handlers flush everything on SIGINT/SIGTERM; the writer also closes at exit.
+        tel = tm.from_args(args, "autopilot", handle_signals=False)
+        hook = tm.AutopilotHook(tel, control_rate_hz=args.rate)
+        ap.hooks.append(hook)  # after the servo went out: the loop only hands over a row
+        ap.event_hooks.append(hook.event)
 
     def stop():
         ap.stop_requested = True
@@ -143,6 +155,8 @@ def main(argv=None) -> int:
         if tlog is not None:
             tlog.close()
         ap.close()
+        if tel is not None:
+            tel.close()
     if recorder is not None:
         recorder.save(args.series)
     _print_summary(stats)

@@ -93,8 +93,10 @@ class ClSac:
         ctrl = ClSac(ClSacConfig())            # the paper's CL-SAC, L_v = 20, 100 Hz
         u = ctrl(phi_measured, phi_command)    # rudder command in rad, already limited
 
-    After each call the internals are attributes (``e``, ``ym``, ``ym_ol``, ``ya``, ``y_pfc``,
-    ``u_raw``, ``u``, ``saturated`` and the gains ``kpe``, ``kie``, ``ke`` ... ``ku``); for the SISO
+    After each call the internals of that step are attributes (``e``, ``ym``, ``ym_ol``, ``ya``, ``y_pfc``,
+    ``u_raw``, ``u``, ``saturated`` and the gains it used, ``kpe``, ``kie``, ``ke`` ... ``ku``, so that
+    ``ke == kpe + kie``); the states carried to the next step are ``xm``, ``xm_ol``, ``xd`` and the
+    integral gains ``ki_e``, ``ki_x``, ``ki_u``.  For the SISO
     loop they are floats, for MIMO numpy arrays.  ``telemetry()`` returns them as a tuple ordered
     like ``TELEMETRY_FIELDS``.  ``reset()`` returns to the initial conditions; ``hold(u)`` advances
     only the PFC with a command applied by someone else (failsafe), adaptation frozen.
@@ -174,9 +176,9 @@ class ClSac:
             self.xm = 0.0
             self.xm_ol = 0.0
             self.xd = 0.0
-            self.kie = float(self._ki0[0][0, 0])
-            self.kix = float(self._ki0[1][0, 0])
-            self.kiu = float(self._ki0[2][0, 0])
+            self.ki_e = self.kie = float(self._ki0[0][0, 0])
+            self.ki_x = self.kix = float(self._ki0[1][0, 0])
+            self.ki_u = self.kiu = float(self._ki0[2][0, 0])
             zero = 0.0
             self.um = self.y = self.ym = self.ym_ol = self.ya = self.y_pfc = self.e = zero
             self.u_raw = self.u = zero
@@ -186,6 +188,7 @@ class ClSac:
             self.xm = np.zeros(n_m)
             self.xm_ol = np.zeros(n_m)
             self.xd = np.zeros((self._nd, m))  # one PFC per output channel
+            self.ki_e, self.ki_x, self.ki_u = (k.copy() for k in self._ki0)
             self.kie, self.kix, self.kiu = (k.copy() for k in self._ki0)
             self.um = np.zeros(m_m)
             self.y = self.ym = self.ym_ol = self.ya = self.y_pfc = self.e = np.zeros(m)
@@ -237,9 +240,10 @@ class ClSac:
         kpe = e * e * s["gpe"]  # K_pe = e e^T G_pe
         kpx = e * xm * s["gpx"]  # K_px = e x_m^T G_px
         kpu = e * um * s["gpu"]  # K_pu = e u_m^T G_pu
-        ke = kpe + self.kie
-        kx = kpx + self.kix
-        ku = kpu + self.kiu
+        kie, kix, kiu = self.ki_e, self.ki_x, self.ki_u  # integral gains of this step
+        ke = kpe + kie
+        kx = kpx + kix
+        ku = kpu + kiu
         u_raw = ke * e + kx * xm + ku * um  # u_p = K_e e + K_x x_m + K_u u_m
         umax = self._umax
         u = umax if u_raw > umax else (-umax if u_raw < -umax else u_raw)
@@ -256,9 +260,9 @@ class ClSac:
                 dix = 0.0
             if diu * um * u_raw > 0:
                 diu = 0.0
-        self.kie = self._decay * self.kie + die
-        self.kix = self._decay_x * self.kix + dix  # decay_x = 1 exactly when sigma_x = 0 (the paper)
-        self.kiu = self._decay_u * self.kiu + diu
+        self.ki_e = self._decay * kie + die
+        self.ki_x = self._decay_x * kix + dix  # decay_x = 1 exactly when sigma_x = 0 (the paper)
+        self.ki_u = self._decay_u * kiu + diu
         # Reference models and PFC to k+1 (paper eq. clrm1, olrm1; D(s) driven by the applied u).
         self.xm = s["phi_m"] * xm + (s["g_mu"] * um + s["g_my"] * ya)
         ym_ol = s["cm"] * self.xm_ol  # open-loop y_m,ol at step k (telemetry, ise_ref)
@@ -268,6 +272,7 @@ class ClSac:
         self.um, self.y, self.ym, self.ym_ol, self.ya, self.y_pfc, self.e = um, y, ym, ym_ol, ya, y_pfc, e
         self.u_raw, self.u, self.saturated = u_raw, u, sat
         self.kpe, self.kpx, self.kpu, self.ke, self.kx, self.ku = kpe, kpx, kpu, ke, kx, ku
+        self.kie, self.kix, self.kiu = kie, kix, kiu
         self.frozen = False
         self.steps += 1
         return u
@@ -287,7 +292,8 @@ class ClSac:
         kpe = np.outer(e, e) @ G["pe"]  # K_pe = e e^T G_pe
         kpx = np.outer(e, xm) @ G["px"]  # K_px = e x_m^T G_px
         kpu = np.outer(e, um) @ G["pu"]  # K_pu = e u_m^T G_pu
-        ke, kx, ku = kpe + self.kie, kpx + self.kix, kpu + self.kiu
+        kie, kix, kiu = self.ki_e, self.ki_x, self.ki_u  # integral gains of this step
+        ke, kx, ku = kpe + kie, kpx + kix, kpu + kiu
         u_raw = ke @ e + kx @ xm + ku @ um  # u_p = K_e e + K_x x_m + K_u u_m
         u = np.clip(u_raw, -self._umax, self._umax)
         sat_ch = u != u_raw
@@ -303,9 +309,9 @@ class ClSac:
                     dix[i] = 0.0
                 if diu[i] @ um * u_raw[i] > 0:
                     diu[i] = 0.0
-        self.kie = self._decay * self.kie + die
-        self.kix = self._decay_x * self.kix + dix
-        self.kiu = self._decay_u * self.kiu + diu
+        self.ki_e = self._decay * kie + die
+        self.ki_x = self._decay_x * kix + dix
+        self.ki_u = self._decay_u * kiu + diu
         self.xm = self._phi_m @ xm + (self._gam_mu @ um + self._gam_my @ ya)
         ym_ol = self._cm @ self.xm_ol
         self.xm_ol = self._phi_ol @ self.xm_ol + self._gam_ol @ um
@@ -313,6 +319,7 @@ class ClSac:
         self.um, self.y, self.ym, self.ym_ol, self.ya, self.y_pfc, self.e = um, y, ym, ym_ol, ya, y_pfc, e
         self.u_raw, self.u, self.saturated = u_raw, u, bool(np.any(sat_ch))
         self.kpe, self.kpx, self.kpu, self.ke, self.kx, self.ku = kpe, kpx, kpu, ke, kx, ku
+        self.kie, self.kix, self.kiu = kie, kix, kiu
         self.frozen = False
         self.steps += 1
         return u

@@ -14,6 +14,8 @@ import sys
 from autopilot.protocol import (add_cpu_argument, add_rt_priority_argument, apply_cpu, apply_rt_priority, OneLineArgumentParser, default_physics_rate, endpoint, fmt_endpoint, install_stop_handlers, nonneg_float,
                                 positive_float, rate_hz)
 from autopilot.pwm import add_pwm_arguments, pwm_from_args
+from autopilot.telemetry.flags import add_arguments as add_telemetry_arguments
+from autopilot.telemetry.flags import requested as telemetry_requested
 
 
 def build_parser() -> OneLineArgumentParser:
@@ -44,6 +46,7 @@ def build_parser() -> OneLineArgumentParser:
     p.add_argument("--series", default=None, metavar="PATH.npz",
                    help="record the truth state after every frame / sensor message to this .npz at exit")
     p.add_argument("--quiet", action="store_true", help="only the start line and the counters")
+    add_telemetry_arguments(p)
     add_pwm_arguments(p)
     add_cpu_argument(p)
     add_rt_priority_argument(p)
@@ -82,6 +85,14 @@ def main(argv=None) -> int:
     if args.series:
         recorder = StateRecorder()
         sitl.hooks.append(recorder)
+    tel = None
+    if telemetry_requested(args):
+        from autopilot import telemetry as tm  # imports rerun (~1 s): only when asked for
+
+        tel = tm.from_args(args, "sitl", handle_signals=False, send_blueprint=False)  # the autopilot sends it
+        hook = tm.SitlHook(tel)
+        sitl.hooks.append(hook)
+        sitl.event_hooks.append(hook.event)
 
     def stop():
         sitl.stop_requested = True
@@ -102,6 +113,8 @@ def main(argv=None) -> int:
     finally:
         stats = sitl.stats()
         sitl.close()
+        if tel is not None:
+            tel.close()
     from autopilot.link import format_counters
 
     if recorder is not None:

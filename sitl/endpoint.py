@@ -96,6 +96,7 @@ class Sitl:
         self.link = UdpLink("autopilot", SITL_ID, opts.listen, None, peers=[AUTOPILOT_ID],
                             msgids=[SERVO_OUTPUT_RAW, HEARTBEAT], learn_remote=True)
         self.hooks: list = []
+        self.event_hooks: list = []  # callables(severity, text), for each status event
         self.events = Counter()
         self.stop_requested = False
         self.u = 0.0  # applied rudder command (rad)
@@ -116,6 +117,8 @@ class Sitl:
             print(f"sitl: {text}", file=self.out, flush=True)
         if send:
             self.link.send(M.MAVLink_statustext_message(severity, text.encode()[:50], 0, 0))
+        for h in self.event_hooks:
+            h(severity, text)
 
     def _heartbeat(self):
         self.link.send(M.MAVLink_heartbeat_message(M.MAV_TYPE_GENERIC, M.MAV_AUTOPILOT_INVALID, 0, 0,

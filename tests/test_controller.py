@@ -28,9 +28,10 @@ def test_two_steps_equal_hand_computation():
     # K_Iu = T*10*e0*um0.
     kie1 = (1 - math.exp(-5 * T)) / 5 * 10 * e0**2
     kiu1 = T * 10 * e0 * um0
-    assert ctrl.kie == pytest.approx(kie1, rel=1e-12)
-    assert ctrl.kix == 0.0
-    assert ctrl.kiu == pytest.approx(kiu1, rel=1e-12)
+    assert ctrl.kie == ctrl.kix == ctrl.kiu == 0.0  # step 0 used K_I(0) = 0 ...
+    assert ctrl.ki_e == pytest.approx(kie1, rel=1e-12)  # ... and carries these to step 1
+    assert ctrl.ki_x == 0.0
+    assert ctrl.ki_u == pytest.approx(kiu1, rel=1e-12)
 
     y1, um1 = 0.03, 0.17
     ctrl(y1, um1)
@@ -51,6 +52,7 @@ def test_two_steps_equal_hand_computation():
     assert ctrl.e == pytest.approx(e1, rel=1e-12)
     assert ctrl.u == pytest.approx(ke * e1 + kx * xm1 + ku * um1, rel=1e-11)
     assert (ctrl.ke, ctrl.kx, ctrl.ku) == pytest.approx((ke, kx, ku), rel=1e-11)
+    assert (ctrl.kie, ctrl.kiu) == pytest.approx((kie1, kiu1), rel=1e-12)  # the integral parts step 1 used
 
 
 def _plain_sac_run(ys, ums, gamma=10.0, sigma=5.0, umax=math.radians(30)):
@@ -117,7 +119,7 @@ def test_fast_path_equals_matrix_path():
         uf = fast(y, um)
         um_ = mat(y, um)
         assert uf == pytest.approx(float(um_[0]), rel=1e-12, abs=1e-15)
-    for name in ("kie", "kix", "kiu", "xm"):
+    for name in ("ki_e", "ki_x", "ki_u", "xm"):
         assert float(np.ravel(getattr(mat, name))[0]) == pytest.approx(getattr(fast, name), rel=1e-12)
 
 
@@ -175,12 +177,12 @@ def test_hold_freezes_adaptation_and_drives_pfc():
     ctrl = ClSac()
     for _ in range(20):
         ctrl(0.01, 0.17)
-    gains = (ctrl.kie, ctrl.kix, ctrl.kiu, ctrl.xm)
+    gains = (ctrl.ki_e, ctrl.ki_x, ctrl.ki_u, ctrl.xm)
     y_before = ctrl.y_pfc
     for _ in range(100):
         ctrl.hold(0.0)
     assert ctrl.frozen
-    assert (ctrl.kie, ctrl.kix, ctrl.kiu, ctrl.xm) == gains
+    assert (ctrl.ki_e, ctrl.ki_x, ctrl.ki_u, ctrl.xm) == gains
     ctrl(0.01, 0.17)
     assert abs(ctrl.y_pfc) < abs(y_before) * math.exp(-10 * 0.9)  # decayed with the D(s) pole at -10
     assert not ctrl.frozen
@@ -191,7 +193,7 @@ def test_reset_restarts_identically():
     seq = [(0.01 * k, 0.17) for k in range(50)]
     first = [ctrl(y, um) for y, um in seq]
     ctrl.reset()
-    assert ctrl.kie == ctrl.kix == ctrl.kiu == 0.0 and ctrl.u == 0.0
+    assert ctrl.ki_e == ctrl.ki_x == ctrl.ki_u == 0.0 and ctrl.u == 0.0
     assert [ctrl(y, um) for y, um in seq] == first
 
 
@@ -202,7 +204,10 @@ def test_telemetry_tuple_matches_fields():
     assert len(values) == len(TELEMETRY_FIELDS)
     for name, value in zip(TELEMETRY_FIELDS, values):
         assert value == getattr(ctrl, name), name
-    assert ctrl.ke == ctrl.kpe + (1 - math.exp(-5 * T)) / 5 * 10 * 0.0  # K_Ie(0) = 0: K_e is its P part
+    for _ in range(3):
+        ctrl(0.02, 0.1)
+    assert ctrl.kie > 0 and ctrl.ke == ctrl.kpe + ctrl.kie  # each gain = its P part + the I part of the same step
+    assert ctrl.kx == ctrl.kpx + ctrl.kix and ctrl.ku == ctrl.kpu + ctrl.kiu
 
 
 @pytest.mark.parametrize("field", ["gamma_pe", "gamma_ie", "gamma_px", "gamma_ix", "gamma_pu", "gamma_iu"])
@@ -238,10 +243,10 @@ def test_bad_config_names_the_offending_value(kwargs, match):
 def test_non_finite_inputs_are_rejected_without_changing_state(y, um):
     ctrl = ClSac()
     ctrl(0.01, 0.1)
-    before = ctrl.telemetry(), ctrl.xm, ctrl.kie
+    before = ctrl.telemetry(), ctrl.xm, ctrl.ki_e
     with pytest.raises(NonFiniteInputError, match="finite"):
         ctrl(y, um)
-    assert (ctrl.telemetry(), ctrl.xm, ctrl.kie) == before
+    assert (ctrl.telemetry(), ctrl.xm, ctrl.ki_e) == before
 
 
 @pytest.mark.parametrize("num,den", [((10.0,), (4.0, 40.0)), ((1.0, 2.0), (1.0, 3.0, 5.0)), ((3.0,), (2.0, 1.0, 4.0, 7.0))])

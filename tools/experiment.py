@@ -1,6 +1,7 @@
 """Run a reference scenario for every controller variant and write its metrics and figure.
 
     python -m tools.experiment paper --out DIR [--transport inprocess|mavlink] [--runs sac,clsac,...] [--no-plot]
+                                           [--no-rrd] [--pfc paper|robust] [--sigma-xu SIGMA]
 
 writes ``DIR/summary.json`` (schema of DESIGN.md section 7) and ``DIR/paper.png``, and prints a table of
 the metrics of DESIGN.md section 4.  From Python::
@@ -329,7 +330,7 @@ def format_table(results: Sequence[RunResult], scenario: Scenario | None = None)
 def run_experiment(out_dir: str | os.PathLike, transport: str = "inprocess", runs: Iterable[str | RunSpec] | None = None,
                    plot: bool = True, *, scenario: str | Scenario = "paper",
                    log: Callable[[str], None] | None = None, pfc: str | None = None,
-                   sigma_xu: float | None = None) -> list[RunResult]:
+                   sigma_xu: float | None = None, rrd: bool = True) -> list[RunResult]:
     """Fly the scenario's runs with ``transport``; write ``out_dir/summary.json`` and (``plot``) ``paper.png``.
 
     ``runs``: names (or RunSpecs) of the scenario's runs, None for all.  ``log``: called with progress
@@ -372,6 +373,12 @@ def run_experiment(out_dir: str | os.PathLike, transport: str = "inprocess", run
     summary = write_summary(results, out / "summary.json", scenario=scen, transport=transport,
                             extra={"controller": controller})
     say(f"wrote {summary.resolve()}")
+    if rrd:
+        t0 = time.perf_counter()
+        from autopilot.telemetry import log_experiment  # lazy: rerun costs ~1 s to import
+
+        path = log_experiment(results, out / f"{scen.name}.rrd")
+        say(f"wrote {Path(path).resolve()} ({time.perf_counter() - t0:.1f} s; open it with: rerun {Path(path).resolve()})")
     if plot:
         t0 = time.perf_counter()
         from tools.plots import save_paper_figure  # lazy: matplotlib costs ~1 s to import
@@ -402,6 +409,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--runs", metavar="A,B,...",
                    help="comma-separated subset of runs (default: all; paper: sac,clsac,clsac_lv10,clsac_lv50,clsac_lv100)")
     p.add_argument("--no-plot", action="store_true", help="do not write the figure")
+    p.add_argument("--no-rrd", action="store_true", help="do not write OUT/<scenario>.rrd (every run side by side in Rerun)")
     p.add_argument("--pfc", choices=("paper", "robust"), default=None,
                    help="PFC for every run: paper = 10/(4s+40) (default), robust = 10/(s+10) (see python -m tools.pfc)")
     p.add_argument("--sigma-xu", type=float, default=None, metavar="SIGMA",
@@ -431,7 +439,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         t0 = time.perf_counter()
         print(f"scenario {args.scenario!r}: {len(specs)} run(s) via {args.transport}, output in {out.resolve()}")
         results = run_experiment(out, args.transport, specs, plot=not args.no_plot, scenario=args.scenario, log=print,
-                                 pfc=args.pfc, sigma_xu=args.sigma_xu)
+                                 pfc=args.pfc, sigma_xu=args.sigma_xu, rrd=not args.no_rrd)
     except ExperimentError as exc:
         print(f"python -m tools.experiment: error: {exc}", file=sys.stderr)
         return 2

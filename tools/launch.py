@@ -53,6 +53,9 @@ class LaunchConfig:
     pin: bool = False  # pin the SITL to CPU 0 and the autopilot to CPU 1 (lockstep ping-pong keeps its caches)
     series: bool = False  # autopilot and SITL record per-step series (DIR/autopilot_series.npz, DIR/sitl_series.npz)
     timeout: float | None = None  # wall-clock limit for the whole flight (default from the duration)
+    rrd: bool = True  # Rerun telemetry from the autopilot and the SITL, merged into DIR/flight.rrd
+    viewer: bool = False  # spawn a Rerun viewer (or reuse the one on port 9876) and stream to it live
+    connect: str | None = None  # stream live to a running Rerun viewer at this URL
     extra: dict = field(default_factory=dict)  # extra argv per process name
 
 
@@ -182,7 +185,8 @@ def _telemetry_rate(cfg: LaunchConfig) -> float:
     return 10.0 if cfg.lockstep else 50.0
 
 
-def _argvs(cfg: LaunchConfig, out: Path, sitl_port: int, gcs_port: int) -> dict[str, list[str]]:
+def _argvs(cfg: LaunchConfig, out: Path, sitl_port: int, gcs_port: int,
+           telemetry: dict[str, list[str]] | None = None) -> dict[str, list[str]]:
     py = [sys.executable, "-u", "-m"]
     pwm = ["--rudder-max-deg", repr(max(cfg.rudder_max_deg, cfg.u_limit_deg))]
     sitl = py + ["sitl", "--listen", f"127.0.0.1:{sitl_port}", "--rate", repr(cfg.rate),
@@ -213,6 +217,9 @@ def _argvs(cfg: LaunchConfig, out: Path, sitl_port: int, gcs_port: int) -> dict[
     if cfg.pin and (os.cpu_count() or 1) >= 2:
         sitl += ["--cpu", "0"]
         ap += ["--cpu", "1"]
+    if telemetry:
+        for name, argv in (("sitl", sitl), ("autopilot", ap)):
+            argv += telemetry[name]
     for name, argv in (("sitl", sitl), ("autopilot", ap), ("gcs", gcs)):
         argv += list(cfg.extra.get(name, []))
     return {"sitl": sitl, "autopilot": ap, "gcs": gcs}
@@ -231,13 +238,14 @@ def launch(cfg: LaunchConfig, stop_event: threading.Event | None = None) -> Laun
     interrupted = False
     t_launch = time.monotonic()
     timeout = cfg.timeout or ((60.0 + cfg.duration * 0.5) if cfg.lockstep else (cfg.duration + 30.0))
+    telemetry, parts = _telemetry_argvs(cfg, out)
     try:
         for attempt in range(3):
             if cfg.base_port is not None:
                 sitl_port, gcs_port = cfg.base_port, cfg.base_port + 1
             else:
                 sitl_port, gcs_port = free_udp_ports(2)
-            argvs = _argvs(cfg, out, sitl_port, gcs_port)
+            argvs = _argvs(cfg, out, sitl_port, gcs_port, telemetry)
             # All three start together (the autopilot announces itself until the SITL and the GCS answer).
             children = {
                 "sitl": Child("sitl", argvs["sitl"], out / "sitl.log", cfg.echo, "listening on"),
@@ -301,9 +309,53 @@ def launch(cfg: LaunchConfig, stop_event: threading.Event | None = None) -> Laun
         _stop_all(children.values())
         for c in children.values():
             c.finish()
+    rrd_path, rrd_error = _merge_telemetry(parts, out)
+    if rrd_error and not failed and not interrupted:
+        failed, error = "telemetry", rrd_error
     exit_code = 130 if interrupted else (1 if failed else 0)
-    summary = _summary(cfg, out, children, failed, error, exit_code, time.monotonic() - t_launch)
+    summary = _summary(cfg, out, children, failed, error, exit_code, time.monotonic() - t_launch, rrd_path)
     return LaunchResult(exit_code == 0, exit_code, error, out, summary)
+
+
+def _telemetry_argvs(cfg: LaunchConfig, out: Path) -> tuple[dict[str, list[str]] | None, dict[str, Path]]:
+    """One recording id for the flight; each process writes its own part file (merged at the end)."""
+    if not (cfg.rrd or cfg.viewer or cfg.connect):
+        return None, {}
+    from autopilot import telemetry as tm
+
+    rid = tm.new_recording_id()
+    parts = tm.part_paths(out) if cfg.rrd else {}
+    for p in parts.values():
+        p.parent.mkdir(parents=True, exist_ok=True)
+        p.unlink(missing_ok=True)
+    url = cfg.connect or (tm.spawn_viewer() if cfg.viewer else None)  # one viewer for both processes
+    argv = {}
+    for name in ("autopilot", "sitl"):
+        argv[name] = ["--recording-id", rid]
+        if name in parts:
+            argv[name] += ["--rrd", str(parts[name])]
+        if url:
+            argv[name] += ["--connect", url]
+    return argv, parts
+
+
+def _merge_telemetry(parts: dict[str, Path], out: Path) -> tuple[Path | None, str | None]:
+    """Merge the processes' part files into DIR/flight.rrd (whatever ended the flight); (path, error)."""
+    existing = [p for p in parts.values() if p.exists() and p.stat().st_size > 0]
+    if not existing:
+        return None, ("no telemetry was written" if parts else None)
+    from autopilot import telemetry as tm
+
+    target = out / "flight.rrd"
+    try:
+        tm.merge_recordings(existing, target, remove_parts=True)
+    except Exception as exc:  # noqa: BLE001  (a flight's other files stay valid; say what went wrong)
+        return None, f"merging telemetry into {target} failed: {exc}"
+    try:
+        (out / ".parts").rmdir()
+    except OSError:
+        pass
+    return target, None
 
 
 def _stop_all(children):
@@ -324,7 +376,7 @@ def _load(path: Path):
         return None
 
 
-def _summary(cfg, out: Path, children, failed, error, exit_code, wall) -> dict:
+def _summary(cfg, out: Path, children, failed, error, exit_code, wall, rrd_path=None) -> dict:
     ap = _load(out / "autopilot.json")
     sitl = _load(out / "sitl.json")
     gcs = _load(out / "gcs.json")
@@ -363,6 +415,7 @@ def _summary(cfg, out: Path, children, failed, error, exit_code, wall) -> dict:
         },
         "files": {
             "tlog": str(out / "flight.tlog"),
+            "rrd": str(rrd_path) if rrd_path else None,
             "summary": str(out / "summary.json"),
             "logs": {n: str(out / f"{n}.log") for n in PROCESSES},
             "stats": {n: str(out / f"{n}.json") for n in PROCESSES},
@@ -412,7 +465,10 @@ def print_summary(res: LaunchResult) -> None:
     if ev:
         print(f"   autopilot events: {ev}")
     f = s["files"]
-    print(f"   files: {f['tlog']}  {f['summary']}  logs: {Path(f['logs']['autopilot']).parent}/*.log")
+    rrd = f"  {f['rrd']}" if f.get("rrd") else ""
+    print(f"   files: {f['tlog']}{rrd}  {f['summary']}  logs: {Path(f['logs']['autopilot']).parent}/*.log")
+    if f.get("rrd"):
+        print(f"   open the flight in the Rerun viewer: rerun {f['rrd']}")
 
 
 def run_lockstep(scenario, run, workdir):
@@ -429,6 +485,7 @@ def run_lockstep(scenario, run, workdir):
         name=run.name, rate=scenario.control_rate_hz, physics_rate=scenario.physics_rate_hz, profile="square",
         amplitude=math.degrees(scenario.amplitude_rad), period=scenario.period_s,
         u_limit_deg=math.degrees(scenario.u_limit_rad), out=str(Path(workdir)), echo=False, series=True,
+        rrd=False,  # the experiment logs every run side by side in paper.rrd from the series
     )
     res = launch(cfg)
     if not res.ok or not res.summary["runs"]:
@@ -494,6 +551,11 @@ def build_parser():
                    help="real time: run the autopilot under SCHED_FIFO priority N (SITL N-1); default 0 = normal")
     p.add_argument("--pin", action="store_true", help="pin the SITL to CPU 0 and the autopilot to CPU 1")
     p.add_argument("--quiet", action="store_true", help="do not echo the processes' output (it is still in DIR/*.log)")
+    g = p.add_argument_group("telemetry (Rerun)")
+    g.add_argument("--viewer", action="store_true", help="show the flight live: spawn a Rerun viewer (or reuse one on port 9876)")
+    g.add_argument("--connect", metavar="URL", default=None,
+                   help="show the flight live in a running Rerun viewer, e.g. rerun+http://127.0.0.1:9876/proxy")
+    g.add_argument("--no-rrd", dest="rrd", action="store_false", help="do not write DIR/flight.rrd")
     return p
 
 
@@ -519,7 +581,7 @@ def main(argv=None) -> int:
         physics_rate=args.physics_rate, sensor_rate=args.sensor_rate, telemetry_rate=args.telemetry_rate,
         out=args.out, base_port=args.base_port, start_time=args.start_time, profile=args.profile,
         amplitude=args.amplitude, period=args.period, csv=args.csv, u_limit_deg=args.u_limit_deg,
-        echo=not args.quiet, timeout=args.timeout, pin=args.pin,
+        echo=not args.quiet, timeout=args.timeout, pin=args.pin, rrd=args.rrd, viewer=args.viewer, connect=args.connect,
         rt_priority=args.rt_priority,
     )
     stop = threading.Event()

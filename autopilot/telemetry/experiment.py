@@ -1,0 +1,115 @@
+"""Experiments in the viewer: every run of a scenario in one ``.rrd``, one entity subtree per run.
+
+    /runs/command                 um (shared: every run gets the same command)
+    /runs/reference_ol            ym_ol (shared: the open-loop model is driven by the command alone)
+    /runs/<name>/roll             phi
+    /runs/<name>/reference        ym (closed-loop reference: depends on the run through L_v)
+    /runs/<name>/error            e
+    /runs/<name>/rudder           u
+    /runs/<name>/gains/ke|kx|ku   total gains
+    /runs/<name>/gains/parts      Kpe, KIe, Kpx, KIx, Kpu, KIu
+    /runs/<name>/state            v, p, r, delta_r
+    /runs/metrics                 table of the metrics (markdown)
+
+Time is ``sim_time`` (the runs are simulations; there is no meaningful wall time).
+"""
+
+from __future__ import annotations
+
+import os
+from collections.abc import Sequence
+from pathlib import Path
+
+import numpy as np
+import rerun as rr
+
+from autopilot.telemetry import layout as L
+from autopilot.telemetry.blueprints import experiment_blueprint, run_path
+from autopilot.telemetry.writer import new_recording_id, scalar_column, sim_time_column
+
+
+def _style(names: Sequence[str], colors: Sequence[L.Rgb], step: bool = False) -> rr.SeriesLines:
+    return rr.SeriesLines(names=list(names), colors=[list(c) for c in colors],
+                          interpolation_mode="StepAfter" if step else None)
+
+
+def _shade(c: L.Rgb, f: float) -> L.Rgb:
+    return tuple(int(min(255, max(0, round(v * f)))) for v in c)  # type: ignore[return-value]
+
+
+def _metrics_markdown(results) -> str:
+    keys: list[str] = []
+    for r in results:
+        for k in r.metrics:
+            if k not in keys:
+                keys.append(k)
+    head = "| run | Lv | " + " | ".join(keys) + " |"
+    sep = "|---|---:|" + "---:|" * len(keys)
+    rows = [f"| {r.name} | {r.lv:g} | " + " | ".join(f"{r.metrics.get(k, float('nan')):.6g}" for k in keys) + " |"
+            for r in results]
+    return "\n".join([head, sep, *rows])
+
+
+def log_experiment(results: Sequence, path: str | os.PathLike, *, scenario: str = "paper",
+                   recording_id: str | None = None) -> Path:
+    """Write ``path`` (e.g. ``DIR/paper.rrd``) with every run of ``results`` side by side.
+
+    ``results`` are ``tools.scenario.RunResult``-like objects: ``name``, ``lv``, ``metrics`` and
+    ``series`` (numpy arrays ``t, um, phi, ym, ym_ol, e, u, ke, kx, ku, kpe, kie, ...``).  The blueprint
+    overlays all runs; each run also gets its own tab.  Returns the path.
+    """
+    results = list(results)
+    if not results:
+        raise ValueError("log_experiment needs at least one run")
+    names = [r.name for r in results]
+    if len(set(names)) != len(names):
+        raise ValueError(f"run names must be unique, got {names}")
+    for n in names:
+        if not n or "/" in n:
+            raise ValueError(f"run names must be non-empty path components, got {n!r}")
+    out = Path(path)
+    out.parent.mkdir(parents=True, exist_ok=True)
+    rec = rr.RecordingStream(L.EXPERIMENT_APPLICATION_ID, recording_id=recording_id or new_recording_id())
+    rec.set_sinks(rr.FileSink(str(out)))
+    try:
+        rec.send_recording_name(f"{scenario}: " + ", ".join(names))
+        rec.send_blueprint(experiment_blueprint(names))
+
+        def send(entity: str, t: np.ndarray, values: np.ndarray) -> None:
+            rec.send_columns(entity, indexes=[sim_time_column(t)], columns=[scalar_column(values)], strict=True)
+
+        first = results[0].series
+        rec.log(L.RUN_COMMAND, _style(["roll command um"], [L.GREY]), static=True)
+        send(L.RUN_COMMAND, first["t"], first["um"])
+        rec.log(L.RUN_REFERENCE_OL, _style(["open-loop reference ym_ol"], [L.WHITE]), static=True)
+        send(L.RUN_REFERENCE_OL, first["t"], first["ym_ol"])
+
+        for i, r in enumerate(results):
+            s = r.series
+            t = s["t"]
+            c = L.run_color(r.name, i)
+            label = f"{r.name} (Lv={r.lv:g})"
+            plots = [
+                ("roll", [f"phi {label}"], [c], [s["phi"]]),
+                ("reference", [f"ym {label}"], [_shade(c, 0.7)], [s["ym"]]),
+                ("error", [f"e {label}"], [c], [s["e"]]),
+                ("rudder", [f"u {label}"], [c], [s["u"]]),
+                ("gains/ke", [f"Ke {label}"], [c], [s["ke"]]),
+                ("gains/kx", [f"Kx {label}"], [c], [s["kx"]]),
+                ("gains/ku", [f"Ku {label}"], [c], [s["ku"]]),
+                ("gains/parts", ["Kpe", "KIe", "Kpx", "KIx", "Kpu", "KIu"],
+                 [L.SKY, L.ORANGE, L.GREEN, L.YELLOW, L.PURPLE, L.VERMILLION],
+                 [s["kpe"], s["kie"], s["kpx"], s["kix"], s["kpu"], s["kiu"]]),
+                ("state", ["v [m/s]", "p [rad/s]", "r [rad/s]", "delta_r [rad]"],
+                 [L.GREEN, L.YELLOW, L.PURPLE, L.BLUE], [s["v"], s["p"], s["r"], s["delta_r"]]),
+            ]
+            for what, labels, colors, cols in plots:
+                entity = run_path(r.name, what)
+                rec.log(entity, _style(labels, colors), static=True)
+                send(entity, t, np.column_stack(cols))
+        rec.log(f"{L.RUNS}/metrics", rr.TextDocument(_metrics_markdown(results), media_type="text/markdown"),
+                static=True)
+        rec.flush()
+    finally:
+        rec.disconnect()
+    return out
