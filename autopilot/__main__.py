@@ -17,7 +17,7 @@ from autopilot.protocol import (add_cpu_argument, add_rt_priority_argument, appl
                                 nonneg_float, positive_float, rate_hz)
 from autopilot.pwm import add_pwm_arguments, pwm_from_args
 from autopilot.telemetry.flags import add_arguments as add_telemetry_arguments
-from autopilot.telemetry.flags import requested as telemetry_requested
+from autopilot.telemetry.flags import attach as attach_telemetry
 
 
 def build_parser() -> OneLineArgumentParser:
@@ -127,15 +127,7 @@ def main(argv=None) -> int:
     if args.series:
         recorder = SeriesRecorder()
         ap.hooks.append(recorder)
-    tel = None
-    if telemetry_requested(args):
-        from autopilot import telemetry as tm  # imports rerun (~1 s): only when asked for
-
-        # Our own stop handlers flush everything on SIGINT/SIGTERM; the writer also closes at exit.
-        tel = tm.from_args(args, "autopilot", handle_signals=False)
-        hook = tm.AutopilotHook(tel, control_rate_hz=args.rate)
-        ap.hooks.append(hook)  # after the servo went out: the loop only hands over a row
-        ap.event_hooks.append(hook.event)
+    tel = attach_telemetry(args, "autopilot", ap, control_rate_hz=args.rate)
 
     def stop():
         ap.stop_requested = True

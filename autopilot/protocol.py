@@ -13,7 +13,7 @@ import sys
 
 os.environ.setdefault("MAVLINK20", "1")  # before any pymavlink import (mavutil reads it)
 
-from pymavlink.dialects.v20 import common as mavlink  # noqa: E402  (MAVLink 2, common dialect)
+from pymavlink.dialects.v20 import common as mavlink  # noqa: E402, F401  (MAVLink 2, common dialect; re-exported)
 
 # ---------------------------------------------------------------------------------------------- IDs
 AUTOPILOT_ID = (1, 1)

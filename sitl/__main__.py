@@ -15,7 +15,7 @@ from autopilot.protocol import (add_cpu_argument, add_rt_priority_argument, appl
                                 positive_float, rate_hz)
 from autopilot.pwm import add_pwm_arguments, pwm_from_args
 from autopilot.telemetry.flags import add_arguments as add_telemetry_arguments
-from autopilot.telemetry.flags import requested as telemetry_requested
+from autopilot.telemetry.flags import attach as attach_telemetry
 
 
 def build_parser() -> OneLineArgumentParser:
@@ -85,14 +85,7 @@ def main(argv=None) -> int:
     if args.series:
         recorder = StateRecorder()
         sitl.hooks.append(recorder)
-    tel = None
-    if telemetry_requested(args):
-        from autopilot import telemetry as tm  # imports rerun (~1 s): only when asked for
-
-        tel = tm.from_args(args, "sitl", handle_signals=False, send_blueprint=False)  # the autopilot sends it
-        hook = tm.SitlHook(tel)
-        sitl.hooks.append(hook)
-        sitl.event_hooks.append(hook.event)
+    tel = attach_telemetry(args, "sitl", sitl)
 
     def stop():
         sitl.stop_requested = True

@@ -7,19 +7,14 @@
 
 from __future__ import annotations
 
-import math
 import subprocess
 
-import numpy as np
 import pytest
 from _mavlink_procs import PY, load_json, mavlink, run_cli
 
-from autopilot.clsac import ClSac
-from autopilot.metrics import MetricsAccumulator
 from autopilot.pwm import PwmMap
 from autopilot.tlog import payload_streams, read_tlog
-from sitl.aircraft import Aircraft, AircraftConfig
-from tools.scenario import PAPER, PAPER_RUNS, Scenario, controller_config, run_inprocess
+from tools.scenario import PAPER, PAPER_RUNS, Scenario, run_inprocess
 
 CLSAC = PAPER_RUNS[1]
 

@@ -178,7 +178,7 @@ def format_text(rep: analysis.WasprReport, cl: list[dict] | None = None) -> str:
         "",
         f"PFC D(s) [{rep.pfc_name}] = ({_poly_str(rep.pfc_num)}) / ({_poly_str(rep.pfc_den)}),"
         f"  D(0) = {rep.pfc_dc_gain:.6g}",
-        f"  C = 1/D gain margin in feedback with T: "
+        "  C = 1/D gain margin in feedback with T: "
         + ("none (1 + C T unstable)" if g is None else ("unlimited" if math.isinf(g) else f"{g:.6g} ({20 * math.log10(g):.2f} dB)")),
         "",
         "augmented plant F(s) = T(s) + D(s) = num_F/den_F",

@@ -21,3 +21,21 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 def requested(args: argparse.Namespace) -> bool:
     """True if any telemetry flag was given (only then is rerun imported)."""
     return bool(getattr(args, "rrd", None) or getattr(args, "connect", None) or getattr(args, "viewer", False))
+
+
+def attach(args: argparse.Namespace, process: str, target, **hook_kwargs):
+    """If telemetry was asked for, build the writer and register its hook on ``target`` (an Autopilot or a Sitl).
+
+    The hook runs after each step's servo command went out (``target.hooks``) and on every status event
+    (``target.event_hooks``); the loop only hands over a row.  The processes' own stop handlers flush
+    on SIGINT/SIGTERM and the writer also closes at exit.  Returns the writer (close it) or None.
+    """
+    if not requested(args):
+        return None
+    from autopilot import telemetry as tm  # imports rerun (~1 s): only when asked for
+
+    tel = tm.from_args(args, process, handle_signals=False)  # only the autopilot sends the blueprint
+    hook = tm.AutopilotHook(tel, **hook_kwargs) if process == "autopilot" else tm.SitlHook(tel, **hook_kwargs)
+    target.hooks.append(hook)
+    target.event_hooks.append(hook.event)
+    return tel
