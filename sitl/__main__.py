@@ -40,8 +40,9 @@ def build_parser() -> OneLineArgumentParser:
                    help="lockstep: exit with an error after S s without answer (default 10)")
     p.add_argument("--connect-timeout", type=nonneg_float, default=0.0, metavar="S",
                    help="lockstep: exit with an error if no autopilot shows up within S s (default 0 = wait)")
-    p.add_argument("--spin-us", type=nonneg_float, default=0.0, metavar="US",
-                   help="lockstep: busy-poll this long for each answer before sleeping (default 0)")
+    # See autopilot --lockstep-spin-us: polling before sleeping saves the wake-up latency of each frame.
+    p.add_argument("--spin-us", type=nonneg_float, default=500.0, metavar="US",
+                   help="lockstep: busy-poll this long for each answer before sleeping (default 500)")
     p.add_argument("--stats-json", default=None, metavar="PATH", help="write counters to this JSON file at exit")
     p.add_argument("--series", default=None, metavar="PATH.npz",
                    help="record the truth state after every frame / sensor message to this .npz at exit")
