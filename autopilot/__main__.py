@@ -8,12 +8,10 @@ with the run metrics (computed from what flew: the attitude received and the com
 
 from __future__ import annotations
 
-import json
 import math
-import os
 import sys
 
-from autopilot.protocol import (add_cpu_argument, add_rt_priority_argument, apply_cpu, apply_rt_priority, GCS_ID, OneLineArgumentParser, endpoint, fmt_endpoint, install_stop_handlers,
+from autopilot.protocol import (add_cpu_argument, add_rt_priority_argument, apply_cpu, apply_rt_priority, GCS_ID, OneLineArgumentParser, endpoint, fmt_endpoint, install_stop_handlers, write_json_atomic,
                                 nonneg_float, positive_float, rate_hz)
 from autopilot.pwm import add_pwm_arguments, pwm_from_args
 from autopilot.telemetry.flags import add_arguments as add_telemetry_arguments
@@ -155,10 +153,7 @@ def main(argv=None) -> int:
         recorder.save(args.series)
     _print_summary(stats)
     if args.stats_json:
-        tmp = args.stats_json + ".tmp"
-        with open(tmp, "w") as f:
-            json.dump(stats, f, indent=1)
-        os.replace(tmp, args.stats_json)
+        write_json_atomic(args.stats_json, stats)
     return code
 
 

@@ -203,3 +203,13 @@ def install_stop_handlers(callback) -> None:
 
     signal.signal(signal.SIGINT, _handler)
     signal.signal(signal.SIGTERM, _handler)
+
+
+def write_json_atomic(path: str, doc: dict) -> None:
+    """Write ``doc`` as JSON to ``path`` via a temporary file and a rename, so readers never see half a file."""
+    import json
+
+    tmp = path + ".tmp"
+    with open(tmp, "w") as f:
+        json.dump(doc, f, indent=1)
+    os.replace(tmp, path)

@@ -7,11 +7,9 @@ control frame, waiting for that frame's SERVO_OUTPUT_RAW).  Prints its counters 
 
 from __future__ import annotations
 
-import json
-import os
 import sys
 
-from autopilot.protocol import (add_cpu_argument, add_rt_priority_argument, apply_cpu, apply_rt_priority, OneLineArgumentParser, default_physics_rate, endpoint, fmt_endpoint, install_stop_handlers, nonneg_float,
+from autopilot.protocol import (add_cpu_argument, add_rt_priority_argument, apply_cpu, apply_rt_priority, OneLineArgumentParser, default_physics_rate, endpoint, fmt_endpoint, install_stop_handlers, nonneg_float, write_json_atomic,
                                 positive_float, rate_hz)
 from autopilot.pwm import add_pwm_arguments, pwm_from_args
 from autopilot.telemetry.flags import add_arguments as add_telemetry_arguments
@@ -119,10 +117,7 @@ def main(argv=None) -> int:
           f"(real-time factor {rtf}); {stats['exit_reason']}; events {stats['events']}", flush=True)
     print(format_counters("sitl link", stats["link"]), flush=True)
     if args.stats_json:
-        tmp = args.stats_json + ".tmp"
-        with open(tmp, "w") as f:
-            json.dump(stats, f, indent=1)
-        os.replace(tmp, args.stats_json)
+        write_json_atomic(args.stats_json, stats)
     return code
 
 

@@ -251,7 +251,6 @@ class Sitl:
     def run_realtime(self) -> int:
         opts = self.opts
         ac = self.aircraft
-        link = self.link
         ev = self.events
         perf = time.perf_counter
         phys_rate = opts.physics_rate_hz

@@ -17,9 +17,7 @@ Profile time 0 is the first sim time seen from the vehicle (ATTITUDE or SYSTEM_T
 
 from __future__ import annotations
 
-import json
 import math
-import os
 import selectors
 import sys
 import time
@@ -27,7 +25,7 @@ import time
 from autopilot.link import UdpLink, format_counters
 from autopilot.protocol import (AUTOPILOT_ID, GCS_ID, SETPOINT_TYPEMASK, OneLineArgumentParser, endpoint,
                                 finite_float, fmt_endpoint, install_stop_handlers, mavlink, nonneg_float,
-                                positive_float, quaternion_to_roll, roll_to_quaternion)
+                                positive_float, quaternion_to_roll, roll_to_quaternion, write_json_atomic)
 from tools import profiles
 
 M = mavlink
@@ -275,10 +273,7 @@ def main(argv=None) -> int:
     print(f"gcs: {stats['points_sent']} setpoints sent", flush=True)
     print(format_counters("gcs link", stats["link"]), flush=True)
     if args.stats_json:
-        tmp = args.stats_json + ".tmp"
-        with open(tmp, "w") as f:
-            json.dump(stats, f, indent=1)
-        os.replace(tmp, args.stats_json)
+        write_json_atomic(args.stats_json, stats)
     return code
 
 
