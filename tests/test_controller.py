@@ -264,9 +264,19 @@ def test_pfc_realisation_has_the_given_transfer_function(num, den):
 
 
 def test_higher_order_pfc_runs_on_the_general_path():
-    # A second-order PFC: the SISO loop falls back to the matrix path and its y_pfc follows D(s).
+    # A second-order PFC: the SISO loop falls back to the matrix path, and its y_pfc is D(s) = 10/(s^2+12s+20)
+    # driven by the applied commands, checked against scipy's own ZOH discretisation of that transfer function.
+    from scipy.signal import cont2discrete, dlsim, tf2ss
+
     ctrl = ClSac(ClSacConfig(pfc_num=(10.0,), pfc_den=(1.0, 12.0, 20.0)))
     assert not ctrl._fast
-    for _ in range(5):
-        u = ctrl(0.01, 0.17)
-    assert u.shape == (1,) and np.isfinite(u).all()
+    applied, pfc = [], []
+    for k in range(200):
+        u = ctrl(0.01 * math.sin(0.1 * k), 0.17)
+        applied.append(float(u[0]))
+        pfc.append(float(ctrl.y_pfc[0]))
+    ad, bd, cd, dd, _ = cont2discrete(tf2ss((10.0,), (1.0, 12.0, 20.0)), T, method="zoh")
+    _, y, _ = dlsim((ad, bd, cd, dd, T), np.array(applied))
+    # y_pfc[k] is D's output before u[k] acts (strictly proper, dd = 0): the ZOH response to u[0..k-1].
+    np.testing.assert_allclose(pfc, y.ravel(), rtol=1e-9, atol=1e-12)
+    assert max(abs(v) for v in pfc) > 1e-4  # the PFC was really driven
