@@ -12,7 +12,7 @@ import math
 import sys
 
 from autopilot.protocol import (add_cpu_argument, add_rt_priority_argument, apply_cpu, apply_rt_priority, GCS_ID, OneLineArgumentParser, endpoint, fmt_endpoint, install_stop_handlers, write_json_atomic,
-                                nonneg_float, positive_float, rate_hz)
+                                nonneg_float, positive_float, rate_hz, rt_throttling, move_other_threads)
 from autopilot.pwm import add_pwm_arguments, pwm_from_args
 from autopilot.telemetry.flags import add_arguments as add_telemetry_arguments
 from autopilot.telemetry.flags import attach as attach_telemetry
@@ -54,6 +54,11 @@ def build_parser() -> OneLineArgumentParser:
     p.add_argument("--max-roll-deg", type=positive_float, default=45.0, help="setpoint clamp (default 45)")
     p.add_argument("--spin-us", type=nonneg_float, default=300.0,
                    help="real time: busy-wait this long before each deadline for precise timing (default 300)")
+    # On a VM a sleeping (halted) vCPU can take milliseconds to be run again; a loop that never sleeps
+    # keeps its timing (README, Benchmarks: p99 lateness of a bare deadline loop 1.8-3.7 ms -> 0.01 ms).
+    p.add_argument("--busy-wait", action="store_true",
+                   help="real time: never sleep between steps, poll the links until each deadline "
+                        "(one CPU at 100 %%; use with --cpu; not with --rt-priority, see README)")
     # Waking a sleeping process costs ~70 us a frame on a VM; the SITL answers within ~100 us, so polling
     # briefly first raised the lockstep real-time factor from ~45x to ~70x (100 Hz) and ~13x to ~16x (400 Hz).
     p.add_argument("--lockstep-spin-us", type=nonneg_float, default=500.0, metavar="US",
@@ -93,8 +98,14 @@ def main(argv=None) -> int:
     parser = build_parser()
     args = parser.parse_args(argv)
     pwm = pwm_from_args(parser, args)
+    if args.busy_wait:
+        if args.lockstep:
+            parser.error("--busy-wait is for real time (lockstep polls for --lockstep-spin-us before sleeping)")
+        if args.rt_priority and rt_throttling():
+            parser.error(f"--busy-wait with --rt-priority {args.rt_priority}: a SCHED_FIFO thread that never sleeps "
+                         f"is stopped by the kernel's real-time throttling ({rt_throttling()}) for tens of ms "
+                         f"each second; use one or the other")
     apply_cpu(parser, args.cpu)
-    rt_note = apply_rt_priority(parser, args.rt_priority, "autopilot")
     from autopilot.config import ClSacConfig, ConfigError
     from autopilot.loop import Autopilot, AutopilotOptions, SeriesRecorder
     from autopilot.tlog import TlogWriter
@@ -108,7 +119,7 @@ def main(argv=None) -> int:
     opts = AutopilotOptions(
         rate_hz=args.rate, lockstep=args.lockstep, duration_s=args.duration, telemetry_rate_hz=args.telemetry_rate,
         attitude_timeout_s=args.attitude_timeout, setpoint_timeout_s=args.setpoint_timeout,
-        max_roll_rad=math.radians(args.max_roll_deg), pace=args.pace, spin_s=args.spin_us * 1e-6,
+        max_roll_rad=math.radians(args.max_roll_deg), pace=args.pace, spin_s=math.inf if args.busy_wait else args.spin_us * 1e-6,
         sitl=args.sitl, sitl_bind=args.sitl_bind, gcs=args.gcs, gcs_bind=args.gcs_bind,
         gcs_ids=_gcs_ids(parser, args.gcs_id), lockstep_idle_exit_s=args.lockstep_idle_exit,
         lockstep_spin_s=args.lockstep_spin_us * 1e-6,
@@ -128,6 +139,12 @@ def main(argv=None) -> int:
         recorder = SeriesRecorder()
         ap.hooks.append(recorder)
     tel = attach_telemetry(args, "autopilot", ap, control_rate_hz=args.rate)
+    rt_note = apply_rt_priority(args.rt_priority, "autopilot")  # after the helper threads exist: they stay normal
+    if args.busy_wait:
+        rt_note += "; busy-wait (never sleeps)"
+        if args.cpu is not None:
+            # The loop never yields its CPU: helper threads left there would preempt it mid-step.
+            rt_note += f", {move_other_threads(args.cpu)} helper thread(s) moved off CPU {args.cpu}"
 
     def stop():
         ap.stop_requested = True

@@ -10,6 +10,7 @@ import argparse
 import math
 import os
 import sys
+import threading
 
 os.environ.setdefault("MAVLINK20", "1")  # before any pymavlink import (mavutil reads it)
 
@@ -175,19 +176,71 @@ def apply_cpu(parser, cpu) -> None:
         parser.error(f"--cpu {cpu}: {exc}")
 
 
+def move_other_threads(off_cpu: int) -> int:
+    """Move every other thread of this process (telemetry writer, Rerun's own) off ``off_cpu`` onto the rest of
+    the CPUs the process may use, so the calling (control) thread has that CPU to itself. Returns how many
+    threads were moved. Linux only (per-thread affinity); elsewhere does nothing."""
+    try:
+        tids = [int(t) for t in os.listdir("/proc/self/task")]
+        allowed = set(range(os.cpu_count() or 1)) - {off_cpu}
+    except (OSError, ValueError):
+        return 0
+    me = threading.get_native_id()
+    moved = 0
+    for tid in tids:
+        if tid == me or not allowed:
+            continue
+        try:
+            os.sched_setaffinity(tid, allowed)
+            moved += 1
+        except OSError:  # the thread ended meanwhile, or no right to
+            pass
+    return moved
+
+
+def _rt_priority(text: str) -> int:
+    try:
+        v = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected an integer 0..99, got {text!r}") from None
+    if not 0 <= v <= 99:
+        raise argparse.ArgumentTypeError(f"must be 0..99 (0 = normal scheduling), got {v}")
+    return v
+
+
 def add_rt_priority_argument(parser) -> None:
-    parser.add_argument("--rt-priority", type=int, default=0, metavar="N",
-                        help="real time: run under SCHED_FIFO priority N (1..99; needs the right to; default 0 = normal)")
+    parser.add_argument("--rt-priority", type=_rt_priority, default=0, metavar="N",
+                        help="run the control thread under SCHED_FIFO priority N (1..99; needs the right to; "
+                             "default 0 = normal)")
 
 
-def apply_rt_priority(parser, prio: int, who: str) -> str:
-    """SCHED_FIFO at ``prio`` (a control loop's usual set-up); returns a note for the start line."""
+def rt_throttling() -> str:
+    """The kernel's real-time throttling as text ("" when off or unknown): SCHED_FIFO threads together get at
+    most sched_rt_runtime_us of every sched_rt_period_us, then are stopped until the period ends."""
+    try:
+        with open("/proc/sys/kernel/sched_rt_runtime_us") as f:
+            runtime = int(f.read())
+        with open("/proc/sys/kernel/sched_rt_period_us") as f:
+            period = int(f.read())
+    except (OSError, ValueError):
+        return ""
+    if runtime < 0:
+        return ""
+    return f"sched_rt_runtime_us {runtime} of sched_rt_period_us {period}"
+
+
+def apply_rt_priority(prio: int, who: str) -> str:
+    """SCHED_FIFO at ``prio`` for the calling thread only (a control loop's usual set-up); returns a note.
+
+    Call it after the helper threads exist (telemetry writer, rerun's own): Linux scheduling policies are
+    per thread, so they stay normal and cannot hold the control thread off its CPU at equal FIFO priority.
+    ``SCHED_RESET_ON_FORK`` makes any thread or process started later begin as a normal one too.
+    """
     if not prio:
         return ""
-    if not 1 <= prio <= 99:
-        parser.error(f"--rt-priority must be 1..99, got {prio}")
     try:
-        os.sched_setscheduler(0, os.SCHED_FIFO, os.sched_param(prio))
+        policy = os.SCHED_FIFO | getattr(os, "SCHED_RESET_ON_FORK", 0)
+        os.sched_setscheduler(0, policy, os.sched_param(prio))
         return f"; SCHED_FIFO priority {prio}"
     except (OSError, AttributeError) as exc:
         print(f"{who}: warning: cannot use SCHED_FIFO ({exc}); normal priority", file=sys.stderr, flush=True)

@@ -57,7 +57,6 @@ def main(argv=None) -> int:
     args = parser.parse_args(argv)
     pwm = pwm_from_args(parser, args)
     apply_cpu(parser, args.cpu)
-    rt_note = apply_rt_priority(parser, args.rt_priority, "sitl")
     if args.physics_rate is None:
         args.physics_rate = default_physics_rate(args.rate)
     ratio = args.physics_rate / args.rate
@@ -85,6 +84,7 @@ def main(argv=None) -> int:
         recorder = StateRecorder()
         sitl.hooks.append(recorder)
     tel = attach_telemetry(args, "sitl", sitl)
+    rt_note = apply_rt_priority(args.rt_priority, "sitl")  # after the helper threads exist: they stay normal
 
     def stop():
         sitl.stop_requested = True

@@ -179,19 +179,27 @@ class Sitl:
         give_up = opts.give_up_s
         spin = opts.spin_s
         K = k0
+        hooks = self.hooks
+        rec = None  # the last frame's record: handed to the hooks once the next ATTITUDE is out
         self.wall_first_frame = perf()
         while not self.stop_requested:
             if n_frames and self.frames >= n_frames:
                 # End-of-run frame: tells the autopilot the run is over (sent a few times, nobody answers).
                 raw = self._send_attitude(frame_ms(K, rate))
+                self._run_hooks(rec)
+                rec = None
                 for _ in range(2):
                     self._wait(0.01)
                     link.send_raw(raw, ATTITUDE)
                 self.exit_reason = "end of run (duration reached)"
                 break
             raw = self._send_attitude(frame_ms(K, rate))
-            expected = frame_usec(K, rate)
             t_sent = perf()
+            if rec is not None:
+                # Off the critical path: the autopilot is computing this frame's answer meanwhile.
+                self._run_hooks(rec)
+                rec = None
+            expected = frame_usec(K, rate)
             t_resend = t_sent + resend
             t_give_up = t_sent + give_up
             pwm = None
@@ -235,17 +243,21 @@ class Sitl:
             K += 1
             self.frames += 1
             self.wall_last_frame = perf()
-            if self.hooks:
+            if hooks:
                 rec = SitlRecord(K / rate, ac.x.copy(), u, pwm, K, self)
-                for h in self.hooks:
-                    h(rec)
             now = self.wall_last_frame
             if now >= next_hb:
                 next_hb = now + 1.0
                 self._heartbeat()
+        self._run_hooks(rec)  # stopped between a frame and the next ATTITUDE: its record is not lost
         if self.stop_requested:
             self.exit_reason = self.exit_reason or "stopped by signal"
         return 0
+
+    def _run_hooks(self, rec) -> None:
+        if rec is not None:
+            for h in self.hooks:
+                h(rec)
 
     # ------------------------------------------------------------- real time
     def run_realtime(self) -> int:

@@ -4,10 +4,13 @@ restarted) and the SITL's servo timeout (autopilot killed and restarted).  Timin
 
 from __future__ import annotations
 
+import os
+import re
 import time
 
 from _mavlink_procs import Proc, free_ports, load_json, mav, mavlink, run_cli, udp
 
+from autopilot.protocol import rt_throttling
 from autopilot.tlog import read_tlog
 
 
@@ -27,6 +30,40 @@ def test_launch_realtime(tmp_path):
     # the GCS live line is shown on the console and in its log
     assert "[gcs] gcs: t=" in r.stdout and "setpoint=" in (out / "gcs.log").read_text()
     assert "flight.tlog" in r.stdout and "summary.json" in r.stdout
+
+
+def test_launch_realtime_busy_wait_pinned_serves_both_links(tmp_path):
+    """--pin --busy-wait: the loop never sleeps, yet every attitude and setpoint is taken while it spins and
+    the helper threads are moved off the control CPU."""
+    out = tmp_path / "busy"
+    r = run_cli("tools.launch", "--duration", "3", "--rate", "100", "--pin", "--busy-wait", "--out", str(out),
+                timeout=120)
+    assert r.returncode == 0, r.stdout + r.stderr
+    s = load_json(out / "summary.json")
+    assert s["ok"] and s["runs"][0]["steps"] == 300
+    assert s["timing"]["missed_deadlines"] <= 30  # loose: a loaded 2-core machine
+    ap, gcs = s["counters"]["autopilot"], s["counters"]["gcs"]
+    # ATTITUDE at the 200 Hz sensor rate for 3 s, all of it read between steps; every setpoint sent was taken.
+    assert ap["sitl"]["rx_by_type"]["ATTITUDE"] >= 0.9 * 200 * 3
+    assert ap["sitl"]["tx_by_type"]["SERVO_OUTPUT_RAW"] == 300
+    sent = gcs["tx_by_type"]["SET_ATTITUDE_TARGET"]
+    assert sent > 50 and ap["gcs"]["rx_by_type"]["SET_ATTITUDE_TARGET"] >= sent - 2
+    assert not ap["sitl"]["rejected"] and not ap["gcs"]["rejected"]
+    start = (out / "autopilot.log").read_text()
+    assert "busy-wait (never sleeps)" in start
+    if (os.cpu_count() or 1) >= 2:
+        assert re.search(r"[1-9]\d* helper thread\(s\) moved off CPU 1", start), start
+
+
+def test_busy_wait_refuses_lockstep_and_throttled_fifo():
+    r = run_cli("tools.launch", "--lockstep", "--busy-wait", timeout=60)
+    assert r.returncode == 2 and "--busy-wait is for real time" in r.stderr
+    r = run_cli("autopilot", "--lockstep", "--busy-wait", timeout=60)
+    assert r.returncode == 2 and "--busy-wait is for real time" in r.stderr
+    if rt_throttling():
+        for module in ("tools.launch", "autopilot"):
+            r = run_cli(module, "--busy-wait", "--rt-priority", "10", timeout=60)
+            assert r.returncode == 2 and "throttling" in r.stderr and len(r.stderr.strip().splitlines()) == 1
 
 
 def _gcs_messages(sock) -> list:

@@ -29,6 +29,9 @@ def test_help(module):
     ("tools.launch", ["--rate", "0"], "--rate"),
     ("tools.launch", ["--controller", "pid"], "--controller"),
     ("tools.launch", ["--duration", "abc"], "--duration"),
+    ("autopilot", ["--rt-priority", "100"], "--rt-priority"),
+    ("sitl", ["--rt-priority", "x"], "--rt-priority"),
+    ("tools.gcs", ["--cpu", "4096"], "--cpu"),
 ])
 def test_bad_flags_give_one_line_error(module, args, needle):
     r = run_cli(module, *args, timeout=60)

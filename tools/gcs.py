@@ -23,7 +23,8 @@ import sys
 import time
 
 from autopilot.link import UdpLink, format_counters
-from autopilot.protocol import (AUTOPILOT_ID, GCS_ID, SETPOINT_TYPEMASK, OneLineArgumentParser, endpoint,
+from autopilot.protocol import (AUTOPILOT_ID, GCS_ID, SETPOINT_TYPEMASK, OneLineArgumentParser, add_cpu_argument,
+                                apply_cpu, endpoint,
                                 finite_float, fmt_endpoint, install_stop_handlers, mavlink, nonneg_float,
                                 positive_float, quaternion_to_roll, roll_to_quaternion, write_json_atomic)
 from tools import profiles
@@ -78,8 +79,10 @@ class Gcs:
         self.args = args
         self.profile = profile
         self.out = out or sys.stdout
+        # Everything the vehicle streams is taken (SERVO_OUTPUT_RAW only counted): a valid message the GCS
+        # did not take would be reported among the link's rejections.
         ids = [M.MAVLINK_MSG_ID_HEARTBEAT, M.MAVLINK_MSG_ID_ATTITUDE, M.MAVLINK_MSG_ID_ATTITUDE_TARGET,
-               M.MAVLINK_MSG_ID_STATUSTEXT, M.MAVLINK_MSG_ID_SYSTEM_TIME]
+               M.MAVLINK_MSG_ID_SERVO_OUTPUT_RAW, M.MAVLINK_MSG_ID_STATUSTEXT, M.MAVLINK_MSG_ID_SYSTEM_TIME]
         self.link = UdpLink("vehicle", GCS_ID, args.listen, None, peers=[AUTOPILOT_ID], msgids=ids, learn_remote=True)
         self.sel = selectors.DefaultSelector()
         self.sel.register(self.link.sock, selectors.EVENT_READ)
@@ -239,6 +242,7 @@ def build_parser() -> OneLineArgumentParser:
                    help="error if the vehicle goes silent for S s (default 5)")
     p.add_argument("--stats-json", default=None, metavar="PATH", help="write counters to this JSON file at exit")
     p.add_argument("--quiet", action="store_true", help="no live line")
+    add_cpu_argument(p)
     return p
 
 
@@ -251,6 +255,7 @@ def main(argv=None) -> int:
         profile = Profile(args.profile, args.amplitude, args.period, args.step_time, args.csv)
     except (OSError, ValueError) as exc:
         parser.error(f"--csv: {exc}")
+    apply_cpu(parser, args.cpu)
     try:
         gcs = Gcs(args, profile)
     except OSError as exc:

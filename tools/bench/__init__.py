@@ -109,14 +109,15 @@ def load_warning() -> str | None:
 def print_table(title: str, figures: dict[str, dict], file=None) -> None:
     """A fixed-width table: figure, value, unit, target, PASS/FAIL, details."""
     print(title, file=file)
-    head = f"  {'figure':<30} {'value':>10} {'unit':<5} {'target':>9}  {'result':<6} detail"
+    w = max([30] + [len(n) for n in figures])
+    head = f"  {'figure':<{w}} {'value':>10} {'unit':<5} {'target':>9}  {'result':<6} detail"
     print(head, file=file)
     print("  " + "-" * (len(head) - 2), file=file)
     for name, f in figures.items():
-        target = f"<= {f['target']:g}" if "target" in f else ""
+        target = f"<= {_fmt(f['target'])}" if "target" in f else ""
         verdict = ("PASS" if f["pass"] else "FAIL") if "pass" in f else "info"
         extra = ", ".join(f"{k}={_fmt(v)}" for k, v in f.items() if k not in ("value", "unit", "target", "pass"))
-        print(f"  {name:<30} {_fmt(f['value']):>10} {f['unit']:<5} {target:>9}  {verdict:<6} {extra}", file=file)
+        print(f"  {name:<{w}} {_fmt(f['value']):>10} {f['unit']:<5} {target:>9}  {verdict:<6} {extra}", file=file)
 
 
 def _fmt(v) -> str:
