@@ -198,7 +198,7 @@ def move_other_threads(off_cpu: int) -> int:
     return moved
 
 
-def _rt_priority(text: str) -> int:
+def rt_priority_arg(text: str) -> int:
     try:
         v = int(text)
     except ValueError:
@@ -209,7 +209,7 @@ def _rt_priority(text: str) -> int:
 
 
 def add_rt_priority_argument(parser) -> None:
-    parser.add_argument("--rt-priority", type=_rt_priority, default=0, metavar="N",
+    parser.add_argument("--rt-priority", type=rt_priority_arg, default=0, metavar="N",
                         help="run the control thread under SCHED_FIFO priority N (1..99; needs the right to; "
                              "default 0 = normal)")
 

@@ -32,6 +32,7 @@ def test_help(module):
     ("autopilot", ["--rt-priority", "100"], "--rt-priority"),
     ("sitl", ["--rt-priority", "x"], "--rt-priority"),
     ("tools.gcs", ["--cpu", "4096"], "--cpu"),
+    ("tools.launch", ["--rt-priority", "100"], "--rt-priority"),
 ])
 def test_bad_flags_give_one_line_error(module, args, needle):
     r = run_cli(module, *args, timeout=60)

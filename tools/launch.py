@@ -526,7 +526,8 @@ def load_series(out_dir) -> dict:
 
 
 def build_parser():
-    from autopilot.protocol import OneLineArgumentParser, finite_float, nonneg_float, positive_float, rate_hz
+    from autopilot.protocol import (OneLineArgumentParser, finite_float, nonneg_float, positive_float, rate_hz,
+                                    rt_priority_arg)
 
     p = OneLineArgumentParser(prog="python -m tools.launch", description=__doc__.split("\n\n")[0])
     p.add_argument("--lockstep", action="store_true", help="SITL as time master, as fast as possible (default: real time)")
@@ -553,7 +554,7 @@ def build_parser():
     p.add_argument("--period", type=positive_float, default=10.0, metavar="S", help="profile period (default 10)")
     p.add_argument("--u-limit-deg", type=positive_float, default=30.0, help="rudder command limit (default 30)")
     p.add_argument("--timeout", type=positive_float, default=None, metavar="S", help="wall-clock limit of the whole flight")
-    p.add_argument("--rt-priority", type=int, default=0, metavar="N",
+    p.add_argument("--rt-priority", type=rt_priority_arg, default=0, metavar="N",
                    help="real time: run the autopilot under SCHED_FIFO priority N (SITL N-1); default 0 = normal")
     p.add_argument("--pin", action="store_true", help="give the autopilot CPU 1 to itself; the SITL and the GCS script share CPU 0")
     p.add_argument("--busy-wait", action="store_true",
@@ -571,8 +572,6 @@ def build_parser():
 def main(argv=None) -> int:
     parser = build_parser()
     args = parser.parse_args(argv)
-    if not 0 <= args.rt_priority <= 99:
-        parser.error(f"--rt-priority must be 0..99, got {args.rt_priority}")
     if args.busy_wait and args.lockstep:
         parser.error("--busy-wait is for real time (lockstep already polls before sleeping)")
     if args.busy_wait and args.rt_priority:
