@@ -178,6 +178,7 @@ def _print_summary(stats: dict) -> None:
     from autopilot.link import format_counters
 
     t = stats["timing"]
+    lockstep = stats["mode"] == "lockstep"
 
     def f(d):
         return "-" if not d else f"p50 {d['p50']:.3f} p99 {d['p99']:.3f} max {d['max']:.3f} ms"
@@ -186,7 +187,8 @@ def _print_summary(stats: dict) -> None:
     print(f"autopilot: {stats['steps']} steps ({stats['exit_reason']}); metrics "
           + ", ".join(f"{k}={v:.6g}" for k, v in stats["metrics"].items()), flush=True)
     print(f"autopilot: timing: jitter {f(t['period_jitter_ms'])}; compute {f(t['compute_ms'])}; "
-          f"in-to-out latency {f(t['latency_ms'])}; missed deadlines {t['missed_deadlines']}", flush=True)
+          f"{'in-to-out latency' if lockstep else 'attitude age at servo out'} {f(t['latency_ms'])}; "
+          f"missed deadlines {t['missed_deadlines']}", flush=True)
     print(f"autopilot: events: {ev}", flush=True)
     for name, c in stats["links"].items():
         print(format_counters(f"autopilot {name} link", c), flush=True)

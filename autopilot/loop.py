@@ -82,7 +82,8 @@ class StepRecord:
     Times: ``wall`` is time.perf_counter() at the start of the step; ``t_sim`` the sim time (s) of the
     attitude used; ``period`` the time since the previous step's start (s), ``lateness`` start minus
     scheduled deadline (real time; 0 in lockstep), ``compute`` start to servo sent, ``latency``
-    attitude (or unblocking setpoint) received to servo sent.  ``ctrl`` is the ClSac instance
+    attitude (or unblocking setpoint) received to servo sent: in real time that is the attitude's age,
+    including the wait for the deadline (up to a sensor period), not the processing alone.  ``ctrl`` is the ClSac instance
     (``ctrl.telemetry()`` gives the internals), ``ap`` the Autopilot (links, counters, timing).
     """
 

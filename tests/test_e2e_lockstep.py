@@ -28,6 +28,7 @@ def launch_cli(out, *extra) -> dict:
     r = run_cli("tools.launch", "--lockstep", "--quiet", "--out", str(out), *extra, timeout=180)
     assert r.returncode == 0, r.stdout + r.stderr
     assert "OK" in r.stdout and "flight.tlog" in r.stdout
+    assert "in-to-out latency" in r.stdout and "attitude age" not in r.stdout
     return load_json(out / "summary.json")
 
 

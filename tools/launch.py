@@ -455,7 +455,11 @@ def print_summary(res: LaunchResult) -> None:
     if t:
         if s["mode"] == "realtime":
             print(f"   period jitter     {fmt(t.get('period_jitter_ms'))}; missed deadlines {t.get('missed_deadlines')}")
-        print(f"   in-to-out latency {fmt(t.get('latency_ms'))}")
+            print(f"   compute           {fmt(t.get('compute_ms'))} (deadline to servo sent)")
+            # Not the in-to-out latency: the newest ATTITUDE waits up to a sensor period for the next deadline.
+            print(f"   attitude age      {fmt(t.get('latency_ms'))} (ATTITUDE read to servo sent)")
+        else:
+            print(f"   in-to-out latency {fmt(t.get('latency_ms'))}")
     c = s["counters"]
     for name in PROCESSES:
         links = c.get(name)
