@@ -83,8 +83,9 @@ class StepRecord:
     attitude used; ``period`` the time since the previous step's start (s), ``lateness`` start minus
     scheduled deadline (real time; 0 in lockstep), ``compute`` start to servo sent, ``latency``
     attitude (or unblocking setpoint) received to servo sent: in real time that is the attitude's age,
-    including the wait for the deadline (up to a sensor period), not the processing alone.  ``ctrl`` is the ClSac instance
-    (``ctrl.telemetry()`` gives the internals), ``ap`` the Autopilot (links, counters, timing).
+    including the wait for the deadline (up to a sensor period), not the processing alone.  ``ctrl`` is
+    the ClSac instance (``ctrl.telemetry()`` gives the internals), ``ap`` the Autopilot (links, counters,
+    timing).
     """
 
     __slots__ = ("step", "frame", "t_sim", "wall", "um", "phi", "p", "r", "u", "pwm", "failsafe", "period",

@@ -27,7 +27,7 @@ def test_launch_realtime(tmp_path):
     assert timing["period_jitter_ms"]["n"] == 299
     assert timing["missed_deadlines"] <= 30  # loose: a loaded 2-core machine
     # real time: the figure includes the wait for the deadline, so it is reported as an age, not a latency
-    assert "attitude age" in r.stdout and "in-to-out latency" not in r.stdout  # real time: it is an age
+    assert "attitude age" in r.stdout and "in-to-out latency" not in r.stdout
     assert len(list(read_tlog(str(out / "flight.tlog")))) > 600
     # the GCS live line is shown on the console and in its log
     assert "[gcs] gcs: t=" in r.stdout and "setpoint=" in (out / "gcs.log").read_text()
