@@ -11,9 +11,10 @@ from __future__ import annotations
 import math
 import sys
 
-from autopilot.protocol import (add_cpu_argument, add_rt_priority_argument, apply_cpu, apply_rt_priority, GCS_ID, OneLineArgumentParser, endpoint, fmt_endpoint, install_stop_handlers, write_json_atomic,
-                                nonneg_float, positive_float, rate_hz, rt_throttling, move_other_threads)
-from autopilot.pwm import add_pwm_arguments, pwm_from_args
+from autopilot.shared.cli import add_cpu_argument, add_rt_priority_argument, endpoint, fmt_endpoint, nonneg_float, OneLineArgumentParser, positive_float, rate_hz
+from autopilot.shared.mavlink import GCS_ID
+from autopilot.shared.process import exit_code_for, apply_cpu, apply_rt_priority, install_stop_handlers, move_other_threads, rt_throttling, write_json_atomic
+from autopilot.shared.cli import add_pwm_arguments, pwm_from_args
 from autopilot.telemetry.flags import add_arguments as add_telemetry_arguments
 from autopilot.telemetry.flags import attach as attach_telemetry
 
@@ -108,7 +109,7 @@ def main(argv=None) -> int:
     apply_cpu(parser, args.cpu)
     from autopilot.config import ClSacConfig, ConfigError
     from autopilot.loop import Autopilot, AutopilotOptions, SeriesRecorder
-    from autopilot.tlog import TlogWriter
+    from autopilot.shared.tlog import TlogWriter
 
     lv = args.lv if args.lv is not None else (0.0 if args.controller == "sac" else 20.0)
     try:
@@ -132,7 +133,7 @@ def main(argv=None) -> int:
         ap = Autopilot(opts, cfg, pwm, tlog=tlog)
     except OSError as exc:
         print(f"autopilot: error: {exc}", file=sys.stderr)
-        return 98 if getattr(exc, "errno", None) == 98 else 1
+        return exit_code_for(exc)
 
     recorder = None
     if args.series:
@@ -175,7 +176,7 @@ def main(argv=None) -> int:
 
 
 def _print_summary(stats: dict) -> None:
-    from autopilot.link import format_counters
+    from autopilot.shared.link import format_counters
 
     t = stats["timing"]
     lockstep = stats["mode"] == "lockstep"

@@ -42,24 +42,13 @@ from __future__ import annotations
 import math
 
 import numpy as np
-from scipy.linalg import expm
-
 from autopilot.config import ClSacConfig, NonFiniteInputError
+from autopilot.shared.numerics import zoh
 
 TELEMETRY_FIELDS = (
     "um", "y", "ym", "ym_ol", "ya", "y_pfc", "e", "u_raw", "u", "saturated",
     "kpe", "kie", "ke", "kpx", "kix", "kx", "kpu", "kiu", "ku",
 )
-
-
-def zoh(a: np.ndarray, b: np.ndarray, dt: float) -> tuple[np.ndarray, np.ndarray]:
-    """Exact ZOH pair (e^{A dt}, int_0^dt e^{A s} ds B) via the block exponential (Van Loan)."""
-    n, m = b.shape
-    block = np.zeros((n + m, n + m))
-    block[:n, :n] = a
-    block[:n, n:] = b
-    phi = expm(block * dt)
-    return phi[:n, :n], phi[:n, n:]
 
 
 def pfc_state_space(num, den) -> tuple[np.ndarray, np.ndarray, np.ndarray]:

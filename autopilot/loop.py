@@ -1,6 +1,6 @@
 """The autopilot process's loop: CL-SAC between a SITL link and a GCS link (DESIGN.md sections 5-6).
 
-Transport lives in ``autopilot.link``, the control law in ``autopilot.clsac``; this module schedules
+Transport lives in ``autopilot.shared.link``, the control law in ``autopilot.clsac``; this module schedules
 them.  Two modes:
 
 * real time (:meth:`Autopilot.run_realtime`): one control step per period on a fixed grid of
@@ -33,12 +33,10 @@ from dataclasses import dataclass, field
 
 from autopilot.clsac import ClSac
 from autopilot.config import ClSacConfig, NonFiniteInputError
-from autopilot.link import UdpLink
+from autopilot.shared.link import UdpLink
 from autopilot.metrics import MetricsAccumulator
-from autopilot.protocol import (AUTOPILOT_ID, GCS_ID, SETPOINT_TYPEMASK, SITL_ID, TYPEMASK_IGNORE_ATTITUDE,
-                                frame_from_ms, frame_ms, frame_usec, mavlink, quaternion_to_roll,
-                                roll_to_quaternion)
-from autopilot.pwm import PwmMap
+from autopilot.shared.mavlink import AUTOPILOT_ID, frame_from_ms, frame_ms, frame_usec, GCS_ID, mavlink, quaternion_to_roll, roll_to_quaternion, SETPOINT_TYPEMASK, SITL_ID, TYPEMASK_IGNORE_ATTITUDE
+from autopilot.shared.pwm import PwmMap
 
 M = mavlink
 ATTITUDE = M.MAVLINK_MSG_ID_ATTITUDE
@@ -208,7 +206,7 @@ class Autopilot:
         self._fds = [self.sitl.sock, self.gcs.sock]
         self._sitl_handler = self._on_sitl
         self._gcs_handler = self._on_gcs
-        # fast, byte-identical encoders for the per-step messages (autopilot.fastmav)
+        # fast, byte-identical encoders for the per-step messages (autopilot.shared.fastmav)
         self._pk_servo_sitl = self.sitl.fast_packer(M.MAVLink_servo_output_raw_message)
         self._pk_servo_gcs = self.gcs.fast_packer(M.MAVLink_servo_output_raw_message)
         self._pk_att = self.gcs.fast_packer(M.MAVLink_attitude_message)

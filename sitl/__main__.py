@@ -9,9 +9,9 @@ from __future__ import annotations
 
 import sys
 
-from autopilot.protocol import (add_cpu_argument, add_rt_priority_argument, apply_cpu, apply_rt_priority, OneLineArgumentParser, default_physics_rate, endpoint, fmt_endpoint, install_stop_handlers, nonneg_float, write_json_atomic,
-                                positive_float, rate_hz)
-from autopilot.pwm import add_pwm_arguments, pwm_from_args
+from autopilot.shared.cli import add_cpu_argument, add_rt_priority_argument, default_physics_rate, endpoint, fmt_endpoint, nonneg_float, OneLineArgumentParser, positive_float, rate_hz
+from autopilot.shared.process import exit_code_for, apply_cpu, apply_rt_priority, install_stop_handlers, write_json_atomic
+from autopilot.shared.cli import add_pwm_arguments, pwm_from_args
 from autopilot.telemetry.flags import add_arguments as add_telemetry_arguments
 from autopilot.telemetry.flags import attach as attach_telemetry
 
@@ -77,7 +77,7 @@ def main(argv=None) -> int:
         sitl = Sitl(opts, pwm)
     except OSError as exc:
         print(f"sitl: error: cannot listen on {fmt_endpoint(args.listen)}: {exc.strerror or exc}", file=sys.stderr)
-        return 98 if getattr(exc, "errno", None) == 98 else 1
+        return exit_code_for(exc)
 
     recorder = None
     if args.series:
@@ -107,7 +107,7 @@ def main(argv=None) -> int:
         sitl.close()
         if tel is not None:
             tel.close()
-    from autopilot.link import format_counters
+    from autopilot.shared.link import format_counters
 
     if recorder is not None:
         recorder.save(args.series)

@@ -10,8 +10,7 @@ import math
 from dataclasses import dataclass
 
 import numpy as np
-from scipy.linalg import expm
-
+from autopilot.shared.numerics import zoh
 from sitl import model
 
 
@@ -44,19 +43,6 @@ class AircraftConfig:
         return 1.0 / self.physics_rate_hz
 
 
-def zoh_discretise(a: np.ndarray, b: np.ndarray, dt: float) -> tuple[np.ndarray, np.ndarray]:
-    """Exact zero-order-hold discretisation: Ad = e^{A dt}, Bd = (int_0^dt e^{A s} ds) B.
-
-    Computed as the matrix exponential of the block matrix [[A, B], [0, 0]] dt (Van Loan).
-    """
-    n, m = b.shape
-    block = np.zeros((n + m, n + m))
-    block[:n, :n] = a
-    block[:n, n:] = b
-    phi = expm(block * dt)
-    return phi[:n, :n].copy(), phi[:n, n:].copy()
-
-
 class Aircraft:
     """KH2013A lateral dynamics with the rudder servo, x_p = [v, p, r, phi, delta_r, delta_r_dot].
 
@@ -73,7 +59,7 @@ class Aircraft:
         self._a = np.asarray(params.get("A", model.A_P), dtype=float)
         self._b = np.asarray(params.get("B", model.B_P), dtype=float).reshape(6, 1)
         # x[k+1] = Ad x[k] + Bd u[k]  (exact ZOH of x' = A_p x + B_p u over one physics step)
-        self._ad, bd = zoh_discretise(self._a, self._b, self.config.dt)
+        self._ad, bd = zoh(self._a, self._b, self.config.dt)
         self._bd = bd.ravel()
         self._multi: dict[int, tuple[np.ndarray, np.ndarray]] = {}
         self._x0 = np.zeros(6) if x0 is None else np.asarray(x0, dtype=float).copy()

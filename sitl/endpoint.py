@@ -26,9 +26,9 @@ import time
 from collections import Counter
 from dataclasses import dataclass
 
-from autopilot.link import UdpLink
-from autopilot.protocol import (AUTOPILOT_ID, SITL_ID, frame_ms, frame_usec, mavlink, usec_diff)
-from autopilot.pwm import PWM_VALID_RANGE, PwmMap
+from autopilot.shared.link import UdpLink
+from autopilot.shared.mavlink import AUTOPILOT_ID, frame_ms, frame_usec, mavlink, SITL_ID, usec_diff
+from autopilot.shared.pwm import PWM_VALID_RANGE, PwmMap
 from sitl.aircraft import Aircraft, AircraftConfig
 
 M = mavlink

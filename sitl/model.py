@@ -84,8 +84,3 @@ def plant_rhs(t: float, x: np.ndarray, u: np.ndarray | float, params: dict | Non
     a = params.get("A", A_P)
     b = params.get("B", B_P)
     return a @ np.asarray(x, dtype=float) + (b * np.asarray(u, dtype=float).reshape(1, -1)).sum(axis=1)
-
-
-def plant_output(t: float, x: np.ndarray, u: np.ndarray | float, params: dict | None = None) -> np.ndarray:
-    """y_p = C_p x_p (paper eq. 2): the roll angle."""
-    return (C_P @ np.asarray(x, dtype=float)).ravel()

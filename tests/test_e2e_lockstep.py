@@ -12,8 +12,8 @@ import subprocess
 import pytest
 from _mavlink_procs import PY, load_json, mavlink, run_cli
 
-from autopilot.pwm import PwmMap
-from autopilot.tlog import payload_streams, read_tlog
+from autopilot.shared.pwm import PwmMap
+from autopilot.shared.tlog import payload_streams, read_tlog
 from tools.scenario import PAPER, PAPER_RUNS, Scenario, run_inprocess
 
 CLSAC = PAPER_RUNS[1]

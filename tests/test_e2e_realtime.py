@@ -10,8 +10,8 @@ import time
 
 from _mavlink_procs import Proc, free_ports, load_json, mav, mavlink, run_cli, udp
 
-from autopilot.protocol import rt_throttling
-from autopilot.tlog import read_tlog
+from autopilot.shared.process import rt_throttling
+from autopilot.shared.tlog import read_tlog
 
 
 def test_launch_realtime(tmp_path):

@@ -17,7 +17,7 @@ import numpy as np
 import pytest
 from _mavlink_procs import load_json, run_cli
 
-from autopilot.pwm import PwmMap
+from autopilot.shared.pwm import PwmMap
 from autopilot.telemetry import layout as L
 from tools import rrd
 

@@ -12,10 +12,10 @@ import time
 import pytest
 from _mavlink_procs import PY, mav, mavlink, pack, udp
 
-from autopilot import protocol as P
-from autopilot.link import UdpLink
-from autopilot.pwm import PwmConfigError, PwmMap
-from autopilot.tlog import TlogWriter, packet_payload, payload_streams, read_tlog
+from autopilot.shared import mavlink as P
+from autopilot.shared.link import UdpLink
+from autopilot.shared.pwm import PwmConfigError, PwmMap
+from autopilot.shared.tlog import TlogWriter, packet_payload, payload_streams, read_tlog
 from tools.profiles import from_csv, hold, square
 
 
@@ -194,7 +194,7 @@ def test_csv_profile(tmp_path):
 
 # ----------------------------------------------------------------------------------------- fastmav
 def test_fast_codec_is_byte_identical_to_pymavlink():
-    from autopilot.fastmav import FAST_DECODERS, FastPacker
+    from autopilot.shared.fastmav import FAST_DECODERS, FastPacker
 
     m = mav(1, 1)
     rng = random.Random(5)

@@ -1,4 +1,4 @@
-"""Real-time set-up of the control thread (``autopilot.protocol.apply_rt_priority``, ``move_other_threads``).
+"""Real-time set-up of the control thread (``autopilot.shared.mavlink.apply_rt_priority``, ``move_other_threads``).
 
 Run in a child interpreter so that pytest's own process is never put under SCHED_FIFO.  Needs the right
 to use SCHED_FIFO (root or CAP_SYS_NICE); skipped where the kernel refuses it.
@@ -15,7 +15,7 @@ import pytest
 
 CHILD = r"""
 import json, os, threading
-from autopilot.protocol import apply_rt_priority
+from autopilot.shared.process import apply_rt_priority
 
 def policy():
     return os.sched_getscheduler(0) & ~getattr(os, "SCHED_RESET_ON_FORK", 0)
@@ -65,7 +65,7 @@ def test_priority_zero_changes_nothing():
 
 MOVE_CHILD = r"""
 import json, os, threading
-from autopilot.protocol import move_other_threads
+from autopilot.shared.process import move_other_threads
 
 os.sched_setaffinity(0, {1})  # the whole process on CPU 1, as --cpu 1 does
 ready, done = threading.Event(), threading.Event()

@@ -31,6 +31,7 @@ from typing import TYPE_CHECKING, NamedTuple, Sequence
 
 import numpy as np
 
+from autopilot.config import PFC_PRESETS
 from sitl import model
 
 if TYPE_CHECKING:
@@ -51,10 +52,9 @@ def brentq(*args, **kwargs):
 
     return _brentq(*args, **kwargs)
 
+# The presets have one home, autopilot.config.PFC_PRESETS; these names are views of it.
 # Paper section 5: C(s) = (4s + 40)/10, D(s) = 1/C(s) = 10/(4s + 40).  The default everywhere.
-from autopilot.config import PFC_PRESETS as _PRESETS  # noqa: E402  (one home for the presets)
-
-PAPER_PFC: tuple[tuple[float, ...], tuple[float, ...]] = _PRESETS["paper"]
+PAPER_PFC: tuple[tuple[float, ...], tuple[float, ...]] = PFC_PRESETS["paper"]
 
 # The paper's compensator at a quarter of its gain: C(s) = (4s + 40)/40 = (s + 10)/10, D(s) = 10/(s + 10)
 # (chosen with ``robust_pfc_search``, see the README).  The paper's C is within a factor 1.019 of the gain
@@ -62,9 +62,7 @@ PAPER_PFC: tuple[tuple[float, ...], tuple[float, ...]] = _PRESETS["paper"]
 # (-0.28 +- 58.9j) and 1 + K F is unstable for K in [0.62, 20.8] and [27.3, 1014].  With this D, F is
 # W-ASPR with zeros damped at >= 0.27, 1 + K F is stable for every K > 0, the 100 Hz ZOH loop only for
 # K > 20.0 (the sampling limit ~ 2/(hf_gain T)), and the steady-state offset is 0.069 deg at 10 deg.
-ROBUST_PFC: tuple[tuple[float, ...], tuple[float, ...]] = _PRESETS["robust"]
-
-PFC_PRESETS = {"paper": PAPER_PFC, "robust": ROBUST_PFC}
+ROBUST_PFC: tuple[tuple[float, ...], tuple[float, ...]] = PFC_PRESETS["robust"]
 
 _STEP_REL = 1e-6  # the relative step used to confirm that an edge is a stability boundary
 
@@ -255,12 +253,6 @@ def _closed_loop_poly(num: np.ndarray, den: np.ndarray, k: float) -> np.ndarray:
     p[m - den.size:] += den
     p[m - num.size:] += k * num
     return np.trim_zeros(p, "f")
-
-
-def spectral_abscissa(num, den, k: float) -> float:
-    """max Re of the roots of D(s) + K N(s) (< 0: 1 + K N/D is stable)."""
-    p = _closed_loop_poly(_poly(num), _poly(den), k)
-    return float(np.max(np.roots(p).real)) if p.size > 1 else -math.inf
 
 
 def _jw_coeffs(p: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

@@ -29,6 +29,8 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Callable, Iterable, Sequence
 
 from autopilot.metrics import METRIC_NAMES
+from autopilot.shared.cli import OneLineArgumentParser
+from autopilot.shared.process import write_json_atomic
 
 if TYPE_CHECKING:
     from tools.scenario import RunResult, RunSpec, Scenario
@@ -290,11 +292,7 @@ def write_summary(results: Sequence[RunResult], path: str | os.PathLike, *, scen
             if key in ("scenario", "runs"):
                 raise ValueError(f"extra must not override {key!r}")
         doc.update(extra)
-    tmp = path.with_name(f".{path.name}.tmp")
-    with open(tmp, "w", encoding="utf-8") as fh:
-        json.dump(doc, fh, indent=2, allow_nan=False)
-        fh.write("\n")
-    os.replace(tmp, path)
+    write_json_atomic(path, doc, indent=2, allow_nan=False)
     return path
 
 
@@ -388,16 +386,10 @@ def run_experiment(out_dir: str | os.PathLike, transport: str = "inprocess", run
     return results
 
 
-# ---------------------------------------------------------------------------------------- CLI
-class _Parser(argparse.ArgumentParser):
-    """argparse with a one-line error message (no usage dump) and exit status 2."""
-
-    def error(self, message: str):  # noqa: D401
-        self.exit(2, f"{self.prog}: error: {message}\n")
 
 
 def build_parser() -> argparse.ArgumentParser:
-    p = _Parser(
+    p = OneLineArgumentParser(
         prog="python -m tools.experiment",
         description="Fly a reference scenario (DESIGN.md section 4) for each controller variant; write "
                     "OUT/summary.json and OUT/<scenario>.png and print the metrics.",

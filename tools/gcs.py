@@ -22,11 +22,10 @@ import selectors
 import sys
 import time
 
-from autopilot.link import UdpLink, format_counters
-from autopilot.protocol import (AUTOPILOT_ID, GCS_ID, SETPOINT_TYPEMASK, OneLineArgumentParser, add_cpu_argument,
-                                apply_cpu, endpoint,
-                                finite_float, fmt_endpoint, install_stop_handlers, mavlink, nonneg_float,
-                                positive_float, quaternion_to_roll, roll_to_quaternion, write_json_atomic)
+from autopilot.shared.link import UdpLink, format_counters
+from autopilot.shared.cli import add_cpu_argument, endpoint, finite_float, fmt_endpoint, nonneg_float, OneLineArgumentParser, positive_float
+from autopilot.shared.mavlink import AUTOPILOT_ID, GCS_ID, mavlink, quaternion_to_roll, roll_to_quaternion, SETPOINT_TYPEMASK
+from autopilot.shared.process import exit_code_for, apply_cpu, install_stop_handlers, write_json_atomic
 from tools import profiles
 
 M = mavlink
@@ -260,7 +259,7 @@ def main(argv=None) -> int:
         gcs = Gcs(args, profile)
     except OSError as exc:
         print(f"gcs: error: cannot listen on {fmt_endpoint(args.listen)}: {exc.strerror or exc}", file=sys.stderr)
-        return 98 if getattr(exc, "errno", None) == 98 else 1
+        return exit_code_for(exc)
 
     def stop():
         gcs.stop_requested = True

@@ -23,6 +23,8 @@ import time
 from dataclasses import dataclass, field
 from pathlib import Path
 
+from autopilot.shared.process import EXIT_ADDRESS_IN_USE
+
 PROCESSES = ("sitl", "gcs", "autopilot")
 
 
@@ -266,7 +268,7 @@ def launch(cfg: LaunchConfig, stop_event: threading.Event | None = None) -> Laun
                     if time.monotonic() - c.started > 60:
                         break
                 if c.code is not None:
-                    if c.code == 98 and cfg.base_port is None and attempt < 2:
+                    if c.code == EXIT_ADDRESS_IN_USE and cfg.base_port is None and attempt < 2:
                         retry = True  # a free port was taken in between: try others
                     else:
                         failed = c.name
@@ -530,8 +532,7 @@ def load_series(out_dir) -> dict:
 
 
 def build_parser():
-    from autopilot.protocol import (OneLineArgumentParser, finite_float, nonneg_float, positive_float, rate_hz,
-                                    rt_priority_arg)
+    from autopilot.shared.cli import finite_float, nonneg_float, OneLineArgumentParser, positive_float, rate_hz, rt_priority_arg
 
     p = OneLineArgumentParser(prog="python -m tools.launch", description=__doc__.split("\n\n")[0])
     p.add_argument("--lockstep", action="store_true", help="SITL as time master, as fast as possible (default: real time)")
@@ -579,7 +580,7 @@ def main(argv=None) -> int:
     if args.busy_wait and args.lockstep:
         parser.error("--busy-wait is for real time (lockstep already polls before sleeping)")
     if args.busy_wait and args.rt_priority:
-        from autopilot.protocol import rt_throttling
+        from autopilot.shared.process import rt_throttling
 
         if rt_throttling():
             parser.error(f"--busy-wait with --rt-priority: a SCHED_FIFO thread that never sleeps is stopped by the "
@@ -588,7 +589,7 @@ def main(argv=None) -> int:
         parser.error(f"--base-port must be in 1..65534, got {args.base_port}")
     if args.csv and not os.path.isfile(args.csv):
         parser.error(f"--csv: no such file {args.csv!r}")
-    from autopilot.protocol import default_physics_rate
+    from autopilot.shared.cli import default_physics_rate
 
     if args.physics_rate is None:
         args.physics_rate = default_physics_rate(args.rate)

@@ -15,6 +15,7 @@ import sys
 
 import numpy as np
 
+from autopilot.shared.cli import OneLineArgumentParser
 from tools import analysis
 
 EPILOG = """\
@@ -33,14 +34,10 @@ exit status: 0 on success, 2 on bad input (one-line reason on stderr), 1 if the 
 """
 
 
-class _Parser(argparse.ArgumentParser):
-    def error(self, message: str) -> None:  # one line, not usage + message
-        sys.stderr.write(f"{self.prog}: error: {message}\n")
-        raise SystemExit(2)
 
 
 def build_parser() -> argparse.ArgumentParser:
-    p = _Parser(
+    p = OneLineArgumentParser(
         prog="python -m tools.pfc",
         description="W-ASPR analysis of the KH2013A roll plant with a parallel feedforward compensator "
         "(Jana & Bhat 2017, sections 2 and 5).",

@@ -57,16 +57,6 @@ def has_blueprint(path: str | os.PathLike) -> bool:
     return False
 
 
-def blueprint_entities(path: str | os.PathLike) -> list[str]:
-    """Entity paths inside the blueprint store(s): containers, views, panels."""
-    r = _reader(path)
-    out: set[str] = set()
-    for entry in r.blueprints():
-        for chunk in r.stream(store=entry):
-            out.add(chunk.entity_path)
-    return sorted(out)
-
-
 def blueprint_components(path: str | os.PathLike, component: str) -> list:
     """Every value of one blueprint component (e.g. ``"ViewBlueprint:display_name"``,
     ``"TimePanelBlueprint:timeline"``) in the file's blueprint store(s), in file order."""

@@ -10,8 +10,8 @@ import numpy as np
 from autopilot.clsac import ClSac
 from autopilot.config import ClSacConfig
 from autopilot.metrics import MetricsAccumulator
-from autopilot.protocol import quaternion_to_roll, roll_to_quaternion
-from autopilot.pwm import PwmMap
+from autopilot.shared.mavlink import quaternion_to_roll, roll_to_quaternion
+from autopilot.shared.pwm import PwmMap
 from sitl.aircraft import Aircraft, AircraftConfig
 from tools import profiles
 

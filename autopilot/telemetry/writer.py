@@ -619,8 +619,3 @@ class Telemetry:
         if self.connect_url:
             where.append(self.connect_url)
         return f"Telemetry({self.process!r}, recording_id={self.recording_id!r}, -> {', '.join(where) or 'disabled'})"
-
-
-def wall_clock() -> float:
-    """The wall clock used for the ``wall_time`` timeline (epoch seconds)."""
-    return time.time()

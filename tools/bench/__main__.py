@@ -13,12 +13,10 @@ import sys
 import time
 from pathlib import Path
 
+from autopilot.shared.cli import OneLineArgumentParser
 from tools import bench
 
 
-class _Parser(argparse.ArgumentParser):
-    def error(self, message: str):
-        self.exit(2, f"{self.prog}: error: {message}\n")
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -28,7 +26,7 @@ def main(argv: list[str] | None = None) -> int:
         i = argv.index("--")
         argv, forwarded = argv[:i], argv[i + 1:]
     available = bench.areas()
-    p = _Parser(prog="python -m tools.bench",
+    p = OneLineArgumentParser(prog="python -m tools.bench",
                 description="Run benchmarks and compare them with their targets. Areas: "
                             + ", ".join(available) + ". Arguments after -- go to every area's main().")
     p.add_argument("area", nargs="*", help="areas to run (default: all)")

@@ -1,6 +1,6 @@
 """Servo PWM calibration: rudder angle (rad) <-> pulse width (us), the same configuration on both sides.
 
-Default (DESIGN.md section 5): channel 4, 1500 us neutral, 1000..2000 us spanning -30..+30 deg.
+Default (docs/design.md, "MAVLink"): channel 4, 1500 us neutral, 1000..2000 us spanning -30..+30 deg.
 Each side of the trim has its own slope, like an ArduPilot SERVOn_MIN/TRIM/MAX calibration, so an
 asymmetric calibration still maps trim to 0 and min/max to -/+rudder_max.  Pulses are whole
 microseconds: 1 us is 0.06 deg with the defaults (the quantisation the 2 % agreement budget covers).
@@ -8,7 +8,6 @@ microseconds: 1 us is 0.06 deg with the defaults (the quantisation the 2 % agree
 
 from __future__ import annotations
 
-import argparse
 import math
 from dataclasses import dataclass
 
@@ -57,32 +56,7 @@ class PwmMap:
         return self.pwm_trim
 
     def servo_fields(self, pwm: int) -> list[int]:
-        """servo1_raw..servo8_raw with the rudder on its channel and 0 (unused) elsewhere."""
+        """servo1_raw..servo16_raw with the rudder on its channel and 0 (unused) elsewhere."""
         out = [0] * 16
         out[self.channel - 1] = pwm
         return out
-
-
-def add_pwm_arguments(parser: argparse.ArgumentParser) -> None:
-    g = parser.add_argument_group("servo calibration (must match on the SITL and the autopilot)")
-    g.add_argument("--pwm-min", type=int, default=1000, help="pulse at -rudder-max, us (default 1000)")
-    g.add_argument("--pwm-max", type=int, default=2000, help="pulse at +rudder-max, us (default 2000)")
-    g.add_argument("--pwm-trim", type=int, default=1500, help="pulse at 0 deg (neutral), us (default 1500)")
-    g.add_argument("--rudder-max-deg", type=float, default=30.0, help="deflection at pwm-min/max, deg (default 30)")
-    g.add_argument("--rudder-channel", type=int, default=4, help="SERVO_OUTPUT_RAW channel of the rudder, 1..16 (default 4)")
-
-
-def pwm_from_args(parser: argparse.ArgumentParser, args) -> PwmMap:
-    try:
-        return PwmMap(args.pwm_min, args.pwm_max, args.pwm_trim, math.radians(args.rudder_max_deg), args.rudder_channel)
-    except PwmConfigError as exc:
-        parser.error(str(exc))
-        raise  # unreachable
-
-
-def pwm_argv(pwm: PwmMap) -> list[str]:
-    """Command-line flags reproducing a calibration (for the launcher)."""
-    return [
-        "--pwm-min", str(pwm.pwm_min), "--pwm-max", str(pwm.pwm_max), "--pwm-trim", str(pwm.pwm_trim),
-        "--rudder-max-deg", repr(math.degrees(pwm.rudder_max_rad)), "--rudder-channel", str(pwm.channel),
-    ]

@@ -26,8 +26,8 @@ import socket
 import time
 from collections import Counter
 
-from autopilot.fastmav import FAST_DECODERS, FastPacker
-from autopilot.protocol import mavlink
+from autopilot.shared.fastmav import FAST_DECODERS, FastPacker
+from autopilot.shared.mavlink import mavlink
 
 _MAVLINK_MAP = mavlink.mavlink_map
 REJECT_REASONS = ("bad_magic", "truncated", "bad_crc", "decode_error", "wrong_id", "unknown_msg", "ignored_msg",
@@ -85,7 +85,7 @@ class UdpLink:
         return buf
 
     def fast_packer(self, cls) -> FastPacker:
-        """A byte-identical fast encoder for a hot message class (see ``autopilot.fastmav``)."""
+        """A byte-identical fast encoder for a hot message class (see ``autopilot.shared.fastmav``)."""
         return FastPacker(cls, self.mav.srcSystem, self.mav.srcComponent)
 
     def pack_fast(self, packer: FastPacker, *wire_values) -> bytes:

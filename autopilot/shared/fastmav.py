@@ -11,7 +11,7 @@ from __future__ import annotations
 
 import struct
 
-from autopilot.protocol import mavlink
+from autopilot.shared.mavlink import mavlink
 
 try:
     import fastcrc

@@ -1,0 +1,124 @@
+"""Command-line plumbing shared by every entry point: a one-line-error parser and checked argument types.
+
+Every command exits with status 2 and one line ``prog: error: ...`` on a bad flag (``OneLineArgumentParser``).
+The argument types reject values that parse but cannot be used (NaN, infinities, out-of-range ports and rates)
+with the allowed range in the message.
+"""
+
+from __future__ import annotations
+
+import argparse
+import math
+import sys
+
+from autopilot.shared.pwm import PwmConfigError, PwmMap
+
+
+class OneLineArgumentParser(argparse.ArgumentParser):
+    """argparse with a one-line error (``prog: error: ...``) and exit status 2 on bad flags."""
+
+    def error(self, message: str):  # noqa: D401
+        sys.stderr.write(f"{self.prog}: error: {message}\n")
+        raise SystemExit(2)
+
+
+def _number(text: str) -> float:
+    try:
+        return float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected a number, got {text!r}") from None
+
+
+def endpoint(text: str) -> tuple[str, int]:
+    """``HOST:PORT`` (port 0..65535) for argparse."""
+    host, sep, port = str(text).rpartition(":")
+    if not sep or not host:
+        raise argparse.ArgumentTypeError(f"expected HOST:PORT, got {text!r}")
+    try:
+        p = int(port)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"port must be an integer, got {port!r} in {text!r}") from None
+    if not 0 <= p <= 65535:
+        raise argparse.ArgumentTypeError(f"port must be in 0..65535, got {p} in {text!r}")
+    return host, p
+
+
+def positive_float(text: str) -> float:
+    v = _number(text)
+    if not (math.isfinite(v) and v > 0):
+        raise argparse.ArgumentTypeError(f"must be a positive finite number, got {text!r}")
+    return v
+
+
+def nonneg_float(text: str) -> float:
+    v = _number(text)
+    if not (math.isfinite(v) and v >= 0):
+        raise argparse.ArgumentTypeError(f"must be a finite number >= 0, got {text!r}")
+    return v
+
+
+def finite_float(text: str) -> float:
+    v = _number(text)
+    if not math.isfinite(v):
+        raise argparse.ArgumentTypeError(f"must be finite, got {text!r}")
+    return v
+
+
+def rate_hz(text: str) -> float:
+    """A control or frame rate: positive, at most 1 kHz (a lockstep frame is identified by its millisecond)."""
+    from autopilot.shared.mavlink import MAX_LOCKSTEP_RATE_HZ  # pymavlink: only for the commands that fly
+
+    v = positive_float(text)
+    if v > MAX_LOCKSTEP_RATE_HZ:
+        raise argparse.ArgumentTypeError(f"rate must be at most {MAX_LOCKSTEP_RATE_HZ:g} Hz, got {text!r}")
+    return v
+
+
+def rt_priority_arg(text: str) -> int:
+    try:
+        v = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected an integer 0..99, got {text!r}") from None
+    if not 0 <= v <= 99:
+        raise argparse.ArgumentTypeError(f"must be 0..99 (0 = normal scheduling), got {v}")
+    return v
+
+
+def default_physics_rate(control_rate: float, minimum: float = 1000.0) -> float:
+    """The smallest whole multiple of the control rate that is at least ``minimum`` Hz (1 kHz): 1000 Hz at
+    100 Hz control, 1200 Hz at 400 Hz (lockstep advances a whole number of physics steps per frame)."""
+    return control_rate * max(1, math.ceil(minimum / control_rate - 1e-9))
+
+
+def fmt_endpoint(ep) -> str:
+    return f"{ep[0]}:{ep[1]}" if ep else "-"
+
+
+def add_cpu_argument(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("--cpu", type=int, default=None, metavar="N",
+                        help="pin this process to CPU N (Linux sched_setaffinity; default: not pinned)")
+
+
+def add_rt_priority_argument(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("--rt-priority", type=rt_priority_arg, default=0, metavar="N",
+                        help="run the control thread under SCHED_FIFO priority N (1..99; needs the right to; "
+                             "default 0 = normal)")
+
+
+def add_pwm_arguments(parser: argparse.ArgumentParser) -> None:
+    """The servo calibration flags (``PwmMap``); they must match on the SITL and the autopilot."""
+    g = parser.add_argument_group("servo calibration (must match on the SITL and the autopilot)")
+    g.add_argument("--pwm-min", type=int, default=1000, help="pulse at -rudder-max, us (default 1000)")
+    g.add_argument("--pwm-max", type=int, default=2000, help="pulse at +rudder-max, us (default 2000)")
+    g.add_argument("--pwm-trim", type=int, default=1500, help="pulse at 0 deg (neutral), us (default 1500)")
+    g.add_argument("--rudder-max-deg", type=float, default=30.0, help="deflection at pwm-min/max, deg (default 30)")
+    g.add_argument("--rudder-channel", type=int, default=4,
+                   help="SERVO_OUTPUT_RAW channel of the rudder, 1..16 (default 4)")
+
+
+def pwm_from_args(parser: argparse.ArgumentParser, args: argparse.Namespace) -> PwmMap:
+    try:
+        return PwmMap(args.pwm_min, args.pwm_max, args.pwm_trim, math.radians(args.rudder_max_deg), args.rudder_channel)
+    except PwmConfigError as exc:
+        parser.error(str(exc))
+        raise  # unreachable

@@ -1,0 +1,36 @@
+"""Status events of a process: counted, printed, sent to a peer as STATUSTEXT and handed to hooks."""
+
+from __future__ import annotations
+
+import sys
+from collections import Counter
+
+from autopilot.shared.mavlink import mavlink
+
+STATUSTEXT_LEN = 50  # STATUSTEXT.text is char[50]
+
+
+class StatusEvents:
+    """``events(severity, text)``: one status event of process ``who``.
+
+    Counted in ``counter["statustext"]``, printed as ``who: text`` when ``verbose``, sent through ``link``
+    (an ``autopilot.shared.link.UdpLink``) as STATUSTEXT truncated to 50 bytes unless ``send=False``, and
+    handed to every ``hooks`` callable as ``(severity, text)`` (telemetry).
+    """
+
+    def __init__(self, who: str, link, counter: Counter, *, verbose: bool = True, out=None):
+        self.who = who
+        self.link = link
+        self.counter = counter
+        self.verbose = verbose
+        self.out = out or sys.stdout
+        self.hooks: list = []
+
+    def __call__(self, severity: int, text: str, send: bool = True) -> None:
+        self.counter["statustext"] += 1
+        if self.verbose:
+            print(f"{self.who}: {text}", file=self.out, flush=True)
+        if send:
+            self.link.send(mavlink.MAVLink_statustext_message(severity, text.encode("utf-8")[:STATUSTEXT_LEN], 0, 0))
+        for h in self.hooks:
+            h(severity, text)

@@ -1,0 +1,80 @@
+"""The MAVLink wire contract shared by the SITL, the autopilot and the GCS script (docs/design.md, "MAVLink").
+
+MAVLink 2, common dialect.  System/component IDs, the lockstep frame clock (and its uint32 wrap), the
+roll <-> quaternion mapping and the SET_ATTITUDE_TARGET type mask.  No sockets here (``link``).
+"""
+
+from __future__ import annotations
+
+import math
+
+from pymavlink.dialects.v20 import common as mavlink  # noqa: F401  (MAVLink 2, common dialect; re-exported)
+
+# ---------------------------------------------------------------------------------------------- IDs
+AUTOPILOT_ID = (1, 1)
+SITL_ID = (1, 200)
+GCS_ID = (255, 190)
+
+# ---------------------------------------------------------------------------------------- frames
+USEC_WRAP = 1 << 32  # SERVO_OUTPUT_RAW.time_usec is uint32: wraps every 4294.967296 s (71.6 min)
+MAX_LOCKSTEP_RATE_HZ = 1000.0  # a frame must be identifiable from a millisecond timestamp
+
+
+def frame_ms(k: int, rate: float) -> int:
+    """time_boot_ms of global frame ``k`` (sim time k / rate), floored to the millisecond."""
+    if float(rate).is_integer():
+        return (k * 1000) // int(rate)
+    return int(math.floor(k * 1000.0 / rate + 1e-6))
+
+
+def frame_from_ms(ms: int, rate: float) -> int:
+    """The global frame index whose :func:`frame_ms` is ``ms`` (exact for rates up to 1 kHz).
+
+    frame_ms floors k*1000/rate, so k lies in [ms*rate/1000, (ms+1)*rate/1000): one integer when rate <= 1000.
+    """
+    if float(rate).is_integer():
+        r = int(rate)
+        return -((-ms * r) // 1000)  # ceil(ms * r / 1000)
+    return int(math.ceil(ms * rate / 1000.0 - 1e-6))
+
+
+def frame_usec(k: int, rate: float) -> int:
+    """SERVO_OUTPUT_RAW.time_usec that answers frame ``k``: the frame's sim time in microseconds, mod 2**32."""
+    if float(rate).is_integer() and 1_000_000 % int(rate) == 0:
+        us = k * (1_000_000 // int(rate))
+    else:
+        us = int(round(k * 1e6 / rate))
+    return us % USEC_WRAP
+
+
+def usec_diff(a: int, b: int) -> int:
+    """Signed difference a - b of two uint32 microsecond stamps, assuming |a - b| < 2**31 (wrap-aware)."""
+    d = (a - b) % USEC_WRAP
+    return d - USEC_WRAP if d >= (USEC_WRAP >> 1) else d
+
+
+def usec_newer(a: int, b: int) -> bool:
+    """True if uint32 stamp ``a`` is strictly after ``b`` (across the 71.6-minute wrap)."""
+    return usec_diff(a, b) > 0
+
+
+# ------------------------------------------------------------------------------------- attitude
+def roll_to_quaternion(roll: float) -> list[float]:
+    """Quaternion [w, x, y, z] of a pure roll (pitch = yaw = 0)."""
+    return [math.cos(0.5 * roll), math.sin(0.5 * roll), 0.0, 0.0]
+
+
+def quaternion_to_roll(q) -> float:
+    """Roll angle (rad) of quaternion [w, x, y, z] (ZYX Euler); NaN if the quaternion is unusable."""
+    w, x, y, z = (float(v) for v in q)
+    n = w * w + x * x + y * y + z * z
+    if not math.isfinite(n) or n < 1e-12:
+        return math.nan
+    return math.atan2(2.0 * (w * x + y * z), n - 2.0 * (x * x + y * y))
+
+
+# Bits of SET_ATTITUDE_TARGET.type_mask (ATTITUDE_TARGET_TYPEMASK)
+TYPEMASK_IGNORE_RATES = 1 | 2 | 4
+TYPEMASK_IGNORE_THRUST = 64
+TYPEMASK_IGNORE_ATTITUDE = 128
+SETPOINT_TYPEMASK = TYPEMASK_IGNORE_RATES | TYPEMASK_IGNORE_THRUST
