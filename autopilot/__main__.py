@@ -1,4 +1,4 @@
-"""``python -m autopilot``: the CL-SAC roll autopilot process (DESIGN.md sections 5-7).
+"""``python -m autopilot``: the CL-SAC roll autopilot process (docs/design.md, "MAVLink" and "Timing modes").
 
 Links: to the SITL (sends SERVO_OUTPUT_RAW to --sitl, receives ATTITUDE) and a GCS stream (sends
 HEARTBEAT, ATTITUDE, ATTITUDE_TARGET, SERVO_OUTPUT_RAW, STATUSTEXT to --gcs and answers whoever
@@ -108,7 +108,7 @@ def main(argv=None) -> int:
                          f"each second; use one or the other")
     apply_cpu(parser, args.cpu)
     from autopilot.config import ClSacConfig, ConfigError
-    from autopilot.loop import Autopilot, AutopilotOptions, SeriesRecorder
+    from autopilot.loop import Autopilot, AutopilotOptions, series_recorder
     from autopilot.shared.tlog import TlogWriter
 
     lv = args.lv if args.lv is not None else (0.0 if args.controller == "sac" else 20.0)
@@ -137,7 +137,7 @@ def main(argv=None) -> int:
 
     recorder = None
     if args.series:
-        recorder = SeriesRecorder()
+        recorder = series_recorder()
         ap.hooks.append(recorder)
     tel = attach_telemetry(args, "autopilot", ap, control_rate_hz=args.rate)
     rt_note = apply_rt_priority(args.rt_priority, "autopilot")  # after the helper threads exist: they stay normal

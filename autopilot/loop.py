@@ -1,7 +1,8 @@
-"""The autopilot process's loop: CL-SAC between a SITL link and a GCS link (DESIGN.md sections 5-6).
+"""The autopilot process's schedulers: the control step between a SITL link and a GCS link.
 
-Transport lives in ``autopilot.shared.link``, the control law in ``autopilot.clsac``; this module schedules
-them.  Two modes:
+The step itself (setpoint, law, rudder limit, PWM map, metrics) is ``autopilot.step.ControlStep``; the links
+are ``autopilot.shared.link``; this module reads the links, decides *when* to step and sends the answer
+(docs/design.md, "Timing modes").  Two modes:
 
 * real time (:meth:`Autopilot.run_realtime`): one control step per period on a fixed grid of
   deadlines (sleep in ``select`` until shortly before the deadline, then spin; never ``sleep(period)``),
@@ -14,7 +15,7 @@ them.  Two modes:
   an older frame is counted and ignored.  With pacing on (default), frame k waits until a GCS has
   scheduled setpoints up to t_k (the schedule horizon), so results do not depend on speed.
 
-Per-step hook point for telemetry (Rerun etc.): ``Autopilot.hooks`` is a list of callables called
+Per-step hook point for telemetry (Rerun, series): ``Autopilot.hooks`` is a list of callables called
 with one :class:`StepRecord` after the servo command has been sent (outside the critical path), and
 ``Autopilot.event_hooks`` with ``(severity, text)`` for every status event (failsafe, clamp, ...).
 """
@@ -27,14 +28,15 @@ import select
 import sys
 import time
 from array import array
-from bisect import insort
 from collections import Counter
 from dataclasses import dataclass, field
 
 from autopilot.clsac import ClSac
-from autopilot.config import ClSacConfig, NonFiniteInputError
+from autopilot.config import ClSacConfig
+from autopilot.shared.events import StatusEvents
 from autopilot.shared.link import UdpLink
-from autopilot.metrics import MetricsAccumulator
+from autopilot.shared.series import SeriesRecorder
+from autopilot.step import ControlStep, Failsafe, StepResult
 from autopilot.shared.mavlink import AUTOPILOT_ID, frame_from_ms, frame_ms, frame_usec, GCS_ID, mavlink, quaternion_to_roll, roll_to_quaternion, SETPOINT_TYPEMASK, SITL_ID, TYPEMASK_IGNORE_ATTITUDE
 from autopilot.shared.pwm import PwmMap
 
@@ -74,27 +76,31 @@ class AutopilotOptions:
     verbose: bool = True
 
 
+@dataclass(slots=True, kw_only=True)
 class StepRecord:
-    """What one control step did; handed to every ``Autopilot.hooks`` callable after the servo went out.
+    """What one control step did, handed to every ``Autopilot.hooks`` callable after the servo went out.
 
-    Times: ``wall`` is time.perf_counter() at the start of the step; ``t_sim`` the sim time (s) of the
-    attitude used; ``period`` the time since the previous step's start (s), ``lateness`` start minus
-    scheduled deadline (real time; 0 in lockstep), ``compute`` start to servo sent, ``latency``
-    attitude (or unblocking setpoint) received to servo sent: in real time that is the attitude's age,
-    including the wait for the deadline (up to a sensor period), not the processing alone.  ``ctrl`` is
-    the ClSac instance (``ctrl.telemetry()`` gives the internals), ``ap`` the Autopilot (links, counters,
-    timing).
+    ``result``: the :class:`autopilot.step.StepResult` (sim time ``t``, ``um``, ``phi``, ``u``, ``pwm``,
+    ``failsafe`` ...).  The scheduler adds: ``frame`` (lockstep frame index, None in real time), ``wall``
+    (``time.perf_counter()`` at the start of the step), the measured rates ``p``, ``r`` (rad/s), and timing in
+    s: ``period`` since the previous step's start, ``lateness`` start minus deadline (0 in lockstep),
+    ``compute`` start to servo sent, ``latency`` attitude (or unblocking setpoint) received to servo sent (in
+    real time that is the attitude's age, including the wait for the deadline), ``missed`` (a deadline was
+    missed).  ``ctrl`` is the ``ClSac`` (``ctrl.telemetry()``), ``ap`` the Autopilot (links, counters).
     """
 
-    __slots__ = ("step", "frame", "t_sim", "wall", "um", "phi", "p", "r", "u", "pwm", "failsafe", "period",
-                 "lateness", "compute", "latency", "missed", "ctrl", "ap")
-
-    def __init__(self, step, frame, t_sim, wall, um, phi, p, r, u, pwm, failsafe, period, lateness, compute,
-                 latency, missed, ctrl, ap):
-        self.step, self.frame, self.t_sim, self.wall = step, frame, t_sim, wall
-        self.um, self.phi, self.p, self.r, self.u, self.pwm = um, phi, p, r, u, pwm
-        self.failsafe, self.period, self.lateness, self.compute = failsafe, period, lateness, compute
-        self.latency, self.missed, self.ctrl, self.ap = latency, missed, ctrl, ap
+    result: StepResult
+    frame: int | None
+    wall: float
+    p: float
+    r: float
+    period: float | None
+    lateness: float
+    compute: float
+    latency: float | None
+    missed: bool
+    ctrl: ClSac
+    ap: "Autopilot"
 
 
 @dataclass
@@ -158,32 +164,30 @@ class Autopilot:
         self.out = out or sys.stdout
         self.rate = float(opts.rate_hz)
         self.period = 1.0 / self.rate
-        self.ctrl = ClSac(ctrl_config)
-        self.metrics = MetricsAccumulator(self.period)  # from what flew: phi received, command sent (after PWM)
-        self.metrics_commanded = MetricsAccumulator(self.period)  # same, with the controller's u before PWM quantisation
+        # The control step: setpoint queue, law, limit, PWM map, metrics from what flew (autopilot.step).
+        self.control = ControlStep(ctrl_config, pwm)
+        self.ctrl = self.control.law
+        self.setpoints = self.control.setpoints
         self.sitl = UdpLink("sitl", AUTOPILOT_ID, opts.sitl_bind, opts.sitl, peers=[SITL_ID],
                             msgids=[ATTITUDE, HEARTBEAT, STATUSTEXT], tlog=tlog)
         self.gcs = UdpLink("gcs", AUTOPILOT_ID, opts.gcs_bind, opts.gcs, peers=opts.gcs_ids,
                            msgids=[SET_ATTITUDE_TARGET, HEARTBEAT], learn_remote=True, tlog=tlog)
         self.hooks: list = []  # callables(StepRecord), after each step
-        self.event_hooks: list = []  # callables(severity, text), for each status event
         self.events = Counter()  # autopilot-level counters (failsafes, setpoints, frames)
+        self._event = StatusEvents("autopilot", self.gcs, self.events, verbose=opts.verbose, out=self.out)
+        self.event_hooks = self._event.hooks  # callables(severity, text), for each status event
         self.timing = TimingStats()
         self.stop_requested = False
         self.exit_reason = ""
         # attitude
         self.att = _Attitude()
-        # setpoints: sorted queue of (t_apply_us, seq, roll); current command
-        self._sp_queue: list = []
-        self._sp_seq = 0
-        self.um = 0.0
         self.horizon_us = -1.0  # newest scheduled setpoint time received
         self.last_setpoint_wall = None
         self.setpoint_lost = False
         self._last_clamp_report = -1e9
         # state
         self.steps = 0
-        self.failsafe = None  # None or a reason string
+        self.failsafe = Failsafe.NONE  # the attitude failsafe (setpoint loss is self.setpoint_lost)
         self.failsafe_steps = 0
         self.failsafe_entries: list = []  # attitude age (s) when each failsafe began
         self.recoveries = 0
@@ -237,7 +241,7 @@ class Autopilot:
                 self._on_frame(msg.time_boot_ms, t_rx)
         elif mid == STATUSTEXT:
             text = msg.text if isinstance(msg.text, str) else msg.text.decode("utf-8", "replace")
-            self._event(msg.severity, f"SITL: {text}", forward=True)
+            self._event(msg.severity, f"SITL: {text}")
 
     def _on_gcs(self, msg, t_rx):
         if msg.get_msgId() != SET_ATTITUDE_TARGET:
@@ -272,16 +276,9 @@ class Autopilot:
             t_us = ms * 1000.0
             if t_us > self.horizon_us:
                 self.horizon_us = t_us
-        q = self._sp_queue
-        if len(q) >= 100_000:
+        if not self.setpoints.push(t_us, roll):
             self.gcs.rejected["setpoint_queue_full"] += 1
             return
-        self._sp_seq += 1
-        item = (t_us, self._sp_seq, roll)
-        if not q or item >= q[-1]:
-            q.append(item)
-        else:
-            insort(q, item)
         if self.opts.lockstep and self.pending_frame is not None:
             self._try_step(t_rx)
 
@@ -291,18 +288,6 @@ class Autopilot:
         if self.last_frame is not None and self.opts.lockstep:
             return self.last_frame * 1e6 / self.rate
         return self.att.ms * 1000.0 if self.att.valid else 0.0
-
-    def _setpoint_at(self, t_us: float) -> float:
-        """Pop every scheduled setpoint due at sim time t_us; the last one due becomes the command."""
-        q = self._sp_queue
-        if q and q[0][0] <= t_us + 1e-3:
-            i = 0
-            n = len(q)
-            while i < n and q[i][0] <= t_us + 1e-3:
-                i += 1
-            self.um = q[i - 1][2]
-            del q[:i]
-        return self.um
 
     # ================================================================ outputs
     def _servo_wire(self, time_usec: int, pwm: int) -> tuple:
@@ -316,22 +301,12 @@ class Autopilot:
         for link in (self.gcs, self.sitl):
             link.send(M.MAVLink_heartbeat_message(M.MAV_TYPE_FIXED_WING, M.MAV_AUTOPILOT_GENERIC, base, 0, status, 3))
 
-    def _event(self, severity: int, text: str, forward: bool = True):
-        """A status event: printed, sent to the GCS as STATUSTEXT (50 chars), handed to event_hooks."""
-        self.events["statustext"] += 1
-        if self.opts.verbose:
-            print(f"autopilot: {text}", file=self.out, flush=True)
-        if forward:
-            self.gcs.send(M.MAVLink_statustext_message(severity, text.encode("utf-8")[:50], 0, 0))
-        for h in self.event_hooks:
-            h(severity, text)
-
     def _send_telemetry(self, t_ms: int, phi: float, p: float, r: float, servo_wire: tuple):
         """ATTITUDE, ATTITUDE_TARGET and SERVO_OUTPUT_RAW to the GCS, in one datagram."""
         g = self.gcs
         if g.remote is None:
             return
-        q = roll_to_quaternion(self.um)
+        q = roll_to_quaternion(self.setpoints.current)
         bufs = [
             g.pack_fast(self._pk_att, t_ms, phi, 0.0, 0.0, p, 0.0, r),
             g.pack_fast(self._pk_att_target, t_ms, q[0], q[1], q[2], q[3], 0.0, 0.0, 0.0, 0.0, SETPOINT_TYPEMASK),
@@ -409,25 +384,13 @@ class Autopilot:
         self.pending_frame = None
         t0 = time.perf_counter()
         att = self.att
-        phi = att.roll
-        um = self._setpoint_at(t_us)
-        try:
-            u = self.ctrl(phi, um)
-        except NonFiniteInputError:
-            self.events["controller_errors"] += 1
-            self.ctrl.hold(0.0)
-            u = 0.0
-        pwm = self.pwm.to_pwm(u)
-        wire = self._servo_wire(frame_usec(k, self.rate), pwm)
+        res = self.control(k / self.rate, att.roll)
+        wire = self._servo_wire(frame_usec(k, self.rate), res.pwm)
         raw = self.sitl.pack_fast(self._pk_servo_sitl, *wire)
         self.sitl.send_raw(raw, SERVO_OUTPUT_RAW)
         t_sent = time.perf_counter()
         self._last_answer = raw
         self.last_frame = k
-        u_sent = self.pwm.to_rad(pwm)
-        ctrl = self.ctrl
-        self.metrics.add(phi, ctrl.ym_ol, ctrl.e, u_sent)
-        self.metrics_commanded.add(phi, ctrl.ym_ol, ctrl.e, u)
         prev = self.t_last_step
         self.t_last_step = t0
         if self.t_first_step is None:
@@ -436,10 +399,11 @@ class Autopilot:
         self.timing.add(None, None, t_sent - t0, latency)
         self.steps += 1
         if self._telemetry_every and self.steps % self._telemetry_every == 1 % self._telemetry_every:
-            self._send_telemetry(att.ms, phi, att.p, att.r, wire)
+            self._send_telemetry(att.ms, att.roll, att.p, att.r, wire)
         if self.hooks:
-            rec = StepRecord(self.steps, k, t_us * 1e-6, t0, um, phi, att.p, att.r, u_sent, pwm, None,
-                             None if prev is None else t0 - prev, 0.0, t_sent - t0, latency, False, ctrl, self)
+            rec = StepRecord(result=res, frame=k, wall=t0, p=att.p, r=att.r,
+                             period=None if prev is None else t0 - prev, lateness=0.0, compute=t_sent - t0,
+                             latency=latency, missed=False, ctrl=self.ctrl, ap=self)
             for h in self.hooks:
                 h(rec)
 
@@ -512,8 +476,7 @@ class Autopilot:
         deadline = start + period
         prev_wake = None
         att = self.att
-        ctrl = self.ctrl
-        pwm_map = self.pwm
+        control = self.control
         timing = self.timing
         sitl = self.sitl
         att_timeout = opts.attitude_timeout_s
@@ -540,51 +503,27 @@ class Autopilot:
             age = t_wake - att.t_rx if att.valid else math.inf
             if age > att_timeout:
                 # No (fresh) attitude: rudder neutral, PFC follows it, adaptation frozen.
-                ctrl.hold(0.0)
-                pwm = pwm_map.neutral
-                u_sent = 0.0
-                um = self.um
-                wire = self._servo_wire(_wall_usec(), pwm)
+                res = control.hold(att.ms * 1e-3, att.roll, self.failsafe if att.valid else Failsafe.NONE)
+                wire = self._servo_wire(_wall_usec(), res.pwm)
                 sitl.send_raw(sitl.pack_fast(pk_servo, *wire), SERVO_OUTPUT_RAW)
                 t_sent = perf()
                 if att.valid:  # before the first attitude ever it is stand-by, not a failsafe
                     self.failsafe_steps += 1
-                    if self.failsafe is None:
-                        self.failsafe = "no attitude"
+                    if self.failsafe is Failsafe.NONE:
+                        self.failsafe = res.failsafe = Failsafe.NO_ATTITUDE
                         self._enter_failsafe(age)
-                fs = self.failsafe
             else:
-                if self.failsafe is not None:
+                if self.failsafe is not Failsafe.NONE:
                     self._leave_failsafe()
                 elif self._status_state == M.MAV_STATE_STANDBY:
                     self._status_state = M.MAV_STATE_ACTIVE
-                t_sim_us = att.ms * 1000.0
-                um = self._setpoint_at(t_sim_us)
-                if self.last_setpoint_wall is not None and t_wake - self.last_setpoint_wall > sp_timeout:
-                    if not self.setpoint_lost:
-                        self.setpoint_lost = True
-                        self.events["setpoint_timeouts"] += 1
-                        self._event(M.MAV_SEVERITY_WARNING,
-                                    f"no setpoint for {sp_timeout:.1f} s: holding wings level")
-                    um = self.um = 0.0
-                elif self.setpoint_lost:
-                    self.setpoint_lost = False
-                    self._event(M.MAV_SEVERITY_INFO, "setpoints back")
-                phi = att.roll
-                try:
-                    u = ctrl(phi, um)
-                except NonFiniteInputError:
-                    self.events["controller_errors"] += 1
-                    ctrl.hold(0.0)
-                    u = 0.0
-                pwm = pwm_map.to_pwm(u)
-                wire = self._servo_wire(_wall_usec(), pwm)
+                lost = t_wake - self.last_setpoint_wall > sp_timeout
+                if lost != self.setpoint_lost:
+                    self._setpoint_stream(lost)
+                res = control(att.ms * 1e-3, att.roll, wings_level=lost)
+                wire = self._servo_wire(_wall_usec(), res.pwm)
                 sitl.send_raw(sitl.pack_fast(pk_servo, *wire), SERVO_OUTPUT_RAW)
                 t_sent = perf()
-                u_sent = pwm_map.to_rad(pwm)
-                self.metrics.add(phi, ctrl.ym_ol, ctrl.e, u_sent)
-                self.metrics_commanded.add(phi, ctrl.ym_ol, ctrl.e, u)
-                fs = None
             # ---- bookkeeping, outside the critical path
             self.steps += 1
             if self.t_first_step is None:
@@ -600,8 +539,9 @@ class Autopilot:
             if tel_every and self.steps % tel_every == 1 % tel_every:
                 self._send_telemetry(att.ms if att.valid else 0, att.roll, att.p, att.r, wire)
             if self.hooks:
-                rec = StepRecord(self.steps, None, att.ms * 1e-3, t_wake, um, att.roll, att.p, att.r, u_sent, pwm, fs,
-                                 per, lateness, t_sent - t_wake, latency, missed, ctrl, self)
+                rec = StepRecord(result=res, frame=None, wall=t_wake, p=att.p, r=att.r, period=per,
+                                 lateness=lateness, compute=t_sent - t_wake, latency=latency, missed=missed,
+                                 ctrl=self.ctrl, ap=self)
                 for h in self.hooks:
                     h(rec)
             deadline += period
@@ -633,8 +573,18 @@ class Autopilot:
                   f"(timeout {self.opts.attitude_timeout_s * 1e3:.0f} ms, period {self.period * 1e3:.2f} ms), "
                   f"adaptation frozen", file=self.out, flush=True)
 
+    def _setpoint_stream(self, lost: bool):
+        """The setpoint stream was lost (no setpoint for the timeout: fly wings level) or came back."""
+        self.setpoint_lost = lost
+        if lost:
+            self.events["setpoint_timeouts"] += 1
+            self._event(M.MAV_SEVERITY_WARNING,
+                        f"no setpoint for {self.opts.setpoint_timeout_s:.1f} s: holding wings level")
+        else:
+            self._event(M.MAV_SEVERITY_INFO, "setpoints back")
+
     def _leave_failsafe(self):
-        self.failsafe = None
+        self.failsafe = Failsafe.NONE
         self.recoveries += 1
         self._status_state = M.MAV_STATE_ACTIVE
         self._send_heartbeat()
@@ -664,6 +614,8 @@ class Autopilot:
     def stats(self) -> dict:
         wall = (self.t_last_step - self.t_first_step) if self.t_first_step is not None else 0.0
         ev = dict(self.events)
+        if self.control.nonfinite_inputs:
+            ev["controller_errors"] = self.control.nonfinite_inputs  # NaN/Inf reached the law: flown as a hold
         ev.update(failsafe_entries_ms=[a * 1e3 for a in self.failsafe_entries], recoveries=self.recoveries)
         return {
             "name": self.opts.name,
@@ -671,9 +623,9 @@ class Autopilot:
             "mode": "lockstep" if self.opts.lockstep else "realtime",
             "rate_hz": self.rate,
             "steps": self.steps,
-            "metric_samples": self.metrics.n,
-            "metrics": self.metrics.result(),
-            "metrics_commanded": self.metrics_commanded.result(),
+            "metric_samples": self.control.metrics.n,
+            "metrics": self.control.metrics.result(),
+            "metrics_commanded": self.control.metrics_commanded.result(),
             "first_frame": self.first_frame,
             "last_frame": self.last_frame,
             "wall_s": wall,
@@ -689,26 +641,20 @@ class Autopilot:
         self.gcs.close()
 
 
-class SeriesRecorder:
-    """A step hook that keeps one row per control step and saves them as .npz (keys as tools.scenario.SERIES
-    where the autopilot knows them: t, um, phi, p, r, u (sent, after PWM), the controller internals)."""
+# The autopilot's per-step series (``--series``): keys as tools.scenario.SERIES where the autopilot knows them.
+SERIES_KEYS = ("t", "um", "phi", "p", "r", "u", "u_cmd", "pwm", "failsafe", "ym", "ym_ol", "ya", "y_pfc", "e",
+               "kpe", "kie", "ke", "kpx", "kix", "kx", "kpu", "kiu", "ku")
 
-    KEYS = ("t", "um", "phi", "p", "r", "u", "u_cmd", "pwm", "failsafe", "ym", "ym_ol", "ya", "y_pfc", "e",
-            "kpe", "kie", "ke", "kpx", "kix", "kx", "kpu", "kiu", "ku")
 
-    def __init__(self):
-        self.rows: list = []
+def _series_row(rec: StepRecord) -> tuple:
+    r, c = rec.result, rec.ctrl
+    return (r.t, r.um, r.phi, rec.p, rec.r, r.u, c.u, r.pwm, r.failsafe is not Failsafe.NONE,
+            c.ym, c.ym_ol, c.ya, c.y_pfc, c.e, c.kpe, c.kie, c.ke, c.kpx, c.kix, c.kx, c.kpu, c.kiu, c.ku)
 
-    def __call__(self, rec: StepRecord):
-        c = rec.ctrl
-        self.rows.append((rec.t_sim, rec.um, rec.phi, rec.p, rec.r, rec.u, c.u, rec.pwm, rec.failsafe is not None,
-                          c.ym, c.ym_ol, c.ya, c.y_pfc, c.e, c.kpe, c.kie, c.ke, c.kpx, c.kix, c.kx, c.kpu, c.kiu, c.ku))
 
-    def save(self, path: str):
-        import numpy as np
-
-        arr = np.asarray(self.rows, dtype=float).reshape(-1, len(self.KEYS))
-        np.savez(path, **{k: arr[:, i] for i, k in enumerate(self.KEYS)})
+def series_recorder() -> SeriesRecorder:
+    """A step hook recording every control step (t, um, phi, p, r, u sent after PWM, the law's internals)."""
+    return SeriesRecorder(SERIES_KEYS, _series_row)
 
 
 def _wall_usec() -> int:

@@ -65,7 +65,7 @@ def main(argv=None) -> int:
     k0 = args.start_time * args.rate
     if args.lockstep and abs(k0 - round(k0)) > 1e-6:
         parser.error(f"--start-time ({args.start_time:g}) must be a whole number of frames at --rate {args.rate:g}")
-    from sitl.endpoint import LockstepGiveUp, Sitl, SitlOptions, StateRecorder
+    from sitl.endpoint import LockstepGiveUp, Sitl, SitlOptions, series_recorder
 
     opts = SitlOptions(
         listen=args.listen, lockstep=args.lockstep, rate_hz=args.rate, physics_rate_hz=args.physics_rate,
@@ -81,7 +81,7 @@ def main(argv=None) -> int:
 
     recorder = None
     if args.series:
-        recorder = StateRecorder()
+        recorder = series_recorder()
         sitl.hooks.append(recorder)
     tel = attach_telemetry(args, "sitl", sitl)
     rt_note = apply_rt_priority(args.rt_priority, "sitl")  # after the helper threads exist: they stay normal

@@ -26,7 +26,9 @@ import time
 from collections import Counter
 from dataclasses import dataclass
 
+from autopilot.shared.events import StatusEvents
 from autopilot.shared.link import UdpLink
+from autopilot.shared.series import SeriesRecorder
 from autopilot.shared.mavlink import AUTOPILOT_ID, frame_ms, frame_usec, mavlink, SITL_ID, usec_diff
 from autopilot.shared.pwm import PWM_VALID_RANGE, PwmMap
 from sitl.aircraft import Aircraft, AircraftConfig
@@ -68,23 +70,18 @@ class SitlRecord:
         self.t_sim, self.x, self.u, self.pwm, self.frame, self.sitl = t_sim, x, u, pwm, frame, sitl
 
 
-class StateRecorder:
-    """A SITL hook that keeps (t, v, p, r, phi, delta_r, delta_r_dot, u) per frame and saves them as .npz."""
+# The SITL's per-frame series (``--series``): the truth state after each frame and the command applied.
+SERIES_KEYS = ("t", "v", "p", "r", "phi", "delta_r", "delta_r_dot", "u")
 
-    KEYS = ("t", "v", "p", "r", "phi", "delta_r", "delta_r_dot", "u")
 
-    def __init__(self):
-        self.rows: list = []
+def _series_row(rec: SitlRecord) -> tuple:
+    x = rec.x
+    return (rec.t_sim, x[0], x[1], x[2], x[3], x[4], x[5], rec.u)
 
-    def __call__(self, rec: SitlRecord):
-        x = rec.x
-        self.rows.append((rec.t_sim, x[0], x[1], x[2], x[3], x[4], x[5], rec.u))
 
-    def save(self, path: str):
-        import numpy as np
-
-        arr = np.asarray(self.rows, dtype=float).reshape(-1, len(self.KEYS))
-        np.savez(path, **{k: arr[:, i] for i, k in enumerate(self.KEYS)})
+def series_recorder() -> SeriesRecorder:
+    """A SITL hook recording (t, v, p, r, phi, delta_r, delta_r_dot, u) per frame / sensor message."""
+    return SeriesRecorder(SERIES_KEYS, _series_row)
 
 
 class Sitl:
@@ -96,8 +93,9 @@ class Sitl:
         self.link = UdpLink("autopilot", SITL_ID, opts.listen, None, peers=[AUTOPILOT_ID],
                             msgids=[SERVO_OUTPUT_RAW, HEARTBEAT], learn_remote=True)
         self.hooks: list = []
-        self.event_hooks: list = []  # callables(severity, text), for each status event
         self.events = Counter()
+        self.say = StatusEvents("sitl", self.link, self.events, verbose=opts.verbose, out=self.out)
+        self.event_hooks = self.say.hooks  # callables(severity, text), for each status event
         self.stop_requested = False
         self.u = 0.0  # applied rudder command (rad)
         self.pwm_applied = pwm.neutral
@@ -111,15 +109,6 @@ class Sitl:
         self._pk_att = self.link.fast_packer(M.MAVLink_attitude_message)
 
     # ------------------------------------------------------------------ util
-    def say(self, text: str, severity=M.MAV_SEVERITY_WARNING, send=True):
-        self.events["statustext"] += 1
-        if self.opts.verbose:
-            print(f"sitl: {text}", file=self.out, flush=True)
-        if send:
-            self.link.send(M.MAVLink_statustext_message(severity, text.encode()[:50], 0, 0))
-        for h in self.event_hooks:
-            h(severity, text)
-
     def _heartbeat(self):
         self.link.send(M.MAVLink_heartbeat_message(M.MAV_TYPE_GENERIC, M.MAV_AUTOPILOT_INVALID, 0, 0,
                                                    M.MAV_STATE_ACTIVE, 3))
@@ -303,7 +292,7 @@ class Sitl:
                         ev["servo_applied"] += 1
                         if timed_out:
                             timed_out = False
-                            self.say("autopilot back: servo commands applied again", M.MAV_SEVERITY_NOTICE)
+                            self.say(M.MAV_SEVERITY_NOTICE, "autopilot back: servo commands applied again")
             now = perf()
             if now < next_sensor:
                 continue
@@ -322,7 +311,7 @@ class Sitl:
                 self.u = 0.0
                 self.pwm_applied = self.pwm.neutral
                 ev["servo_timeouts"] += 1
-                self.say(f"autopilot silent {now - last_servo_wall:.2f} s: rudder neutral")
+                self.say(M.MAV_SEVERITY_WARNING, f"autopilot silent {now - last_servo_wall:.2f} s: rudder neutral")
             if now >= next_hb:
                 next_hb = now + 1.0
                 self._heartbeat()

@@ -1,4 +1,4 @@
-"""The reference scenario ``paper`` (DESIGN.md section 4) and its in-process closed loop.  No I/O."""
+"""The reference scenario ``paper`` (docs/design.md, "Reference scenario") and its in-process closed loop.  No I/O."""
 
 from __future__ import annotations
 
@@ -7,18 +7,17 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from autopilot.clsac import ClSac
 from autopilot.config import ClSacConfig
-from autopilot.metrics import MetricsAccumulator
 from autopilot.shared.mavlink import quaternion_to_roll, roll_to_quaternion
 from autopilot.shared.pwm import PwmMap
+from autopilot.step import ControlStep, ProfileSetpoints
 from sitl.aircraft import Aircraft, AircraftConfig
 from tools import profiles
 
 
 @dataclass(frozen=True)
 class Scenario:
-    """A square-wave roll scenario.  Defaults are the paper scenario of DESIGN.md section 4."""
+    """A square-wave roll scenario.  Defaults are the paper scenario (docs/design.md, "Reference scenario")."""
 
     name: str = "paper"
     amplitude_rad: float = math.radians(10.0)
@@ -96,38 +95,36 @@ SERIES = ("t", "um", "phi", "ym", "ym_ol", "ya", "y_pfc", "e", "u", "kpe", "kie"
 
 def run_inprocess(scenario: Scenario = PAPER, run: RunSpec = PAPER_RUNS[1], base: ClSacConfig | None = None,
                   wire: PwmMap | None = None) -> RunResult:
-    """Fly the scenario with the controller and the aircraft in one process.
+    """Fly the scenario with the control step and the aircraft in one process.
 
     Order per control step k (the same as over MAVLink in lockstep): the aircraft's roll at t_k is
-    measured, the controller computes u[k], the aircraft advances one control period with u[k] held.
+    measured, ``autopilot.step.ControlStep`` computes u[k], the aircraft advances one control period
+    with u[k] held (exact ZOH, ``sitl.Aircraft.advance``).
 
     ``wire``: also model exactly what the MAVLink path adds, so the two compare like for like: roll and
     the setpoint quaternion travel as float32, and the rudder command flies (and is scored) after the
     1 us PWM quantisation of this calibration.
     """
-    ctrl = ClSac(controller_config(scenario, run, base))
+    command = scenario.command
+    if wire is not None:
+        def command(t: float, _f=scenario.command) -> float:  # SET_ATTITUDE_TARGET.q travels as float32
+            return quaternion_to_roll(np.float32(roll_to_quaternion(_f(t))))
+
+    step = ControlStep(controller_config(scenario, run, base), wire, ProfileSetpoints(command))
+    law = step.law
     ac = Aircraft(AircraftConfig(physics_rate_hz=scenario.physics_rate_hz))
     n = scenario.steps
     nphys = scenario.physics_per_control
-    acc = MetricsAccumulator(1.0 / scenario.control_rate_hz)
     out = np.empty((n, len(SERIES)))
     rate = scenario.control_rate_hz
     for k in range(n):
         t = k / rate
-        um = scenario.command(t)
         x = ac.x
-        phi = float(x[3])
-        if wire is None:
-            u = ctrl(phi, um)
-        else:
-            um = quaternion_to_roll(np.float32(roll_to_quaternion(um)))  # SET_ATTITUDE_TARGET.q, float32
-            phi = float(np.float32(phi))  # ATTITUDE.roll, float32
-            ctrl(phi, um)
-            u = wire.to_rad(wire.to_pwm(ctrl.u))  # SERVO_OUTPUT_RAW: whole microseconds
-        acc.add(phi, ctrl.ym_ol, ctrl.e, u)
-        out[k] = (t, um, phi, ctrl.ym, ctrl.ym_ol, ctrl.ya, ctrl.y_pfc, ctrl.e, u,
-                  ctrl.kpe, ctrl.kie, ctrl.ke, ctrl.kpx, ctrl.kix, ctrl.kx, ctrl.kpu, ctrl.kiu, ctrl.ku,
+        phi = float(x[3]) if wire is None else float(np.float32(x[3]))  # ATTITUDE.roll travels as float32
+        r = step(t, phi)
+        out[k] = (t, r.um, phi, law.ym, law.ym_ol, law.ya, law.y_pfc, law.e, r.u,
+                  law.kpe, law.kie, law.ke, law.kpx, law.kix, law.kx, law.kpu, law.kiu, law.ku,
                   x[0], x[1], x[2], x[4])
-        ac.advance(u, nphys)
+        ac.advance(r.u, nphys)
     series = {name: out[:, i].copy() for i, name in enumerate(SERIES)}
-    return RunResult(run.name, run.lv, acc.result(), series)
+    return RunResult(run.name, run.lv, step.metrics.result(), series)

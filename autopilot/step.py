@@ -1,0 +1,189 @@
+"""One control step, free of I/O: the setpoint at time t, the law, the rudder limit, the PWM map and the metrics.
+
+Three users call :class:`ControlStep` once per control period and get a :class:`StepResult` back:
+
+* the lockstep scheduler and the real-time scheduler of the autopilot process (``autopilot.loop``), which
+  only add the MAVLink I/O and the timing around it;
+* the in-process runner (``tools.scenario.run_inprocess``), which adds the simulated aircraft.
+
+So the three can never drift apart: a lockstep flight over MAVLink and the in-process runner with the wire
+model give bit-identical metrics (``tests/test_e2e_lockstep.py``).  Example::
+
+    from autopilot import ClSacConfig, ControlStep, PwmMap
+    from autopilot.step import ProfileSetpoints
+
+    step = ControlStep(ClSacConfig(), PwmMap(), ProfileSetpoints(lambda t: 0.1745))
+    res = step(0.0, phi)          # res.u: the rudder command that flies (rad), res.pwm its pulse (us)
+    step.metrics.result()         # the five metrics so far (docs/design.md, "Metrics")
+
+Like simple-pid's controller object, the clock is injected (``t`` is an argument, never read from the
+machine), the internals of each step are exposed for logging (``step.law``: the ``ClSac`` with ``e``,
+``ym``, the gains ...), and ``reset()`` returns to the initial conditions.
+"""
+
+from __future__ import annotations
+
+import enum
+import math
+from bisect import insort
+from collections.abc import Callable
+from dataclasses import dataclass
+
+from autopilot.clsac import ClSac
+from autopilot.config import ClSacConfig, NonFiniteInputError
+from autopilot.metrics import MetricsAccumulator
+from autopilot.shared.pwm import PwmMap
+
+
+class Failsafe(enum.Enum):
+    """What a step flew on.  ``NONE``: the law on fresh data.  ``NO_ATTITUDE``: no fresh attitude, rudder
+    neutral and adaptation frozen (``ClSac.hold``).  ``NO_SETPOINT``: no setpoint for the timeout, the law
+    flies wings level (u_m = 0).  Both failsafes are left automatically when the data comes back."""
+
+    NONE = "none"
+    NO_ATTITUDE = "no attitude"
+    NO_SETPOINT = "no setpoint"
+
+
+@dataclass(slots=True)
+class StepResult:
+    """What one control step did.  Angles in rad, ``t`` in s of sim time, ``pwm`` in us (None without a map)."""
+
+    k: int  # steps taken so far, this one included (failsafe steps count)
+    t: float  # sim time of the measurement used
+    um: float  # roll command u_m in force
+    phi: float  # measured roll y
+    u_cmd: float  # the law's command, limited to +-u_limit (paper eq. (3) + the limit)
+    u: float  # the command that flies: u_cmd after the PWM map's 1 us quantisation (= u_cmd without a map)
+    pwm: int | None  # its pulse width
+    failsafe: Failsafe
+    saturated: bool  # |u_raw| > u_limit this step
+
+
+class SetpointQueue:
+    """Setpoints scheduled on sim time: ``push(t_us, roll)``, then ``at(t)`` makes the last one due the command.
+
+    Times are whole microseconds as the wire carries them (``SET_ATTITUDE_TARGET.time_boot_ms * 1000``); a
+    point is due at ``t`` when its time is at most ``t`` (to 1 ns).  Until the first point, the command is 0.
+    """
+
+    __slots__ = ("_q", "_seq", "current", "limit")
+
+    def __init__(self, limit: int = 100_000):
+        self._q: list = []  # sorted (t_us, seq, roll)
+        self._seq = 0
+        self.current = 0.0
+        self.limit = limit
+
+    def __len__(self) -> int:
+        return len(self._q)
+
+    def push(self, t_us: float, roll: float) -> bool:
+        """Schedule ``roll`` (rad) at ``t_us``; False (nothing queued) when ``limit`` points are waiting."""
+        q = self._q
+        if len(q) >= self.limit:
+            return False
+        self._seq += 1
+        item = (t_us, self._seq, roll)
+        if not q or item >= q[-1]:
+            q.append(item)
+        else:
+            insort(q, item)
+        return True
+
+    def at(self, t: float) -> float:
+        """Pop every point due at sim time ``t`` (s); the last one due becomes ``current``, which is returned."""
+        q = self._q
+        t_us = t * 1e6 + 1e-3
+        if q and q[0][0] <= t_us:
+            i = 0
+            n = len(q)
+            while i < n and q[i][0] <= t_us:
+                i += 1
+            self.current = q[i - 1][2]
+            del q[:i]
+        return self.current
+
+    def clear(self) -> None:
+        self._q.clear()
+        self.current = 0.0
+
+
+class ProfileSetpoints:
+    """The command as a function of sim time, ``fn(t) -> rad`` (a ``tools.profiles.Profile.value``, say)."""
+
+    __slots__ = ("fn", "current")
+
+    def __init__(self, fn: Callable[[float], float]):
+        self.fn = fn
+        self.current = 0.0
+
+    def at(self, t: float) -> float:
+        self.current = v = self.fn(t)
+        return v
+
+
+class ControlStep:
+    """The control step: ``step(t, phi) -> StepResult``.
+
+    ``config``: the law (``ClSacConfig``; ``ClSacConfig.sac()`` for SAC).  ``pwm``: the servo calibration the
+    command goes through (``None``: the law's command flies unquantised, as in the paper).  ``setpoints``: any
+    object with ``at(t) -> rad`` and a ``current`` attribute (default: an empty :class:`SetpointQueue`).
+
+    ``metrics`` accumulates the five metrics from what flew (the command after the PWM map); with a PWM map,
+    ``metrics_commanded`` the same from the law's own command, before quantisation.
+    """
+
+    def __init__(self, config: ClSacConfig | None = None, pwm: PwmMap | None = None, setpoints=None):
+        self.config = config or ClSacConfig()
+        self.law = ClSac(self.config)
+        self.pwm = pwm
+        self.setpoints = SetpointQueue() if setpoints is None else setpoints
+        self.metrics = MetricsAccumulator(self.config.dt)
+        self.metrics_commanded = MetricsAccumulator(self.config.dt) if pwm is not None else self.metrics
+        self.k = 0
+        self.nonfinite_inputs = 0  # steps whose measurement or command was NaN/Inf: flown as a hold
+
+    def reset(self) -> None:
+        """Back to the initial conditions (law, metrics, step count); the setpoints are the caller's."""
+        self.law.reset()
+        self.metrics.reset()
+        self.metrics_commanded.reset()
+        self.k = 0
+        self.nonfinite_inputs = 0
+
+    def __call__(self, t: float, phi: float, *, wings_level: bool = False) -> StepResult:
+        """One step on the measured roll ``phi`` (rad) at sim time ``t`` (s).
+
+        ``wings_level``: the setpoint stream is lost, fly u_m = 0 (``Failsafe.NO_SETPOINT``).
+        """
+        setpoints = self.setpoints
+        um = setpoints.at(t)
+        if wings_level:
+            um = setpoints.current = 0.0
+        law = self.law
+        try:
+            u_cmd = law(phi, um)  # paper eq. (3), limited to +-u_limit (autopilot.clsac)
+        except NonFiniteInputError:
+            self.nonfinite_inputs += 1
+            law.hold(0.0)
+            u_cmd = 0.0
+        pwm_map = self.pwm
+        if pwm_map is None:
+            pwm = None
+            u = u_cmd
+        else:
+            pwm = pwm_map.to_pwm(u_cmd)
+            u = pwm_map.to_rad(pwm)
+            self.metrics_commanded.add(phi, law.ym_ol, law.e, u_cmd)
+        self.metrics.add(phi, law.ym_ol, law.e, u)
+        self.k += 1
+        return StepResult(self.k, t, um, phi, u_cmd, u, pwm,
+                          Failsafe.NO_SETPOINT if wings_level else Failsafe.NONE, law.saturated)
+
+    def hold(self, t: float, phi: float = math.nan, failsafe: Failsafe = Failsafe.NO_ATTITUDE) -> StepResult:
+        """A failsafe step: rudder neutral, the PFC follows it, adaptation frozen (``ClSac.hold``); no metrics."""
+        self.law.hold(0.0)
+        self.k += 1
+        pwm = self.pwm.neutral if self.pwm is not None else None
+        return StepResult(self.k, t, self.setpoints.current, phi, 0.0, 0.0, pwm, failsafe, False)
