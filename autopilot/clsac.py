@@ -6,10 +6,10 @@ measured output y[k] and the command u_m[k]:
     y_d[k] = C_d x_d[k]                         PFC output, D(s) = 1/C(s) (paper sec. 2 and 5)
     y_a    = y[k] + y_d[k]                      augmented output, computed from the controller's own
                                                 past (applied) commands (paper sec. 5, Fig. "Details")
-    y_m    = C_m x_m[k]                         reference model output (paper eq. clrm2)
-    e      = y_m - y_a                          output error e_my (paper sec. 3)
+    y_m    = C_m x_m[k]                         reference model output (paper eq. (19))
+    e      = y_m - y_a                          output error e_my (paper eq. (20))
     K_pe = e e^T G_pe,  K_px = e x_m^T G_px,  K_pu = e u_m^T G_pu           (paper sec. 2-3)
-    u_raw  = (K_pe + K_Ie) e + (K_px + K_Ix) x_m + (K_pu + K_Iu) u_m          (paper eq. saccontrol)
+    u_raw  = (K_pe + K_Ie) e + (K_px + K_Ix) x_m + (K_pu + K_Iu) u_m          (paper eqs. (6), (21))
     u      = clip(u_raw, -u_limit, +u_limit)    the command actually applied
 
 then the states move to k+1 (exact zero-order-hold discretisation: the controller only knows its
@@ -18,7 +18,7 @@ solution of the continuous law over one period for held inputs):
 
     x_d[k+1] = e^{A_d T} x_d + A_d^{-1}(e^{A_d T} - I) B_d u                 PFC driven by applied u
     x_m[k+1] = e^{A_c T} x_m + A_c^{-1}(e^{A_c T} - I)(B_m u_m + L_v y_a),  A_c = A_m - L_v C_m
-                                                                             (paper eq. clrm1)
+                                                                             (paper eq. (18))
     K_Ie[k+1] = e^{-sigma T} K_Ie + (1 - e^{-sigma T})/sigma * e e^T G_Ie   (K_Ie' = e e^T G_Ie - sigma K_Ie)
     K_Ix[k+1] = K_Ix + T e x_m^T G_Ix                                          (K_Ix' = e x_m^T G_Ix)
     K_Iu[k+1] = K_Iu + T e u_m^T G_Iu                                          (K_Iu' = e u_m^T G_Iu)
@@ -113,7 +113,7 @@ class ClSac:
             "px": gam(cfg.gamma_px, n_m), "ix": gam(cfg.gamma_ix, n_m),
             "pu": gam(cfg.gamma_pu, m_m), "iu": gam(cfg.gamma_iu, m_m),
         }
-        # Reference models (paper eq. clrm1; open loop eq. olrm1): inputs [u_m, y_a] held over T.
+        # Reference models (paper eq. (18); open loop eq. (3)): inputs [u_m, y_a] held over T.
         self._am, self._bm, self._cm, self._lv = am, bm, cm, lv
         # With L_v = 0, A_m - L_v C_m is A_m exactly, so the closed-loop model is discretised by the very same
         # call as the open-loop one and SAC comes out bit-identical; the y_a input column is then exactly zero.
@@ -252,7 +252,7 @@ class ClSac:
         self.ki_e = self._decay * kie + die
         self.ki_x = self._decay_x * kix + dix  # decay_x = 1 exactly when sigma_x = 0 (the paper)
         self.ki_u = self._decay_u * kiu + diu
-        # Reference models and PFC to k+1 (paper eq. clrm1, olrm1; D(s) driven by the applied u).
+        # Reference models and PFC to k+1 (paper eqs. (18), (3); D(s) driven by the applied u).
         self.xm = s["phi_m"] * xm + (s["g_mu"] * um + s["g_my"] * ya)
         ym_ol = s["cm"] * self.xm_ol  # open-loop y_m,ol at step k (telemetry, ise_ref)
         self.xm_ol = s["phi_ol"] * self.xm_ol + s["g_ol"] * um

@@ -50,7 +50,7 @@ class ClSacConfig:
     """
 
     control_rate_hz: float = 100.0
-    # Reference model x_m' = A_m x_m + B_m u_m - L_v (y_m - y_a), y_m = C_m x_m  (paper eq. clrm1-clrm2)
+    # Reference model x_m' = A_m x_m + B_m u_m - L_v (y_m - y_a), y_m = C_m x_m  (paper sec. 3, eqs. (18)-(19))
     am: float | tuple = -5.0
     bm: float | tuple = 5.0
     cm: float | tuple = 1.0

@@ -30,13 +30,13 @@ A_LP = np.array(
 B_LP = np.array([[-8.41], [59.7], [793.0], [0.0]])
 C_LP = np.array([[0.0, 0.0, 0.0, 1.0]])
 
-# Rudder servo (paper eq. "actuator"): delta_r'' = -wn^2 delta_r - 2 zeta wn delta_r' + wn^2 delta_command.
+# Rudder servo (paper sec. 5.1, eq. (65)): delta_r'' = -wn^2 delta_r - 2 zeta wn delta_r' + wn^2 delta_command.
 SERVO_WN2 = 2367.0
 SERVO_2ZETA_WN = 72.22
 
 
 def servo_matrices() -> tuple[np.ndarray, np.ndarray]:
-    """State-space (A_s, B_s) of the rudder servo, states [delta_r, delta_r_dot] (paper eq. "actuator")."""
+    """State-space (A_s, B_s) of the rudder servo, states [delta_r, delta_r_dot] (paper sec. 5.1, eq. (65))."""
     a_s = np.array([[0.0, 1.0], [-SERVO_WN2, -SERVO_2ZETA_WN]])
     b_s = np.array([[0.0], [SERVO_WN2]])
     return a_s, b_s
@@ -76,7 +76,7 @@ C_P_PRINTED = (0, 0, 0, 1, 0, 0)
 
 
 def plant_rhs(t: float, x: np.ndarray, u: np.ndarray | float, params: dict | None = None) -> np.ndarray:
-    """Continuous-time dynamics x_p' = A_p x_p + B_p u_p (paper eq. 1), python-control's (t, x, u, params) form.
+    """Continuous-time dynamics x_p' = A_p x_p + B_p u_p (paper eq. (1)), python-control's (t, x, u, params) form.
 
     ``params`` may hold ``A``/``B`` to fly a perturbed airframe; by default the paper's matrices.
     """
