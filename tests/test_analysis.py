@@ -1,4 +1,4 @@
-"""W-ASPR analysis (tools/analysis.py) against the paper's printed numbers, hand-computable cases and
+"""W-ASPR analysis (tools/analysis/) against the paper's printed numbers, hand-computable cases and
 independent root computations (numpy.roots / numpy.linalg.eigvals, never the module's own band finder)."""
 
 from __future__ import annotations
@@ -138,7 +138,8 @@ def test_band_finder_routh_hurwitz_cubic():
         ([1.0], [1.0, -1.0], [(0.0, 1.0)]),  # 1 + K/(s-1): unstable for K < 1
         ([1.0], [1.0, 1.0], []),  # 1 + K/(s+1): never unstable
         ([1.0, 2.0], [1.0, 3.0], []),  # relative degree 0, root stays at -(3 + 2K)/(1 + K)
-        ([-1.0, 1.0], [1.0, 1.0], [(1.0, math.inf)]),  # (1 - s)/(1 + s): root (K + 1)/(K - 1) -> through infinity at K = 1
+        # (1 - s)/(1 + s): root (K + 1)/(K - 1) -> through infinity at K = 1
+        ([-1.0, 1.0], [1.0, 1.0], [(1.0, math.inf)]),
     ],
 )
 def test_band_finder_hand_cases(num, den, expected):
@@ -186,7 +187,8 @@ def test_steady_state_offset_matches_the_closed_loop(paper, robust):
 
     assert math.degrees(paper.steady_state["offset"]) == pytest.approx(0.017257, rel=1e-4)
     assert math.degrees(robust.steady_state["offset"]) == pytest.approx(0.068673, rel=1e-4)
-    res = run_inprocess(PAPER, PAPER_RUNS[1], base=ClSacConfig(pfc_num=analysis.ROBUST_PFC[0], pfc_den=analysis.ROBUST_PFC[1]))
+    base = ClSacConfig(pfc_num=analysis.ROBUST_PFC[0], pfc_den=analysis.ROBUST_PFC[1])
+    res = run_inprocess(PAPER, PAPER_RUNS[1], base=base)
     s = res.series
     assert s["ya"][499] - s["phi"][499] == pytest.approx(robust.steady_state["offset"], rel=1e-2)
 

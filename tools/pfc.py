@@ -1,9 +1,10 @@
 """``python -m tools.pfc``: the W-ASPR analysis of the plant with its parallel feedforward compensator.
 
-Thin command line over ``tools.analysis`` (DESIGN.md sections 3 and 7).  Prints the transfer functions
-T(s) and F(s) = T(s) + D(s), the W-ASPR conditions of F, the bands of constant K_e > 0 for which
-1 + K_e F is unstable (continuous time, and sampled with a zero-order hold at the control rate) and
-the steady-state error the PFC adds.  ``--json`` prints one JSON object instead.
+Thin command line over ``tools.analysis`` (flags and JSON keys: docs/design.md, "Command lines").  Prints
+the transfer functions T(s) and F(s) = T(s) + D(s), the W-ASPR conditions of F, the bands of constant
+K_e > 0 for which 1 + K_e F is unstable (continuous time, and sampled with a zero-order hold at the control
+rate) and the steady-state error the PFC adds; ``--closed-loop`` also flies the paper scenario in-process.
+``--json`` prints one JSON object instead.
 """
 
 from __future__ import annotations
@@ -22,7 +23,7 @@ EPILOG = """\
 coefficients are comma-separated, highest power first: --pfc-num 10 --pfc-den 4,40 is 10/(4s + 40).
 A list starting with a minus sign needs the = form: --pfc-den=-1,-2 (which is then rejected as unstable).
 
-JSON keys (DESIGN.md section 7): minimum_phase, relative_degree, hf_gain, unstable_gain_band
+JSON keys (docs/design.md, "Command lines"): minimum_phase, relative_degree, hf_gain, unstable_gain_band
 ([low, high] spanning all bands, or null if 1 + Ke F is stable for every Ke > 0; a null high means the
 band extends to infinity), plus unstable_gain_bands (each band with the crossing frequencies in rad/s),
 waspr, plant/pfc/F numerators and denominators, zeros, poles, steady_state_error_deg,
@@ -32,8 +33,6 @@ with --closed-loop, closed_loop (the paper scenario's metrics per run).
 
 exit status: 0 on success, 2 on bad input (one-line reason on stderr), 1 if the analysis fails.
 """
-
-
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -101,20 +100,6 @@ def _same_tf(n1, d1, n2, d2) -> bool:
     return a.shape == b.shape and bool(np.allclose(a, b, rtol=1e-12, atol=0.0))
 
 
-def closed_loop(num, den) -> list[dict]:
-    """The five runs of the paper scenario (DESIGN.md section 4) in-process with this PFC."""
-    from autopilot.config import ClSacConfig
-    from tools.scenario import PAPER, PAPER_RUNS, run_inprocess
-
-    base = ClSacConfig(pfc_num=tuple(num), pfc_den=tuple(den))
-    out = []
-    for run in PAPER_RUNS:
-        res = run_inprocess(PAPER, run, base=base)
-        ke = res.series["ke"]
-        out.append({"name": run.name, "Lv": run.lv, "metrics": res.metrics, "ke_max": float(np.max(ke))})
-    return out
-
-
 # ----------------------------------------------------------------------------- text output
 def _poly_str(c, var: str = "s") -> str:
     c = np.asarray(c, dtype=float)
@@ -176,7 +161,8 @@ def format_text(rep: analysis.WasprReport, cl: list[dict] | None = None) -> str:
         f"PFC D(s) [{rep.pfc_name}] = ({_poly_str(rep.pfc_num)}) / ({_poly_str(rep.pfc_den)}),"
         f"  D(0) = {rep.pfc_dc_gain:.6g}",
         "  C = 1/D gain margin in feedback with T: "
-        + ("none (1 + C T unstable)" if g is None else ("unlimited" if math.isinf(g) else f"{g:.6g} ({20 * math.log10(g):.2f} dB)")),
+        + ("none (1 + C T unstable)" if g is None
+           else "unlimited" if math.isinf(g) else f"{g:.6g} ({20 * math.log10(g):.2f} dB)"),
         "",
         "augmented plant F(s) = T(s) + D(s) = num_F/den_F",
         f"  num_F = {_poly_str(rep.f_num)}",
@@ -213,7 +199,8 @@ def format_text(rep: analysis.WasprReport, cl: list[dict] | None = None) -> str:
     lines += [f"  - {n}" for n in rep.notes]
     if cl is not None:
         lines += ["", "paper scenario in-process with this PFC:",
-                  f"  {'run':<12} {'Lv':>5} {'ise_ref':>10} {'ise_crm':>10} {'energy':>10} {'tv':>9} {'max_abs_u':>9} {'Ke max':>8}"]
+                  f"  {'run':<12} {'Lv':>5} {'ise_ref':>10} {'ise_crm':>10} {'energy':>10} {'tv':>9} "
+                  f"{'max_abs_u':>9} {'Ke max':>8}"]
         for r in cl:
             m = r["metrics"]
             lines.append(
@@ -243,7 +230,7 @@ def main(argv: list[str] | None = None) -> int:
     except analysis.AnalysisError as exc:
         sys.stderr.write(f"{parser.prog}: analysis failed: {exc}\n")
         return 1
-    cl = closed_loop(num, den) if args.closed_loop else None
+    cl = analysis.paper_scenario_runs(num, den) if args.closed_loop else None
     if args.json:
         d = rep.to_dict()
         if cl is not None:
