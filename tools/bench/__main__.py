@@ -33,6 +33,15 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--json", metavar="PATH", help="write every figure to this JSON file")
     p.add_argument("--strict", action="store_true", help="exit 1 when a figure misses its target")
     p.add_argument("--quick", action="store_true", help="fewer repetitions (smoke test; figures are noisier)")
+    if "-h" in argv or "--help" in argv:  # `AREA --help`: this help, then each named area's own flags
+        p.print_help()
+        for area in dict.fromkeys(a for a in argv if a in available):
+            print(f"\n{area}: its own flags (below) go after --: python -m tools.bench {area} -- FLAGS\n")
+            try:
+                bench.load(area).main(["--help"])
+            except SystemExit:
+                pass
+        return 0
     args = p.parse_args(argv)
 
     explicit = [a for a in args.area if a != "all"]
