@@ -53,7 +53,7 @@ class StepResult:
     t: float  # sim time of the measurement used
     um: float  # roll command u_m in force
     phi: float  # measured roll y
-    u_cmd: float  # the law's command, limited to +-u_limit (paper eq. (3) + the limit)
+    u_cmd: float  # the law's command, limited to +-u_limit (paper eqs. (6), (21) + the limit)
     u: float  # the command that flies: u_cmd after the PWM map's 1 us quantisation (= u_cmd without a map)
     pwm: int | None  # its pulse width
     failsafe: Failsafe
@@ -131,7 +131,8 @@ class ControlStep:
     object with ``at(t) -> rad`` and a ``current`` attribute (default: an empty :class:`SetpointQueue`).
 
     ``metrics`` accumulates the five metrics from what flew (the command after the PWM map); with a PWM map,
-    ``metrics_commanded`` the same from the law's own command, before quantisation.
+    ``metrics_commanded`` the same from the law's own command, before quantisation.  A NaN/Inf measurement or
+    command is flown as a hold (rudder neutral, adaptation frozen) and counted in ``nonfinite_inputs``.
     """
 
     def __init__(self, config: ClSacConfig | None = None, pwm: PwmMap | None = None, setpoints=None):
@@ -163,11 +164,11 @@ class ControlStep:
             um = setpoints.current = 0.0
         law = self.law
         try:
-            u_cmd = law(phi, um)  # paper eq. (3), limited to +-u_limit (autopilot.clsac)
+            u_cmd = law(phi, um)  # paper eqs. (6), (21), limited to +-u_limit (autopilot.clsac)
         except NonFiniteInputError:
+            # A NaN/Inf measurement or command never reaches the states or the metrics: a hold step instead.
             self.nonfinite_inputs += 1
-            law.hold(0.0)
-            u_cmd = 0.0
+            return self.hold(t, phi, Failsafe.NO_ATTITUDE if phi - phi != 0.0 else Failsafe.NO_SETPOINT)
         pwm_map = self.pwm
         if pwm_map is None:
             pwm = None
