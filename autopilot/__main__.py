@@ -15,8 +15,8 @@ from autopilot.shared.cli import add_cpu_argument, add_rt_priority_argument, end
 from autopilot.shared.mavlink import GCS_ID
 from autopilot.shared.process import exit_code_for, apply_cpu, apply_rt_priority, install_stop_handlers, move_other_threads, rt_throttling, write_json_atomic
 from autopilot.shared.cli import add_pwm_arguments, pwm_from_args
-from autopilot.telemetry.flags import add_arguments as add_telemetry_arguments
-from autopilot.telemetry.flags import attach as attach_telemetry
+from autopilot.shared.telemetry.flags import add_arguments as add_telemetry_arguments
+from autopilot.telemetry import attach as attach_telemetry
 
 
 def build_parser() -> OneLineArgumentParser:
@@ -139,7 +139,7 @@ def main(argv=None) -> int:
     if args.series:
         recorder = series_recorder()
         ap.hooks.append(recorder)
-    tel = attach_telemetry(args, "autopilot", ap, control_rate_hz=args.rate)
+    tel = attach_telemetry(args, ap, control_rate_hz=args.rate)
     rt_note = apply_rt_priority(args.rt_priority, "autopilot")  # after the helper threads exist: they stay normal
     if args.busy_wait:
         rt_note += "; busy-wait (never sleeps)"

@@ -12,8 +12,8 @@ import sys
 from autopilot.shared.cli import add_cpu_argument, add_rt_priority_argument, default_physics_rate, endpoint, fmt_endpoint, nonneg_float, OneLineArgumentParser, positive_float, rate_hz
 from autopilot.shared.process import exit_code_for, apply_cpu, apply_rt_priority, install_stop_handlers, write_json_atomic
 from autopilot.shared.cli import add_pwm_arguments, pwm_from_args
-from autopilot.telemetry.flags import add_arguments as add_telemetry_arguments
-from autopilot.telemetry.flags import attach as attach_telemetry
+from autopilot.shared.telemetry.flags import add_arguments as add_telemetry_arguments
+from sitl.telemetry import attach as attach_telemetry
 
 
 def build_parser() -> OneLineArgumentParser:
@@ -83,7 +83,7 @@ def main(argv=None) -> int:
     if args.series:
         recorder = series_recorder()
         sitl.hooks.append(recorder)
-    tel = attach_telemetry(args, "sitl", sitl)
+    tel = attach_telemetry(args, sitl)
     rt_note = apply_rt_priority(args.rt_priority, "sitl")  # after the helper threads exist: they stay normal
 
     def stop():

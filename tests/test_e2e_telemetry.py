@@ -19,6 +19,7 @@ from _mavlink_procs import load_json, run_cli
 
 from autopilot.shared.pwm import PwmMap
 from autopilot.telemetry import layout as L
+from sitl import telemetry as S
 from tools import rrd
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -43,7 +44,8 @@ def test_launch_leaves_one_recording_of_both_processes(lockstep_flight):
     assert len(rrd.recordings(path)) == 1
     paths = set(rrd.entity_paths(path))
     for ep in (L.AP_ROLL, L.AP_GAIN_KE, L.AP_GAIN_KX, L.AP_GAIN_KU, "/autopilot/timing/loop", "/autopilot/link/sitl",
-               "/autopilot/link/gcs", "/autopilot/status/mode", "/autopilot/status/failsafe", L.SITL_ROLL, L.SITL_RUDDER):
+               "/autopilot/link/gcs", "/autopilot/status/mode", "/autopilot/status/failsafe", S.SITL_ROLL,
+               S.SITL_RUDDER):
         assert ep in paths, ep
     assert rrd.has_blueprint(path)
     ok, text = rrd.verify(path)
@@ -57,14 +59,14 @@ def test_sample_counts_match_duration_and_rate(lockstep_flight):
     ap = data[L.AP_ROLL]
     assert len(ap.t) == n
     np.testing.assert_array_equal(ap.t_ns, np.round(np.arange(n) * 1e9 / RATE).astype(np.int64))
-    assert len(data[L.SITL_ROLL].t) == n  # one truth row per frame (state after each advance)
+    assert len(data[S.SITL_ROLL].t) == n  # one truth row per frame (state after each advance)
     assert len(data["/autopilot/link/sitl"].t) == n // 10  # link counters at 10 Hz of sim time
 
 
 def test_truth_and_measured_roll_agree_to_float32_at_the_same_sim_time(lockstep_flight):
     out, _, _ = lockstep_flight
     data = rrd.load(out / "flight.rrd")
-    truth, seen = data[L.SITL_ROLL], data[L.AP_ROLL]
+    truth, seen = data[S.SITL_ROLL], data[L.AP_ROLL]
     common, i_truth, i_seen = np.intersect1d(truth.t_ns, seen.t_ns, return_indices=True)
     assert len(common) == len(seen.t) - 1  # every frame but t = 0 (the SITL logs after advancing)
     phi_truth = truth.values[i_truth, 0]
@@ -77,7 +79,7 @@ def test_truth_and_measured_roll_agree_to_float32_at_the_same_sim_time(lockstep_
     np.testing.assert_array_equal(pwm_sent.values[:-1, 0], pwm_applied.values[: len(pwm_sent.t) - 1, 0])
     # ... and the applied command in rad is that PWM through the calibration.
     pwm = PwmMap()
-    applied = data[L.SITL_RUDDER].values[:, 1]
+    applied = data[S.SITL_RUDDER].values[:, 1]
     np.testing.assert_allclose(applied, [pwm.to_rad(int(p)) for p in pwm_applied.values[:, 0]], rtol=0, atol=1e-12)
 
 
@@ -118,7 +120,7 @@ def test_realtime_flight_ended_with_sigint_leaves_a_readable_recording(tmp_path)
     data = rrd.load(path)
     n = len(data[L.AP_ROLL].t)
     assert 100 <= n <= 30 * RATE  # ~2.5 s at 100 Hz flown before Ctrl-C
-    assert len(data[L.SITL_ROLL].t) > 100
+    assert len(data[S.SITL_ROLL].t) > 100
     assert load_json(out / "summary.json")["files"]["rrd"] == str(path)
 
 

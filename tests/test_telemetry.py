@@ -1,26 +1,41 @@
-"""Telemetry library in one process: layouts, time columns, writer behaviour, experiments (paper.rrd)."""
+"""Telemetry in one process: the shared writer, both processes' layouts and hooks, experiments (paper.rrd).
+
+Also the dependency rule as far as telemetry goes: the shared primitives import nothing of the project outside
+``autopilot.shared``, the SITL's telemetry never loads the control law, and nothing loads rerun unless asked to.
+"""
 
 from __future__ import annotations
 
 import math
+import subprocess
+import sys
+import textwrap
 import time
+from pathlib import Path
+from types import SimpleNamespace as NS
 
 import numpy as np
 import pytest
 
-from autopilot import telemetry as tm
 from autopilot.clsac import TELEMETRY_FIELDS, ClSac
 from autopilot.config import ClSacConfig
+from autopilot.shared import telemetry as tm
+from autopilot.shared.telemetry.columns import sim_time_column
+from autopilot.step import Failsafe
 from autopilot.telemetry import layout as L
+from autopilot.telemetry.hooks import AutopilotHook, autopilot_tables
+from sitl import telemetry as S
 from sitl.model import STATE_NAMES
-from tools import rrd
+from tools import recording, rrd, views
 from tools.scenario import PAPER, PAPER_RUNS, run_inprocess
+
+ROOT = Path(__file__).resolve().parents[1]
 
 
 def test_layouts_cover_every_field_of_both_processes():
     assert L.AUTOPILOT_FIELDS[: len(TELEMETRY_FIELDS)] == TELEMETRY_FIELDS
-    assert L.SITL_FIELDS[: len(STATE_NAMES)] == STATE_NAMES
-    for table in (L.AUTOPILOT, L.SITL_TABLE, L.link_layout("gcs")):
+    assert S.SITL_FIELDS[: len(STATE_NAMES)] == STATE_NAMES
+    for table in (L.AUTOPILOT, S.SITL_TABLE, L.link_layout("gcs")):
         plotted = {f for p in table.plots for f in p.fields}
         assert plotted == set(table.fields), table.name
         paths = table.paths
@@ -31,22 +46,31 @@ def test_layouts_cover_every_field_of_both_processes():
     with pytest.raises(ValueError):
         L.link_layout("a/b")
     with pytest.raises(ValueError):
-        L.TableLayout("bad", ("a",), (L.Plot("/x", ("b",), ("b",), (L.GREY,)),))
+        tm.TableLayout("bad", ("a",), (tm.Plot("/x", ("b",), ("b",), (tm.layout.GREY,)),))
+
+
+def test_state_colours_are_exactly_the_states_emitted():
+    """Mode: ADAPTIVE or HOLD; failsafe: OK for Failsafe.NONE, else the member's name (NO_ATTITUDE included)."""
+    assert set(L.FAILSAFE_COLORS) == {"OK", *(f.name for f in Failsafe if f is not Failsafe.NONE)}
+    assert set(L.FAILSAFE_COLORS) == {L.failsafe_state(f) for f in Failsafe}
+    assert L.failsafe_state(Failsafe.NONE) == "OK" and L.failsafe_state(Failsafe.NO_ATTITUDE) == "NO_ATTITUDE"
+    assert set(L.MODE_COLORS) == {L.MODE_ADAPTIVE, L.MODE_HOLD}
+    assert L.FAILSAFE_WARN == {"NO_ATTITUDE", "NO_SETPOINT"}
 
 
 def test_sim_time_is_rounded_not_truncated():
     # rerun's own float path computes (t * 1e9).astype(int): 0.0075 s -> 7499999 ns
-    col = tm.writer.sim_time_column(np.array([0.0075, 1234 / 1000, 1234 * 0.001, 3 * 0.1]))
+    col = sim_time_column(np.array([0.0075, 1234 / 1000, 1234 * 0.001, 3 * 0.1]))
     ns = col.as_arrow_array().cast("int64").to_numpy()
     np.testing.assert_array_equal(ns, [7_500_000, 1_234_000_000, 1_234_000_000, 300_000_000])
 
 
 def test_disabled_telemetry_costs_nothing_and_writes_nothing(tmp_path):
-    tel = tm.Telemetry("autopilot", handle_signals=False)
+    tel = tm.Telemetry("autopilot")
     assert not tel.enabled
-    ap = tel.table(tm.AUTOPILOT)
+    ap = tel.table(L.AUTOPILOT)
     assert isinstance(ap, tm.NullTable)
-    ap.append(0.0, 0.0, (0.0,) * len(tm.AUTOPILOT_FIELDS))
+    ap.append(0.0, 0.0, (0.0,) * len(L.AUTOPILOT_FIELDS))
     tel.close()
     assert list(tmp_path.iterdir()) == []
 
@@ -56,8 +80,8 @@ def test_rows_round_trip_exactly(tmp_path):
     ctrl = ClSac(ClSacConfig(control_rate_hz=400.0))
     rows = []
     t_wall0 = time.time()
-    with tm.Telemetry("autopilot", tm.new_recording_id(), path, handle_signals=False, send_blueprint=False) as tel:
-        ap = tel.table(tm.AUTOPILOT)
+    with tm.Telemetry("autopilot", tm.new_recording_id(), path) as tel:
+        ap = tel.table(L.AUTOPILOT)
         for k in range(1000):
             u = ctrl.step(math.sin(k / 100), 0.1)
             row = ctrl.telemetry() + (0.5 * k, 1500.0 + u, 0.0025, 1e-5 * k, -1e-6, k // 100)
@@ -70,45 +94,45 @@ def test_rows_round_trip_exactly(tmp_path):
     assert tel.rows_sent["autopilot"] == 1000
     data = rrd.load(path)
     expect = np.array(rows, dtype=np.float64)
-    for plot in tm.AUTOPILOT.plots:
-        idx = [tm.AUTOPILOT_FIELDS.index(f) for f in plot.fields]
+    for plot in L.AUTOPILOT.plots:
+        idx = [L.AUTOPILOT_FIELDS.index(f) for f in plot.fields]
         np.testing.assert_array_equal(data[plot.path].values, expect[:, idx], err_msg=plot.path)
         assert data[plot.path].names == plot.labels
     wall = rrd.load(path, timeline=tm.WALL_TIME)[L.AP_ROLL]
     np.testing.assert_allclose(wall.t, t_wall0 + np.arange(1000) / 400, atol=1e-6)
-    assert not rrd.has_blueprint(path)
+    assert not rrd.has_blueprint(path)  # a process never sends a layout: the launcher adds one
 
 
 def test_bad_rows_are_dropped_not_fatal(tmp_path):
     path = tmp_path / "t.rrd"
-    with tm.Telemetry("sitl", None, path, handle_signals=False) as tel:
-        st = tel.table(tm.SITL_TABLE)
+    with tm.Telemetry("sitl", None, path) as tel:
+        st = tel.table(S.SITL_TABLE)
         st.append(0.0, 0.0, (1.0, 2.0))  # wrong length: this batch is dropped, with a warning
         tel.flush()
         for k in range(10):
-            st.append(k * 0.01, time.time(), (0.0,) * len(tm.SITL_FIELDS))
+            st.append(k * 0.01, time.time(), (0.0,) * len(S.SITL_FIELDS))
     assert tel.errors == 1 and "dropped 1 rows" in tel.last_error
-    assert len(rrd.load(path)[L.SITL_ROLL].t) == 10
+    assert len(rrd.load(path)[S.SITL_ROLL].t) == 10
 
 
 def test_state_channel_ignores_repeats_and_logs_text(tmp_path):
     path = tmp_path / "t.rrd"
-    with tm.Telemetry("autopilot", None, path, handle_signals=False, send_blueprint=False) as tel:
-        _, _, mode, failsafe = tel.autopilot_tables(links=())
-        assert mode.set(0.0, 0.0, "WAITING")
-        assert not mode.set(0.1, 0.0, "WAITING")
-        assert mode.set(1.0, 0.0, "AUTO")
-        assert failsafe.set(2.0, 0.0, "LINK_LOST", "no ATTITUDE for 0.5 s")
+    with tm.Telemetry("autopilot", None, path) as tel:
+        _, _, mode, failsafe = autopilot_tables(tel, links=())
+        assert mode.set(0.0, 0.0, "ADAPTIVE")
+        assert not mode.set(0.1, 0.0, "ADAPTIVE")
+        assert mode.set(1.0, 0.0, "HOLD")
+        assert failsafe.set(2.0, 0.0, "NO_ATTITUDE", "no ATTITUDE for 0.5 s")
     states = rrd.load_states(path)
-    assert states[L.AP_MODE] == [(0.0, "WAITING"), (1.0, "AUTO")]
-    assert states[L.AP_FAILSAFE] == [(2.0, "LINK_LOST")]
+    assert states[L.AP_MODE] == [(0.0, "ADAPTIVE"), (1.0, "HOLD")]
+    assert states[L.AP_FAILSAFE] == [(2.0, "NO_ATTITUDE")]
     text = rrd.load_text(path, L.AP_EVENTS)
-    assert text == [(0.0, "mode: - -> WAITING"), (1.0, "mode: WAITING -> AUTO"),
-                    (2.0, "failsafe: - -> LINK_LOST (no ATTITUDE for 0.5 s)")]
+    assert text == [(0.0, "mode: - -> ADAPTIVE"), (1.0, "mode: ADAPTIVE -> HOLD"),
+                    (2.0, "failsafe: - -> NO_ATTITUDE (no ATTITUDE for 0.5 s)")]
 
 
 def test_close_is_idempotent_and_fast(tmp_path):
-    tel = tm.Telemetry("autopilot", None, tmp_path / "t.rrd", handle_signals=False)
+    tel = tm.Telemetry("autopilot", None, tmp_path / "t.rrd")
     s = tel.series("/x", ("a", "b"))
     s.append(0.0, 0.0, (1.0, 2.0))
     t0 = time.perf_counter()
@@ -122,13 +146,13 @@ def test_close_is_idempotent_and_fast(tmp_path):
 
 
 def test_finalize_writes_the_footer(tmp_path):
-    with tm.Telemetry("sitl", None, tmp_path / "t.rrd", handle_signals=False, finalize=True) as tel:
-        st = tel.table(tm.SITL_TABLE)
+    with tm.Telemetry("sitl", None, tmp_path / "t.rrd", finalize=True) as tel:
+        st = tel.table(S.SITL_TABLE)
         for k in range(50):
-            st.append(k * 0.01, time.time(), (0.0,) * len(tm.SITL_FIELDS))
+            st.append(k * 0.01, time.time(), (0.0,) * len(S.SITL_FIELDS))
     ok, msg = tm.verify_rrd(tmp_path / "t.rrd")  # ...but a process writing its final file can ask for one
     assert ok, msg
-    assert len(rrd.load(tmp_path / "t.rrd")[L.SITL_ROLL].t) == 50
+    assert len(rrd.load(tmp_path / "t.rrd")[S.SITL_ROLL].t) == 50
 
 
 @pytest.fixture(scope="module")
@@ -137,18 +161,18 @@ def paper_results():
 
 
 def test_log_experiment_writes_every_run_side_by_side(tmp_path, paper_results):
-    path = tm.log_experiment(paper_results, tmp_path / "paper.rrd")
+    path = recording.log_experiment(paper_results, tmp_path / "paper.rrd")
     assert path == tmp_path / "paper.rrd"
     (app, _), = rrd.recordings(path)
-    assert app == L.EXPERIMENT_APPLICATION_ID
+    assert app == recording.EXPERIMENT_APPLICATION_ID
     data = rrd.load(path)
     n = PAPER.steps
     first = paper_results[0].series
-    np.testing.assert_array_equal(data[L.RUN_COMMAND].values[:, 0], first["um"])
-    np.testing.assert_array_equal(data[L.RUN_REFERENCE_OL].values[:, 0], first["ym_ol"])
+    np.testing.assert_array_equal(data[views.RUN_COMMAND].values[:, 0], first["um"])
+    np.testing.assert_array_equal(data[views.RUN_REFERENCE_OL].values[:, 0], first["ym_ol"])
     for r in paper_results:
         s = r.series
-        base = f"{L.RUNS}/{r.name}"
+        base = f"{views.RUNS}/{r.name}"
         for what, key in (("roll", "phi"), ("reference", "ym"), ("error", "e"), ("rudder", "u"),
                           ("gains/ke", "ke"), ("gains/kx", "kx"), ("gains/ku", "ku")):
             sig = data[f"{base}/{what}"]
@@ -159,24 +183,24 @@ def test_log_experiment_writes_every_run_side_by_side(tmp_path, paper_results):
         assert data[f"{base}/state"].values.shape == (n, 4)
         assert f"Lv={r.lv:g}" in data[f"{base}/roll"].names[0]
     # SAC and CL-SAC really differ (otherwise an overlay proves nothing)
-    assert not np.array_equal(data[f"{L.RUNS}/sac/roll"].values, data[f"{L.RUNS}/clsac/roll"].values)
+    assert not np.array_equal(data[views.run_path("sac", "roll")].values, data[views.run_path("clsac", "roll")].values)
     assert rrd.has_blueprint(path)
-    views = rrd.blueprint_components(path, "ViewBlueprint:display_name")
-    assert "Roll: command, open-loop reference and every run [rad]" in views
-    assert {f"{r.name}: roll [rad]" for r in paper_results} <= set(views)  # one tab per run too
+    names = rrd.blueprint_components(path, "ViewBlueprint:display_name")
+    assert "Roll: command, open-loop reference and every run [rad]" in names
+    assert {f"{r.name}: roll [rad]" for r in paper_results} <= set(names)  # one tab per run too
     queries = rrd.blueprint_components(path, "ViewContents:query")
     for r in paper_results:  # the overlay plot lists every run
-        assert f"{L.RUNS}/{r.name}/roll" in queries
-    assert f"{L.RUNS}/metrics" in rrd.entity_paths(path)
+        assert views.run_path(r.name, "roll") in queries
+    assert views.RUN_METRICS in rrd.entity_paths(path)
     ok, msg = tm.verify_rrd(path)
     assert ok, msg
 
 
 def test_log_experiment_rejects_bad_names(tmp_path, paper_results):
     with pytest.raises(ValueError):
-        tm.log_experiment([], tmp_path / "x.rrd")
+        recording.log_experiment([], tmp_path / "x.rrd")
     with pytest.raises(ValueError):
-        tm.log_experiment([paper_results[0], paper_results[0]], tmp_path / "x.rrd")
+        recording.log_experiment([paper_results[0], paper_results[0]], tmp_path / "x.rrd")
 
 
 def test_merge_without_parts_is_an_error(tmp_path):
@@ -186,68 +210,83 @@ def test_merge_without_parts_is_an_error(tmp_path):
 
 def test_rrd_cli_summary_and_verify(tmp_path, capsys):
     path = tmp_path / "t.rrd"
-    with tm.Telemetry("sitl", None, path, handle_signals=False, write_footer=True) as tel:
-        st = tel.table(tm.SITL_TABLE)
+    with tm.Telemetry("sitl", None, path, write_footer=True) as tel:
+        st = tel.table(S.SITL_TABLE)
         for k in range(5):
-            st.append(k * 0.1, time.time(), (0.0,) * len(tm.SITL_FIELDS))
+            st.append(k * 0.1, time.time(), (0.0,) * len(S.SITL_FIELDS))
     assert rrd.main(["summary", str(path)]) == 0
     out = capsys.readouterr().out
     assert "/sitl/roll" in out and "5 rows" in out
     assert rrd.main(["verify", str(path)]) == 0
     assert rrd.main(["verify", str(tmp_path / "missing.rrd")]) == 1
+    # merge adds the flight layout, once: not again over a file that carries one, never with --no-blueprint
+    assert rrd.main(["merge", str(tmp_path / "m.rrd"), str(path)]) == 0
+    assert rrd.main(["merge", str(tmp_path / "m2.rrd"), str(tmp_path / "m.rrd")]) == 0
+    assert len(rrd.blueprint_components(tmp_path / "m2.rrd", "ViewportBlueprint:root_container")) == 1
+    assert rrd.main(["merge", "--no-blueprint", str(tmp_path / "bare.rrd"), str(path)]) == 0
+    assert not rrd.has_blueprint(tmp_path / "bare.rrd")
 
 
 def test_loop_hooks_turn_step_records_into_telemetry(tmp_path):
-    """AutopilotHook / SitlHook read the loops' StepRecord / SitlRecord attributes (duck typing)."""
-    from types import SimpleNamespace as NS
+    """AutopilotHook / SitlHook turn the loops' StepRecord / SitlRecord into rows and state changes."""
+    from collections import Counter
 
+    from autopilot.loop import StepRecord
+    from autopilot.shared.pwm import PwmMap
+    from autopilot.step import ControlStep, ProfileSetpoints
     from sitl.aircraft import Aircraft
 
-    class FakeLink:
-        def __init__(self):
-            self.n = 0
-
-        def counters(self):
-            self.n += 1
-            return {"rx_packets": 10 * self.n, "tx_packets": 5 * self.n, "rejected": {"crc": 1, "stale": self.n}}
-
-    ap_obj = NS(timing=NS(missed=0), sitl=FakeLink(), gcs=FakeLink())
-    ctrl = ClSac(ClSacConfig(control_rate_hz=400.0))
+    links = {name: NS(rx_packets=0, tx_packets=0, rejected=Counter()) for name in L.LINKS}
+    ap_obj = NS(timing=NS(missed=0), **links)
+    step = ControlStep(ClSacConfig(control_rate_hz=400.0), PwmMap(), ProfileSetpoints(lambda _t: 0.1))
     ac = Aircraft()
     rid = tm.new_recording_id()
-    with tm.Telemetry("autopilot", rid, tmp_path / "ap.rrd", handle_signals=False) as tel_ap, \
-            tm.Telemetry("sitl", rid, tmp_path / "sitl.rrd", handle_signals=False) as tel_sitl:
-        hook = tm.AutopilotHook(tel_ap, control_rate_hz=400.0)
-        shook = tm.SitlHook(tel_sitl)
+    with tm.Telemetry("autopilot", rid, tmp_path / "ap.rrd") as tel_ap, \
+            tm.Telemetry("sitl", rid, tmp_path / "sitl.rrd") as tel_sitl:
+        hook = AutopilotHook(tel_ap, control_rate_hz=400.0)
+        shook = S.SitlHook(tel_sitl)
         for k in range(400):
             t = k / 400
-            fs = "no attitude" if 100 <= k < 120 else None
-            if fs:
-                ctrl.hold(0.0)
+            phi = float(np.float32(ac.phi))
+            if 100 <= k < 120:
+                res = step.hold(t, phi)  # no attitude: rudder neutral, adaptation frozen
             else:
-                ctrl.step(float(np.float32(ac.phi)), 0.1)
+                res = step(t, phi, wings_level=200 <= k < 220)  # no setpoint: wings level, still adapting
             if k == 100:
                 hook.event(2, "FAILSAFE no attitude 101.0 ms: rudder neutral")
             ap_obj.timing.missed = k // 100
-            hook(NS(step=k + 1, t_sim=t, p=ac.p, pwm=1500 + k % 3, period=0.0025, compute=2e-5, lateness=1e-5,
-                    missed=False, failsafe=fs, ctrl=ctrl, ap=ap_obj))
-            shook(NS(t_sim=t, x=ac.x.copy(), u=ctrl.u, pwm=1500, frame=k, sitl=None))
-            ac.advance(ctrl.u, 2)
-    merged = tm.merge_recordings([tmp_path / "ap.rrd", tmp_path / "sitl.rrd"], tmp_path / "flight.rrd")
+            for j, link in enumerate(links.values()):
+                link.rx_packets, link.tx_packets = 10 * k + j, 5 * k
+                link.rejected["crc"] = k // 50
+            hook(StepRecord(result=res, frame=k, wall=time.perf_counter(), p=ac.p, r=ac.r, period=0.0025,
+                            lateness=1e-5, compute=2e-5, latency=None, missed=False, ctrl=step.law, ap=ap_obj))
+            shook(NS(t_sim=t, x=ac.x.copy(), u=res.u, pwm=res.pwm, frame=k, sitl=None))
+            if k == 300:
+                shook.event(4, "servo timeout: rudder neutral")
+            ac.advance(res.u, 2)
+    merged = tm.merge_recordings([tmp_path / "ap.rrd", tmp_path / "sitl.rrd"], tmp_path / "flight.rrd",
+                                 blueprint=views.flight_blueprint())
     data = rrd.load(merged)
-    assert len(data[L.AP_ROLL].t) == 400 and len(data[L.SITL_ROLL].t) == 400
+    assert len(data[L.AP_ROLL].t) == 400 and len(data[S.SITL_ROLL].t) == 400
     assert len(data[f"{L.AP_LINK}/sitl"].t) == 10  # 10 Hz over 1 s of 400 Hz steps
-    np.testing.assert_array_equal(data[f"{L.AP_LINK}/gcs"].values[0], [10.0, 5.0, 2.0])
+    np.testing.assert_array_equal(data[f"{L.AP_LINK}/gcs"].values[0], [391.0, 195.0, 0.0])  # step 40 (k = 39)
+    np.testing.assert_array_equal(data[f"{L.AP_LINK}/sitl"].values[-1], [3990.0, 1995.0, 7.0])
     assert data[L.AP_TIMING_MISSED].values[-1, 0] == 3.0
+    np.testing.assert_array_equal(data[L.AP_RUDDER_PWM].values[:, 0], data[S.SITL_SERVO_PWM].values[:, 0])
+    assert np.all(data[L.AP_RUDDER_PWM].values[100:120, 0] == 1500)  # neutral while the attitude is lost
     states = rrd.load_states(merged)
-    assert [s for _, s in states[L.AP_FAILSAFE]] == ["OK", "NO_ATTITUDE", "OK"]
+    assert [s for _, s in states[L.AP_FAILSAFE]] == ["OK", "NO_ATTITUDE", "OK", "NO_SETPOINT", "OK"]
+    assert [t for t, _ in states[L.AP_FAILSAFE]] == pytest.approx([0.0, 0.25, 0.3, 0.5, 0.55])
     assert [s for _, s in states[L.AP_MODE]] == ["ADAPTIVE", "HOLD", "ADAPTIVE"]
     text = [x for _, x in rrd.load_text(merged, L.AP_EVENTS)]
     assert "FAILSAFE no attitude 101.0 ms: rudder neutral" in text
-    i = np.searchsorted(data[L.SITL_ROLL].t_ns, data[L.AP_ROLL].t_ns)
+    assert "failsafe: OK -> NO_ATTITUDE" in text
+    assert [x for _, x in rrd.load_text(merged, S.SITL_EVENTS)] == ["servo timeout: rudder neutral"]
+    i = np.searchsorted(data[S.SITL_ROLL].t_ns, data[L.AP_ROLL].t_ns)
     stepped = np.r_[0:100, 120:400]  # while held (failsafe) the controller does not take a measurement
     np.testing.assert_array_equal(data[L.AP_ROLL].values[stepped, 3],
-                                  data[L.SITL_ROLL].values[i[stepped], 0].astype(np.float32).astype(np.float64))
+                                  data[S.SITL_ROLL].values[i[stepped], 0].astype(np.float32).astype(np.float64))
+    assert rrd.has_blueprint(merged)
 
 
 def test_cli_flags_build_the_writer(tmp_path):
@@ -256,8 +295,81 @@ def test_cli_flags_build_the_writer(tmp_path):
     p = argparse.ArgumentParser()
     tm.add_arguments(p)
     args = p.parse_args(["--rrd", str(tmp_path / "x.rrd"), "--recording-id", "abc"])
-    with tm.from_args(args, "sitl", handle_signals=False) as tel:
+    assert tm.requested(args)
+    with tm.from_args(args, "sitl") as tel:
         assert tel.enabled and tel.recording_id == "abc" and tel.connect_url is None
-    off = tm.from_args(p.parse_args([]), "sitl", handle_signals=False)
+    off = tm.from_args(p.parse_args([]), "sitl")
     assert not off.enabled
     off.close()
+
+
+def test_attach_registers_the_hooks_only_when_asked(tmp_path):
+    import argparse
+
+    from autopilot import telemetry as autopilot_telemetry
+
+    p = argparse.ArgumentParser()
+    tm.add_arguments(p)
+    target = NS(hooks=[], event_hooks=[])
+    assert autopilot_telemetry.attach(p.parse_args([]), target, control_rate_hz=100.0) is None
+    assert S.attach(p.parse_args([]), target) is None
+    assert target.hooks == [] and target.event_hooks == []
+    tel = S.attach(p.parse_args(["--rrd", str(tmp_path / "sitl.rrd")]), target)
+    try:
+        assert isinstance(target.hooks[0], S.SitlHook) and target.event_hooks == [target.hooks[0].event]
+    finally:
+        tel.close()
+    target = NS(hooks=[], event_hooks=[])
+    tel = autopilot_telemetry.attach(p.parse_args(["--rrd", str(tmp_path / "ap.rrd")]), target, control_rate_hz=100.0)
+    try:
+        assert isinstance(target.hooks[0], AutopilotHook) and target.event_hooks == [target.hooks[0].event]
+    finally:
+        tel.close()
+
+
+def _loaded_after(code: str) -> list[str]:
+    """The project modules (and rerun) loaded in a fresh interpreter after running ``code``."""
+    probe = textwrap.dedent(code) + textwrap.dedent("""
+        import sys
+        print(sorted(m for m in sys.modules if m.split('.')[0] in ('autopilot', 'sitl', 'tools', 'rerun')))
+    """)
+    out = subprocess.run([sys.executable, "-c", probe], cwd=ROOT, capture_output=True, text=True, check=True)
+    return eval(out.stdout.strip().splitlines()[-1])  # noqa: S307 - our own list literal
+
+
+def test_shared_telemetry_imports_nothing_of_the_project_outside_shared():
+    loaded = _loaded_after("""
+        import autopilot.shared.telemetry as t
+        import importlib
+        for m in t._MODULES:
+            importlib.import_module(f"autopilot.shared.telemetry.{m}")
+    """)
+    project = [m for m in loaded if m.split(".")[0] in ("autopilot", "sitl", "tools")]
+    assert [m for m in project if m != "autopilot" and not m.startswith("autopilot.shared")] == []
+    assert "autopilot.shared.telemetry.writer" in project  # the probe did import every module
+
+
+def test_sitl_telemetry_does_not_load_the_control_law():
+    loaded = _loaded_after("import sitl.telemetry")
+    for m in ("autopilot.clsac", "autopilot.loop", "autopilot.step", "autopilot.telemetry"):
+        assert m not in loaded
+    assert [m for m in loaded if m.startswith("autopilot") and m != "autopilot"
+            and not m.startswith("autopilot.shared")] == []
+
+
+def test_nothing_imports_rerun_without_telemetry_flags():
+    """``--help`` and runs without telemetry flags stay fast: attaching nothing never loads rerun."""
+    loaded = _loaded_after("""
+        import argparse
+        from types import SimpleNamespace
+        import autopilot.__main__, sitl.__main__
+        from autopilot import telemetry
+        from autopilot.shared.telemetry import add_arguments
+        import sitl.telemetry
+        p = argparse.ArgumentParser()
+        add_arguments(p)
+        target = SimpleNamespace(hooks=[], event_hooks=[])
+        assert telemetry.attach(p.parse_args([]), target) is None
+        assert sitl.telemetry.attach(p.parse_args([]), target) is None
+    """)
+    assert not any(m.split(".")[0] == "rerun" for m in loaded)

@@ -3,7 +3,9 @@
 The writers are this file run as a script (``python tests/test_telemetry_flight.py ROLE ...``): each
 flies the same deterministic closed loop (ClSac + Aircraft at 400 Hz, roll measured through float32
 as over MAVLink) paced on the wall clock, and logs its side of it, as the autopilot and the SITL will:
-the autopilot its controller row, link counters, mode and failsafe; the SITL the truth state.
+the autopilot its controller row, link counters, mode and failsafe; the SITL the truth state.  Like the real
+processes, a writer stops on SIGINT/SIGTERM through ``autopilot.shared.process.install_stop_handlers`` and
+closes its telemetry on the way out; the viewer layout comes from the merge (``tools.views``), not the writers.
 """
 
 from __future__ import annotations
@@ -20,9 +22,12 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from autopilot import telemetry as tm
+from autopilot.shared import telemetry as tm
 from autopilot.telemetry import layout as L
+from autopilot.telemetry.hooks import autopilot_tables
+from sitl import telemetry as S
 from tools import rrd
+from tools.views import flight_blueprint
 
 HERE = Path(__file__).resolve()
 RATE = 400.0
@@ -33,25 +38,30 @@ PWM_PER_RAD = 500.0 / math.radians(30.0)
 def _writer(role: str, recording_id: str, path: str, duration_s: float, connect: str | None) -> int:
     from autopilot.clsac import ClSac
     from autopilot.config import ClSacConfig
+    from autopilot.shared.process import EXIT_INTERRUPTED, install_stop_handlers
     from sitl.aircraft import Aircraft, AircraftConfig
     from tools import profiles
 
     ctrl = ClSac(ClSacConfig(control_rate_hz=RATE))
     ac = Aircraft(AircraftConfig(physics_rate_hz=2000.0))
     tel = tm.Telemetry(role, recording_id, path, connect_url=connect)
+    stop = []
+    install_stop_handlers(lambda: stop.append(True))
     print(f"pid={os.getpid()} tables", flush=True)
     n = 0
     try:
         with tel:
             if role == "autopilot":
-                ap, links, mode, failsafe = tel.autopilot_tables(links=("sitl", "gcs"))
-                mode.set(0.0, time.time(), "AUTO")
+                ap, links, mode, failsafe = autopilot_tables(tel)
+                mode.set(0.0, time.time(), "ADAPTIVE")
                 failsafe.set(0.0, time.time(), "OK")
             else:
-                st = tel.table(tm.SITL_TABLE)
+                st = tel.table(S.SITL_TABLE)
             steps = int(round(duration_s * RATE)) if duration_s > 0 else 10**9
             t0 = time.perf_counter()
             for k in range(steps):
+                if stop:
+                    return EXIT_INTERRUPTED
                 deadline = t0 + k / RATE
                 now = time.perf_counter()
                 if deadline > now:
@@ -69,7 +79,7 @@ def _writer(role: str, recording_id: str, path: str, duration_s: float, connect:
                         links["sitl"].append(t, w, (k, k, 0))
                         links["gcs"].append(t, w, (k // 40, k // 4, 1))
                     if k == int(RATE * 0.5):
-                        failsafe.set(t, w, "STALE", "no ATTITUDE for 0.2 s")
+                        failsafe.set(t, w, "NO_ATTITUDE", "no ATTITUDE for 0.2 s")
                     if k == int(RATE * 0.75):
                         failsafe.set(t, w, "OK")
                 else:
@@ -131,9 +141,9 @@ def flight(tmp_path_factory):
     procs = {role: _start(role, rid, parts[role], duration) for role in ("autopilot", "sitl")}
     results = {role: _finish(p) for role, p in procs.items()}
     elapsed = time.perf_counter() - t0
-    for role, (rc, out, err) in results.items():
+    for role, (rc, _, err) in results.items():
         assert rc == 0, f"{role} writer failed: {err[-2000:]}"
-    merged = tm.merge_recordings(list(parts.values()), d / "flight.rrd")
+    merged = tm.merge_recordings(list(parts.values()), d / "flight.rrd", blueprint=flight_blueprint())
     return {"dir": d, "rid": rid, "parts": parts, "path": merged, "duration": duration, "elapsed": elapsed,
             "sent": {role: _sent(out) for role, (_, out, _) in results.items()}}
 
@@ -141,9 +151,9 @@ def flight(tmp_path_factory):
 # ------------------------------------------------------------------------------------------ tests
 def test_two_processes_write_one_recording(flight):
     recs = rrd.recordings(flight["path"])
-    assert recs == [(L.APPLICATION_ID, flight["rid"])]
+    assert recs == [(tm.APPLICATION_ID, flight["rid"])]
     paths = set(rrd.entity_paths(flight["path"]))
-    for p in (*L.AUTOPILOT.paths, *L.SITL_TABLE.paths, f"{L.AP_LINK}/sitl", f"{L.AP_LINK}/gcs",
+    for p in (*L.AUTOPILOT.paths, *S.SITL_TABLE.paths, f"{L.AP_LINK}/sitl", f"{L.AP_LINK}/gcs",
               L.AP_MODE, L.AP_FAILSAFE, L.AP_EVENTS):
         assert p in paths, f"{p} missing from the merged recording"
     # Both processes ran at the same time: the flight did not take two flights' time.
@@ -155,16 +165,16 @@ def test_sample_counts_match_duration_and_rates(flight):
     data = rrd.load(flight["path"])
     assert flight["sent"]["autopilot"]["autopilot"] == n
     assert flight["sent"]["sitl"]["sitl"] == n
-    for p in (*L.AUTOPILOT.paths, *L.SITL_TABLE.paths):
+    for p in (*L.AUTOPILOT.paths, *S.SITL_TABLE.paths):
         assert len(data[p].t) == n, p
     for link in ("sitl", "gcs"):
         assert len(data[f"{L.AP_LINK}/{link}"].t) == n // 40
     # sim_time is exactly k / rate, to the nanosecond, on both sides
     expected = np.rint(np.arange(n) / RATE * 1e9).astype(np.int64)
     np.testing.assert_array_equal(data[L.AP_ROLL].t_ns, expected)
-    np.testing.assert_array_equal(data[L.SITL_ROLL].t_ns, expected)
+    np.testing.assert_array_equal(data[S.SITL_ROLL].t_ns, expected)
     # wall time: monotonic, spanning about the flight's duration (paced on the clock)
-    rd = rrd.load(flight["path"], timeline=L.WALL_TIME)[L.AP_ROLL]
+    rd = rrd.load(flight["path"], timeline=tm.WALL_TIME)[L.AP_ROLL]
     assert np.all(np.diff(rd.t_ns) >= 0)
     assert flight["duration"] * 0.9 < (rd.t[-1] - rd.t[0]) < flight["duration"] + 2.0
     # series shapes and names as in the layout
@@ -175,7 +185,7 @@ def test_sample_counts_match_duration_and_rates(flight):
 
 def test_truth_and_autopilot_roll_agree_to_float32(flight):
     data = rrd.load(flight["path"])
-    truth, seen = data[L.SITL_ROLL], data[L.AP_ROLL]
+    truth, seen = data[S.SITL_ROLL], data[L.AP_ROLL]
     common, i_truth, i_seen = np.intersect1d(truth.t_ns, seen.t_ns, return_indices=True)
     assert len(common) == len(truth.t_ns)
     phi_truth = truth.values[i_truth, 0]
@@ -185,7 +195,7 @@ def test_truth_and_autopilot_roll_agree_to_float32(flight):
     assert np.max(np.abs(phi_meas - phi_truth)) <= np.max(np.abs(phi_truth)) * 2.0**-23
     # rudder: what the autopilot commanded is what the SITL applied
     u_ap = data[L.AP_RUDDER].values[i_seen, 0]
-    u_sitl = data[L.SITL_RUDDER].values[i_truth, 1]
+    u_sitl = data[S.SITL_RUDDER].values[i_truth, 1]
     np.testing.assert_array_equal(u_ap, u_sitl)
 
 
@@ -200,11 +210,11 @@ def test_gains_are_sum_of_parts(flight):
 
 def test_mode_and_failsafe_are_state_changes(flight):
     states = rrd.load_states(flight["path"])
-    assert [s for _, s in states[L.AP_MODE]] == ["AUTO"]
-    assert [s for _, s in states[L.AP_FAILSAFE]] == ["OK", "STALE", "OK"]
+    assert [s for _, s in states[L.AP_MODE]] == ["ADAPTIVE"]
+    assert [s for _, s in states[L.AP_FAILSAFE]] == ["OK", "NO_ATTITUDE", "OK"]
     assert states[L.AP_FAILSAFE][1][0] == pytest.approx(0.5)
     lines = [txt for _, txt in rrd.load_text(flight["path"], L.AP_EVENTS)]
-    assert "failsafe: OK -> STALE (no ATTITUDE for 0.2 s)" in lines
+    assert "failsafe: OK -> NO_ATTITUDE (no ATTITUDE for 0.2 s)" in lines
 
 
 def test_blueprint_present_once_and_verified(flight):
@@ -212,8 +222,8 @@ def test_blueprint_present_once_and_verified(flight):
     assert rrd.has_blueprint(path)
     assert len(rrd.blueprint_components(path, "ViewportBlueprint:root_container")) == 1  # one layout, not two
     names = rrd.blueprint_components(path, "ViewBlueprint:display_name")
-    for expected in ("Roll tracking [rad]", "Error e = ym - ya [rad]", "Rudder [rad]", "Gain Ke (error)", "Loop timing [s]",
-                     "Link counters", "Mode and failsafe"):
+    for expected in ("Roll tracking [rad]", "Error e = ym - ya [rad]", "Rudder [rad]", "Gain Ke (error)",
+                     "Loop timing [s]", "Link counters", "Mode and failsafe"):
         assert expected in names
     assert rrd.blueprint_components(path, "TimePanelBlueprint:timeline") == ["sim_time"]
     links = rrd.blueprint_components(path, "TimeAxis:link")
@@ -266,9 +276,9 @@ def test_sigkill_loses_at_most_one_second(tmp_path):
     np.testing.assert_array_equal(data[L.AP_ROLL].t_ns, np.rint(np.arange(got) / RATE * 1e9).astype(np.int64))
     # the launcher can still merge it with the other process's part into one valid recording
     merged = tm.merge_recordings([killed, clean], tmp_path / "flight.rrd")
-    assert rrd.recordings(merged) == [(L.APPLICATION_ID, rid)]
+    assert rrd.recordings(merged) == [(tm.APPLICATION_ID, rid)]
     m = rrd.load(merged)
-    assert len(m[L.AP_ROLL].t) == got and len(m[L.SITL_ROLL].t) == int(RATE)
+    assert len(m[L.AP_ROLL].t) == got and len(m[S.SITL_ROLL].t) == int(RATE)
     ok, msg = tm.verify_rrd(merged)
     assert ok, msg
 
@@ -281,7 +291,7 @@ def _free_port() -> int:
 
 def test_live_stream_from_two_processes_is_one_recording(tmp_path):
     """--connect: both processes stream to one gRPC server (a viewer, or here `rerun --save`, its
-    headless stand-in) and it sees ONE recording holding both, blueprint included."""
+    headless stand-in) and it sees ONE recording holding both, plus the blueprint the launcher sends."""
     port = _free_port()
     live = tmp_path / "live.rrd"
     env = {k: v for k, v in os.environ.items() if k not in ("DISPLAY", "WAYLAND_DISPLAY")}
@@ -294,6 +304,7 @@ def test_live_stream_from_two_processes_is_one_recording(tmp_path):
             time.sleep(0.05)
         assert tm.viewer_reachable(url), "rerun --save did not start listening"
         rid = tm.new_recording_id()
+        assert tm.send_blueprint(url, flight_blueprint(), rid)  # what the launcher does for --viewer/--connect
         procs = [_start(role, rid, tmp_path / f"{role}.rrd", 1.0, connect=url) for role in ("autopilot", "sitl")]
         for p in procs:
             rc, _, err = _finish(p)
@@ -305,10 +316,11 @@ def test_live_stream_from_two_processes_is_one_recording(tmp_path):
         except subprocess.TimeoutExpired:
             server.kill()
             server.wait(5)
-    assert rrd.recordings(live) == [(L.APPLICATION_ID, rid)]
+    assert rrd.recordings(live) == [(tm.APPLICATION_ID, rid)]
     data = rrd.load(live)
-    assert len(data[L.AP_ROLL].t) == int(RATE) and len(data[L.SITL_ROLL].t) == int(RATE)
+    assert len(data[L.AP_ROLL].t) == int(RATE) and len(data[S.SITL_ROLL].t) == int(RATE)
     assert rrd.has_blueprint(live)
+    assert "Roll tracking [rad]" in rrd.blueprint_components(live, "ViewBlueprint:display_name")
 
 
 def _port_free(port: int) -> bool:
@@ -324,7 +336,7 @@ def test_no_viewer_is_contacted_without_flags(tmp_path):
     """No DISPLAY, no flags: a writer never connects to the default viewer port nor spawns a viewer."""
     import psutil
 
-    port = tm.writer.DEFAULT_VIEWER_PORT
+    port = tm.DEFAULT_VIEWER_PORT
     if not _port_free(port):
         pytest.skip(f"port {port} is in use (a viewer is running?)")
     listener = socket.socket()
@@ -367,8 +379,7 @@ def test_connect_url_without_viewer_does_not_hang(tmp_path):
         if s.connect_ex(("127.0.0.1", port)) == 0:
             pytest.skip("something listens on port 9")
     t0 = time.perf_counter()
-    with tm.Telemetry("autopilot", None, tmp_path / "ap.rrd", connect_url=tm.viewer_url(port),
-                      handle_signals=False) as tel:
+    with tm.Telemetry("autopilot", None, tmp_path / "ap.rrd", connect_url=tm.viewer_url(port)) as tel:
         ap = tel.series("/test/x", ("x",))
         for k in range(100):
             ap.append(k / 100, time.time(), (float(k),))
@@ -376,9 +387,9 @@ def test_connect_url_without_viewer_does_not_hang(tmp_path):
     assert tel.connect_url is None  # dropped after the probe
     assert len(rrd.load(tmp_path / "ap.rrd")["/test/x"].t) == 100
     # --connect alone, nobody there: the writer turns itself off instead of buffering in memory
-    only_viewer = tm.Telemetry("sitl", None, None, connect_url=tm.viewer_url(port), handle_signals=False)
+    only_viewer = tm.Telemetry("sitl", None, None, connect_url=tm.viewer_url(port))
     assert not only_viewer.enabled
-    assert isinstance(only_viewer.table(tm.SITL_TABLE), tm.NullTable)
+    assert isinstance(only_viewer.table(S.SITL_TABLE), tm.NullTable)
     only_viewer.close()
 
 

@@ -23,7 +23,7 @@ from typing import NamedTuple
 
 import numpy as np
 
-SIM_TIME = "sim_time"
+from autopilot.shared.telemetry.layout import SIM_TIME
 
 
 class Signal(NamedTuple):
@@ -170,9 +170,22 @@ def entity_paths(path: str | os.PathLike, recording_id: str | None = None) -> li
 
 def verify(path: str | os.PathLike, *, check_footers: bool = True) -> tuple[bool, str]:
     """``rerun rrd verify`` (the CLI of the installed rerun-sdk): (ok, output)."""
-    from autopilot.telemetry.files import verify_rrd
+    from autopilot.shared.telemetry.files import verify_rrd
 
     return verify_rrd(path, check_footers=check_footers)
+
+
+def merge(out: str | os.PathLike, parts: list, *, blueprint: bool = True):
+    """Merge the part files of one flight into ``out``; adds the flight blueprint unless a part carries one
+    (a file never holds two competing layouts) or ``blueprint`` is False.  Returns the output path."""
+    from autopilot.shared.telemetry.files import merge_recordings
+
+    layout = None
+    if blueprint and not any(os.path.isfile(p) and has_blueprint(p) for p in parts):
+        from tools.views import flight_blueprint
+
+        layout = flight_blueprint()
+    return merge_recordings(parts, out, blueprint=layout)
 
 
 def summary(path: str | os.PathLike) -> str:
@@ -200,7 +213,8 @@ def main(argv: list[str] | None = None) -> int:
     p = sub.add_parser("merge", help="merge the part files of one flight into one recording")
     p.add_argument("out")
     p.add_argument("parts", nargs="+")
-    p.add_argument("--no-blueprint", action="store_true", help="never add the flight blueprint (by default it is added if no part has one)")
+    p.add_argument("--no-blueprint", action="store_true",
+                   help="never add the flight blueprint (by default it is added if no part has one)")
     args = ap.parse_args(argv)
     try:
         if args.cmd == "summary":
@@ -214,10 +228,7 @@ def main(argv: list[str] | None = None) -> int:
                 print(f"{f}: {'ok' if ok else 'FAILED'}" + ("" if ok else f"\n{msg}"))
                 bad += not ok
             return 1 if bad else 0
-        from autopilot.telemetry.files import merge_recordings
-
-        out = merge_recordings(args.parts, args.out, blueprint=False if args.no_blueprint else "auto")
-        print(out)
+        print(merge(args.out, args.parts, blueprint=not args.no_blueprint))
         return 0
     except (OSError, ValueError, RuntimeError) as exc:
         print(f"error: {exc}", file=sys.stderr)

@@ -1,86 +1,47 @@
-"""Live and recorded telemetry in the Rerun viewer (rerun-sdk 0.41).
+"""The autopilot's telemetry: its layout (``layout``) and its hook (``hooks.AutopilotHook``) on the shared writer.
 
-Per process (flags ``--rrd``, ``--recording-id``, ``--connect``, ``--viewer`` from ``add_arguments``)::
+``python -m autopilot`` with a telemetry flag (``autopilot.shared.telemetry.flags.add_arguments``)::
 
-    from autopilot import telemetry as tm
-
-    tel = tm.from_args(args, "autopilot")      # or tm.Telemetry("autopilot", rid, part_path, connect_url=url)
-    hook = tm.AutopilotHook(tel)               # Autopilot.hooks / event_hooks callables
-    autopilot.hooks.append(hook); autopilot.event_hooks.append(hook.event)
-    with tel:
+    tel = attach(args, autopilot, control_rate_hz=args.rate)    # None without flags: rerun never imported
+    try:
         autopilot.run()
+    finally:
+        if tel is not None:
+            tel.close()
 
-or by hand, one row per step::
-
-    ap, links, mode, failsafe = tel.autopilot_tables(links=("sitl", "gcs"))
-    ap.append(sim_t, time.time(), ctrl.telemetry() + (p, pwm, period, compute, jitter, missed))
-
-A launcher merges the parts of a flight into one recording with ``tm.merge_recordings``; experiments
-go through ``tm.log_experiment``.  Entity paths, row layouts and colours: ``autopilot.telemetry.layout``.
+The writer primitives are ``autopilot.shared.telemetry``; the SITL's side is ``sitl.telemetry``; the viewer
+layout that joins both is ``tools.views``.
 """
 
-import os as _os
+from __future__ import annotations
 
-# Part files are written without rerun's footer (see Telemetry.write_footer); rerun warns about that on
-# every FileSink.  Keep its other warnings.  Only effective if rerun is not imported yet.
-_os.environ.setdefault("RUST_LOG", "warn,re_log_encoding::rrd::file_sink=error")
+import argparse
 
-_LAZY = {
-    "APPLICATION_ID": "layout",
-    "AUTOPILOT": "layout",
-    "AUTOPILOT_FIELDS": "layout",
-    "AutopilotHook": "hooks",
-    "DEFAULT_FLUSH_INTERVAL_S": "writer",
-    "LINK_FIELDS": "layout",
-    "NullTable": "writer",
-    "Plot": "layout",
-    "RrdError": "files",
-    "SIM_TIME": "layout",
-    "SITL_FIELDS": "layout",
-    "SITL_TABLE": "layout",
-    "SitlHook": "hooks",
-    "StateChannel": "writer",
-    "Table": "writer",
-    "TableLayout": "layout",
-    "Telemetry": "writer",
-    "WALL_TIME": "layout",
-    "add_arguments": "hooks",
-    "experiment_blueprint": "blueprints",
-    "flight_blueprint": "blueprints",
-    "from_args": "hooks",
-    "has_display": "writer",
-    "install_signal_handlers": "writer",
-    "link_layout": "layout",
-    "log_experiment": "experiment",
-    "merge_recordings": "files",
-    "new_recording_id": "writer",
-    "part_paths": "files",
-    "rerun_cli_path": "writer",
-    "spawn_viewer": "writer",
-    "verify_rrd": "files",
-    "viewer_reachable": "writer",
-    "viewer_url": "writer",
-}
+
+def attach(args: argparse.Namespace, autopilot, *, control_rate_hz: float | None = None):
+    """If a telemetry flag was given, build the writer and register an ``AutopilotHook`` on ``autopilot``.
+
+    Returns the writer (close it after the loop) or None.
+    """
+    from autopilot.shared.telemetry.flags import attach as attach_hook
+
+    def make_hook(tel):
+        from autopilot.telemetry.hooks import AutopilotHook
+
+        return AutopilotHook(tel, control_rate_hz=control_rate_hz)
+
+    return attach_hook(args, "autopilot", autopilot, make_hook)
 
 
 def __getattr__(name: str):
-    """Import submodules on first use: ``rerun`` costs ~1 s and processes that log nothing never need it."""
+    """``AutopilotHook``, ``autopilot_tables``, ``layout``: imported on first use."""
     import importlib
 
     if name == "layout":
         return importlib.import_module("autopilot.telemetry.layout")
-    try:
-        module = _LAZY[name]
-    except KeyError:
-        raise AttributeError(f"module 'autopilot.telemetry' has no attribute {name!r}") from None
-    return getattr(importlib.import_module(f"autopilot.telemetry.{module}"), name)
+    if name in ("AutopilotHook", "autopilot_tables"):
+        return getattr(importlib.import_module("autopilot.telemetry.hooks"), name)
+    raise AttributeError(f"module 'autopilot.telemetry' has no attribute {name!r}")
 
 
-__all__ = [
-    "AutopilotHook", "SitlHook", "add_arguments", "from_args",
-    "APPLICATION_ID", "AUTOPILOT", "AUTOPILOT_FIELDS", "DEFAULT_FLUSH_INTERVAL_S", "LINK_FIELDS", "NullTable",
-    "Plot", "RrdError", "SIM_TIME", "SITL_FIELDS", "SITL_TABLE", "StateChannel", "Table", "TableLayout",
-    "Telemetry", "WALL_TIME", "experiment_blueprint", "flight_blueprint", "has_display", "install_signal_handlers",
-    "layout", "link_layout", "log_experiment", "merge_recordings", "new_recording_id", "part_paths",
-    "rerun_cli_path", "spawn_viewer", "verify_rrd", "viewer_reachable", "viewer_url",
-]
+__all__ = ["AutopilotHook", "attach", "autopilot_tables", "layout"]

@@ -7,8 +7,9 @@ Figures (``main(argv)`` returns them as a dict and prints a table against the ta
 
 1. ``append_ns``: median cost of one ``Table.append`` of a full autopilot row (25 values), with the
    writer thread running, and of building that row from the controller (``row_build_ns``).
-2. A 400 Hz control loop on deadlines (sleep until the deadline, never ``sleep(period)``), each step a
-   real ``ClSac`` step plus an ``Aircraft`` advance, with and without telemetry in ONE run: 5 s blocks
+2. A 400 Hz control loop on deadlines (sleep until the deadline, never ``sleep(period)``), each step the
+   autopilot's own ``ControlStep`` (setpoint, law, PWM map, metrics) plus an ``Aircraft`` advance, with and
+   without telemetry in ONE run: 5 s blocks
    alternating off/on so drift and machine noise hit both alike.  Per mode: median step time (wake to
    end of the step's work, the append included when on), p99 jitter (wake - deadline), missed
    deadlines (steps whose work ended after the next deadline).  Targets: +<= 10 % median, +0 missed.
@@ -45,14 +46,16 @@ def _rss_mb() -> float:
 
 
 def _make_plant(rate: float):
-    from autopilot.clsac import ClSac
+    """The autopilot's control step (square-wave command, default PWM map) and the aircraft it flies."""
     from autopilot.config import ClSacConfig
+    from autopilot.shared.pwm import PwmMap
+    from autopilot.step import ControlStep, ProfileSetpoints
     from sitl.aircraft import Aircraft, AircraftConfig
 
-    ctrl = ClSac(ClSacConfig(control_rate_hz=rate))
+    step = ControlStep(ClSacConfig(control_rate_hz=rate), PwmMap(), ProfileSetpoints(_command))
     nphys = 5
     ac = Aircraft(AircraftConfig(physics_rate_hz=rate * nphys))
-    return ctrl, ac, nphys
+    return step, ac, nphys
 
 
 def _command(t: float) -> float:
@@ -96,9 +99,8 @@ class Loop:
     def __init__(self, rate: float):
         self.rate = rate
         self.period = 1.0 / rate
-        self.ctrl, self.ac, self.nphys = _make_plant(rate)
+        self.step, self.ac, self.nphys = _make_plant(rate)
         self.k = 0
-        self.u_lim = self.ctrl.config.u_limit_rad
         self.missed_total = 0
 
     def run(self, seconds: float, tables=None) -> dict[str, np.ndarray | int]:
@@ -111,7 +113,8 @@ class Loop:
         comp_t = np.empty(n)
         jitter = np.empty(n)
         missed = 0
-        ctrl, ac, nphys = self.ctrl, self.ac, self.nphys
+        step, ac, nphys = self.step, self.ac, self.nphys
+        ctrl = step.law
         ap = links = None
         if tables is not None:
             ap, links = tables
@@ -127,15 +130,14 @@ class Loop:
             x = ac.x
             phi = float(x[3])
             p = float(x[1])
-            u = ctrl.step(phi, _command(t_sim))
-            pwm = 1500.0 + 500.0 * u / self.u_lim  # the loop needs these with or without telemetry
-            ac.advance(u, nphys)
+            res = step(t_sim, phi)  # the loop needs the command and its PWM with or without telemetry
+            ac.advance(res.u, nphys)
             t_out = perf()
             compute = t_out - wake
             measured_period = (wake - prev_wake) if prev_wake is not None else period
             if ap is not None:  # the only difference between "off" and "on": the logging calls
                 ap.append(t_sim, wall(), ctrl.telemetry() + (
-                    p, pwm, measured_period, compute, wake - deadline, self.missed_total))
+                    p, res.pwm, measured_period, compute, wake - deadline, self.missed_total))
                 if k % 40 == 0:
                     w = wall()
                     for j, tab in enumerate(links):
@@ -173,13 +175,15 @@ def _stats(blocks: list[dict]) -> dict[str, float]:
 
 
 def bench_append(tmp: Path, rate: float) -> dict[str, float]:
-    from autopilot import telemetry as tm
+    from autopilot.shared.telemetry import Telemetry
+    from autopilot.telemetry.layout import AUTOPILOT
 
-    ctrl, ac, _ = _make_plant(rate)
-    ctrl.step(0.01, 0.1)
-    tel = tm.Telemetry("bench_append", rrd_path=tmp / "append.rrd", send_blueprint=False, handle_signals=False)
+    step, _, _ = _make_plant(rate)
+    step(0.0, 0.01)
+    ctrl = step.law
+    tel = Telemetry("bench_append", rrd_path=tmp / "append.rrd")
     try:
-        ap = tel.table(tm.AUTOPILOT)
+        ap = tel.table(AUTOPILOT)
         row = ctrl.telemetry() + (0.1, 1500.0, 0.0025, 1e-5, 1e-5, 0)
         reps, n = 15, 20000
         per_append, per_build = [], []
@@ -187,18 +191,18 @@ def bench_append(tmp: Path, rate: float) -> dict[str, float]:
         append = ap.append
         for _ in range(reps):
             t0 = perf()
-            for i in range(n):
+            for _ in range(n):
                 append(0.0025, 1.0, row)
             per_append.append((perf() - t0) / n)
             t0 = perf()
-            for i in range(n):
+            for _ in range(n):
                 ctrl.telemetry() + (0.1, 1500.0, 0.0025, 1e-5, 1e-5, 0)
             per_build.append((perf() - t0) / n)
             time.sleep(0.02)
         loop_overhead = []
         for _ in range(reps):
             t0 = perf()
-            for i in range(n):
+            for _ in range(n):
                 pass
             loop_overhead.append((perf() - t0) / n)
         base = statistics.median(loop_overhead)
@@ -216,15 +220,16 @@ def bench_loop(tmp: Path, rate: float, seconds: float, block_s: float = 1.0) -> 
     The writer exists throughout (as it would in a flight), but in "off" blocks nothing is appended,
     so it has nothing to send: the difference between the modes is the cost of logging.
     """
-    from autopilot import telemetry as tm
+    from autopilot.shared.telemetry import Telemetry
+    from autopilot.telemetry.hooks import autopilot_tables
 
     loop = Loop(rate)
     loop.run(1.0)  # warm-up
     gcm = GcMonitor()
-    tel = tm.Telemetry("autopilot", rrd_path=tmp / "loop.rrd", handle_signals=False)
+    tel = Telemetry("autopilot", rrd_path=tmp / "loop.rrd")
     try:
-        ap = tel.table(tm.AUTOPILOT)
-        links = [tel.table(tm.link_layout(n)) for n in ("sitl", "gcs")]
+        ap, links, _, _ = autopilot_tables(tel)
+        links = list(links.values())
         off, on = [], []
         pair_diff = []
         nblocks = max(1, int(round(seconds / block_s / 2)))
@@ -250,36 +255,39 @@ def bench_loop(tmp: Path, rate: float, seconds: float, block_s: float = 1.0) -> 
 
 def bench_size(tmp: Path, rate: float, sitl_rate: float, minutes: float = 1.0) -> dict[str, float]:
     """One simulated flight-minute through the real writers (batched as in real time), merged as the launcher does."""
-    from autopilot import telemetry as tm
+    from autopilot.shared import telemetry as tm
+    from autopilot.telemetry.hooks import autopilot_tables
+    from autopilot.telemetry.layout import MODE_ADAPTIVE
+    from sitl.telemetry import SITL_TABLE
+    from tools.views import flight_blueprint
 
     rid = tm.new_recording_id()
     parts = {p: tmp / f"size-{p}.rrd" for p in ("autopilot", "sitl")}
-    ap_tel = tm.Telemetry("autopilot", rid, parts["autopilot"], handle_signals=False)
-    sitl_tel = tm.Telemetry("sitl", rid, parts["sitl"], handle_signals=False)
+    ap_tel = tm.Telemetry("autopilot", rid, parts["autopilot"])
+    sitl_tel = tm.Telemetry("sitl", rid, parts["sitl"])
     try:
-        ap = ap_tel.table(tm.AUTOPILOT)
-        links = [ap_tel.table(tm.link_layout(n)) for n in ("sitl", "gcs")]
-        mode = ap_tel.state_channel(tm.layout.AP_MODE, "mode", tm.layout.MODE_COLORS)
-        st = sitl_tel.table(tm.SITL_TABLE)
-        ctrl, ac, nphys = _make_plant(rate)
+        ap, links, mode, _ = autopilot_tables(ap_tel)
+        links = list(links.values())
+        st = sitl_tel.table(SITL_TABLE)
+        step, ac, nphys = _make_plant(rate)
+        ctrl = step.law
         period = 1.0 / rate
         n = int(round(minutes * 60 * rate))
         wall0 = time.time()
         batch = int(round(rate * tm.DEFAULT_FLUSH_INTERVAL_S))
         sitl_every = max(1, int(round(rate / sitl_rate)))
-        mode.set(0.0, wall0, "AUTO")
+        mode.set(0.0, wall0, MODE_ADAPTIVE)
         rng = np.random.default_rng(1)
         for k in range(n):
             t = k * period
             w = wall0 + t
             x = ac.x
             phi_meas = float(np.float32(x[3] + 1e-4 * rng.standard_normal()))  # a noisy sensor, not a clean sine
-            u = ctrl.step(phi_meas, _command(t))
-            pwm = float(round(1500.0 + 500.0 * u / ctrl.config.u_limit_rad))
+            res = step(t, phi_meas)
             if k % sitl_every == 0:
-                st.append(t, w, tuple(x.tolist()) + (u, pwm))
-            ac.advance(u, nphys)
-            ap.append(t, w, ctrl.telemetry() + (float(np.float32(x[1])), pwm, period + 2e-5 * rng.standard_normal(),
+                st.append(t, w, tuple(x.tolist()) + (res.u, res.pwm))
+            ac.advance(res.u, nphys)
+            ap.append(t, w, ctrl.telemetry() + (float(np.float32(x[1])), res.pwm, period + 2e-5 * rng.standard_normal(),
                                                 1.2e-5 + 1e-6 * rng.random(), 5e-5 * rng.random(), 0))
             if k % 40 == 0:
                 for j, tab in enumerate(links):
@@ -290,7 +298,7 @@ def bench_size(tmp: Path, rate: float, sitl_rate: float, minutes: float = 1.0) -
     finally:
         ap_tel.close()
         sitl_tel.close()
-    merged = tm.merge_recordings(list(parts.values()), tmp / "size-flight.rrd")
+    merged = tm.merge_recordings(list(parts.values()), tmp / "size-flight.rrd", blueprint=flight_blueprint())
     sizes = {p: parts[p].stat().st_size / 1e6 for p in parts}
     return {
         "minutes": minutes,
@@ -303,13 +311,14 @@ def bench_size(tmp: Path, rate: float, sitl_rate: float, minutes: float = 1.0) -
 
 def bench_memory(tmp: Path, rate: float, minutes: float, sample_s: float = 5.0) -> dict[str, float | list]:
     """Real-time loop with telemetry on for ``minutes``; RSS sampled every ``sample_s``."""
-    from autopilot import telemetry as tm
+    from autopilot.shared.telemetry import Telemetry
+    from autopilot.telemetry.hooks import autopilot_tables
 
     loop = Loop(rate)
-    tel = tm.Telemetry("autopilot", rrd_path=tmp / "memory.rrd", handle_signals=False)
+    tel = Telemetry("autopilot", rrd_path=tmp / "memory.rrd")
     try:
-        ap = tel.table(tm.AUTOPILOT)
-        links = [tel.table(tm.link_layout(n)) for n in ("sitl", "gcs")]
+        ap, links, _, _ = autopilot_tables(tel)
+        links = list(links.values())
         loop.run(sample_s, (ap, links))  # warm-up block: imports, first chunks, allocator
         rss = [_rss_mb()]
         times = [0.0]
@@ -355,7 +364,8 @@ def to_figures(raw: dict) -> dict[str, dict]:
     # Missed deadlines are rare events: "nothing added" is judged against the counts' Poisson noise (2 sigma).
     miss_noise = 2.0 * math.sqrt(max(1, off["missed"] + on["missed"]))
     return {
-        "append_row": figure(raw["append"]["append_ns"] / 1000.0, "us", 1.0, note="Table.append, 25-value autopilot row"),
+        "append_row": figure(raw["append"]["append_ns"] / 1000.0, "us", 1.0,
+                             note="Table.append, 25-value autopilot row"),
         "build_row": figure(raw["append"]["row_build_ns"] / 1000.0, "us", None, note="ctrl.telemetry() + 6 extras"),
         "step_median_off": figure(off["median_step_us"], "us", None, steps=off["steps"], p99=off["p99_step_us"]),
         "step_median_on": figure(on["median_step_us"], "us", None, steps=on["steps"], p99=on["p99_step_us"]),

@@ -11,7 +11,8 @@
     /runs/<name>/state            v, p, r, delta_r
     /runs/metrics                 table of the metrics (markdown)
 
-Time is ``sim_time`` (the runs are simulations; there is no meaningful wall time).
+Time is ``sim_time`` (the runs are simulations; there is no meaningful wall time).  The entity paths and
+the layout are ``tools.views``; the column helpers ``autopilot.shared.telemetry.columns``.
 """
 
 from __future__ import annotations
@@ -23,17 +24,36 @@ from pathlib import Path
 import numpy as np
 import rerun as rr
 
-from autopilot.telemetry import layout as L
-from autopilot.telemetry.blueprints import experiment_blueprint, run_path
-from autopilot.telemetry.writer import new_recording_id, scalar_column, sim_time_column
+from autopilot.shared.telemetry.columns import scalar_column, series_style, sim_time_column
+from autopilot.shared.telemetry.files import new_recording_id
+from autopilot.shared.telemetry.layout import (
+    BLUE,
+    GREEN,
+    GREY,
+    ORANGE,
+    PALETTE,
+    PURPLE,
+    SKY,
+    VERMILLION,
+    WHITE,
+    YELLOW,
+    Rgb,
+)
+from tools.views import RUN_COMMAND, RUN_METRICS, RUN_REFERENCE_OL, experiment_blueprint, run_path
+
+EXPERIMENT_APPLICATION_ID = "clsac_experiment"  # paper.rrd: its own blueprint, never mixed with a flight's
+
+RUN_COLORS: dict[str, Rgb] = {
+    "sac": VERMILLION, "clsac": SKY, "clsac_lv10": GREEN, "clsac_lv50": ORANGE, "clsac_lv100": PURPLE,
+}
 
 
-def _style(names: Sequence[str], colors: Sequence[L.Rgb], step: bool = False) -> rr.SeriesLines:
-    return rr.SeriesLines(names=list(names), colors=[list(c) for c in colors],
-                          interpolation_mode="StepAfter" if step else None)
+def run_color(name: str, i: int) -> Rgb:
+    """The colour of run ``name`` (the ``i``-th): the paper's runs keep theirs, others take the palette in turn."""
+    return RUN_COLORS.get(name, PALETTE[i % len(PALETTE)])
 
 
-def _shade(c: L.Rgb, f: float) -> L.Rgb:
+def _shade(c: Rgb, f: float) -> Rgb:
     return tuple(int(min(255, max(0, round(v * f)))) for v in c)  # type: ignore[return-value]
 
 
@@ -69,7 +89,7 @@ def log_experiment(results: Sequence, path: str | os.PathLike, *, scenario: str 
             raise ValueError(f"run names must be non-empty path components, got {n!r}")
     out = Path(path)
     out.parent.mkdir(parents=True, exist_ok=True)
-    rec = rr.RecordingStream(L.EXPERIMENT_APPLICATION_ID, recording_id=recording_id or new_recording_id())
+    rec = rr.RecordingStream(EXPERIMENT_APPLICATION_ID, recording_id=recording_id or new_recording_id())
     rec.set_sinks(rr.FileSink(str(out)))
     try:
         rec.send_recording_name(f"{scenario}: " + ", ".join(names))
@@ -79,15 +99,15 @@ def log_experiment(results: Sequence, path: str | os.PathLike, *, scenario: str 
             rec.send_columns(entity, indexes=[sim_time_column(t)], columns=[scalar_column(values)], strict=True)
 
         first = results[0].series
-        rec.log(L.RUN_COMMAND, _style(["roll command um"], [L.GREY]), static=True)
-        send(L.RUN_COMMAND, first["t"], first["um"])
-        rec.log(L.RUN_REFERENCE_OL, _style(["open-loop reference ym_ol"], [L.WHITE]), static=True)
-        send(L.RUN_REFERENCE_OL, first["t"], first["ym_ol"])
+        rec.log(RUN_COMMAND, series_style(["roll command um"], [GREY]), static=True)
+        send(RUN_COMMAND, first["t"], first["um"])
+        rec.log(RUN_REFERENCE_OL, series_style(["open-loop reference ym_ol"], [WHITE]), static=True)
+        send(RUN_REFERENCE_OL, first["t"], first["ym_ol"])
 
         for i, r in enumerate(results):
             s = r.series
             t = s["t"]
-            c = L.run_color(r.name, i)
+            c = run_color(r.name, i)
             label = f"{r.name} (Lv={r.lv:g})"
             plots = [
                 ("roll", [f"phi {label}"], [c], [s["phi"]]),
@@ -98,17 +118,16 @@ def log_experiment(results: Sequence, path: str | os.PathLike, *, scenario: str 
                 ("gains/kx", [f"Kx {label}"], [c], [s["kx"]]),
                 ("gains/ku", [f"Ku {label}"], [c], [s["ku"]]),
                 ("gains/parts", ["Kpe", "KIe", "Kpx", "KIx", "Kpu", "KIu"],
-                 [L.SKY, L.ORANGE, L.GREEN, L.YELLOW, L.PURPLE, L.VERMILLION],
+                 [SKY, ORANGE, GREEN, YELLOW, PURPLE, VERMILLION],
                  [s["kpe"], s["kie"], s["kpx"], s["kix"], s["kpu"], s["kiu"]]),
                 ("state", ["v [m/s]", "p [rad/s]", "r [rad/s]", "delta_r [rad]"],
-                 [L.GREEN, L.YELLOW, L.PURPLE, L.BLUE], [s["v"], s["p"], s["r"], s["delta_r"]]),
+                 [GREEN, YELLOW, PURPLE, BLUE], [s["v"], s["p"], s["r"], s["delta_r"]]),
             ]
             for what, labels, colors, cols in plots:
                 entity = run_path(r.name, what)
-                rec.log(entity, _style(labels, colors), static=True)
+                rec.log(entity, series_style(labels, colors), static=True)
                 send(entity, t, np.column_stack(cols))
-        rec.log(f"{L.RUNS}/metrics", rr.TextDocument(_metrics_markdown(results), media_type="text/markdown"),
-                static=True)
+        rec.log(RUN_METRICS, rr.TextDocument(_metrics_markdown(results), media_type="text/markdown"), static=True)
         rec.flush()
     finally:
         rec.disconnect()

@@ -1,10 +1,11 @@
-"""One recording per flight from several processes: part files merged with ``rerun rrd merge``.
+"""One recording from several processes: recording ids, part files, ``rerun rrd merge`` and ``rrd verify``.
 
-Each process writes its own part (``DIR/.parts/autopilot.rrd``, ``DIR/.parts/sitl.rrd``) with the
-same application id and recording id.  At the end the launcher calls ``merge_recordings`` which
-runs ``rerun rrd merge`` (it recognises the shared store id and writes ONE recording, compacting the
-chunks and writing a footer) and, if asked, adds the flight blueprint.  A part left without footer by
-a SIGKILL is still merged: rerun reads every complete message and stops at the torn tail.
+Each process of a flight writes its own part (``DIR/.parts/<process>.rrd``) with the same application id
+and recording id.  At the end the launcher calls ``merge_recordings``, which runs ``rerun rrd merge``
+(it recognises the shared store id and writes ONE recording, compacting the chunks and writing a
+footer) and adds the viewer layout it is given.  A part left without footer by a SIGKILL is still
+merged: rerun reads every complete message and stops at the torn tail.  No rerun import here: the
+rerun CLI does the work.
 """
 
 from __future__ import annotations
@@ -13,15 +14,27 @@ import os
 import shutil
 import subprocess
 import tempfile
+import uuid
 from collections.abc import Sequence
 from pathlib import Path
 
-from autopilot.telemetry import layout as L
-from autopilot.telemetry.writer import rerun_cli_path
+from autopilot.shared.telemetry.layout import APPLICATION_ID
+from autopilot.shared.telemetry.viewer import rerun_cli_path
 
 
 class RrdError(RuntimeError):
     """A rerun CLI operation on .rrd files failed; the message carries rerun's own last lines."""
+
+
+def new_recording_id() -> str:
+    """A fresh recording id for one flight; give the same one to every process of that flight."""
+    return str(uuid.uuid4())
+
+
+def part_paths(out_dir: str | os.PathLike, processes: Sequence[str] = ("autopilot", "sitl")) -> dict[str, Path]:
+    """Where each process of a flight writes its part: ``OUT/.parts/<process>.rrd``."""
+    base = Path(out_dir) / ".parts"
+    return {p: base / f"{p}.rrd" for p in processes}
 
 
 def _cli_env() -> dict[str, str]:
@@ -39,18 +52,16 @@ def merge_recordings(
     parts: Sequence[str | os.PathLike],
     out_path: str | os.PathLike,
     *,
-    blueprint: object | bool | str = "auto",
-    application_id: str = L.APPLICATION_ID,
+    blueprint=None,
+    application_id: str = APPLICATION_ID,
     remove_parts: bool = False,
     timeout_s: float = 120.0,
 ) -> Path:
     """Merge part files into ``out_path`` with ``rerun rrd merge``; returns the output path.
 
-    ``blueprint``: ``"auto"`` (add the flight blueprint only if no part carries one, so the file never
-    holds two competing layouts), False (keep whatever the parts carry), True (always add the flight
-    blueprint) or a ``rerun.blueprint.Blueprint`` to add.  Missing or empty parts are skipped (a process that never
-    started); if no part is left, RrdError.  ``remove_parts`` deletes the parts after a successful
-    merge.
+    ``blueprint``: a ``rerun.blueprint.Blueprint`` to add (saved for ``application_id``), or None to keep
+    whatever the parts carry.  Missing or empty parts are skipped (a process that never started); if no
+    part is left, RrdError.  ``remove_parts`` deletes the parts after a successful merge.
     """
     out = Path(out_path)
     present = [Path(p) for p in parts if Path(p).is_file() and Path(p).stat().st_size > 0]
@@ -59,13 +70,7 @@ def merge_recordings(
     out.parent.mkdir(parents=True, exist_ok=True)
     with tempfile.TemporaryDirectory(prefix="rrd-merge-") as tmp:
         inputs = [str(p) for p in present]
-        if isinstance(blueprint, str) and blueprint == "auto":
-            blueprint = not any(_has_blueprint_store(p) for p in present)
-        if blueprint is not False and blueprint is not None:
-            if blueprint is True:
-                from autopilot.telemetry.blueprints import flight_blueprint
-
-                blueprint = flight_blueprint()
+        if blueprint is not None:
             rbl = Path(tmp) / "blueprint.rbl"
             blueprint.save(application_id, str(rbl))
             inputs.append(str(rbl))
@@ -81,27 +86,8 @@ def merge_recordings(
     return out
 
 
-def _has_blueprint_store(path: Path) -> bool:
-    import warnings
-
-    from rerun.chunk import RrdReader
-
-    try:
-        with warnings.catch_warnings():
-            warnings.simplefilter("ignore")
-            return bool(RrdReader(str(path)).blueprints())
-    except Exception:  # noqa: BLE001 - unreadable part: rrd merge will say so
-        return False
-
-
 def verify_rrd(path: str | os.PathLike, *, check_footers: bool = True, timeout_s: float = 120.0) -> tuple[bool, str]:
     """Run ``rerun rrd verify`` on ``path``: (ok, rerun's output).  Footers are required by default."""
     cmd = [rerun_cli_path(), "rrd", "verify", f"--check-footers={'true' if check_footers else 'false'}", str(path)]
     proc = subprocess.run(cmd, capture_output=True, text=True, timeout=timeout_s, env=_cli_env())
     return proc.returncode == 0, _tail(proc.stdout + "\n" + proc.stderr)
-
-
-def part_paths(out_dir: str | os.PathLike, processes: Sequence[str] = ("autopilot", "sitl")) -> dict[str, Path]:
-    """Where each process of a flight writes its part: ``OUT/.parts/<process>.rrd``."""
-    base = Path(out_dir) / ".parts"
-    return {p: base / f"{p}.rrd" for p in processes}

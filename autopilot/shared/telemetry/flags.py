@@ -1,8 +1,12 @@
-"""The telemetry command-line flags, without importing rerun (so processes that log nothing start fast)."""
+"""The telemetry command-line flags of every process, and building a writer from them.
+
+No rerun import at module level: a process started without telemetry flags never loads rerun.
+"""
 
 from __future__ import annotations
 
 import argparse
+from collections.abc import Callable
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -23,19 +27,26 @@ def requested(args: argparse.Namespace) -> bool:
     return bool(getattr(args, "rrd", None) or getattr(args, "connect", None) or getattr(args, "viewer", False))
 
 
-def attach(args: argparse.Namespace, process: str, target, **hook_kwargs):
-    """If telemetry was asked for, build the writer and register its hook on ``target`` (an Autopilot or a Sitl).
+def from_args(args: argparse.Namespace, process: str, **kwargs):
+    """A ``Telemetry`` writer from the flags of ``add_arguments`` (disabled when none is given)."""
+    from autopilot.shared.telemetry.writer import Telemetry  # imports rerun (~1 s)
 
-    The hook runs after each step's servo command went out (``target.hooks``) and on every status event
-    (``target.event_hooks``); the loop only hands over a row.  The processes' own stop handlers flush
-    on SIGINT/SIGTERM and the writer also closes at exit.  Returns the writer (close it) or None.
+    return Telemetry(process, getattr(args, "recording_id", None), getattr(args, "rrd", None),
+                     connect_url=getattr(args, "connect", None), spawn_viewer=bool(getattr(args, "viewer", False)),
+                     **kwargs)
+
+
+def attach(args: argparse.Namespace, process: str, target, make_hook: Callable):
+    """If a telemetry flag was given, build the writer and register ``make_hook(writer)`` on ``target``.
+
+    ``target`` is a process's loop: the hook goes to ``target.hooks`` (called once per step / frame,
+    after the servo command went out) and its ``event`` method to ``target.event_hooks`` (status events).
+    Returns the writer, which the caller closes (its stop handlers end the loop first), or None.
     """
     if not requested(args):
         return None
-    from autopilot import telemetry as tm  # imports rerun (~1 s): only when asked for
-
-    tel = tm.from_args(args, process, handle_signals=False)  # only the autopilot sends the blueprint
-    hook = tm.AutopilotHook(tel, **hook_kwargs) if process == "autopilot" else tm.SitlHook(tel, **hook_kwargs)
+    tel = from_args(args, process)
+    hook = make_hook(tel)
     target.hooks.append(hook)
     target.event_hooks.append(hook.event)
     return tel

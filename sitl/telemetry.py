@@ -1,0 +1,61 @@
+"""The SITL's telemetry: its part of a flight recording (truth state, applied servo command, PWM) and its hook.
+
+One row per frame (lockstep) or per ATTITUDE sent (real time): the truth state x_p in ``sitl.model.STATE_NAMES``
+order, then the servo command the SITL applied (rad, after the PWM -> angle mapping) and the PWM it received.
+``sim_time`` is the SITL's clock (``steps * dt``), the same instant the autopilot logs for that frame.  Units
+are SI (m/s, rad/s, rad); PWM in us.  Imports only ``autopilot.shared`` and ``sitl``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import time
+
+from autopilot.shared.telemetry.flags import attach as attach_hook
+from autopilot.shared.telemetry.hooks import ProcessHook, nan_if_none
+from autopilot.shared.telemetry.layout import GREEN, GREY, PURPLE, Plot, TableLayout
+from sitl.model import STATE_NAMES
+
+SITL = "/sitl"
+SITL_ROLL = f"{SITL}/roll"  # phi truth                                  rad
+SITL_RATES = f"{SITL}/rates"  # p, r truth                               rad/s
+SITL_SIDE_VELOCITY = f"{SITL}/side_velocity"  # v truth                  m/s
+SITL_RUDDER = f"{SITL}/rudder"  # delta_r truth, servo command applied   rad
+SITL_RUDDER_RATE = f"{SITL}/rudder_rate"  # delta_r_dot truth            rad/s
+SITL_SERVO_PWM = f"{SITL}/servo_pwm"  # PWM as received                  us
+SITL_EVENTS = f"{SITL}/events"  # TextLog: status events
+
+SITL_EXTRA_FIELDS = ("delta_cmd", "pwm")
+SITL_FIELDS = tuple(STATE_NAMES) + SITL_EXTRA_FIELDS
+
+SITL_TABLE = TableLayout(
+    "sitl",
+    SITL_FIELDS,
+    (
+        Plot(SITL_ROLL, ("phi",), ("roll phi (truth)",), (PURPLE,)),
+        Plot(SITL_RATES, ("p", "r"), ("roll rate p (truth)", "yaw rate r (truth)"), (PURPLE, GREEN)),
+        Plot(SITL_SIDE_VELOCITY, ("v",), ("side velocity v (truth)",), (GREEN,)),
+        Plot(SITL_RUDDER, ("delta_r", "delta_cmd"), ("rudder delta_r (truth)", "servo command applied"),
+             (PURPLE, GREY)),
+        Plot(SITL_RUDDER_RATE, ("delta_r_dot",), ("rudder rate (truth)",), (PURPLE,)),
+        Plot(SITL_SERVO_PWM, ("pwm",), ("servo PWM received [us]",), (PURPLE,), step=True),
+    ),
+)
+
+
+class SitlHook(ProcessHook):
+    """``Sitl.hooks`` callable: the truth state, the applied servo command (rad) and its PWM, per ``SitlRecord``."""
+
+    def __init__(self, tel):
+        super().__init__(tel)
+        self.table = tel.table(SITL_TABLE)
+        self._push = self.table.push
+
+    def __call__(self, rec) -> None:
+        self.last_t = t = rec.t_sim
+        self._push((t, time.time(), tuple(rec.x.tolist()) + (nan_if_none(rec.u), nan_if_none(rec.pwm))))
+
+
+def attach(args: argparse.Namespace, sitl):
+    """If a telemetry flag was given, build the writer and register a ``SitlHook`` on ``sitl``; the writer or None."""
+    return attach_hook(args, "sitl", sitl, SitlHook)
