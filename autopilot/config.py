@@ -74,7 +74,7 @@ class ClSacConfig:
     # Parallel feedforward compensator D(s) = 1/C(s), C(s) = (4 s + 40)/10  (paper section 5)
     pfc_num: tuple[float, ...] = (10.0,)
     pfc_den: tuple[float, ...] = (4.0, 40.0)
-    # Rudder command limit |u| <= u_limit_rad (DESIGN.md section 4: 30 deg)
+    # Rudder command limit |u| <= u_limit_rad (docs/design.md, "Reference scenario": 30 deg)
     u_limit_rad: float = math.radians(30.0)
     # Conditional integration when the command saturates (see ClSac docstring)
     anti_windup: bool = True

@@ -3,8 +3,8 @@
     python -m tools.experiment paper --out DIR [--transport inprocess|mavlink] [--runs sac,clsac,...] [--no-plot]
                                            [--no-rrd] [--pfc paper|robust] [--sigma-xu SIGMA]
 
-writes ``DIR/summary.json`` (schema of DESIGN.md section 7) and ``DIR/paper.png``, and prints a table of
-the metrics of DESIGN.md section 4.  From Python::
+writes ``DIR/summary.json`` (schema: docs/design.md, "summary.json") and ``DIR/paper.png``, and prints a table of
+the metrics of docs/design.md, "Metrics".  From Python::
 
     from tools.experiment import run_experiment, write_summary
     results = run_experiment("runs/x", transport="inprocess", runs=["sac", "clsac"], plot=False)
@@ -71,17 +71,11 @@ def _load_inprocess() -> Runner:
 
 
 def _load_mavlink() -> Runner:
-    """SITL + autopilot processes in lockstep (DESIGN.md section 6), provided by ``tools.launch``."""
+    """SITL + autopilot processes in lockstep, one ``tools.flight.Flight`` per run."""
     try:
-        from tools.launch import run_lockstep  # noqa: PLC0415  (lazy: pulls in pymavlink and processes)
-    except ModuleNotFoundError as exc:
-        if exc.name in ("tools.launch", "tools"):
-            raise ExperimentError("transport 'mavlink' is not available yet: module tools.launch does not exist") from None
-        raise ExperimentError(f"transport 'mavlink' is not available: importing tools.launch failed: {exc}") from None
+        from tools.flight import run_lockstep  # noqa: PLC0415  (lazy: pulls in pymavlink and processes)
     except ImportError as exc:
-        if "run_lockstep" in str(exc):
-            raise ExperimentError("transport 'mavlink' is not available yet: tools.launch has no run_lockstep") from None
-        raise ExperimentError(f"transport 'mavlink' is not available: importing tools.launch failed: {exc}") from None
+        raise ExperimentError(f"transport 'mavlink' is not available: importing tools.flight failed: {exc}") from None
     return run_lockstep
 
 
@@ -373,7 +367,7 @@ def run_experiment(out_dir: str | os.PathLike, transport: str = "inprocess", run
     say(f"wrote {summary.resolve()}")
     if rrd:
         t0 = time.perf_counter()
-        from autopilot.telemetry import log_experiment  # lazy: rerun costs ~1 s to import
+        from tools.recording import log_experiment  # lazy: rerun costs ~1 s to import
 
         path = log_experiment(results, out / f"{scen.name}.rrd")
         say(f"wrote {Path(path).resolve()} ({time.perf_counter() - t0:.1f} s; open it with: rerun {Path(path).resolve()})")
@@ -391,7 +385,7 @@ def run_experiment(out_dir: str | os.PathLike, transport: str = "inprocess", run
 def build_parser() -> argparse.ArgumentParser:
     p = OneLineArgumentParser(
         prog="python -m tools.experiment",
-        description="Fly a reference scenario (DESIGN.md section 4) for each controller variant; write "
+        description="Fly a reference scenario (docs/design.md, \"Reference scenario\") for each controller variant; write "
                     "OUT/summary.json and OUT/<scenario>.png and print the metrics.",
     )
     p.add_argument("scenario", help=f"scenario name ({', '.join(SCENARIOS)})")
