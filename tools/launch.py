@@ -329,7 +329,7 @@ def _telemetry_argvs(cfg: LaunchConfig, out: Path) -> tuple[dict[str, list[str]]
     """One recording id for the flight; each process writes its own part file (merged at the end)."""
     if not (cfg.rrd or cfg.viewer or cfg.connect):
         return None, {}
-    from autopilot import telemetry as tm
+    from autopilot.shared import telemetry as tm
 
     rid = tm.new_recording_id()
     parts = tm.part_paths(out) if cfg.rrd else {}
@@ -337,6 +337,10 @@ def _telemetry_argvs(cfg: LaunchConfig, out: Path) -> tuple[dict[str, list[str]]
         p.parent.mkdir(parents=True, exist_ok=True)
         p.unlink(missing_ok=True)
     url = cfg.connect or (tm.spawn_viewer() if cfg.viewer else None)  # one viewer for both processes
+    if url:  # the processes send data only; the layout that joins them comes from here
+        from tools.views import flight_blueprint
+
+        tm.send_blueprint(url, flight_blueprint(), rid)
     argv = {}
     for name in ("autopilot", "sitl"):
         argv[name] = ["--recording-id", rid]
@@ -352,11 +356,12 @@ def _merge_telemetry(parts: dict[str, Path], out: Path) -> tuple[Path | None, st
     existing = [p for p in parts.values() if p.exists() and p.stat().st_size > 0]
     if not existing:
         return None, ("no telemetry was written" if parts else None)
-    from autopilot import telemetry as tm
+    from autopilot.shared import telemetry as tm
+    from tools.views import flight_blueprint
 
     target = out / "flight.rrd"
     try:
-        tm.merge_recordings(existing, target, remove_parts=True)
+        tm.merge_recordings(existing, target, blueprint=flight_blueprint(), remove_parts=True)
     except Exception as exc:  # noqa: BLE001  (a flight's other files stay valid; say what went wrong)
         return None, f"merging telemetry into {target} failed: {exc}"
     try:
