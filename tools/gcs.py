@@ -1,4 +1,4 @@
-"""``python -m tools.gcs``: a minimal ground station that flies a roll profile (DESIGN.md sections 5-7).
+"""``python -m tools.gcs``: a minimal ground station that flies a roll profile.
 
 Listens like a ground station (default 127.0.0.1:14550), waits for the vehicle's HEARTBEAT (system 1
 component 1), then sends SET_ATTITUDE_TARGET setpoints for a roll profile: ``square`` (default
@@ -21,68 +21,60 @@ import math
 import selectors
 import sys
 import time
+from dataclasses import dataclass, fields
 
+from autopilot.shared.cli import (
+    OneLineArgumentParser,
+    add_cpu_argument,
+    endpoint,
+    finite_float,
+    fmt_endpoint,
+    nonneg_float,
+    positive_float,
+)
 from autopilot.shared.link import UdpLink, format_counters
-from autopilot.shared.cli import add_cpu_argument, endpoint, finite_float, fmt_endpoint, nonneg_float, OneLineArgumentParser, positive_float
-from autopilot.shared.mavlink import AUTOPILOT_ID, GCS_ID, mavlink, quaternion_to_roll, roll_to_quaternion, SETPOINT_TYPEMASK
-from autopilot.shared.process import exit_code_for, apply_cpu, install_stop_handlers, write_json_atomic
-from tools import profiles
+from autopilot.shared.mavlink import (
+    AUTOPILOT_ID,
+    GCS_ID,
+    SETPOINT_TYPEMASK,
+    mavlink,
+    quaternion_to_roll,
+    roll_to_quaternion,
+)
+from autopilot.shared.process import apply_cpu, exit_code_for, install_stop_handlers, write_json_atomic
+from tools.profiles import Profile
 
 M = mavlink
 
 
-class Profile:
-    """A roll profile (rad) of time (s, relative to the profile's start) with its discontinuities."""
+@dataclass(frozen=True)
+class GcsOptions:
+    """How the GCS flies its profile; times in s of sim time unless they say wall, rates in Hz (flags of the same
+    names)."""
 
-    def __init__(self, kind: str = "square", amplitude_deg: float = 10.0, period_s: float = 10.0,
-                 step_time_s: float = 1.0, csv: str | None = None):
-        self.kind = "csv" if csv else kind
-        self.amplitude = math.radians(amplitude_deg)
-        self.period = period_s
-        self.step_time = step_time_s
-        if csv:
-            self.times, self.values = profiles.from_csv(csv)
-
-    def value(self, t: float) -> float:
-        k = self.kind
-        if k == "square":
-            return profiles.square(t, self.amplitude, self.period)
-        if k == "step":
-            return profiles.step(t, self.amplitude, self.step_time)
-        if k == "sine":
-            return profiles.sine(t, self.amplitude, self.period)
-        return profiles.hold(t, self.times, self.values)
-
-    def breakpoints_ms(self, a_ms: int, b_ms: int) -> list[int]:
-        """Discontinuity instants (whole ms, relative) in [a_ms, b_ms]."""
-        k = self.kind
-        if k == "square":
-            half = self.period * 500.0
-            j0 = math.ceil(a_ms / half - 1e-9)
-            out = []
-            j = j0
-            while j * half <= b_ms + 1e-9:
-                out.append(int(round(j * half)))
-                j += 1
-            return out
-        if k == "step":
-            s = int(round(self.step_time * 1000))
-            return [s] if a_ms <= s <= b_ms else []
-        if k == "csv":
-            return [int(round(t * 1000)) for t in self.times if a_ms <= round(t * 1000) <= b_ms]
-        return []
+    listen: tuple[str, int] = ("127.0.0.1", 14550)
+    lockstep: bool = False  # schedule the profile on sim time
+    duration: float = 0.0  # profile length; 0 = until the vehicle powers off
+    start_time: float | None = None  # sim time of the profile's start; None = the first sim time seen
+    lookahead: float = 1.0  # lockstep: schedule this far ahead of the newest sim time seen
+    point_dt: float = 0.1  # lockstep: one setpoint every point_dt besides the discontinuities
+    setpoint_rate: float = 20.0  # real time: setpoints per wall second
+    print_rate: float = 2.0  # live lines per wall second
+    wait_timeout: float = 60.0  # wall s without the vehicle's HEARTBEAT before giving up; 0 = forever
+    vehicle_timeout: float = 5.0  # wall s of vehicle silence before giving up
+    quiet: bool = False  # no live line
 
 
 class Gcs:
-    def __init__(self, args, profile: Profile, out=None):
-        self.args = args
+    def __init__(self, opts: GcsOptions, profile: Profile, out=None):
+        self.opts = opts
         self.profile = profile
         self.out = out or sys.stdout
         # Everything the vehicle streams is taken (SERVO_OUTPUT_RAW only counted): a valid message the GCS
         # did not take would be reported among the link's rejections.
         ids = [M.MAVLINK_MSG_ID_HEARTBEAT, M.MAVLINK_MSG_ID_ATTITUDE, M.MAVLINK_MSG_ID_ATTITUDE_TARGET,
                M.MAVLINK_MSG_ID_SERVO_OUTPUT_RAW, M.MAVLINK_MSG_ID_STATUSTEXT, M.MAVLINK_MSG_ID_SYSTEM_TIME]
-        self.link = UdpLink("vehicle", GCS_ID, args.listen, None, peers=[AUTOPILOT_ID], msgids=ids, learn_remote=True)
+        self.link = UdpLink("vehicle", GCS_ID, opts.listen, None, peers=[AUTOPILOT_ID], msgids=ids, learn_remote=True)
         self.sel = selectors.DefaultSelector()
         self.sel.register(self.link.sock, selectors.EVENT_READ)
         self.stop_requested = False
@@ -90,7 +82,7 @@ class Gcs:
         self.vehicle_status = None
         self.powered_off = False
         self.sim_ms = None  # newest sim time seen (ms)
-        self.origin_ms = None if args.start_time is None else int(round(args.start_time * 1000))
+        self.origin_ms = None if opts.start_time is None else int(round(opts.start_time * 1000))
         self.roll = math.nan
         self.target = math.nan
         self.next_point_rel_ms = 0
@@ -129,7 +121,8 @@ class Gcs:
             self.origin_ms = ms
 
     def _heartbeat(self):
-        self.link.send(M.MAVLink_heartbeat_message(M.MAV_TYPE_GCS, M.MAV_AUTOPILOT_INVALID, 0, 0, M.MAV_STATE_ACTIVE, 3))
+        self.link.send(M.MAVLink_heartbeat_message(M.MAV_TYPE_GCS, M.MAV_AUTOPILOT_INVALID, 0, 0, M.MAV_STATE_ACTIVE,
+                                                   3))
 
     def _send_setpoint(self, time_boot_ms: int, roll: float):
         self.link.send(M.MAVLink_set_attitude_target_message(
@@ -139,15 +132,15 @@ class Gcs:
 
     def _schedule(self):
         """Lockstep: send every scheduled point up to newest sim time + lookahead (and not past the end)."""
-        a = self.args
+        o = self.opts
         if self.origin_ms is None or self.sim_ms is None:
             return
-        end_rel = (self.sim_ms - self.origin_ms) + int(round(a.lookahead * 1000))
-        if a.duration > 0:
-            end_rel = min(end_rel, int(round(a.duration * 1000)))
+        end_rel = (self.sim_ms - self.origin_ms) + int(round(o.lookahead * 1000))
+        if o.duration > 0:
+            end_rel = min(end_rel, int(round(o.duration * 1000)))
         if self.next_point_rel_ms > end_rel:
             return
-        step = max(1, int(round(a.point_dt * 1000)))
+        step = max(1, int(round(o.point_dt * 1000)))
         start = self.next_point_rel_ms
         grid = set(range(start - start % step + (step if start % step else 0), end_rel + 1, step))
         pts = sorted(grid.union(self.profile.breakpoints_ms(start, end_rel), [start] if start == 0 else []))
@@ -160,35 +153,36 @@ class Gcs:
         self.next_point_rel_ms = end_rel + 1
 
     def run(self) -> int:
-        a = self.args
+        o = self.opts
         perf = time.perf_counter
         t_start = perf()
         next_hb = t_start
         next_print = t_start
         next_sp = t_start
-        sp_period = 1.0 / a.setpoint_rate
+        sp_period = 1.0 / o.setpoint_rate
         print(f"gcs: listening on {fmt_endpoint(self.link.local)}; waiting for the vehicle's HEARTBEAT; profile "
-              f"{self.profile.kind} ({'scheduled on sim time' if a.lockstep else 'real time'})", file=self.out, flush=True)
+              f"{self.profile.kind} ({'scheduled on sim time' if o.lockstep else 'real time'})", file=self.out,
+              flush=True)
         while not self.stop_requested:
             for _ in self.sel.select(0.02):
                 self.link.poll(self._on_msg)
             now = perf()
             if not self.vehicle:
-                if a.wait_timeout and now - t_start > a.wait_timeout:
+                if o.wait_timeout and now - t_start > o.wait_timeout:
                     print(f"gcs: error: no vehicle HEARTBEAT on {fmt_endpoint(self.link.local)} after "
-                          f"{a.wait_timeout:g} s", file=sys.stderr, flush=True)
+                          f"{o.wait_timeout:g} s", file=sys.stderr, flush=True)
                     return 1
                 continue
             if self.powered_off:
                 print("gcs: vehicle powered off (run over)", file=self.out, flush=True)
                 return 0
-            if now - self.last_vehicle_rx > a.vehicle_timeout:
-                print(f"gcs: error: vehicle lost (nothing for {a.vehicle_timeout:g} s)", file=sys.stderr, flush=True)
+            if now - self.last_vehicle_rx > o.vehicle_timeout:
+                print(f"gcs: error: vehicle lost (nothing for {o.vehicle_timeout:g} s)", file=sys.stderr, flush=True)
                 return 1
             if now >= next_hb:
                 next_hb = now + 1.0
                 self._heartbeat()
-            if a.lockstep:
+            if o.lockstep:
                 self._schedule()
                 # Lockstep runs many frames per millisecond: read the telemetry in batches rather than waking
                 # for every datagram (the schedule is a second of sim time ahead, so this never stalls the run).
@@ -196,14 +190,14 @@ class Gcs:
             elif now >= next_sp and self.sim_ms is not None:
                 next_sp = max(next_sp + sp_period, now)
                 self._send_setpoint(0, self.profile.value((self.sim_ms - self.origin_ms) / 1000.0))
-            if not a.quiet and now >= next_print and self.sim_ms is not None:
-                next_print = now + 1.0 / a.print_rate
+            if not o.quiet and now >= next_print and self.sim_ms is not None:
+                next_print = now + 1.0 / o.print_rate
                 err = self.target - self.roll
                 print(f"gcs: t={self.sim_ms / 1000.0:9.3f} s  setpoint={math.degrees(self.target):+7.2f} deg  "
                       f"roll={math.degrees(self.roll):+7.2f} deg  error={math.degrees(err):+6.2f} deg", file=self.out,
                       flush=True)
-            if (a.duration > 0 and self.sim_ms is not None and self.origin_ms is not None
-                    and self.sim_ms - self.origin_ms >= a.duration * 1000 and not a.lockstep):
+            if (o.duration > 0 and self.sim_ms is not None and self.origin_ms is not None
+                    and self.sim_ms - self.origin_ms >= o.duration * 1000 and not o.lockstep):
                 print("gcs: profile done", file=self.out, flush=True)
                 return 0
         return 0
@@ -231,7 +225,8 @@ def build_parser() -> OneLineArgumentParser:
     p.add_argument("--lookahead", type=positive_float, default=1.0, metavar="S",
                    help="lockstep: schedule this far ahead of the newest sim time seen (default 1)")
     p.add_argument("--point-dt", type=positive_float, default=0.1, metavar="S",
-                   help="lockstep: one scheduled setpoint every S s of sim time besides the discontinuities (default 0.1)")
+                   help="lockstep: one scheduled setpoint every S s of sim time besides the discontinuities "
+                        "(default 0.1)")
     p.add_argument("--setpoint-rate", type=positive_float, default=20.0, metavar="HZ",
                    help="real time: setpoints per second (default 20)")
     p.add_argument("--print-rate", type=positive_float, default=2.0, metavar="HZ", help="live line rate (default 2)")
@@ -251,12 +246,13 @@ def main(argv=None) -> int:
     if args.csv and args.profile != "square":
         parser.error("give either a profile name or --csv, not both")
     try:
-        profile = Profile(args.profile, args.amplitude, args.period, args.step_time, args.csv)
+        profile = Profile.of(args.profile, amplitude_deg=args.amplitude, period=args.period, step_time=args.step_time,
+                             csv=args.csv)
     except (OSError, ValueError) as exc:
         parser.error(f"--csv: {exc}")
     apply_cpu(parser, args.cpu)
     try:
-        gcs = Gcs(args, profile)
+        gcs = Gcs(GcsOptions(**{f.name: getattr(args, f.name) for f in fields(GcsOptions)}), profile)
     except OSError as exc:
         print(f"gcs: error: cannot listen on {fmt_endpoint(args.listen)}: {exc.strerror or exc}", file=sys.stderr)
         return exit_code_for(exc)

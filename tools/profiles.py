@@ -1,12 +1,20 @@
-"""Roll command profiles, as functions of time in seconds returning radians.  No I/O except ``from_csv``."""
+"""Roll command profiles, as functions of time in seconds returning radians.  No I/O except ``from_csv``.
+
+``Profile`` is one profile as a value (kind and parameters, SI inside) with ``value(t)`` and its discontinuities;
+the plain functions below are what it evaluates.
+"""
 
 from __future__ import annotations
 
 import math
+from bisect import bisect_right
+from dataclasses import dataclass
+
+KINDS = ("square", "step", "sine", "csv")
 
 
 def square(t: float, amplitude: float, period: float) -> float:
-    """Square wave starting at +amplitude at t = 0, switching every half period (DESIGN.md section 4)."""
+    """Square wave starting at +amplitude at t = 0, switching every half period."""
     half = 0.5 * period
     # The 1e-9 guard makes switch instants computed as k / rate land on the new level.
     return amplitude if int(math.floor(t / half + 1e-9)) % 2 == 0 else -amplitude
@@ -55,7 +63,115 @@ def from_csv(path: str) -> tuple[list[float], list[float]]:
 
 def hold(t: float, times: list[float], values: list[float]) -> float:
     """Zero-order hold of a (times, values) table: the value of the last row at or before t (first row before)."""
-    from bisect import bisect_right
-
     i = bisect_right(times, t + 1e-9) - 1
     return values[max(i, 0)]
+
+
+class ProfileError(ValueError):
+    """A bad profile parameter; the message names the field and the value."""
+
+    def __init__(self, field: str, message: str):
+        super().__init__(message)
+        self.field = field
+
+
+@dataclass(frozen=True)
+class Profile:
+    """A roll command profile: ``value(t)`` in rad at time ``t`` in s from the profile's start.
+
+    ``amplitude`` in rad (square, step, sine), ``period`` in s (square, sine), ``step_time`` in s (step),
+    ``times`` in s and ``values`` in rad (csv: each value held until the next time).
+    """
+
+    kind: str = "square"
+    amplitude: float = math.radians(10.0)
+    period: float = 10.0
+    step_time: float = 1.0
+    times: tuple[float, ...] = ()
+    values: tuple[float, ...] = ()
+
+    def __post_init__(self) -> None:
+        if self.kind not in KINDS:
+            raise ProfileError("kind", f"kind must be one of {', '.join(KINDS)}, got {self.kind!r}")
+        if not math.isfinite(self.amplitude):
+            raise ProfileError("amplitude", f"amplitude must be finite, got {self.amplitude!r}")
+        if not (math.isfinite(self.period) and self.period > 0):
+            raise ProfileError("period", f"period must be positive and finite, got {self.period!r}")
+        if not (math.isfinite(self.step_time) and self.step_time >= 0):
+            raise ProfileError("step_time", f"step_time must be finite and >= 0, got {self.step_time!r}")
+        object.__setattr__(self, "times", tuple(self.times))
+        object.__setattr__(self, "values", tuple(self.values))
+        if self.kind == "csv":
+            self._check_table()
+
+    def _check_table(self) -> None:
+        if not self.times or len(self.times) != len(self.values):
+            raise ProfileError("times", f"times and values must be non-empty and of one length, got "
+                                        f"{len(self.times)} and {len(self.values)}")
+        for name in ("times", "values"):
+            bad = [v for v in getattr(self, name) if not math.isfinite(v)]
+            if bad:
+                raise ProfileError(name, f"{name} must be finite, got {bad[0]!r}")
+        for a, b in zip(self.times, self.times[1:]):
+            if b <= a:
+                raise ProfileError("times", f"times must increase, got {b!r} after {a!r}")
+
+    @classmethod
+    def square(cls, amplitude_deg: float = 10.0, period: float = 10.0) -> Profile:
+        """+amplitude from t = 0, switching every half period."""
+        return cls("square", math.radians(amplitude_deg), period)
+
+    @classmethod
+    def step(cls, amplitude_deg: float = 10.0, step_time: float = 1.0) -> Profile:
+        """0 before ``step_time``, amplitude from it on."""
+        return cls("step", math.radians(amplitude_deg), step_time=step_time)
+
+    @classmethod
+    def sine(cls, amplitude_deg: float = 10.0, period: float = 10.0) -> Profile:
+        return cls("sine", math.radians(amplitude_deg), period)
+
+    @classmethod
+    def from_csv(cls, path: str) -> Profile:
+        """The breakpoints of a ``time_s, roll_deg`` CSV file, held; OSError if it cannot be read."""
+        try:
+            times, values = from_csv(path)
+        except ValueError as exc:
+            raise ProfileError("csv", str(exc)) from None
+        return cls("csv", times=tuple(times), values=tuple(values))
+
+    @classmethod
+    def of(cls, kind: str = "square", *, amplitude_deg: float = 10.0, period: float = 10.0, step_time: float = 1.0,
+           csv: str | None = None) -> Profile:
+        """The profile a command line names: ``kind`` with its parameters, or the CSV file ``csv``."""
+        if csv:
+            return cls.from_csv(csv)
+        return cls(kind, math.radians(amplitude_deg), period, step_time)
+
+    def value(self, t: float) -> float:
+        """The roll command in rad at ``t`` s."""
+        k = self.kind
+        if k == "square":
+            return square(t, self.amplitude, self.period)
+        if k == "step":
+            return step(t, self.amplitude, self.step_time)
+        if k == "sine":
+            return sine(t, self.amplitude, self.period)
+        return hold(t, self.times, self.values)
+
+    def breakpoints_ms(self, a_ms: int, b_ms: int) -> list[int]:
+        """Discontinuity instants (whole ms from the start) in [a_ms, b_ms]."""
+        k = self.kind
+        if k == "square":
+            half = self.period * 500.0
+            j = math.ceil(a_ms / half - 1e-9)
+            out = []
+            while j * half <= b_ms + 1e-9:
+                out.append(int(round(j * half)))
+                j += 1
+            return out
+        if k == "step":
+            s = int(round(self.step_time * 1000))
+            return [s] if a_ms <= s <= b_ms else []
+        if k == "csv":
+            return [int(round(t * 1000)) for t in self.times if a_ms <= round(t * 1000) <= b_ms]
+        return []

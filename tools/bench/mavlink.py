@@ -39,15 +39,16 @@ import tempfile
 from pathlib import Path
 
 from tools.bench import figure, load_warning, machine_load, print_table
-from tools.launch import LaunchConfig, launch
+from tools.flight import Flight
 
 QUICK_ARGV = ["--quick"]
 
 
 def _fly(tmp: Path, name: str, **kw) -> dict:
-    res = launch(LaunchConfig(out=str(tmp / name), echo=False, **kw))
+    """summary.json of one flight; series off, as the figures are measured without them."""
+    res = Flight(out=tmp / name, quiet=True, series=False, **kw).run()
     if not res.ok:
-        raise RuntimeError(f"{name}: {res.error} (see {res.out_dir})")
+        raise RuntimeError(f"{name}: {res.reason} (see {res.out})")
     return res.summary
 
 

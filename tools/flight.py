@@ -1,0 +1,692 @@
+"""``Flight``: one flight of SITL + autopilot + GCS script as real processes over loopback UDP.
+
+The programmatic form of ``python -m tools.launch``; its keywords are the launcher's long flags (``rrd=False`` for
+``--no-rrd``, ``series=False`` for ``--no-series``, ``profile="sine"`` for the positional profile), with the same
+defaults and units (degrees and Hz as on the flags)::
+
+    from tools.flight import Flight
+
+    result = Flight(lockstep=True, duration=5, controller="sac", out="runs/x").run()
+    result.ok, result.metrics["ise_ref"], result.series["phi"]
+
+    with Flight(lockstep=True, duration=600, out="runs/y") as flight:   # starts the three processes
+        flight.wait(timeout=2.0)                                          # fly 2 s of wall clock, then leave
+    flight.result.reason                                                  # "stopped by the caller after ..."
+
+Every flight, however it ends, leaves in its folder ``flight.tlog`` (every packet the autopilot sent and received),
+``summary.json`` (one run with the metrics of what flew, plus counters, timing, events and exit codes),
+``<process>.log`` for each child, ``flight.rrd`` (``rrd``) and ``autopilot_series.npz``/``sitl_series.npz``
+(``series``).  A bad keyword value raises ``FlightConfigError`` at construction, an unknown keyword TypeError.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import os
+import signal
+import socket
+import subprocess
+import sys
+import threading
+import time
+from dataclasses import dataclass, field, fields
+from functools import cached_property
+from pathlib import Path
+
+from autopilot.metrics import METRIC_NAMES
+from autopilot.shared import cli
+from autopilot.shared.process import (
+    EXIT_ADDRESS_IN_USE,
+    EXIT_FAILED,
+    EXIT_INTERRUPTED,
+    EXIT_OK,
+    rt_throttling,
+    write_json_atomic,
+)
+from tools.profiles import Profile, ProfileError
+
+PROCESSES = ("sitl", "gcs", "autopilot")
+CONTROLLERS = ("sac", "clsac")
+PROFILES = ("square", "step", "sine")
+RUDDER_MAX_DEG = 30.0  # the servo calibration's full deflection (SITL and autopilot default)
+STOP_GRACE_S = 5.0  # after SIGINT, how long the children get to write their files before they are killed
+
+
+class FlightConfigError(ValueError):
+    """A bad Flight keyword value; the one-line message starts with the keyword's name and gives the value."""
+
+    def __init__(self, field_name: str, message: str):
+        super().__init__(message)
+        self.field = field_name
+
+
+def _checked(name: str, check, value):
+    """``value`` through one of the command line's argument types, a FlightConfigError naming ``name`` if bad."""
+    try:
+        return check(value)
+    except TypeError:
+        raise FlightConfigError(name, f"{name}: expected a number, got {value!r}") from None
+    except (ValueError, argparse.ArgumentTypeError) as exc:
+        raise FlightConfigError(name, f"{name}: {exc}") from None
+
+
+def _require(ok: bool, name: str, message: str) -> None:
+    if not ok:
+        raise FlightConfigError(name, message)
+
+
+@dataclass(frozen=True, kw_only=True)
+class FlightConfig:
+    """The keywords of ``Flight``, validated: the long flags of ``python -m tools.launch``."""
+
+    lockstep: bool = False  # SITL as time master, as fast as the machine allows (default: real time)
+    duration: float = 30.0  # sim s
+    controller: str = "clsac"  # one of CONTROLLERS
+    lv: float | None = None  # default 0 for sac, 20 for clsac
+    pfc: str = "paper"  # a key of autopilot.config.PFC_PRESETS
+    sigma_xu: float = 0.0  # sigma-modification of K_Ix, K_Iu (0 = the paper)
+    rate: float = 100.0  # control rate, Hz
+    physics_rate: float | None = None  # Hz, a whole multiple of rate; default the smallest one >= 1 kHz
+    sensor_rate: float = 200.0  # real time ATTITUDE rate, Hz
+    telemetry_rate: float | None = None  # GCS stream, Hz; default 50 in real time, 10 of sim time in lockstep
+    out: str | os.PathLike | None = None  # run folder; default a new runs/<timestamp>-... folder
+    base_port: int | None = None  # SITL on it, GCS on the next; default free ports
+    start_time: float = 0.0  # initial sim clock, s
+    profile: str = "square"  # one of PROFILES
+    csv: str | None = None  # a profile from a CSV file of "time_s, roll_deg" rows instead
+    amplitude: float = 10.0  # deg
+    period: float = 10.0  # s
+    u_limit_deg: float = 30.0  # rudder command limit
+    timeout: float | None = None  # wall-clock limit of the whole flight, s; default from the duration
+    rt_priority: int = 0  # real time: SCHED_FIFO priority of the autopilot (SITL one below), 0 = normal
+    pin: bool = False  # the autopilot alone on CPU 1; the SITL and the GCS script on CPU 0
+    busy_wait: bool = False  # real time: the autopilot never sleeps between steps (one CPU at 100 %)
+    quiet: bool = False  # do not echo the children's output (it is still in DIR/<process>.log)
+    viewer: bool = False  # spawn a Rerun viewer (or reuse the one on port 9876) and stream to it live
+    connect: str | None = None  # stream live to a running Rerun viewer at this URL
+    rrd: bool = True  # Rerun telemetry of the autopilot and the SITL, merged into DIR/flight.rrd
+    series: bool = True  # per-step series in DIR/autopilot_series.npz and DIR/sitl_series.npz
+    name: str | None = None  # run name in summary.json; default the controller
+    command: Profile = field(init=False, repr=False, compare=False)  # the profile the GCS flies
+
+    def __post_init__(self) -> None:
+        from autopilot.config import PFC_PRESETS
+
+        def put(name, value):
+            object.__setattr__(self, name, value)
+
+        for name, check in (("duration", cli.positive_float), ("rate", cli.rate_hz),
+                            ("sensor_rate", cli.positive_float), ("sigma_xu", cli.nonneg_float),
+                            ("start_time", cli.nonneg_float), ("amplitude", cli.finite_float),
+                            ("period", cli.positive_float), ("u_limit_deg", cli.positive_float),
+                            ("rt_priority", cli.rt_priority_arg)):
+            put(name, _checked(name, check, getattr(self, name)))
+        for name, check in (("lv", cli.nonneg_float), ("physics_rate", cli.positive_float),
+                            ("telemetry_rate", cli.nonneg_float), ("timeout", cli.positive_float)):
+            if getattr(self, name) is not None:
+                put(name, _checked(name, check, getattr(self, name)))
+        _require(self.controller in CONTROLLERS, "controller",
+                 f"controller must be one of {', '.join(CONTROLLERS)}, got {self.controller!r}")
+        _require(self.pfc in PFC_PRESETS, "pfc", f"pfc must be one of {', '.join(PFC_PRESETS)}, got {self.pfc!r}")
+        _require(self.profile in PROFILES, "profile",
+                 f"profile must be one of {', '.join(PROFILES)}, got {self.profile!r}")
+        if self.physics_rate is None:
+            put("physics_rate", cli.default_physics_rate(self.rate))
+        ratio = self.physics_rate / self.rate
+        _require(abs(ratio - round(ratio)) <= 1e-9, "physics_rate",
+                 f"physics_rate ({self.physics_rate:g}) must be a whole multiple of the control rate ({self.rate:g})")
+        _require(self.base_port is None or (isinstance(self.base_port, int) and 1 <= self.base_port <= 65534),
+                 "base_port", f"base_port must be in 1..65534, got {self.base_port!r}")
+        _require(not (self.busy_wait and self.lockstep), "busy_wait",
+                 "busy_wait is for real time (lockstep already polls before sleeping)")
+        _require(not (self.busy_wait and self.rt_priority and rt_throttling()), "busy_wait",
+                 f"busy_wait with a real-time priority: a SCHED_FIFO thread that never sleeps is stopped by the "
+                 f"kernel's real-time throttling ({rt_throttling()}); use one or the other")
+        try:
+            command = Profile.of(self.profile, amplitude_deg=self.amplitude, period=self.period)
+        except ProfileError as exc:
+            raise FlightConfigError(exc.field, str(exc)) from None
+        if self.csv is not None:
+            _require(self.profile == "square", "csv", f"csv: give either a profile or csv, not both "
+                                                      f"(profile {self.profile!r}, csv {self.csv!r})")
+            _require(os.path.isfile(self.csv), "csv", f"csv: no such file {self.csv!r}")
+            try:
+                command = Profile.from_csv(self.csv)
+            except (OSError, ProfileError) as exc:
+                raise FlightConfigError("csv", f"csv: {exc}") from None
+        put("command", command)
+
+    @property
+    def lv_value(self) -> float:
+        """Lv flown: the given one, else 0 for sac and 20 for clsac."""
+        return self.lv if self.lv is not None else (0.0 if self.controller == "sac" else 20.0)
+
+    @property
+    def gcs_telemetry_rate(self) -> float:
+        """In lockstep the GCS stream only serves the ground station (the tlog has every frame's ATTITUDE and
+        SERVO_OUTPUT_RAW anyway) and 10 Hz of sim time is still hundreds of messages per wall second."""
+        if self.telemetry_rate is not None:
+            return self.telemetry_rate
+        return 10.0 if self.lockstep else 50.0
+
+    @property
+    def wall_timeout(self) -> float:
+        return self.timeout or ((60.0 + self.duration * 0.5) if self.lockstep else (self.duration + 30.0))
+
+    @property
+    def scenario(self) -> str:
+        """"paper" for the reference scenario's set-up, else "custom"."""
+        paper = (self.profile == "square" and not self.csv and self.amplitude == 10.0 and self.period == 10.0
+                 and self.duration == 30.0 and self.rate == 100.0 and self.physics_rate == 1000.0
+                 and self.u_limit_deg == 30.0)
+        return "paper" if paper else "custom"
+
+
+@dataclass(frozen=True)
+class FlightResult:
+    """How a flight ended and what it left; ``series`` is read from the run folder on first use."""
+
+    ok: bool
+    exit_code: int  # 0 ok, 1 a process failed, 130 interrupted or stopped by the caller
+    reason: str | None  # None when ok, else one line naming what failed
+    metrics: dict  # the five METRIC_NAMES of what flew (None if nothing flew)
+    out: Path
+    summary: dict  # what summary.json holds
+
+    @cached_property
+    def series(self) -> dict:
+        """The per-step series (``load_series``): arrays keyed like ``tools.scenario.SERIES``; {} if not recorded."""
+        return load_series(self.out)
+
+
+# ---------------------------------------------------------------------------------------- child processes
+class Child:
+    """A child process whose output goes to DIR/<name>.log (and, if echo, to the console with a prefix)."""
+
+    def __init__(self, name: str, argv: list[str], log_path: Path, echo: bool, ready_marker: str | None = None):
+        self.name = name
+        self.argv = argv
+        self.log_path = log_path
+        self.echo = echo
+        self.ready = threading.Event()
+        self.ready_marker = ready_marker
+        self.tail: list[str] = []
+        self._log = open(log_path, "w", buffering=1)
+        self._log.write("$ " + " ".join(argv) + "\n")
+        env = dict(os.environ, PYTHONUNBUFFERED="1", MAVLINK20="1")
+        self.proc = subprocess.Popen(argv, stdin=subprocess.DEVNULL, stdout=subprocess.PIPE, stderr=subprocess.STDOUT,
+                                     env=env, start_new_session=True, text=True, bufsize=1)
+        self.started = time.monotonic()
+        self._reader = threading.Thread(target=self._read, name=f"read-{name}", daemon=True)
+        self._reader.start()
+
+    def _read(self):
+        for line in self.proc.stdout:
+            self._log.write(line)
+            line = line.rstrip("\n")
+            self.tail.append(line)
+            if len(self.tail) > 40:
+                del self.tail[:20]
+            if self.ready_marker and self.ready_marker in line:
+                self.ready.set()
+            if self.echo:
+                sys.stdout.write(f"[{self.name}] {line}\n")
+                sys.stdout.flush()
+        self.ready.set()  # EOF: whoever waits for readiness must look at the exit code
+
+    @property
+    def code(self):
+        return self.proc.poll()
+
+    def interrupt(self):
+        if self.proc.poll() is None:
+            try:
+                self.proc.send_signal(signal.SIGINT)
+            except ProcessLookupError:
+                pass
+
+    def wait(self, timeout: float) -> int | None:
+        try:
+            return self.proc.wait(timeout=max(0.0, timeout))
+        except subprocess.TimeoutExpired:
+            return None
+
+    def kill(self):
+        if self.proc.poll() is None:
+            try:
+                self.proc.kill()
+            except ProcessLookupError:
+                pass
+            self.proc.wait()
+
+    def finish(self):
+        self._reader.join(timeout=5)
+        self._log.close()
+
+    def reason(self) -> str:
+        """The child's last error line, for the flight's reason."""
+        for line in reversed(self.tail):
+            if "error" in line.lower():
+                return line.strip()
+        return self.tail[-1].strip() if self.tail else "(no output)"
+
+
+def stop_children(children) -> None:
+    """SIGINT to each running child, up to STOP_GRACE_S for all of them to exit, then kill; close their logs."""
+    running = [c for c in children if c.code is None]
+    for c in running:
+        c.interrupt()
+    deadline = time.monotonic() + STOP_GRACE_S
+    for c in running:
+        if c.wait(deadline - time.monotonic()) is None:
+            c.kill()
+    for c in children:
+        c.finish()
+
+
+# ---------------------------------------------------------------------------------------- ports, folders, argv
+def free_udp_ports(n: int) -> list[int]:
+    socks = []
+    try:
+        for _ in range(n):
+            s = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+            s.bind(("127.0.0.1", 0))
+            socks.append(s)
+        return [s.getsockname()[1] for s in socks]
+    finally:
+        for s in socks:
+            s.close()
+
+
+def new_run_dir(base: str = "runs", tag: str = "") -> Path:
+    stamp = time.strftime("%Y%m%d-%H%M%S")
+    root = Path(base)
+    root.mkdir(parents=True, exist_ok=True)
+    for i in range(1000):
+        d = root / (f"{stamp}{tag}" + (f"-{i + 1}" if i else ""))
+        try:
+            d.mkdir()
+            return d
+        except FileExistsError:
+            continue
+    raise RuntimeError(f"cannot create a new run folder under {root}")
+
+
+def child_argvs(cfg: FlightConfig, out: Path, sitl_port: int, gcs_port: int,
+                telemetry: dict[str, list[str]] | None = None) -> dict[str, list[str]]:
+    """The command line of each process of the flight."""
+    py = [sys.executable, "-u", "-m"]
+    pwm = ["--rudder-max-deg", repr(max(RUDDER_MAX_DEG, cfg.u_limit_deg))]
+    sitl = py + ["sitl", "--listen", f"127.0.0.1:{sitl_port}", "--rate", repr(cfg.rate),
+                 "--physics-rate", repr(cfg.physics_rate), "--start-time", repr(cfg.start_time),
+                 "--stats-json", str(out / "sitl.json")] + pwm
+    ap = py + ["autopilot", "--sitl", f"127.0.0.1:{sitl_port}", "--gcs", f"127.0.0.1:{gcs_port}",
+               "--rate", repr(cfg.rate), "--controller", cfg.controller, "--lv", repr(cfg.lv_value),
+               "--pfc", cfg.pfc, "--sigma-xu", repr(cfg.sigma_xu), "--name", cfg.name or cfg.controller,
+               "--u-limit-deg", repr(cfg.u_limit_deg), "--duration", repr(cfg.duration),
+               "--telemetry-rate", repr(cfg.gcs_telemetry_rate),
+               "--tlog", str(out / "flight.tlog"), "--stats-json", str(out / "autopilot.json")] + pwm
+    # Lockstep: the GCS schedules the profile up to the end; real time: it flies until the autopilot powers off.
+    gcs = py + ["tools.gcs", "--listen", f"127.0.0.1:{gcs_port}",
+                "--duration", repr(cfg.duration if cfg.lockstep else 0),
+                "--amplitude", repr(cfg.amplitude), "--period", repr(cfg.period), "--stats-json", str(out / "gcs.json"),
+                "--start-time", repr(cfg.start_time)]
+    gcs += ["--csv", cfg.csv] if cfg.csv else [cfg.profile]
+    if cfg.series:
+        ap += ["--series", str(out / "autopilot_series.npz")]
+        sitl += ["--series", str(out / "sitl_series.npz")]
+    if cfg.lockstep:
+        sitl += ["--lockstep", "--duration", repr(cfg.duration)]
+        ap += ["--lockstep", "--lockstep-idle-exit", "5"]
+        gcs += ["--lockstep"]
+    else:
+        sitl += ["--sensor-rate", repr(cfg.sensor_rate)]
+        if cfg.rt_priority:
+            ap += ["--rt-priority", str(cfg.rt_priority)]
+            sitl += ["--rt-priority", str(max(1, cfg.rt_priority - 1))]
+        if cfg.busy_wait:
+            ap += ["--busy-wait"]
+    if cfg.pin and (os.cpu_count() or 1) >= 2:
+        # The autopilot gets CPU 1 to itself; the SITL and the GCS share CPU 0 (a GCS woken on the autopilot's
+        # CPU preempts it mid-frame: attitude-to-servo latency p99 0.13-0.65 ms -> 0.08-0.12 ms here).
+        sitl += ["--cpu", "0"]
+        gcs += ["--cpu", "0"]
+        ap += ["--cpu", "1"]
+    if telemetry:
+        for name, argv in (("sitl", sitl), ("autopilot", ap)):
+            argv += telemetry[name]
+    return {"sitl": sitl, "autopilot": ap, "gcs": gcs}
+
+
+def _telemetry_argvs(cfg: FlightConfig, out: Path) -> tuple[dict[str, list[str]] | None, dict[str, Path]]:
+    """One recording id for the flight; each process writes its own part file (merged at the end)."""
+    if not (cfg.rrd or cfg.viewer or cfg.connect):
+        return None, {}
+    from autopilot.shared import telemetry as tm
+
+    rid = tm.new_recording_id()
+    parts = tm.part_paths(out) if cfg.rrd else {}
+    for p in parts.values():
+        p.parent.mkdir(parents=True, exist_ok=True)
+        p.unlink(missing_ok=True)
+    url = cfg.connect or (tm.spawn_viewer() if cfg.viewer else None)  # one viewer for both processes
+    if url:  # the processes send data only; the layout that joins them comes from here
+        from tools.views import flight_blueprint
+
+        tm.send_blueprint(url, flight_blueprint(), rid)
+    argv = {}
+    for name in ("autopilot", "sitl"):
+        argv[name] = ["--recording-id", rid]
+        if name in parts:
+            argv[name] += ["--rrd", str(parts[name])]
+        if url:
+            argv[name] += ["--connect", url]
+    return argv, parts
+
+
+def _merge_telemetry(parts: dict[str, Path], out: Path) -> tuple[Path | None, str | None]:
+    """Merge the processes' part files into DIR/flight.rrd (whatever ended the flight); (path, error)."""
+    existing = [p for p in parts.values() if p.exists() and p.stat().st_size > 0]
+    if not existing:
+        return None, ("no telemetry was written" if parts else None)
+    from autopilot.shared import telemetry as tm
+    from tools.views import flight_blueprint
+
+    target = out / "flight.rrd"
+    try:
+        tm.merge_recordings(existing, target, blueprint=flight_blueprint(), remove_parts=True)
+    except Exception as exc:  # noqa: BLE001  (a flight's other files stay valid; say what went wrong)
+        return None, f"merging telemetry into {target} failed: {exc}"
+    try:
+        (out / ".parts").rmdir()
+    except OSError:
+        pass
+    return target, None
+
+
+# ---------------------------------------------------------------------------------------- summary
+def _load(path: Path):
+    try:
+        with open(path) as f:
+            return json.load(f)
+    except (OSError, ValueError):
+        return None
+
+
+def build_summary(cfg: FlightConfig, out: Path, stats: dict, exit_codes: dict, failed: str | None,
+                  error: str | None, exit_code: int, wall: float, rrd_path: Path | None) -> dict:
+    """summary.json of a flight from the processes' stats files (``stats``: process name -> dict or None)."""
+    ap, sitl, gcs = stats["autopilot"], stats["sitl"], stats["gcs"]
+    runs = []
+    if ap and ap.get("metric_samples"):
+        runs.append({"name": ap["name"], "Lv": ap["Lv"], "metrics": ap["metrics"], "steps": ap["steps"]})
+    return {
+        "scenario": cfg.scenario,
+        "runs": runs,
+        "transport": "mavlink",
+        "mode": "lockstep" if cfg.lockstep else "realtime",
+        "controller": cfg.controller,
+        "Lv": cfg.lv_value,
+        "pfc": cfg.pfc,
+        "sigma_xu": cfg.sigma_xu,
+        "duration_s": cfg.duration,
+        "rate_hz": cfg.rate,
+        "physics_rate_hz": cfg.physics_rate,
+        "start_time_s": cfg.start_time,
+        "profile": {"kind": "csv" if cfg.csv else cfg.profile, "amplitude_deg": cfg.amplitude, "period_s": cfg.period,
+                    "csv": cfg.csv},
+        "ok": exit_code == 0,
+        "exit_code": exit_code,
+        "failed": failed,
+        "error": error,
+        "exit_codes": exit_codes,
+        "wall_s": wall,
+        "rtf": sitl.get("rtf") if sitl else None,
+        "sim_time_s": sitl.get("sim_time_s") if sitl else None,
+        "timing": ap.get("timing") if ap else None,
+        "events": {"autopilot": ap.get("events") if ap else None, "sitl": sitl.get("events") if sitl else None},
+        "counters": {
+            "autopilot": ap.get("links") if ap else None,
+            "sitl": sitl.get("link") if sitl else None,
+            "gcs": gcs.get("link") if gcs else None,
+        },
+        "files": {
+            "tlog": str(out / "flight.tlog"),
+            "rrd": str(rrd_path) if rrd_path else None,
+            "summary": str(out / "summary.json"),
+            "logs": {n: str(out / f"{n}.log") for n in PROCESSES},
+            "stats": {n: str(out / f"{n}.json") for n in PROCESSES},
+        },
+    }
+
+
+def load_series(out_dir) -> dict:
+    """Merge DIR/autopilot_series.npz and DIR/sitl_series.npz into tools.scenario.SERIES-style arrays."""
+    import numpy as np
+
+    out_dir = Path(out_dir)
+    series: dict = {}
+    try:
+        with np.load(out_dir / "autopilot_series.npz") as a:
+            series = {k: a[k] for k in a.files}
+    except OSError:
+        return {}
+    if series.get("t") is not None and len(series["t"]):
+        series["t"] = series["t"] - series["t"][0]
+    try:
+        with np.load(out_dir / "sitl_series.npz") as s:
+            n = len(series.get("t", ()))
+            for key, src in (("v", "v"), ("delta_r", "delta_r")):
+                # SITL rows are the state after frame k, i.e. at t_{k+1}; the state at t_0 is the initial zero.
+                col = np.concatenate([[0.0], s[src]])[:n]
+                if len(col) == n:
+                    series[key] = col
+    except OSError:
+        pass
+    return series
+
+
+# ---------------------------------------------------------------------------------------- the flight
+class Flight:
+    """One flight: ``run()`` blocks and returns its ``FlightResult``; as a context manager, entering starts the
+    processes and leaving stops whatever still runs, after which ``result`` holds the ``FlightResult``.
+
+    ``start()``, ``wait(timeout)``, ``stop()`` and ``running`` are the pieces; ``interrupt()`` (safe from a signal
+    handler or another thread) ends the flight as interrupted at the next poll of ``wait``.
+    """
+
+    def __init__(self, **options):
+        known = {f.name for f in fields(FlightConfig) if f.init}
+        unknown = sorted(set(options) - known)
+        if unknown:
+            raise TypeError(f"Flight() got unknown keyword argument(s): {', '.join(unknown)}")
+        self.config = FlightConfig(**options)
+        self.out: Path | None = None  # the run folder, once started
+        self.result: FlightResult | None = None
+        self._children: dict[str, Child] = {}
+        self._parts: dict[str, Path] = {}
+        self._t0: float | None = None
+        self._interrupt = threading.Event()
+
+    @classmethod
+    def for_scenario(cls, scenario, run, out, **options) -> Flight:
+        """The lockstep flight of one ``tools.scenario`` RunSpec of a Scenario: quiet, with series, no flight.rrd
+        (an experiment logs its runs side by side from the series)."""
+        return cls(lockstep=True, duration=scenario.duration_s, controller="sac" if run.lv == 0 else "clsac",
+                   lv=run.lv, pfc=run.pfc or "paper", sigma_xu=run.sigma_xu or 0.0, name=run.name,
+                   rate=scenario.control_rate_hz, physics_rate=scenario.physics_rate_hz, profile="square",
+                   amplitude=math.degrees(scenario.amplitude_rad), period=scenario.period_s,
+                   u_limit_deg=math.degrees(scenario.u_limit_rad), out=out, quiet=True, series=True, rrd=False,
+                   **options)
+
+    @property
+    def running(self) -> bool:
+        """Started and not yet ended."""
+        return self._t0 is not None and self.result is None
+
+    @property
+    def pids(self) -> dict[str, int]:
+        """Process id of each child started (the last attempt's, if ports had to be tried again)."""
+        return {name: c.proc.pid for name, c in self._children.items()}
+
+    def __enter__(self) -> Flight:
+        return self.start()
+
+    def __exit__(self, exc_type, exc, tb) -> bool:
+        if self.result is None:
+            if exc_type is KeyboardInterrupt:
+                self._end(EXIT_INTERRUPTED, None, "interrupted (Ctrl-C)")
+            else:
+                self.stop()
+        return False
+
+    def run(self) -> FlightResult:
+        """Fly to the end (or until interrupted) and return the result."""
+        with self:
+            return self.wait()
+
+    def interrupt(self) -> None:
+        """Ask the flight to end as interrupted (exit code 130) at the next poll of ``wait``."""
+        self._interrupt.set()
+
+    def start(self) -> Flight:
+        """Start the SITL, the GCS script and the autopilot on free ports (or ``base_port``) and wait until the
+        first two listen; a process failing at start-up ends the flight (see ``result``)."""
+        if self._t0 is not None:
+            raise RuntimeError("this flight was already started; a Flight flies once")
+        cfg = self.config
+        self._t0 = time.monotonic()
+        self.out = Path(cfg.out) if cfg.out else new_run_dir("runs", f"-{'lockstep' if cfg.lockstep else 'rt'}-"
+                                                                     f"{cfg.controller}")
+        self.out.mkdir(parents=True, exist_ok=True)
+        for f in ("autopilot.json", "sitl.json", "gcs.json", "autopilot_series.npz", "sitl_series.npz"):
+            (self.out / f).unlink(missing_ok=True)
+        try:
+            telemetry, self._parts = _telemetry_argvs(cfg, self.out)
+            for attempt in range(3):
+                ports = (cfg.base_port, cfg.base_port + 1) if cfg.base_port is not None else free_udp_ports(2)
+                self._spawn(child_argvs(cfg, self.out, *ports, telemetry))
+                failed = self._await_listening()
+                if failed is None:
+                    break
+                if failed.code == EXIT_ADDRESS_IN_USE and cfg.base_port is None and attempt < 2:
+                    stop_children(self._children.values())  # a free port was taken in between: try others
+                    continue
+                self._end(EXIT_FAILED, failed.name,
+                          f"{failed.name} failed at start-up (exit code {failed.code}): {failed.reason()}")
+                break
+        except BaseException as exc:
+            interrupted = isinstance(exc, KeyboardInterrupt)
+            self._end(EXIT_INTERRUPTED if interrupted else EXIT_FAILED, None if interrupted else "flight",
+                      "interrupted (Ctrl-C)" if interrupted else f"start-up failed: {type(exc).__name__}: {exc}")
+            raise
+        return self
+
+    def _spawn(self, argvs: dict[str, list[str]]) -> None:
+        # All three start together (the autopilot announces itself until the SITL and the GCS answer).
+        echo = not self.config.quiet
+        self._children = {
+            "sitl": Child("sitl", argvs["sitl"], self.out / "sitl.log", echo, "listening on"),
+            "gcs": Child("gcs", argvs["gcs"], self.out / "gcs.log", echo, "listening on"),
+            "autopilot": Child("autopilot", argvs["autopilot"], self.out / "autopilot.log", echo),
+        }
+
+    def _await_listening(self) -> Child | None:
+        """Wait (up to 60 s each, or until interrupted) for the SITL and the GCS to listen; the one that exited
+        instead, if any."""
+        for c in (self._children["sitl"], self._children["gcs"]):
+            while not c.ready.wait(0.05) and not self._interrupt.is_set() and time.monotonic() - c.started <= 60:
+                pass
+            if c.code is not None:
+                return c
+        return None
+
+    def wait(self, timeout: float | None = None) -> FlightResult | None:
+        """Watch the flight until it ends (its result) or ``timeout`` wall seconds pass (None)."""
+        if self._t0 is None:
+            raise RuntimeError("the flight was not started: call start() or run()")
+        deadline = None if timeout is None else time.monotonic() + timeout
+        while self.result is None:
+            if self._interrupt.is_set():
+                self._end(EXIT_INTERRUPTED, None, "interrupted (Ctrl-C)")
+            elif not self._poll() and deadline is not None and time.monotonic() >= deadline:
+                return None
+        return self.result
+
+    def stop(self) -> FlightResult:
+        """End the flight now if it still runs (SIGINT to each process, killed after 5 s) and return its result:
+        not ok, exit code 130, reason "stopped by the caller after X s of Y s"."""
+        if self._t0 is None:
+            raise RuntimeError("the flight was not started: call start() or run()")
+        if self.result is None and not self._poll():  # it may have just ended by itself
+            self._end(EXIT_INTERRUPTED, None, None, stopped=True)
+        return self.result
+
+    def _poll(self) -> bool:
+        """One look at the processes (at most 50 ms); True if that ended the flight."""
+        ap = self._children["autopilot"]
+        code = ap.wait(0.05)
+        if code is not None:
+            if code != 0:
+                self._end(EXIT_FAILED, "autopilot", f"autopilot failed (exit code {code}): {ap.reason()}")
+            else:
+                self._land()
+            return True
+        for c in (self._children["sitl"], self._children["gcs"]):
+            if c.code not in (None, 0):
+                self._end(EXIT_FAILED, c.name, f"{c.name} failed (exit code {c.code}): {c.reason()}")
+                return True
+        limit = self.config.wall_timeout
+        if time.monotonic() - self._t0 > limit:
+            self._end(EXIT_FAILED, "flight", f"flight did not finish within {limit:.0f} s (wall clock)")
+            return True
+        return False
+
+    def _land(self) -> None:
+        """The autopilot ended the flight: the GCS sees it power off; the SITL ends by itself in lockstep."""
+        failed = error = None
+        if not self.config.lockstep:
+            self._children["sitl"].interrupt()
+        for name in ("gcs", "sitl"):
+            c = self._children[name]
+            code = c.wait(5.0)
+            if code is None:
+                c.interrupt()
+                code = c.wait(5.0)
+            if code not in (None, 0):
+                failed, error = name, f"{name} failed (exit code {code}): {c.reason()}"
+        self._end(EXIT_FAILED if failed else EXIT_OK, failed, error)
+
+    def _end(self, exit_code: int, failed: str | None, error: str | None, stopped: bool = False) -> None:
+        """Stop what still runs, merge the telemetry, write summary.json and set ``result``."""
+        cfg = self.config
+        stop_children(self._children.values())
+        rrd_path, rrd_error = _merge_telemetry(self._parts, self.out)
+        if rrd_error and exit_code == EXIT_OK:
+            exit_code, failed, error = EXIT_FAILED, "telemetry", rrd_error
+        stats = {n: _load(self.out / f"{n}.json") for n in PROCESSES}
+        if stopped:
+            flown = stats["autopilot"]["steps"] / cfg.rate if stats["autopilot"] else 0.0
+            error = f"stopped by the caller after {flown:g} s of {cfg.duration:g} s (sim time)"
+        summary = build_summary(cfg, self.out, stats, {n: c.code for n, c in self._children.items()}, failed, error,
+                                exit_code, time.monotonic() - self._t0, rrd_path)
+        write_json_atomic(self.out / "summary.json", summary)
+        runs = summary["runs"]
+        metrics = {k: runs[0]["metrics"].get(k) for k in METRIC_NAMES} if runs else dict.fromkeys(METRIC_NAMES)
+        self.result = FlightResult(exit_code == EXIT_OK, exit_code, error, metrics, self.out, summary)
+
+
+def run_lockstep(scenario, run, workdir):
+    """Fly one RunSpec of a Scenario in lockstep over real processes and UDP; metrics from what flew.
+
+    The ``mavlink`` transport of ``tools.experiment``: files go to ``workdir``; returns a
+    ``tools.scenario.RunResult`` whose series have the keys of ``tools.scenario.SERIES``, recorded by the
+    autopilot (controller side, ``u`` = the command that flew, after PWM) and the SITL (``v``, ``delta_r``)."""
+    from tools.scenario import RunResult
+
+    res = Flight.for_scenario(scenario, run, Path(workdir)).run()
+    if not res.ok or not res.summary["runs"]:
+        raise RuntimeError(f"mavlink run {run.name} failed: {res.reason} (see {res.out})")
+    return RunResult(run.name, run.lv, res.metrics, res.series)
