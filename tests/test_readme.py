@@ -5,6 +5,7 @@ from __future__ import annotations
 import re
 from pathlib import Path
 
+from tools.profiles import Profile
 from tools.scenario import RunSpec, Scenario, run_inprocess
 
 README = Path(__file__).resolve().parents[1] / "README.md"
@@ -34,5 +35,5 @@ def test_the_readme_loop_flies_the_paper_law(capsys):
     # After 3000 steps (30 s) the command has been -0.1745 rad for 5 s: the roll has settled on it.
     assert abs(ac.phi - (-0.1745)) < 0.005
     # The same law and aircraft stepped by tools.scenario: phi at step 3000 is the roll after the README's loop.
-    ref = run_inprocess(Scenario(amplitude_rad=0.1745, duration_s=30.01), RunSpec("clsac", 20.0))
+    ref = run_inprocess(Scenario(profile=Profile("square", 0.1745, 10.0), duration_s=30.01), RunSpec("clsac", 20.0))
     assert ac.phi == ref.series["phi"][-1]

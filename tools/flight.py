@@ -514,10 +514,14 @@ class Flight:
     def for_scenario(cls, scenario, run, out, **options) -> Flight:
         """The lockstep flight of one ``tools.scenario`` RunSpec of a Scenario: quiet, with series, no flight.rrd
         (an experiment logs its runs side by side from the series)."""
+        profile = scenario.profile
+        if profile.kind not in PROFILES or (profile.kind == "step" and profile.step_time != 1.0):
+            raise FlightConfigError("profile", f"profile: {profile!r} has no launcher flags (square, step at 1 s, "
+                                               "sine): fly it from a CSV file with csv=FILE")
         return cls(lockstep=True, duration=scenario.duration_s, controller="sac" if run.lv == 0 else "clsac",
                    lv=run.lv, pfc=run.pfc or "paper", sigma_xu=run.sigma_xu or 0.0, name=run.name,
-                   rate=scenario.control_rate_hz, physics_rate=scenario.physics_rate_hz, profile="square",
-                   amplitude=math.degrees(scenario.amplitude_rad), period=scenario.period_s,
+                   rate=scenario.control_rate_hz, physics_rate=scenario.physics_rate_hz, profile=profile.kind,
+                   amplitude=math.degrees(profile.amplitude), period=profile.period,
                    u_limit_deg=math.degrees(scenario.u_limit_rad), out=out, quiet=True, series=True, rrd=False,
                    **options)
 

@@ -12,23 +12,26 @@ from autopilot.shared.mavlink import quaternion_to_roll, roll_to_quaternion
 from autopilot.shared.pwm import PwmMap
 from autopilot.step import ControlStep, ProfileSetpoints
 from sitl.aircraft import Aircraft, AircraftConfig
-from tools import profiles
+from tools.profiles import Profile
 
 
 @dataclass(frozen=True)
 class Scenario:
-    """A square-wave roll scenario.  Defaults are the paper scenario (docs/design.md, "Reference scenario")."""
+    """A roll scenario: the command ``profile`` (any ``tools.profiles.Profile``: square, step, sine or CSV
+    breakpoints) flown for ``duration_s``.  Defaults are the paper scenario (docs/design.md, "Reference
+    scenario"): a +-10 deg square wave of period 10 s, +10 deg first, for 30 s."""
 
     name: str = "paper"
-    amplitude_rad: float = math.radians(10.0)
-    period_s: float = 10.0
+    profile: Profile = Profile.square(amplitude_deg=10.0, period=10.0)
     duration_s: float = 30.0
     control_rate_hz: float = 100.0
     physics_rate_hz: float = 1000.0
     u_limit_rad: float = math.radians(30.0)
 
     def __post_init__(self) -> None:
-        for name in ("period_s", "duration_s", "control_rate_hz", "physics_rate_hz", "u_limit_rad"):
+        if not isinstance(self.profile, Profile):
+            raise ValueError(f"profile must be a tools.profiles.Profile, got {self.profile!r}")
+        for name in ("duration_s", "control_rate_hz", "physics_rate_hz", "u_limit_rad"):
             v = getattr(self, name)
             if not (math.isfinite(v) and v > 0):
                 raise ValueError(f"{name} must be positive and finite, got {v!r}")
@@ -47,9 +50,17 @@ class Scenario:
     def physics_per_control(self) -> int:
         return int(round(self.physics_rate_hz / self.control_rate_hz))
 
+    @property
+    def amplitude_rad(self) -> float:
+        return self.profile.amplitude
+
+    @property
+    def period_s(self) -> float:
+        return self.profile.period
+
     def command(self, t: float) -> float:
         """u_m(t), the roll command in rad."""
-        return profiles.square(t, self.amplitude_rad, self.period_s)
+        return self.profile.value(t)
 
 
 @dataclass(frozen=True)
