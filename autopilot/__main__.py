@@ -11,66 +11,175 @@ from __future__ import annotations
 import math
 import sys
 
-from autopilot.shared.cli import add_cpu_argument, add_rt_priority_argument, endpoint, fmt_endpoint, nonneg_float, OneLineArgumentParser, positive_float, rate_hz
+from autopilot.shared.cli import (
+    OneLineArgumentParser,
+    add_cpu_argument,
+    add_pwm_arguments,
+    add_rt_priority_argument,
+    endpoint,
+    fmt_endpoint,
+    nonneg_float,
+    positive_float,
+    pwm_from_args,
+    rate_hz,
+)
 from autopilot.shared.mavlink import GCS_ID
-from autopilot.shared.process import exit_code_for, apply_cpu, apply_rt_priority, install_stop_handlers, move_other_threads, rt_throttling, write_json_atomic
-from autopilot.shared.cli import add_pwm_arguments, pwm_from_args
+from autopilot.shared.process import (
+    apply_cpu,
+    apply_rt_priority,
+    exit_code_for,
+    install_stop_handlers,
+    move_other_threads,
+    rt_throttling,
+    write_json_atomic,
+)
 from autopilot.shared.telemetry.flags import add_arguments as add_telemetry_arguments
 from autopilot.telemetry import attach as attach_telemetry
 
 
 def build_parser() -> OneLineArgumentParser:
     p = OneLineArgumentParser(prog="python -m autopilot", description=__doc__.split("\n\n")[0])
-    p.add_argument("--sitl", type=endpoint, default=("127.0.0.1", 14560), metavar="HOST:PORT",
-                   help="where the SITL listens (default 127.0.0.1:14560)")
-    p.add_argument("--sitl-bind", type=endpoint, default=("127.0.0.1", 0), metavar="HOST:PORT",
-                   help="local address of the SITL link (default 127.0.0.1:0, an ephemeral port)")
-    p.add_argument("--gcs", type=endpoint, default=("127.0.0.1", 14550), metavar="HOST:PORT",
-                   help="where the GCS stream goes until a GCS talks to us (default 127.0.0.1:14550)")
-    p.add_argument("--listen", "--gcs-bind", dest="gcs_bind", type=endpoint, default=("127.0.0.1", 0),
-                   metavar="HOST:PORT", help="local address of the GCS link (default 127.0.0.1:0, ephemeral)")
-    p.add_argument("--gcs-id", action="append", default=None, metavar="SYS:COMP",
-                   help=f"accepted GCS system:component (repeatable; default {GCS_ID[0]}:{GCS_ID[1]})")
+    p.add_argument(
+        "--sitl",
+        type=endpoint,
+        default=("127.0.0.1", 14560),
+        metavar="HOST:PORT",
+        help="where the SITL listens (default 127.0.0.1:14560)",
+    )
+    p.add_argument(
+        "--sitl-bind",
+        type=endpoint,
+        default=("127.0.0.1", 0),
+        metavar="HOST:PORT",
+        help="local address of the SITL link (default 127.0.0.1:0, an ephemeral port)",
+    )
+    p.add_argument(
+        "--gcs",
+        type=endpoint,
+        default=("127.0.0.1", 14550),
+        metavar="HOST:PORT",
+        help="where the GCS stream goes until a GCS talks to us (default 127.0.0.1:14550)",
+    )
+    p.add_argument(
+        "--listen",
+        "--gcs-bind",
+        dest="gcs_bind",
+        type=endpoint,
+        default=("127.0.0.1", 0),
+        metavar="HOST:PORT",
+        help="local address of the GCS link (default 127.0.0.1:0, ephemeral)",
+    )
+    p.add_argument(
+        "--gcs-id",
+        action="append",
+        default=None,
+        metavar="SYS:COMP",
+        help=f"accepted GCS system:component (repeatable; default {GCS_ID[0]}:{GCS_ID[1]})",
+    )
     p.add_argument("--lockstep", action="store_true", help="one control step per SITL frame (default: real time)")
-    p.add_argument("--no-pace", dest="pace", action="store_false",
-                   help="lockstep: do not wait for GCS setpoints scheduled up to each frame's time")
+    p.add_argument(
+        "--no-pace",
+        dest="pace",
+        action="store_false",
+        help="lockstep: do not wait for GCS setpoints scheduled up to each frame's time",
+    )
     p.add_argument("--rate", type=rate_hz, default=100.0, metavar="HZ", help="control rate (default 100)")
-    p.add_argument("--controller", choices=("sac", "clsac"), default="clsac",
-                   help="sac (Lv = 0) or clsac (Lv = 20, the paper's), default clsac")
+    p.add_argument(
+        "--controller",
+        choices=("sac", "clsac"),
+        default="clsac",
+        help="sac (Lv = 0) or clsac (Lv = 20, the paper's), default clsac",
+    )
     p.add_argument("--lv", type=nonneg_float, default=None, help="override the closed-loop reference gain Lv")
-    p.add_argument("--pfc", choices=("paper", "robust"), default="paper",
-                   help="parallel feedforward compensator: paper = 10/(4s+40) (default), robust = 10/(s+10)")
-    p.add_argument("--sigma-xu", type=nonneg_float, default=0.0, metavar="SIGMA",
-                   help="sigma-modification of K_Ix and K_Iu (default 0, the paper; 0.1 keeps long flights bounded)")
+    p.add_argument(
+        "--pfc",
+        choices=("paper", "robust"),
+        default="paper",
+        help="parallel feedforward compensator: paper = 10/(4s+40) (default), robust = 10/(s+10)",
+    )
+    p.add_argument(
+        "--sigma-xu",
+        type=nonneg_float,
+        default=0.0,
+        metavar="SIGMA",
+        help="sigma-modification of K_Ix and K_Iu (default 0, the paper; 0.1 keeps long flights bounded)",
+    )
     p.add_argument("--name", default=None, help="run name in the stats (default: the controller)")
     p.add_argument("--u-limit-deg", type=positive_float, default=30.0, help="rudder command limit (default 30)")
-    p.add_argument("--duration", type=nonneg_float, default=0.0, metavar="S",
-                   help="stop after S s (lockstep: sim time from the first frame; real time: of control); 0 = run until stopped")
-    p.add_argument("--telemetry-rate", type=nonneg_float, default=50.0, metavar="HZ",
-                   help="ATTITUDE/ATTITUDE_TARGET/SERVO_OUTPUT_RAW to the GCS, per control steps (default 50, 0 = off)")
-    p.add_argument("--attitude-timeout", type=positive_float, default=0.1, metavar="S",
-                   help="real time: failsafe after S s without attitude (default 0.1)")
-    p.add_argument("--setpoint-timeout", type=positive_float, default=1.0, metavar="S",
-                   help="real time: wings level after S s without setpoint (default 1.0)")
+    p.add_argument(
+        "--duration",
+        type=nonneg_float,
+        default=0.0,
+        metavar="S",
+        help="stop after S s (lockstep: sim time from the first frame; real time: of control); 0 = run until stopped",
+    )
+    p.add_argument(
+        "--telemetry-rate",
+        type=nonneg_float,
+        default=50.0,
+        metavar="HZ",
+        help="ATTITUDE/ATTITUDE_TARGET/SERVO_OUTPUT_RAW to the GCS, per control steps (default 50, 0 = off)",
+    )
+    p.add_argument(
+        "--attitude-timeout",
+        type=positive_float,
+        default=0.1,
+        metavar="S",
+        help="real time: failsafe after S s without attitude (default 0.1)",
+    )
+    p.add_argument(
+        "--setpoint-timeout",
+        type=positive_float,
+        default=1.0,
+        metavar="S",
+        help="real time: wings level after S s without setpoint (default 1.0)",
+    )
     p.add_argument("--max-roll-deg", type=positive_float, default=45.0, help="setpoint clamp (default 45)")
-    p.add_argument("--spin-us", type=nonneg_float, default=300.0,
-                   help="real time: busy-wait this long before each deadline for precise timing (default 300)")
+    p.add_argument(
+        "--spin-us",
+        type=nonneg_float,
+        default=300.0,
+        help="real time: busy-wait this long before each deadline for precise timing (default 300)",
+    )
     # On a VM a sleeping (halted) vCPU can take milliseconds to be run again; a loop that never sleeps
     # keeps its timing (README, Benchmarks: p99 lateness of a bare deadline loop 1.8-3.7 ms -> 0.01 ms).
-    p.add_argument("--busy-wait", action="store_true",
-                   help="real time: never sleep between steps, poll the links until each deadline "
-                        "(one CPU at 100 %%; use with --cpu; not with --rt-priority, see README)")
+    p.add_argument(
+        "--busy-wait",
+        action="store_true",
+        help="real time: never sleep between steps, poll the links until each deadline "
+        "(one CPU at 100 %%; use with --cpu; not with --rt-priority, see README)",
+    )
     # Waking a sleeping process costs ~70 us a frame on a VM; the SITL answers within ~100 us, so polling
     # briefly first raised the lockstep real-time factor from ~45x to ~70x (100 Hz) and ~13x to ~16x (400 Hz).
-    p.add_argument("--lockstep-spin-us", type=nonneg_float, default=500.0, metavar="US",
-                   help="lockstep: busy-poll this long for the next frame before sleeping (default 500)")
-    p.add_argument("--lockstep-idle-exit", type=nonneg_float, default=0.0, metavar="S",
-                   help="lockstep: exit if the SITL is silent for S s after the last frame (default 0 = never)")
+    p.add_argument(
+        "--lockstep-spin-us",
+        type=nonneg_float,
+        default=500.0,
+        metavar="US",
+        help="lockstep: busy-poll this long for the next frame before sleeping (default 500)",
+    )
+    p.add_argument(
+        "--lockstep-idle-exit",
+        type=nonneg_float,
+        default=0.0,
+        metavar="S",
+        help="lockstep: exit if the SITL is silent for S s after the last frame (default 0 = never)",
+    )
     p.add_argument("--tlog", default=None, metavar="PATH", help="write every packet sent and received to this .tlog")
-    p.add_argument("--stats-json", "--metrics-json", dest="stats_json", default=None, metavar="PATH",
-                   help="write metrics, counters and timing to this JSON file at exit")
-    p.add_argument("--series", default=None, metavar="PATH.npz",
-                   help="record every control step (setpoint, roll, command, controller internals) to this .npz at exit")
+    p.add_argument(
+        "--stats-json",
+        "--metrics-json",
+        dest="stats_json",
+        default=None,
+        metavar="PATH",
+        help="write metrics, counters and timing to this JSON file at exit",
+    )
+    p.add_argument(
+        "--series",
+        default=None,
+        metavar="PATH.npz",
+        help="record every control step (setpoint, roll, command, controller internals) to this .npz at exit",
+    )
     p.add_argument("--quiet", action="store_true", help="only the start line and the counters")
     add_telemetry_arguments(p)
     add_pwm_arguments(p)
@@ -103,9 +212,11 @@ def main(argv=None) -> int:
         if args.lockstep:
             parser.error("--busy-wait is for real time (lockstep polls for --lockstep-spin-us before sleeping)")
         if args.rt_priority and rt_throttling():
-            parser.error(f"--busy-wait with --rt-priority {args.rt_priority}: a SCHED_FIFO thread that never sleeps "
-                         f"is stopped by the kernel's real-time throttling ({rt_throttling()}) for tens of ms "
-                         f"each second; use one or the other")
+            parser.error(
+                f"--busy-wait with --rt-priority {args.rt_priority}: a SCHED_FIFO thread that never sleeps "
+                f"is stopped by the kernel's real-time throttling ({rt_throttling()}) for tens of ms "
+                f"each second; use one or the other"
+            )
     apply_cpu(parser, args.cpu)
     from autopilot.config import ClSacConfig, ConfigError
     from autopilot.loop import Autopilot, AutopilotOptions, series_recorder
@@ -113,18 +224,34 @@ def main(argv=None) -> int:
 
     lv = args.lv if args.lv is not None else (0.0 if args.controller == "sac" else 20.0)
     try:
-        cfg = ClSacConfig(control_rate_hz=args.rate, lv=lv, u_limit_rad=math.radians(args.u_limit_deg),
-                          sigma_x=args.sigma_xu, sigma_u=args.sigma_xu).with_pfc(args.pfc)
+        cfg = ClSacConfig(
+            control_rate_hz=args.rate,
+            lv=lv,
+            u_limit_rad=math.radians(args.u_limit_deg),
+            sigma_x=args.sigma_xu,
+            sigma_u=args.sigma_xu,
+        ).with_pfc(args.pfc)
     except ConfigError as exc:
         parser.error(str(exc))
     opts = AutopilotOptions(
-        rate_hz=args.rate, lockstep=args.lockstep, duration_s=args.duration, telemetry_rate_hz=args.telemetry_rate,
-        attitude_timeout_s=args.attitude_timeout, setpoint_timeout_s=args.setpoint_timeout,
-        max_roll_rad=math.radians(args.max_roll_deg), pace=args.pace, spin_s=math.inf if args.busy_wait else args.spin_us * 1e-6,
-        sitl=args.sitl, sitl_bind=args.sitl_bind, gcs=args.gcs, gcs_bind=args.gcs_bind,
-        gcs_ids=_gcs_ids(parser, args.gcs_id), lockstep_idle_exit_s=args.lockstep_idle_exit,
+        rate_hz=args.rate,
+        lockstep=args.lockstep,
+        duration_s=args.duration,
+        telemetry_rate_hz=args.telemetry_rate,
+        attitude_timeout_s=args.attitude_timeout,
+        setpoint_timeout_s=args.setpoint_timeout,
+        max_roll_rad=math.radians(args.max_roll_deg),
+        pace=args.pace,
+        spin_s=math.inf if args.busy_wait else args.spin_us * 1e-6,
+        sitl=args.sitl,
+        sitl_bind=args.sitl_bind,
+        gcs=args.gcs,
+        gcs_bind=args.gcs_bind,
+        gcs_ids=_gcs_ids(parser, args.gcs_id),
+        lockstep_idle_exit_s=args.lockstep_idle_exit,
         lockstep_spin_s=args.lockstep_spin_us * 1e-6,
-        name=args.name or args.controller, verbose=not args.quiet,
+        name=args.name or args.controller,
+        verbose=not args.quiet,
     )
     tlog = None
     try:
@@ -152,8 +279,11 @@ def main(argv=None) -> int:
 
     install_stop_handlers(stop)
     mode = "lockstep" if args.lockstep else "real time"
-    print(f"autopilot: {opts.name} (Lv={lv:g}) {mode} at {args.rate:g} Hz; SITL link {fmt_endpoint(ap.sitl.local)} -> "
-          f"{fmt_endpoint(args.sitl)}; GCS link {fmt_endpoint(ap.gcs.local)} -> {fmt_endpoint(args.gcs)}{rt_note}", flush=True)
+    print(
+        f"autopilot: {opts.name} (Lv={lv:g}) {mode} at {args.rate:g} Hz; SITL link {fmt_endpoint(ap.sitl.local)} -> "
+        f"{fmt_endpoint(args.sitl)}; GCS link {fmt_endpoint(ap.gcs.local)} -> {fmt_endpoint(args.gcs)}{rt_note}",
+        flush=True,
+    )
     code = 0
     try:
         code = ap.run()
@@ -185,11 +315,17 @@ def _print_summary(stats: dict) -> None:
         return "-" if not d else f"p50 {d['p50']:.3f} p99 {d['p99']:.3f} max {d['max']:.3f} ms"
 
     ev = {k: v for k, v in stats["events"].items() if v not in (0, [], None)}
-    print(f"autopilot: {stats['steps']} steps ({stats['exit_reason']}); metrics "
-          + ", ".join(f"{k}={v:.6g}" for k, v in stats["metrics"].items()), flush=True)
-    print(f"autopilot: timing: jitter {f(t['period_jitter_ms'])}; compute {f(t['compute_ms'])}; "
-          f"{'in-to-out latency' if lockstep else 'attitude age at servo out'} {f(t['latency_ms'])}; "
-          f"missed deadlines {t['missed_deadlines']}", flush=True)
+    print(
+        f"autopilot: {stats['steps']} steps ({stats['exit_reason']}); metrics "
+        + ", ".join(f"{k}={v:.6g}" for k, v in stats["metrics"].items()),
+        flush=True,
+    )
+    print(
+        f"autopilot: timing: jitter {f(t['period_jitter_ms'])}; compute {f(t['compute_ms'])}; "
+        f"{'in-to-out latency' if lockstep else 'attitude age at servo out'} {f(t['latency_ms'])}; "
+        f"missed deadlines {t['missed_deadlines']}",
+        flush=True,
+    )
     print(f"autopilot: events: {ev}", flush=True)
     for name, c in stats["links"].items():
         print(format_counters(f"autopilot {name} link", c), flush=True)

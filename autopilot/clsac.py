@@ -42,12 +42,30 @@ from __future__ import annotations
 import math
 
 import numpy as np
+
 from autopilot.config import ClSacConfig, NonFiniteInputError
 from autopilot.shared.numerics import zoh
 
 TELEMETRY_FIELDS = (
-    "um", "y", "ym", "ym_ol", "ya", "y_pfc", "e", "u_raw", "u", "saturated",
-    "kpe", "kie", "ke", "kpx", "kix", "kx", "kpu", "kiu", "ku",
+    "um",
+    "y",
+    "ym",
+    "ym_ol",
+    "ya",
+    "y_pfc",
+    "e",
+    "u_raw",
+    "u",
+    "saturated",
+    "kpe",
+    "kie",
+    "ke",
+    "kpx",
+    "kix",
+    "kx",
+    "kpu",
+    "kiu",
+    "ku",
 )
 
 
@@ -70,7 +88,7 @@ def pfc_state_space(num, den) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     b = np.zeros((n, 1))
     b[0, 0] = 1.0
     c = np.zeros((1, n))
-    c[0, n - num.size:] = num / den[0]
+    c[0, n - num.size :] = num / den[0]
     return a, b, c
 
 
@@ -109,9 +127,12 @@ class ClSac:
             return g[0, 0] * np.eye(n) if g.shape == (1, 1) else g
 
         self._G = {
-            "pe": gam(cfg.gamma_pe, m), "ie": gam(cfg.gamma_ie, m),
-            "px": gam(cfg.gamma_px, n_m), "ix": gam(cfg.gamma_ix, n_m),
-            "pu": gam(cfg.gamma_pu, m_m), "iu": gam(cfg.gamma_iu, m_m),
+            "pe": gam(cfg.gamma_pe, m),
+            "ie": gam(cfg.gamma_ie, m),
+            "px": gam(cfg.gamma_px, n_m),
+            "ix": gam(cfg.gamma_ix, n_m),
+            "pu": gam(cfg.gamma_pu, m_m),
+            "iu": gam(cfg.gamma_iu, m_m),
         }
         # Reference models (paper eq. (18); open loop eq. (3)): inputs [u_m, y_a] held over T.
         self._am, self._bm, self._cm, self._lv = am, bm, cm, lv
@@ -125,6 +146,7 @@ class ClSac:
         self._nd = ad.shape[0]
         self._phi_d, self._gam_d = zoh(ad, bd, T)
         self._cd = cd
+
         # sigma-modification: K_Ie' = e e^T G_Ie - sigma K_Ie, exact for held e.
         def leak(sig: float) -> tuple[float, float]:
             decay = math.exp(-sig * T)
@@ -145,13 +167,22 @@ class ClSac:
         if self._fast:
             # Scalar coefficients for the SISO roll loop (same equations, Python floats: ~3 us a step).
             self._s = dict(
-                phi_m=float(self._phi_m[0, 0]), g_mu=float(self._gam_mu[0, 0]), g_my=float(self._gam_my[0, 0]),
-                phi_ol=float(self._phi_ol[0, 0]), g_ol=float(self._gam_ol[0, 0]),
-                cm=float(cm[0, 0]), bm=float(bm[0, 0]),
-                phi_d=float(self._phi_d[0, 0]), g_d=float(self._gam_d[0, 0]), cd=float(cd[0, 0]),
-                gpe=float(self._G["pe"][0, 0]), gie=float(self._G["ie"][0, 0]),
-                gpx=float(self._G["px"][0, 0]), gix=float(self._G["ix"][0, 0]),
-                gpu=float(self._G["pu"][0, 0]), giu=float(self._G["iu"][0, 0]),
+                phi_m=float(self._phi_m[0, 0]),
+                g_mu=float(self._gam_mu[0, 0]),
+                g_my=float(self._gam_my[0, 0]),
+                phi_ol=float(self._phi_ol[0, 0]),
+                g_ol=float(self._gam_ol[0, 0]),
+                cm=float(cm[0, 0]),
+                bm=float(bm[0, 0]),
+                phi_d=float(self._phi_d[0, 0]),
+                g_d=float(self._gam_d[0, 0]),
+                cd=float(cd[0, 0]),
+                gpe=float(self._G["pe"][0, 0]),
+                gie=float(self._G["ie"][0, 0]),
+                gpx=float(self._G["px"][0, 0]),
+                gix=float(self._G["ix"][0, 0]),
+                gpu=float(self._G["pu"][0, 0]),
+                giu=float(self._G["iu"][0, 0]),
             )
         self.reset()
 
@@ -189,8 +220,25 @@ class ClSac:
     def telemetry(self) -> tuple:
         """The internals after the last step, ordered like ``TELEMETRY_FIELDS``."""
         return (
-            self.um, self.y, self.ym, self.ym_ol, self.ya, self.y_pfc, self.e, self.u_raw, self.u, self.saturated,
-            self.kpe, self.kie, self.ke, self.kpx, self.kix, self.kx, self.kpu, self.kiu, self.ku,
+            self.um,
+            self.y,
+            self.ym,
+            self.ym_ol,
+            self.ya,
+            self.y_pfc,
+            self.e,
+            self.u_raw,
+            self.u,
+            self.saturated,
+            self.kpe,
+            self.kie,
+            self.ke,
+            self.kpx,
+            self.kix,
+            self.kx,
+            self.kpu,
+            self.kiu,
+            self.ku,
         )
 
     # ------------------------------------------------------------------ step

@@ -7,7 +7,6 @@ from dataclasses import dataclass, field, replace
 
 import numpy as np
 
-
 # Parallel feedforward compensators D(s) = num/den (highest power first).  "paper": section 5's
 # D = 1/C, C = (4s + 40)/10.  "robust": the same C at a quarter of its gain, D = 10/(s + 10): no band of
 # constant K_e > 0 makes 1 + K_e (T + D) unstable (``python -m tools.pfc --pfc robust``; README, "W-ASPR").
@@ -109,7 +108,9 @@ class ClSacConfig:
             v = getattr(self, name)
             if not (isinstance(v, (int, float)) and math.isfinite(v) and v >= 0):
                 raise ConfigError(f"{name} must be finite and >= 0, got {v!r}")
-        if not (isinstance(self.u_limit_rad, (int, float)) and math.isfinite(self.u_limit_rad) and self.u_limit_rad > 0):
+        if not (
+            isinstance(self.u_limit_rad, (int, float)) and math.isfinite(self.u_limit_rad) and self.u_limit_rad > 0
+        ):
             raise ConfigError(f"u_limit_rad must be positive and finite, got {self.u_limit_rad!r}")
         am = _as_matrix("am", self.am)
         n_m = am.shape[0]
@@ -127,9 +128,12 @@ class ClSacConfig:
         if np.any(lv < 0):
             raise ConfigError(f"lv must be >= 0, got {self.lv!r}")
         for name, shape in (
-            ("gamma_pe", (m, m)), ("gamma_ie", (m, m)),
-            ("gamma_px", (n_m, n_m)), ("gamma_ix", (n_m, n_m)),
-            ("gamma_pu", (m_m, m_m)), ("gamma_iu", (m_m, m_m)),
+            ("gamma_pe", (m, m)),
+            ("gamma_ie", (m, m)),
+            ("gamma_px", (n_m, n_m)),
+            ("gamma_ix", (n_m, n_m)),
+            ("gamma_pu", (m_m, m_m)),
+            ("gamma_iu", (m_m, m_m)),
         ):
             g = _as_matrix(name, getattr(self, name), shape)
             # The adaptation weights must be positive (semi-)definite (paper section 2, Lyapunov function).
@@ -142,7 +146,9 @@ class ClSacConfig:
         if np.any(np.linalg.eigvals(am).real >= 0):
             raise ConfigError(f"am must be Hurwitz (all eigenvalues in the open left half plane), got {self.am!r}")
         if np.any(np.linalg.eigvals(am - lv @ cm).real >= 0):
-            raise ConfigError(f"am - lv cm must be Hurwitz so the closed-loop reference model is stable, got lv={self.lv!r}")
+            raise ConfigError(
+                f"am - lv cm must be Hurwitz so the closed-loop reference model is stable, got lv={self.lv!r}"
+            )
         self._check_pfc()
         object.__setattr__(self, "_dims", (m, n_m, m_m))
 
@@ -151,7 +157,9 @@ class ClSacConfig:
             num = np.trim_zeros(np.asarray(self.pfc_num, dtype=float).ravel(), "f")
             den = np.trim_zeros(np.asarray(self.pfc_den, dtype=float).ravel(), "f")
         except (TypeError, ValueError) as exc:
-            raise ConfigError(f"pfc_num/pfc_den must be sequences of numbers, got {self.pfc_num!r} / {self.pfc_den!r}") from exc
+            raise ConfigError(
+                f"pfc_num/pfc_den must be sequences of numbers, got {self.pfc_num!r} / {self.pfc_den!r}"
+            ) from exc
         if not (np.all(np.isfinite(num)) and np.all(np.isfinite(den))):
             raise ConfigError(f"PFC coefficients must be finite, got num={self.pfc_num!r} den={self.pfc_den!r}")
         if den.size < 2:
@@ -164,7 +172,9 @@ class ClSacConfig:
                 f"the PFC must be strictly proper (deg num < deg den), got num={self.pfc_num!r} den={self.pfc_den!r}"
             )
         if np.any(np.roots(den).real >= 0):
-            raise ConfigError(f"the PFC must be stable (roots of pfc_den in the open left half plane), got {self.pfc_den!r}")
+            raise ConfigError(
+                f"the PFC must be stable (roots of pfc_den in the open left half plane), got {self.pfc_den!r}"
+            )
 
     def dims(self) -> tuple[int, int, int]:
         """(m outputs, n_m reference-model states, m_m reference inputs)."""

@@ -35,10 +35,22 @@ from autopilot.clsac import ClSac
 from autopilot.config import ClSacConfig
 from autopilot.shared.events import StatusEvents
 from autopilot.shared.link import UdpLink
+from autopilot.shared.mavlink import (
+    AUTOPILOT_ID,
+    GCS_ID,
+    SETPOINT_TYPEMASK,
+    SITL_ID,
+    TYPEMASK_IGNORE_ATTITUDE,
+    frame_from_ms,
+    frame_ms,
+    frame_usec,
+    mavlink,
+    quaternion_to_roll,
+    roll_to_quaternion,
+)
+from autopilot.shared.pwm import PwmMap
 from autopilot.shared.series import SeriesRecorder
 from autopilot.step import ControlStep, Failsafe, StepResult
-from autopilot.shared.mavlink import AUTOPILOT_ID, frame_from_ms, frame_ms, frame_usec, GCS_ID, mavlink, quaternion_to_roll, roll_to_quaternion, SETPOINT_TYPEMASK, SITL_ID, TYPEMASK_IGNORE_ATTITUDE
-from autopilot.shared.pwm import PwmMap
 
 M = mavlink
 ATTITUDE = M.MAVLINK_MSG_ID_ATTITUDE
@@ -58,7 +70,9 @@ TIMING_SAMPLES_MAX = 2_000_000  # per-step timing samples kept for percentiles (
 class AutopilotOptions:
     rate_hz: float = 100.0
     lockstep: bool = False
-    duration_s: float = 0.0  # 0 = until stopped; lockstep: sim seconds from the first frame; real time: seconds of control
+    duration_s: float = (
+        0.0  # 0 = until stopped; lockstep: sim seconds from the first frame; real time: seconds of control
+    )
     telemetry_rate_hz: float = 50.0
     attitude_timeout_s: float = 0.1
     setpoint_timeout_s: float = 1.0
@@ -71,7 +85,9 @@ class AutopilotOptions:
     gcs_bind: tuple = ("127.0.0.1", 0)
     gcs_ids: tuple = (GCS_ID,)
     lockstep_spin_s: float = 0.0  # lockstep: busy-poll this long for the next frame before sleeping in select
-    lockstep_idle_exit_s: float = 0.0  # lockstep: exit after the last frame if the SITL stays silent this long (0 = never)
+    lockstep_idle_exit_s: float = (
+        0.0  # lockstep: exit after the last frame if the SITL stays silent this long (0 = never)
+    )
     name: str = "clsac"
     verbose: bool = True
 
@@ -168,10 +184,25 @@ class Autopilot:
         self.control = ControlStep(ctrl_config, pwm)
         self.ctrl = self.control.law
         self.setpoints = self.control.setpoints
-        self.sitl = UdpLink("sitl", AUTOPILOT_ID, opts.sitl_bind, opts.sitl, peers=[SITL_ID],
-                            msgids=[ATTITUDE, HEARTBEAT, STATUSTEXT], tlog=tlog)
-        self.gcs = UdpLink("gcs", AUTOPILOT_ID, opts.gcs_bind, opts.gcs, peers=opts.gcs_ids,
-                           msgids=[SET_ATTITUDE_TARGET, HEARTBEAT], learn_remote=True, tlog=tlog)
+        self.sitl = UdpLink(
+            "sitl",
+            AUTOPILOT_ID,
+            opts.sitl_bind,
+            opts.sitl,
+            peers=[SITL_ID],
+            msgids=[ATTITUDE, HEARTBEAT, STATUSTEXT],
+            tlog=tlog,
+        )
+        self.gcs = UdpLink(
+            "gcs",
+            AUTOPILOT_ID,
+            opts.gcs_bind,
+            opts.gcs,
+            peers=opts.gcs_ids,
+            msgids=[SET_ATTITUDE_TARGET, HEARTBEAT],
+            learn_remote=True,
+            tlog=tlog,
+        )
         self.hooks: list = []  # callables(StepRecord), after each step
         self.events = Counter()  # autopilot-level counters (failsafes, setpoints, frames)
         self._event = StatusEvents("autopilot", self.gcs, self.events, verbose=opts.verbose, out=self.out)
@@ -191,7 +222,9 @@ class Autopilot:
         self.failsafe_steps = 0
         self.failsafe_entries: list = []  # attitude age (s) when each failsafe began
         self.recoveries = 0
-        self._telemetry_every = max(1, int(round(self.rate / opts.telemetry_rate_hz))) if opts.telemetry_rate_hz > 0 else 0
+        self._telemetry_every = (
+            max(1, int(round(self.rate / opts.telemetry_rate_hz))) if opts.telemetry_rate_hz > 0 else 0
+        )
         self._next_heartbeat = 0.0
         self._next_flush = 0.0
         self._status_state = M.MAV_STATE_STANDBY
@@ -222,16 +255,26 @@ class Autopilot:
         if mid == ATTITUDE:
             roll, p, r = msg.roll, msg.rollspeed, msg.yawspeed
             # NaN/Inf anywhere in the message is a broken sensor frame: reject (x - x != 0 for NaN and Inf)
-            if (roll - roll) or (p - p) or (r - r) or (msg.pitch - msg.pitch) or (msg.yaw - msg.yaw) \
-                    or (msg.pitchspeed - msg.pitchspeed):
+            if (
+                (roll - roll)
+                or (p - p)
+                or (r - r)
+                or (msg.pitch - msg.pitch)
+                or (msg.yaw - msg.yaw)
+                or (msg.pitchspeed - msg.pitchspeed)
+            ):
                 self.sitl.rejected["nonfinite_attitude"] += 1
                 return
             if not -3.1416 <= roll <= 3.1416:
                 self.sitl.rejected["roll_out_of_range"] += 1
                 return
             att = self.att
-            if (not self.opts.lockstep and att.valid and msg.time_boot_ms <= att.ms
-                    and t_rx - att.t_rx < self.opts.attitude_timeout_s):
+            if (
+                not self.opts.lockstep
+                and att.valid
+                and msg.time_boot_ms <= att.ms
+                and t_rx - att.t_rx < self.opts.attitude_timeout_s
+            ):
                 # Out of order or repeated while fresh data flows: keep the newest.  (After a loss anything
                 # goes, so a restarted SITL whose clock went back is taken at once.)
                 self.sitl.rejected["stale_attitude"] += 1
@@ -263,8 +306,10 @@ class Autopilot:
             ev["setpoints_clamped"] += 1
             if t_rx - self._last_clamp_report > 1.0:
                 self._last_clamp_report = t_rx
-                self._event(M.MAV_SEVERITY_WARNING,
-                            f"setpoint {math.degrees(roll):.1f} deg clamped to {math.degrees(clamped):.0f}")
+                self._event(
+                    M.MAV_SEVERITY_WARNING,
+                    f"setpoint {math.degrees(roll):.1f} deg clamped to {math.degrees(clamped):.0f}",
+                )
             roll = clamped
         ev["setpoints"] += 1
         self.last_setpoint_wall = t_rx
@@ -401,9 +446,20 @@ class Autopilot:
         if self._telemetry_every and self.steps % self._telemetry_every == 1 % self._telemetry_every:
             self._send_telemetry(att.ms, att.roll, att.p, att.r, wire)
         if self.hooks:
-            rec = StepRecord(result=res, frame=k, wall=t0, p=att.p, r=att.r,
-                             period=None if prev is None else t0 - prev, lateness=0.0, compute=t_sent - t0,
-                             latency=latency, missed=False, ctrl=self.ctrl, ap=self)
+            rec = StepRecord(
+                result=res,
+                frame=k,
+                wall=t0,
+                p=att.p,
+                r=att.r,
+                period=None if prev is None else t0 - prev,
+                lateness=0.0,
+                compute=t_sent - t0,
+                latency=latency,
+                missed=False,
+                ctrl=self.ctrl,
+                ap=self,
+            )
             for h in self.hooks:
                 h(rec)
 
@@ -435,13 +491,18 @@ class Autopilot:
                 # Waiting for the GCS schedule: tell it where sim time is (SYSTEM_TIME, 20 Hz wall clock).
                 if now >= self._next_systime:
                     self._next_systime = now + 0.05
-                    self.gcs.send(M.MAVLink_system_time_message(time.time_ns() // 1000,
-                                                                frame_ms(self.pending_frame, self.rate)))
+                    self.gcs.send(
+                        M.MAVLink_system_time_message(time.time_ns() // 1000, frame_ms(self.pending_frame, self.rate))
+                    )
                 if now - self._blocked_since > 5.0 and now - last_warn > 5.0:
                     last_warn = now
-                    print(f"autopilot: lockstep frame t={self.pending_frame / self.rate:.3f} s waits for GCS "
-                          f"setpoints (schedule horizon {self.horizon_us * 1e-6:.3f} s); run a GCS "
-                          f"(python -m tools.gcs --lockstep) or pass --no-pace", file=self.out, flush=True)
+                    print(
+                        f"autopilot: lockstep frame t={self.pending_frame / self.rate:.3f} s waits for GCS "
+                        f"setpoints (schedule horizon {self.horizon_us * 1e-6:.3f} s); run a GCS "
+                        f"(python -m tools.gcs --lockstep) or pass --no-pace",
+                        file=self.out,
+                        flush=True,
+                    )
             if self.att.valid:
                 self._status_state = M.MAV_STATE_ACTIVE
                 silent = now - self.sitl.last_rx_wall
@@ -450,8 +511,12 @@ class Autopilot:
                     self._event(M.MAV_SEVERITY_WARNING, f"lockstep: SITL silent for {silent:.1f} s")
                 elif silent < 2.0:
                     silent_reported = False
-                if (opts.lockstep_idle_exit_s > 0 and self.last_frame is not None and self.pending_frame is None
-                        and silent > opts.lockstep_idle_exit_s):
+                if (
+                    opts.lockstep_idle_exit_s > 0
+                    and self.last_frame is not None
+                    and self.pending_frame is None
+                    and silent > opts.lockstep_idle_exit_s
+                ):
                     self.exit_reason = f"SITL silent for {silent:.1f} s after frame {self.last_frame}"
                     break
             self._housekeeping(now)
@@ -539,9 +604,20 @@ class Autopilot:
             if tel_every and self.steps % tel_every == 1 % tel_every:
                 self._send_telemetry(att.ms if att.valid else 0, att.roll, att.p, att.r, wire)
             if self.hooks:
-                rec = StepRecord(result=res, frame=None, wall=t_wake, p=att.p, r=att.r, period=per,
-                                 lateness=lateness, compute=t_sent - t_wake, latency=latency, missed=missed,
-                                 ctrl=self.ctrl, ap=self)
+                rec = StepRecord(
+                    result=res,
+                    frame=None,
+                    wall=t_wake,
+                    p=att.p,
+                    r=att.r,
+                    period=per,
+                    lateness=lateness,
+                    compute=t_sent - t_wake,
+                    latency=latency,
+                    missed=missed,
+                    ctrl=self.ctrl,
+                    ap=self,
+                )
                 for h in self.hooks:
                     h(rec)
             deadline += period
@@ -569,17 +645,22 @@ class Autopilot:
         self._send_heartbeat()
         self._event(M.MAV_SEVERITY_CRITICAL, f"FAILSAFE no attitude {age * 1e3:.1f} ms: rudder neutral")
         if self.opts.verbose:
-            print(f"autopilot: failsafe entered at step {self.steps}: attitude age {age * 1e3:.1f} ms "
-                  f"(timeout {self.opts.attitude_timeout_s * 1e3:.0f} ms, period {self.period * 1e3:.2f} ms), "
-                  f"adaptation frozen", file=self.out, flush=True)
+            print(
+                f"autopilot: failsafe entered at step {self.steps}: attitude age {age * 1e3:.1f} ms "
+                f"(timeout {self.opts.attitude_timeout_s * 1e3:.0f} ms, period {self.period * 1e3:.2f} ms), "
+                f"adaptation frozen",
+                file=self.out,
+                flush=True,
+            )
 
     def _setpoint_stream(self, lost: bool):
         """The setpoint stream was lost (no setpoint for the timeout: fly wings level) or came back."""
         self.setpoint_lost = lost
         if lost:
             self.events["setpoint_timeouts"] += 1
-            self._event(M.MAV_SEVERITY_WARNING,
-                        f"no setpoint for {self.opts.setpoint_timeout_s:.1f} s: holding wings level")
+            self._event(
+                M.MAV_SEVERITY_WARNING, f"no setpoint for {self.opts.setpoint_timeout_s:.1f} s: holding wings level"
+            )
         else:
             self._event(M.MAV_SEVERITY_INFO, "setpoints back")
 
@@ -604,8 +685,11 @@ class Autopilot:
 
     def shutdown(self):
         try:
-            self.gcs.send(M.MAVLink_heartbeat_message(M.MAV_TYPE_FIXED_WING, M.MAV_AUTOPILOT_GENERIC, 0, 0,
-                                                      M.MAV_STATE_POWEROFF, 3))
+            self.gcs.send(
+                M.MAVLink_heartbeat_message(
+                    M.MAV_TYPE_FIXED_WING, M.MAV_AUTOPILOT_GENERIC, 0, 0, M.MAV_STATE_POWEROFF, 3
+                )
+            )
         except OSError:
             pass
         if self.tlog is not None:
@@ -642,14 +726,60 @@ class Autopilot:
 
 
 # The autopilot's per-step series (``--series``): keys as tools.scenario.SERIES where the autopilot knows them.
-SERIES_KEYS = ("t", "um", "phi", "p", "r", "u", "u_cmd", "pwm", "failsafe", "ym", "ym_ol", "ya", "y_pfc", "e",
-               "kpe", "kie", "ke", "kpx", "kix", "kx", "kpu", "kiu", "ku")
+SERIES_KEYS = (
+    "t",
+    "um",
+    "phi",
+    "p",
+    "r",
+    "u",
+    "u_cmd",
+    "pwm",
+    "failsafe",
+    "ym",
+    "ym_ol",
+    "ya",
+    "y_pfc",
+    "e",
+    "kpe",
+    "kie",
+    "ke",
+    "kpx",
+    "kix",
+    "kx",
+    "kpu",
+    "kiu",
+    "ku",
+)
 
 
 def _series_row(rec: StepRecord) -> tuple:
     r, c = rec.result, rec.ctrl
-    return (r.t, r.um, r.phi, rec.p, rec.r, r.u, c.u, r.pwm, r.failsafe is not Failsafe.NONE,
-            c.ym, c.ym_ol, c.ya, c.y_pfc, c.e, c.kpe, c.kie, c.ke, c.kpx, c.kix, c.kx, c.kpu, c.kiu, c.ku)
+    return (
+        r.t,
+        r.um,
+        r.phi,
+        rec.p,
+        rec.r,
+        r.u,
+        c.u,
+        r.pwm,
+        r.failsafe is not Failsafe.NONE,
+        c.ym,
+        c.ym_ol,
+        c.ya,
+        c.y_pfc,
+        c.e,
+        c.kpe,
+        c.kie,
+        c.ke,
+        c.kpx,
+        c.kix,
+        c.kx,
+        c.kpu,
+        c.kiu,
+        c.ku,
+    )
 
 
 def series_recorder() -> SeriesRecorder:

@@ -179,8 +179,9 @@ class ControlStep:
             self.metrics_commanded.add(phi, law.ym_ol, law.e, u_cmd)
         self.metrics.add(phi, law.ym_ol, law.e, u)
         self.k += 1
-        return StepResult(self.k, t, um, phi, u_cmd, u, pwm,
-                          Failsafe.NO_SETPOINT if wings_level else Failsafe.NONE, law.saturated)
+        return StepResult(
+            self.k, t, um, phi, u_cmd, u, pwm, Failsafe.NO_SETPOINT if wings_level else Failsafe.NONE, law.saturated
+        )
 
     def hold(self, t: float, phi: float = math.nan, failsafe: Failsafe = Failsafe.NO_ATTITUDE) -> StepResult:
         """A failsafe step: rudder neutral, the PFC follows it, adaptation frozen (``ClSac.hold``); no metrics."""

@@ -9,41 +9,106 @@ from __future__ import annotations
 
 import sys
 
-from autopilot.shared.cli import add_cpu_argument, add_rt_priority_argument, default_physics_rate, endpoint, fmt_endpoint, nonneg_float, OneLineArgumentParser, positive_float, rate_hz
-from autopilot.shared.process import exit_code_for, apply_cpu, apply_rt_priority, install_stop_handlers, write_json_atomic
-from autopilot.shared.cli import add_pwm_arguments, pwm_from_args
+from autopilot.shared.cli import (
+    OneLineArgumentParser,
+    add_cpu_argument,
+    add_pwm_arguments,
+    add_rt_priority_argument,
+    default_physics_rate,
+    endpoint,
+    fmt_endpoint,
+    nonneg_float,
+    positive_float,
+    pwm_from_args,
+    rate_hz,
+)
+from autopilot.shared.process import (
+    apply_cpu,
+    apply_rt_priority,
+    exit_code_for,
+    install_stop_handlers,
+    write_json_atomic,
+)
 from autopilot.shared.telemetry.flags import add_arguments as add_telemetry_arguments
 from sitl.telemetry import attach as attach_telemetry
 
 
 def build_parser() -> OneLineArgumentParser:
     p = OneLineArgumentParser(prog="python -m sitl", description=__doc__.split("\n\n")[0])
-    p.add_argument("--listen", type=endpoint, default=("127.0.0.1", 14560), metavar="HOST:PORT",
-                   help="UDP address to listen on for the autopilot (default 127.0.0.1:14560)")
+    p.add_argument(
+        "--listen",
+        type=endpoint,
+        default=("127.0.0.1", 14560),
+        metavar="HOST:PORT",
+        help="UDP address to listen on for the autopilot (default 127.0.0.1:14560)",
+    )
     p.add_argument("--lockstep", action="store_true", help="SITL is the time master, one frame per control step")
-    p.add_argument("--rate", type=rate_hz, default=100.0, metavar="HZ", help="lockstep frame (control) rate (default 100)")
-    p.add_argument("--physics-rate", type=positive_float, default=None, metavar="HZ",
-                   help="physics rate (default: the smallest whole multiple of --rate >= 1000, i.e. 1000 at 100 Hz)")
-    p.add_argument("--sensor-rate", type=positive_float, default=200.0, metavar="HZ",
-                   help="real time: ATTITUDE rate (default 200)")
-    p.add_argument("--duration", type=nonneg_float, default=0.0, metavar="S",
-                   help="sim seconds to run (0 = until stopped)")
-    p.add_argument("--start-time", type=nonneg_float, default=0.0, metavar="S",
-                   help="initial sim clock, e.g. 4290 to cross the 71.6-min time_usec wrap soon (default 0)")
-    p.add_argument("--servo-timeout", type=positive_float, default=0.5, metavar="S",
-                   help="real time: rudder neutral after S s without servo command (default 0.5)")
-    p.add_argument("--resend-timeout", type=positive_float, default=0.25, metavar="S",
-                   help="lockstep: resend the frame's ATTITUDE after S s without answer (default 0.25)")
-    p.add_argument("--give-up", type=positive_float, default=10.0, metavar="S",
-                   help="lockstep: exit with an error after S s without answer (default 10)")
-    p.add_argument("--connect-timeout", type=nonneg_float, default=0.0, metavar="S",
-                   help="lockstep: exit with an error if no autopilot shows up within S s (default 0 = wait)")
+    p.add_argument(
+        "--rate", type=rate_hz, default=100.0, metavar="HZ", help="lockstep frame (control) rate (default 100)"
+    )
+    p.add_argument(
+        "--physics-rate",
+        type=positive_float,
+        default=None,
+        metavar="HZ",
+        help="physics rate (default: the smallest whole multiple of --rate >= 1000, i.e. 1000 at 100 Hz)",
+    )
+    p.add_argument(
+        "--sensor-rate", type=positive_float, default=200.0, metavar="HZ", help="real time: ATTITUDE rate (default 200)"
+    )
+    p.add_argument(
+        "--duration", type=nonneg_float, default=0.0, metavar="S", help="sim seconds to run (0 = until stopped)"
+    )
+    p.add_argument(
+        "--start-time",
+        type=nonneg_float,
+        default=0.0,
+        metavar="S",
+        help="initial sim clock, e.g. 4290 to cross the 71.6-min time_usec wrap soon (default 0)",
+    )
+    p.add_argument(
+        "--servo-timeout",
+        type=positive_float,
+        default=0.5,
+        metavar="S",
+        help="real time: rudder neutral after S s without servo command (default 0.5)",
+    )
+    p.add_argument(
+        "--resend-timeout",
+        type=positive_float,
+        default=0.25,
+        metavar="S",
+        help="lockstep: resend the frame's ATTITUDE after S s without answer (default 0.25)",
+    )
+    p.add_argument(
+        "--give-up",
+        type=positive_float,
+        default=10.0,
+        metavar="S",
+        help="lockstep: exit with an error after S s without answer (default 10)",
+    )
+    p.add_argument(
+        "--connect-timeout",
+        type=nonneg_float,
+        default=0.0,
+        metavar="S",
+        help="lockstep: exit with an error if no autopilot shows up within S s (default 0 = wait)",
+    )
     # See autopilot --lockstep-spin-us: polling before sleeping saves the wake-up latency of each frame.
-    p.add_argument("--spin-us", type=nonneg_float, default=500.0, metavar="US",
-                   help="lockstep: busy-poll this long for each answer before sleeping (default 500)")
+    p.add_argument(
+        "--spin-us",
+        type=nonneg_float,
+        default=500.0,
+        metavar="US",
+        help="lockstep: busy-poll this long for each answer before sleeping (default 500)",
+    )
     p.add_argument("--stats-json", default=None, metavar="PATH", help="write counters to this JSON file at exit")
-    p.add_argument("--series", default=None, metavar="PATH.npz",
-                   help="record the truth state after every frame / sensor message to this .npz at exit")
+    p.add_argument(
+        "--series",
+        default=None,
+        metavar="PATH.npz",
+        help="record the truth state after every frame / sensor message to this .npz at exit",
+    )
     p.add_argument("--quiet", action="store_true", help="only the start line and the counters")
     add_telemetry_arguments(p)
     add_pwm_arguments(p)
@@ -68,10 +133,19 @@ def main(argv=None) -> int:
     from sitl.endpoint import LockstepGiveUp, Sitl, SitlOptions, series_recorder
 
     opts = SitlOptions(
-        listen=args.listen, lockstep=args.lockstep, rate_hz=args.rate, physics_rate_hz=args.physics_rate,
-        sensor_rate_hz=args.sensor_rate, duration_s=args.duration, start_time_s=args.start_time,
-        servo_timeout_s=args.servo_timeout, resend_timeout_s=args.resend_timeout, give_up_s=args.give_up,
-        connect_timeout_s=args.connect_timeout, spin_s=args.spin_us * 1e-6, verbose=not args.quiet,
+        listen=args.listen,
+        lockstep=args.lockstep,
+        rate_hz=args.rate,
+        physics_rate_hz=args.physics_rate,
+        sensor_rate_hz=args.sensor_rate,
+        duration_s=args.duration,
+        start_time_s=args.start_time,
+        servo_timeout_s=args.servo_timeout,
+        resend_timeout_s=args.resend_timeout,
+        give_up_s=args.give_up,
+        connect_timeout_s=args.connect_timeout,
+        spin_s=args.spin_us * 1e-6,
+        verbose=not args.quiet,
     )
     try:
         sitl = Sitl(opts, pwm)
@@ -91,8 +165,11 @@ def main(argv=None) -> int:
 
     install_stop_handlers(stop)
     mode = f"lockstep at {args.rate:g} Hz" if args.lockstep else f"real time, ATTITUDE at {args.sensor_rate:g} Hz"
-    print(f"sitl: listening on {fmt_endpoint(sitl.link.local)}; {mode}; physics {args.physics_rate:g} Hz; "
-          f"start t={args.start_time:g} s{rt_note}", flush=True)
+    print(
+        f"sitl: listening on {fmt_endpoint(sitl.link.local)}; {mode}; physics {args.physics_rate:g} Hz; "
+        f"start t={args.start_time:g} s{rt_note}",
+        flush=True,
+    )
     code = 0
     try:
         code = sitl.run()
@@ -113,8 +190,11 @@ def main(argv=None) -> int:
         recorder.save(args.series)
 
     rtf = f"{stats['rtf']:.1f}x" if stats["rtf"] else "-"
-    print(f"sitl: {stats['frames']} frames, sim {stats['sim_time_s']:.3f} s in {stats['wall_s']:.3f} s wall "
-          f"(real-time factor {rtf}); {stats['exit_reason']}; events {stats['events']}", flush=True)
+    print(
+        f"sitl: {stats['frames']} frames, sim {stats['sim_time_s']:.3f} s in {stats['wall_s']:.3f} s wall "
+        f"(real-time factor {rtf}); {stats['exit_reason']}; events {stats['events']}",
+        flush=True,
+    )
     print(format_counters("sitl link", stats["link"]), flush=True)
     if args.stats_json:
         write_json_atomic(args.stats_json, stats)

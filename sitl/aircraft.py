@@ -10,6 +10,7 @@ import math
 from dataclasses import dataclass
 
 import numpy as np
+
 from autopilot.shared.numerics import zoh
 from sitl import model
 
@@ -64,7 +65,9 @@ class Aircraft:
         self._multi: dict[int, tuple[np.ndarray, np.ndarray]] = {}
         self._x0 = np.zeros(6) if x0 is None else np.asarray(x0, dtype=float).copy()
         if self._x0.shape != (6,):
-            raise AircraftConfigError(f"x0 must have 6 elements [v, p, r, phi, delta_r, delta_r_dot], got shape {self._x0.shape}")
+            raise AircraftConfigError(
+                f"x0 must have 6 elements [v, p, r, phi, delta_r, delta_r_dot], got shape {self._x0.shape}"
+            )
         self._limited = self.config.rudder_limit_rad is not None or self.config.rudder_rate_limit_rad_s is not None
         self.reset()
 

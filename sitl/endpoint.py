@@ -28,9 +28,9 @@ from dataclasses import dataclass
 
 from autopilot.shared.events import StatusEvents
 from autopilot.shared.link import UdpLink
-from autopilot.shared.series import SeriesRecorder
-from autopilot.shared.mavlink import AUTOPILOT_ID, frame_ms, frame_usec, mavlink, SITL_ID, usec_diff
+from autopilot.shared.mavlink import AUTOPILOT_ID, SITL_ID, frame_ms, frame_usec, mavlink, usec_diff
 from autopilot.shared.pwm import PWM_VALID_RANGE, PwmMap
+from autopilot.shared.series import SeriesRecorder
 from sitl.aircraft import Aircraft, AircraftConfig
 
 M = mavlink
@@ -90,8 +90,15 @@ class Sitl:
         self.pwm = pwm
         self.out = out or sys.stdout
         self.aircraft = Aircraft(AircraftConfig(physics_rate_hz=opts.physics_rate_hz))
-        self.link = UdpLink("autopilot", SITL_ID, opts.listen, None, peers=[AUTOPILOT_ID],
-                            msgids=[SERVO_OUTPUT_RAW, HEARTBEAT], learn_remote=True)
+        self.link = UdpLink(
+            "autopilot",
+            SITL_ID,
+            opts.listen,
+            None,
+            peers=[AUTOPILOT_ID],
+            msgids=[SERVO_OUTPUT_RAW, HEARTBEAT],
+            learn_remote=True,
+        )
         self.hooks: list = []
         self.events = Counter()
         self.say = StatusEvents("sitl", self.link, self.events, verbose=opts.verbose, out=self.out)
@@ -110,8 +117,9 @@ class Sitl:
 
     # ------------------------------------------------------------------ util
     def _heartbeat(self):
-        self.link.send(M.MAVLink_heartbeat_message(M.MAV_TYPE_GENERIC, M.MAV_AUTOPILOT_INVALID, 0, 0,
-                                                   M.MAV_STATE_ACTIVE, 3))
+        self.link.send(
+            M.MAVLink_heartbeat_message(M.MAV_TYPE_GENERIC, M.MAV_AUTOPILOT_INVALID, 0, 0, M.MAV_STATE_ACTIVE, 3)
+        )
 
     def _servo_pwm(self, msg) -> int | None:
         pwm = getattr(msg, f"servo{self.pwm.channel}_raw")
@@ -153,15 +161,19 @@ class Sitl:
             now = perf()
             if opts.connect_timeout_s and now - t_start > opts.connect_timeout_s:
                 self.exit_reason = f"no autopilot after {opts.connect_timeout_s:g} s"
-                raise LockstepGiveUp(f"no autopilot talked to {link.local[0]}:{link.local[1]} within "
-                                     f"{opts.connect_timeout_s:g} s")
+                raise LockstepGiveUp(
+                    f"no autopilot talked to {link.local[0]}:{link.local[1]} within {opts.connect_timeout_s:g} s"
+                )
             self._wait(0.05)
         if self.stop_requested:
             self.exit_reason = "stopped by signal"
             return 0
         if opts.verbose:
-            print(f"sitl: autopilot at {link.remote[0]}:{link.remote[1]}; lockstep from t={self.sim_t0:.3f} s",
-                  file=self.out, flush=True)
+            print(
+                f"sitl: autopilot at {link.remote[0]}:{link.remote[1]}; lockstep from t={self.sim_t0:.3f} s",
+                file=self.out,
+                flush=True,
+            )
         ac = self.aircraft
         ev = self.events
         resend = opts.resend_timeout_s
@@ -201,7 +213,8 @@ class Sitl:
                         raise LockstepGiveUp(
                             f"no SERVO_OUTPUT_RAW for frame t={K / rate:.3f} s (time_usec {expected}) after "
                             f"{give_up:g} s, resent {ev['resends_frame']} times: is the autopilot running with "
-                            f"--lockstep --rate {rate:g} (and a GCS, or --no-pace)?")
+                            f"--lockstep --rate {rate:g} (and a GCS, or --no-pace)?"
+                        )
                     if now >= t_resend:
                         link.send_raw(raw, ATTITUDE)
                         ev["resends"] += 1
@@ -305,7 +318,7 @@ class Sitl:
                 skipped = int((now - next_sensor) / sensor_period) + 1
                 ev["sensor_slots_skipped"] += skipped
                 next_sensor += skipped * sensor_period
-            if (last_servo_wall is not None and not timed_out and now - last_servo_wall > opts.servo_timeout_s):
+            if last_servo_wall is not None and not timed_out and now - last_servo_wall > opts.servo_timeout_s:
                 timed_out = True
                 catch_up(now)
                 self.u = 0.0
@@ -332,7 +345,9 @@ class Sitl:
         return self.run_lockstep() if self.opts.lockstep else self.run_realtime()
 
     def stats(self) -> dict:
-        wall = (self.wall_last_frame - self.wall_first_frame) if (self.wall_first_frame and self.wall_last_frame) else 0.0
+        wall = (
+            (self.wall_last_frame - self.wall_first_frame) if (self.wall_first_frame and self.wall_last_frame) else 0.0
+        )
         if self.opts.lockstep:
             sim = self.frames / self.opts.rate_hz
         else:

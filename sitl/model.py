@@ -75,7 +75,7 @@ B_P_PRINTED = (0, 0, 0, 0, 0, 2367)
 C_P_PRINTED = (0, 0, 0, 1, 0, 0)
 
 
-def plant_rhs(t: float, x: np.ndarray, u: np.ndarray | float, params: dict | None = None) -> np.ndarray:
+def plant_rhs(t: float, x: np.ndarray, u: np.ndarray | float, params: dict | None = None) -> np.ndarray:  # noqa: ARG001
     """Continuous-time dynamics x_p' = A_p x_p + B_p u_p (paper eq. (1)), python-control's (t, x, u, params) form.
 
     ``params`` may hold ``A``/``B`` to fly a perturbed airframe; by default the paper's matrices.

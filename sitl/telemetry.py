@@ -35,8 +35,9 @@ SITL_TABLE = TableLayout(
         Plot(SITL_ROLL, ("phi",), ("roll phi (truth)",), (PURPLE,)),
         Plot(SITL_RATES, ("p", "r"), ("roll rate p (truth)", "yaw rate r (truth)"), (PURPLE, GREEN)),
         Plot(SITL_SIDE_VELOCITY, ("v",), ("side velocity v (truth)",), (GREEN,)),
-        Plot(SITL_RUDDER, ("delta_r", "delta_cmd"), ("rudder delta_r (truth)", "servo command applied"),
-             (PURPLE, GREY)),
+        Plot(
+            SITL_RUDDER, ("delta_r", "delta_cmd"), ("rudder delta_r (truth)", "servo command applied"), (PURPLE, GREY)
+        ),
         Plot(SITL_RUDDER_RATE, ("delta_r_dot",), ("rudder rate (truth)",), (PURPLE,)),
         Plot(SITL_SERVO_PWM, ("pwm",), ("servo PWM received [us]",), (PURPLE,), step=True),
     ),

@@ -29,8 +29,13 @@ class Proc:
     def __init__(self, module: str, args: list[str], log: Path):
         self.log = log
         self._f = open(log, "w")
-        self.p = subprocess.Popen([PY, "-u", "-m", module, *args], stdout=self._f, stderr=subprocess.STDOUT,
-                                  stdin=subprocess.DEVNULL, env=dict(os.environ, PYTHONUNBUFFERED="1"))
+        self.p = subprocess.Popen(
+            [PY, "-u", "-m", module, *args],
+            stdout=self._f,
+            stderr=subprocess.STDOUT,
+            stdin=subprocess.DEVNULL,
+            env=dict(os.environ, PYTHONUNBUFFERED="1"),
+        )
 
     def output(self) -> str:
         if not self._f.closed:
@@ -87,5 +92,6 @@ def udp() -> socket.socket:
 
 
 def run_cli(module: str, *args: str, timeout: float = 120.0) -> subprocess.CompletedProcess:
-    return subprocess.run([PY, "-m", module, *args], capture_output=True, text=True, timeout=timeout,
-                          stdin=subprocess.DEVNULL)
+    return subprocess.run(
+        [PY, "-m", module, *args], capture_output=True, text=True, timeout=timeout, stdin=subprocess.DEVNULL
+    )

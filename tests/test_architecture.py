@@ -68,18 +68,21 @@ def test_the_dependency_rule_holds():
     assert violations() == []
 
 
-@pytest.mark.parametrize(("where", "source"), [
-    ("autopilot/loop_x.py", "from sitl.aircraft import Aircraft\n"),
-    ("autopilot/loop_x.py", "def f():\n    import sitl.model\n"),
-    ("autopilot/loop_x.py", "from tools.scenario import PAPER\n"),
-    ("autopilot/shared/x.py", "from autopilot.clsac import ClSac\n"),
-    ("autopilot/shared/x.py", "from autopilot import ClSac\n"),
-    ("autopilot/shared/x.py", "from ..step import ControlStep\n"),
-    ("sitl/x.py", "from autopilot.clsac import ClSac\n"),
-    ("sitl/x.py", "from autopilot import telemetry\n"),
-    ("sitl/x.py", "import autopilot.loop\n"),
-    ("sitl/x.py", "from autopilot.step import ControlStep\n"),
-])
+@pytest.mark.parametrize(
+    ("where", "source"),
+    [
+        ("autopilot/loop_x.py", "from sitl.aircraft import Aircraft\n"),
+        ("autopilot/loop_x.py", "def f():\n    import sitl.model\n"),
+        ("autopilot/loop_x.py", "from tools.scenario import PAPER\n"),
+        ("autopilot/shared/x.py", "from autopilot.clsac import ClSac\n"),
+        ("autopilot/shared/x.py", "from autopilot import ClSac\n"),
+        ("autopilot/shared/x.py", "from ..step import ControlStep\n"),
+        ("sitl/x.py", "from autopilot.clsac import ClSac\n"),
+        ("sitl/x.py", "from autopilot import telemetry\n"),
+        ("sitl/x.py", "import autopilot.loop\n"),
+        ("sitl/x.py", "from autopilot.step import ControlStep\n"),
+    ],
+)
 def test_a_broken_rule_is_reported(tmp_path, where, source):
     """The check is not vacuous: each kind of forbidden import, planted in a copy-like tree, is found."""
     for pkg in ("autopilot", "autopilot/shared", "sitl"):
@@ -90,11 +93,14 @@ def test_a_broken_rule_is_reported(tmp_path, where, source):
     assert len(found) == 1 and where in found[0], found
 
 
-@pytest.mark.parametrize("source", [
-    "from autopilot.shared.link import UdpLink\n",
-    "from autopilot.shared import mavlink\n",
-    "from . import model\n",
-])
+@pytest.mark.parametrize(
+    "source",
+    [
+        "from autopilot.shared.link import UdpLink\n",
+        "from autopilot.shared import mavlink\n",
+        "from . import model\n",
+    ],
+)
 def test_allowed_sitl_imports_pass(tmp_path, source):
     for pkg in ("autopilot", "autopilot/shared", "sitl"):
         (tmp_path / pkg).mkdir(parents=True, exist_ok=True)
@@ -108,7 +114,8 @@ def test_the_simulator_process_does_not_load_the_control_law():
     code = textwrap.dedent("""
         import sys
         import sitl, sitl.aircraft, sitl.endpoint, sitl.__main__
-        loaded = sorted(m for m in sys.modules if m.split('.')[0] == 'autopilot' and not m.startswith('autopilot.shared')
+        loaded = sorted(m for m in sys.modules
+                        if m.split('.')[0] == 'autopilot' and not m.startswith('autopilot.shared')
                         and m != 'autopilot')
         print(loaded)
     """)

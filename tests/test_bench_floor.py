@@ -3,7 +3,11 @@ between two real processes really exchanges decodable packets and measures a pos
 
 from __future__ import annotations
 
+import pytest
+
 from tools.bench.mavlink import lockstep_floor
+
+pytestmark = pytest.mark.e2e  # real processes over loopback UDP
 
 
 def test_floor_ping_pong_between_two_processes():

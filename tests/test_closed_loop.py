@@ -44,7 +44,8 @@ def test_sampled_data_loop_matches_solve_ivp_plant():
 def _continuous_clsac(lv, t_eval, gamma=10.0, sigma=5.0):
     """Paper sections 2-3 and 5 as one continuous-time ODE: plant, CL and OL reference models, PFC, gains.
 
-    z = [x_p (6), x_m, x_m_ol, x_d, K_Ie, K_Ix, K_Iu]; D(s) = 10/(4s+40) = 2.5/(s+10): x_d' = -10 x_d + u, y_d = 2.5 x_d.
+    z = [x_p (6), x_m, x_m_ol, x_d, K_Ie, K_Ix, K_Iu];
+    D(s) = 10/(4s+40) = 2.5/(s+10): x_d' = -10 x_d + u, y_d = 2.5 x_d.
     """
 
     def rhs(t, z, um):

@@ -57,10 +57,14 @@ def test_two_steps_equal_hand_computation():
 
 def _plain_sac_run(ys, ums, gamma=10.0, sigma=5.0, umax=math.radians(30)):
     """Paper section 2 SAC written procedurally, with no L_v term anywhere (independent of ClSac)."""
-    blk = np.zeros((2, 2)); blk[0, 0] = -5.0; blk[0, 1] = 5.0
+    blk = np.zeros((2, 2))
+    blk[0, 0] = -5.0
+    blk[0, 1] = 5.0
     E = expm(blk * T)
     phi_m, g_m = E[0, 0], E[0, 1]
-    blk = np.zeros((2, 2)); blk[0, 0] = -10.0; blk[0, 1] = 1.0  # D(s) = 2.5/(s+10) = 10/(4s+40)
+    blk = np.zeros((2, 2))
+    blk[0, 0] = -10.0
+    blk[0, 1] = 1.0  # D(s) = 2.5/(s+10) = 10/(4s+40)
     E = expm(blk * T)
     phi_d, g_d = E[0, 0], E[0, 1]
     decay = math.exp(-sigma * T)
@@ -124,8 +128,12 @@ def test_fast_path_equals_matrix_path():
 
 
 def test_mimo_two_channels_run_and_shapes():
-    cfg = ClSacConfig(am=((-5.0, 0.0), (0.0, -4.0)), bm=((5.0, 0.0), (0.0, 4.0)), cm=((1.0, 0.0), (0.0, 1.0)),
-                      lv=((20.0, 0.0), (0.0, 10.0)))
+    cfg = ClSacConfig(
+        am=((-5.0, 0.0), (0.0, -4.0)),
+        bm=((5.0, 0.0), (0.0, 4.0)),
+        cm=((1.0, 0.0), (0.0, 1.0)),
+        lv=((20.0, 0.0), (0.0, 10.0)),
+    )
     assert cfg.dims() == (2, 2, 2) and not cfg.is_siso
     ctrl = ClSac(cfg)
     u = ctrl([0.01, -0.02], [0.1, 0.05])
@@ -220,20 +228,23 @@ def test_gamma_sign_boundary(field, value, ok):
             ClSacConfig(**{field: value})
 
 
-@pytest.mark.parametrize("kwargs,match", [
-    ({"control_rate_hz": 0.0}, "control_rate_hz.*0.0"),
-    ({"control_rate_hz": -100.0}, "control_rate_hz.*-100.0"),
-    ({"control_rate_hz": float("inf")}, "control_rate_hz"),
-    ({"sigma": -1.0}, "sigma.*-1.0"),
-    ({"lv": -5.0}, "lv.*-5.0"),
-    ({"am": 0.5}, "am must be Hurwitz.*0.5"),
-    ({"lv": 5.0, "am": 1.0}, "am must be Hurwitz"),
-    ({"u_limit_rad": 0.0}, "u_limit_rad.*0.0"),
-    ({"pfc_num": (1.0, 2.0), "pfc_den": (1.0, 3.0)}, "strictly proper"),
-    ({"pfc_den": (4.0, -40.0)}, "stable"),
-    ({"pfc_num": ("a",)}, "pfc_num"),
-    ({"pfc_num": (float("nan"),)}, "finite"),
-])
+@pytest.mark.parametrize(
+    "kwargs,match",
+    [
+        ({"control_rate_hz": 0.0}, "control_rate_hz.*0.0"),
+        ({"control_rate_hz": -100.0}, "control_rate_hz.*-100.0"),
+        ({"control_rate_hz": float("inf")}, "control_rate_hz"),
+        ({"sigma": -1.0}, "sigma.*-1.0"),
+        ({"lv": -5.0}, "lv.*-5.0"),
+        ({"am": 0.5}, "am must be Hurwitz.*0.5"),
+        ({"lv": 5.0, "am": 1.0}, "am must be Hurwitz"),
+        ({"u_limit_rad": 0.0}, "u_limit_rad.*0.0"),
+        ({"pfc_num": (1.0, 2.0), "pfc_den": (1.0, 3.0)}, "strictly proper"),
+        ({"pfc_den": (4.0, -40.0)}, "stable"),
+        ({"pfc_num": ("a",)}, "pfc_num"),
+        ({"pfc_num": (float("nan"),)}, "finite"),
+    ],
+)
 def test_bad_config_names_the_offending_value(kwargs, match):
     with pytest.raises(ConfigError, match=match):
         ClSacConfig(**kwargs)
@@ -249,7 +260,9 @@ def test_non_finite_inputs_are_rejected_without_changing_state(y, um):
     assert (ctrl.telemetry(), ctrl.xm, ctrl.ki_e) == before
 
 
-@pytest.mark.parametrize("num,den", [((10.0,), (4.0, 40.0)), ((1.0, 2.0), (1.0, 3.0, 5.0)), ((3.0,), (2.0, 1.0, 4.0, 7.0))])
+@pytest.mark.parametrize(
+    "num,den", [((10.0,), (4.0, 40.0)), ((1.0, 2.0), (1.0, 3.0, 5.0)), ((3.0,), (2.0, 1.0, 4.0, 7.0))]
+)
 def test_pfc_realisation_has_the_given_transfer_function(num, den):
     from scipy.signal import ss2tf
 

@@ -17,6 +17,8 @@ from autopilot.shared.pwm import PwmMap
 from autopilot.shared.tlog import payload_streams, read_tlog
 from tools.scenario import PAPER, PAPER_RUNS, Scenario, run_inprocess
 
+pytestmark = pytest.mark.e2e  # real processes over loopback UDP
+
 CLSAC = PAPER_RUNS[1]
 
 
@@ -39,13 +41,13 @@ def paper_clsac(tmp_path_factory):
     return out, launch_cli(out)
 
 
-def test_lockstep_metrics_agree_with_inprocess(paper_clsac):
+def test_lockstep_metrics_agree_with_inprocess(paper_clsac, paper_runs):
     out, summary = paper_clsac
     assert summary["scenario"] == "paper" and summary["ok"] and summary["mode"] == "lockstep"
     (run,) = summary["runs"]
     assert run["name"] == "clsac" and run["Lv"] == 20.0 and run["steps"] == PAPER.steps
     flown = run["metrics"]
-    ref = run_inprocess(PAPER, CLSAC).metrics
+    ref = paper_runs[CLSAC.name].metrics
     for key in ("ise_ref", "ise_crm", "energy", "max_abs_u"):
         assert flown[key] == pytest.approx(ref[key], rel=0.02), key
     # tv (total variation of the command) is the one metric PWM quantisation moves by more than 2 %:
@@ -68,8 +70,12 @@ def test_lockstep_outputs_are_valid(paper_clsac):
     assert counters["sitl"]["rejected"] == {} and counters["gcs"]["rejected"] == {}
     assert summary["rtf"] > 1.0
     # pymavlink's own tool reads it
-    dump = subprocess.run([PY, "-m", "pymavlink.tools.mavlogdump", "--types", "SERVO_OUTPUT_RAW", str(tlog)],
-                          capture_output=True, text=True, timeout=120)
+    dump = subprocess.run(
+        [PY, "-m", "pymavlink.tools.mavlogdump", "--types", "SERVO_OUTPUT_RAW", str(tlog)],
+        capture_output=True,
+        text=True,
+        timeout=120,
+    )
     assert dump.returncode == 0, dump.stderr
     assert dump.stdout.count("SERVO_OUTPUT_RAW") >= PAPER.steps
 
@@ -114,9 +120,15 @@ def test_lockstep_across_time_usec_wrap(tmp_path):
 def test_two_launches_at_once_do_not_collide(tmp_path):
     import subprocess
 
-    procs = [subprocess.Popen([PY, "-m", "tools.launch", "--lockstep", "--quiet", "--duration", "5", "--out",
-                               str(tmp_path / f"run{i}")], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
-             for i in range(2)]
+    procs = [
+        subprocess.Popen(
+            [PY, "-m", "tools.launch", "--lockstep", "--quiet", "--duration", "5", "--out", str(tmp_path / f"run{i}")],
+            stdout=subprocess.PIPE,
+            stderr=subprocess.PIPE,
+            text=True,
+        )
+        for i in range(2)
+    ]
     outs = [p.communicate(timeout=180) for p in procs]
     for p, (so, se) in zip(procs, outs):
         assert p.returncode == 0, so + se
@@ -184,12 +196,41 @@ def test_lost_and_duplicated_packets_neither_deadlock_nor_double_step(tmp_path):
     sitl_port, gcs_port = free_ports(2)
     proxy = LossyProxy(("127.0.0.1", sitl_port), drop_every=37, dup_every=23)
     d = "5"
-    sitl = Proc("sitl", ["--lockstep", "--listen", f"127.0.0.1:{sitl_port}", "--duration", d, "--resend-timeout", "0.02",
-                         "--stats-json", str(tmp_path / "sitl.json")], tmp_path / "sitl.log")
-    gcs = Proc("tools.gcs", ["--lockstep", "--listen", f"127.0.0.1:{gcs_port}", "--duration", d, "--quiet"],
-               tmp_path / "gcs.log")
-    ap = Proc("autopilot", ["--lockstep", "--sitl", f"127.0.0.1:{proxy.port}", "--gcs", f"127.0.0.1:{gcs_port}",
-                            "--duration", d, "--stats-json", str(tmp_path / "ap.json")], tmp_path / "ap.log")
+    sitl = Proc(
+        "sitl",
+        [
+            "--lockstep",
+            "--listen",
+            f"127.0.0.1:{sitl_port}",
+            "--duration",
+            d,
+            "--resend-timeout",
+            "0.02",
+            "--stats-json",
+            str(tmp_path / "sitl.json"),
+        ],
+        tmp_path / "sitl.log",
+    )
+    gcs = Proc(
+        "tools.gcs",
+        ["--lockstep", "--listen", f"127.0.0.1:{gcs_port}", "--duration", d, "--quiet"],
+        tmp_path / "gcs.log",
+    )
+    ap = Proc(
+        "autopilot",
+        [
+            "--lockstep",
+            "--sitl",
+            f"127.0.0.1:{proxy.port}",
+            "--gcs",
+            f"127.0.0.1:{gcs_port}",
+            "--duration",
+            d,
+            "--stats-json",
+            str(tmp_path / "ap.json"),
+        ],
+        tmp_path / "ap.log",
+    )
     try:
         assert ap.p.wait(120) == 0, ap.output()
         assert sitl.p.wait(30) == 0, sitl.output()
@@ -213,10 +254,24 @@ def test_sitl_gives_up_with_a_clear_error(tmp_path):
     from _mavlink_procs import Proc, free_ports
 
     (sitl_port,) = free_ports(1)
-    sitl = Proc("sitl", ["--lockstep", "--listen", f"127.0.0.1:{sitl_port}", "--give-up", "1.5",
-                         "--resend-timeout", "0.3"], tmp_path / "sitl.log")
-    ap = Proc("autopilot", ["--lockstep", "--sitl", f"127.0.0.1:{sitl_port}", "--gcs", "127.0.0.1:9",
-                            "--stats-json", str(tmp_path / "ap.json")], tmp_path / "ap.log")
+    sitl = Proc(
+        "sitl",
+        ["--lockstep", "--listen", f"127.0.0.1:{sitl_port}", "--give-up", "1.5", "--resend-timeout", "0.3"],
+        tmp_path / "sitl.log",
+    )
+    ap = Proc(
+        "autopilot",
+        [
+            "--lockstep",
+            "--sitl",
+            f"127.0.0.1:{sitl_port}",
+            "--gcs",
+            "127.0.0.1:9",
+            "--stats-json",
+            str(tmp_path / "ap.json"),
+        ],
+        tmp_path / "ap.log",
+    )
     try:
         assert sitl.p.wait(60) == 1
     finally:

@@ -8,10 +8,13 @@ import os
 import re
 import time
 
+import pytest
 from _mavlink_procs import Proc, free_ports, load_json, mav, mavlink, run_cli, udp
 
 from autopilot.shared.process import rt_throttling
 from autopilot.shared.tlog import read_tlog
+
+pytestmark = pytest.mark.e2e  # real processes over loopback UDP
 
 
 def test_launch_realtime(tmp_path):
@@ -38,8 +41,9 @@ def test_launch_realtime_busy_wait_pinned_serves_both_links(tmp_path):
     """--pin --busy-wait: the loop never sleeps, yet every attitude and setpoint is taken while it spins and
     the helper threads are moved off the control CPU."""
     out = tmp_path / "busy"
-    r = run_cli("tools.launch", "--duration", "3", "--rate", "100", "--pin", "--busy-wait", "--out", str(out),
-                timeout=120)
+    r = run_cli(
+        "tools.launch", "--duration", "3", "--rate", "100", "--pin", "--busy-wait", "--out", str(out), timeout=120
+    )
     assert r.returncode == 0, r.stdout + r.stderr
     s = load_json(out / "summary.json")
     assert s["ok"] and s["runs"][0]["steps"] == 300
@@ -86,9 +90,22 @@ def test_sitl_killed_puts_autopilot_in_failsafe_and_restart_recovers(tmp_path):
     rate = 100.0
     sitl_args = ["--listen", f"127.0.0.1:{sitl_port}", "--quiet"]
     sitl = Proc("sitl", sitl_args, tmp_path / "sitl1.log")
-    ap = Proc("autopilot", ["--sitl", f"127.0.0.1:{sitl_port}", "--gcs", f"127.0.0.1:{gcs.getsockname()[1]}",
-                            "--rate", str(rate), "--telemetry-rate", "0", "--stats-json", str(tmp_path / "ap.json")],
-              tmp_path / "ap.log")
+    ap = Proc(
+        "autopilot",
+        [
+            "--sitl",
+            f"127.0.0.1:{sitl_port}",
+            "--gcs",
+            f"127.0.0.1:{gcs.getsockname()[1]}",
+            "--rate",
+            str(rate),
+            "--telemetry-rate",
+            "0",
+            "--stats-json",
+            str(tmp_path / "ap.json"),
+        ],
+        tmp_path / "ap.log",
+    )
     try:
         assert sitl.wait_for("listening on") and ap.wait_for("autopilot: clsac")
         time.sleep(1.5)
@@ -120,8 +137,11 @@ def test_sitl_killed_puts_autopilot_in_failsafe_and_restart_recovers(tmp_path):
 def test_autopilot_killed_sitl_goes_neutral_and_recovers(tmp_path):
     (sitl_port,) = free_ports(1)
     ap_args = ["--sitl", f"127.0.0.1:{sitl_port}", "--gcs", "127.0.0.1:9", "--telemetry-rate", "0"]
-    sitl = Proc("sitl", ["--listen", f"127.0.0.1:{sitl_port}", "--servo-timeout", "0.3",
-                         "--stats-json", str(tmp_path / "sitl.json")], tmp_path / "sitl.log")
+    sitl = Proc(
+        "sitl",
+        ["--listen", f"127.0.0.1:{sitl_port}", "--servo-timeout", "0.3", "--stats-json", str(tmp_path / "sitl.json")],
+        tmp_path / "sitl.log",
+    )
     ap = Proc("autopilot", ap_args, tmp_path / "ap1.log")
     try:
         assert sitl.wait_for("listening on") and ap.wait_for("autopilot: clsac")
@@ -145,8 +165,12 @@ def test_launch_ctrl_c_stops_everything_cleanly(tmp_path):
     from _mavlink_procs import PY
 
     out = tmp_path / "int"
-    p = subprocess.Popen([PY, "-m", "tools.launch", "--duration", "60", "--out", str(out), "--quiet"],
-                         stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    p = subprocess.Popen(
+        [PY, "-m", "tools.launch", "--duration", "60", "--out", str(out), "--quiet"],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+    )
     t0 = time.monotonic()
     while not (out / "flight.tlog").exists() or (out / "flight.tlog").stat().st_size < 20000:
         assert time.monotonic() - t0 < 60 and p.poll() is None
@@ -166,8 +190,18 @@ def test_launch_ctrl_c_stops_everything_cleanly(tmp_path):
 def test_launch_failing_child_is_named(tmp_path):
     blocker = udp()  # the SITL's port is taken: the SITL cannot start
     port = blocker.getsockname()[1]
-    r = run_cli("tools.launch", "--lockstep", "--duration", "5", "--base-port", str(port), "--out", str(tmp_path / "f"),
-                "--quiet", timeout=120)
+    r = run_cli(
+        "tools.launch",
+        "--lockstep",
+        "--duration",
+        "5",
+        "--base-port",
+        str(port),
+        "--out",
+        str(tmp_path / "f"),
+        "--quiet",
+        timeout=120,
+    )
     blocker.close()
     assert r.returncode == 1
     assert "sitl failed" in r.stderr and "exit code 98" in r.stderr

@@ -22,6 +22,8 @@ from autopilot.telemetry import layout as L
 from sitl import telemetry as S
 from tools import rrd
 
+pytestmark = pytest.mark.e2e  # real processes over loopback UDP
+
 ROOT = Path(__file__).resolve().parents[1]
 DURATION = 5.0
 RATE = 100.0
@@ -43,9 +45,19 @@ def test_launch_leaves_one_recording_of_both_processes(lockstep_flight):
     assert not (out / ".parts").exists()  # the per-process parts were merged and removed
     assert len(rrd.recordings(path)) == 1
     paths = set(rrd.entity_paths(path))
-    for ep in (L.AP_ROLL, L.AP_GAIN_KE, L.AP_GAIN_KX, L.AP_GAIN_KU, "/autopilot/timing/loop", "/autopilot/link/sitl",
-               "/autopilot/link/gcs", "/autopilot/status/mode", "/autopilot/status/failsafe", S.SITL_ROLL,
-               S.SITL_RUDDER):
+    for ep in (
+        L.AP_ROLL,
+        L.AP_GAIN_KE,
+        L.AP_GAIN_KX,
+        L.AP_GAIN_KU,
+        "/autopilot/timing/loop",
+        "/autopilot/link/sitl",
+        "/autopilot/link/gcs",
+        "/autopilot/status/mode",
+        "/autopilot/status/failsafe",
+        S.SITL_ROLL,
+        S.SITL_RUDDER,
+    ):
         assert ep in paths, ep
     assert rrd.has_blueprint(path)
     ok, text = rrd.verify(path)
@@ -95,9 +107,15 @@ def test_realtime_flight_ended_with_sigint_leaves_a_readable_recording(tmp_path)
     out = tmp_path / "rt"
     env = dict(os.environ)
     env.pop("DISPLAY", None)
-    proc = subprocess.Popen([sys.executable, "-m", "tools.launch", "--duration", "30", "--quiet", "--out", str(out)],
-                            cwd=ROOT, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=env,
-                            stdin=subprocess.DEVNULL)
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "tools.launch", "--duration", "30", "--quiet", "--out", str(out)],
+        cwd=ROOT,
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+        env=env,
+        stdin=subprocess.DEVNULL,
+    )
     try:
         # Wait until the autopilot is flying (its log names the links), then fly ~2.5 s more.
         deadline = time.time() + 60
@@ -125,8 +143,13 @@ def test_realtime_flight_ended_with_sigint_leaves_a_readable_recording(tmp_path)
 
 
 def test_experiment_writes_every_run_side_by_side(tmp_path):
-    r = subprocess.run([sys.executable, "-m", "tools.experiment", "paper", "--out", str(tmp_path), "--no-plot"],
-                       cwd=ROOT, capture_output=True, text=True, timeout=120)
+    r = subprocess.run(
+        [sys.executable, "-m", "tools.experiment", "paper", "--out", str(tmp_path), "--no-plot"],
+        cwd=ROOT,
+        capture_output=True,
+        text=True,
+        timeout=120,
+    )
     assert r.returncode == 0, r.stderr
     data = rrd.load(tmp_path / "paper.rrd")
     for name in ("sac", "clsac", "clsac_lv10", "clsac_lv50", "clsac_lv100"):

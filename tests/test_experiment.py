@@ -20,6 +20,8 @@ import pytest
 from tools.experiment import ExperimentError, run_experiment, write_summary
 from tools.scenario import PAPER, RunSpec, run_inprocess
 
+pytestmark = pytest.mark.e2e  # real processes over loopback UDP
+
 ROOT = Path(__file__).resolve().parents[1]
 # docs/design.md, "Reference scenario": run names and L_v, in this order; "summary.json": the schema.
 DESIGN_RUNS = [("sac", 0.0), ("clsac", 20.0), ("clsac_lv10", 10.0), ("clsac_lv50", 50.0), ("clsac_lv100", 100.0)]
@@ -55,8 +57,14 @@ def cli(tmp_path_factory):
         "no_scenario": ([], ROOT, None),
     }
     procs = {
-        name: subprocess.Popen([sys.executable, "-m", "tools.experiment", *args], cwd=cwd, env=_env(cwd != ROOT),
-                               stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+        name: subprocess.Popen(
+            [sys.executable, "-m", "tools.experiment", *args],
+            cwd=cwd,
+            env=_env(cwd != ROOT),
+            stdout=subprocess.PIPE,
+            stderr=subprocess.PIPE,
+            text=True,
+        )
         for name, (args, cwd, _) in cases.items()
     }
     out = {}
@@ -84,10 +92,10 @@ def test_summary_schema_and_runs_as_in_design(full):
         assert all(isinstance(v, float) and math.isfinite(v) and v >= 0 for v in run["metrics"].values())
 
 
-def test_metrics_equal_an_inprocess_run(full):
+def test_metrics_equal_an_inprocess_run(full, paper_runs):
     _, _, doc = full
     for run in doc["runs"]:
-        ref = run_inprocess(PAPER, RunSpec(run["name"], run["Lv"])).metrics
+        ref = paper_runs[run["name"]].metrics
         for key in METRICS:
             assert math.isclose(run["metrics"][key], ref[key], rel_tol=1e-12, abs_tol=0.0), (run["name"], key)
 
@@ -154,13 +162,16 @@ def test_help(cli):
         assert flag in stdout
 
 
-@pytest.mark.parametrize("case, named", [
-    ("bad_scenario", "nosuchscenario"),
-    ("bad_run", "bogusrun"),
-    ("bad_transport", "carrierpigeon"),
-    ("bad_out", "plain-file"),
-    ("no_scenario", "scenario"),
-])
+@pytest.mark.parametrize(
+    "case, named",
+    [
+        ("bad_scenario", "nosuchscenario"),
+        ("bad_run", "bogusrun"),
+        ("bad_transport", "carrierpigeon"),
+        ("bad_out", "plain-file"),
+        ("no_scenario", "scenario"),
+    ],
+)
 def test_bad_input_one_line_reason(cli, case, named):
     rc, stdout, stderr, out_dir = cli[case]
     assert rc != 0
@@ -192,12 +203,30 @@ def test_run_experiment_api(tmp_path):
 def test_pfc_and_leakage_options_change_the_runs(tmp_path):
     """--pfc robust and --sigma-xu reach the controller: metrics equal in-process runs built with them."""
     from autopilot.config import ClSacConfig
-    from tools.scenario import PAPER, RunSpec, run_inprocess
+    from tools.scenario import PAPER
 
     out = tmp_path / "rob"
-    r = subprocess.run([sys.executable, "-m", "tools.experiment", "paper", "--out", str(out), "--runs", "sac,clsac",
-                        "--pfc", "robust", "--sigma-xu", "0.1", "--no-plot"], cwd=ROOT, capture_output=True, text=True,
-                       timeout=120)
+    r = subprocess.run(
+        [
+            sys.executable,
+            "-m",
+            "tools.experiment",
+            "paper",
+            "--out",
+            str(out),
+            "--runs",
+            "sac,clsac",
+            "--pfc",
+            "robust",
+            "--sigma-xu",
+            "0.1",
+            "--no-plot",
+        ],
+        cwd=ROOT,
+        capture_output=True,
+        text=True,
+        timeout=120,
+    )
     assert r.returncode == 0, r.stderr
     doc = json.loads((out / "summary.json").read_text())
     assert doc["controller"]["pfc"] == "robust" and doc["controller"]["sigma_xu"] == 0.1

@@ -123,23 +123,26 @@ def test_experiment_transport_flies_the_scenario_like_the_wire_model(tmp_path):
     assert not (tmp_path / run.name / "flight.rrd").exists()  # the experiment logs its own recording
 
 
-@pytest.mark.parametrize("kwargs,field,needle", [
-    (dict(rate=0), "rate", "positive"),
-    (dict(rate=5000), "rate", "at most"),
-    (dict(rate=400, physics_rate=1000), "physics_rate", "whole multiple"),
-    (dict(duration=-1), "duration", "-1"),
-    (dict(duration="abc"), "duration", "'abc'"),
-    (dict(lockstep=True, busy_wait=True), "busy_wait", "real time"),
-    (dict(base_port=70000), "base_port", "70000"),
-    (dict(csv="/nonexistent.csv"), "csv", "/nonexistent.csv"),
-    (dict(controller="pid"), "controller", "'pid'"),
-    (dict(pfc="best"), "pfc", "'best'"),
-    (dict(profile="triangle"), "profile", "'triangle'"),
-    (dict(amplitude=math.nan), "amplitude", "nan"),
-    (dict(period=0), "period", "positive"),
-    (dict(rt_priority=100), "rt_priority", "100"),
-    (dict(lv=-2), "lv", "-2"),
-])
+@pytest.mark.parametrize(
+    "kwargs,field,needle",
+    [
+        (dict(rate=0), "rate", "positive"),
+        (dict(rate=5000), "rate", "at most"),
+        (dict(rate=400, physics_rate=1000), "physics_rate", "whole multiple"),
+        (dict(duration=-1), "duration", "-1"),
+        (dict(duration="abc"), "duration", "'abc'"),
+        (dict(lockstep=True, busy_wait=True), "busy_wait", "real time"),
+        (dict(base_port=70000), "base_port", "70000"),
+        (dict(csv="/nonexistent.csv"), "csv", "/nonexistent.csv"),
+        (dict(controller="pid"), "controller", "'pid'"),
+        (dict(pfc="best"), "pfc", "'best'"),
+        (dict(profile="triangle"), "profile", "'triangle'"),
+        (dict(amplitude=math.nan), "amplitude", "nan"),
+        (dict(period=0), "period", "positive"),
+        (dict(rt_priority=100), "rt_priority", "100"),
+        (dict(lv=-2), "lv", "-2"),
+    ],
+)
 def test_bad_keywords_raise_flight_config_error(kwargs, field, needle):
     with pytest.raises(FlightConfigError) as info:
         Flight(**kwargs)
@@ -172,9 +175,11 @@ def test_keywords_are_normalised_like_the_flags():
 def test_profile_values_are_the_plain_functions():
     ts = [k / 100.0 for k in range(-100, 3000)] + [4.999999999, 5.0, 9.9999999999]
     a = math.radians(10.0)
-    for profile, plain in ((Profile.square(amplitude_deg=10, period=10), lambda t: profiles.square(t, a, 10)),
-                           (Profile.step(amplitude_deg=10, step_time=2.5), lambda t: profiles.step(t, a, 2.5)),
-                           (Profile.sine(amplitude_deg=10, period=4), lambda t: profiles.sine(t, a, 4))):
+    for profile, plain in (
+        (Profile.square(amplitude_deg=10, period=10), lambda t: profiles.square(t, a, 10)),
+        (Profile.step(amplitude_deg=10, step_time=2.5), lambda t: profiles.step(t, a, 2.5)),
+        (Profile.sine(amplitude_deg=10, period=4), lambda t: profiles.sine(t, a, 4)),
+    ):
         assert [profile.value(t) for t in ts] == [plain(t) for t in ts], profile.kind
 
 
@@ -183,22 +188,30 @@ def test_csv_profile_holds_its_breakpoints(tmp_path):
     path.write_text("time_s, roll_deg\n0, 0\n1.5, 5\n4, -5\n")
     p = Profile.from_csv(str(path))
     assert p.kind == "csv" and p.times == (0.0, 1.5, 4.0)
-    assert [p.value(t) for t in (0.0, 1.49, 1.5, 3.9, 10.0)] == [0.0, 0.0, math.radians(5), math.radians(5),
-                                                                 math.radians(-5)]
+    assert [p.value(t) for t in (0.0, 1.49, 1.5, 3.9, 10.0)] == [
+        0.0,
+        0.0,
+        math.radians(5),
+        math.radians(5),
+        math.radians(-5),
+    ]
     assert p.breakpoints_ms(1, 4000) == [1500, 4000]
     assert Profile.square(period=2).breakpoints_ms(0, 3000) == [0, 1000, 2000, 3000]
     assert Profile.step(step_time=1.25).breakpoints_ms(0, 2000) == [1250]
     assert Profile.sine().breakpoints_ms(0, 10000) == []
 
 
-@pytest.mark.parametrize("kwargs,field", [
-    (dict(kind="triangle"), "kind"),
-    (dict(period=-1.0), "period"),
-    (dict(amplitude=math.inf), "amplitude"),
-    (dict(step_time=math.nan), "step_time"),
-    (dict(kind="csv"), "times"),
-    (dict(kind="csv", times=(0.0, 0.0), values=(0.0, 1.0)), "times"),
-])
+@pytest.mark.parametrize(
+    "kwargs,field",
+    [
+        (dict(kind="triangle"), "kind"),
+        (dict(period=-1.0), "period"),
+        (dict(amplitude=math.inf), "amplitude"),
+        (dict(step_time=math.nan), "step_time"),
+        (dict(kind="csv"), "times"),
+        (dict(kind="csv", times=(0.0, 0.0), values=(0.0, 1.0)), "times"),
+    ],
+)
 def test_bad_profiles_raise_profile_error(kwargs, field):
     with pytest.raises(ProfileError) as info:
         Profile(**kwargs)

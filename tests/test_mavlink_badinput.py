@@ -14,6 +14,8 @@ import time
 import pytest
 from _mavlink_procs import Proc, free_ports, load_json, mav, mavlink, pack, udp
 
+pytestmark = pytest.mark.e2e  # real processes over loopback UDP
+
 RATE = 100.0
 DURATION = 3.0
 
@@ -22,17 +24,39 @@ class Flight:
     def __init__(self, tmp_path):
         self.sitl_port, self.ap_sitl_port, self.ap_gcs_port = free_ports(3)
         self.dir = tmp_path
-        self.sitl = Proc("sitl", ["--listen", f"127.0.0.1:{self.sitl_port}", "--stats-json", str(tmp_path / "sitl.json")],
-                         tmp_path / "sitl.log")
-        self.ap = Proc("autopilot", [
-            "--sitl", f"127.0.0.1:{self.sitl_port}", "--sitl-bind", f"127.0.0.1:{self.ap_sitl_port}",
-            "--listen", f"127.0.0.1:{self.ap_gcs_port}", "--gcs", "127.0.0.1:9", "--rate", str(RATE),
-            "--duration", str(DURATION), "--stats-json", str(tmp_path / "ap.json")], tmp_path / "ap.log")
+        self.sitl = Proc(
+            "sitl",
+            ["--listen", f"127.0.0.1:{self.sitl_port}", "--stats-json", str(tmp_path / "sitl.json")],
+            tmp_path / "sitl.log",
+        )
+        self.ap = Proc(
+            "autopilot",
+            [
+                "--sitl",
+                f"127.0.0.1:{self.sitl_port}",
+                "--sitl-bind",
+                f"127.0.0.1:{self.ap_sitl_port}",
+                "--listen",
+                f"127.0.0.1:{self.ap_gcs_port}",
+                "--gcs",
+                "127.0.0.1:9",
+                "--rate",
+                str(RATE),
+                "--duration",
+                str(DURATION),
+                "--stats-json",
+                str(tmp_path / "ap.json"),
+            ],
+            tmp_path / "ap.log",
+        )
         self.tx = udp()
 
     def targets(self):
-        return {"ap_sitl": ("127.0.0.1", self.ap_sitl_port), "ap_gcs": ("127.0.0.1", self.ap_gcs_port),
-                "sitl": ("127.0.0.1", self.sitl_port)}
+        return {
+            "ap_sitl": ("127.0.0.1", self.ap_sitl_port),
+            "ap_gcs": ("127.0.0.1", self.ap_gcs_port),
+            "sitl": ("127.0.0.1", self.sitl_port),
+        }
 
     def send(self, where: str, payloads):
         addr = self.targets()[where]
@@ -98,7 +122,7 @@ def test_truncated_packets(flight):
     n = 100
     good_sitl, good_gcs, good_ap = mav(1, 200), mav(255, 190), mav(1, 1)
     att = [_attitude(good_sitl)[: 8 + k % 10] for k in range(n)]
-    sp = [_setpoint(good_gcs, [1.0, 0.0, 0.0, 0.0])[:-1 - k % 20] for k in range(n)]
+    sp = [_setpoint(good_gcs, [1.0, 0.0, 0.0, 0.0])[: -1 - k % 20] for k in range(n)]
     srv = [_servo(good_ap)[: 12 + k % 5] for k in range(n)]
     flight.send("ap_sitl", att)
     flight.send("ap_gcs", sp)

@@ -71,7 +71,9 @@ def test_pwm_default_calibration():
     # 1 us resolution: 0.06 deg
     assert m.to_rad(1501) == pytest.approx(math.radians(0.06))
     for u in (-0.5, -0.01, 0.0, 0.002, 0.3):
-        assert abs(m.to_rad(m.to_pwm(u)) - max(-m.rudder_max_rad, min(m.rudder_max_rad, u))) <= math.radians(0.03) + 1e-12
+        assert (
+            abs(m.to_rad(m.to_pwm(u)) - max(-m.rudder_max_rad, min(m.rudder_max_rad, u))) <= math.radians(0.03) + 1e-12
+        )
     assert m.servo_fields(1600)[3] == 1600 and sum(m.servo_fields(1600)) == 1600
 
 
@@ -101,8 +103,9 @@ def test_tlog_round_trip_and_mavlogdump(tmp_path):
     with open(path, "ab") as f:
         f.write(b"\x00\x01\x02\x03\x04\x05\x06\x07\xfd\x1c")
     assert len(list(read_tlog(str(path)))) == 50
-    dump = subprocess.run([PY, "-m", "pymavlink.tools.mavlogdump", str(path)], capture_output=True, text=True,
-                          timeout=60)
+    dump = subprocess.run(
+        [PY, "-m", "pymavlink.tools.mavlogdump", str(path)], capture_output=True, text=True, timeout=60
+    )
     assert dump.returncode == 0
     assert dump.stdout.count("ATTITUDE {") == 50
     streams = payload_streams(str(path))
@@ -112,8 +115,9 @@ def test_tlog_round_trip_and_mavlogdump(tmp_path):
 
 # -------------------------------------------------------------------------------------------- link
 def _link(**kw):
-    return UdpLink("t", (1, 1), ("127.0.0.1", 0), None, peers=[(1, 200)],
-                   msgids=[mavlink.MAVLINK_MSG_ID_ATTITUDE], **kw)
+    return UdpLink(
+        "t", (1, 1), ("127.0.0.1", 0), None, peers=[(1, 200)], msgids=[mavlink.MAVLINK_MSG_ID_ATTITUDE], **kw
+    )
 
 
 def _deliver(link, tx, payloads):
@@ -143,8 +147,14 @@ def test_link_accepts_valid_and_rejects_each_kind_of_bad_input():
     got = _deliver(link, tx, payloads)
     assert len(got) == 4  # ok, the two packets of ok+ok, and the MAVLink 1 packet
     assert got[-1].roll == pytest.approx(0.2)
-    assert link.rejected == {"bad_magic": 1, "truncated": 2, "bad_crc": 1, "wrong_id": 1, "ignored_msg": 1,
-                             "unknown_msg": 1}
+    assert link.rejected == {
+        "bad_magic": 1,
+        "truncated": 2,
+        "bad_crc": 1,
+        "wrong_id": 1,
+        "ignored_msg": 1,
+        "unknown_msg": 1,
+    }
     assert link.rx_packets == 4 and link.rx_datagrams == len(payloads)
     link.close()
     tx.close()
@@ -199,15 +209,48 @@ def test_fast_codec_is_byte_identical_to_pymavlink():
     m = mav(1, 1)
     rng = random.Random(5)
     cases = [
-        (mavlink.MAVLink_attitude_message, lambda: (rng.randrange(1 << 32), rng.uniform(-3, 3), 0.0, 0.0,
-                                                     rng.uniform(-9, 9), 0.0, rng.choice([0.0, rng.uniform(-1, 1)])),
-         lambda a: a),
-        (mavlink.MAVLink_servo_output_raw_message,
-         lambda: (rng.randrange(1 << 32), 0, 0, 0, 0, rng.choice([0, 1000, 1500, 2000, rng.randrange(65536)]), 0, 0, 0, 0),
-         lambda a: (a[0], *a[2:10], a[1], *([0] * 8))),
-        (mavlink.MAVLink_attitude_target_message,
-         lambda: (rng.randrange(1 << 32), 71, [rng.uniform(-1, 1), rng.uniform(-1, 1), 0.0, 0.0], 0.0, 0.0, 0.0, 0.0),
-         lambda a: (a[0], *a[2], a[3], a[4], a[5], a[6], a[1])),
+        (
+            mavlink.MAVLink_attitude_message,
+            lambda: (
+                rng.randrange(1 << 32),
+                rng.uniform(-3, 3),
+                0.0,
+                0.0,
+                rng.uniform(-9, 9),
+                0.0,
+                rng.choice([0.0, rng.uniform(-1, 1)]),
+            ),
+            lambda a: a,
+        ),
+        (
+            mavlink.MAVLink_servo_output_raw_message,
+            lambda: (
+                rng.randrange(1 << 32),
+                0,
+                0,
+                0,
+                0,
+                rng.choice([0, 1000, 1500, 2000, rng.randrange(65536)]),
+                0,
+                0,
+                0,
+                0,
+            ),
+            lambda a: (a[0], *a[2:10], a[1], *([0] * 8)),
+        ),
+        (
+            mavlink.MAVLink_attitude_target_message,
+            lambda: (
+                rng.randrange(1 << 32),
+                71,
+                [rng.uniform(-1, 1), rng.uniform(-1, 1), 0.0, 0.0],
+                0.0,
+                0.0,
+                0.0,
+                0.0,
+            ),
+            lambda a: (a[0], *a[2], a[3], a[4], a[5], a[6], a[1]),
+        ),
     ]
     for cls, gen, wire in cases:
         fp = FastPacker(cls, 1, 1)

@@ -27,7 +27,9 @@ def test_servo_step_response_is_the_analytic_second_order_one():
     for k in range(1, 301):
         x = ac.step(u)
         t = k * ac.config.dt
-        analytic = u * (1 - math.exp(-zeta * wn * t) * (math.cos(wd * t) + zeta / math.sqrt(1 - zeta**2) * math.sin(wd * t)))
+        analytic = u * (
+            1 - math.exp(-zeta * wn * t) * (math.cos(wd * t) + zeta / math.sqrt(1 - zeta**2) * math.sin(wd * t))
+        )
         assert x[model.DELTA_R] == pytest.approx(analytic, abs=1e-12)
 
 
@@ -77,10 +79,16 @@ def test_rudder_limits_hold():
     assert x[model.DELTA_R] == pytest.approx(0.1)
 
 
-@pytest.mark.parametrize("field,value", [
-    ("physics_rate_hz", 0.0), ("physics_rate_hz", -1000.0), ("physics_rate_hz", float("nan")),
-    ("rudder_limit_rad", -0.1), ("rudder_rate_limit_rad_s", 0.0),
-])
+@pytest.mark.parametrize(
+    "field,value",
+    [
+        ("physics_rate_hz", 0.0),
+        ("physics_rate_hz", -1000.0),
+        ("physics_rate_hz", float("nan")),
+        ("rudder_limit_rad", -0.1),
+        ("rudder_rate_limit_rad_s", 0.0),
+    ],
+)
 def test_bad_aircraft_config_names_the_value(field, value):
     with pytest.raises(AircraftConfigError, match=field):
         AircraftConfig(**{field: value})

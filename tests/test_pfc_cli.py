@@ -16,6 +16,8 @@ from pathlib import Path
 
 import pytest
 
+pytestmark = pytest.mark.e2e  # the command lines as subprocesses
+
 ROOT = Path(__file__).parents[1]
 
 JSON_CUSTOM = ("--json", "--pfc-num", "10", "--pfc-den", "4,40")  # the paper's D, given on the command line
@@ -41,7 +43,10 @@ BAD_IN_PROCESS = {
 def _start(args: tuple[str, ...]) -> subprocess.Popen:
     return subprocess.Popen(
         [sys.executable, "-m", "tools.pfc", *args],
-        cwd=ROOT, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+        cwd=ROOT,
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
     )
 
 

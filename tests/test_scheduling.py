@@ -80,8 +80,10 @@ print(json.dumps(out))
 """
 
 
-@pytest.mark.skipif(not hasattr(os, "sched_setaffinity") or (os.cpu_count() or 1) < 2 or
-                    not {0, 1} <= os.sched_getaffinity(0), reason="needs CPUs 0 and 1 and per-thread affinity")
+@pytest.mark.skipif(
+    not hasattr(os, "sched_setaffinity") or (os.cpu_count() or 1) < 2 or not {0, 1} <= os.sched_getaffinity(0),
+    reason="needs CPUs 0 and 1 and per-thread affinity",
+)
 def test_busy_wait_moves_helper_threads_off_the_control_cpu():
     r = subprocess.run([sys.executable, "-c", MOVE_CHILD], capture_output=True, text=True, timeout=60)
     assert r.returncode == 0, r.stderr

@@ -33,7 +33,7 @@ def test_step_equals_a_procedural_loop(pwm):
         assert (r.k, r.t, r.um, r.u_cmd, r.u, r.failsafe) == (k + 1, t, _square(t), u_cmd, u, Failsafe.NONE)
         assert r.pwm == (None if pwm is None else pwm.to_pwm(u_cmd))
         ise_ref += (ac2.phi - law.ym_ol) ** 2 * dt
-        ise_crm += law.e ** 2 * dt
+        ise_crm += law.e**2 * dt
         energy += u * u * dt
         tv += 0.0 if u_prev is None else abs(u - u_prev)
         umax = max(umax, abs(u))
@@ -67,9 +67,14 @@ def test_wings_level_flies_a_zero_command():
     assert step(0.01, 0.0).um == 0.3
 
 
-@pytest.mark.parametrize(("phi", "cmd", "failsafe"), [
-    (math.nan, 0.1, Failsafe.NO_ATTITUDE), (math.inf, 0.1, Failsafe.NO_ATTITUDE), (0.0, math.nan, Failsafe.NO_SETPOINT),
-])
+@pytest.mark.parametrize(
+    ("phi", "cmd", "failsafe"),
+    [
+        (math.nan, 0.1, Failsafe.NO_ATTITUDE),
+        (math.inf, 0.1, Failsafe.NO_ATTITUDE),
+        (0.0, math.nan, Failsafe.NO_SETPOINT),
+    ],
+)
 def test_a_nonfinite_input_is_flown_as_a_hold_and_never_scored(phi, cmd, failsafe):
     step = ControlStep(ClSacConfig(), PwmMap(), ProfileSetpoints(lambda t: cmd))
     r = step(0.0, phi)

@@ -27,7 +27,7 @@ from autopilot.telemetry.hooks import AutopilotHook, autopilot_tables
 from sitl import telemetry as S
 from sitl.model import STATE_NAMES
 from tools import recording, rrd, views
-from tools.scenario import PAPER, PAPER_RUNS, run_inprocess
+from tools.scenario import PAPER
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -127,8 +127,11 @@ def test_state_channel_ignores_repeats_and_logs_text(tmp_path):
     assert states[L.AP_MODE] == [(0.0, "ADAPTIVE"), (1.0, "HOLD")]
     assert states[L.AP_FAILSAFE] == [(2.0, "NO_ATTITUDE")]
     text = rrd.load_text(path, L.AP_EVENTS)
-    assert text == [(0.0, "mode: - -> ADAPTIVE"), (1.0, "mode: ADAPTIVE -> HOLD"),
-                    (2.0, "failsafe: - -> NO_ATTITUDE (no ATTITUDE for 0.5 s)")]
+    assert text == [
+        (0.0, "mode: - -> ADAPTIVE"),
+        (1.0, "mode: ADAPTIVE -> HOLD"),
+        (2.0, "failsafe: - -> NO_ATTITUDE (no ATTITUDE for 0.5 s)"),
+    ]
 
 
 def test_close_is_idempotent_and_fast(tmp_path):
@@ -156,14 +159,14 @@ def test_finalize_writes_the_footer(tmp_path):
 
 
 @pytest.fixture(scope="module")
-def paper_results():
-    return [run_inprocess(PAPER, run) for run in PAPER_RUNS]
+def paper_results(paper_runs):
+    return list(paper_runs.values())
 
 
 def test_log_experiment_writes_every_run_side_by_side(tmp_path, paper_results):
     path = recording.log_experiment(paper_results, tmp_path / "paper.rrd")
     assert path == tmp_path / "paper.rrd"
-    (app, _), = rrd.recordings(path)
+    ((app, _),) = rrd.recordings(path)
     assert app == recording.EXPERIMENT_APPLICATION_ID
     data = rrd.load(path)
     n = PAPER.steps
@@ -173,8 +176,15 @@ def test_log_experiment_writes_every_run_side_by_side(tmp_path, paper_results):
     for r in paper_results:
         s = r.series
         base = f"{views.RUNS}/{r.name}"
-        for what, key in (("roll", "phi"), ("reference", "ym"), ("error", "e"), ("rudder", "u"),
-                          ("gains/ke", "ke"), ("gains/kx", "kx"), ("gains/ku", "ku")):
+        for what, key in (
+            ("roll", "phi"),
+            ("reference", "ym"),
+            ("error", "e"),
+            ("rudder", "u"),
+            ("gains/ke", "ke"),
+            ("gains/kx", "kx"),
+            ("gains/ku", "ku"),
+        ):
             sig = data[f"{base}/{what}"]
             assert len(sig.t) == n, f"{base}/{what}"
             np.testing.assert_array_equal(sig.values[:, 0], s[key])
@@ -241,8 +251,10 @@ def test_loop_hooks_turn_step_records_into_telemetry(tmp_path):
     step = ControlStep(ClSacConfig(control_rate_hz=400.0), PwmMap(), ProfileSetpoints(lambda _t: 0.1))
     ac = Aircraft()
     rid = tm.new_recording_id()
-    with tm.Telemetry("autopilot", rid, tmp_path / "ap.rrd") as tel_ap, \
-            tm.Telemetry("sitl", rid, tmp_path / "sitl.rrd") as tel_sitl:
+    with (
+        tm.Telemetry("autopilot", rid, tmp_path / "ap.rrd") as tel_ap,
+        tm.Telemetry("sitl", rid, tmp_path / "sitl.rrd") as tel_sitl,
+    ):
         hook = AutopilotHook(tel_ap, control_rate_hz=400.0)
         shook = S.SitlHook(tel_sitl)
         for k in range(400):
@@ -258,14 +270,29 @@ def test_loop_hooks_turn_step_records_into_telemetry(tmp_path):
             for j, link in enumerate(links.values()):
                 link.rx_packets, link.tx_packets = 10 * k + j, 5 * k
                 link.rejected["crc"] = k // 50
-            hook(StepRecord(result=res, frame=k, wall=time.perf_counter(), p=ac.p, r=ac.r, period=0.0025,
-                            lateness=1e-5, compute=2e-5, latency=None, missed=False, ctrl=step.law, ap=ap_obj))
+            hook(
+                StepRecord(
+                    result=res,
+                    frame=k,
+                    wall=time.perf_counter(),
+                    p=ac.p,
+                    r=ac.r,
+                    period=0.0025,
+                    lateness=1e-5,
+                    compute=2e-5,
+                    latency=None,
+                    missed=False,
+                    ctrl=step.law,
+                    ap=ap_obj,
+                )
+            )
             shook(NS(t_sim=t, x=ac.x.copy(), u=res.u, pwm=res.pwm, frame=k, sitl=None))
             if k == 300:
                 shook.event(4, "servo timeout: rudder neutral")
             ac.advance(res.u, 2)
-    merged = tm.merge_recordings([tmp_path / "ap.rrd", tmp_path / "sitl.rrd"], tmp_path / "flight.rrd",
-                                 blueprint=views.flight_blueprint())
+    merged = tm.merge_recordings(
+        [tmp_path / "ap.rrd", tmp_path / "sitl.rrd"], tmp_path / "flight.rrd", blueprint=views.flight_blueprint()
+    )
     data = rrd.load(merged)
     assert len(data[L.AP_ROLL].t) == 400 and len(data[S.SITL_ROLL].t) == 400
     assert len(data[f"{L.AP_LINK}/sitl"].t) == 10  # 10 Hz over 1 s of 400 Hz steps
@@ -284,8 +311,10 @@ def test_loop_hooks_turn_step_records_into_telemetry(tmp_path):
     assert [x for _, x in rrd.load_text(merged, S.SITL_EVENTS)] == ["servo timeout: rudder neutral"]
     i = np.searchsorted(data[S.SITL_ROLL].t_ns, data[L.AP_ROLL].t_ns)
     stepped = np.r_[0:100, 120:400]  # while held (failsafe) the controller does not take a measurement
-    np.testing.assert_array_equal(data[L.AP_ROLL].values[stepped, 3],
-                                  data[S.SITL_ROLL].values[i[stepped], 0].astype(np.float32).astype(np.float64))
+    np.testing.assert_array_equal(
+        data[L.AP_ROLL].values[stepped, 3],
+        data[S.SITL_ROLL].values[i[stepped], 0].astype(np.float32).astype(np.float64),
+    )
     assert rrd.has_blueprint(merged)
 
 
@@ -353,8 +382,9 @@ def test_sitl_telemetry_does_not_load_the_control_law():
     loaded = _loaded_after("import sitl.telemetry")
     for m in ("autopilot.clsac", "autopilot.loop", "autopilot.step", "autopilot.telemetry"):
         assert m not in loaded
-    assert [m for m in loaded if m.startswith("autopilot") and m != "autopilot"
-            and not m.startswith("autopilot.shared")] == []
+    assert [
+        m for m in loaded if m.startswith("autopilot") and m != "autopilot" and not m.startswith("autopilot.shared")
+    ] == []
 
 
 def test_nothing_imports_rerun_without_telemetry_flags():

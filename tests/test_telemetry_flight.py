@@ -29,6 +29,8 @@ from sitl import telemetry as S
 from tools import rrd
 from tools.views import flight_blueprint
 
+pytestmark = pytest.mark.e2e  # real processes over loopback UDP
+
 HERE = Path(__file__).resolve()
 RATE = 400.0
 PWM_PER_RAD = 500.0 / math.radians(30.0)
@@ -144,8 +146,15 @@ def flight(tmp_path_factory):
     for role, (rc, _, err) in results.items():
         assert rc == 0, f"{role} writer failed: {err[-2000:]}"
     merged = tm.merge_recordings(list(parts.values()), d / "flight.rrd", blueprint=flight_blueprint())
-    return {"dir": d, "rid": rid, "parts": parts, "path": merged, "duration": duration, "elapsed": elapsed,
-            "sent": {role: _sent(out) for role, (_, out, _) in results.items()}}
+    return {
+        "dir": d,
+        "rid": rid,
+        "parts": parts,
+        "path": merged,
+        "duration": duration,
+        "elapsed": elapsed,
+        "sent": {role: _sent(out) for role, (_, out, _) in results.items()},
+    }
 
 
 # ------------------------------------------------------------------------------------------ tests
@@ -153,8 +162,15 @@ def test_two_processes_write_one_recording(flight):
     recs = rrd.recordings(flight["path"])
     assert recs == [(tm.APPLICATION_ID, flight["rid"])]
     paths = set(rrd.entity_paths(flight["path"]))
-    for p in (*L.AUTOPILOT.paths, *S.SITL_TABLE.paths, f"{L.AP_LINK}/sitl", f"{L.AP_LINK}/gcs",
-              L.AP_MODE, L.AP_FAILSAFE, L.AP_EVENTS):
+    for p in (
+        *L.AUTOPILOT.paths,
+        *S.SITL_TABLE.paths,
+        f"{L.AP_LINK}/sitl",
+        f"{L.AP_LINK}/gcs",
+        L.AP_MODE,
+        L.AP_FAILSAFE,
+        L.AP_EVENTS,
+    ):
         assert p in paths, f"{p} missing from the merged recording"
     # Both processes ran at the same time: the flight did not take two flights' time.
     assert flight["elapsed"] < 2 * flight["duration"] + 8
@@ -222,8 +238,15 @@ def test_blueprint_present_once_and_verified(flight):
     assert rrd.has_blueprint(path)
     assert len(rrd.blueprint_components(path, "ViewportBlueprint:root_container")) == 1  # one layout, not two
     names = rrd.blueprint_components(path, "ViewBlueprint:display_name")
-    for expected in ("Roll tracking [rad]", "Error e = ym - ya [rad]", "Rudder [rad]", "Gain Ke (error)",
-                     "Loop timing [s]", "Link counters", "Mode and failsafe"):
+    for expected in (
+        "Roll tracking [rad]",
+        "Error e = ym - ya [rad]",
+        "Rudder [rad]",
+        "Gain Ke (error)",
+        "Loop timing [s]",
+        "Link counters",
+        "Mode and failsafe",
+    ):
         assert expected in names
     assert rrd.blueprint_components(path, "TimePanelBlueprint:timeline") == ["sim_time"]
     links = rrd.blueprint_components(path, "TimeAxis:link")
@@ -295,8 +318,12 @@ def test_live_stream_from_two_processes_is_one_recording(tmp_path):
     port = _free_port()
     live = tmp_path / "live.rrd"
     env = {k: v for k, v in os.environ.items() if k not in ("DISPLAY", "WAYLAND_DISPLAY")}
-    server = subprocess.Popen([tm.rerun_cli_path(), "--port", str(port), "--save", str(live)],
-                              stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, env=env)
+    server = subprocess.Popen(
+        [tm.rerun_cli_path(), "--port", str(port), "--save", str(live)],
+        stdout=subprocess.DEVNULL,
+        stderr=subprocess.DEVNULL,
+        env=env,
+    )
     try:
         url = tm.viewer_url(port)
         deadline = time.time() + 15

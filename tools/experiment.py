@@ -10,8 +10,9 @@ the metrics of docs/design.md, "Metrics".  From Python::
     results = run_experiment("runs/x", transport="inprocess", runs=["sac", "clsac"], plot=False)
 
 A transport is a function ``(scenario, run, workdir) -> RunResult``; ``workdir`` is ``OUT/<run.name>``, a
-folder of that run's own (not created beforehand) for a transport that writes files (logs, tlog).  :data:`TRANSPORTS` maps
-each name to a loader returning that function, so a loader may import lazily and fail with a clear reason.
+folder of that run's own (not created beforehand) for a transport that writes files (logs, tlog).
+:data:`TRANSPORTS` maps each name to a loader returning that function, so a loader may import lazily and
+fail with a clear reason.
 Adding a transport is one line in :data:`TRANSPORTS`.
 """
 
@@ -19,7 +20,6 @@ from __future__ import annotations
 
 import argparse
 import datetime as _dt
-import json
 import math
 import os
 import sys
@@ -60,7 +60,7 @@ SCENARIOS: dict[str, Callable[[], tuple[Scenario, tuple[RunSpec, ...]]]] = {
 }
 
 
-def _inprocess(scenario: Scenario, run: RunSpec, workdir: Path) -> RunResult:
+def _inprocess(scenario: Scenario, run: RunSpec, workdir: Path) -> RunResult:  # noqa: ARG001  (transport signature)
     from tools.scenario import run_inprocess
 
     return run_inprocess(scenario, run)
@@ -220,8 +220,10 @@ _CHECK_LABELS = {
 
 
 def _check_lines(checks: dict[str, dict]) -> list[str]:
-    return [f"{_CHECK_LABELS.get(name, name)}: {'yes' if c['holds'] else 'NO'} ({c['detail']})"
-            for name, c in checks.items()]
+    return [
+        f"{_CHECK_LABELS.get(name, name)}: {'yes' if c['holds'] else 'NO'} ({c['detail']})"
+        for name, c in checks.items()
+    ]
 
 
 # ---------------------------------------------------------------------------------------- output
@@ -244,8 +246,14 @@ def _versions() -> dict[str, str]:
     return out
 
 
-def write_summary(results: Sequence[RunResult], path: str | os.PathLike, *, scenario: Scenario | None = None,
-                  transport: str | None = None, extra: dict | None = None) -> Path:
+def write_summary(
+    results: Sequence[RunResult],
+    path: str | os.PathLike,
+    *,
+    scenario: Scenario | None = None,
+    transport: str | None = None,
+    extra: dict | None = None,
+) -> Path:
     """Write ``summary.json``: ``{"scenario": ..., "runs": [{"name", "Lv", "metrics": {...}}, ...]}``.
 
     Extra top-level keys (never inside ``runs``): ``units``, ``settings``, ``transport``, ``saturation``,
@@ -294,13 +302,15 @@ def format_table(results: Sequence[RunResult], scenario: Scenario | None = None)
     """The metrics table, a saturation line and the paper's claims, as printed by the CLI."""
     if scenario is None:
         from tools.scenario import PAPER as scenario
-    head = (f"{'run':<12} {'Lv':>6} {'ise_ref':>11} {'ise_crm':>11} {'energy':>11} {'tv':>10} {'max|u|':>8}")
-    unit = (f"{'':<12} {'':>6} {'[rad^2 s]':>11} {'[rad^2 s]':>11} {'[rad^2 s]':>11} {'[rad]':>10} {'[deg]':>8}")
+    head = f"{'run':<12} {'Lv':>6} {'ise_ref':>11} {'ise_crm':>11} {'energy':>11} {'tv':>10} {'max|u|':>8}"
+    unit = f"{'':<12} {'':>6} {'[rad^2 s]':>11} {'[rad^2 s]':>11} {'[rad^2 s]':>11} {'[rad]':>10} {'[deg]':>8}"
     lines = [head, unit, "-" * len(head)]
     for r in results:
         m = r.metrics
-        lines.append(f"{r.name:<12} {r.lv:>6g} {m['ise_ref']:>11.4g} {m['ise_crm']:>11.4g} {m['energy']:>11.4g} "
-                     f"{m['tv']:>10.4g} {m['max_abs_u'] * DEG:>8.2f}")
+        lines.append(
+            f"{r.name:<12} {r.lv:>6g} {m['ise_ref']:>11.4g} {m['ise_crm']:>11.4g} {m['energy']:>11.4g} "
+            f"{m['tv']:>10.4g} {m['max_abs_u'] * DEG:>8.2f}"
+        )
     parts = []
     for r in results:
         s = saturation(r, scenario.u_limit_rad)
@@ -319,10 +329,18 @@ def format_table(results: Sequence[RunResult], scenario: Scenario | None = None)
 
 
 # ---------------------------------------------------------------------------------------- run
-def run_experiment(out_dir: str | os.PathLike, transport: str = "inprocess", runs: Iterable[str | RunSpec] | None = None,
-                   plot: bool = True, *, scenario: str | Scenario = "paper",
-                   log: Callable[[str], None] | None = None, pfc: str | None = None,
-                   sigma_xu: float | None = None, rrd: bool = True) -> list[RunResult]:
+def run_experiment(
+    out_dir: str | os.PathLike,
+    transport: str = "inprocess",
+    runs: Iterable[str | RunSpec] | None = None,
+    plot: bool = True,
+    *,
+    scenario: str | Scenario = "paper",
+    log: Callable[[str], None] | None = None,
+    pfc: str | None = None,
+    sigma_xu: float | None = None,
+    rrd: bool = True,
+) -> list[RunResult]:
     """Fly the scenario's runs with ``transport``; write ``out_dir/summary.json`` and (``plot``) ``paper.png``.
 
     ``runs``: names (or RunSpecs) of the scenario's runs, None for all.  ``log``: called with progress
@@ -333,7 +351,6 @@ def run_experiment(out_dir: str | os.PathLike, transport: str = "inprocess", run
     from dataclasses import replace
 
     from autopilot.config import PFC_PRESETS
-
     from tools.scenario import PAPER_RUNS, Scenario
 
     say = log or (lambda _msg: None)
@@ -348,8 +365,10 @@ def run_experiment(out_dir: str | os.PathLike, transport: str = "inprocess", run
         raise ExperimentError(f"unknown PFC {pfc!r} (known: {', '.join(PFC_PRESETS)})")
     if sigma_xu is not None and not (sigma_xu >= 0 and sigma_xu < float("inf")):
         raise ExperimentError(f"--sigma-xu must be finite and >= 0, got {sigma_xu!r}")
-    specs = [replace(s, pfc=pfc if pfc is not None else s.pfc, sigma_xu=sigma_xu if sigma_xu is not None else s.sigma_xu)
-             for s in specs]
+    specs = [
+        replace(s, pfc=pfc if pfc is not None else s.pfc, sigma_xu=sigma_xu if sigma_xu is not None else s.sigma_xu)
+        for s in specs
+    ]
     runner = get_transport(transport)
     out = prepare_out_dir(out_dir)
     results: list[RunResult] = []
@@ -359,18 +378,25 @@ def run_experiment(out_dir: str | os.PathLike, transport: str = "inprocess", run
         res = runner(scen, spec, out / spec.name)
         results.append(res)
         sat = saturation(res, scen.u_limit_rad)
-        say(f"[{i}/{len(specs)}] {spec.name} done in {time.perf_counter() - t0:.2f} s: ise_ref={res.metrics['ise_ref']:.4g}"
-            f" energy={res.metrics['energy']:.4g}" + (" (rudder saturated)" if sat["saturated"] else ""))
+        say(
+            f"[{i}/{len(specs)}] {spec.name} done in {time.perf_counter() - t0:.2f} s: "
+            f"ise_ref={res.metrics['ise_ref']:.4g}"
+            f" energy={res.metrics['energy']:.4g}" + (" (rudder saturated)" if sat["saturated"] else "")
+        )
     controller = {"pfc": pfc or "paper", "pfc_num_den": PFC_PRESETS[pfc or "paper"], "sigma_xu": sigma_xu or 0.0}
-    summary = write_summary(results, out / "summary.json", scenario=scen, transport=transport,
-                            extra={"controller": controller})
+    summary = write_summary(
+        results, out / "summary.json", scenario=scen, transport=transport, extra={"controller": controller}
+    )
     say(f"wrote {summary.resolve()}")
     if rrd:
         t0 = time.perf_counter()
         from tools.recording import log_experiment  # lazy: rerun costs ~1 s to import
 
         path = log_experiment(results, out / f"{scen.name}.rrd")
-        say(f"wrote {Path(path).resolve()} ({time.perf_counter() - t0:.1f} s; open it with: rerun {Path(path).resolve()})")
+        say(
+            f"wrote {Path(path).resolve()} ({time.perf_counter() - t0:.1f} s; "
+            f"open it with: rerun {Path(path).resolve()})"
+        )
     if plot:
         t0 = time.perf_counter()
         from tools.plots import save_paper_figure  # lazy: matplotlib costs ~1 s to import
@@ -380,26 +406,42 @@ def run_experiment(out_dir: str | os.PathLike, transport: str = "inprocess", run
     return results
 
 
-
-
 def build_parser() -> argparse.ArgumentParser:
     p = OneLineArgumentParser(
         prog="python -m tools.experiment",
-        description="Fly a reference scenario (docs/design.md, \"Reference scenario\") for each controller variant; write "
-                    "OUT/summary.json and OUT/<scenario>.png and print the metrics.",
+        description='Fly a reference scenario (docs/design.md, "Reference scenario") for each controller variant; '
+        "write OUT/summary.json and OUT/<scenario>.png and print the metrics.",
     )
     p.add_argument("scenario", help=f"scenario name ({', '.join(SCENARIOS)})")
     p.add_argument("--out", metavar="DIR", help="output folder (default: a new runs/<scenario>-<timestamp>/)")
-    p.add_argument("--transport", default="inprocess", metavar="NAME",
-                   help=f"how to fly it: {' | '.join(TRANSPORTS)} (default: inprocess)")
-    p.add_argument("--runs", metavar="A,B,...",
-                   help="comma-separated subset of runs (default: all; paper: sac,clsac,clsac_lv10,clsac_lv50,clsac_lv100)")
+    p.add_argument(
+        "--transport",
+        default="inprocess",
+        metavar="NAME",
+        help=f"how to fly it: {' | '.join(TRANSPORTS)} (default: inprocess)",
+    )
+    p.add_argument(
+        "--runs",
+        metavar="A,B,...",
+        help="comma-separated subset of runs (default: all; paper: sac,clsac,clsac_lv10,clsac_lv50,clsac_lv100)",
+    )
     p.add_argument("--no-plot", action="store_true", help="do not write the figure")
-    p.add_argument("--no-rrd", action="store_true", help="do not write OUT/<scenario>.rrd (every run side by side in Rerun)")
-    p.add_argument("--pfc", choices=("paper", "robust"), default=None,
-                   help="PFC for every run: paper = 10/(4s+40) (default), robust = 10/(s+10) (see python -m tools.pfc)")
-    p.add_argument("--sigma-xu", type=float, default=None, metavar="SIGMA",
-                   help="sigma-modification of K_Ix, K_Iu for every run (default 0, the paper)")
+    p.add_argument(
+        "--no-rrd", action="store_true", help="do not write OUT/<scenario>.rrd (every run side by side in Rerun)"
+    )
+    p.add_argument(
+        "--pfc",
+        choices=("paper", "robust"),
+        default=None,
+        help="PFC for every run: paper = 10/(4s+40) (default), robust = 10/(s+10) (see python -m tools.pfc)",
+    )
+    p.add_argument(
+        "--sigma-xu",
+        type=float,
+        default=None,
+        metavar="SIGMA",
+        help="sigma-modification of K_Ix, K_Iu for every run (default 0, the paper)",
+    )
     return p
 
 
@@ -424,8 +466,17 @@ def main(argv: Sequence[str] | None = None) -> int:
         out = prepare_out_dir(out)
         t0 = time.perf_counter()
         print(f"scenario {args.scenario!r}: {len(specs)} run(s) via {args.transport}, output in {out.resolve()}")
-        results = run_experiment(out, args.transport, specs, plot=not args.no_plot, scenario=args.scenario, log=print,
-                                 pfc=args.pfc, sigma_xu=args.sigma_xu, rrd=not args.no_rrd)
+        results = run_experiment(
+            out,
+            args.transport,
+            specs,
+            plot=not args.no_plot,
+            scenario=args.scenario,
+            log=print,
+            pfc=args.pfc,
+            sigma_xu=args.sigma_xu,
+            rrd=not args.no_rrd,
+        )
     except ExperimentError as exc:
         print(f"python -m tools.experiment: error: {exc}", file=sys.stderr)
         return 2

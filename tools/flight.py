@@ -117,40 +117,69 @@ class FlightConfig:
         def put(name, value):
             object.__setattr__(self, name, value)
 
-        for name, check in (("duration", cli.positive_float), ("rate", cli.rate_hz),
-                            ("sensor_rate", cli.positive_float), ("sigma_xu", cli.nonneg_float),
-                            ("start_time", cli.nonneg_float), ("amplitude", cli.finite_float),
-                            ("period", cli.positive_float), ("u_limit_deg", cli.positive_float),
-                            ("rt_priority", cli.rt_priority_arg)):
+        for name, check in (
+            ("duration", cli.positive_float),
+            ("rate", cli.rate_hz),
+            ("sensor_rate", cli.positive_float),
+            ("sigma_xu", cli.nonneg_float),
+            ("start_time", cli.nonneg_float),
+            ("amplitude", cli.finite_float),
+            ("period", cli.positive_float),
+            ("u_limit_deg", cli.positive_float),
+            ("rt_priority", cli.rt_priority_arg),
+        ):
             put(name, _checked(name, check, getattr(self, name)))
-        for name, check in (("lv", cli.nonneg_float), ("physics_rate", cli.positive_float),
-                            ("telemetry_rate", cli.nonneg_float), ("timeout", cli.positive_float)):
+        for name, check in (
+            ("lv", cli.nonneg_float),
+            ("physics_rate", cli.positive_float),
+            ("telemetry_rate", cli.nonneg_float),
+            ("timeout", cli.positive_float),
+        ):
             if getattr(self, name) is not None:
                 put(name, _checked(name, check, getattr(self, name)))
-        _require(self.controller in CONTROLLERS, "controller",
-                 f"controller must be one of {', '.join(CONTROLLERS)}, got {self.controller!r}")
+        _require(
+            self.controller in CONTROLLERS,
+            "controller",
+            f"controller must be one of {', '.join(CONTROLLERS)}, got {self.controller!r}",
+        )
         _require(self.pfc in PFC_PRESETS, "pfc", f"pfc must be one of {', '.join(PFC_PRESETS)}, got {self.pfc!r}")
-        _require(self.profile in PROFILES, "profile",
-                 f"profile must be one of {', '.join(PROFILES)}, got {self.profile!r}")
+        _require(
+            self.profile in PROFILES, "profile", f"profile must be one of {', '.join(PROFILES)}, got {self.profile!r}"
+        )
         if self.physics_rate is None:
             put("physics_rate", cli.default_physics_rate(self.rate))
         ratio = self.physics_rate / self.rate
-        _require(abs(ratio - round(ratio)) <= 1e-9, "physics_rate",
-                 f"physics_rate ({self.physics_rate:g}) must be a whole multiple of the control rate ({self.rate:g})")
-        _require(self.base_port is None or (isinstance(self.base_port, int) and 1 <= self.base_port <= 65534),
-                 "base_port", f"base_port must be in 1..65534, got {self.base_port!r}")
-        _require(not (self.busy_wait and self.lockstep), "busy_wait",
-                 "busy_wait is for real time (lockstep already polls before sleeping)")
-        _require(not (self.busy_wait and self.rt_priority and rt_throttling()), "busy_wait",
-                 f"busy_wait with a real-time priority: a SCHED_FIFO thread that never sleeps is stopped by the "
-                 f"kernel's real-time throttling ({rt_throttling()}); use one or the other")
+        _require(
+            abs(ratio - round(ratio)) <= 1e-9,
+            "physics_rate",
+            f"physics_rate ({self.physics_rate:g}) must be a whole multiple of the control rate ({self.rate:g})",
+        )
+        _require(
+            self.base_port is None or (isinstance(self.base_port, int) and 1 <= self.base_port <= 65534),
+            "base_port",
+            f"base_port must be in 1..65534, got {self.base_port!r}",
+        )
+        _require(
+            not (self.busy_wait and self.lockstep),
+            "busy_wait",
+            "busy_wait is for real time (lockstep already polls before sleeping)",
+        )
+        _require(
+            not (self.busy_wait and self.rt_priority and rt_throttling()),
+            "busy_wait",
+            f"busy_wait with a real-time priority: a SCHED_FIFO thread that never sleeps is stopped by the "
+            f"kernel's real-time throttling ({rt_throttling()}); use one or the other",
+        )
         try:
             command = Profile.of(self.profile, amplitude_deg=self.amplitude, period=self.period)
         except ProfileError as exc:
             raise FlightConfigError(exc.field, str(exc)) from None
         if self.csv is not None:
-            _require(self.profile == "square", "csv", f"csv: give either a profile or csv, not both "
-                                                      f"(profile {self.profile!r}, csv {self.csv!r})")
+            _require(
+                self.profile == "square",
+                "csv",
+                f"csv: give either a profile or csv, not both (profile {self.profile!r}, csv {self.csv!r})",
+            )
             _require(os.path.isfile(self.csv), "csv", f"csv: no such file {self.csv!r}")
             try:
                 command = Profile.from_csv(self.csv)
@@ -177,10 +206,17 @@ class FlightConfig:
 
     @property
     def scenario(self) -> str:
-        """"paper" for the reference scenario's set-up, else "custom"."""
-        paper = (self.profile == "square" and not self.csv and self.amplitude == 10.0 and self.period == 10.0
-                 and self.duration == 30.0 and self.rate == 100.0 and self.physics_rate == 1000.0
-                 and self.u_limit_deg == 30.0)
+        """ "paper" for the reference scenario's set-up, else "custom"."""
+        paper = (
+            self.profile == "square"
+            and not self.csv
+            and self.amplitude == 10.0
+            and self.period == 10.0
+            and self.duration == 30.0
+            and self.rate == 100.0
+            and self.physics_rate == 1000.0
+            and self.u_limit_deg == 30.0
+        )
         return "paper" if paper else "custom"
 
 
@@ -216,8 +252,16 @@ class Child:
         self._log = open(log_path, "w", buffering=1)
         self._log.write("$ " + " ".join(argv) + "\n")
         env = dict(os.environ, PYTHONUNBUFFERED="1", MAVLINK20="1")
-        self.proc = subprocess.Popen(argv, stdin=subprocess.DEVNULL, stdout=subprocess.PIPE, stderr=subprocess.STDOUT,
-                                     env=env, start_new_session=True, text=True, bufsize=1)
+        self.proc = subprocess.Popen(
+            argv,
+            stdin=subprocess.DEVNULL,
+            stdout=subprocess.PIPE,
+            stderr=subprocess.STDOUT,
+            env=env,
+            start_new_session=True,
+            text=True,
+            bufsize=1,
+        )
         self.started = time.monotonic()
         self._reader = threading.Thread(target=self._read, name=f"read-{name}", daemon=True)
         self._reader.start()
@@ -314,25 +358,78 @@ def new_run_dir(base: str = "runs", tag: str = "") -> Path:
     raise RuntimeError(f"cannot create a new run folder under {root}")
 
 
-def child_argvs(cfg: FlightConfig, out: Path, sitl_port: int, gcs_port: int,
-                telemetry: dict[str, list[str]] | None = None) -> dict[str, list[str]]:
+def child_argvs(
+    cfg: FlightConfig, out: Path, sitl_port: int, gcs_port: int, telemetry: dict[str, list[str]] | None = None
+) -> dict[str, list[str]]:
     """The command line of each process of the flight."""
     py = [sys.executable, "-u", "-m"]
     pwm = ["--rudder-max-deg", repr(max(RUDDER_MAX_DEG, cfg.u_limit_deg))]
-    sitl = py + ["sitl", "--listen", f"127.0.0.1:{sitl_port}", "--rate", repr(cfg.rate),
-                 "--physics-rate", repr(cfg.physics_rate), "--start-time", repr(cfg.start_time),
-                 "--stats-json", str(out / "sitl.json")] + pwm
-    ap = py + ["autopilot", "--sitl", f"127.0.0.1:{sitl_port}", "--gcs", f"127.0.0.1:{gcs_port}",
-               "--rate", repr(cfg.rate), "--controller", cfg.controller, "--lv", repr(cfg.lv_value),
-               "--pfc", cfg.pfc, "--sigma-xu", repr(cfg.sigma_xu), "--name", cfg.name or cfg.controller,
-               "--u-limit-deg", repr(cfg.u_limit_deg), "--duration", repr(cfg.duration),
-               "--telemetry-rate", repr(cfg.gcs_telemetry_rate),
-               "--tlog", str(out / "flight.tlog"), "--stats-json", str(out / "autopilot.json")] + pwm
+    sitl = (
+        py
+        + [
+            "sitl",
+            "--listen",
+            f"127.0.0.1:{sitl_port}",
+            "--rate",
+            repr(cfg.rate),
+            "--physics-rate",
+            repr(cfg.physics_rate),
+            "--start-time",
+            repr(cfg.start_time),
+            "--stats-json",
+            str(out / "sitl.json"),
+        ]
+        + pwm
+    )
+    ap = (
+        py
+        + [
+            "autopilot",
+            "--sitl",
+            f"127.0.0.1:{sitl_port}",
+            "--gcs",
+            f"127.0.0.1:{gcs_port}",
+            "--rate",
+            repr(cfg.rate),
+            "--controller",
+            cfg.controller,
+            "--lv",
+            repr(cfg.lv_value),
+            "--pfc",
+            cfg.pfc,
+            "--sigma-xu",
+            repr(cfg.sigma_xu),
+            "--name",
+            cfg.name or cfg.controller,
+            "--u-limit-deg",
+            repr(cfg.u_limit_deg),
+            "--duration",
+            repr(cfg.duration),
+            "--telemetry-rate",
+            repr(cfg.gcs_telemetry_rate),
+            "--tlog",
+            str(out / "flight.tlog"),
+            "--stats-json",
+            str(out / "autopilot.json"),
+        ]
+        + pwm
+    )
     # Lockstep: the GCS schedules the profile up to the end; real time: it flies until the autopilot powers off.
-    gcs = py + ["tools.gcs", "--listen", f"127.0.0.1:{gcs_port}",
-                "--duration", repr(cfg.duration if cfg.lockstep else 0),
-                "--amplitude", repr(cfg.amplitude), "--period", repr(cfg.period), "--stats-json", str(out / "gcs.json"),
-                "--start-time", repr(cfg.start_time)]
+    gcs = py + [
+        "tools.gcs",
+        "--listen",
+        f"127.0.0.1:{gcs_port}",
+        "--duration",
+        repr(cfg.duration if cfg.lockstep else 0),
+        "--amplitude",
+        repr(cfg.amplitude),
+        "--period",
+        repr(cfg.period),
+        "--stats-json",
+        str(out / "gcs.json"),
+        "--start-time",
+        repr(cfg.start_time),
+    ]
     gcs += ["--csv", cfg.csv] if cfg.csv else [cfg.profile]
     if cfg.series:
         ap += ["--series", str(out / "autopilot_series.npz")]
@@ -415,8 +512,17 @@ def _load(path: Path):
         return None
 
 
-def build_summary(cfg: FlightConfig, out: Path, stats: dict, exit_codes: dict, failed: str | None,
-                  error: str | None, exit_code: int, wall: float, rrd_path: Path | None) -> dict:
+def build_summary(
+    cfg: FlightConfig,
+    out: Path,
+    stats: dict,
+    exit_codes: dict,
+    failed: str | None,
+    error: str | None,
+    exit_code: int,
+    wall: float,
+    rrd_path: Path | None,
+) -> dict:
     """summary.json of a flight from the processes' stats files (``stats``: process name -> dict or None)."""
     ap, sitl, gcs = stats["autopilot"], stats["sitl"], stats["gcs"]
     runs = []
@@ -435,8 +541,12 @@ def build_summary(cfg: FlightConfig, out: Path, stats: dict, exit_codes: dict, f
         "rate_hz": cfg.rate,
         "physics_rate_hz": cfg.physics_rate,
         "start_time_s": cfg.start_time,
-        "profile": {"kind": "csv" if cfg.csv else cfg.profile, "amplitude_deg": cfg.amplitude, "period_s": cfg.period,
-                    "csv": cfg.csv},
+        "profile": {
+            "kind": "csv" if cfg.csv else cfg.profile,
+            "amplitude_deg": cfg.amplitude,
+            "period_s": cfg.period,
+            "csv": cfg.csv,
+        },
         "ok": exit_code == 0,
         "exit_code": exit_code,
         "failed": failed,
@@ -516,14 +626,31 @@ class Flight:
         (an experiment logs its runs side by side from the series)."""
         profile = scenario.profile
         if profile.kind not in PROFILES or (profile.kind == "step" and profile.step_time != 1.0):
-            raise FlightConfigError("profile", f"profile: {profile!r} has no launcher flags (square, step at 1 s, "
-                                               "sine): fly it from a CSV file with csv=FILE")
-        return cls(lockstep=True, duration=scenario.duration_s, controller="sac" if run.lv == 0 else "clsac",
-                   lv=run.lv, pfc=run.pfc or "paper", sigma_xu=run.sigma_xu or 0.0, name=run.name,
-                   rate=scenario.control_rate_hz, physics_rate=scenario.physics_rate_hz, profile=profile.kind,
-                   amplitude=math.degrees(profile.amplitude), period=profile.period,
-                   u_limit_deg=math.degrees(scenario.u_limit_rad), out=out, quiet=True, series=True, rrd=False,
-                   **options)
+            raise FlightConfigError(
+                "profile",
+                f"profile: {profile!r} has no launcher flags (square, step at 1 s, "
+                "sine): fly it from a CSV file with csv=FILE",
+            )
+        return cls(
+            lockstep=True,
+            duration=scenario.duration_s,
+            controller="sac" if run.lv == 0 else "clsac",
+            lv=run.lv,
+            pfc=run.pfc or "paper",
+            sigma_xu=run.sigma_xu or 0.0,
+            name=run.name,
+            rate=scenario.control_rate_hz,
+            physics_rate=scenario.physics_rate_hz,
+            profile=profile.kind,
+            amplitude=math.degrees(profile.amplitude),
+            period=profile.period,
+            u_limit_deg=math.degrees(scenario.u_limit_rad),
+            out=out,
+            quiet=True,
+            series=True,
+            rrd=False,
+            **options,
+        )
 
     @property
     def running(self) -> bool:
@@ -562,8 +689,11 @@ class Flight:
             raise RuntimeError("this flight was already started; a Flight flies once")
         cfg = self.config
         self._t0 = time.monotonic()
-        self.out = Path(cfg.out) if cfg.out else new_run_dir("runs", f"-{'lockstep' if cfg.lockstep else 'rt'}-"
-                                                                     f"{cfg.controller}")
+        self.out = (
+            Path(cfg.out)
+            if cfg.out
+            else new_run_dir("runs", f"-{'lockstep' if cfg.lockstep else 'rt'}-{cfg.controller}")
+        )
         self.out.mkdir(parents=True, exist_ok=True)
         for f in ("autopilot.json", "sitl.json", "gcs.json", "autopilot_series.npz", "sitl_series.npz"):
             (self.out / f).unlink(missing_ok=True)
@@ -578,13 +708,19 @@ class Flight:
                 if failed.code == EXIT_ADDRESS_IN_USE and cfg.base_port is None and attempt < 2:
                     stop_children(self._children.values())  # a free port was taken in between: try others
                     continue
-                self._end(EXIT_FAILED, failed.name,
-                          f"{failed.name} failed at start-up (exit code {failed.code}): {failed.reason()}")
+                self._end(
+                    EXIT_FAILED,
+                    failed.name,
+                    f"{failed.name} failed at start-up (exit code {failed.code}): {failed.reason()}",
+                )
                 break
         except BaseException as exc:
             interrupted = isinstance(exc, KeyboardInterrupt)
-            self._end(EXIT_INTERRUPTED if interrupted else EXIT_FAILED, None if interrupted else "flight",
-                      "interrupted (Ctrl-C)" if interrupted else f"start-up failed: {type(exc).__name__}: {exc}")
+            self._end(
+                EXIT_INTERRUPTED if interrupted else EXIT_FAILED,
+                None if interrupted else "flight",
+                "interrupted (Ctrl-C)" if interrupted else f"start-up failed: {type(exc).__name__}: {exc}",
+            )
             raise
         return self
 
@@ -674,8 +810,17 @@ class Flight:
         if stopped:
             flown = stats["autopilot"]["steps"] / cfg.rate if stats["autopilot"] else 0.0
             error = f"stopped by the caller after {flown:g} s of {cfg.duration:g} s (sim time)"
-        summary = build_summary(cfg, self.out, stats, {n: c.code for n, c in self._children.items()}, failed, error,
-                                exit_code, time.monotonic() - self._t0, rrd_path)
+        summary = build_summary(
+            cfg,
+            self.out,
+            stats,
+            {n: c.code for n, c in self._children.items()},
+            failed,
+            error,
+            exit_code,
+            time.monotonic() - self._t0,
+            rrd_path,
+        )
         write_json_atomic(self.out / "summary.json", summary)
         runs = summary["runs"]
         metrics = {k: runs[0]["metrics"].get(k) for k in METRIC_NAMES} if runs else dict.fromkeys(METRIC_NAMES)

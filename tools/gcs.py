@@ -72,8 +72,14 @@ class Gcs:
         self.out = out or sys.stdout
         # Everything the vehicle streams is taken (SERVO_OUTPUT_RAW only counted): a valid message the GCS
         # did not take would be reported among the link's rejections.
-        ids = [M.MAVLINK_MSG_ID_HEARTBEAT, M.MAVLINK_MSG_ID_ATTITUDE, M.MAVLINK_MSG_ID_ATTITUDE_TARGET,
-               M.MAVLINK_MSG_ID_SERVO_OUTPUT_RAW, M.MAVLINK_MSG_ID_STATUSTEXT, M.MAVLINK_MSG_ID_SYSTEM_TIME]
+        ids = [
+            M.MAVLINK_MSG_ID_HEARTBEAT,
+            M.MAVLINK_MSG_ID_ATTITUDE,
+            M.MAVLINK_MSG_ID_ATTITUDE_TARGET,
+            M.MAVLINK_MSG_ID_SERVO_OUTPUT_RAW,
+            M.MAVLINK_MSG_ID_STATUSTEXT,
+            M.MAVLINK_MSG_ID_SYSTEM_TIME,
+        ]
         self.link = UdpLink("vehicle", GCS_ID, opts.listen, None, peers=[AUTOPILOT_ID], msgids=ids, learn_remote=True)
         self.sel = selectors.DefaultSelector()
         self.sel.register(self.link.sock, selectors.EVENT_READ)
@@ -96,8 +102,12 @@ class Gcs:
         if mid == M.MAVLINK_MSG_ID_HEARTBEAT:
             if not self.vehicle:
                 self.vehicle = True
-                print(f"gcs: vehicle {AUTOPILOT_ID[0]}:{AUTOPILOT_ID[1]} at {fmt_endpoint(self.link.remote)} "
-                      f"(type {msg.type}, status {msg.system_status})", file=self.out, flush=True)
+                print(
+                    f"gcs: vehicle {AUTOPILOT_ID[0]}:{AUTOPILOT_ID[1]} at {fmt_endpoint(self.link.remote)} "
+                    f"(type {msg.type}, status {msg.system_status})",
+                    file=self.out,
+                    flush=True,
+                )
                 self._heartbeat()
             self.vehicle_status = msg.system_status
             if msg.system_status == M.MAV_STATE_POWEROFF:
@@ -121,13 +131,24 @@ class Gcs:
             self.origin_ms = ms
 
     def _heartbeat(self):
-        self.link.send(M.MAVLink_heartbeat_message(M.MAV_TYPE_GCS, M.MAV_AUTOPILOT_INVALID, 0, 0, M.MAV_STATE_ACTIVE,
-                                                   3))
+        self.link.send(
+            M.MAVLink_heartbeat_message(M.MAV_TYPE_GCS, M.MAV_AUTOPILOT_INVALID, 0, 0, M.MAV_STATE_ACTIVE, 3)
+        )
 
     def _send_setpoint(self, time_boot_ms: int, roll: float):
-        self.link.send(M.MAVLink_set_attitude_target_message(
-            time_boot_ms, AUTOPILOT_ID[0], AUTOPILOT_ID[1], SETPOINT_TYPEMASK, roll_to_quaternion(roll),
-            0.0, 0.0, 0.0, 0.0))
+        self.link.send(
+            M.MAVLink_set_attitude_target_message(
+                time_boot_ms,
+                AUTOPILOT_ID[0],
+                AUTOPILOT_ID[1],
+                SETPOINT_TYPEMASK,
+                roll_to_quaternion(roll),
+                0.0,
+                0.0,
+                0.0,
+                0.0,
+            )
+        )
         self.points_sent += 1
 
     def _schedule(self):
@@ -160,17 +181,24 @@ class Gcs:
         next_print = t_start
         next_sp = t_start
         sp_period = 1.0 / o.setpoint_rate
-        print(f"gcs: listening on {fmt_endpoint(self.link.local)}; waiting for the vehicle's HEARTBEAT; profile "
-              f"{self.profile.kind} ({'scheduled on sim time' if o.lockstep else 'real time'})", file=self.out,
-              flush=True)
+        print(
+            f"gcs: listening on {fmt_endpoint(self.link.local)}; waiting for the vehicle's HEARTBEAT; profile "
+            f"{self.profile.kind} ({'scheduled on sim time' if o.lockstep else 'real time'})",
+            file=self.out,
+            flush=True,
+        )
         while not self.stop_requested:
             for _ in self.sel.select(0.02):
                 self.link.poll(self._on_msg)
             now = perf()
             if not self.vehicle:
                 if o.wait_timeout and now - t_start > o.wait_timeout:
-                    print(f"gcs: error: no vehicle HEARTBEAT on {fmt_endpoint(self.link.local)} after "
-                          f"{o.wait_timeout:g} s", file=sys.stderr, flush=True)
+                    print(
+                        f"gcs: error: no vehicle HEARTBEAT on {fmt_endpoint(self.link.local)} after "
+                        f"{o.wait_timeout:g} s",
+                        file=sys.stderr,
+                        flush=True,
+                    )
                     return 1
                 continue
             if self.powered_off:
@@ -193,47 +221,100 @@ class Gcs:
             if not o.quiet and now >= next_print and self.sim_ms is not None:
                 next_print = now + 1.0 / o.print_rate
                 err = self.target - self.roll
-                print(f"gcs: t={self.sim_ms / 1000.0:9.3f} s  setpoint={math.degrees(self.target):+7.2f} deg  "
-                      f"roll={math.degrees(self.roll):+7.2f} deg  error={math.degrees(err):+6.2f} deg", file=self.out,
-                      flush=True)
-            if (o.duration > 0 and self.sim_ms is not None and self.origin_ms is not None
-                    and self.sim_ms - self.origin_ms >= o.duration * 1000 and not o.lockstep):
+                print(
+                    f"gcs: t={self.sim_ms / 1000.0:9.3f} s  setpoint={math.degrees(self.target):+7.2f} deg  "
+                    f"roll={math.degrees(self.roll):+7.2f} deg  error={math.degrees(err):+6.2f} deg",
+                    file=self.out,
+                    flush=True,
+                )
+            if (
+                o.duration > 0
+                and self.sim_ms is not None
+                and self.origin_ms is not None
+                and self.sim_ms - self.origin_ms >= o.duration * 1000
+                and not o.lockstep
+            ):
                 print("gcs: profile done", file=self.out, flush=True)
                 return 0
         return 0
 
     def stats(self) -> dict:
-        return {"points_sent": self.points_sent, "origin_ms": self.origin_ms, "sim_ms": self.sim_ms,
-                "statustexts": self.statustexts[-50:], "link": self.link.counters()}
+        return {
+            "points_sent": self.points_sent,
+            "origin_ms": self.origin_ms,
+            "sim_ms": self.sim_ms,
+            "statustexts": self.statustexts[-50:],
+            "link": self.link.counters(),
+        }
 
 
 def build_parser() -> OneLineArgumentParser:
     p = OneLineArgumentParser(prog="python -m tools.gcs", description=__doc__.split("\n\n")[0])
-    p.add_argument("--listen", type=endpoint, default=("127.0.0.1", 14550), metavar="HOST:PORT",
-                   help="UDP address to listen on, like a ground station (default 127.0.0.1:14550)")
-    p.add_argument("profile", nargs="?", choices=("square", "step", "sine"), default="square",
-                   help="roll profile (default square)")
+    p.add_argument(
+        "--listen",
+        type=endpoint,
+        default=("127.0.0.1", 14550),
+        metavar="HOST:PORT",
+        help="UDP address to listen on, like a ground station (default 127.0.0.1:14550)",
+    )
+    p.add_argument(
+        "profile", nargs="?", choices=("square", "step", "sine"), default="square", help="roll profile (default square)"
+    )
     p.add_argument("--csv", default=None, metavar="FILE", help="fly a CSV profile: rows 'time_s, roll_deg'")
     p.add_argument("--amplitude", type=finite_float, default=10.0, metavar="DEG", help="amplitude (default 10)")
     p.add_argument("--period", type=positive_float, default=10.0, metavar="S", help="square/sine period (default 10)")
     p.add_argument("--step-time", type=nonneg_float, default=1.0, metavar="S", help="step: switch time (default 1)")
-    p.add_argument("--duration", type=nonneg_float, default=0.0, metavar="S",
-                   help="profile length in sim seconds (0 = until the vehicle powers off)")
+    p.add_argument(
+        "--duration",
+        type=nonneg_float,
+        default=0.0,
+        metavar="S",
+        help="profile length in sim seconds (0 = until the vehicle powers off)",
+    )
     p.add_argument("--lockstep", action="store_true", help="schedule the profile on sim time (deterministic runs)")
-    p.add_argument("--start-time", type=nonneg_float, default=None, metavar="S",
-                   help="sim time of profile start (default: the first sim time seen)")
-    p.add_argument("--lookahead", type=positive_float, default=1.0, metavar="S",
-                   help="lockstep: schedule this far ahead of the newest sim time seen (default 1)")
-    p.add_argument("--point-dt", type=positive_float, default=0.1, metavar="S",
-                   help="lockstep: one scheduled setpoint every S s of sim time besides the discontinuities "
-                        "(default 0.1)")
-    p.add_argument("--setpoint-rate", type=positive_float, default=20.0, metavar="HZ",
-                   help="real time: setpoints per second (default 20)")
+    p.add_argument(
+        "--start-time",
+        type=nonneg_float,
+        default=None,
+        metavar="S",
+        help="sim time of profile start (default: the first sim time seen)",
+    )
+    p.add_argument(
+        "--lookahead",
+        type=positive_float,
+        default=1.0,
+        metavar="S",
+        help="lockstep: schedule this far ahead of the newest sim time seen (default 1)",
+    )
+    p.add_argument(
+        "--point-dt",
+        type=positive_float,
+        default=0.1,
+        metavar="S",
+        help="lockstep: one scheduled setpoint every S s of sim time besides the discontinuities (default 0.1)",
+    )
+    p.add_argument(
+        "--setpoint-rate",
+        type=positive_float,
+        default=20.0,
+        metavar="HZ",
+        help="real time: setpoints per second (default 20)",
+    )
     p.add_argument("--print-rate", type=positive_float, default=2.0, metavar="HZ", help="live line rate (default 2)")
-    p.add_argument("--wait-timeout", type=nonneg_float, default=60.0, metavar="S",
-                   help="give up if no vehicle HEARTBEAT within S s (default 60, 0 = wait forever)")
-    p.add_argument("--vehicle-timeout", type=positive_float, default=5.0, metavar="S",
-                   help="error if the vehicle goes silent for S s (default 5)")
+    p.add_argument(
+        "--wait-timeout",
+        type=nonneg_float,
+        default=60.0,
+        metavar="S",
+        help="give up if no vehicle HEARTBEAT within S s (default 60, 0 = wait forever)",
+    )
+    p.add_argument(
+        "--vehicle-timeout",
+        type=positive_float,
+        default=5.0,
+        metavar="S",
+        help="error if the vehicle goes silent for S s (default 5)",
+    )
     p.add_argument("--stats-json", default=None, metavar="PATH", help="write counters to this JSON file at exit")
     p.add_argument("--quiet", action="store_true", help="no live line")
     add_cpu_argument(p)
@@ -246,8 +327,9 @@ def main(argv=None) -> int:
     if args.csv and args.profile != "square":
         parser.error("give either a profile name or --csv, not both")
     try:
-        profile = Profile.of(args.profile, amplitude_deg=args.amplitude, period=args.period, step_time=args.step_time,
-                             csv=args.csv)
+        profile = Profile.of(
+            args.profile, amplitude_deg=args.amplitude, period=args.period, step_time=args.step_time, csv=args.csv
+        )
     except (OSError, ValueError) as exc:
         parser.error(f"--csv: {exc}")
     apply_cpu(parser, args.cpu)

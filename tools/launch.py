@@ -29,8 +29,10 @@ from tools.flight import CONTROLLERS, PROCESSES, PROFILES, Flight, FlightConfigE
 def print_summary(s: dict) -> None:
     """The summary table of a flight's summary.json."""
     print()
-    print(f"== {s['mode']} flight, {s['controller']} (Lv={s['Lv']:g}), {s['rate_hz']:g} Hz, "
-          f"{s['duration_s']:g} s: {'OK' if s['ok'] else 'FAILED: ' + str(s['error'])}")
+    print(
+        f"== {s['mode']} flight, {s['controller']} (Lv={s['Lv']:g}), {s['rate_hz']:g} Hz, "
+        f"{s['duration_s']:g} s: {'OK' if s['ok'] else 'FAILED: ' + str(s['error'])}"
+    )
     if s["runs"]:
         m = s["runs"][0]["metrics"]
         print(f"   {'metric':<12}{'value':>14}")
@@ -46,8 +48,9 @@ def print_summary(s: dict) -> None:
 
     if t:
         if s["mode"] == "realtime":
-            print(f"   period jitter     {fmt(t.get('period_jitter_ms'))}; "
-                  f"missed deadlines {t.get('missed_deadlines')}")
+            print(
+                f"   period jitter     {fmt(t.get('period_jitter_ms'))}; missed deadlines {t.get('missed_deadlines')}"
+            )
             print(f"   compute           {fmt(t.get('compute_ms'))} (deadline to servo sent)")
             # Not the in-to-out latency: the newest ATTITUDE waits up to a sensor period for the next deadline.
             print(f"   attitude age      {fmt(t.get('latency_ms'))} (ATTITUDE read to servo sent)")
@@ -62,8 +65,9 @@ def print_summary(s: dict) -> None:
             links = {"link": links}
         for lname, link in links.items():
             rej = ", ".join(f"{k}={v}" for k, v in link["rejected"].items()) or "none"
-            print(f"   {name + ' ' + lname:<16} rx {link['rx_packets']:>7}  tx {link['tx_packets']:>7}  "
-                  f"rejected: {rej}")
+            print(
+                f"   {name + ' ' + lname:<16} rx {link['rx_packets']:>7}  tx {link['tx_packets']:>7}  rejected: {rej}"
+            )
     ev = (s["events"] or {}).get("autopilot") or {}
     ev = {k: v for k, v in ev.items() if v not in (0, [], None)}
     if ev:
@@ -77,50 +81,97 @@ def print_summary(s: dict) -> None:
 
 def build_parser() -> OneLineArgumentParser:
     p = OneLineArgumentParser(prog="python -m tools.launch", description=__doc__.split("\n\n")[0])
-    p.add_argument("--lockstep", action="store_true",
-                   help="SITL as time master, as fast as possible (default: real time)")
-    p.add_argument("--duration", type=positive_float, default=30.0, metavar="S",
-                   help="flight length in sim seconds (default 30)")
+    p.add_argument(
+        "--lockstep", action="store_true", help="SITL as time master, as fast as possible (default: real time)"
+    )
+    p.add_argument(
+        "--duration", type=positive_float, default=30.0, metavar="S", help="flight length in sim seconds (default 30)"
+    )
     p.add_argument("--controller", choices=CONTROLLERS, default="clsac", help="default clsac")
     p.add_argument("--lv", type=nonneg_float, default=None, help="override Lv (default: 0 for sac, 20 for clsac)")
-    p.add_argument("--pfc", choices=("paper", "robust"), default="paper",
-                   help="parallel feedforward compensator: paper = 10/(4s+40) (default), robust = 10/(s+10)")
-    p.add_argument("--sigma-xu", type=nonneg_float, default=0.0, metavar="SIGMA",
-                   help="sigma-modification of K_Ix, K_Iu (default 0, the paper; 0.1 keeps long flights bounded)")
+    p.add_argument(
+        "--pfc",
+        choices=("paper", "robust"),
+        default="paper",
+        help="parallel feedforward compensator: paper = 10/(4s+40) (default), robust = 10/(s+10)",
+    )
+    p.add_argument(
+        "--sigma-xu",
+        type=nonneg_float,
+        default=0.0,
+        metavar="SIGMA",
+        help="sigma-modification of K_Ix, K_Iu (default 0, the paper; 0.1 keeps long flights bounded)",
+    )
     p.add_argument("--rate", type=rate_hz, default=100.0, metavar="HZ", help="control rate (default 100)")
-    p.add_argument("--physics-rate", type=positive_float, default=None, metavar="HZ",
-                   help="default: the smallest whole multiple of --rate >= 1000 Hz (1000 at 100 Hz, 1200 at 400 Hz)")
-    p.add_argument("--sensor-rate", type=positive_float, default=200.0, metavar="HZ",
-                   help="real time ATTITUDE rate (default 200)")
-    p.add_argument("--telemetry-rate", type=nonneg_float, default=None, metavar="HZ",
-                   help="GCS stream rate (default 50 Hz in real time, 10 Hz of sim time in lockstep)")
-    p.add_argument("--out", default=None, metavar="DIR",
-                   help="output folder (default: a new runs/<timestamp>-... folder)")
-    p.add_argument("--base-port", type=int, default=None, metavar="PORT",
-                   help="SITL on PORT, GCS on PORT+1 (default: free ports chosen automatically)")
+    p.add_argument(
+        "--physics-rate",
+        type=positive_float,
+        default=None,
+        metavar="HZ",
+        help="default: the smallest whole multiple of --rate >= 1000 Hz (1000 at 100 Hz, 1200 at 400 Hz)",
+    )
+    p.add_argument(
+        "--sensor-rate", type=positive_float, default=200.0, metavar="HZ", help="real time ATTITUDE rate (default 200)"
+    )
+    p.add_argument(
+        "--telemetry-rate",
+        type=nonneg_float,
+        default=None,
+        metavar="HZ",
+        help="GCS stream rate (default 50 Hz in real time, 10 Hz of sim time in lockstep)",
+    )
+    p.add_argument(
+        "--out", default=None, metavar="DIR", help="output folder (default: a new runs/<timestamp>-... folder)"
+    )
+    p.add_argument(
+        "--base-port",
+        type=int,
+        default=None,
+        metavar="PORT",
+        help="SITL on PORT, GCS on PORT+1 (default: free ports chosen automatically)",
+    )
     p.add_argument("--start-time", type=nonneg_float, default=0.0, metavar="S", help="initial sim clock (default 0)")
     p.add_argument("profile", nargs="?", choices=PROFILES, default="square", help="GCS roll profile")
     p.add_argument("--csv", default=None, metavar="FILE", help="GCS profile from a CSV file (time s, roll deg)")
     p.add_argument("--amplitude", type=finite_float, default=10.0, metavar="DEG", help="profile amplitude (default 10)")
     p.add_argument("--period", type=positive_float, default=10.0, metavar="S", help="profile period (default 10)")
     p.add_argument("--u-limit-deg", type=positive_float, default=30.0, help="rudder command limit (default 30)")
-    p.add_argument("--timeout", type=positive_float, default=None, metavar="S",
-                   help="wall-clock limit of the whole flight")
-    p.add_argument("--rt-priority", type=rt_priority_arg, default=0, metavar="N",
-                   help="real time: run the autopilot under SCHED_FIFO priority N (SITL N-1); default 0 = normal")
-    p.add_argument("--pin", action="store_true",
-                   help="give the autopilot CPU 1 to itself; the SITL and the GCS script share CPU 0")
-    p.add_argument("--busy-wait", action="store_true",
-                   help="real time: the autopilot never sleeps between steps (one CPU at 100 %%; best with --pin; "
-                        "on a VM it avoids the hypervisor's wake-up delays, see README)")
+    p.add_argument(
+        "--timeout", type=positive_float, default=None, metavar="S", help="wall-clock limit of the whole flight"
+    )
+    p.add_argument(
+        "--rt-priority",
+        type=rt_priority_arg,
+        default=0,
+        metavar="N",
+        help="real time: run the autopilot under SCHED_FIFO priority N (SITL N-1); default 0 = normal",
+    )
+    p.add_argument(
+        "--pin", action="store_true", help="give the autopilot CPU 1 to itself; the SITL and the GCS script share CPU 0"
+    )
+    p.add_argument(
+        "--busy-wait",
+        action="store_true",
+        help="real time: the autopilot never sleeps between steps (one CPU at 100 %%; best with --pin; "
+        "on a VM it avoids the hypervisor's wake-up delays, see README)",
+    )
     p.add_argument("--quiet", action="store_true", help="do not echo the processes' output (it is still in DIR/*.log)")
-    p.add_argument("--no-series", dest="series", action="store_false",
-                   help="do not record the per-step series (DIR/autopilot_series.npz, DIR/sitl_series.npz)")
+    p.add_argument(
+        "--no-series",
+        dest="series",
+        action="store_false",
+        help="do not record the per-step series (DIR/autopilot_series.npz, DIR/sitl_series.npz)",
+    )
     g = p.add_argument_group("telemetry (Rerun)")
-    g.add_argument("--viewer", action="store_true",
-                   help="show the flight live: spawn a Rerun viewer (or reuse one on port 9876)")
-    g.add_argument("--connect", metavar="URL", default=None,
-                   help="show the flight live in a running Rerun viewer, e.g. rerun+http://127.0.0.1:9876/proxy")
+    g.add_argument(
+        "--viewer", action="store_true", help="show the flight live: spawn a Rerun viewer (or reuse one on port 9876)"
+    )
+    g.add_argument(
+        "--connect",
+        metavar="URL",
+        default=None,
+        help="show the flight live in a running Rerun viewer, e.g. rerun+http://127.0.0.1:9876/proxy",
+    )
     g.add_argument("--no-rrd", dest="rrd", action="store_false", help="do not write DIR/flight.rrd")
     return p
 
@@ -137,7 +188,7 @@ def main(argv=None) -> int:
         flight = Flight(**vars(args))
     except FlightConfigError as exc:
         message = str(exc)
-        parser.error(_flag(exc.field) + message[len(exc.field):] if message.startswith(exc.field) else message)
+        parser.error(_flag(exc.field) + message[len(exc.field) :] if message.startswith(exc.field) else message)
     install_stop_handlers(flight.interrupt)
     res = flight.run()
     print_summary(res.summary)

@@ -53,19 +53,29 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--pfc-num", metavar="LIST", help="numerator of a custom PFC D(s) (needs --pfc-den)")
     p.add_argument("--pfc-den", metavar="LIST", help="denominator of a custom PFC D(s) (needs --pfc-num)")
     p.add_argument(
-        "--command-deg", type=float, default=10.0, metavar="DEG",
+        "--command-deg",
+        type=float,
+        default=10.0,
+        metavar="DEG",
         help="steady roll command for the steady-state error the PFC adds (default 10, the paper scenario)",
     )
     p.add_argument(
-        "--rate-hz", type=float, default=100.0, metavar="HZ",
+        "--rate-hz",
+        type=float,
+        default=100.0,
+        metavar="HZ",
         help="control rate for the sampled-loop (ZOH) analysis (default 100, the paper scenario)",
     )
     p.add_argument(
-        "--lv", type=float, default=20.0, metavar="LV",
+        "--lv",
+        type=float,
+        default=20.0,
+        metavar="LV",
         help="CL-SAC Lv for the reference-model feedback loop through Kx (default 20, the paper's)",
     )
     p.add_argument(
-        "--closed-loop", action="store_true",
+        "--closed-loop",
+        action="store_true",
         help="also fly the paper scenario's five runs in-process with this PFC and report their metrics",
     )
     return p
@@ -161,8 +171,13 @@ def format_text(rep: analysis.WasprReport, cl: list[dict] | None = None) -> str:
         f"PFC D(s) [{rep.pfc_name}] = ({_poly_str(rep.pfc_num)}) / ({_poly_str(rep.pfc_den)}),"
         f"  D(0) = {rep.pfc_dc_gain:.6g}",
         "  C = 1/D gain margin in feedback with T: "
-        + ("none (1 + C T unstable)" if g is None
-           else "unlimited" if math.isinf(g) else f"{g:.6g} ({20 * math.log10(g):.2f} dB)"),
+        + (
+            "none (1 + C T unstable)"
+            if g is None
+            else "unlimited"
+            if math.isinf(g)
+            else f"{g:.6g} ({20 * math.log10(g):.2f} dB)"
+        ),
         "",
         "augmented plant F(s) = T(s) + D(s) = num_F/den_F",
         f"  num_F = {_poly_str(rep.f_num)}",
@@ -198,9 +213,12 @@ def format_text(rep: analysis.WasprReport, cl: list[dict] | None = None) -> str:
     ]
     lines += [f"  - {n}" for n in rep.notes]
     if cl is not None:
-        lines += ["", "paper scenario in-process with this PFC:",
-                  f"  {'run':<12} {'Lv':>5} {'ise_ref':>10} {'ise_crm':>10} {'energy':>10} {'tv':>9} "
-                  f"{'max_abs_u':>9} {'Ke max':>8}"]
+        lines += [
+            "",
+            "paper scenario in-process with this PFC:",
+            f"  {'run':<12} {'Lv':>5} {'ise_ref':>10} {'ise_crm':>10} {'energy':>10} {'tv':>9} "
+            f"{'max_abs_u':>9} {'Ke max':>8}",
+        ]
         for r in cl:
             m = r["metrics"]
             lines.append(

@@ -53,8 +53,7 @@ def _pick(results: Iterable[RunResult], name: str) -> RunResult | None:
 
 
 def _missing(ax, what: str) -> None:
-    ax.text(0.5, 0.5, f"{what}: not in this experiment", ha="center", va="center", transform=ax.transAxes,
-            color="0.4")
+    ax.text(0.5, 0.5, f"{what}: not in this experiment", ha="center", va="center", transform=ax.transAxes, color="0.4")
     ax.set_xticks([])
     ax.set_yticks([])
 
@@ -73,8 +72,18 @@ def _stacked(fig, spec, sharex=None):
 
 
 def _tag(ax, text: str, color: str) -> None:
-    ax.text(0.01, 0.96, text, transform=ax.transAxes, ha="left", va="top", fontsize=9, color=color,
-            fontweight="bold", bbox=dict(boxstyle="round,pad=0.15", fc="white", ec="none", alpha=0.8))
+    ax.text(
+        0.01,
+        0.96,
+        text,
+        transform=ax.transAxes,
+        ha="left",
+        va="top",
+        fontsize=9,
+        color=color,
+        fontweight="bold",
+        bbox=dict(boxstyle="round,pad=0.15", fc="white", ec="none", alpha=0.8),
+    )
 
 
 def _sig(res: RunResult, key: str) -> np.ndarray | None:
@@ -94,8 +103,16 @@ def _command(res: RunResult, scenario: Scenario) -> np.ndarray | None:
 
 def _not_recorded(ax, keys: Sequence[str]) -> None:
     where = (0.99, 0.5, "right") if ax.has_data() else (0.5, 0.5, "center")
-    ax.text(where[0], where[1], "not recorded by this transport: " + ", ".join(keys), transform=ax.transAxes,
-            ha=where[2], va="center", fontsize=8, color="0.4")
+    ax.text(
+        where[0],
+        where[1],
+        "not recorded by this transport: " + ", ".join(keys),
+        transform=ax.transAxes,
+        ha=where[2],
+        va="center",
+        fontsize=8,
+        color="0.4",
+    )
     if not ax.has_data():
         ax.set_yticks([])
 
@@ -114,7 +131,9 @@ def _tracking(ax, res: RunResult | None, label: str, color: str, scenario: Scena
     wild = um is not None and np.max(np.abs(phi)) > 2.0 * max(np.max(np.abs(um)), 1e-12)
     zref, zphi = (3, 2) if wild else (2, 3)
     if um is not None:
-        ax.plot(t, um * DEG, color=C_CMD, lw=1.2, ls="--", drawstyle="steps-post", label="command $u_m$", zorder=zref + 1)
+        ax.plot(
+            t, um * DEG, color=C_CMD, lw=1.2, ls="--", drawstyle="steps-post", label="command $u_m$", zorder=zref + 1
+        )
     if ym_ol is not None:
         ax.plot(t, ym_ol * DEG, color=C_OL, lw=2.0, label="open-loop ref. model $y_{m,ol}$", zorder=zref)
     if res.lv > 0 and ym is not None:
@@ -129,11 +148,19 @@ def _tracking(ax, res: RunResult | None, label: str, color: str, scenario: Scena
     ax.set_xlabel("t [s]")
     ax.set_title(f"Roll tracking, {label} ({res.name}, $L_v$={res.lv:g})", fontsize=10)
     frac = saturation_fraction(res, scenario.u_limit_rad)
-    note = (f"ise_ref={res.metrics['ise_ref']:.3g} rad$^2$s, max|$\\phi$|={np.max(np.abs(phi)) * DEG:.0f} deg"
-            + (f"\nrudder at the {scenario.u_limit_rad * DEG:.0f} deg limit {100 * frac:.0f}% of the time"
-               if frac else ""))
-    ax.text(0.99, 0.02, note, transform=ax.transAxes, ha="right", va="bottom", fontsize=8,
-            bbox=dict(boxstyle="round,pad=0.2", fc="white", ec="0.7", alpha=0.9))
+    note = f"ise_ref={res.metrics['ise_ref']:.3g} rad$^2$s, max|$\\phi$|={np.max(np.abs(phi)) * DEG:.0f} deg" + (
+        f"\nrudder at the {scenario.u_limit_rad * DEG:.0f} deg limit {100 * frac:.0f}% of the time" if frac else ""
+    )
+    ax.text(
+        0.99,
+        0.02,
+        note,
+        transform=ax.transAxes,
+        ha="right",
+        va="bottom",
+        fontsize=8,
+        bbox=dict(boxstyle="round,pad=0.2", fc="white", ec="0.7", alpha=0.9),
+    )
     ax.legend(loc="upper right", fontsize=7.5, framealpha=0.9)
     ax.grid(alpha=0.3)
 
@@ -194,9 +221,11 @@ def _gains(fig, spec, sac, cl, which: str):
             continue
         _tag(ax, f"{label} ({res.name})", color)
         t = _sig(res, "t")
-        traces = ((f"kp{which}", "#ff7f0e", 0.9, "-", f"$K_{{p{which}}}$"),
-                  (f"ki{which}", "#9467bd", 1.2, "-", f"$K_{{I{which}}}$"),
-                  (f"k{which}", color, 1.0, "--", f"$K_{which}$"))
+        traces = (
+            (f"kp{which}", "#ff7f0e", 0.9, "-", f"$K_{{p{which}}}$"),
+            (f"ki{which}", "#9467bd", 1.2, "-", f"$K_{{I{which}}}$"),
+            (f"k{which}", color, 1.0, "--", f"$K_{which}$"),
+        )
         missing = []
         for key, c, lw, ls, lab in traces:
             y = _sig(res, key)
@@ -247,7 +276,9 @@ def _lv_tracking(fig, spec, sweep: list[RunResult], scenario: Scenario):
         if ol is None:
             missing.add("ym_ol")
             continue
-        bottom.plot(t, (phi - ol) * DEG, color=c, lw=1.0, label=f"$L_v$={res.lv:g}: ise_ref={res.metrics['ise_ref']:.3g}")
+        bottom.plot(
+            t, (phi - ol) * DEG, color=c, lw=1.0, label=f"$L_v$={res.lv:g}: ise_ref={res.metrics['ise_ref']:.3g}"
+        )
     if missing:
         _not_recorded(bottom, sorted(missing))
     top.set_ylabel("roll [deg]")
@@ -292,19 +323,21 @@ def _lv_control(fig, spec, sweep: list[RunResult]):
 
 def _table(ax, results: Sequence[RunResult], scenario: Scenario, notes: Sequence[str] = ()):
     ax.axis("off")
-    ax.set_title("Metrics (docs/design.md, \"Metrics\"; SI: rad, s)", fontsize=10)
+    ax.set_title('Metrics (docs/design.md, "Metrics"; SI: rad, s)', fontsize=10)
     header = ["run", "Lv", "ise_ref", "ise_crm", "energy", "tv", "max|u| deg", "saturated"]
     rows = []
     for r in results:
         frac = saturation_fraction(r, scenario.u_limit_rad)
         sat = "n/a" if frac is None else (f"{100 * frac:.0f}%" if frac > 0 else "no")
         m = r.metrics
-        rows.append([r.name, f"{r.lv:g}"] + [f"{m[k]:.3g}" for k in METRIC_COLUMNS[:4]]
-                    + [f"{m['max_abs_u'] * DEG:.2f}", sat])
+        rows.append(
+            [r.name, f"{r.lv:g}"] + [f"{m[k]:.3g}" for k in METRIC_COLUMNS[:4]] + [f"{m['max_abs_u'] * DEG:.2f}", sat]
+        )
     if rows:
         widths = [0.17, 0.07, 0.12, 0.12, 0.12, 0.1, 0.14, 0.14]
-        tab = ax.table(cellText=rows, colLabels=header, colWidths=widths, loc="upper center",
-                       cellLoc="right", colLoc="right")
+        tab = ax.table(
+            cellText=rows, colLabels=header, colWidths=widths, loc="upper center", cellLoc="right", colLoc="right"
+        )
         tab.auto_set_font_size(False)
         tab.set_fontsize(9)
         tab.scale(1.0, 1.6)
@@ -316,17 +349,29 @@ def _table(ax, results: Sequence[RunResult], scenario: Scenario, notes: Sequence
         f"Scenario '{scenario.name}': roll square wave +-{scenario.amplitude_rad * DEG:g} deg, period "
         f"{scenario.period_s:g} s, {scenario.duration_s:g} s; control {scenario.control_rate_hz:g} Hz, "
         f"physics {scenario.physics_rate_hz:g} Hz, rudder command limit +-{scenario.u_limit_rad * DEG:g} deg. "
-        "Red rows: rudder saturated.", 84)
+        "Red rows: rudder saturated.",
+        84,
+    )
     if notes:
         lines += ["", "Paper's claims (section 5) against these numbers:"]
         for n in notes:
             lines += textwrap.wrap(n, 84, initial_indent="- ", subsequent_indent="    ")
-    ax.text(0.0, 0.5, "\n".join(lines), transform=ax.transAxes, fontsize=8.5, va="top", ha="left",
-            color="0.15", family="monospace")
+    ax.text(
+        0.0,
+        0.5,
+        "\n".join(lines),
+        transform=ax.transAxes,
+        fontsize=8.5,
+        va="top",
+        ha="left",
+        color="0.15",
+        family="monospace",
+    )
 
 
-def paper_figure(results: Sequence[RunResult], scenario: Scenario = PAPER, title: str | None = None,
-                 notes: Sequence[str] = ()) -> Figure:
+def paper_figure(
+    results: Sequence[RunResult], scenario: Scenario = PAPER, title: str | None = None, notes: Sequence[str] = ()
+) -> Figure:
     """Build the figure (without saving).  Runs named ``sac`` and ``clsac`` fill the comparison cells;
     every run with L_v > 0 goes into the L_v sweep.  Missing runs leave a labelled empty panel.
     ``notes``: short text lines printed under the metrics table (e.g. the checks of the paper's claims)."""
@@ -348,13 +393,17 @@ def paper_figure(results: Sequence[RunResult], scenario: Scenario = PAPER, title
     _lv_tracking(fig, outer[3, 0], sweep, scenario)
     _lv_control(fig, outer[3, 1], sweep)
     _table(fig.add_subplot(outer[3, 2]), results, scenario, notes)
-    fig.suptitle(title or "CL-SAC roll autopilot, KH2013A: scenario 'paper' (Jana & Bhat 2017, section 5)",
-                 fontsize=14)
+    fig.suptitle(title or "CL-SAC roll autopilot, KH2013A: scenario 'paper' (Jana & Bhat 2017, section 5)", fontsize=14)
     return fig
 
 
-def save_paper_figure(results: Sequence[RunResult], path: str | Path, scenario: Scenario = PAPER,
-                      title: str | None = None, notes: Sequence[str] = ()) -> Path:
+def save_paper_figure(
+    results: Sequence[RunResult],
+    path: str | Path,
+    scenario: Scenario = PAPER,
+    title: str | None = None,
+    notes: Sequence[str] = (),
+) -> Path:
     """Render :func:`paper_figure` to a PNG at ``path``; returns the path."""
     path = Path(path)
     fig = paper_figure(results, scenario, title, notes)

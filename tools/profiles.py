@@ -106,8 +106,10 @@ class Profile:
 
     def _check_table(self) -> None:
         if not self.times or len(self.times) != len(self.values):
-            raise ProfileError("times", f"times and values must be non-empty and of one length, got "
-                                        f"{len(self.times)} and {len(self.values)}")
+            raise ProfileError(
+                "times",
+                f"times and values must be non-empty and of one length, got {len(self.times)} and {len(self.values)}",
+            )
         for name in ("times", "values"):
             bad = [v for v in getattr(self, name) if not math.isfinite(v)]
             if bad:
@@ -140,8 +142,15 @@ class Profile:
         return cls("csv", times=tuple(times), values=tuple(values))
 
     @classmethod
-    def of(cls, kind: str = "square", *, amplitude_deg: float = 10.0, period: float = 10.0, step_time: float = 1.0,
-           csv: str | None = None) -> Profile:
+    def of(
+        cls,
+        kind: str = "square",
+        *,
+        amplitude_deg: float = 10.0,
+        period: float = 10.0,
+        step_time: float = 1.0,
+        csv: str | None = None,
+    ) -> Profile:
         """The profile a command line names: ``kind`` with its parameters, or the CSV file ``csv``."""
         if csv:
             return cls.from_csv(csv)

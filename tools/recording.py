@@ -44,7 +44,11 @@ from tools.views import RUN_COMMAND, RUN_METRICS, RUN_REFERENCE_OL, experiment_b
 EXPERIMENT_APPLICATION_ID = "clsac_experiment"  # paper.rrd: its own blueprint, never mixed with a flight's
 
 RUN_COLORS: dict[str, Rgb] = {
-    "sac": VERMILLION, "clsac": SKY, "clsac_lv10": GREEN, "clsac_lv50": ORANGE, "clsac_lv100": PURPLE,
+    "sac": VERMILLION,
+    "clsac": SKY,
+    "clsac_lv10": GREEN,
+    "clsac_lv50": ORANGE,
+    "clsac_lv100": PURPLE,
 }
 
 
@@ -65,13 +69,16 @@ def _metrics_markdown(results) -> str:
                 keys.append(k)
     head = "| run | Lv | " + " | ".join(keys) + " |"
     sep = "|---|---:|" + "---:|" * len(keys)
-    rows = [f"| {r.name} | {r.lv:g} | " + " | ".join(f"{r.metrics.get(k, float('nan')):.6g}" for k in keys) + " |"
-            for r in results]
+    rows = [
+        f"| {r.name} | {r.lv:g} | " + " | ".join(f"{r.metrics.get(k, float('nan')):.6g}" for k in keys) + " |"
+        for r in results
+    ]
     return "\n".join([head, sep, *rows])
 
 
-def log_experiment(results: Sequence, path: str | os.PathLike, *, scenario: str = "paper",
-                   recording_id: str | None = None) -> Path:
+def log_experiment(
+    results: Sequence, path: str | os.PathLike, *, scenario: str = "paper", recording_id: str | None = None
+) -> Path:
     """Write ``path`` (e.g. ``DIR/paper.rrd``) with every run of ``results`` side by side.
 
     ``results`` are ``tools.scenario.RunResult``-like objects: ``name``, ``lv``, ``metrics`` and
@@ -117,11 +124,18 @@ def log_experiment(results: Sequence, path: str | os.PathLike, *, scenario: str 
                 ("gains/ke", [f"Ke {label}"], [c], [s["ke"]]),
                 ("gains/kx", [f"Kx {label}"], [c], [s["kx"]]),
                 ("gains/ku", [f"Ku {label}"], [c], [s["ku"]]),
-                ("gains/parts", ["Kpe", "KIe", "Kpx", "KIx", "Kpu", "KIu"],
-                 [SKY, ORANGE, GREEN, YELLOW, PURPLE, VERMILLION],
-                 [s["kpe"], s["kie"], s["kpx"], s["kix"], s["kpu"], s["kiu"]]),
-                ("state", ["v [m/s]", "p [rad/s]", "r [rad/s]", "delta_r [rad]"],
-                 [GREEN, YELLOW, PURPLE, BLUE], [s["v"], s["p"], s["r"], s["delta_r"]]),
+                (
+                    "gains/parts",
+                    ["Kpe", "KIe", "Kpx", "KIx", "Kpu", "KIu"],
+                    [SKY, ORANGE, GREEN, YELLOW, PURPLE, VERMILLION],
+                    [s["kpe"], s["kie"], s["kpx"], s["kix"], s["kpu"], s["kiu"]],
+                ),
+                (
+                    "state",
+                    ["v [m/s]", "p [rad/s]", "r [rad/s]", "delta_r [rad]"],
+                    [GREEN, YELLOW, PURPLE, BLUE],
+                    [s["v"], s["p"], s["r"], s["delta_r"]],
+                ),
             ]
             for what, labels, colors, cols in plots:
                 entity = run_path(r.name, what)

@@ -87,8 +87,9 @@ def _to_list(column) -> list:
     return column.to_pylist()
 
 
-def load(path: str | os.PathLike, *, timeline: str = SIM_TIME, prefix: str | None = None,
-         recording_id: str | None = None) -> dict[str, Signal]:
+def load(
+    path: str | os.PathLike, *, timeline: str = SIM_TIME, prefix: str | None = None, recording_id: str | None = None
+) -> dict[str, Signal]:
     """Every ``Scalars`` entity of one recording (the first, or ``recording_id``) as a ``Signal``.
 
     Rows are ordered by ``timeline`` (stable); entities without that timeline are skipped.
@@ -130,8 +131,9 @@ def load(path: str | os.PathLike, *, timeline: str = SIM_TIME, prefix: str | Non
     return out
 
 
-def load_states(path: str | os.PathLike, *, timeline: str = SIM_TIME,
-                recording_id: str | None = None) -> dict[str, list[tuple[float, str]]]:
+def load_states(
+    path: str | os.PathLike, *, timeline: str = SIM_TIME, recording_id: str | None = None
+) -> dict[str, list[tuple[float, str]]]:
     """``StateChange`` entities: {path: [(t seconds, state), ...]} in time order."""
     r = _reader(path)
     out: dict[str, list[tuple[float, str]]] = defaultdict(list)
@@ -145,8 +147,9 @@ def load_states(path: str | os.PathLike, *, timeline: str = SIM_TIME,
     return {k: sorted(v, key=lambda x: x[0]) for k, v in out.items()}
 
 
-def load_text(path: str | os.PathLike, entity: str, *, timeline: str = SIM_TIME,
-              recording_id: str | None = None) -> list[tuple[float, str]]:
+def load_text(
+    path: str | os.PathLike, entity: str, *, timeline: str = SIM_TIME, recording_id: str | None = None
+) -> list[tuple[float, str]]:
     """``TextLog`` lines of one entity: [(t seconds, text), ...] in time order."""
     r = _reader(path)
     out: list[tuple[float, str]] = []
@@ -208,13 +211,17 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("files", nargs="+")
     p = sub.add_parser("verify", help="rerun rrd verify (footers required unless --no-footer-check)")
     p.add_argument("files", nargs="+")
-    p.add_argument("--no-footer-check", action="store_true",
-                   help="accept files without footer (the per-process parts of a flight)")
+    p.add_argument(
+        "--no-footer-check", action="store_true", help="accept files without footer (the per-process parts of a flight)"
+    )
     p = sub.add_parser("merge", help="merge the part files of one flight into one recording")
     p.add_argument("out")
     p.add_argument("parts", nargs="+")
-    p.add_argument("--no-blueprint", action="store_true",
-                   help="never add the flight blueprint (by default it is added if no part has one)")
+    p.add_argument(
+        "--no-blueprint",
+        action="store_true",
+        help="never add the flight blueprint (by default it is added if no part has one)",
+    )
     args = ap.parse_args(argv)
     try:
         if args.cmd == "summary":

@@ -38,7 +38,8 @@ class Scenario:
         ratio = self.physics_rate_hz / self.control_rate_hz
         if abs(ratio - round(ratio)) > 1e-9 or round(ratio) < 1:
             raise ValueError(
-                f"physics_rate_hz ({self.physics_rate_hz}) must be a whole multiple of control_rate_hz ({self.control_rate_hz})"
+                f"physics_rate_hz ({self.physics_rate_hz}) must be a whole multiple of control_rate_hz "
+                f"({self.control_rate_hz})"
             )
 
     @property
@@ -84,7 +85,9 @@ PAPER_RUNS = (
 
 
 def controller_config(scenario: Scenario, run: RunSpec, base: ClSacConfig | None = None) -> ClSacConfig:
-    cfg = (base or ClSacConfig()).with_(lv=run.lv, control_rate_hz=scenario.control_rate_hz, u_limit_rad=scenario.u_limit_rad)
+    cfg = (base or ClSacConfig()).with_(
+        lv=run.lv, control_rate_hz=scenario.control_rate_hz, u_limit_rad=scenario.u_limit_rad
+    )
     if run.pfc is not None:
         cfg = cfg.with_pfc(run.pfc)
     if run.sigma_xu is not None:
@@ -100,12 +103,38 @@ class RunResult:
     series: dict[str, np.ndarray] = field(repr=False)
 
 
-SERIES = ("t", "um", "phi", "ym", "ym_ol", "ya", "y_pfc", "e", "u", "kpe", "kie", "ke", "kpx", "kix", "kx",
-          "kpu", "kiu", "ku", "v", "p", "r", "delta_r")
+SERIES = (
+    "t",
+    "um",
+    "phi",
+    "ym",
+    "ym_ol",
+    "ya",
+    "y_pfc",
+    "e",
+    "u",
+    "kpe",
+    "kie",
+    "ke",
+    "kpx",
+    "kix",
+    "kx",
+    "kpu",
+    "kiu",
+    "ku",
+    "v",
+    "p",
+    "r",
+    "delta_r",
+)
 
 
-def run_inprocess(scenario: Scenario = PAPER, run: RunSpec = PAPER_RUNS[1], base: ClSacConfig | None = None,
-                  wire: PwmMap | None = None) -> RunResult:
+def run_inprocess(
+    scenario: Scenario = PAPER,
+    run: RunSpec = PAPER_RUNS[1],
+    base: ClSacConfig | None = None,
+    wire: PwmMap | None = None,
+) -> RunResult:
     """Fly the scenario with the control step and the aircraft in one process.
 
     Order per control step k (the same as over MAVLink in lockstep): the aircraft's roll at t_k is
@@ -118,6 +147,7 @@ def run_inprocess(scenario: Scenario = PAPER, run: RunSpec = PAPER_RUNS[1], base
     """
     command = scenario.command
     if wire is not None:
+
         def command(t: float, _f=scenario.command) -> float:  # SET_ATTITUDE_TARGET.q travels as float32
             return quaternion_to_roll(np.float32(roll_to_quaternion(_f(t))))
 
@@ -133,9 +163,30 @@ def run_inprocess(scenario: Scenario = PAPER, run: RunSpec = PAPER_RUNS[1], base
         x = ac.x
         phi = float(x[3]) if wire is None else float(np.float32(x[3]))  # ATTITUDE.roll travels as float32
         r = step(t, phi)
-        out[k] = (t, r.um, phi, law.ym, law.ym_ol, law.ya, law.y_pfc, law.e, r.u,
-                  law.kpe, law.kie, law.ke, law.kpx, law.kix, law.kx, law.kpu, law.kiu, law.ku,
-                  x[0], x[1], x[2], x[4])
+        out[k] = (
+            t,
+            r.um,
+            phi,
+            law.ym,
+            law.ym_ol,
+            law.ya,
+            law.y_pfc,
+            law.e,
+            r.u,
+            law.kpe,
+            law.kie,
+            law.ke,
+            law.kpx,
+            law.kix,
+            law.kx,
+            law.kpu,
+            law.kiu,
+            law.ku,
+            x[0],
+            x[1],
+            x[2],
+            x[4],
+        )
         ac.advance(r.u, nphys)
     series = {name: out[:, i].copy() for i, name in enumerate(SERIES)}
     return RunResult(run.name, run.lv, step.metrics.result(), series)

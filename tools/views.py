@@ -106,8 +106,7 @@ def experiment_blueprint(run_names: Sequence[str]) -> rrb.Blueprint:
         return [run_path(n, what) for n in names]
 
     overlay = rrb.Vertical(
-        _plot("Roll: command, open-loop reference and every run [rad]",
-              [RUN_COMMAND, RUN_REFERENCE_OL, *each("roll")]),
+        _plot("Roll: command, open-loop reference and every run [rad]", [RUN_COMMAND, RUN_REFERENCE_OL, *each("roll")]),
         rrb.Horizontal(
             _plot("Closed-loop reference ym per run [rad]", [RUN_REFERENCE_OL, *each("reference")]),
             _plot("Error e per run [rad]", each("error")),

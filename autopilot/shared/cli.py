@@ -95,14 +95,23 @@ def fmt_endpoint(ep) -> str:
 
 
 def add_cpu_argument(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument("--cpu", type=int, default=None, metavar="N",
-                        help="pin this process to CPU N (Linux sched_setaffinity; default: not pinned)")
+    parser.add_argument(
+        "--cpu",
+        type=int,
+        default=None,
+        metavar="N",
+        help="pin this process to CPU N (Linux sched_setaffinity; default: not pinned)",
+    )
 
 
 def add_rt_priority_argument(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument("--rt-priority", type=rt_priority_arg, default=0, metavar="N",
-                        help="run the control thread under SCHED_FIFO priority N (1..99; needs the right to; "
-                             "default 0 = normal)")
+    parser.add_argument(
+        "--rt-priority",
+        type=rt_priority_arg,
+        default=0,
+        metavar="N",
+        help="run the control thread under SCHED_FIFO priority N (1..99; needs the right to; default 0 = normal)",
+    )
 
 
 def add_pwm_arguments(parser: argparse.ArgumentParser) -> None:
@@ -112,8 +121,9 @@ def add_pwm_arguments(parser: argparse.ArgumentParser) -> None:
     g.add_argument("--pwm-max", type=int, default=2000, help="pulse at +rudder-max, us (default 2000)")
     g.add_argument("--pwm-trim", type=int, default=1500, help="pulse at 0 deg (neutral), us (default 1500)")
     g.add_argument("--rudder-max-deg", type=float, default=30.0, help="deflection at pwm-min/max, deg (default 30)")
-    g.add_argument("--rudder-channel", type=int, default=4,
-                   help="SERVO_OUTPUT_RAW channel of the rudder, 1..16 (default 4)")
+    g.add_argument(
+        "--rudder-channel", type=int, default=4, help="SERVO_OUTPUT_RAW channel of the rudder, 1..16 (default 4)"
+    )
 
 
 def pwm_from_args(parser: argparse.ArgumentParser, args: argparse.Namespace) -> PwmMap:

@@ -75,10 +75,10 @@ class FastDecoder:
         plen = raw[1]
         if len(raw) != 12 + plen:
             raise mavlink.MAVError("invalid MAVLink message length")
-        c = crc16(raw[1:10 + plen] + self._crc_extra)
+        c = crc16(raw[1 : 10 + plen] + self._crc_extra)
         if raw[10 + plen] != (c & 0xFF) or raw[11 + plen] != (c >> 8):
             raise mavlink.MAVError("invalid MAVLink CRC")
-        payload = raw[10:10 + plen]
+        payload = raw[10 : 10 + plen]
         size = self._size
         if plen < size:
             payload = payload + bytes(size - plen)
@@ -87,10 +87,11 @@ class FastDecoder:
         t = self._unpack(payload)
         m = self.cls(*[t[i] for i in self._orders])
         m._msgbuf = bytearray(raw)
-        m._payload = raw[6:10 + plen]
+        m._payload = raw[6 : 10 + plen]
         m._crc = c
-        m._header = mavlink.MAVLink_header(raw[7] | (raw[8] << 8) | (raw[9] << 16), 0, raw[3], plen, raw[4],
-                                           raw[5], raw[6])
+        m._header = mavlink.MAVLink_header(
+            raw[7] | (raw[8] << 8) | (raw[9] << 16), 0, raw[3], plen, raw[4], raw[5], raw[6]
+        )
         return m
 
 

@@ -30,8 +30,16 @@ from autopilot.shared.fastmav import FAST_DECODERS, FastPacker
 from autopilot.shared.mavlink import mavlink
 
 _MAVLINK_MAP = mavlink.mavlink_map
-REJECT_REASONS = ("bad_magic", "truncated", "bad_crc", "decode_error", "wrong_id", "unknown_msg", "ignored_msg",
-                  "over_budget")
+REJECT_REASONS = (
+    "bad_magic",
+    "truncated",
+    "bad_crc",
+    "decode_error",
+    "wrong_id",
+    "unknown_msg",
+    "ignored_msg",
+    "over_budget",
+)
 
 
 class UdpLink:
@@ -42,8 +50,19 @@ class UdpLink:
     ``msgids``: accepted message ids (others are counted as ``ignored_msg`` without decoding).
     """
 
-    def __init__(self, name: str, src: tuple[int, int], bind: tuple[str, int], remote: tuple[str, int] | None,
-                 peers, msgids, *, learn_remote: bool = False, tlog=None, rcvbuf: int = 1 << 20):
+    def __init__(
+        self,
+        name: str,
+        src: tuple[int, int],
+        bind: tuple[str, int],
+        remote: tuple[str, int] | None,
+        peers,
+        msgids,
+        *,
+        learn_remote: bool = False,
+        tlog=None,
+        rcvbuf: int = 1 << 20,
+    ):
         self.name = name
         self.mav = mavlink.MAVLink(None, src[0], src[1])
         self.sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
@@ -226,8 +245,10 @@ class UdpLink:
             "rx_by_type": {_name(k): v for k, v in sorted(self.rx_by_type.items())},
             "tx_by_type": {_name(k): v for k, v in sorted(self.tx_by_type.items())},
             # the link's own reasons first, then those the owner adds (nonfinite_attitude, bad_pwm, ...)
-            "rejected": {**{r: self.rejected[r] for r in REJECT_REASONS if self.rejected.get(r)},
-                         **{r: v for r, v in sorted(self.rejected.items()) if r not in REJECT_REASONS and v}},
+            "rejected": {
+                **{r: self.rejected[r] for r in REJECT_REASONS if self.rejected.get(r)},
+                **{r: v for r, v in sorted(self.rejected.items()) if r not in REJECT_REASONS and v},
+            },
         }
 
 
@@ -241,8 +262,10 @@ def format_counters(name: str, c: dict, extra: dict | None = None) -> str:
     rx = ", ".join(f"{k}={v}" for k, v in c["rx_by_type"].items())
     tx = ", ".join(f"{k}={v}" for k, v in c["tx_by_type"].items())
     rej = ", ".join(f"{k}={v}" for k, v in c["rejected"].items()) or "none"
-    s = (f"{name}: received {c['rx_packets']} ({rx}) of {c['rx_datagrams']} datagrams; sent {c['tx_packets']} ({tx})"
-         f"{'; send errors ' + str(c['tx_errors']) if c['tx_errors'] else ''}; rejected: {rej}")
+    s = (
+        f"{name}: received {c['rx_packets']} ({rx}) of {c['rx_datagrams']} datagrams; sent {c['tx_packets']} ({tx})"
+        f"{'; send errors ' + str(c['tx_errors']) if c['tx_errors'] else ''}; rejected: {rej}"
+    )
     if extra:
         s += "; " + ", ".join(f"{k}={v}" for k, v in extra.items())
     return s

@@ -32,8 +32,9 @@ class AutopilotHook(ProcessHook):
     ``control_rate_hz`` paces the link counters on the step count (exact in lockstep); without it, on sim time.
     """
 
-    def __init__(self, tel, links: Sequence[str] = L.LINKS, link_rate_hz: float = 10.0,
-                 control_rate_hz: float | None = None):
+    def __init__(
+        self, tel, links: Sequence[str] = L.LINKS, link_rate_hz: float = 10.0, control_rate_hz: float | None = None
+    ):
         super().__init__(tel)
         self.table, self.links, self.mode, self.failsafe = autopilot_tables(tel, links)
         self._push = self.table.push
@@ -49,9 +50,21 @@ class AutopilotHook(ProcessHook):
         self.last_t = t
         ctrl = rec.ctrl
         ap = rec.ap
-        self._push((t, wall, ctrl.telemetry() + (
-            nan_if_none(rec.p), nan_if_none(res.pwm), nan_if_none(rec.period), nan_if_none(rec.compute),
-            nan_if_none(rec.lateness), float(ap.timing.missed))))
+        self._push(
+            (
+                t,
+                wall,
+                ctrl.telemetry()
+                + (
+                    nan_if_none(rec.p),
+                    nan_if_none(res.pwm),
+                    nan_if_none(rec.period),
+                    nan_if_none(rec.compute),
+                    nan_if_none(rec.lateness),
+                    float(ap.timing.missed),
+                ),
+            )
+        )
         mode = L.MODE_HOLD if ctrl.frozen else L.MODE_ADAPTIVE
         if mode != self.mode.last:
             self.mode.set(t, wall, mode)
@@ -65,5 +78,6 @@ class AutopilotHook(ProcessHook):
             for name, table in self.links.items():
                 link = getattr(ap, name)
                 # Straight from the link's attributes: counters() builds whole dicts for the same numbers.
-                table.push((t, wall, (float(link.rx_packets), float(link.tx_packets),
-                                      float(sum(link.rejected.values())))))
+                table.push(
+                    (t, wall, (float(link.rx_packets), float(link.tx_packets), float(sum(link.rejected.values()))))
+                )

@@ -56,21 +56,29 @@ AUTOPILOT = TableLayout(
     "autopilot",
     AUTOPILOT_FIELDS,
     (
-        Plot(AP_ROLL, ("um", "ym", "ym_ol", "y"),
-             ("roll command um", "reference ym (closed loop)", "reference ym_ol (open loop)", "roll phi (measured)"),
-             (GREY, ORANGE, SKY, YELLOW)),
+        Plot(
+            AP_ROLL,
+            ("um", "ym", "ym_ol", "y"),
+            ("roll command um", "reference ym (closed loop)", "reference ym_ol (open loop)", "roll phi (measured)"),
+            (GREY, ORANGE, SKY, YELLOW),
+        ),
         Plot(AP_ROLL_RATE, ("p",), ("roll rate p (measured)",), (YELLOW,)),
         Plot(AP_ERROR, ("e",), ("error e = ym - ya",), (VERMILLION,)),
         Plot(AP_AUGMENTED, ("ya", "y_pfc"), ("augmented output ya", "PFC output y_pfc"), (GREEN, PURPLE)),
-        Plot(AP_RUDDER, ("u", "u_raw"), ("rudder command u (limited)", "rudder command u_raw (unlimited)"),
-             (BLUE, SKY)),
+        Plot(
+            AP_RUDDER, ("u", "u_raw"), ("rudder command u (limited)", "rudder command u_raw (unlimited)"), (BLUE, SKY)
+        ),
         Plot(AP_RUDDER_PWM, ("pwm",), ("rudder PWM [us]",), (BLUE,), step=True),
         Plot(AP_SATURATED, ("saturated",), ("rudder saturated",), (VERMILLION,), step=True),
         Plot(AP_GAIN_KE, ("kpe", "kie", "ke"), ("Kpe", "KIe", "Ke"), (SKY, ORANGE, WHITE)),
         Plot(AP_GAIN_KX, ("kpx", "kix", "kx"), ("Kpx", "KIx", "Kx"), (SKY, ORANGE, WHITE)),
         Plot(AP_GAIN_KU, ("kpu", "kiu", "ku"), ("Kpu", "KIu", "Ku"), (SKY, ORANGE, WHITE)),
-        Plot(AP_TIMING_LOOP, ("period", "compute", "jitter"),
-             ("period [s]", "compute [s]", "jitter [s]"), (GREY, GREEN, VERMILLION)),
+        Plot(
+            AP_TIMING_LOOP,
+            ("period", "compute", "jitter"),
+            ("period [s]", "compute [s]", "jitter [s]"),
+            (GREY, GREEN, VERMILLION),
+        ),
         Plot(AP_TIMING_MISSED, ("missed",), ("missed deadlines",), (VERMILLION,), step=True),
     ),
 )
@@ -96,9 +104,15 @@ def link_layout(name: str, index: int = 0) -> TableLayout:
     return TableLayout(
         f"link_{name}",
         LINK_FIELDS,
-        (Plot(f"{AP_LINK}/{name}", LINK_FIELDS,
-              (f"{name} received", f"{name} sent", f"{name} rejected"), LINK_COLORS[index % len(LINK_COLORS)],
-              step=True),),
+        (
+            Plot(
+                f"{AP_LINK}/{name}",
+                LINK_FIELDS,
+                (f"{name} received", f"{name} sent", f"{name} rejected"),
+                LINK_COLORS[index % len(LINK_COLORS)],
+                step=True,
+            ),
+        ),
     )
 
 

@@ -44,8 +44,8 @@ def _closed_loop_poly(num: np.ndarray, den: np.ndarray, k: float) -> np.ndarray:
     """D(s) + K N(s): the characteristic polynomial of 1 + K N/D (paper sec. 2, eq. (14) with K_e = K)."""
     m = max(num.size, den.size)
     p = np.zeros(m)
-    p[m - den.size:] += den
-    p[m - num.size:] += k * num
+    p[m - den.size :] += den
+    p[m - num.size :] += k * num
     return np.trim_zeros(p, "f")
 
 
@@ -156,7 +156,7 @@ def _bands(cands: list[float], f, omega_of) -> list[GainBand]:
             probes += [lo * 1.5, lo * 10.0, lo * 1e3]
         else:
             r = hi / lo
-            probes += [lo * r ** 0.25, lo * r ** 0.5, lo * r ** 0.75]
+            probes += [lo * r**0.25, lo * r**0.5, lo * r**0.75]
     flags = [f(p) >= 0.0 for p in probes]
     edges = []  # (gain, becomes_unstable)
     for p0, p1, u0, u1 in zip(probes[:-1], probes[1:], flags[:-1], flags[1:]):

@@ -112,7 +112,7 @@ def ss_to_tf(a, b, c, d=0.0, dt=0) -> TransferFunction:
     num = np.atleast_1d(np.asarray(sys.num[0][0], dtype=float)).ravel()
     den = np.atleast_1d(np.asarray(sys.den[0][0], dtype=float)).ravel()
     n = a.shape[0]
-    num = np.concatenate([np.zeros(n + 1 - num.size), num]) if num.size < n + 1 else num[-(n + 1):]
+    num = np.concatenate([np.zeros(n + 1 - num.size), num]) if num.size < n + 1 else num[-(n + 1) :]
     if d == 0.0:
         num[0] = 0.0
         na, nb, nc = np.linalg.norm(a, 2), np.linalg.norm(b), np.linalg.norm(c)

@@ -164,16 +164,25 @@ def analyse(
     t_dc, d_dc = dc_gain(tn, td), dc_gain(dn, dd)
     rep = WasprReport(
         pfc_name=pfc_name,
-        plant_num=tn, plant_den=td, pfc_num=dn, pfc_den=dd, f_num=fn, f_den=fd,
-        zeros=_sort_roots(zeros), poles=_sort_roots(poles),
+        plant_num=tn,
+        plant_den=td,
+        pfc_num=dn,
+        pfc_den=dd,
+        f_num=fn,
+        f_den=fd,
+        zeros=_sort_roots(zeros),
+        poles=_sort_roots(poles),
         plant_zeros=_sort_roots(np.roots(tn) if tn.size > 1 else np.array([], dtype=complex)),
         plant_poles=_sort_roots(np.roots(td)),
         minimum_phase=is_minimum_phase(fn),
         relative_degree=relative_degree(fn, fd),
         hf_gain=hf_gain(fn, fd),
         waspr=is_waspr(fn, fd),
-        bands=bands, rate_hz=rate_hz, bands_discrete=bands_d,
-        plant_dc_gain=t_dc, pfc_dc_gain=d_dc,
+        bands=bands,
+        rate_hz=rate_hz,
+        bands_discrete=bands_d,
+        plant_dc_gain=t_dc,
+        pfc_dc_gain=d_dc,
         steady_state=steady_state_offset(t_dc, d_dc, command_rad),
         compensator_gain_margin=compensator_gain_margin(tn, td, dn, dd),
         lv=float(lv),
@@ -219,8 +228,9 @@ def _notes(rep: WasprReport) -> list[str]:
         )
     if rep.bands_discrete is not None:
         if rep.bands_discrete:
-            spans = ", ".join(f"[{b.low:.6g}, {'inf' if math.isinf(b.high) else f'{b.high:.6g}'}]"
-                              for b in rep.bands_discrete)
+            spans = ", ".join(
+                f"[{b.low:.6g}, {'inf' if math.isinf(b.high) else f'{b.high:.6g}'}]" for b in rep.bands_discrete
+            )
             notes.append(
                 f"sampled at {rep.rate_hz:g} Hz with a zero-order hold (the controller's own loop), "
                 f"1 + Ke F_zoh(z) is unstable for Ke in {spans}"

@@ -48,7 +48,8 @@ def robust_pfc_search(
             real = augmented_realisation(num, den)
             zeros = np.roots(fn)
             row = {
-                "k": float(k), "a": float(a),
+                "k": float(k),
+                "a": float(a),
                 "waspr": is_waspr(fn, fd),
                 "min_zero_damping": float(min(damping_ratio(z) for z in zeros)),
                 "bands": [(b.low, b.high) for b in unstable_gain_bands(fn, fd, realisation=real)],

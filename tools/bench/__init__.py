@@ -9,8 +9,9 @@ The returned dict maps a figure name to a dict with at least ``value`` and ``uni
 figure has a target also ``target`` (same unit, an upper bound) and ``pass`` (bool); anything else is
 extra detail (``p90``, ``n``, ...).  ``argv`` is what the dispatcher forwards: the module's optional
 ``QUICK_ARGV`` list (e.g. ``["--quick"]``) when the user asked for a short run with ``--quick``, followed by
-anything given after ``--``.  An area that raises or exits non-zero is reported and the others still run.  ``--json PATH`` on the command line writes all areas' figures, and ``--strict`` makes the command
-exit 1 when a figure misses its target.
+anything given after ``--``.  An area that raises or exits non-zero is reported and the others still run.
+``--json PATH`` on the command line writes all areas' figures, and ``--strict`` makes the command exit 1 when
+a figure misses its target.
 
 Shared helpers for area modules live here: :func:`figure`, :func:`print_table`, :func:`timed_batches`.
 """
@@ -56,8 +57,13 @@ def percentile(values: list[float], q: float) -> float:
     return xs[lo] + (xs[hi] - xs[lo]) * (k - lo)
 
 
-def timed_batches(run_batch: Callable[[], None], calls_per_batch: int, batches: int,
-                  setup: Callable[[], None] | None = None, warmup: int = 2) -> list[float]:
+def timed_batches(
+    run_batch: Callable[[], None],
+    calls_per_batch: int,
+    batches: int,
+    setup: Callable[[], None] | None = None,
+    warmup: int = 2,
+) -> list[float]:
     """Per-call times in microseconds, one value per batch (batch time / calls_per_batch).
 
     ``setup`` runs before every batch, outside the timed region.  The garbage collector is off while
@@ -83,8 +89,12 @@ def timed_batches(run_batch: Callable[[], None], calls_per_batch: int, batches: 
 
 def summarise_us(samples: list[float]) -> dict:
     """median, p90 and min of per-call times (min: what the code costs on an idle machine)."""
-    return {"median": statistics.median(samples), "p90": percentile(samples, 90.0), "min": min(samples),
-            "n": len(samples)}
+    return {
+        "median": statistics.median(samples),
+        "p90": percentile(samples, 90.0),
+        "min": min(samples),
+        "n": len(samples),
+    }
 
 
 def machine_load() -> dict:
@@ -101,8 +111,10 @@ def machine_load() -> dict:
 def load_warning() -> str | None:
     m = machine_load()
     if m["load1"] is not None and m["cpus"] and m["load1"] > 0.5 * m["cpus"]:
-        return (f"note: load average {m['load1']:.1f} on {m['cpus']} CPU(s): other processes compete for the CPU, "
-                "so these timings are inflated (compare 'min' with the target)")
+        return (
+            f"note: load average {m['load1']:.1f} on {m['cpus']} CPU(s): other processes compete for the CPU, "
+            "so these timings are inflated (compare 'min' with the target)"
+        )
     return None
 
 
@@ -128,9 +140,23 @@ def _fmt(v) -> str:
 
 def failures(results: dict[str, dict[str, dict]]) -> list[str]:
     """``area.figure`` names that missed their target."""
-    return [f"{a}.{n}" for a, figs in results.items() for n, f in figs.items()
-            if isinstance(f, dict) and f.get("pass") is False]
+    return [
+        f"{a}.{n}"
+        for a, figs in results.items()
+        for n, f in figs.items()
+        if isinstance(f, dict) and f.get("pass") is False
+    ]
 
 
-__all__: Iterable[str] = ("areas", "load", "figure", "percentile", "timed_batches", "summarise_us", "print_table",
-                          "failures", "machine_load", "load_warning")
+__all__: Iterable[str] = (
+    "areas",
+    "load",
+    "figure",
+    "percentile",
+    "timed_batches",
+    "summarise_us",
+    "print_table",
+    "failures",
+    "machine_load",
+    "load_warning",
+)

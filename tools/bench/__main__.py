@@ -6,7 +6,6 @@ area present runs; an area whose module cannot be imported is skipped with its r
 
 from __future__ import annotations
 
-import argparse
 import json
 import platform
 import sys
@@ -17,18 +16,19 @@ from autopilot.shared.cli import OneLineArgumentParser
 from tools import bench
 
 
-
-
 def main(argv: list[str] | None = None) -> int:
     argv = list(sys.argv[1:] if argv is None else argv)
     forwarded: list[str] = []
     if "--" in argv:
         i = argv.index("--")
-        argv, forwarded = argv[:i], argv[i + 1:]
+        argv, forwarded = argv[:i], argv[i + 1 :]
     available = bench.areas()
-    p = OneLineArgumentParser(prog="python -m tools.bench",
-                description="Run benchmarks and compare them with their targets. Areas: "
-                            + ", ".join(available) + ". Arguments after -- go to every area's main().")
+    p = OneLineArgumentParser(
+        prog="python -m tools.bench",
+        description="Run benchmarks and compare them with their targets. Areas: "
+        + ", ".join(available)
+        + ". Arguments after -- go to every area's main().",
+    )
     p.add_argument("area", nargs="*", help="areas to run (default: all)")
     p.add_argument("--json", metavar="PATH", help="write every figure to this JSON file")
     p.add_argument("--strict", action="store_true", help="exit 1 when a figure misses its target")
@@ -47,15 +47,19 @@ def main(argv: list[str] | None = None) -> int:
     explicit = [a for a in args.area if a != "all"]
     for a in explicit:
         if a not in available:
-            print(f"python -m tools.bench: error: unknown benchmark area {a!r} (available: {', '.join(available)})",
-                  file=sys.stderr)
+            print(
+                f"python -m tools.bench: error: unknown benchmark area {a!r} (available: {', '.join(available)})",
+                file=sys.stderr,
+            )
             return 2
     selected = list(dict.fromkeys(explicit)) or available
     if args.json:
         out = Path(args.json)
         if out.is_dir() or not out.parent.is_dir():
-            print(f"python -m tools.bench: error: cannot write --json {args.json!r}: not a file in an existing folder",
-                  file=sys.stderr)
+            print(
+                f"python -m tools.bench: error: cannot write --json {args.json!r}: not a file in an existing folder",
+                file=sys.stderr,
+            )
             return 2
 
     results: dict[str, dict] = {}
@@ -65,7 +69,7 @@ def main(argv: list[str] | None = None) -> int:
     for area in selected:
         try:
             module = bench.load(area)
-        except Exception as exc:  # an area's optional dependency may be missing
+        except Exception as exc:  # noqa: BLE001  (an area's optional dependency may be missing)
             reason = f"{type(exc).__name__}: {exc}"
             if explicit:
                 print(f"python -m tools.bench: error: area {area!r} cannot be imported: {reason}", file=sys.stderr)
@@ -83,7 +87,7 @@ def main(argv: list[str] | None = None) -> int:
                 print(f"[{area}] error: exited with status {exc.code}", file=sys.stderr)
                 continue
             figures = {}
-        except Exception as exc:  # one broken area must not hide the others' figures
+        except Exception as exc:  # noqa: BLE001  (one broken area must not hide the others' figures)
             errors[area] = f"{type(exc).__name__}: {exc}"
             print(f"[{area}] error: {errors[area]}", file=sys.stderr)
             continue
@@ -92,17 +96,23 @@ def main(argv: list[str] | None = None) -> int:
 
     failed = bench.failures(results)
     total = time.perf_counter() - t_all
-    print(f"benchmarks: {len(results)} area(s) in {total:.1f} s; "
-          + (f"{len(failed)} target(s) missed: {', '.join(failed)}" if failed else "all targets met")
-          + (f"; area(s) in error: {', '.join(errors)}" if errors else ""))
+    print(
+        f"benchmarks: {len(results)} area(s) in {total:.1f} s; "
+        + (f"{len(failed)} target(s) missed: {', '.join(failed)}" if failed else "all targets met")
+        + (f"; area(s) in error: {', '.join(errors)}" if errors else "")
+    )
     if args.json:
         doc = {
             "areas": results,
             "skipped": skipped,
             "errors": errors,
             "failed": failed,
-            "host": {"python": platform.python_version(), "machine": platform.machine(),
-                     "platform": platform.platform(), **bench.machine_load()},
+            "host": {
+                "python": platform.python_version(),
+                "machine": platform.machine(),
+                "platform": platform.platform(),
+                **bench.machine_load(),
+            },
             "created": time.strftime("%Y-%m-%dT%H:%M:%S%z"),
         }
         Path(args.json).write_text(json.dumps(doc, indent=2) + "\n", encoding="utf-8")

@@ -98,8 +98,12 @@ def bench_cli_cold() -> float:
     root = Path(__file__).resolve().parents[2]
     with tempfile.TemporaryDirectory(prefix="bench-cli-") as tmp:
         t0 = time.perf_counter()
-        proc = subprocess.run([sys.executable, "-m", "tools.experiment", "paper", "--no-plot", "--out", tmp],
-                              cwd=root, capture_output=True, text=True)
+        proc = subprocess.run(
+            [sys.executable, "-m", "tools.experiment", "paper", "--no-plot", "--out", tmp],
+            cwd=root,
+            capture_output=True,
+            text=True,
+        )
         dt = time.perf_counter() - t0
     if proc.returncode != 0:
         raise RuntimeError(f"tools.experiment failed: {proc.stderr.strip()}")
@@ -127,16 +131,25 @@ def main(argv: list[str] | None = None) -> dict:
 
     figs: dict[str, dict] = {}
     c = bench_controller(batches)
-    figs["controller_step_siso"] = figure(c["median"], "us", TARGET_CONTROLLER_US, p90=c["p90"], min=c["min"], batches=c["n"], calls=BATCH)
+    figs["controller_step_siso"] = figure(
+        c["median"], "us", TARGET_CONTROLLER_US, p90=c["p90"], min=c["min"], batches=c["n"], calls=BATCH
+    )
     cm = bench_controller(max(batches // 30, 5), fast=False)
-    figs["controller_step_matrix"] = figure(cm["median"], "us", None, p90=cm["p90"], min=cm["min"], batches=cm["n"], calls=BATCH)
+    figs["controller_step_matrix"] = figure(
+        cm["median"], "us", None, p90=cm["p90"], min=cm["min"], batches=cm["n"], calls=BATCH
+    )
     ph = bench_physics_step(batches)
-    figs["physics_step"] = figure(ph["median"], "us", TARGET_PHYSICS_US, p90=ph["p90"], min=ph["min"], batches=ph["n"], calls=BATCH)
+    figs["physics_step"] = figure(
+        ph["median"], "us", TARGET_PHYSICS_US, p90=ph["p90"], min=ph["min"], batches=ph["n"], calls=BATCH
+    )
     pa = bench_physics_advance(max(batches // 3, 5))
-    figs["physics_advance_10_steps"] = figure(pa["median"], "us", None, p90=pa["p90"], min=pa["min"], batches=pa["n"], calls=BATCH)
+    figs["physics_advance_10_steps"] = figure(
+        pa["median"], "us", None, p90=pa["p90"], min=pa["min"], batches=pa["n"], calls=BATCH
+    )
     ex = bench_experiment(repeats)
-    figs["paper_experiment_inprocess"] = figure(ex["median"], "s", TARGET_EXPERIMENT_S, min=ex["min"], max=ex["max"],
-                                                runs=ex["n"])
+    figs["paper_experiment_inprocess"] = figure(
+        ex["median"], "s", TARGET_EXPERIMENT_S, min=ex["min"], max=ex["max"], runs=ex["n"]
+    )
     if not args.no_extras:
         figs["paper_experiment_cli_cold"] = figure(bench_cli_cold(), "s", None, note="fresh process, --no-plot")
         figs["paper_figure"] = figure(bench_figure(), "s", None, note="save paper.png")

@@ -52,11 +52,21 @@ def _fly(tmp: Path, name: str, **kw) -> dict:
     return res.summary
 
 
-def _lockstep(tmp: Path, rate: float, runs: int, pin: bool, duration: float, rrd: bool) -> tuple[list[float], list[float]]:
+def _lockstep(
+    tmp: Path, rate: float, runs: int, pin: bool, duration: float, rrd: bool
+) -> tuple[list[float], list[float]]:
     rtf, lat_p99 = [], []
     for i in range(runs):
-        s = _fly(tmp, f"lockstep{rate:g}_{'rrd' if rrd else 'tlog'}_{i}", lockstep=True, rate=rate, duration=duration,
-                 pin=pin, rrd=rrd, physics_rate=rate * max(1, -(-1000 // int(rate))))
+        s = _fly(
+            tmp,
+            f"lockstep{rate:g}_{'rrd' if rrd else 'tlog'}_{i}",
+            lockstep=True,
+            rate=rate,
+            duration=duration,
+            pin=pin,
+            rrd=rrd,
+            physics_rate=rate * max(1, -(-1000 // int(rate))),
+        )
         rtf.append(s["rtf"])
         lat_p99.append(s["timing"]["latency_ms"]["p99"])
     return rtf, lat_p99
@@ -134,7 +144,12 @@ def baseline_jitter(rate: float = 100.0, seconds: float = 5.0, spin_s: float = 0
         deadline += per
     s.close()
     jit.sort()
-    return {"p50": jit[len(jit) // 2], "p99": jit[min(len(jit) - 1, int(0.99 * len(jit)))], "max": jit[-1], "n": len(jit)}
+    return {
+        "p50": jit[len(jit) // 2],
+        "p99": jit[min(len(jit) - 1, int(0.99 * len(jit)))],
+        "max": jit[-1],
+        "n": len(jit),
+    }
 
 
 # ------------------------------------------------------------------------------------ the lockstep floor
@@ -170,8 +185,15 @@ def _floor_sitl_side(conn, cpu: int | None, spin_s: float, seconds: float, runs:
     try:
         _floor_pin(cpu)
         att_id, servo_id = mavlink.MAVLINK_MSG_ID_ATTITUDE, mavlink.MAVLINK_MSG_ID_SERVO_OUTPUT_RAW
-        link = UdpLink("autopilot", SITL_ID, ("127.0.0.1", 0), None, peers=[AUTOPILOT_ID],
-                       msgids=[servo_id, mavlink.MAVLINK_MSG_ID_HEARTBEAT], learn_remote=True)
+        link = UdpLink(
+            "autopilot",
+            SITL_ID,
+            ("127.0.0.1", 0),
+            None,
+            peers=[AUTOPILOT_ID],
+            msgids=[servo_id, mavlink.MAVLINK_MSG_ID_HEARTBEAT],
+            learn_remote=True,
+        )
         conn.send(link.local)
         pk_att = link.fast_packer(mavlink.MAVLink_attitude_message)
         pwm = PwmMap()
@@ -234,8 +256,11 @@ def _floor_sitl_side(conn, cpu: int | None, spin_s: float, seconds: float, runs:
         window(warmup_s)
         rates = [window(seconds) for _ in range(runs)]
         for _ in range(3):  # tell the autopilot side to stop (it exits on a HEARTBEAT)
-            link.send(mavlink.MAVLink_heartbeat_message(mavlink.MAV_TYPE_GENERIC, mavlink.MAV_AUTOPILOT_INVALID,
-                                                        0, 0, mavlink.MAV_STATE_ACTIVE, 3))
+            link.send(
+                mavlink.MAVLink_heartbeat_message(
+                    mavlink.MAV_TYPE_GENERIC, mavlink.MAV_AUTOPILOT_INVALID, 0, 0, mavlink.MAV_STATE_ACTIVE, 3
+                )
+            )
         conn.send({"rates": rates, "frames": k, **stats, "link": link.counters()})
         link.close()
     except Exception as exc:  # noqa: BLE001  (reported to the parent, which raises it)
@@ -259,8 +284,14 @@ def _floor_autopilot_side(conn, cpu: int | None, spin_s: float) -> None:
         sitl_addr = tuple(conn.recv())
         att_id, hb_id = mavlink.MAVLINK_MSG_ID_ATTITUDE, mavlink.MAVLINK_MSG_ID_HEARTBEAT
         servo_id = mavlink.MAVLINK_MSG_ID_SERVO_OUTPUT_RAW
-        link = UdpLink("sitl", AUTOPILOT_ID, ("127.0.0.1", 0), sitl_addr, peers=[SITL_ID],
-                       msgids=[att_id, hb_id, mavlink.MAVLINK_MSG_ID_STATUSTEXT])
+        link = UdpLink(
+            "sitl",
+            AUTOPILOT_ID,
+            ("127.0.0.1", 0),
+            sitl_addr,
+            peers=[SITL_ID],
+            msgids=[att_id, hb_id, mavlink.MAVLINK_MSG_ID_STATUSTEXT],
+        )
         servo_cls = mavlink.MAVLink_servo_output_raw_message
         pk_servo = link.fast_packer(servo_cls)
         pwm = PwmMap()
@@ -277,8 +308,9 @@ def _floor_autopilot_side(conn, cpu: int | None, spin_s: float) -> None:
             elif mid == hb_id and link.rx_by_type[att_id]:
                 stop.append(True)
 
-        hb = mavlink.MAVLink_heartbeat_message(mavlink.MAV_TYPE_FIXED_WING, mavlink.MAV_AUTOPILOT_GENERIC, 0, 0,
-                                               mavlink.MAV_STATE_STANDBY, 3)
+        hb = mavlink.MAVLink_heartbeat_message(
+            mavlink.MAV_TYPE_FIXED_WING, mavlink.MAV_AUTOPILOT_GENERIC, 0, 0, mavlink.MAV_STATE_STANDBY, 3
+        )
         fds = [link.sock]
         perf = time.perf_counter
         t_start = next_hb = perf()
@@ -305,8 +337,9 @@ def _floor_autopilot_side(conn, cpu: int | None, spin_s: float) -> None:
         conn.send({"error": f"{type(exc).__name__}: {exc}"})
 
 
-def lockstep_floor(seconds: float = 3.0, runs: int = 5, pin: bool = True, spin_s: float = FLOOR_SPIN_S,
-                   warmup_s: float = 0.5) -> dict:
+def lockstep_floor(
+    seconds: float = 3.0, runs: int = 5, pin: bool = True, spin_s: float = FLOOR_SPIN_S, warmup_s: float = 0.5
+) -> dict:
     """The floor of any two-process lockstep over loopback UDP: round trips per second of a bare ATTITUDE ->
     SERVO_OUTPUT_RAW ping-pong between two spawned processes (``_floor_sitl_side``, ``_floor_autopilot_side``),
     packed, received and decoded with ``UdpLink`` as the SITL and the autopilot do, with their busy-poll
@@ -325,10 +358,15 @@ def lockstep_floor(seconds: float = 3.0, runs: int = 5, pin: bool = True, spin_s
     ctx = multiprocessing.get_context("spawn")
     sitl_conn, sitl_child = ctx.Pipe()
     ap_conn, ap_child = ctx.Pipe()
-    sitl = ctx.Process(target=_floor_sitl_side, args=(sitl_child, 0 if two else None, spin_s, seconds, runs, warmup_s),
-                       name="floor-sitl", daemon=True)
-    ap = ctx.Process(target=_floor_autopilot_side, args=(ap_child, 1 if two else None, spin_s),
-                     name="floor-autopilot", daemon=True)
+    sitl = ctx.Process(
+        target=_floor_sitl_side,
+        args=(sitl_child, 0 if two else None, spin_s, seconds, runs, warmup_s),
+        name="floor-sitl",
+        daemon=True,
+    )
+    ap = ctx.Process(
+        target=_floor_autopilot_side, args=(ap_child, 1 if two else None, spin_s), name="floor-autopilot", daemon=True
+    )
     procs = (sitl, ap)
     timeout = 60.0 + warmup_s + runs * seconds + _FLOOR_GIVE_UP_S
 
@@ -380,18 +418,38 @@ def main(argv: list[str] | None = None) -> dict:
     p.add_argument("--quick", action="store_true", help="fewer, shorter runs")
     p.add_argument("--runs", type=int, default=None, help="lockstep flights per rate and set-up (default 5, quick 2)")
     p.add_argument("--realtime-s", type=float, default=None, help="real-time flight length (default 60, quick 10)")
-    p.add_argument("--realtime-runs", type=int, default=None, metavar="N",
-                   help="real-time flights per rate in the deployed set-up; figures are medians (default 3, quick 1)")
-    p.add_argument("--no-pin", dest="pin", action="store_false",
-                   help="do not pin (default: autopilot alone on CPU 1, everything else on CPU 0)")
-    p.add_argument("--no-busy-wait", dest="busy_wait", action="store_false",
-                   help="real-time flights: let the autopilot sleep between steps (default: --busy-wait)")
-    p.add_argument("--rt-priority", type=int, default=50, metavar="N",
-                   help="also fly the real-time rates pinned under SCHED_FIFO priority N, for comparison "
-                        "(default 50; 0 = skip)")
-    p.add_argument("--lockstep-only", action="store_true",
-                   help="only the lockstep figures (floor, real-time factor, latency, wrap, agreement): skip the "
-                        "real-time flights and their baselines, for quick before/after comparisons")
+    p.add_argument(
+        "--realtime-runs",
+        type=int,
+        default=None,
+        metavar="N",
+        help="real-time flights per rate in the deployed set-up; figures are medians (default 3, quick 1)",
+    )
+    p.add_argument(
+        "--no-pin",
+        dest="pin",
+        action="store_false",
+        help="do not pin (default: autopilot alone on CPU 1, everything else on CPU 0)",
+    )
+    p.add_argument(
+        "--no-busy-wait",
+        dest="busy_wait",
+        action="store_false",
+        help="real-time flights: let the autopilot sleep between steps (default: --busy-wait)",
+    )
+    p.add_argument(
+        "--rt-priority",
+        type=int,
+        default=50,
+        metavar="N",
+        help="also fly the real-time rates pinned under SCHED_FIFO priority N, for comparison (default 50; 0 = skip)",
+    )
+    p.add_argument(
+        "--lockstep-only",
+        action="store_true",
+        help="only the lockstep figures (floor, real-time factor, latency, wrap, agreement): skip the "
+        "real-time flights and their baselines, for quick before/after comparisons",
+    )
     p.add_argument("--json", default=None, metavar="PATH", help="also write the figures to PATH")
     args = p.parse_args(argv or [])
     runs = args.runs or (2 if args.quick else 5)
@@ -403,12 +461,18 @@ def main(argv: list[str] | None = None) -> dict:
     floor_runs, floor_s = (3, 2.0) if args.quick else (5, 3.0)
     floor = lockstep_floor(floor_s, floor_runs, pin=args.pin)
     figs["lockstep_floor_round_trips_per_s"] = figure(
-        floor["round_trips_per_s"], "1/s", runs=[round(x) for x in floor["runs"]], seconds=floor_s,
-        pinned=floor["pinned"], spin_us=floor["spin_us"],
-        note="bare ATTITUDE -> SERVO_OUTPUT_RAW ping-pong, two processes, as a lockstep flight waits")
+        floor["round_trips_per_s"],
+        "1/s",
+        runs=[round(x) for x in floor["runs"]],
+        seconds=floor_s,
+        pinned=floor["pinned"],
+        spin_us=floor["spin_us"],
+        note="bare ATTITUDE -> SERVO_OUTPUT_RAW ping-pong, two processes, as a lockstep flight waits",
+    )
     for rate in (100, 400):
-        figs[f"lockstep_floor_{rate}hz_rtf"] = figure(floor[f"rtf_{rate}hz"], "x",
-                                                      ms_per_sim_s=round(1000.0 / floor[f"rtf_{rate}hz"], 3))
+        figs[f"lockstep_floor_{rate}hz_rtf"] = figure(
+            floor[f"rtf_{rate}hz"], "x", ms_per_sim_s=round(1000.0 / floor[f"rtf_{rate}hz"], 3)
+        )
     with tempfile.TemporaryDirectory(prefix="bench-mavlink-") as d:
         tmp = Path(d)
         lat = {}
@@ -421,30 +485,47 @@ def main(argv: list[str] | None = None) -> dict:
                     extra["stretch_rtf"] = stretch
                 name = f"lockstep_{rate:g}hz_ms_per_sim_s" + ("_with_rrd" if rrd else "")
                 if rrd:  # the launcher's default set-up, for information: the issue's target is with the tlog only
-                    figs[name] = figure(1000.0 / m, "ms", note=f"target {1000.0 / target_rtf:.1f} ms is for tlog only",
-                                        **extra)
+                    figs[name] = figure(
+                        1000.0 / m, "ms", note=f"target {1000.0 / target_rtf:.1f} ms is for tlog only", **extra
+                    )
                 else:
                     figs[name] = figure(1000.0 / m, "ms", 1000.0 / target_rtf, **extra)
                 floor_rtf = floor["round_trips_per_s"] / rate
                 frac = m / floor_rtf
-                stretch_note = {"stretch": 0.75, "meets_stretch": frac >= 0.75,
-                                "note": "stretch goal: 75 % of the floor with the .rrd on"} if rrd else {}
+                stretch_note = (
+                    {
+                        "stretch": 0.75,
+                        "meets_stretch": frac >= 0.75,
+                        "note": "stretch goal: 75 % of the floor with the .rrd on",
+                    }
+                    if rrd
+                    else {}
+                )
                 figs[f"lockstep_{rate:g}hz_fraction_of_floor" + ("_with_rrd" if rrd else "")] = figure(
-                    frac, "frac", rtf=round(m, 1), floor_rtf=round(floor_rtf, 1), **stretch_note)
+                    frac, "frac", rtf=round(m, 1), floor_rtf=round(floor_rtf, 1), **stretch_note
+                )
                 lat[(rate, rrd)] = lat_p99
-        figs["latency_in_to_out_p99"] = figure(statistics.median(lat[(100.0, False)]), "ms", 0.3,
-                                               runs_p99=[round(x, 3) for x in lat[(100.0, False)]],
-                                               at_400hz=round(statistics.median(lat[(400.0, False)]), 3),
-                                               with_rrd_100hz=round(statistics.median(lat[(100.0, True)]), 3),
-                                               with_rrd_400hz=round(statistics.median(lat[(400.0, True)]), 3))
+        figs["latency_in_to_out_p99"] = figure(
+            statistics.median(lat[(100.0, False)]),
+            "ms",
+            0.3,
+            runs_p99=[round(x, 3) for x in lat[(100.0, False)]],
+            at_400hz=round(statistics.median(lat[(400.0, False)]), 3),
+            with_rrd_100hz=round(statistics.median(lat[(100.0, True)]), 3),
+            with_rrd_400hz=round(statistics.median(lat[(400.0, True)]), 3),
+        )
         if not args.lockstep_only:  # the real-time flights and the baselines they are read against
             # The machine's floor: the autopilot's deadline wait with no work and no I/O, sleeping and busy.
             for kind, spin in (("sleeping", 0.0003), ("busy", float("inf"))):
                 b = _baseline(100.0, 5.0, spin, cpu=1 if args.pin else None)
                 figs[f"baseline_{kind}_loop_jitter_p99"] = figure(
-                    b["p99"], "ms", p50=round(b["p50"], 4), max=round(b["max"], 3),
+                    b["p99"],
+                    "ms",
+                    p50=round(b["p50"], 4),
+                    max=round(b["max"], 3),
                     vm_steal_ms_per_s=round(b.get("steal_ms_per_s", -1), 1),
-                    note="no work, no I/O, normal priority: the machine's floor")
+                    note="no work, no I/O, normal priority: the machine's floor",
+                )
             # The deployed set-up (target) first, then the alternatives for comparison (one flight each).
             setups = [("", dict(pin=args.pin, busy_wait=args.busy_wait))]
             if args.rt_priority:
@@ -455,28 +536,48 @@ def main(argv: list[str] | None = None) -> dict:
                 for suffix, setup in setups:
                     main_setup = suffix == ""
                     # Several flights, median of each figure: one burst of hypervisor steal should not decide it.
-                    ts = [_realtime(tmp, rate, rt_s, suffix.lstrip("_") or "deployed", **setup)
-                          for _ in range(rt_runs if main_setup else 1)]
+                    ts = [
+                        _realtime(tmp, rate, rt_s, suffix.lstrip("_") or "deployed", **setup)
+                        for _ in range(rt_runs if main_setup else 1)
+                    ]
                     p99s = [t["period_jitter_ms"]["p99"] for t in ts]
                     missed = [t["missed_deadlines"] for t in ts]
                     steal = [round(t.get("steal_ms_per_s", -1), 1) for t in ts]
                     figs[f"realtime_{rate:g}hz_jitter_p99{suffix}"] = figure(
-                        statistics.median(p99s), "ms", 0.5 if main_setup else None,
+                        statistics.median(p99s),
+                        "ms",
+                        0.5 if main_setup else None,
                         p50=round(statistics.median(t["period_jitter_ms"]["p50"] for t in ts), 4),
                         max=round(max(t["period_jitter_ms"]["max"] for t in ts), 3),
-                        runs_p99=[round(x, 3) for x in p99s], seconds=rt_s, pinned=setup.get("pin", False),
-                        busy_wait=setup.get("busy_wait", False), sched_fifo=setup.get("rt_priority", 0),
-                        vm_steal_ms_per_s=steal)
+                        runs_p99=[round(x, 3) for x in p99s],
+                        seconds=rt_s,
+                        pinned=setup.get("pin", False),
+                        busy_wait=setup.get("busy_wait", False),
+                        sched_fifo=setup.get("rt_priority", 0),
+                        vm_steal_ms_per_s=steal,
+                    )
                     figs[f"realtime_{rate:g}hz_missed_deadlines{suffix}"] = figure(
-                        statistics.median(missed), "n", 0.0 if (rate == 100.0 and main_setup) else None, runs=missed,
-                        total=sum(missed))
+                        statistics.median(missed),
+                        "n",
+                        0.0 if (rate == 100.0 and main_setup) else None,
+                        runs=missed,
+                        total=sum(missed),
+                    )
         wrap = _fly(tmp, "wrap", lockstep=True, duration=10.0, start_time=4290.0, pin=args.pin)
-        figs["wrap_lockstep_steps"] = figure(wrap["runs"][0]["steps"], "n", rtf=round(wrap["rtf"], 1),
-                                             start_s=4290.0, wrap_at_s=4294.967296, ok=wrap["ok"])
+        figs["wrap_lockstep_steps"] = figure(
+            wrap["runs"][0]["steps"],
+            "n",
+            rtf=round(wrap["rtf"], 1),
+            start_s=4290.0,
+            wrap_at_s=4294.967296,
+            ok=wrap["ok"],
+        )
         figs.update(_agreement(tmp, args.pin))
-    title = (f"MAVLink SITL benchmarks (load {load_before['load1']:.2f} on {load_before['cpus']} CPUs before; "
-             f"floor {floor_runs} x {floor_s:g} s; {runs} lockstep runs per rate and set-up, {duration:g} s sim; "
-             + ("real time skipped: --lockstep-only)" if args.lockstep_only else f"real time {rt_runs} x {rt_s:g} s)"))
+    title = (
+        f"MAVLink SITL benchmarks (load {load_before['load1']:.2f} on {load_before['cpus']} CPUs before; "
+        f"floor {floor_runs} x {floor_s:g} s; {runs} lockstep runs per rate and set-up, {duration:g} s sim; "
+        + ("real time skipped: --lockstep-only)" if args.lockstep_only else f"real time {rt_runs} x {rt_s:g} s)")
+    )
     print_table(title, figs)
     warn = load_warning()
     if warn:

@@ -85,8 +85,11 @@ class GcMonitor:
     def summary(self, label: str) -> dict[str, float]:
         p = self.pauses.get(label, [])
         full = [d for g, d in p if g == 2]
-        return {"gc_collections": len(p), "gc_full": len(full),
-                "gc_max_pause_us": max((d for _, d in p), default=0.0) * 1e6}
+        return {
+            "gc_collections": len(p),
+            "gc_full": len(full),
+            "gc_max_pause_us": max((d for _, d in p), default=0.0) * 1e6,
+        }
 
     def close(self):
         if self._cb in self._gc.callbacks:
@@ -136,8 +139,11 @@ class Loop:
             compute = t_out - wake
             measured_period = (wake - prev_wake) if prev_wake is not None else period
             if ap is not None:  # the only difference between "off" and "on": the logging calls
-                ap.append(t_sim, wall(), ctrl.telemetry() + (
-                    p, res.pwm, measured_period, compute, wake - deadline, self.missed_total))
+                ap.append(
+                    t_sim,
+                    wall(),
+                    ctrl.telemetry() + (p, res.pwm, measured_period, compute, wake - deadline, self.missed_total),
+                )
                 if k % 40 == 0:
                     w = wall()
                     for j, tab in enumerate(links):
@@ -246,11 +252,14 @@ def bench_loop(tmp: Path, rate: float, seconds: float, block_s: float = 1.0) -> 
     finally:
         tel.close()
         gcm.close()
-    return {"off": {**_stats(off), **gcm.summary("off")}, "on": {**_stats(on), **gcm.summary("on")},
-            "paired_median_diff_us": float(np.median(pair_diff) * 1e6),
-            "writer_stretch_p50_us": float(np.median(tel.stretches) * 1e6) if tel.stretches else 0.0,
-            "writer_stretch_p99_us": float(np.percentile(tel.stretches, 99) * 1e6) if tel.stretches else 0.0,
-            "writer_errors": tel.errors}
+    return {
+        "off": {**_stats(off), **gcm.summary("off")},
+        "on": {**_stats(on), **gcm.summary("on")},
+        "paired_median_diff_us": float(np.median(pair_diff) * 1e6),
+        "writer_stretch_p50_us": float(np.median(tel.stretches) * 1e6) if tel.stretches else 0.0,
+        "writer_stretch_p99_us": float(np.percentile(tel.stretches, 99) * 1e6) if tel.stretches else 0.0,
+        "writer_errors": tel.errors,
+    }
 
 
 def bench_size(tmp: Path, rate: float, sitl_rate: float, minutes: float = 1.0) -> dict[str, float]:
@@ -287,8 +296,19 @@ def bench_size(tmp: Path, rate: float, sitl_rate: float, minutes: float = 1.0) -
             if k % sitl_every == 0:
                 st.append(t, w, tuple(x.tolist()) + (res.u, res.pwm))
             ac.advance(res.u, nphys)
-            ap.append(t, w, ctrl.telemetry() + (float(np.float32(x[1])), res.pwm, period + 2e-5 * rng.standard_normal(),
-                                                1.2e-5 + 1e-6 * rng.random(), 5e-5 * rng.random(), 0))
+            ap.append(
+                t,
+                w,
+                ctrl.telemetry()
+                + (
+                    float(np.float32(x[1])),
+                    res.pwm,
+                    period + 2e-5 * rng.standard_normal(),
+                    1.2e-5 + 1e-6 * rng.random(),
+                    5e-5 * rng.random(),
+                    0,
+                ),
+            )
             if k % 40 == 0:
                 for j, tab in enumerate(links):
                     tab.append(t, w, (k + j, k, 0))
@@ -364,43 +384,92 @@ def to_figures(raw: dict) -> dict[str, dict]:
     # Missed deadlines are rare events: "nothing added" is judged against the counts' Poisson noise (2 sigma).
     miss_noise = 2.0 * math.sqrt(max(1, off["missed"] + on["missed"]))
     return {
-        "append_row": figure(raw["append"]["append_ns"] / 1000.0, "us", 1.0,
-                             note="Table.append, 25-value autopilot row"),
+        "append_row": figure(
+            raw["append"]["append_ns"] / 1000.0, "us", 1.0, note="Table.append, 25-value autopilot row"
+        ),
         "build_row": figure(raw["append"]["row_build_ns"] / 1000.0, "us", None, note="ctrl.telemetry() + 6 extras"),
         "step_median_off": figure(off["median_step_us"], "us", None, steps=off["steps"], p99=off["p99_step_us"]),
         "step_median_on": figure(on["median_step_us"], "us", None, steps=on["steps"], p99=on["p99_step_us"]),
-        "step_median_overhead": figure(overhead_pct, "%", TARGET_MEDIAN_OVERHEAD * 100.0,
-                                       paired_diff_us=raw["loop"]["paired_median_diff_us"],
-                                       compute_off_us=off["median_compute_us"], compute_on_us=on["median_compute_us"]),
-        "jitter_p99_off": figure(off["p99_jitter_us"], "us", None, max=off["max_jitter_us"],
-                                 late_0_5ms=off["late_wakes_over_0_5ms"], late_1ms=off["late_wakes_over_1ms"]),
-        "jitter_p99_on": figure(on["p99_jitter_us"], "us", None, max=on["max_jitter_us"],
-                                late_0_5ms=on["late_wakes_over_0_5ms"], late_1ms=on["late_wakes_over_1ms"]),
-        "missed_deadlines_added": figure(on["missed"] - off["missed"], "steps", round(miss_noise, 1),
-                                         off=off["missed"], on=on["missed"], note="target: 0 within 2-sigma noise"),
-        "writer_gil_stretch_p99": figure(raw["loop"]["writer_stretch_p99_us"], "us", None,
-                                         p50=raw["loop"]["writer_stretch_p50_us"]),
-        "rrd_per_flight_minute": figure(size["merged_mb_per_min"], "MB", None,
-                                        autopilot_part=size["autopilot_part_mb_per_min"],
-                                        sitl_part=size["sitl_part_mb_per_min"], verified=size["merge_verified"]),
-        "memory_growth": figure(mem["growth_mb"], "MB", TARGET_MEMORY_GROWTH_MB, minutes=mem["minutes"],
-                                rss_start=mem["rss_start_mb"], rss_end=mem["rss_end_mb"],
-                                of_which_bench_samples=mem["bench_sample_arrays_mb"]),
+        "step_median_overhead": figure(
+            overhead_pct,
+            "%",
+            TARGET_MEDIAN_OVERHEAD * 100.0,
+            paired_diff_us=raw["loop"]["paired_median_diff_us"],
+            compute_off_us=off["median_compute_us"],
+            compute_on_us=on["median_compute_us"],
+        ),
+        "jitter_p99_off": figure(
+            off["p99_jitter_us"],
+            "us",
+            None,
+            max=off["max_jitter_us"],
+            late_0_5ms=off["late_wakes_over_0_5ms"],
+            late_1ms=off["late_wakes_over_1ms"],
+        ),
+        "jitter_p99_on": figure(
+            on["p99_jitter_us"],
+            "us",
+            None,
+            max=on["max_jitter_us"],
+            late_0_5ms=on["late_wakes_over_0_5ms"],
+            late_1ms=on["late_wakes_over_1ms"],
+        ),
+        "missed_deadlines_added": figure(
+            on["missed"] - off["missed"],
+            "steps",
+            round(miss_noise, 1),
+            off=off["missed"],
+            on=on["missed"],
+            note="target: 0 within 2-sigma noise",
+        ),
+        "writer_gil_stretch_p99": figure(
+            raw["loop"]["writer_stretch_p99_us"], "us", None, p50=raw["loop"]["writer_stretch_p50_us"]
+        ),
+        "rrd_per_flight_minute": figure(
+            size["merged_mb_per_min"],
+            "MB",
+            None,
+            autopilot_part=size["autopilot_part_mb_per_min"],
+            sitl_part=size["sitl_part_mb_per_min"],
+            verified=size["merge_verified"],
+        ),
+        "memory_growth": figure(
+            mem["growth_mb"],
+            "MB",
+            TARGET_MEMORY_GROWTH_MB,
+            minutes=mem["minutes"],
+            rss_start=mem["rss_start_mb"],
+            rss_end=mem["rss_end_mb"],
+            of_which_bench_samples=mem["bench_sample_arrays_mb"],
+        ),
         "memory_slope_2nd_half": figure(mem["second_half_slope_mb_per_min"], "MB/min", None),
-        "long_run_missed": figure(mem["loop"]["missed"], "steps", None, steps=mem["loop"]["steps"],
-                                  jitter_p99_us=mem["loop"]["p99_jitter_us"]),
+        "long_run_missed": figure(
+            mem["loop"]["missed"], "steps", None, steps=mem["loop"]["steps"], jitter_p99_us=mem["loop"]["p99_jitter_us"]
+        ),
     }
 
 
 def main(argv: list[str] | None = None) -> dict:
     ap = argparse.ArgumentParser(prog="python -m tools.bench telemetry", description=__doc__.split("\n\n")[0])
-    ap.add_argument("--minutes", type=float, default=1.0,
-                    help="length of the real-time memory run (default 1; the issue's figure: 10)")
-    ap.add_argument("--compare-seconds", type=float, default=20.0,
-                    help="total length of the off/on loop comparison, in 1 s blocks (default 20 s)")
+    ap.add_argument(
+        "--minutes",
+        type=float,
+        default=1.0,
+        help="length of the real-time memory run (default 1; the issue's figure: 10)",
+    )
+    ap.add_argument(
+        "--compare-seconds",
+        type=float,
+        default=20.0,
+        help="total length of the off/on loop comparison, in 1 s blocks (default 20 s)",
+    )
     ap.add_argument("--rate", type=float, default=400.0, help="control rate in Hz (default 400)")
-    ap.add_argument("--sitl-rate", type=float, default=400.0,
-                    help="SITL telemetry rows per second (default 400: one per ATTITUDE frame)")
+    ap.add_argument(
+        "--sitl-rate",
+        type=float,
+        default=400.0,
+        help="SITL telemetry rows per second (default 400: one per ATTITUDE frame)",
+    )
     ap.add_argument("--out", type=Path, default=None, help="keep the .rrd files here (default: a temporary directory)")
     ap.add_argument("--json", action="store_true", help="also print every raw measurement as JSON")
     args = ap.parse_args(argv)
@@ -424,8 +493,11 @@ def main(argv: list[str] | None = None) -> dict:
     figures = to_figures(raw)
     if args.json:
         print(json.dumps(raw, indent=2))
-    print_table(f"telemetry: control loop at {args.rate:g} Hz with and without telemetry, .rrd size, memory "
-                f"({args.minutes:g} min real time); Python {sys.version.split()[0]}, {os.cpu_count()} CPUs", figures)
+    print_table(
+        f"telemetry: control loop at {args.rate:g} Hz with and without telemetry, .rrd size, memory "
+        f"({args.minutes:g} min real time); Python {sys.version.split()[0]}, {os.cpu_count()} CPUs",
+        figures,
+    )
     warning = load_warning()
     if warning:
         print(warning)

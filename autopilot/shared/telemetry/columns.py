@@ -53,5 +53,6 @@ def wall_time_column(epoch_seconds: np.ndarray, timeline: str = WALL_TIME) -> rr
 
 def series_style(labels: Sequence[str], colors: Sequence[Rgb], step: bool = False) -> rr.SeriesLines:
     """Legend names and colours of the series of one entity; ``step`` draws staircases."""
-    return rr.SeriesLines(names=list(labels), colors=[list(c) for c in colors],
-                          interpolation_mode="StepAfter" if step else None)
+    return rr.SeriesLines(
+        names=list(labels), colors=[list(c) for c in colors], interpolation_mode="StepAfter" if step else None
+    )

@@ -12,14 +12,22 @@ from collections.abc import Callable
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     """``--rrd PATH``, ``--recording-id ID``, ``--connect URL``, ``--viewer`` (telemetry group)."""
     g = parser.add_argument_group("telemetry (Rerun)")
-    g.add_argument("--rrd", metavar="PATH", default=None,
-                   help="write telemetry to this .rrd file (default: no file)")
-    g.add_argument("--recording-id", metavar="ID", default=None,
-                   help="Rerun recording id shared by every process of one flight (default: a new one)")
-    g.add_argument("--connect", metavar="URL", default=None,
-                   help="stream live to a running Rerun viewer, e.g. rerun+http://127.0.0.1:9876/proxy")
-    g.add_argument("--viewer", action="store_true",
-                   help="spawn a Rerun viewer (or reuse the one on port 9876) and stream to it")
+    g.add_argument("--rrd", metavar="PATH", default=None, help="write telemetry to this .rrd file (default: no file)")
+    g.add_argument(
+        "--recording-id",
+        metavar="ID",
+        default=None,
+        help="Rerun recording id shared by every process of one flight (default: a new one)",
+    )
+    g.add_argument(
+        "--connect",
+        metavar="URL",
+        default=None,
+        help="stream live to a running Rerun viewer, e.g. rerun+http://127.0.0.1:9876/proxy",
+    )
+    g.add_argument(
+        "--viewer", action="store_true", help="spawn a Rerun viewer (or reuse the one on port 9876) and stream to it"
+    )
 
 
 def requested(args: argparse.Namespace) -> bool:
@@ -31,9 +39,14 @@ def from_args(args: argparse.Namespace, process: str, **kwargs):
     """A ``Telemetry`` writer from the flags of ``add_arguments`` (disabled when none is given)."""
     from autopilot.shared.telemetry.writer import Telemetry  # imports rerun (~1 s)
 
-    return Telemetry(process, getattr(args, "recording_id", None), getattr(args, "rrd", None),
-                     connect_url=getattr(args, "connect", None), spawn_viewer=bool(getattr(args, "viewer", False)),
-                     **kwargs)
+    return Telemetry(
+        process,
+        getattr(args, "recording_id", None),
+        getattr(args, "rrd", None),
+        connect_url=getattr(args, "connect", None),
+        spawn_viewer=bool(getattr(args, "viewer", False)),
+        **kwargs,
+    )
 
 
 def attach(args: argparse.Namespace, process: str, target, make_hook: Callable):

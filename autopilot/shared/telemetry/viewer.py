@@ -47,8 +47,9 @@ def viewer_reachable(url: str, timeout_s: float = 0.3) -> bool:
 
     rerun's own gRPC client would block 5 s on connecting and 5 s more on disconnecting from nobody.
     """
-    parsed = urlparse(url.replace("rerun+http", "http", 1).replace("rerun+https", "https", 1)
-                      .replace("rerun://", "http://", 1))
+    parsed = urlparse(
+        url.replace("rerun+http", "http", 1).replace("rerun+https", "https", 1).replace("rerun://", "http://", 1)
+    )
     host = parsed.hostname or "127.0.0.1"
     port = parsed.port or DEFAULT_VIEWER_PORT
     try:
@@ -65,8 +66,9 @@ def has_display() -> bool:
     return bool(os.environ.get("DISPLAY") or os.environ.get("WAYLAND_DISPLAY") or os.environ.get("WAYLAND_SOCKET"))
 
 
-def spawn_viewer(port: int = DEFAULT_VIEWER_PORT, *, memory_limit: str = "75%",
-                 application_id: str = APPLICATION_ID) -> str | None:
+def spawn_viewer(
+    port: int = DEFAULT_VIEWER_PORT, *, memory_limit: str = "75%", application_id: str = APPLICATION_ID
+) -> str | None:
     """Start a native Rerun viewer listening on ``port`` (or reuse one already there); returns its URL.
 
     Returns None, with a warning, on a machine without a display: spawning there would only make
@@ -77,8 +79,10 @@ def spawn_viewer(port: int = DEFAULT_VIEWER_PORT, *, memory_limit: str = "75%",
     if viewer_reachable(url):
         return url
     if not has_display():
-        log.warning("no display (DISPLAY/WAYLAND_DISPLAY unset): not spawning a viewer; "
-                    "open the saved .rrd later or pass a --connect URL")
+        log.warning(
+            "no display (DISPLAY/WAYLAND_DISPLAY unset): not spawning a viewer; "
+            "open the saved .rrd later or pass a --connect URL"
+        )
         return None
     import rerun as rr
 
@@ -86,16 +90,23 @@ def spawn_viewer(port: int = DEFAULT_VIEWER_PORT, *, memory_limit: str = "75%",
 
     rec = rr.RecordingStream(application_id, recording_id=new_recording_id(), send_properties=False)
     try:
-        rr.spawn(port=port, connect=False, memory_limit=memory_limit, hide_welcome_screen=True,
-                 executable_path=rerun_cli_path(), recording=rec)
+        rr.spawn(
+            port=port,
+            connect=False,
+            memory_limit=memory_limit,
+            hide_welcome_screen=True,
+            executable_path=rerun_cli_path(),
+            recording=rec,
+        )
     except Exception as exc:  # noqa: BLE001 - a viewer is a convenience, never a reason to fail a flight
         log.warning("could not spawn the Rerun viewer: %s", exc)
         return None
     return url
 
 
-def send_blueprint(url: str, blueprint, recording_id: str, *, application_id: str = APPLICATION_ID,
-                   timeout_s: float = 5.0) -> bool:
+def send_blueprint(
+    url: str, blueprint, recording_id: str, *, application_id: str = APPLICATION_ID, timeout_s: float = 5.0
+) -> bool:
     """Show ``blueprint`` (a ``rerun.blueprint.Blueprint``) for a recording in the viewer at ``url``.
 
     A short-lived stream with the recording's application id and recording id sends it (no recording

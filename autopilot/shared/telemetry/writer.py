@@ -225,8 +225,15 @@ class Telemetry:
             self._statics.append((plot.path, series_style(plot.labels, plot.colors, plot.step)))
         return table
 
-    def series(self, path: str, fields: Sequence[str], labels: Sequence[str] | None = None,
-               colors: Sequence[Rgb] | None = None, *, step: bool = False) -> Table | NullTable:
+    def series(
+        self,
+        path: str,
+        fields: Sequence[str],
+        labels: Sequence[str] | None = None,
+        colors: Sequence[Rgb] | None = None,
+        *,
+        step: bool = False,
+    ) -> Table | NullTable:
         """A one-entity table: ``len(fields)`` series under ``path``."""
         fields = tuple(fields)
         labels = tuple(labels) if labels is not None else fields
@@ -234,8 +241,9 @@ class Telemetry:
         plot = Plot(path, fields, labels, colors, step=step)
         return self.table(TableLayout(path.strip("/").replace("/", "."), fields, (plot,)))
 
-    def state_channel(self, path: str, label: str | None = None, colors: dict[str, Rgb] | None = None, *,
-                      warn: Iterable[str] = ()) -> StateChannel:
+    def state_channel(
+        self, path: str, label: str | None = None, colors: dict[str, Rgb] | None = None, *, warn: Iterable[str] = ()
+    ) -> StateChannel:
         """A discrete state at ``path`` (``StateChange``), also echoed as text to ``/<process>/events``."""
         channel = StateChannel(path, label or path.rsplit("/", 1)[-1], colors, warn)
         if not self.enabled:
@@ -244,8 +252,14 @@ class Telemetry:
             self._channels.append(channel)
         if channel.colors:
             values = list(channel.colors)
-            self._statics.append((path, rr.StateConfiguration(
-                values=values, labels=values, colors=[list(channel.colors[v]) for v in values])))
+            self._statics.append(
+                (
+                    path,
+                    rr.StateConfiguration(
+                        values=values, labels=values, colors=[list(channel.colors[v]) for v in values]
+                    ),
+                )
+            )
         return channel
 
     def log_event(self, sim_time_s: float, wall_time_s: float, text: str, level: str = "INFO") -> None:
@@ -275,8 +289,11 @@ class Telemetry:
             if _viewer.viewer_reachable(self.connect_url):
                 sinks.append(rr.GrpcSink(self.connect_url))
             else:
-                log.warning("no Rerun viewer at %s: %s", self.connect_url,
-                            "writing the file only" if sinks else "telemetry is off")
+                log.warning(
+                    "no Rerun viewer at %s: %s",
+                    self.connect_url,
+                    "writing the file only" if sinks else "telemetry is off",
+                )
                 self.connect_url = None
         if not sinks:
             return 0
@@ -340,8 +357,12 @@ class Telemetry:
             sim = np.array([r[0] for r in rows], dtype=np.float64)
             wall = np.array([r[1] for r in rows], dtype=np.float64)
             try:
-                self.rec.send_columns(ch.path, indexes=[sim_time_column(sim), wall_time_column(wall)],
-                                      columns=rr.StateChange.columns(state=[r[2] for r in rows]), strict=True)
+                self.rec.send_columns(
+                    ch.path,
+                    indexes=[sim_time_column(sim), wall_time_column(wall)],
+                    columns=rr.StateChange.columns(state=[r[2] for r in rows]),
+                    strict=True,
+                )
                 self.chunks_sent += 1
             except Exception as exc:  # noqa: BLE001 - telemetry never stops the process
                 self._error(f"{ch.path}: {exc}")
@@ -355,10 +376,13 @@ class Telemetry:
             try:
                 self.rec.send_columns(
                     self.events_path,
-                    indexes=[sim_time_column(np.array([r[0] for r in lines])),
-                             wall_time_column(np.array([r[1] for r in lines]))],
+                    indexes=[
+                        sim_time_column(np.array([r[0] for r in lines])),
+                        wall_time_column(np.array([r[1] for r in lines])),
+                    ],
                     columns=rr.TextLog.columns(text=[r[2] for r in lines], level=[r[3] for r in lines]),
-                    strict=True)
+                    strict=True,
+                )
                 self.chunks_sent += 1
             except Exception as exc:  # noqa: BLE001 - telemetry never stops the process
                 self._error(f"{self.events_path}: {exc}")
