@@ -25,9 +25,6 @@ import argparse
 import json
 import math
 import os
-import signal
-import socket
-import subprocess
 import sys
 import threading
 import time
@@ -45,13 +42,13 @@ from autopilot.shared.process import (
     rt_throttling,
     write_json_atomic,
 )
+from tools.children import Child, free_udp_ports, new_run_dir, stop_children
 from tools.profiles import Profile, ProfileError
 
 PROCESSES = ("sitl", "gcs", "autopilot")
 CONTROLLERS = ("sac", "clsac")
 PROFILES = ("square", "step", "sine")
 RUDDER_MAX_DEG = 30.0  # the servo calibration's full deflection (SITL and autopilot default)
-STOP_GRACE_S = 5.0  # after SIGINT, how long the children get to write their files before they are killed
 
 
 class FlightConfigError(ValueError):
@@ -238,126 +235,6 @@ class FlightResult:
 
 
 # ---------------------------------------------------------------------------------------- child processes
-class Child:
-    """A child process whose output goes to DIR/<name>.log (and, if echo, to the console with a prefix)."""
-
-    def __init__(self, name: str, argv: list[str], log_path: Path, echo: bool, ready_marker: str | None = None):
-        self.name = name
-        self.argv = argv
-        self.log_path = log_path
-        self.echo = echo
-        self.ready = threading.Event()
-        self.ready_marker = ready_marker
-        self.tail: list[str] = []
-        self._log = open(log_path, "w", buffering=1)
-        self._log.write("$ " + " ".join(argv) + "\n")
-        env = dict(os.environ, PYTHONUNBUFFERED="1", MAVLINK20="1")
-        self.proc = subprocess.Popen(
-            argv,
-            stdin=subprocess.DEVNULL,
-            stdout=subprocess.PIPE,
-            stderr=subprocess.STDOUT,
-            env=env,
-            start_new_session=True,
-            text=True,
-            bufsize=1,
-        )
-        self.started = time.monotonic()
-        self._reader = threading.Thread(target=self._read, name=f"read-{name}", daemon=True)
-        self._reader.start()
-
-    def _read(self):
-        for line in self.proc.stdout:
-            self._log.write(line)
-            line = line.rstrip("\n")
-            self.tail.append(line)
-            if len(self.tail) > 40:
-                del self.tail[:20]
-            if self.ready_marker and self.ready_marker in line:
-                self.ready.set()
-            if self.echo:
-                sys.stdout.write(f"[{self.name}] {line}\n")
-                sys.stdout.flush()
-        self.ready.set()  # EOF: whoever waits for readiness must look at the exit code
-
-    @property
-    def code(self):
-        return self.proc.poll()
-
-    def interrupt(self):
-        if self.proc.poll() is None:
-            try:
-                self.proc.send_signal(signal.SIGINT)
-            except ProcessLookupError:
-                pass
-
-    def wait(self, timeout: float) -> int | None:
-        try:
-            return self.proc.wait(timeout=max(0.0, timeout))
-        except subprocess.TimeoutExpired:
-            return None
-
-    def kill(self):
-        if self.proc.poll() is None:
-            try:
-                self.proc.kill()
-            except ProcessLookupError:
-                pass
-            self.proc.wait()
-
-    def finish(self):
-        self._reader.join(timeout=5)
-        self._log.close()
-
-    def reason(self) -> str:
-        """The child's last error line, for the flight's reason."""
-        for line in reversed(self.tail):
-            if "error" in line.lower():
-                return line.strip()
-        return self.tail[-1].strip() if self.tail else "(no output)"
-
-
-def stop_children(children) -> None:
-    """SIGINT to each running child, up to STOP_GRACE_S for all of them to exit, then kill; close their logs."""
-    running = [c for c in children if c.code is None]
-    for c in running:
-        c.interrupt()
-    deadline = time.monotonic() + STOP_GRACE_S
-    for c in running:
-        if c.wait(deadline - time.monotonic()) is None:
-            c.kill()
-    for c in children:
-        c.finish()
-
-
-# ---------------------------------------------------------------------------------------- ports, folders, argv
-def free_udp_ports(n: int) -> list[int]:
-    socks = []
-    try:
-        for _ in range(n):
-            s = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
-            s.bind(("127.0.0.1", 0))
-            socks.append(s)
-        return [s.getsockname()[1] for s in socks]
-    finally:
-        for s in socks:
-            s.close()
-
-
-def new_run_dir(base: str = "runs", tag: str = "") -> Path:
-    stamp = time.strftime("%Y%m%d-%H%M%S")
-    root = Path(base)
-    root.mkdir(parents=True, exist_ok=True)
-    for i in range(1000):
-        d = root / (f"{stamp}{tag}" + (f"-{i + 1}" if i else ""))
-        try:
-            d.mkdir()
-            return d
-        except FileExistsError:
-            continue
-    raise RuntimeError(f"cannot create a new run folder under {root}")
-
-
 def child_argvs(
     cfg: FlightConfig, out: Path, sitl_port: int, gcs_port: int, telemetry: dict[str, list[str]] | None = None
 ) -> dict[str, list[str]]:
