@@ -11,6 +11,7 @@ from __future__ import annotations
 import math
 import sys
 
+from autopilot.flags import add_controller_arguments, default_lv
 from autopilot.shared.cli import (
     OneLineArgumentParser,
     add_cpu_argument,
@@ -84,28 +85,7 @@ def build_parser() -> OneLineArgumentParser:
         help="lockstep: do not wait for GCS setpoints scheduled up to each frame's time",
     )
     p.add_argument("--rate", type=rate_hz, default=100.0, metavar="HZ", help="control rate (default 100)")
-    p.add_argument(
-        "--controller",
-        choices=("sac", "clsac"),
-        default="clsac",
-        help="sac (Lv = 0) or clsac (Lv = 20, the paper's), default clsac",
-    )
-    p.add_argument("--lv", type=nonneg_float, default=None, help="override the closed-loop reference gain Lv")
-    p.add_argument(
-        "--pfc",
-        choices=("paper", "robust"),
-        default="paper",
-        help="parallel feedforward compensator: paper = 10/(4s+40) (default), robust = 10/(s+10)",
-    )
-    p.add_argument(
-        "--sigma-xu",
-        type=nonneg_float,
-        default=0.0,
-        metavar="SIGMA",
-        help="sigma-modification of K_Ix and K_Iu (default 0, the paper; 0.1 keeps long flights bounded)",
-    )
     p.add_argument("--name", default=None, help="run name in the stats (default: the controller)")
-    p.add_argument("--u-limit-deg", type=positive_float, default=30.0, help="rudder command limit (default 30)")
     p.add_argument(
         "--duration",
         type=nonneg_float,
@@ -181,6 +161,7 @@ def build_parser() -> OneLineArgumentParser:
         help="record every control step (setpoint, roll, command, controller internals) to this .npz at exit",
     )
     p.add_argument("--quiet", action="store_true", help="only the start line and the counters")
+    add_controller_arguments(p)
     add_telemetry_arguments(p)
     add_pwm_arguments(p)
     add_cpu_argument(p)
@@ -222,7 +203,7 @@ def main(argv=None) -> int:
     from autopilot.loop import Autopilot, AutopilotOptions, series_recorder
     from autopilot.shared.tlog import TlogWriter
 
-    lv = args.lv if args.lv is not None else (0.0 if args.controller == "sac" else 20.0)
+    lv = args.lv if args.lv is not None else default_lv(args.controller)
     try:
         cfg = ClSacConfig(
             control_rate_hz=args.rate,

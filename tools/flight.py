@@ -32,6 +32,7 @@ from dataclasses import dataclass, field, fields
 from functools import cached_property
 from pathlib import Path
 
+from autopilot.flags import CONTROLLERS, default_lv
 from autopilot.metrics import METRIC_NAMES
 from autopilot.shared import cli
 from autopilot.shared.process import (
@@ -46,7 +47,6 @@ from tools.children import Child, free_udp_ports, new_run_dir, stop_children
 from tools.profiles import Profile, ProfileError
 
 PROCESSES = ("sitl", "gcs", "autopilot")
-CONTROLLERS = ("sac", "clsac")
 PROFILES = ("square", "step", "sine")
 RUDDER_MAX_DEG = 30.0  # the servo calibration's full deflection (SITL and autopilot default)
 
@@ -187,7 +187,7 @@ class FlightConfig:
     @property
     def lv_value(self) -> float:
         """Lv flown: the given one, else 0 for sac and 20 for clsac."""
-        return self.lv if self.lv is not None else (0.0 if self.controller == "sac" else 20.0)
+        return self.lv if self.lv is not None else default_lv(self.controller)
 
     @property
     def gcs_telemetry_rate(self) -> float:

@@ -14,6 +14,7 @@ from __future__ import annotations
 import sys
 from pathlib import Path
 
+from autopilot.flags import add_controller_arguments
 from autopilot.shared.cli import (
     OneLineArgumentParser,
     finite_float,
@@ -23,7 +24,7 @@ from autopilot.shared.cli import (
     rt_priority_arg,
 )
 from autopilot.shared.process import install_stop_handlers
-from tools.flight import CONTROLLERS, PROCESSES, PROFILES, Flight, FlightConfigError
+from tools.flight import PROCESSES, PROFILES, Flight, FlightConfigError
 
 
 def print_summary(s: dict) -> None:
@@ -87,21 +88,6 @@ def build_parser() -> OneLineArgumentParser:
     p.add_argument(
         "--duration", type=positive_float, default=30.0, metavar="S", help="flight length in sim seconds (default 30)"
     )
-    p.add_argument("--controller", choices=CONTROLLERS, default="clsac", help="default clsac")
-    p.add_argument("--lv", type=nonneg_float, default=None, help="override Lv (default: 0 for sac, 20 for clsac)")
-    p.add_argument(
-        "--pfc",
-        choices=("paper", "robust"),
-        default="paper",
-        help="parallel feedforward compensator: paper = 10/(4s+40) (default), robust = 10/(s+10)",
-    )
-    p.add_argument(
-        "--sigma-xu",
-        type=nonneg_float,
-        default=0.0,
-        metavar="SIGMA",
-        help="sigma-modification of K_Ix, K_Iu (default 0, the paper; 0.1 keeps long flights bounded)",
-    )
     p.add_argument("--rate", type=rate_hz, default=100.0, metavar="HZ", help="control rate (default 100)")
     p.add_argument(
         "--physics-rate",
@@ -135,7 +121,6 @@ def build_parser() -> OneLineArgumentParser:
     p.add_argument("--csv", default=None, metavar="FILE", help="GCS profile from a CSV file (time s, roll deg)")
     p.add_argument("--amplitude", type=finite_float, default=10.0, metavar="DEG", help="profile amplitude (default 10)")
     p.add_argument("--period", type=positive_float, default=10.0, metavar="S", help="profile period (default 10)")
-    p.add_argument("--u-limit-deg", type=positive_float, default=30.0, help="rudder command limit (default 30)")
     p.add_argument(
         "--timeout", type=positive_float, default=None, metavar="S", help="wall-clock limit of the whole flight"
     )
@@ -173,6 +158,7 @@ def build_parser() -> OneLineArgumentParser:
         help="show the flight live in a running Rerun viewer, e.g. rerun+http://127.0.0.1:9876/proxy",
     )
     g.add_argument("--no-rrd", dest="rrd", action="store_false", help="do not write DIR/flight.rrd")
+    add_controller_arguments(p)
     return p
 
 

@@ -1,0 +1,46 @@
+"""The controller's command-line flags, shared by ``python -m autopilot`` and ``python -m tools.launch``."""
+
+from __future__ import annotations
+
+import argparse
+
+from autopilot.shared.cli import nonneg_float, positive_float
+
+CONTROLLERS = ("sac", "clsac")
+PFC_CHOICES = ("paper", "robust")  # the keys of autopilot.config.PFC_PRESETS (spelled out: --help needs no numpy)
+
+
+def default_lv(controller: str) -> float:
+    """L_v of a named controller: 0 for SAC (paper sec. 2), 20 for CL-SAC (paper sec. 5)."""
+    return 0.0 if controller == "sac" else 20.0
+
+
+def add_controller_arguments(parser: argparse.ArgumentParser) -> None:
+    """``--controller``, ``--lv``, ``--pfc``, ``--sigma-xu``, ``--u-limit-deg``."""
+    g = parser.add_argument_group("controller")
+    g.add_argument(
+        "--controller",
+        choices=CONTROLLERS,
+        default="clsac",
+        help="sac (Lv = 0) or clsac (Lv = 20, the paper's), default clsac",
+    )
+    g.add_argument(
+        "--lv",
+        type=nonneg_float,
+        default=None,
+        help="override the closed-loop reference gain Lv (default: 0 for sac, 20 for clsac)",
+    )
+    g.add_argument(
+        "--pfc",
+        choices=PFC_CHOICES,
+        default="paper",
+        help="parallel feedforward compensator: paper = 10/(4s+40) (default), robust = 10/(s+10)",
+    )
+    g.add_argument(
+        "--sigma-xu",
+        type=nonneg_float,
+        default=0.0,
+        metavar="SIGMA",
+        help="sigma-modification of K_Ix and K_Iu (default 0, the paper; 0.1 keeps long flights bounded)",
+    )
+    g.add_argument("--u-limit-deg", type=positive_float, default=30.0, help="rudder command limit (default 30)")
