@@ -26,6 +26,11 @@ solution of the continuous law over one period for held inputs):
 Optional extension (``sigma_x``, ``sigma_u`` > 0, default 0 as in the paper): the same leakage on the
 x and u channels, K_Ix' = e x_m^T G_Ix - sigma_x K_Ix, discretised like K_Ie.
 
+Optional robustness modifications (``ClSacConfig``; none is in the paper, each is off by default):
+``dead_zone_rad`` > 0 skips every integral increment while |e| <= dead_zone_rad (MIMO: max |e_i|), the
+sigma decays still act; ``freeze_when_saturated`` skips every integral increment while the command saturates;
+``ki_max`` projects each element of K_Ie, K_Ix, K_Iu onto [-ki_max, ki_max] after its update.
+
 SAC (paper sec. 2) is exactly this with L_v = 0: A_c = A_m and the y_a term vanishes.
 
 Saturation (a choice the paper does not make, documented here): the PFC is always driven by the
@@ -157,6 +162,10 @@ class ClSac:
         self._decay_u, self._gain_iu = leak(cfg.sigma_u)
         self._umax = float(cfg.u_limit_rad)
         self._aw = bool(cfg.anti_windup)
+        # Optional robustness modifications (ClSacConfig; all off by default = the paper's law).
+        self._dz = float(cfg.dead_zone_rad)
+        self._kmax = None if cfg.ki_max is None else float(cfg.ki_max)
+        self._freeze = bool(cfg.freeze_when_saturated)
         self._ki0 = (
             np.broadcast_to(np.atleast_2d(np.asarray(cfg.ki_e0, dtype=float)), (m, m)).copy(),
             np.broadcast_to(np.atleast_2d(np.asarray(cfg.ki_x0, dtype=float)), (m, n_m)).copy(),
@@ -289,7 +298,9 @@ class ClSac:
         die = self._gain_ie * (e * e * s["gie"])
         dix = self._gain_ix * (e * xm * s["gix"])
         diu = self._gain_iu * (e * um * s["giu"])
-        if sat and self._aw:
+        if (self._dz > 0.0 and abs(e) <= self._dz) or (sat and self._freeze):
+            die = dix = diu = 0.0  # dead-zone on e / frozen while saturated: no integral adaptation this step
+        elif sat and self._aw:
             # Conditional integration: skip channels whose increment pushes u_raw further past the limit.
             if die * e * u_raw > 0:
                 die = 0.0
@@ -300,6 +311,11 @@ class ClSac:
         self.ki_e = self._decay * kie + die
         self.ki_x = self._decay_x * kix + dix  # decay_x = 1 exactly when sigma_x = 0 (the paper)
         self.ki_u = self._decay_u * kiu + diu
+        if self._kmax is not None:  # projection onto the box |K_I| <= ki_max
+            km = self._kmax
+            self.ki_e = min(max(self.ki_e, -km), km)
+            self.ki_x = min(max(self.ki_x, -km), km)
+            self.ki_u = min(max(self.ki_u, -km), km)
         # Reference models and PFC to k+1 (paper eqs. (18), (3); D(s) driven by the applied u).
         self.xm = s["phi_m"] * xm + (s["g_mu"] * um + s["g_my"] * ya)
         ym_ol = s["cm"] * self.xm_ol  # open-loop y_m,ol at step k (telemetry, ise_ref)
@@ -337,7 +353,9 @@ class ClSac:
         die = self._gain_ie * (np.outer(e, e) @ G["ie"])
         dix = self._gain_ix * (np.outer(e, xm) @ G["ix"])
         diu = self._gain_iu * (np.outer(e, um) @ G["iu"])
-        if self._aw and np.any(sat_ch):
+        if (self._dz > 0.0 and np.max(np.abs(e)) <= self._dz) or (self._freeze and np.any(sat_ch)):
+            die, dix, diu = die * 0.0, dix * 0.0, diu * 0.0  # dead-zone on e / frozen while saturated
+        elif self._aw and np.any(sat_ch):
             # Conditional integration per saturated output channel (row of the gain matrices).
             for i in np.flatnonzero(sat_ch):
                 if die[i] @ e * u_raw[i] > 0:
@@ -349,6 +367,10 @@ class ClSac:
         self.ki_e = self._decay * kie + die
         self.ki_x = self._decay_x * kix + dix
         self.ki_u = self._decay_u * kiu + diu
+        if self._kmax is not None:  # projection onto the box |K_I| <= ki_max, element by element
+            self.ki_e, self.ki_x, self.ki_u = (
+                np.clip(k, -self._kmax, self._kmax) for k in (self.ki_e, self.ki_x, self.ki_u)
+            )
         self.xm = self._phi_m @ xm + (self._gam_mu @ um + self._gam_my @ ya)
         ym_ol = self._cm @ self.xm_ol
         self.xm_ol = self._phi_ol @ self.xm_ol + self._gam_ol @ um

@@ -77,6 +77,14 @@ class ClSacConfig:
     u_limit_rad: float = math.radians(30.0)
     # Conditional integration when the command saturates (see ClSac docstring)
     anti_windup: bool = True
+    # Optional robustness modifications (not in the paper; each off by default, so the default is the paper's law).
+    # Dead-zone: no integral adaptation (K_Ie, K_Ix, K_Iu increments) while |e| <= dead_zone_rad (MIMO: ||e||_inf).
+    dead_zone_rad: float = 0.0
+    # Projection: every element of K_Ie, K_Ix, K_Iu is projected onto [-ki_max, ki_max] after its update.
+    ki_max: float | None = None
+    # Freeze every integral channel while the command saturates (anti_windup skips only the channels that push
+    # further past the limit).
+    freeze_when_saturated: bool = False
     _dims: tuple = field(default=(), init=False, repr=False, compare=False)
 
     @classmethod
@@ -108,6 +116,12 @@ class ClSacConfig:
             v = getattr(self, name)
             if not (isinstance(v, (int, float)) and math.isfinite(v) and v >= 0):
                 raise ConfigError(f"{name} must be finite and >= 0, got {v!r}")
+        dz = self.dead_zone_rad
+        if not (isinstance(dz, (int, float)) and math.isfinite(dz) and dz >= 0):
+            raise ConfigError(f"dead_zone_rad must be finite and >= 0, got {dz!r}")
+        km = self.ki_max
+        if km is not None and not (isinstance(km, (int, float)) and math.isfinite(km) and km > 0):
+            raise ConfigError(f"ki_max must be positive and finite (or None), got {km!r}")
         if not (
             isinstance(self.u_limit_rad, (int, float)) and math.isfinite(self.u_limit_rad) and self.u_limit_rad > 0
         ):
