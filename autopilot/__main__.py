@@ -205,13 +205,18 @@ def main(argv=None) -> int:
 
     lv = args.lv if args.lv is not None else default_lv(args.controller)
     try:
-        cfg = ClSacConfig(
-            control_rate_hz=args.rate,
-            lv=lv,
-            u_limit_rad=math.radians(args.u_limit_deg),
-            sigma_x=args.sigma_xu,
-            sigma_u=args.sigma_xu,
-        ).with_pfc(args.pfc)
+        if args.controller == "baseline":
+            from autopilot.baseline import BaselineConfig
+
+            cfg = BaselineConfig(control_rate_hz=args.rate, u_limit_rad=math.radians(args.u_limit_deg))
+        else:
+            cfg = ClSacConfig(
+                control_rate_hz=args.rate,
+                lv=lv,
+                u_limit_rad=math.radians(args.u_limit_deg),
+                sigma_x=args.sigma_xu,
+                sigma_u=args.sigma_xu,
+            ).with_pfc(args.pfc)
     except ConfigError as exc:
         parser.error(str(exc))
     opts = AutopilotOptions(

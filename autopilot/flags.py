@@ -6,7 +6,7 @@ import argparse
 
 from autopilot.shared.cli import nonneg_float, positive_float
 
-CONTROLLERS = ("sac", "clsac")
+CONTROLLERS = ("sac", "clsac", "baseline")  # baseline: the fixed-gain PID of autopilot.baseline
 PFC_CHOICES = ("paper", "robust")  # the keys of autopilot.config.PFC_PRESETS (spelled out: --help needs no numpy)
 
 
@@ -22,7 +22,8 @@ def add_controller_arguments(parser: argparse.ArgumentParser) -> None:
         "--controller",
         choices=CONTROLLERS,
         default="clsac",
-        help="sac (Lv = 0) or clsac (Lv = 20, the paper's), default clsac",
+        help="sac (Lv = 0), clsac (Lv = 20, the paper's; default) or baseline (fixed-gain PID; ignores --lv, "
+        "--pfc, --sigma-xu)",
     )
     g.add_argument(
         "--lv",

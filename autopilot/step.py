@@ -29,6 +29,7 @@ from bisect import insort
 from collections.abc import Callable
 from dataclasses import dataclass
 
+from autopilot.baseline import Baseline, BaselineConfig
 from autopilot.clsac import ClSac
 from autopilot.config import ClSacConfig, NonFiniteInputError
 from autopilot.metrics import MetricsAccumulator
@@ -126,18 +127,24 @@ class ProfileSetpoints:
 class ControlStep:
     """The control step: ``step(t, phi) -> StepResult``.
 
-    ``config``: the law (``ClSacConfig``; ``ClSacConfig.sac()`` for SAC).  ``pwm``: the servo calibration the
-    command goes through (``None``: the law's command flies unquantised, as in the paper).  ``setpoints``: any
-    object with ``at(t) -> rad`` and a ``current`` attribute (default: an empty :class:`SetpointQueue`).
+    ``config``: the law (``ClSacConfig``; ``ClSacConfig.sac()`` for SAC; ``BaselineConfig`` for the fixed-gain
+    baseline), or ``law=``: a law object (``ClSac``, ``autopilot.baseline.Baseline``).  ``pwm``: the servo
+    calibration the command goes through (``None``: the law's command flies unquantised, as in the paper).
+    ``setpoints``: any object with ``at(t) -> rad`` and a ``current`` attribute (default: an empty
+    :class:`SetpointQueue`).
 
     ``metrics`` accumulates the five metrics from what flew (the command after the PWM map); with a PWM map,
     ``metrics_commanded`` the same from the law's own command, before quantisation.  A NaN/Inf measurement or
     command is flown as a hold (rudder neutral, adaptation frozen) and counted in ``nonfinite_inputs``.
     """
 
-    def __init__(self, config: ClSacConfig | None = None, pwm: PwmMap | None = None, setpoints=None):
-        self.config = config or ClSacConfig()
-        self.law = ClSac(self.config)
+    def __init__(self, config: ClSacConfig | None = None, pwm: PwmMap | None = None, setpoints=None, *, law=None):
+        # ``law``: any object that quacks like ClSac (autopilot.baseline.Baseline); by default the config's law.
+        if law is None:
+            config = config or ClSacConfig()
+            law = Baseline(config) if isinstance(config, BaselineConfig) else ClSac(config)
+        self.config = law.config
+        self.law = law
         self.pwm = pwm
         self.setpoints = SetpointQueue() if setpoints is None else setpoints
         self.metrics = MetricsAccumulator(self.config.dt)

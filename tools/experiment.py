@@ -106,13 +106,13 @@ def get_scenario(name: str) -> tuple[Scenario, tuple[RunSpec, ...]]:
 def select_runs(runs: Iterable[str | RunSpec] | None, available: Sequence[RunSpec] | None = None) -> list[RunSpec]:
     """Resolve run names (or RunSpecs) against ``available`` (default: the paper's runs); None means all,
     duplicates are dropped."""
-    from tools.scenario import PAPER_RUNS, RunSpec
+    from tools.scenario import OPTIONAL_RUNS, PAPER_RUNS, RunSpec
 
     if available is None:
         available = PAPER_RUNS
     if runs is None:
         return list(available)
-    by_name = {r.name: r for r in available}
+    by_name = {r.name: r for r in (*available, *OPTIONAL_RUNS)}
     out: list[RunSpec] = []
     for item in runs:
         spec = item if isinstance(item, RunSpec) else by_name.get(str(item).strip())
@@ -423,7 +423,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument(
         "--runs",
         metavar="A,B,...",
-        help="comma-separated subset of runs (default: all; paper: sac,clsac,clsac_lv10,clsac_lv50,clsac_lv100)",
+        help="comma-separated subset of runs (default: all; paper: sac,clsac,clsac_lv10,clsac_lv50,clsac_lv100; "
+        "also baseline, the fixed-gain PID)",
     )
     p.add_argument("--no-plot", action="store_true", help="do not write the figure")
     p.add_argument(

@@ -511,7 +511,7 @@ class Flight:
         return cls(
             lockstep=True,
             duration=scenario.duration_s,
-            controller="sac" if run.lv == 0 else "clsac",
+            controller=run.controller or ("sac" if run.lv == 0 else "clsac"),
             lv=run.lv,
             pfc=run.pfc or "paper",
             sigma_xu=run.sigma_xu or 0.0,

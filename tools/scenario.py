@@ -7,6 +7,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from autopilot.baseline import BaselineConfig
 from autopilot.config import ClSacConfig
 from autopilot.shared.mavlink import quaternion_to_roll, roll_to_quaternion
 from autopilot.shared.pwm import PwmMap
@@ -72,6 +73,7 @@ class RunSpec:
     lv: float
     pfc: str | None = None  # a key of autopilot.config.PFC_PRESETS
     sigma_xu: float | None = None  # sigma_x = sigma_u
+    controller: str | None = None  # "baseline": the fixed-gain PID (autopilot.baseline); None: SAC/CL-SAC by lv
 
 
 PAPER = Scenario()
@@ -82,9 +84,14 @@ PAPER_RUNS = (
     RunSpec("clsac_lv50", 50.0),
     RunSpec("clsac_lv100", 100.0),
 )
+# Runs an experiment may name (--runs baseline) that are not flown by default.
+BASELINE_RUN = RunSpec("baseline", 0.0, controller="baseline")
+OPTIONAL_RUNS = (BASELINE_RUN,)
 
 
 def controller_config(scenario: Scenario, run: RunSpec, base: ClSacConfig | None = None) -> ClSacConfig:
+    if run.controller == "baseline":
+        return BaselineConfig(control_rate_hz=scenario.control_rate_hz, u_limit_rad=scenario.u_limit_rad)
     cfg = (base or ClSacConfig()).with_(
         lv=run.lv, control_rate_hz=scenario.control_rate_hz, u_limit_rad=scenario.u_limit_rad
     )
