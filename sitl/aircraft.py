@@ -2,6 +2,10 @@
 
 One small interface (ArduPilot SITL style): ``step(delta_command) -> state`` advances one physics step,
 ``advance(delta_command, n)`` advances ``n`` steps with the command held.  No I/O here.
+
+Optional disturbance input d = [v_g, p_g, r_g] (``sitl.atmosphere``): x' = A_p x + B_p u + E d, E from
+``sitl.atmosphere.disturbance_matrix``, d held over each physics step (exact ZOH of E).  Without ``d`` the
+update is the undisturbed one, unchanged.
 """
 
 from __future__ import annotations
@@ -63,6 +67,8 @@ class Aircraft:
         self._ad, bd = zoh(self._a, self._b, self.config.dt)
         self._bd = bd.ravel()
         self._multi: dict[int, tuple[np.ndarray, np.ndarray]] = {}
+        self._ed: np.ndarray | None = None  # ZOH of the disturbance input, built on first use
+        self._multi_d: dict[int, np.ndarray] = {}
         self._x0 = np.zeros(6) if x0 is None else np.asarray(x0, dtype=float).copy()
         if self._x0.shape != (6,):
             raise AircraftConfigError(
@@ -115,31 +121,48 @@ class Aircraft:
         if cfg.rudder_rate_limit_rad_s is not None and abs(x[model.DELTA_R_DOT]) > cfg.rudder_rate_limit_rad_s:
             x[model.DELTA_R_DOT] = math.copysign(cfg.rudder_rate_limit_rad_s, x[model.DELTA_R_DOT])
 
-    def step(self, delta_command: float) -> np.ndarray:
-        """Advance one physics step with the servo command held (ZOH); returns the state (a view, do not modify)."""
+    @property
+    def disturbance_zoh(self) -> np.ndarray:
+        """E_d = int_0^h e^{A_p s} ds E (6x3): x[k+1] = Ad x[k] + Bd u[k] + E_d d[k]."""
+        if self._ed is None:
+            from sitl.atmosphere import disturbance_matrix
+
+            self._ed = zoh(self._a, disturbance_matrix(self._a), self.config.dt)[1]
+        return self._ed
+
+    def step(self, delta_command: float, d: np.ndarray | None = None) -> np.ndarray:
+        """Advance one physics step with the servo command (and the disturbance ``d``, if any) held (ZOH);
+        returns the state (a view, do not modify)."""
         u = float(delta_command)
         if u - u != 0.0:  # NaN or +-Inf (cheaper than math.isfinite on the hot path)
             raise NonFiniteCommandError(f"servo command must be finite, got {delta_command!r}")
         x = self._ad.dot(self.x)  # x[k+1] = Ad x[k] + Bd u[k]
         x += self._bd * u
+        if d is not None:
+            x += self.disturbance_zoh @ d
         self.x = x
         if self._limited:
             self._apply_limits()
         self.steps += 1
         return self.x
 
-    def advance(self, delta_command: float, n: int) -> np.ndarray:
-        """Advance ``n`` physics steps with the command held.
+    def advance(self, delta_command: float, n: int, d: np.ndarray | None = None) -> np.ndarray:
+        """Advance ``n`` physics steps with the command held; ``d`` (n, 3), if given, is the disturbance of each step.
 
         Without rudder limits the system is linear and the n steps collapse into one exact update
-        x[k+n] = Ad^n x[k] + (sum_{i<n} Ad^i) Bd u, cached per n.  With limits it steps one by one.
+        x[k+n] = Ad^n x[k] + (sum_{i<n} Ad^i) Bd u (+ sum_i Ad^(n-1-i) E_d d[i]), cached per n.  With limits
+        it steps one by one.
         """
         if n < 0:
             raise ValueError(f"n must be >= 0, got {n}")
         u = self._check(delta_command)
+        if d is not None:
+            d = np.asarray(d, dtype=float)
+            if d.shape != (n, 3):
+                raise ValueError(f"d must have shape ({n}, 3) [v_g, p_g, r_g] per step, got {d.shape}")
         if self._limited:
-            for _ in range(n):
-                self.step(u)
+            for i in range(n):
+                self.step(u, None if d is None else d[i])
             return self.x
         if n == 0:
             return self.x
@@ -153,5 +176,18 @@ class Aircraft:
             pair = (ad_n, bd_n)
             self._multi[n] = pair
         self.x = pair[0] @ self.x + pair[1] * u
+        if d is not None:
+            self.x += self._multi_disturbance(n) @ d.ravel()
         self.steps += n
         return self.x
+
+    def _multi_disturbance(self, n: int) -> np.ndarray:
+        """[Ad^(n-1) E_d, ..., Ad E_d, E_d] (6 x 3n), cached per n."""
+        m = self._multi_d.get(n)
+        if m is None:
+            blocks = [self.disturbance_zoh]
+            for _ in range(n - 1):
+                blocks.append(self._ad @ blocks[-1])
+            m = np.hstack(blocks[::-1])
+            self._multi_d[n] = m
+        return m
