@@ -24,6 +24,7 @@ from autopilot.shared.cli import (
     pwm_from_args,
     rate_hz,
 )
+from autopilot.shared.link import ANY_COMPONENT
 from autopilot.shared.mavlink import GCS_ID
 from autopilot.shared.process import (
     apply_cpu,
@@ -75,7 +76,16 @@ def build_parser() -> OneLineArgumentParser:
         action="append",
         default=None,
         metavar="SYS:COMP",
-        help=f"accepted GCS system:component (repeatable; default {GCS_ID[0]}:{GCS_ID[1]})",
+        help=f"accepted GCS system:component (repeatable; default system {GCS_ID[0]} with any component)",
+    )
+    p.add_argument(
+        "--gcs-peer",
+        action="append",
+        type=endpoint,
+        default=[],
+        metavar="HOST:PORT",
+        help="a ground station admitted from the start (repeatable); without signing, the first GCS that "
+        "talks is admitted as well, and nobody else",
     )
     p.add_argument("--lockstep", action="store_true", help="one control step per SITL frame (default: real time)")
     p.add_argument(
@@ -171,7 +181,7 @@ def build_parser() -> OneLineArgumentParser:
 
 def _gcs_ids(parser, values):
     if not values:
-        return (GCS_ID,)
+        return ((GCS_ID[0], ANY_COMPONENT),)
     out = []
     for v in values:
         try:
@@ -234,6 +244,7 @@ def main(argv=None) -> int:
         gcs=args.gcs,
         gcs_bind=args.gcs_bind,
         gcs_ids=_gcs_ids(parser, args.gcs_id),
+        gcs_peers=tuple(args.gcs_peer),
         lockstep_idle_exit_s=args.lockstep_idle_exit,
         lockstep_spin_s=args.lockstep_spin_us * 1e-6,
         name=args.name or args.controller,

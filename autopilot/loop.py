@@ -34,7 +34,7 @@ from dataclasses import dataclass, field
 from autopilot.clsac import ClSac
 from autopilot.config import ClSacConfig
 from autopilot.shared.events import StatusEvents
-from autopilot.shared.link import UdpLink
+from autopilot.shared.link import ANY_COMPONENT, UdpLink
 from autopilot.shared.mavlink import (
     AUTOPILOT_ID,
     GCS_ID,
@@ -83,7 +83,9 @@ class AutopilotOptions:
     sitl_bind: tuple = ("127.0.0.1", 0)
     gcs: tuple = ("127.0.0.1", 14550)
     gcs_bind: tuple = ("127.0.0.1", 0)
-    gcs_ids: tuple = (GCS_ID,)
+    gcs_ids: tuple = ((GCS_ID[0], ANY_COMPONENT),)  # (sys, comp); comp ANY_COMPONENT = any
+    gcs_peers: tuple = ()  # ground-station addresses admitted from the start (--gcs-peer)
+    max_gcs: int = 8  # admitted ground-station addresses at most (docs/design.md, "Trust model")
     lockstep_spin_s: float = 0.0  # lockstep: busy-poll this long for the next frame before sleeping in select
     lockstep_idle_exit_s: float = (
         0.0  # lockstep: exit after the last frame if the SITL stays silent this long (0 = never)
@@ -200,7 +202,8 @@ class Autopilot:
             opts.gcs,
             peers=opts.gcs_ids,
             msgids=[SET_ATTITUDE_TARGET, HEARTBEAT],
-            learn_remote=True,
+            admit=opts.max_gcs,
+            peer_addrs=opts.gcs_peers,
             tlog=tlog,
         )
         self.hooks: list = []  # callables(StepRecord), after each step
@@ -263,10 +266,10 @@ class Autopilot:
                 or (msg.yaw - msg.yaw)
                 or (msg.pitchspeed - msg.pitchspeed)
             ):
-                self.sitl.rejected["nonfinite_attitude"] += 1
+                self.sitl.reject("nonfinite_attitude")
                 return
             if not -3.1416 <= roll <= 3.1416:
-                self.sitl.rejected["roll_out_of_range"] += 1
+                self.sitl.reject("roll_out_of_range")
                 return
             att = self.att
             if (
@@ -277,7 +280,7 @@ class Autopilot:
             ):
                 # Out of order or repeated while fresh data flows: keep the newest.  (After a loss anything
                 # goes, so a restarted SITL whose clock went back is taken at once.)
-                self.sitl.rejected["stale_attitude"] += 1
+                self.sitl.reject("stale_attitude")
                 return
             att.ms, att.roll, att.p, att.r, att.t_rx, att.valid = msg.time_boot_ms, roll, p, r, t_rx, True
             if self.opts.lockstep:
@@ -291,14 +294,14 @@ class Autopilot:
             return
         ev = self.events
         if msg.target_system not in (0, AUTOPILOT_ID[0]) or msg.target_component not in (0, AUTOPILOT_ID[1]):
-            self.gcs.rejected["wrong_target"] += 1
+            self.gcs.reject("wrong_target")
             return
         if msg.type_mask & TYPEMASK_IGNORE_ATTITUDE:
-            self.gcs.rejected["no_attitude_in_setpoint"] += 1
+            self.gcs.reject("no_attitude_in_setpoint")
             return
         roll = quaternion_to_roll(msg.q)
         if roll - roll != 0.0 or not all(math.isfinite(v) for v in msg.q):
-            self.gcs.rejected["nonfinite_setpoint"] += 1
+            self.gcs.reject("nonfinite_setpoint")
             return
         lim = self.opts.max_roll_rad
         if roll > lim or roll < -lim:
@@ -322,7 +325,7 @@ class Autopilot:
             if t_us > self.horizon_us:
                 self.horizon_us = t_us
         if not self.setpoints.push(t_us, roll):
-            self.gcs.rejected["setpoint_queue_full"] += 1
+            self.gcs.reject("setpoint_queue_full")
             return
         if self.opts.lockstep and self.pending_frame is not None:
             self._try_step(t_rx)

@@ -124,7 +124,7 @@ class Sitl:
     def _servo_pwm(self, msg) -> int | None:
         pwm = getattr(msg, f"servo{self.pwm.channel}_raw")
         if not PWM_VALID_RANGE[0] <= pwm <= PWM_VALID_RANGE[1]:
-            self.link.rejected["bad_pwm"] += 1
+            self.link.reject("bad_pwm")
             return None
         return pwm
 

@@ -30,27 +30,31 @@ def crc16(data: bytes) -> int:
 
 
 class FastPacker:
-    """``packer(seq, *wire_values) -> bytes`` for one message class, MAVLink 2, unsigned.
+    """``packer(seq, *wire_values) -> bytes`` for one message class, MAVLink 2, signed when ``signing`` is given
+    (an ``autopilot.shared.signing.Signing``).
 
     ``wire_values`` in the order of the class's ``unpacker`` struct (pymavlink's ``pack`` argument order).
     """
 
-    def __init__(self, cls, src_system: int, src_component: int):
+    def __init__(self, cls, src_system: int, src_component: int, signing=None):
         self.cls = cls
         self.msgid = cls.id if isinstance(getattr(cls, "id", None), int) else cls.msgid
         self._payload = cls.unpacker.pack
         self._crc_extra = bytes([cls.crc_extra])
         self._sys = src_system
         self._comp = src_component
+        self._signing = signing
 
     def __call__(self, seq: int, *values) -> bytes:
         payload = self._payload(*values)
         p = payload.rstrip(b"\x00") or payload[:1]  # MAVLink 2 trims trailing zero bytes (keeps one)
         mid = self.msgid
-        hdr = _HDR.pack(0xFD, len(p), 0, 0, seq, self._sys, self._comp, mid & 0xFFFF, mid >> 16)
+        signing = self._signing
+        hdr = _HDR.pack(0xFD, len(p), 1 if signing else 0, 0, seq, self._sys, self._comp, mid & 0xFFFF, mid >> 16)
         body = hdr[1:] + p
         c = crc16(body + self._crc_extra)
-        return hdr[:1] + body + bytes((c & 0xFF, c >> 8))
+        packet = hdr[:1] + body + bytes((c & 0xFF, c >> 8))
+        return packet + signing.signature(packet) if signing else packet
 
 
 class FastDecoder:
@@ -70,10 +74,10 @@ class FastDecoder:
         self._crc_extra = bytes([cls.crc_extra])
 
     def __call__(self, raw: bytes):
-        if raw[0] != 0xFD or raw[2] & 1:
-            raise mavlink.MAVError("fast path is for unsigned MAVLink 2 only")
+        if raw[0] != 0xFD:
+            raise mavlink.MAVError("fast path is for MAVLink 2 only")
         plen = raw[1]
-        if len(raw) != 12 + plen:
+        if len(raw) != (25 if raw[2] & 1 else 12) + plen:  # a signature (checked by the link) follows the CRC
             raise mavlink.MAVError("invalid MAVLink message length")
         c = crc16(raw[1 : 10 + plen] + self._crc_extra)
         if raw[10 + plen] != (c & 0xFF) or raw[11 + plen] != (c >> 8):
@@ -90,7 +94,7 @@ class FastDecoder:
         m._payload = raw[6 : 10 + plen]
         m._crc = c
         m._header = mavlink.MAVLink_header(
-            raw[7] | (raw[8] << 8) | (raw[9] << 16), 0, raw[3], plen, raw[4], raw[5], raw[6]
+            raw[7] | (raw[8] << 8) | (raw[9] << 16), raw[2], raw[3], plen, raw[4], raw[5], raw[6]
         )
         return m
 

@@ -1,22 +1,46 @@
 """One MAVLink link over a plain non-blocking UDP socket (no mavutil polling in the hot path).
 
-Receiving: each datagram is framed by hand (MAVLink 1 or 2 header, length, signature), the source
-system/component and message id are checked from the header *before* decoding, and only the
-packets the owner wants are decoded, by a ``pymavlink`` ``MAVLink`` instance (``decode`` checks the
-CRC).  Everything that is not accepted is counted by reason in ``rejected``:
+Receiving: each datagram is framed by hand (MAVLink 2 header, length, signature) and every packet is checked
+in this order before anything is decoded: framing, message id known, CRC, signature (when signing is on),
+source system:component, source address (the pinned or admitted peers), message id taken.  Only accepted
+packets are decoded and handed to the owner, which may still reject one (``reject(reason)``).
 
-    bad_magic     the datagram (or its remainder) does not start with a MAVLink start byte
-    truncated     a packet shorter than its header says
-    bad_crc       CRC mismatch (pymavlink decode)
-    decode_error  any other pymavlink decode error
-    wrong_id      source (sysid, compid) not one this link talks to
-    unknown_msg   message id not in the common dialect
-    ignored_msg   a valid message this link does not use
-    over_budget   datagrams left in the socket buffer beyond the per-poll budget are still read and
-                  dropped (counted) when a flood exceeds it, so the loop keeps its rate
+**Exact counters.**  Every datagram read is counted exactly once: in ``rx_accepted`` if at least one of its
+packets was accepted, otherwise in ``rejected`` under the reason of its first packet that failed:
 
-Sending: ``send(msg)`` packs with this link's own sequence counter and source IDs.  Every packet sent
-or accepted is written to the tlog (if one is attached) with the raw bytes.
+    empty          a 0-byte datagram
+    bad_magic      the datagram (or its remainder) does not start with the MAVLink 2 start byte 0xFD
+    mavlink1       a MAVLink 1 packet (0xFE): rejected on every link
+    truncated      a packet shorter than its header says
+    unknown_msg    message id not in the common dialect (its CRC cannot be checked)
+    bad_crc        CRC mismatch
+    unsigned       signing is on and the packet carries no signature
+    bad_signature  signing is on and the signature does not match the key
+    replay         signing is on and the timestamp is not newer than the stream's last (or over a minute old)
+    wrong_id       source (sysid, compid) not one this link talks to
+    not_peer       the right IDs from an address that is not this link's peer
+    ignored_msg    a valid message this link does not use
+    decode_error   the payload does not decode
+    over_budget    datagrams beyond the per-poll budget are read and dropped, so a flood cannot stall the loop
+    (owner's)      reasons the owner gives with ``reject`` (nonfinite_attitude, bad_pwm, ...)
+
+so ``rx_datagrams == rx_accepted + sum(rejected.values())`` always holds.
+
+**Peers.**  A link talks to fixed addresses, never to whoever sent last:
+
+* pinned to ``remote`` (``remote`` given, ``learn_remote`` False): only that address is heard;
+* learned once (``learn_remote``): the first address whose packet passes every check up to the IDs becomes
+  the one peer and ``remote``; any other address is ``not_peer`` from then on;
+* admitting (``admit=N``, the autopilot's ground-station link): ``remote`` is the default destination
+  (e.g. 127.0.0.1:14550) and stays so; the addresses in ``peer_addrs`` are admitted from the start; without
+  signing the first address that talks with a peer's IDs is admitted too; with signing every address
+  whose packet carries a valid signature is admitted, up to N in all (more are ``not_peer``).
+  ``broadcast``/``send`` reach every admitted peer and ``remote``, each once.
+
+Sending: ``send(msg)`` packs with this link's own sequence counter and source IDs (signed when signing is on).
+Every packet sent or accepted is written to the tlog (if one is attached) with the raw bytes.  A send error
+that means the peer cannot be reached at all (no route, bad address) raises :class:`PeerUnreachable`; a
+refused or dropped datagram (peer not started yet, buffer full) is counted in ``tx_errors``.
 """
 
 from __future__ import annotations
@@ -26,28 +50,59 @@ import socket
 import time
 from collections import Counter
 
-from autopilot.shared.fastmav import FAST_DECODERS, FastPacker
+from autopilot.shared.fastmav import FAST_DECODERS, FastPacker, crc16
 from autopilot.shared.mavlink import mavlink
 
 _MAVLINK_MAP = mavlink.mavlink_map
+_CRC_EXTRA = {mid: bytes([cls.crc_extra]) for mid, cls in _MAVLINK_MAP.items()}
 REJECT_REASONS = (
+    "empty",
     "bad_magic",
+    "mavlink1",
     "truncated",
-    "bad_crc",
-    "decode_error",
-    "wrong_id",
     "unknown_msg",
+    "bad_crc",
+    "unsigned",
+    "bad_signature",
+    "replay",
+    "wrong_id",
+    "not_peer",
     "ignored_msg",
+    "decode_error",
     "over_budget",
 )
+# sendto errors after which nothing will ever arrive: fatal (the others are counted and the link goes on)
+_FATAL_SEND_ERRNOS = (errno.EHOSTUNREACH, errno.ENETUNREACH, errno.EADDRNOTAVAIL, errno.EAFNOSUPPORT, errno.EINVAL)
+ANY_COMPONENT = None  # a peer (sysid, ANY_COMPONENT) accepts that system with any component
+
+
+class LinkError(OSError):
+    """A link that cannot work: an unresolvable address (one line naming the link and the address)."""
+
+
+class PeerUnreachable(LinkError):
+    """A send failed in a way that will not heal (no route to the peer, unusable address)."""
+
+
+def resolve(host_port, what: str) -> tuple[str, int]:
+    """``(host, port)`` with the host resolved to an IPv4 address; :class:`LinkError` if it cannot be."""
+    host, port = host_port
+    try:
+        infos = socket.getaddrinfo(host, port, socket.AF_INET, socket.SOCK_DGRAM)
+    except (socket.gaierror, UnicodeError) as exc:
+        raise LinkError(f"{what} {host}:{port}: cannot resolve the host ({exc})") from None
+    return infos[0][4][0], int(port)
 
 
 class UdpLink:
     """A MAVLink endpoint on one UDP socket.
 
-    ``bind``: local (host, port), port 0 for an ephemeral one.  ``remote``: where to send (None until a
-    peer talks to us when ``learn_remote``).  ``peers``: accepted source (sysid, compid) pairs.
-    ``msgids``: accepted message ids (others are counted as ``ignored_msg`` without decoding).
+    ``bind``: local (host, port), port 0 for an ephemeral one.  ``remote``: where to send (None until a peer
+    talks to us when ``learn_remote``).  ``peers``: accepted source (sysid, compid) pairs; compid
+    ``ANY_COMPONENT`` (None) accepts any component of that system.  ``msgids``: accepted message ids (others
+    are counted as ``ignored_msg`` without decoding).  ``admit``, ``peer_addrs``: see the module docstring.
+    ``signing``: an ``autopilot.shared.signing.Signing``: everything sent is signed and everything received
+    must be signed with the same key.
     """
 
     def __init__(
@@ -60,26 +115,44 @@ class UdpLink:
         msgids,
         *,
         learn_remote: bool = False,
+        admit: int = 0,
+        peer_addrs=(),
+        signing=None,
         tlog=None,
         rcvbuf: int = 1 << 20,
     ):
         self.name = name
+        self.signing = signing
         self.mav = mavlink.MAVLink(None, src[0], src[1])
+        if signing is not None:
+            self.mav.signing.secret_key = signing.key
+            self.mav.signing.link_id = signing.link_id
+            self.mav.signing.sign_outgoing = True
+        self._decoder = mavlink.MAVLink(None, src[0], src[1])  # never checks signatures itself: we do
+        self.remote = resolve(remote, f"{name} link: peer") if remote is not None else None
         self.sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
         try:
             self.sock.setsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF, rcvbuf)
         except OSError:
             pass
-        self.sock.bind(bind)
+        self.sock.bind(resolve(bind, f"{name} link: local address"))
         self.sock.setblocking(False)
         self.local = self.sock.getsockname()
-        self.remote = remote
         self.learn_remote = learn_remote
+        self.admit = int(admit)
         self.peers = frozenset(tuple(p) for p in peers)
+        self._any_comp = frozenset(s for s, c in self.peers if c is ANY_COMPONENT)
         self.msgids = frozenset(msgids)
         self.tlog = tlog
+        fixed = [resolve(a, f"{name} link: peer") for a in peer_addrs]
+        if not learn_remote and not admit and self.remote is not None:
+            fixed.append(self.remote)  # pinned to the one address we talk to
+        self.admitted: list = list(dict.fromkeys(fixed))  # addresses we accept packets from
+        self._admitted_set = set(self.admitted)
+        self._learned = False
         self.rx_datagrams = 0
-        self.rx_packets = 0  # accepted and decoded
+        self.rx_accepted = 0  # datagrams with at least one accepted packet
+        self.rx_packets = 0  # packets accepted and decoded
         self.tx_packets = 0
         self.tx_errors = 0
         self.rx_by_type: Counter = Counter()
@@ -87,25 +160,35 @@ class UdpLink:
         self.rejected: Counter = Counter()
         self.last_rx_wall = 0.0  # perf_counter of the last accepted packet
         self.peer_addr = None  # address of the last accepted packet
+        self._verdict = None  # the owner's rejection of the packet being handled
 
     # ------------------------------------------------------------------ send
     def pack(self, msg) -> bytes:
         mav = self.mav
+        if self.signing is not None:
+            mav.signing.timestamp = self.signing.next_stamp()
         buf = msg.pack(mav)
         mav.seq = (mav.seq + 1) & 0xFF
         return buf
 
+    def _targets(self) -> list:
+        if not self.admit:
+            return [self.remote] if self.remote is not None else []
+        return list(dict.fromkeys([*self.admitted, *([self.remote] if self.remote is not None else [])]))
+
     def send(self, msg) -> bytes | None:
-        """Pack and send one message to ``remote``; returns the raw bytes (None if there is no peer yet)."""
-        if self.remote is None:
+        """Pack and send one message to the peer (an admitting link: to every admitted peer and ``remote``);
+        returns the raw bytes (None if there is no peer yet)."""
+        targets = self._targets()
+        if not targets:
             return None
         buf = self.pack(msg)
-        self.send_raw(buf, msg.get_msgId())
+        self._sendto(targets, buf, (msg.get_msgId(),), (buf,))
         return buf
 
     def fast_packer(self, cls) -> FastPacker:
         """A byte-identical fast encoder for a hot message class (see ``autopilot.shared.fastmav``)."""
-        return FastPacker(cls, self.mav.srcSystem, self.mav.srcComponent)
+        return FastPacker(cls, self.mav.srcSystem, self.mav.srcComponent, self.signing)
 
     def pack_fast(self, packer: FastPacker, *wire_values) -> bytes:
         """Encode with a fast packer and this link's sequence number (``wire_values`` in struct order)."""
@@ -115,37 +198,42 @@ class UdpLink:
         return buf
 
     def send_batch(self, bufs: list, msgids: list) -> bool:
-        """Send several packets in one datagram (a UDP MAVLink stream may carry several); tlog each one."""
-        if self.remote is None:
-            return False
-        try:
-            self.sock.sendto(b"".join(bufs), self.remote)
-        except OSError:
-            self.tx_errors += len(bufs)
-            return False
-        self.tx_packets += len(bufs)
-        for mid in msgids:
-            self.tx_by_type[mid] += 1
-        if self.tlog is not None:
-            for b in bufs:
-                self.tlog.write(b)
-        return True
+        """Send several packets in one datagram (a UDP MAVLink stream may carry several) to the peer (an
+        admitting link: to every admitted peer and ``remote``); tlog each one."""
+        targets = self._targets()
+        return bool(targets) and self._sendto(targets, b"".join(bufs), msgids, bufs)
+
+    def broadcast(self, bufs: list, msgids: list) -> bool:
+        """One datagram of ``bufs`` to every admitted peer plus the default ``remote``, each address once."""
+        targets = list(dict.fromkeys([*self.admitted, *([self.remote] if self.remote is not None else [])]))
+        return bool(targets) and self._sendto(targets, b"".join(bufs), msgids, bufs)
 
     def send_raw(self, buf: bytes, msgid: int | None = None) -> bool:
         if self.remote is None:
             return False
-        try:
-            self.sock.sendto(buf, self.remote)
-        except OSError:
-            # ECONNREFUSED from a previous ICMP port-unreachable, ENOBUFS under load: count, go on.
-            self.tx_errors += 1
-            return False
-        self.tx_packets += 1
-        if msgid is not None:
-            self.tx_by_type[msgid] += 1
-        if self.tlog is not None:
-            self.tlog.write(buf)
-        return True
+        return self._sendto((self.remote,), buf, () if msgid is None else (msgid,), (buf,))
+
+    def _sendto(self, targets, data: bytes, msgids, bufs) -> bool:
+        ok = False
+        for addr in targets:
+            try:
+                self.sock.sendto(data, addr)
+            except OSError as exc:
+                if exc.errno in _FATAL_SEND_ERRNOS:
+                    raise PeerUnreachable(
+                        f"{self.name} link: cannot send to {addr[0]}:{addr[1]}: {exc.strerror}"
+                    ) from None
+                # ECONNREFUSED from a previous ICMP port-unreachable (peer not up yet), ENOBUFS: count, go on.
+                self.tx_errors += len(bufs)
+                continue
+            ok = True
+            self.tx_packets += len(bufs)
+            for mid in msgids:
+                self.tx_by_type[mid] += 1
+        if ok and self.tlog is not None:
+            for b in bufs:
+                self.tlog.write(b)
+        return ok
 
     # --------------------------------------------------------------- receive
     def poll(self, handler, budget: int = 256) -> int:
@@ -163,71 +251,106 @@ class UdpLink:
                     continue
                 raise
             n += 1
-            self.rx_datagrams += 1
             if n > budget:
+                self.rx_datagrams += 1
                 self.rejected["over_budget"] += 1
                 if n > 16 * budget:
                     return n
                 continue
             self.feed(data, addr, handler)
 
+    def reject(self, reason: str) -> None:
+        """Called by the owner's handler: the packet being handled is rejected for ``reason``."""
+        if self._verdict is None:
+            self._verdict = reason
+
+    def _admit(self, addr, signed: bool) -> bool:
+        """Whether a packet with a peer's IDs from the new address ``addr`` may make it a peer."""
+        if self.admit:
+            if len(self.admitted) >= self.admit or not (signed or not self._learned):
+                return False
+        elif not self.learn_remote or self._learned:
+            return False
+        self._learned = True
+        self.admitted.append(addr)
+        self._admitted_set.add(addr)
+        if not self.admit:
+            self.remote = addr
+        return True
+
     def feed(self, data: bytes, addr, handler) -> None:
-        """Frame, filter and decode one datagram."""
+        """Frame, check and decode one datagram; count it once (``rx_accepted`` or one reason)."""
         t_rx = time.perf_counter()
-        i = 0
+        self.rx_datagrams += 1
         end = len(data)
-        rejected = self.rejected
+        reason = None if end else "empty"
+        accepted = False
+        signing = self.signing
+        i = 0
         while i < end:
             magic = data[i]
-            if magic == 0xFD:
-                if end - i < 12:
-                    rejected["truncated"] += 1
-                    return
-                total = 12 + data[i + 1] + (13 if data[i + 2] & 1 else 0)
-                sysid = data[i + 5]
-                compid = data[i + 6]
-                msgid = data[i + 7] | (data[i + 8] << 8) | (data[i + 9] << 16)
-            elif magic == 0xFE:
-                if end - i < 8:
-                    rejected["truncated"] += 1
-                    return
-                total = 8 + data[i + 1]
-                sysid = data[i + 3]
-                compid = data[i + 4]
-                msgid = data[i + 5]
-            else:
-                rejected["bad_magic"] += 1
-                return
+            if magic != 0xFD:
+                reason = reason or ("mavlink1" if magic == 0xFE else "bad_magic")
+                break
+            if end - i < 12:
+                reason = reason or "truncated"
+                break
+            plen = data[i + 1]
+            signed = data[i + 2] & 1
+            total = 12 + plen + (13 if signed else 0)
             if end - i < total:
-                rejected["truncated"] += 1
-                return
+                reason = reason or "truncated"
+                break
             j = i
             i += total
-            if (sysid, compid) not in self.peers:
-                rejected["wrong_id"] += 1
+            msgid = data[j + 7] | (data[j + 8] << 8) | (data[j + 9] << 16)
+            extra = _CRC_EXTRA.get(msgid)
+            if extra is None:
+                reason = reason or "unknown_msg"
                 continue
-            if msgid not in self.msgids:
-                rejected["unknown_msg" if msgid not in _MAVLINK_MAP else "ignored_msg"] += 1
+            c = crc16(data[j + 1 : j + 10 + plen] + extra)
+            if data[j + 10 + plen] != (c & 0xFF) or data[j + 11 + plen] != (c >> 8):
+                reason = reason or "bad_crc"
                 continue
             raw = data[j:i]
+            sysid = data[j + 5]
+            compid = data[j + 6]
+            if signing is not None:
+                why = signing.check(raw, sysid, compid) if signed else "unsigned"
+                if why is not None:
+                    reason = reason or why
+                    continue
+            if (sysid, compid) not in self.peers and sysid not in self._any_comp:
+                reason = reason or "wrong_id"
+                continue
+            if addr not in self._admitted_set and not self._admit(addr, signing is not None):
+                reason = reason or "not_peer"
+                continue
+            if msgid not in self.msgids:
+                reason = reason or "ignored_msg"
+                continue
             try:
-                fast = FAST_DECODERS.get(msgid) if magic == 0xFD and not data[j + 2] & 1 else None
-                msg = fast(raw) if fast is not None else self.mav.decode(bytearray(raw))
-            except mavlink.MAVError as exc:
-                rejected["bad_crc" if "CRC" in str(exc) else "decode_error"] += 1
-                continue
+                fast = FAST_DECODERS.get(msgid)
+                msg = fast(raw) if fast is not None else self._decoder.decode(bytearray(raw))
             except Exception:  # noqa: BLE001  (any decoder failure is a rejected packet, never a crash)
-                rejected["decode_error"] += 1
+                reason = reason or "decode_error"
                 continue
-            self.rx_packets += 1
-            self.rx_by_type[msgid] += 1
             self.last_rx_wall = t_rx
             self.peer_addr = addr
-            if self.learn_remote and addr != self.remote:
-                self.remote = addr
             if self.tlog is not None:
                 self.tlog.write(raw)
+            self._verdict = None
             handler(msg, t_rx)
+            if self._verdict is not None:
+                reason = reason or self._verdict
+                continue
+            accepted = True
+            self.rx_packets += 1
+            self.rx_by_type[msgid] += 1
+        if accepted:
+            self.rx_accepted += 1
+        else:
+            self.rejected[reason] += 1
 
     # ----------------------------------------------------------------- misc
     def fileno(self) -> int:
@@ -239,9 +362,11 @@ class UdpLink:
     def counters(self) -> dict:
         return {
             "rx_datagrams": self.rx_datagrams,
+            "rx_accepted": self.rx_accepted,
             "rx_packets": self.rx_packets,
             "tx_packets": self.tx_packets,
             "tx_errors": self.tx_errors,
+            "admitted": [f"{a[0]}:{a[1]}" for a in self.admitted],
             "rx_by_type": {_name(k): v for k, v in sorted(self.rx_by_type.items())},
             "tx_by_type": {_name(k): v for k, v in sorted(self.tx_by_type.items())},
             # the link's own reasons first, then those the owner adds (nonfinite_attitude, bad_pwm, ...)
