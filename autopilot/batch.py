@@ -1,0 +1,192 @@
+"""The SISO laws for a batch of aircraft at once: numpy arrays of shape (N,), one element per aircraft.
+
+``BatchClSac`` is ``ClSac._step_siso`` (autopilot/clsac.py, paper sections 2-3, eqs. (6), (18)-(21)) and
+``BatchBaseline`` is ``Baseline.step`` (autopilot/baseline.py), written operation for operation in the same
+order with the very coefficients the scalar law computes (read from a ``ClSac``/``Baseline`` built from the same
+config).  Every operation is an elementwise IEEE-754 add, multiply, compare or select, so element i of the
+batch is bit for bit what the scalar law computes for aircraft i, whatever N and whatever the other elements
+(tests/test_batch.py replays sampled runs through the scalar law).  No transcendental function is evaluated
+per step.
+
+Per-aircraft configs may differ in any coefficient (the study draws the PFC per run); the switches
+(``anti_windup``, ``dead_zone_rad``, ``ki_max``, ``freeze_when_saturated``) and the limit must be the same for
+the whole batch.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+
+import numpy as np
+
+from autopilot.baseline import Baseline, BaselineConfig
+from autopilot.clsac import ClSac
+from autopilot.config import ClSacConfig, ConfigError
+
+_COEFFS = (
+    "phi_m",
+    "g_mu",
+    "g_my",
+    "phi_ol",
+    "g_ol",
+    "cm",
+    "phi_d",
+    "g_d",
+    "cd",
+    "gpe",
+    "gie",
+    "gpx",
+    "gix",
+    "gpu",
+    "giu",
+)
+_LEAKS = ("_decay", "_gain_ie", "_decay_x", "_gain_ix", "_decay_u", "_gain_iu")
+_SWITCHES = ("_umax", "_aw", "_dz", "_kmax", "_freeze")
+
+
+def _column(values: list[float]):
+    """A Python float when every aircraft has the same value (scalar * array is the same IEEE operation as
+    array * array, and cheaper), else an (N,) array."""
+    first = values[0]
+    if all(v == first for v in values):
+        return first
+    return np.array(values, dtype=float)
+
+
+class BatchClSac:
+    """CL-SAC (SAC with L_v = 0) for N aircraft: ``u = law(y, um)`` with y, um arrays of shape (N,).
+
+    After each call ``e``, ``ym``, ``ym_ol``, ``ya``, ``y_pfc``, ``u_raw``, ``u``, ``saturated`` and the gains
+    ``kpe`` ... ``ku`` hold this step's values, as on ``ClSac``; ``ki_e``, ``ki_x``, ``ki_u``, ``xm``, ``xm_ol``,
+    ``xd`` are the states carried to the next step.
+    """
+
+    def __init__(self, configs: Sequence[ClSacConfig]):
+        if not configs:
+            raise ConfigError("a batch needs at least one config")
+        laws: dict[ClSacConfig, ClSac] = {}
+        for cfg in configs:
+            if cfg not in laws:
+                law = ClSac(cfg, fast=True)
+                if not law._fast:  # noqa: SLF001
+                    raise ConfigError(f"the batch law is the SISO law with a first-order PFC; got {cfg!r}")
+                laws[cfg] = law
+        per = [laws[cfg] for cfg in configs]
+        self.n = len(per)
+        self.config = configs[0]
+        for name in _SWITCHES:
+            values = {getattr(law, name) for law in laws.values()}
+            if len(values) != 1:
+                raise ConfigError(f"every config of a batch must have the same {name.lstrip('_')}, got {values}")
+        first = per[0]
+        self._umax, self._aw, self._dz, self._kmax, self._freeze = (getattr(first, n) for n in _SWITCHES)
+        self._c = {k: _column([law._s[k] for law in per]) for k in _COEFFS}  # noqa: SLF001
+        self._leak = {k: _column([getattr(law, k) for law in per]) for k in _LEAKS}
+        self._ki0 = tuple(np.array([law._ki0[i][0, 0] for law in per]) for i in range(3))  # noqa: SLF001
+        self.reset()
+
+    def reset(self) -> None:
+        n = self.n
+        self.xm = np.zeros(n)
+        self.xm_ol = np.zeros(n)
+        self.xd = np.zeros(n)
+        self.ki_e, self.ki_x, self.ki_u = (k.copy() for k in self._ki0)
+        zero = np.zeros(n)
+        self.um = self.y = self.ym = self.ym_ol = self.ya = self.y_pfc = self.e = zero
+        self.u_raw = self.u = zero
+        self.saturated = np.zeros(n, dtype=bool)
+        self.steps = 0
+
+    def __call__(self, y: np.ndarray, um: np.ndarray) -> np.ndarray:
+        """One control step for every aircraft (the body of ``ClSac._step_siso``, elementwise)."""
+        c = self._c
+        lk = self._leak
+        xm = self.xm
+        y_pfc = c["cd"] * self.xd  # y_d = C_d x_d
+        ya = y + y_pfc  # y_a = y_p + D(s) u_p
+        ym = c["cm"] * xm  # y_m = C_m x_m
+        e = ym - ya  # e_my = y_m - y_a  (paper eq. (20))
+        kpe = e * e * c["gpe"]
+        kpx = e * xm * c["gpx"]
+        kpu = e * um * c["gpu"]
+        kie, kix, kiu = self.ki_e, self.ki_x, self.ki_u
+        ke = kpe + kie
+        kx = kpx + kix
+        ku = kpu + kiu
+        u_raw = ke * e + kx * xm + ku * um  # paper eqs. (6), (21)
+        umax = self._umax
+        u = np.clip(u_raw, -umax, umax)
+        sat = u != u_raw
+        die = lk["_gain_ie"] * (e * e * c["gie"])
+        dix = lk["_gain_ix"] * (e * xm * c["gix"])
+        diu = lk["_gain_iu"] * (e * um * c["giu"])
+        skip = None
+        if self._dz > 0.0:
+            skip = np.abs(e) <= self._dz  # dead-zone on e
+        if self._freeze:
+            skip = sat if skip is None else skip | sat
+        if skip is not None:
+            die = np.where(skip, 0.0, die)
+            dix = np.where(skip, 0.0, dix)
+            diu = np.where(skip, 0.0, diu)
+        if self._aw:  # conditional integration, per channel (zeroing an already zero increment changes nothing)
+            die = np.where(sat & (die * e * u_raw > 0), 0.0, die)
+            dix = np.where(sat & (dix * xm * u_raw > 0), 0.0, dix)
+            diu = np.where(sat & (diu * um * u_raw > 0), 0.0, diu)
+        self.ki_e = lk["_decay"] * kie + die
+        self.ki_x = lk["_decay_x"] * kix + dix
+        self.ki_u = lk["_decay_u"] * kiu + diu
+        if self._kmax is not None:  # projection onto |K_I| <= ki_max
+            km = self._kmax
+            self.ki_e = np.minimum(np.maximum(self.ki_e, -km), km)
+            self.ki_x = np.minimum(np.maximum(self.ki_x, -km), km)
+            self.ki_u = np.minimum(np.maximum(self.ki_u, -km), km)
+        self.xm = c["phi_m"] * xm + (c["g_mu"] * um + c["g_my"] * ya)  # paper eq. (18), exact ZOH
+        ym_ol = c["cm"] * self.xm_ol
+        self.xm_ol = c["phi_ol"] * self.xm_ol + c["g_ol"] * um
+        self.xd = c["phi_d"] * self.xd + c["g_d"] * u
+        self.um, self.y, self.ym, self.ym_ol, self.ya, self.y_pfc, self.e = um, y, ym, ym_ol, ya, y_pfc, e
+        self.u_raw, self.u, self.saturated = u_raw, u, sat
+        self.kpe, self.kpx, self.kpu, self.ke, self.kx, self.ku = kpe, kpx, kpu, ke, kx, ku
+        self.kie, self.kix, self.kiu = kie, kix, kiu
+        self.steps += 1
+        return u
+
+
+class BatchBaseline:
+    """The fixed-gain baseline (``autopilot.baseline.Baseline``) for N aircraft sharing one config."""
+
+    def __init__(self, config: BaselineConfig | None, n: int):
+        law = Baseline(config)
+        self.config = law.config
+        self.n = int(n)
+        s = law._s  # noqa: SLF001
+        self._phi_ol, self._g_ol, self._cm = s["phi_ol"], s["g_ol"], s["cm"]
+        self._kp, self._ki_t, self._kd_t = law._kp, law._ki_t, law._kd_t  # noqa: SLF001
+        self._umax, self._aw = law._umax, law._aw  # noqa: SLF001
+        self.reset()
+
+    def reset(self) -> None:
+        n = self.n
+        self.xm_ol = np.zeros(n)
+        self.xi = np.zeros(n)
+        self.e_prev = np.zeros(n)
+        self.e = self.ym_ol = self.u = self.u_raw = np.zeros(n)
+        self.saturated = np.zeros(n, dtype=bool)
+        self.steps = 0
+
+    def __call__(self, y: np.ndarray, um: np.ndarray) -> np.ndarray:
+        """One step for every aircraft (the body of ``Baseline.step``, elementwise)."""
+        ym_ol = self._cm * self.xm_ol
+        e = ym_ol - y
+        u_raw = self._kp * e + self.xi + self._kd_t * (e - self.e_prev)
+        u = np.clip(u_raw, -self._umax, self._umax)
+        sat = u != u_raw
+        di = self._ki_t * e
+        keep = sat & (di * u_raw > 0) if self._aw else np.zeros(self.n, dtype=bool)
+        self.xi = np.where(keep, self.xi, self.xi + di)
+        self.xm_ol = self._phi_ol * self.xm_ol + self._g_ol * um
+        self.e_prev = e
+        self.e, self.ym_ol, self.u_raw, self.u, self.saturated = e, ym_ol, u_raw, u, sat
+        self.steps += 1
+        return u
