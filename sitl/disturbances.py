@@ -14,9 +14,9 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from sitl.atmosphere import ALTITUDE, AtmosphereConfig, AtmosphereConfigError, DrydenConfig, Gust
-from sitl.faults import FaultConfig, FaultConfigError
-from sitl.sensors import SensorConfig, SensorConfigError
+from sitl.atmosphere import ALTITUDE, Atmosphere, AtmosphereConfig, AtmosphereConfigError, DrydenConfig, Gust
+from sitl.faults import FaultChannel, FaultConfig, FaultConfigError
+from sitl.sensors import SensorConfig, SensorConfigError, Sensors
 from sitl.uncertainty import PlantScales, UncertaintyError, draw_scales, parse_scale
 
 STREAMS = ("atmosphere", "sensors", "uplink", "downlink", "uncertainty")
@@ -150,6 +150,51 @@ FLAGS = {
 }
 
 
+class DisturbanceValueError(ValueError):
+    """A disturbance value given from Python (``Flight`` keywords) is malformed; ``field`` names it."""
+
+    def __init__(self, field_name: str, message: str):
+        super().__init__(message)
+        self.field = field_name
+
+
+def parse_values(values: dict) -> dict:
+    """Flag values given as text (as on the command line) or already parsed, through the flags' types.
+
+    Repeatable flags (``gust``, ``scale``) take one item or a list of them.  Raises DisturbanceValueError
+    naming the field on the first bad one; returns ``{dest: parsed value or None}``.
+    """
+    out = {}
+    for dest, (_flag, kw) in FLAGS.items():
+        value = values.get(dest)
+        if value is None:
+            out[dest] = None
+            continue
+        check = kw.get("type", str)
+        repeat = kw.get("action") == "append"
+        items = [value] if not repeat or isinstance(value, str) or _is_item(dest, value) else list(value)
+        parsed = []
+        for item in items:
+            text = to_argv({dest: [item] if repeat else item})[1] if not isinstance(item, str) else item
+            try:
+                parsed.append(check(text))
+            except (argparse.ArgumentTypeError, ValueError) as exc:
+                raise DisturbanceValueError(dest, f"{dest}: {exc}") from None
+            if "choices" in kw and parsed[-1] not in kw["choices"]:
+                raise DisturbanceValueError(dest, f"{dest} must be one of {', '.join(kw['choices'])}, got {item!r}")
+        out[dest] = tuple(parsed) if repeat else parsed[0]
+    return out
+
+
+def _is_item(dest: str, value) -> bool:
+    """A single parsed item of a repeatable flag: (amp, len, start) for gust, (name, factor) for scale."""
+    if not isinstance(value, tuple) or not value:
+        return False
+    if dest == "scale":
+        return len(value) == 2 and isinstance(value[0], str) and "=" not in value[0] and not isinstance(value[1], str)
+    return not isinstance(value[0], (str, tuple, list))
+
+
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     """The disturbance flags (all default to None: an ideal flight)."""
     g = parser.add_argument_group("disturbances (atmosphere, sensors, link faults, plant uncertainty)")
@@ -158,11 +203,11 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def from_values(values: dict) -> Disturbances:
-    """Disturbances from the flags' values (``{dest: value}``, missing or None = not given).
+    """Disturbances from the flags' values (``{dest: value}`` as text or parsed, missing or None = not given).
 
     Raises one of ERRORS with a one-line message naming the bad value.
     """
-    v = {k: values.get(k) for k in FLAGS}
+    v = parse_values(values)
     turb = None
     if v["turbulence"] is not None or v["turbulence_sigma"] is not None or v["turbulence_length"] is not None:
         base = DrydenConfig.intensity(v["turbulence"] or "light", ALTITUDE if v["altitude"] is None else v["altitude"])
@@ -207,3 +252,111 @@ def to_argv(values: dict) -> list[str]:
                 text = repr(item) if isinstance(item, float) else str(item)
             argv += [flag, text]
     return argv
+
+
+# ---------------------------------------------------------------------------------------------- runtime
+class Injector:
+    """What the SITL's endpoint calls to apply a :class:`Disturbances` (see ``sitl.endpoint``).
+
+    Physics: :meth:`advance` feeds the atmosphere, sampled at the physics step, to the aircraft.  Sensors:
+    :meth:`measure` once per ATTITUDE.  Link, lockstep (ticks = global frame index, delay rounded to whole
+    frames): the handshake stays intact and the faults act on what each frame carries: :meth:`uplink_frame`
+    gives the newest sample delivered by this frame (the receiver's hold of the last one when it was lost,
+    delayed or overtaken) and how many datagrams arrive (2 for a duplicate); :meth:`downlink_frame` gives the
+    newest servo command delivered by this frame or None (hold the last).  Link, real time (wall seconds): the
+    datagrams themselves are delayed, dropped, duplicated and reordered (:meth:`uplink_raw`, :meth:`downlink`).
+    """
+
+    def __init__(self, dist: Disturbances, physics_dt: float, frame_rate: float, lockstep: bool, t0: float = 0.0):
+        self.dist = dist
+        rngs = dist.rngs()
+        self.scales = dist.plant_scales()
+        self.atmosphere = (
+            Atmosphere(dist.atmosphere, physics_dt, rngs["atmosphere"], t0) if dist.atmosphere.active else None
+        )
+        self.sensors = Sensors(dist.sensors, rngs["sensors"]) if dist.sensors.active else None
+        self.lockstep = lockstep
+        fc = dist.faults
+        delay = round(fc.delay * frame_rate) if lockstep else fc.delay
+        self.delay_frames = delay if lockstep else None
+        self.up = FaultChannel(fc, rngs["uplink"], delay) if fc.active else None
+        self.down = FaultChannel(fc, rngs["downlink"], delay) if fc.active else None
+        self._up_last = None  # (tick, sample) newest delivered
+        self._down_last = -1
+
+    def params(self) -> dict | None:
+        """Aircraft params (perturbed A_p, B_p), or None for the paper's plant."""
+        if self.scales.nominal:
+            return None
+        a, b = self.scales.matrices()
+        return {"A": a, "B": b}
+
+    def advance(self, aircraft, u: float, n: int):
+        if self.atmosphere is None:
+            return aircraft.advance(u, n)
+        return aircraft.advance(u, n, self.atmosphere.sample(n))
+
+    def measure(self, x) -> tuple[float, float, float]:
+        """(roll, roll rate, yaw rate) to report from the truth state x."""
+        phi, p, r = float(x[3]), float(x[1]), float(x[2])
+        return (phi, p, r) if self.sensors is None else self.sensors.measure(phi, p, r)
+
+    def uplink_frame(self, k: int, sample: tuple) -> tuple[tuple, int]:
+        """Lockstep: (the sample the autopilot holds at frame k, datagrams that arrive at frame k)."""
+        if self.up is None:
+            return sample, 1
+        if self._up_last is None:  # before anything arrives the receiver holds the initial sample
+            self._up_last = (-1, sample)
+        self.up.push(k, (k, sample))
+        arrived = self.up.due(k)
+        for item in arrived:
+            if item[0] > self._up_last[0]:
+                self._up_last = item
+        return self._up_last[1], len(arrived)
+
+    def downlink_frame(self, k: int, pwm: int) -> int | None:
+        """Lockstep: the newest servo PWM delivered by frame k, or None (hold the last one)."""
+        if self.down is None:
+            return pwm
+        self.down.push(k, (k, pwm))
+        newest = None
+        for tick, value in self.down.due(k):
+            if tick > self._down_last:
+                self._down_last, newest = tick, value
+        return newest
+
+    def uplink_raw(self, now: float, raw: bytes | None) -> list:
+        """Real time: push a datagram (if any) at wall time ``now``; the datagrams due now."""
+        if self.up is None:
+            return [] if raw is None else [raw]
+        if raw is not None:
+            self.up.push(now, raw)
+        return self.up.due(now)
+
+    def downlink(self, now: float, item=None) -> list:
+        """Real time: push a received servo message (if any); the ones delivered by ``now``."""
+        if self.down is None:
+            return [] if item is None else [item]
+        if item is not None:
+            self.down.push(now, item)
+        return self.down.due(now)
+
+    def next_due(self) -> float:
+        return min(self.up.next_due(), self.down.next_due()) if self.up is not None else math.inf
+
+    def stats(self) -> dict:
+        d = self.dist
+        out = {
+            "seed": d.seed,
+            "scales": self.scales.as_dict(),
+            "turbulence": None if d.atmosphere.turbulence is None else vars(d.atmosphere.turbulence),
+            "gusts": [vars(g) for g in d.atmosphere.gusts],
+            "crosswind": d.atmosphere.crosswind,
+            "sensors": vars(d.sensors),
+            "faults": vars(d.faults),
+        }
+        if self.up is not None:
+            out["injected"] = {"uplink": dict(self.up.counts), "downlink": dict(self.down.counts)}
+            if self.delay_frames is not None:
+                out["delay_frames"] = self.delay_frames
+        return out

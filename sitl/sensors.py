@@ -41,7 +41,7 @@ class SensorConfig:
             if not math.isfinite(getattr(self, name)):
                 raise SensorConfigError(f"{name} must be finite, got {getattr(self, name)!r}")
         if not (isinstance(self.delay, int) and self.delay >= 0):
-            raise SensorConfigError(f"delay must be a whole number of samples >= 0, got {self.delay!r}")
+            raise SensorConfigError(f"sensor delay must be a whole number of samples >= 0, got {self.delay!r}")
 
     @property
     def active(self) -> bool:

@@ -106,6 +106,24 @@ class FlightConfig:
     rrd: bool = True  # Rerun telemetry of the autopilot and the SITL, merged into DIR/flight.rrd
     series: bool = True  # per-step series in DIR/autopilot_series.npz and DIR/sitl_series.npz
     name: str | None = None  # run name in summary.json; default the controller
+    # Disturbances, passed to the SITL only (sitl.disturbances.FLAGS: text as on the command line, or parsed)
+    turbulence: str | None = None  # light | moderate | severe Dryden turbulence
+    turbulence_sigma: str | tuple | None = None  # "SV,SW" m/s
+    turbulence_length: str | tuple | None = None  # "LV,LW" m
+    altitude: float | None = None  # m, for the turbulence scales (default 10)
+    gust: str | tuple | None = None  # "AMP,LEN,START" (m/s, m, s) 1-cosine side gust, or a list of them
+    crosswind: float | None = None  # m/s
+    roll_noise: float | None = None  # deg
+    roll_bias: float | None = None  # deg
+    rate_noise: float | None = None  # deg/s
+    rate_bias: float | None = None  # deg/s
+    sensor_delay: int | None = None  # samples
+    loss: float | None = None  # link loss probability, each direction
+    delay: float | None = None  # link one-way delay, s (sim s in lockstep)
+    duplicate: float | None = None  # link duplication probability
+    reorder: float | None = None  # link reordering probability
+    scale: str | tuple | None = None  # "NAME=F" or "NAME=LO:HI" plant scale factor, or a list of them
+    seed: int | None = None  # seed of every disturbance (default 0)
     command: Profile = field(init=False, repr=False, compare=False)  # the profile the GCS flies
 
     def __post_init__(self) -> None:
@@ -183,6 +201,24 @@ class FlightConfig:
             except (OSError, ProfileError) as exc:
                 raise FlightConfigError("csv", f"csv: {exc}") from None
         put("command", command)
+        from sitl import disturbances
+
+        try:
+            values = disturbances.parse_values({k: getattr(self, k) for k in disturbances.FLAGS})
+            for k, v in values.items():
+                put(k, v)
+            disturbances.from_values(values)
+        except disturbances.DisturbanceValueError as exc:
+            raise FlightConfigError(exc.field, str(exc)) from None
+        except disturbances.ERRORS as exc:
+            raise FlightConfigError("disturbances", str(exc)) from None
+
+    @property
+    def disturbance_argv(self) -> list[str]:
+        """The SITL flags of the disturbances (empty for an ideal flight)."""
+        from sitl import disturbances
+
+        return disturbances.to_argv({k: getattr(self, k) for k in disturbances.FLAGS})
 
     @property
     def lv_value(self) -> float:
@@ -257,6 +293,7 @@ def child_argvs(
             str(out / "sitl.json"),
         ]
         + pwm
+        + cfg.disturbance_argv
     )
     ap = (
         py
@@ -434,6 +471,7 @@ def build_summary(
         "sim_time_s": sitl.get("sim_time_s") if sitl else None,
         "timing": ap.get("timing") if ap else None,
         "events": {"autopilot": ap.get("events") if ap else None, "sitl": sitl.get("events") if sitl else None},
+        "disturbances": sitl.get("disturbances") if sitl else None,  # what the SITL injected (sitl.disturbances)
         "counters": {
             "autopilot": ap.get("links") if ap else None,
             "sitl": sitl.get("link") if sitl else None,
