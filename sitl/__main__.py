@@ -30,6 +30,7 @@ from autopilot.shared.process import (
     write_json_atomic,
 )
 from autopilot.shared.telemetry.flags import add_arguments as add_telemetry_arguments
+from sitl import disturbances
 from sitl.telemetry import attach as attach_telemetry
 
 
@@ -110,6 +111,7 @@ def build_parser() -> OneLineArgumentParser:
         help="record the truth state after every frame / sensor message to this .npz at exit",
     )
     p.add_argument("--quiet", action="store_true", help="only the start line and the counters")
+    disturbances.add_arguments(p)
     add_telemetry_arguments(p)
     add_pwm_arguments(p)
     add_cpu_argument(p)
@@ -130,6 +132,13 @@ def main(argv=None) -> int:
     k0 = args.start_time * args.rate
     if args.lockstep and abs(k0 - round(k0)) > 1e-6:
         parser.error(f"--start-time ({args.start_time:g}) must be a whole number of frames at --rate {args.rate:g}")
+    dist = None
+    given = {k: v for k, v in vars(args).items() if k in disturbances.FLAGS and v is not None}
+    if set(given) - {"seed"}:
+        try:
+            dist = disturbances.from_values(given)
+        except disturbances.ERRORS as exc:
+            parser.error(str(exc))
     from sitl.endpoint import LockstepGiveUp, Sitl, SitlOptions, series_recorder
 
     opts = SitlOptions(
@@ -146,6 +155,7 @@ def main(argv=None) -> int:
         connect_timeout_s=args.connect_timeout,
         spin_s=args.spin_us * 1e-6,
         verbose=not args.quiet,
+        disturbances=dist,
     )
     try:
         sitl = Sitl(opts, pwm)

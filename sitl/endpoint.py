@@ -57,6 +57,7 @@ class SitlOptions:
     give_up_s: float = 10.0
     spin_s: float = 0.0  # lockstep: busy-poll this long for the servo answer before sleeping in select
     connect_timeout_s: float = 0.0  # lockstep: wait this long for the autopilot (0 = forever)
+    disturbances: object = None  # sitl.disturbances.Disturbances (air, sensors, link faults, plant); None = ideal
     verbose: bool = True
 
 
@@ -89,7 +90,17 @@ class Sitl:
         self.opts = opts
         self.pwm = pwm
         self.out = out or sys.stdout
-        self.aircraft = Aircraft(AircraftConfig(physics_rate_hz=opts.physics_rate_hz))
+        self.inj = None  # sitl.disturbances.Injector when opts.disturbances is given
+        params = None
+        if opts.disturbances is not None:
+            from sitl.disturbances import Injector
+
+            rate = opts.rate_hz if opts.lockstep else opts.sensor_rate_hz
+            self.inj = Injector(opts.disturbances, 1.0 / opts.physics_rate_hz, rate, opts.lockstep, opts.start_time_s)
+            params = self.inj.params()
+        self.aircraft = Aircraft(AircraftConfig(physics_rate_hz=opts.physics_rate_hz), params=params)
+        self._advance = self.aircraft.advance if self.inj is None else self._advance_disturbed
+        self._rt_faults = self.inj is not None and not opts.lockstep and self.inj.up is not None
         self.link = UdpLink(
             "autopilot",
             SITL_ID,
@@ -130,10 +141,42 @@ class Sitl:
 
     def _on_msg(self, msg, t_rx):
         if msg.get_msgId() == SERVO_OUTPUT_RAW:
+            if self._rt_faults:  # real-time link faults: delivered later by _deliver
+                self.inj.downlink(t_rx, (msg.time_usec, msg, t_rx))
+                return
             self._servos.append((msg.time_usec, msg, t_rx))
 
-    def _send_attitude(self, ms: int) -> bytes:
-        """ATTITUDE from the truth state: roll, pitch, yaw, rollspeed, pitchspeed, yawspeed (float32 on the wire)."""
+    def _advance_disturbed(self, u: float, n: int):
+        return self.inj.advance(self.aircraft, u, n)
+
+    def _deliver(self, now: float) -> None:
+        """Real-time link faults: send the ATTITUDE datagrams and take the servo messages that are due."""
+        for raw in self.inj.uplink_raw(now, None):
+            self.link.send_raw(raw, ATTITUDE)
+        for usec, msg, _t_rx in self.inj.downlink(now):
+            self._servos.append((usec, msg, now))
+
+    def _send_attitude_disturbed(self, ms: int, k: int | None) -> bytes:
+        """ATTITUDE with the sensor errors and the link faults of ``self.inj`` (see sitl.disturbances.Injector)."""
+        inj = self.inj
+        phi, p, r = inj.measure(self.aircraft.x)
+        if k is not None:  # lockstep: this frame carries the newest sample delivered, once per datagram arriving
+            (phi, p, r), n = inj.uplink_frame(k, (phi, p, r))
+            raw = self.link.pack_fast(self._pk_att, ms, phi, 0.0, 0.0, p, 0.0, r)
+            for _ in range(max(1, n)):
+                self.link.send_raw(raw, ATTITUDE)
+            return raw
+        raw = self.link.pack_fast(self._pk_att, ms, phi, 0.0, 0.0, p, 0.0, r)
+        for out in inj.uplink_raw(time.perf_counter(), raw):
+            self.link.send_raw(out, ATTITUDE)
+        return raw
+
+    def _send_attitude(self, ms: int, k: int | None = None) -> bytes:
+        """ATTITUDE from the truth state: roll, pitch, yaw, rollspeed, pitchspeed, yawspeed (float32 on the wire).
+
+        ``k``: the global frame index in lockstep (for the link faults)."""
+        if self.inj is not None:
+            return self._send_attitude_disturbed(ms, k)
         x = self.aircraft.x
         raw = self.link.pack_fast(self._pk_att, ms, float(x[3]), 0.0, 0.0, float(x[1]), 0.0, float(x[2]))
         self.link.send_raw(raw, ATTITUDE)
@@ -175,6 +218,8 @@ class Sitl:
                 flush=True,
             )
         ac = self.aircraft
+        advance = self._advance
+        inj = self.inj
         ev = self.events
         resend = opts.resend_timeout_s
         give_up = opts.give_up_s
@@ -186,7 +231,7 @@ class Sitl:
         while not self.stop_requested:
             if n_frames and self.frames >= n_frames:
                 # End-of-run frame: tells the autopilot the run is over (sent a few times, nobody answers).
-                raw = self._send_attitude(frame_ms(K, rate))
+                raw = self._send_attitude(frame_ms(K, rate), K)
                 self._run_hooks(rec)
                 rec = None
                 for _ in range(2):
@@ -194,7 +239,7 @@ class Sitl:
                     link.send_raw(raw, ATTITUDE)
                 self.exit_reason = "end of run (duration reached)"
                 break
-            raw = self._send_attitude(frame_ms(K, rate))
+            raw = self._send_attitude(frame_ms(K, rate), K)
             t_sent = perf()
             if rec is not None:
                 # Off the critical path: the autopilot is computing this frame's answer meanwhile.
@@ -239,9 +284,12 @@ class Sitl:
                     continue
                 pwm = self._servo_pwm(msg)
             ev["resends_frame"] = 0
+            if inj is not None:  # link faults: the newest command delivered by this frame, else hold
+                delivered = inj.downlink_frame(K, pwm)
+                pwm = self.pwm_applied if delivered is None else delivered
             self.pwm_applied = pwm
             self.u = u = self.pwm.to_rad(pwm)
-            ac.advance(u, nphys)
+            advance(u, nphys)
             K += 1
             self.frames += 1
             self.wall_last_frame = perf()
@@ -282,13 +330,15 @@ class Sitl:
         def catch_up(now):
             n = int((now - t0) * phys_rate) - ac.steps
             if n > 0:
-                ac.advance(self.u, n)
+                self._advance(self.u, n)
 
         while not self.stop_requested:
             now = perf()
-            rem = next_sensor - now
+            rem = (min(next_sensor, self.inj.next_due()) if self._rt_faults else next_sensor) - now
             if rem > 0:
                 self._wait(min(rem, 0.05))
+            if self._rt_faults:
+                self._deliver(perf())
             servos = self._servos
             while servos:
                 usec, msg, t_rx = servos.pop(0)
@@ -364,6 +414,7 @@ class Sitl:
             "events": {k: v for k, v in self.events.items() if k != "resends_frame"},
             "link": self.link.counters(),
             "exit_reason": self.exit_reason,
+            **({"disturbances": self.inj.stats()} if self.inj is not None else {}),
         }
 
     def close(self):

@@ -24,6 +24,7 @@ from autopilot.shared.cli import (
     rt_priority_arg,
 )
 from autopilot.shared.process import install_stop_handlers
+from sitl import disturbances
 from tools.flight import PROCESSES, PROFILES, Flight, FlightConfigError
 
 
@@ -159,6 +160,7 @@ def build_parser() -> OneLineArgumentParser:
     )
     g.add_argument("--no-rrd", dest="rrd", action="store_false", help="do not write DIR/flight.rrd")
     add_controller_arguments(p)
+    disturbances.add_arguments(p)
     return p
 
 
