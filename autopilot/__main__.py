@@ -17,12 +17,15 @@ from autopilot.shared.cli import (
     add_cpu_argument,
     add_pwm_arguments,
     add_rt_priority_argument,
+    clock_s,
+    duration_or_0,
     endpoint,
     fmt_endpoint,
+    limit_deg,
     nonneg_float,
-    positive_float,
     pwm_from_args,
     rate_hz,
+    timeout_s,
 )
 from autopilot.shared.link import ANY_COMPONENT
 from autopilot.shared.mavlink import GCS_ID
@@ -98,7 +101,7 @@ def build_parser() -> OneLineArgumentParser:
     p.add_argument("--name", default=None, help="run name in the stats (default: the controller)")
     p.add_argument(
         "--duration",
-        type=nonneg_float,
+        type=duration_or_0,
         default=0.0,
         metavar="S",
         help="stop after S s (lockstep: sim time from the first frame; real time: of control); 0 = run until stopped",
@@ -112,19 +115,19 @@ def build_parser() -> OneLineArgumentParser:
     )
     p.add_argument(
         "--attitude-timeout",
-        type=positive_float,
+        type=timeout_s,
         default=0.1,
         metavar="S",
         help="real time: failsafe after S s without attitude (default 0.1)",
     )
     p.add_argument(
         "--setpoint-timeout",
-        type=positive_float,
+        type=timeout_s,
         default=1.0,
         metavar="S",
         help="real time: wings level after S s without setpoint (default 1.0)",
     )
-    p.add_argument("--max-roll-deg", type=positive_float, default=45.0, help="setpoint clamp (default 45)")
+    p.add_argument("--max-roll-deg", type=limit_deg, default=45.0, help="setpoint clamp (default 45)")
     p.add_argument(
         "--spin-us",
         type=nonneg_float,
@@ -150,7 +153,7 @@ def build_parser() -> OneLineArgumentParser:
     )
     p.add_argument(
         "--lockstep-idle-exit",
-        type=nonneg_float,
+        type=clock_s,
         default=0.0,
         metavar="S",
         help="lockstep: exit if the SITL is silent for S s after the last frame (default 0 = never)",

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import argparse
 
-from autopilot.shared.cli import nonneg_float, positive_float
+from autopilot.shared.cli import gain, limit_deg
 
 CONTROLLERS = ("sac", "clsac", "baseline")  # baseline: the fixed-gain PID of autopilot.baseline
 PFC_CHOICES = ("paper", "robust")  # the keys of autopilot.config.PFC_PRESETS (spelled out: --help needs no numpy)
@@ -27,7 +27,7 @@ def add_controller_arguments(parser: argparse.ArgumentParser) -> None:
     )
     g.add_argument(
         "--lv",
-        type=nonneg_float,
+        type=gain,
         default=None,
         help="override the closed-loop reference gain Lv (default: 0 for sac, 20 for clsac)",
     )
@@ -39,9 +39,9 @@ def add_controller_arguments(parser: argparse.ArgumentParser) -> None:
     )
     g.add_argument(
         "--sigma-xu",
-        type=nonneg_float,
+        type=gain,
         default=0.0,
         metavar="SIGMA",
         help="sigma-modification of K_Ix and K_Iu (default 0, the paper; 0.1 keeps long flights bounded)",
     )
-    g.add_argument("--u-limit-deg", type=positive_float, default=30.0, help="rudder command limit (default 30)")
+    g.add_argument("--u-limit-deg", type=limit_deg, default=30.0, help="rudder command limit (default 30)")

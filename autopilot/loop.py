@@ -33,7 +33,7 @@ from dataclasses import dataclass, field
 
 from autopilot.clsac import ClSac
 from autopilot.config import ClSacConfig
-from autopilot.shared.events import StatusEvents
+from autopilot.shared.events import StatusEvents, printable
 from autopilot.shared.link import ANY_COMPONENT, UdpLink
 from autopilot.shared.mavlink import (
     AUTOPILOT_ID,
@@ -63,6 +63,8 @@ _TELEMETRY_IDS = (ATTITUDE, M.MAVLINK_MSG_ID_ATTITUDE_TARGET, SERVO_OUTPUT_RAW)
 # Real time: the last stretch before a deadline is a pure spin (no syscalls), so an input handled while
 # spinning cannot make the step late.
 _SPIN_TIGHT_S = 50e-6
+SITL_RESTART_MS = 1000  # real time: an ATTITUDE this far behind the one held is a restarted SITL's clock
+ATTITUDE_AHEAD_MS = 50.0  # real time: an ATTITUDE this far ahead of the held one's clock is rejected
 TIMING_SAMPLES_MAX = 2_000_000  # per-step timing samples kept for percentiles (about 1.4 h at 400 Hz)
 
 
@@ -77,6 +79,7 @@ class AutopilotOptions:
     attitude_timeout_s: float = 0.1
     setpoint_timeout_s: float = 1.0
     max_roll_rad: float = math.radians(45.0)
+    setpoint_ahead_s: float = 10.0  # a SET_ATTITUDE_TARGET scheduled further ahead of sim time is rejected
     pace: bool = True  # lockstep: wait for the GCS schedule horizon
     spin_s: float = 0.0003  # real time: busy-wait (serving the links) this long before each deadline; inf = never sleep
     sitl: tuple = ("127.0.0.1", 14560)
@@ -271,23 +274,25 @@ class Autopilot:
             if not -3.1416 <= roll <= 3.1416:
                 self.sitl.reject("roll_out_of_range")
                 return
-            att = self.att
-            if (
-                not self.opts.lockstep
-                and att.valid
-                and msg.time_boot_ms <= att.ms
-                and t_rx - att.t_rx < self.opts.attitude_timeout_s
-            ):
-                # Out of order or repeated while fresh data flows: keep the newest.  (After a loss anything
-                # goes, so a restarted SITL whose clock went back is taken at once.)
-                self.sitl.reject("stale_attitude")
-                return
-            att.ms, att.roll, att.p, att.r, att.t_rx, att.valid = msg.time_boot_ms, roll, p, r, t_rx, True
+            ms = msg.time_boot_ms
             if self.opts.lockstep:
-                self._on_frame(msg.time_boot_ms, t_rx)
+                self._on_frame(ms, t_rx, roll, p, r)
+                return
+            att = self.att
+            if att.valid and t_rx - att.t_rx < self.opts.attitude_timeout_s:
+                # Checked against the clock of the attitude held, which runs with the wall clock in real time.
+                # (After attitude_timeout without one anything goes: the clock is re-synchronised.)
+                if ms <= att.ms:
+                    if att.ms - ms < SITL_RESTART_MS:
+                        self.sitl.reject("stale_attitude")  # out of order or repeated: keep the newest
+                        return
+                    self.events["sitl_clock_restarts"] += 1  # went back by over a second: a new SITL, re-sync
+                elif ms - att.ms > (t_rx - att.t_rx) * 1e3 + ATTITUDE_AHEAD_MS:
+                    self.sitl.reject("future_attitude")  # ahead of the clock by more than a few periods
+                    return
+            att.ms, att.roll, att.p, att.r, att.t_rx, att.valid = ms, roll, p, r, t_rx, True
         elif mid == STATUSTEXT:
-            text = msg.text if isinstance(msg.text, str) else msg.text.decode("utf-8", "replace")
-            self._event(msg.severity, f"SITL: {text}")
+            self._event(msg.severity, f"SITL: {printable(msg.text)}")
 
     def _on_gcs(self, msg, t_rx):
         if msg.get_msgId() != SET_ATTITUDE_TARGET:
@@ -303,9 +308,21 @@ class Autopilot:
         if roll - roll != 0.0 or not all(math.isfinite(v) for v in msg.q):
             self.gcs.reject("nonfinite_setpoint")
             return
+        ms = msg.time_boot_ms
+        now_us = self._now_sim_us()
+        t_us = (now_us or 0.0) if ms == 0 else ms * 1000.0  # 0 means now
+        if ms and (now_us is None or t_us > now_us + self.opts.setpoint_ahead_s * 1e6):
+            # scheduled further ahead of the current sim time than any schedule needs (or before there is a
+            # clock): it could only fill the queue
+            self.gcs.reject("future_setpoint")
+            return
         lim = self.opts.max_roll_rad
-        if roll > lim or roll < -lim:
-            clamped = math.copysign(lim, roll)
+        clamped = math.copysign(lim, roll) if (roll > lim or roll < -lim) else None
+        if not self.setpoints.push(t_us, roll if clamped is None else clamped):
+            self.gcs.reject("setpoint_queue_full")
+            return
+        # accepted: only now does it count (and reset the setpoint timeout)
+        if clamped is not None:
             ev["setpoints_clamped"] += 1
             if t_rx - self._last_clamp_report > 1.0:
                 self._last_clamp_report = t_rx
@@ -313,29 +330,22 @@ class Autopilot:
                     M.MAV_SEVERITY_WARNING,
                     f"setpoint {math.degrees(roll):.1f} deg clamped to {math.degrees(clamped):.0f}",
                 )
-            roll = clamped
         ev["setpoints"] += 1
         self.last_setpoint_wall = t_rx
-        ms = msg.time_boot_ms
         if ms == 0:
-            t_us = self._now_sim_us()  # 0 means now
             ev["setpoints_now"] += 1
-        else:
-            t_us = ms * 1000.0
-            if t_us > self.horizon_us:
-                self.horizon_us = t_us
-        if not self.setpoints.push(t_us, roll):
-            self.gcs.reject("setpoint_queue_full")
-            return
+        elif t_us > self.horizon_us:
+            self.horizon_us = t_us
         if self.opts.lockstep and self.pending_frame is not None:
             self._try_step(t_rx)
 
-    def _now_sim_us(self) -> float:
+    def _now_sim_us(self) -> float | None:
+        """The current sim time in us (None before the first attitude)."""
         if self.opts.lockstep and self.pending_frame is not None:
             return self.pending_frame * 1e6 / self.rate
         if self.last_frame is not None and self.opts.lockstep:
             return self.last_frame * 1e6 / self.rate
-        return self.att.ms * 1000.0 if self.att.valid else 0.0
+        return self.att.ms * 1000.0 if self.att.valid else None
 
     # ================================================================ outputs
     def _servo_wire(self, time_usec: int, pwm: int) -> tuple:
@@ -388,28 +398,28 @@ class Autopilot:
         self.gcs.poll(self._gcs_handler)
 
     # =============================================================== lockstep
-    def _on_frame(self, ms: int, t_rx: float):
+    def _on_frame(self, ms: int, t_rx: float, roll: float, p: float, r: float):
+        """One lockstep frame.  The SITL sends frames one after the other, so only the next one is taken: one
+        late, repeated or forged frame index can neither skip frames nor end the run."""
         k = frame_from_ms(ms, self.rate)
         last = self.last_frame
-        if last is not None:
-            if k == last:
-                # Duplicate of the frame we answered (our answer was lost or late): resend it, do not step.
-                self.events["duplicate_frames"] += 1
-                self.sitl.send_raw(self._last_answer, SERVO_OUTPUT_RAW)
-                return
-            if k < last:
-                self.events["stale_frames"] += 1
-                return
-        if self.pending_frame is not None:
-            if k == self.pending_frame:
-                self.events["duplicate_pending_frames"] += 1
-                return
-            if k < self.pending_frame:
-                self.events["stale_frames"] += 1
-                return
-            self.events["superseded_frames"] += 1  # a newer frame replaces one never answered
+        pending = self.pending_frame
+        if last is not None and k == last:
+            # Duplicate of the frame we answered (our answer was lost or late): resend it, do not step.
+            self.events["duplicate_frames"] += 1
+            self.sitl.send_raw(self._last_answer, SERVO_OUTPUT_RAW)
+            return
+        if pending is not None and k == pending:
+            self.events["duplicate_pending_frames"] += 1
+            return
+        expected = pending if pending is not None else (None if last is None else last + 1)
+        if expected is not None and k != expected:
+            self.sitl.reject("stale_frame" if k < expected else "future_frame")
+            return
         if self.first_frame is None:
             self.first_frame = k
+        att = self.att
+        att.ms, att.roll, att.p, att.r, att.t_rx, att.valid = ms, roll, p, r, t_rx, True
         self.pending_frame = k
         self.pending_t_rx = t_rx
         self._try_step(t_rx)
@@ -418,8 +428,9 @@ class Autopilot:
         k = self.pending_frame
         t_us = k * 1e6 / self.rate
         opts = self.opts
-        if opts.duration_s > 0 and k - self.first_frame >= round(opts.duration_s * self.rate):
-            # The SITL's end-of-run frame (t = t0 + duration): not a control step.
+        if opts.duration_s > 0 and self.steps >= round(opts.duration_s * self.rate):
+            # The frame after the last step is the SITL's end-of-run frame (t = t0 + duration): not a control
+            # step.  The run ends by the count of frames flown, never by one frame's index.
             self.pending_frame = None
             self.finished = True
             return

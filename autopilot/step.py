@@ -68,11 +68,12 @@ class SetpointQueue:
     point is due at ``t`` when its time is at most ``t`` (to 1 ns).  Until the first point, the command is 0.
     """
 
-    __slots__ = ("_q", "_seq", "current", "limit")
+    __slots__ = ("_q", "_seq", "current", "limit", "evicted")
 
     def __init__(self, limit: int = 100_000):
         self._q: list = []  # sorted (t_us, seq, roll)
         self._seq = 0
+        self.evicted = 0
         self.current = 0.0
         self.limit = limit
 
@@ -80,10 +81,15 @@ class SetpointQueue:
         return len(self._q)
 
     def push(self, t_us: float, roll: float) -> bool:
-        """Schedule ``roll`` (rad) at ``t_us``; False (nothing queued) when ``limit`` points are waiting."""
+        """Schedule ``roll`` (rad) at ``t_us``.  When ``limit`` points are waiting, the one furthest in the future
+        makes room for an earlier one (counted in ``evicted``); False (nothing queued) if the new point would
+        itself be the furthest.  A point due sooner (a "now" point above all) therefore always gets in."""
         q = self._q
         if len(q) >= self.limit:
-            return False
+            if not q or (t_us, self._seq + 1) >= q[-1][:2]:
+                return False
+            q.pop()
+            self.evicted += 1
         self._seq += 1
         item = (t_us, self._seq, roll)
         if not q or item >= q[-1]:

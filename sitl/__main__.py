@@ -14,13 +14,17 @@ from autopilot.shared.cli import (
     add_cpu_argument,
     add_pwm_arguments,
     add_rt_priority_argument,
+    clock_s,
     default_physics_rate,
+    duration_or_0,
     endpoint,
     fmt_endpoint,
     nonneg_float,
-    positive_float,
+    physics_rate_hz,
     pwm_from_args,
     rate_hz,
+    sensor_rate_hz,
+    timeout_s,
 )
 from autopilot.shared.process import (
     apply_cpu,
@@ -49,48 +53,48 @@ def build_parser() -> OneLineArgumentParser:
     )
     p.add_argument(
         "--physics-rate",
-        type=positive_float,
+        type=physics_rate_hz,
         default=None,
         metavar="HZ",
         help="physics rate (default: the smallest whole multiple of --rate >= 1000, i.e. 1000 at 100 Hz)",
     )
     p.add_argument(
-        "--sensor-rate", type=positive_float, default=200.0, metavar="HZ", help="real time: ATTITUDE rate (default 200)"
+        "--sensor-rate", type=sensor_rate_hz, default=200.0, metavar="HZ", help="real time: ATTITUDE rate (default 200)"
     )
     p.add_argument(
-        "--duration", type=nonneg_float, default=0.0, metavar="S", help="sim seconds to run (0 = until stopped)"
+        "--duration", type=duration_or_0, default=0.0, metavar="S", help="sim seconds to run (0 = until stopped)"
     )
     p.add_argument(
         "--start-time",
-        type=nonneg_float,
+        type=clock_s,
         default=0.0,
         metavar="S",
         help="initial sim clock, e.g. 4290 to cross the 71.6-min time_usec wrap soon (default 0)",
     )
     p.add_argument(
         "--servo-timeout",
-        type=positive_float,
+        type=timeout_s,
         default=0.5,
         metavar="S",
         help="real time: rudder neutral after S s without servo command (default 0.5)",
     )
     p.add_argument(
         "--resend-timeout",
-        type=positive_float,
+        type=timeout_s,
         default=0.25,
         metavar="S",
         help="lockstep: resend the frame's ATTITUDE after S s without answer (default 0.25)",
     )
     p.add_argument(
         "--give-up",
-        type=positive_float,
+        type=timeout_s,
         default=10.0,
         metavar="S",
         help="lockstep: exit with an error after S s without answer (default 10)",
     )
     p.add_argument(
         "--connect-timeout",
-        type=nonneg_float,
+        type=clock_s,
         default=0.0,
         metavar="S",
         help="lockstep: exit with an error if no autopilot shows up within S s (default 0 = wait)",

@@ -29,6 +29,7 @@ from dataclasses import dataclass
 from autopilot.shared.events import StatusEvents
 from autopilot.shared.link import UdpLink
 from autopilot.shared.mavlink import AUTOPILOT_ID, SITL_ID, frame_ms, frame_usec, mavlink, usec_diff
+from autopilot.shared.numerics import wrap_pi
 from autopilot.shared.pwm import PWM_VALID_RANGE, PwmMap
 from autopilot.shared.series import SeriesRecorder
 from sitl.aircraft import Aircraft, AircraftConfig
@@ -37,6 +38,9 @@ M = mavlink
 ATTITUDE = M.MAVLINK_MSG_ID_ATTITUDE
 HEARTBEAT = M.MAVLINK_MSG_ID_HEARTBEAT
 SERVO_OUTPUT_RAW = M.MAVLINK_MSG_ID_SERVO_OUTPUT_RAW
+
+
+SERVO_AHEAD_US = 50_000  # real time: a servo stamp this far ahead of the clock of the one held is rejected
 
 
 class LockstepGiveUp(RuntimeError):
@@ -141,6 +145,8 @@ class Sitl:
 
     def _on_msg(self, msg, t_rx):
         if msg.get_msgId() == SERVO_OUTPUT_RAW:
+            if self._servo_pwm(msg) is None:  # rejected (bad_pwm) while the link is handling it
+                return
             if self._rt_faults:  # real-time link faults: delivered later by _deliver
                 self.inj.downlink(t_rx, (msg.time_usec, msg, t_rx))
                 return
@@ -178,7 +184,8 @@ class Sitl:
         if self.inj is not None:
             return self._send_attitude_disturbed(ms, k)
         x = self.aircraft.x
-        raw = self.link.pack_fast(self._pk_att, ms, float(x[3]), 0.0, 0.0, float(x[1]), 0.0, float(x[2]))
+        # roll wrapped to (-pi, pi] where it is measured, as a real attitude sensor reports it
+        raw = self.link.pack_fast(self._pk_att, ms, wrap_pi(float(x[3])), 0.0, 0.0, float(x[1]), 0.0, float(x[2]))
         self.link.send_raw(raw, ATTITUDE)
         return raw
 
@@ -250,7 +257,7 @@ class Sitl:
             t_give_up = t_sent + give_up
             pwm = None
             servos = self._servos
-            while pwm is None:
+            while pwm is None and not self.stop_requested:
                 if not servos:
                     now = perf()
                     if now >= t_give_up:
@@ -283,6 +290,8 @@ class Sitl:
                     ev["stale_servo" if d < 0 else "unexpected_servo"] += 1
                     continue
                 pwm = self._servo_pwm(msg)
+            if pwm is None:  # stopped by a signal while waiting for the answer
+                break
             ev["resends_frame"] = 0
             if inj is not None:  # link faults: the newest command delivered by this frame, else hold
                 delivered = inj.downlink_frame(K, pwm)
@@ -342,8 +351,11 @@ class Sitl:
             servos = self._servos
             while servos:
                 usec, msg, t_rx = servos.pop(0)
-                if last_usec is not None and not timed_out and usec_diff(usec, last_usec) <= 0:
+                d = None if last_usec is None or timed_out else usec_diff(usec, last_usec)
+                if d is not None and d <= 0:
                     ev["stale_servo"] += 1
+                elif d is not None and d > (t_rx - last_servo_wall) * 1e6 + SERVO_AHEAD_US:
+                    ev["future_servo"] += 1  # ahead of the autopilot's clock as we hold it: never "newest"
                 else:
                     pwm = self._servo_pwm(msg)
                     if pwm is not None:

@@ -26,12 +26,15 @@ from dataclasses import dataclass, fields
 from autopilot.shared.cli import (
     OneLineArgumentParser,
     add_cpu_argument,
+    angle_deg,
+    clock_s,
+    duration_or_0,
     endpoint,
-    finite_float,
     fmt_endpoint,
-    nonneg_float,
     positive_float,
+    timeout_s,
 )
+from autopilot.shared.events import printable
 from autopilot.shared.link import UdpLink, format_counters
 from autopilot.shared.mavlink import (
     AUTOPILOT_ID,
@@ -45,6 +48,8 @@ from autopilot.shared.process import apply_cpu, exit_code_for, install_stop_hand
 from tools.profiles import Profile
 
 M = mavlink
+CLOCK_RESTART_MS = 1000  # the vehicle's sim time this far behind the one held: its clock restarted
+CLOCK_AHEAD_MS = 1000  # the bound on a sim time ahead of the clock held (see Gcs._sim)
 
 
 @dataclass(frozen=True)
@@ -95,6 +100,8 @@ class Gcs:
         self.points_sent = 0
         self.statustexts = []
         self.last_vehicle_rx = None
+        self._sim_rx = 0.0  # perf_counter when sim_ms was taken
+        self.clock_restarts = 0
 
     def _on_msg(self, msg, t_rx):
         mid = msg.get_msgId()
@@ -113,22 +120,45 @@ class Gcs:
             if msg.system_status == M.MAV_STATE_POWEROFF:
                 self.powered_off = True
         elif mid == M.MAVLINK_MSG_ID_ATTITUDE:
-            self.roll = msg.roll
-            self._sim(msg.time_boot_ms)
+            if self._sim(msg.time_boot_ms, t_rx):
+                self.roll = msg.roll
         elif mid == M.MAVLINK_MSG_ID_ATTITUDE_TARGET:
             self.target = quaternion_to_roll(msg.q)
         elif mid == M.MAVLINK_MSG_ID_SYSTEM_TIME:
-            self._sim(msg.time_boot_ms)
+            self._sim(msg.time_boot_ms, t_rx)
         elif mid == M.MAVLINK_MSG_ID_STATUSTEXT:
-            text = msg.text if isinstance(msg.text, str) else msg.text.decode("utf-8", "replace")
+            text = printable(msg.text)  # escape codes and newlines from a peer never reach the terminal raw
             self.statustexts.append(text)
             print(f"gcs: vehicle says: {text}", file=self.out, flush=True)
 
-    def _sim(self, ms: int):
-        if self.sim_ms is None or ms > self.sim_ms:
-            self.sim_ms = ms
+    def _sim(self, ms: int, t_rx: float) -> bool:
+        """Take the vehicle's sim time ``ms`` if it fits the clock held; False (rejected, counted) if not.
+
+        Checked against the current clock, with bounds: older by less than a second = out of order (ignored);
+        older by more = the clock restarted (a new SITL): the profile origin moves with it, so the profile
+        continues where it was instead of freezing; ahead by more than the bound (real time: the wall time since
+        plus 0.5 s; lockstep: past the schedule sent plus a second) = rejected, never "newest"."""
         if self.origin_ms is None:
             self.origin_ms = ms
+        held = self.sim_ms
+        if held is not None:
+            if ms < held:
+                if held - ms < CLOCK_RESTART_MS:
+                    self.link.reject("stale_time")
+                    return False
+                self.origin_ms += ms - held  # restart: profile time (sim - origin) goes on from where it was
+                self.clock_restarts += 1
+                print(f"gcs: the vehicle's clock went back {held - ms} ms: restarted, re-synchronised", file=self.out)
+            elif self.opts.lockstep:
+                if ms > self.origin_ms + self.next_point_rel_ms + CLOCK_AHEAD_MS:
+                    self.link.reject("future_time")
+                    return False
+            elif ms - held > (t_rx - self._sim_rx) * 1e3 + CLOCK_AHEAD_MS / 2:
+                self.link.reject("future_time")
+                return False
+        self.sim_ms = ms
+        self._sim_rx = t_rx
+        return True
 
     def _heartbeat(self):
         self.link.send(
@@ -243,6 +273,7 @@ class Gcs:
             "points_sent": self.points_sent,
             "origin_ms": self.origin_ms,
             "sim_ms": self.sim_ms,
+            "clock_restarts": self.clock_restarts,
             "statustexts": self.statustexts[-50:],
             "link": self.link.counters(),
         }
@@ -261,12 +292,12 @@ def build_parser() -> OneLineArgumentParser:
         "profile", nargs="?", choices=("square", "step", "sine"), default="square", help="roll profile (default square)"
     )
     p.add_argument("--csv", default=None, metavar="FILE", help="fly a CSV profile: rows 'time_s, roll_deg'")
-    p.add_argument("--amplitude", type=finite_float, default=10.0, metavar="DEG", help="amplitude (default 10)")
-    p.add_argument("--period", type=positive_float, default=10.0, metavar="S", help="square/sine period (default 10)")
-    p.add_argument("--step-time", type=nonneg_float, default=1.0, metavar="S", help="step: switch time (default 1)")
+    p.add_argument("--amplitude", type=angle_deg, default=10.0, metavar="DEG", help="amplitude (default 10)")
+    p.add_argument("--period", type=timeout_s, default=10.0, metavar="S", help="square/sine period (default 10)")
+    p.add_argument("--step-time", type=clock_s, default=1.0, metavar="S", help="step: switch time (default 1)")
     p.add_argument(
         "--duration",
-        type=nonneg_float,
+        type=duration_or_0,
         default=0.0,
         metavar="S",
         help="profile length in sim seconds (0 = until the vehicle powers off)",
@@ -274,14 +305,14 @@ def build_parser() -> OneLineArgumentParser:
     p.add_argument("--lockstep", action="store_true", help="schedule the profile on sim time (deterministic runs)")
     p.add_argument(
         "--start-time",
-        type=nonneg_float,
+        type=clock_s,
         default=None,
         metavar="S",
         help="sim time of profile start (default: the first sim time seen)",
     )
     p.add_argument(
         "--lookahead",
-        type=positive_float,
+        type=timeout_s,
         default=1.0,
         metavar="S",
         help="lockstep: schedule this far ahead of the newest sim time seen (default 1)",
@@ -303,14 +334,14 @@ def build_parser() -> OneLineArgumentParser:
     p.add_argument("--print-rate", type=positive_float, default=2.0, metavar="HZ", help="live line rate (default 2)")
     p.add_argument(
         "--wait-timeout",
-        type=nonneg_float,
+        type=clock_s,
         default=60.0,
         metavar="S",
         help="give up if no vehicle HEARTBEAT within S s (default 60, 0 = wait forever)",
     )
     p.add_argument(
         "--vehicle-timeout",
-        type=positive_float,
+        type=timeout_s,
         default=5.0,
         metavar="S",
         help="error if the vehicle goes silent for S s (default 5)",

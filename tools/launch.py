@@ -17,11 +17,15 @@ from pathlib import Path
 from autopilot.flags import add_controller_arguments
 from autopilot.shared.cli import (
     OneLineArgumentParser,
-    finite_float,
+    angle_deg,
+    clock_s,
+    duration_s,
     nonneg_float,
-    positive_float,
+    physics_rate_hz,
     rate_hz,
     rt_priority_arg,
+    sensor_rate_hz,
+    timeout_s,
 )
 from autopilot.shared.process import install_stop_handlers
 from sitl import disturbances
@@ -87,18 +91,18 @@ def build_parser() -> OneLineArgumentParser:
         "--lockstep", action="store_true", help="SITL as time master, as fast as possible (default: real time)"
     )
     p.add_argument(
-        "--duration", type=positive_float, default=30.0, metavar="S", help="flight length in sim seconds (default 30)"
+        "--duration", type=duration_s, default=30.0, metavar="S", help="flight length in sim seconds (default 30)"
     )
     p.add_argument("--rate", type=rate_hz, default=100.0, metavar="HZ", help="control rate (default 100)")
     p.add_argument(
         "--physics-rate",
-        type=positive_float,
+        type=physics_rate_hz,
         default=None,
         metavar="HZ",
         help="default: the smallest whole multiple of --rate >= 1000 Hz (1000 at 100 Hz, 1200 at 400 Hz)",
     )
     p.add_argument(
-        "--sensor-rate", type=positive_float, default=200.0, metavar="HZ", help="real time ATTITUDE rate (default 200)"
+        "--sensor-rate", type=sensor_rate_hz, default=200.0, metavar="HZ", help="real time ATTITUDE rate (default 200)"
     )
     p.add_argument(
         "--telemetry-rate",
@@ -117,13 +121,13 @@ def build_parser() -> OneLineArgumentParser:
         metavar="PORT",
         help="SITL on PORT, GCS on PORT+1 (default: free ports chosen automatically)",
     )
-    p.add_argument("--start-time", type=nonneg_float, default=0.0, metavar="S", help="initial sim clock (default 0)")
+    p.add_argument("--start-time", type=clock_s, default=0.0, metavar="S", help="initial sim clock (default 0)")
     p.add_argument("profile", nargs="?", choices=PROFILES, default="square", help="GCS roll profile")
     p.add_argument("--csv", default=None, metavar="FILE", help="GCS profile from a CSV file (time s, roll deg)")
-    p.add_argument("--amplitude", type=finite_float, default=10.0, metavar="DEG", help="profile amplitude (default 10)")
-    p.add_argument("--period", type=positive_float, default=10.0, metavar="S", help="profile period (default 10)")
+    p.add_argument("--amplitude", type=angle_deg, default=10.0, metavar="DEG", help="profile amplitude (default 10)")
+    p.add_argument("--period", type=timeout_s, default=10.0, metavar="S", help="profile period (default 10)")
     p.add_argument(
-        "--timeout", type=positive_float, default=None, metavar="S", help="wall-clock limit of the whole flight"
+        "--timeout", type=timeout_s, default=None, metavar="S", help="wall-clock limit of the whole flight"
     )
     p.add_argument(
         "--rt-priority",

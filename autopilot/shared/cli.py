@@ -74,6 +74,38 @@ def rate_hz(text: str) -> float:
     return v
 
 
+def bounded(lo: float, hi: float, unit: str, *, lo_open: bool = False, name: str = "bounded"):
+    """An argument type: a finite number in [lo, hi] (``lo_open``: (lo, hi]); the error gives the allowed range.
+
+    For values that parse but cannot be flown: a duration or a clock beyond a day of sim time, a rate the
+    process cannot keep, a gain that overflows the law."""
+    lo_txt = f"{'(' if lo_open else '['}{lo:g}, {hi:g}] {unit}".rstrip()
+
+    def check(text) -> float:
+        v = _number(text)
+        if not (math.isfinite(v) and (v > lo if lo_open else v >= lo) and v <= hi):
+            raise argparse.ArgumentTypeError(f"must be in {lo_txt}, got {text!r}")
+        return v
+
+    check.__name__ = name
+    return check
+
+
+MAX_SIM_S = 86_400.0  # one day of sim time: the longest flight and the latest start clock
+MAX_PHYSICS_RATE_HZ = 100_000.0
+MAX_SENSOR_RATE_HZ = 1_000.0
+MAX_GAIN = 10_000.0  # L_v, sigma: beyond this the discretised law is meaningless at any control rate
+duration_s = bounded(0.0, MAX_SIM_S, "s", lo_open=True, name="duration_s")  # a flight's length
+duration_or_0 = bounded(0.0, MAX_SIM_S, "s (0 = until stopped)", name="duration_or_0")
+clock_s = bounded(0.0, MAX_SIM_S, "s", name="clock_s")  # a start clock
+timeout_s = bounded(0.0, MAX_SIM_S, "s", lo_open=True, name="timeout_s")
+physics_rate_hz = bounded(0.0, MAX_PHYSICS_RATE_HZ, "Hz", lo_open=True, name="physics_rate_hz")
+sensor_rate_hz = bounded(0.0, MAX_SENSOR_RATE_HZ, "Hz", lo_open=True, name="sensor_rate_hz")
+gain = bounded(0.0, MAX_GAIN, "", name="gain")
+angle_deg = bounded(-180.0, 180.0, "deg", name="angle_deg")
+limit_deg = bounded(0.0, 90.0, "deg", lo_open=True, name="limit_deg")
+
+
 def rt_priority_arg(text: str) -> int:
     try:
         v = int(text)

@@ -10,6 +10,17 @@ from autopilot.shared.mavlink import mavlink
 STATUSTEXT_LEN = 50  # STATUSTEXT.text is char[50]
 
 
+def printable(text) -> str:
+    """A peer's text (STATUSTEXT, bytes or str) made safe to log, print and forward: every control or
+    non-printable character (escape codes, newlines, NUL) becomes ``\\xNN`` / ``\\uNNNN``, at most 200 characters."""
+    if isinstance(text, (bytes, bytearray)):
+        text = bytes(text).split(b"\0", 1)[0].decode("utf-8", "replace")
+    text = str(text)[:200]
+    if text.isprintable():
+        return text
+    return "".join(c if c.isprintable() else ascii(c)[1:-1] for c in text)
+
+
 class StatusEvents:
     """``events(severity, text)``: one status event of process ``who``.
 

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 from scipy.linalg import expm
 
@@ -20,3 +22,9 @@ def zoh(a: np.ndarray, b: np.ndarray, dt: float) -> tuple[np.ndarray, np.ndarray
     block[:n, n:] = b
     phi = expm(block * dt)
     return phi[:n, :n].copy(), phi[:n, n:].copy()
+
+
+def wrap_pi(angle: float) -> float:
+    """``angle`` (rad) wrapped to (-pi, pi]: a roll angle as a sensor reports it (ATTITUDE.roll)."""
+    a = math.remainder(angle, math.tau)  # in [-pi, pi]
+    return math.pi if a == -math.pi else a
