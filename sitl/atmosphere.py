@@ -12,9 +12,10 @@ rad/s is Phi(omega) = |H(j omega)|^2 / pi, the MIL-F-8785C spectrum, and sigma^2
              sigma_p^2 = 0.8 sigma_w^2 (pi L_w/(4b))^(1/3) pi^2 / (8 b L_w)   (the integral of Phi_p)
     H_r(s) = (s/V) / (1 + 3b s/(pi V)) * H_v(s)        (r_g = dv_g/dx, driven by the same noise as v_g)
 
-The filters are discretised exactly (Van Loan): x[k+1] = A_d x[k] + e[k], e[k] ~ N(0, Q_d) with
-Q_d = int_0^h e^{A s} B B^T e^{A^T s} ds, and the state starts in the stationary distribution, so every
-sample has exactly the continuous-time variance whatever the step h.
+The filters are discretised exactly: x[k+1] = A_d x[k] + e[k], e[k] ~ N(0, Q_d) with
+Q_d = int_0^h e^{A s} B B^T e^{A^T s} ds = P - A_d P A_d^T (P the stationary covariance), and the state
+starts in the stationary distribution, so every sample has exactly the continuous-time variance whatever
+the step h.
 
 Assumptions (docs/design.md, "Atmosphere, sensors, link faults, uncertainty"): airspeed V = |(U0, W0)|
 from A_lp's v row (r coefficient -7.55 ~ -U0, p coefficient 1.93 ~ W0), 7.79 m/s; wing span b = 0.15 m;
@@ -130,17 +131,18 @@ class DrydenConfig:
         return np.vstack([hv2, hp2, hr2]) / math.pi
 
 
-def noise_zoh(a: np.ndarray, b: np.ndarray, dt: float) -> tuple[np.ndarray, np.ndarray]:
-    """Exact discretisation of x' = A x + B w, w unit-intensity white noise: (A_d, Q_d) (Van Loan, 1978)."""
-    n = a.shape[0]
-    block = np.zeros((2 * n, 2 * n))
-    block[:n, :n] = -a
-    block[:n, n:] = b @ b.T
-    block[n:, n:] = a.T
-    f = expm(block * dt)
-    ad = f[n:, n:].T
-    qd = ad @ f[:n, n:]
-    return ad, (qd + qd.T) / 2
+def noise_zoh(a: np.ndarray, b: np.ndarray, dt: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Exact discretisation of x' = A x + B w (A stable, w unit-intensity white noise): (A_d, Q_d, P).
+
+    Q_d = int_0^dt e^{As} B B^T e^{A^T s} ds = P - A_d P A_d^T with P the stationary covariance
+    (A P + P A^T + B B^T = 0); unlike Van Loan's block exponential this keeps its precision when dt is
+    many time constants long.
+    """
+    ad = expm(a * dt)
+    p = solve_continuous_lyapunov(a, -b @ b.T)
+    p = (p + p.T) / 2
+    qd = p - ad @ p @ ad.T
+    return ad, (qd + qd.T) / 2, p
 
 
 def _sqrtm_psd(q: np.ndarray) -> np.ndarray:
@@ -165,9 +167,8 @@ class DrydenFilter:
     def build(cls, cfg: DrydenConfig, dt: float) -> DrydenFilter:
         _positive("dt", dt)
         a, b, c = cfg.state_space()
-        ad, qd = noise_zoh(a, b, dt)
-        p = solve_continuous_lyapunov(a, -b @ b.T)
-        return cls(ad, _sqrtm_psd(qd), c, _sqrtm_psd((p + p.T) / 2))
+        ad, qd, p = noise_zoh(a, b, dt)
+        return cls(ad, _sqrtm_psd(qd), c, _sqrtm_psd(p))
 
     def initial(self, rng: np.random.Generator, batch: tuple = ()) -> np.ndarray:
         """A state drawn from the stationary distribution (shape batch + (4,))."""
