@@ -412,7 +412,11 @@ def build_parser() -> argparse.ArgumentParser:
         description='Fly a reference scenario (docs/design.md, "Reference scenario") for each controller variant; '
         "write OUT/summary.json and OUT/<scenario>.png and print the metrics.",
     )
-    p.add_argument("scenario", help=f"scenario name ({', '.join(SCENARIOS)})")
+    p.add_argument(
+        "scenario",
+        help=f"scenario name ({', '.join(SCENARIOS)}); or 'robustness': the Monte Carlo study, "
+        "'python -m tools.experiment robustness --help'",
+    )
     p.add_argument("--out", metavar="DIR", help="output folder (default: a new runs/<scenario>-<timestamp>/)")
     p.add_argument(
         "--transport",
@@ -447,6 +451,11 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def main(argv: Sequence[str] | None = None) -> int:
+    argv = list(sys.argv[1:] if argv is None else argv)
+    if argv[:1] == ["robustness"]:  # the Monte Carlo study (tools.study), its own flags
+        from tools.study import main as study_main
+
+        return study_main(argv[1:], run_prog="python -m tools.experiment robustness")
     args = build_parser().parse_args(argv)
     try:
         # cheap checks first (no scenario import), then the ones that need the scenario's runs

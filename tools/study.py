@@ -954,7 +954,12 @@ def main_replay(args, prog: str) -> int:
     return 0
 
 
-def main(argv: Sequence[str] | None = None, prog: str = "python -m tools.study") -> int:
+def main(argv: Sequence[str] | None = None, prog: str = "python -m tools.study", run_prog: str | None = None) -> int:
+    """``run_prog``: the study alone under that name (``python -m tools.experiment robustness`` = ``run``)."""
+    if run_prog is not None:
+        p = OneLineArgumentParser(prog=run_prog, description="Monte Carlo robustness study (tools.study run).")
+        add_run_arguments(p)
+        return main_run(p.parse_args(argv), run_prog)
     args = build_parser(prog).parse_args(argv)
     if args.command == "replay":
         return main_replay(args, prog)
