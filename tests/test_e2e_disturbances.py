@@ -5,6 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+from autopilot.shared.pwm import PwmMap
 from tools.flight import Flight
 
 pytestmark = pytest.mark.e2e
@@ -50,3 +51,38 @@ def test_sensor_delay_and_bias_reach_the_autopilot_exactly(tmp_path):
     assert np.array_equal(a["phi"], want_phi)
     assert np.array_equal(a["p"], want_p)
     assert np.abs(phi[:n]).max() > 0.05  # the aircraft did move, so the delay is visible
+
+
+def test_link_delay_is_whole_frames_of_sim_time_both_ways(tmp_path):
+    """--delay 0.03 at 100 Hz: the autopilot sees the state of 3 frames ago, the SITL applies the command the
+    autopilot sent 3 frames ago (neutral before the first one arrives)."""
+    res, s, a = _fly(tmp_path, "d", delay=0.03)
+    assert res.summary["disturbances"]["delay_frames"] == 3
+    phi = np.concatenate([[0.0], s["phi"]])
+    n = len(a["phi"])
+    j = np.maximum(np.arange(n) - 3, 0)
+    assert np.array_equal(a["phi"], phi[j].astype(np.float32).astype(float))
+    pwm_map = PwmMap()  # the flight's servo calibration: 30 deg at full PWM, the default
+    applied = np.array([pwm_map.to_rad(int(p)) for p in a["pwm"]])
+    assert np.array_equal(s["u"][:3], np.zeros(3))
+    assert np.array_equal(s["u"][3:], applied[: len(s["u"]) - 3])
+    assert not np.array_equal(s["u"][2:], applied[: len(s["u"]) - 2])  # a 2-frame shift does not fit
+    c = res.summary["disturbances"]["injected"]
+    assert c["uplink"]["lost"] == c["downlink"]["lost"] == 0
+
+
+def test_realtime_flight_with_link_faults(tmp_path):
+    """Real time: the datagrams themselves are dropped, delayed (wall time), doubled and reordered; the flight
+    still flies and summary.json counts what was injected."""
+    res = Flight(
+        duration=3.0, rrd=False, quiet=True, out=tmp_path / "rt", loss=0.1, delay=0.004, duplicate=0.1, reorder=0.1
+    ).run()
+    assert res.ok, res.reason
+    inj = res.summary["disturbances"]["injected"]
+    for direction in ("uplink", "downlink"):
+        c = inj[direction]
+        assert c["sent"] > 200 and c["lost"] > 0 and c["duplicated"] > 0 and c["reordered"] > 0
+        assert c["delivered"] <= c["sent"] - c["lost"] + c["duplicated"]
+    # The SITL sent every ATTITUDE the channel delivered, and nothing else (plus its heartbeats).
+    sitl_tx = res.summary["counters"]["sitl"]["tx_by_type"]["ATTITUDE"]
+    assert sitl_tx == inj["uplink"]["delivered"]
