@@ -78,6 +78,8 @@ def print_summary(s: dict) -> None:
     ev = {k: v for k, v in ev.items() if v not in (0, [], None)}
     if ev:
         print(f"   autopilot events: {ev}")
+    for direction, n in ((s.get("disturbances") or {}).get("injected") or {}).items():
+        print(f"   link faults {direction:<9}" + "  ".join(f"{k} {v}" for k, v in n.items()))
     f = s["files"]
     rrd = f"  {f['rrd']}" if f.get("rrd") else ""
     print(f"   files: {f['tlog']}{rrd}  {f['summary']}  logs: {Path(f['logs']['autopilot']).parent}/*.log")
@@ -126,9 +128,7 @@ def build_parser() -> OneLineArgumentParser:
     p.add_argument("--csv", default=None, metavar="FILE", help="GCS profile from a CSV file (time s, roll deg)")
     p.add_argument("--amplitude", type=angle_deg, default=10.0, metavar="DEG", help="profile amplitude (default 10)")
     p.add_argument("--period", type=timeout_s, default=10.0, metavar="S", help="profile period (default 10)")
-    p.add_argument(
-        "--timeout", type=timeout_s, default=None, metavar="S", help="wall-clock limit of the whole flight"
-    )
+    p.add_argument("--timeout", type=timeout_s, default=None, metavar="S", help="wall-clock limit of the whole flight")
     p.add_argument(
         "--rt-priority",
         type=rt_priority_arg,
