@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import math
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -169,3 +170,36 @@ def test_injector_plant_and_atmosphere():
     inj.advance(ac, 0.0, 10)
     assert ac.x[0] != 0.0  # the crosswind pushed the aircraft
     assert Injector(Disturbances(), 1e-3, 100.0, lockstep=True).params() is None
+
+
+def test_bad_flags_exit_2_with_one_line(capsys):
+    from sitl.__main__ import main as sitl_main
+    from tools.launch import main as launch_main
+
+    for main, argv, word in (
+        (sitl_main, ["--loss", "1.5"], "--loss"),
+        (sitl_main, ["--scale", "wing=2"], "--scale"),
+        (sitl_main, ["--altitude", "20"], "--altitude"),
+        (launch_main, ["--gust", "1,2"], "--gust"),
+        (launch_main, ["--sensor-delay", "-1"], "sensor delay"),
+    ):
+        with pytest.raises(SystemExit) as exc:
+            main(argv)
+        assert exc.value.code == 2
+        err = capsys.readouterr().err.strip()
+        assert len(err.splitlines()) == 1 and word in err, err
+
+
+def test_flight_keywords_validated_and_passed_to_the_sitl_only():
+    from tools.flight import FlightConfig, FlightConfigError, child_argvs
+
+    cfg = FlightConfig(lockstep=True, gust=["1,10,2", (2.0, 5.0, 3.0)], scale="control=0.5:1.5", loss=0.1, seed=4)
+    argvs = child_argvs(cfg, Path("/tmp/x"), 14560, 14550)
+    sitl = argvs["sitl"]
+    assert sitl[sitl.index("--loss") + 1] == "0.1" and sitl.count("--gust") == 2
+    assert sitl[sitl.index("--scale") + 1] == "control=0.5:1.5" and sitl[sitl.index("--seed") + 1] == "4"
+    assert "--loss" not in argvs["autopilot"] and "--loss" not in argvs["gcs"]
+    assert "--seed" not in child_argvs(FlightConfig(), Path("/tmp/x"), 1, 2)["sitl"]
+    with pytest.raises(FlightConfigError) as exc:
+        FlightConfig(reorder=1.0)
+    assert exc.value.field == "reorder"
