@@ -1,0 +1,178 @@
+"""The Monte Carlo study: summary.json, replay, the command line, and a real local Dask cluster."""
+
+from __future__ import annotations
+
+import json
+import os
+import shutil
+import socket
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from tools.study import (
+    CONDITIONS,
+    CONTROLLERS,
+    StudyError,
+    StudyOptions,
+    replay,
+    run_study,
+)
+
+ROOT = Path(__file__).resolve().parents[1]
+SMALL = dict(runs=6, seed=5, controllers=("clsac", "baseline"), sweep_runs=0, long_runs=0, chunk=4)
+
+
+def _results(summary: dict) -> dict:
+    return summary["results"]
+
+
+def test_summary_holds_shares_percentiles_and_a_replayable_worst_run(tmp_path):
+    summary = run_study(StudyOptions(**SMALL), tmp_path, log=lambda _m: None, progress=False)
+    doc = json.loads((tmp_path / "summary.json").read_text())
+    assert doc["results"] == json.loads(json.dumps(summary["results"]))
+    assert (tmp_path / "table.md").read_text().startswith("| controller |")
+    assert (tmp_path / "robustness.png").stat().st_size > 1000
+    for ctrl in SMALL["controllers"]:
+        for cond in CONDITIONS:
+            agg = doc["results"][ctrl][cond]
+            assert agg["runs"] == 6 and 0.0 <= agg["bounded_share"] <= 1.0
+            assert set(agg["p50"]) == set(agg["p95"]) >= {"ise_ref", "energy", "max_abs_roll", "sat_fraction"}
+            w = agg["worst"]
+            assert w["seed"] == 5 and w["replay_inprocess"].startswith("python -m tools.study replay")
+            assert "--lockstep" in w["replay_mavlink"] and f"--seed {5 * 1_000_000 + w['run']}" in w["replay_mavlink"]
+            # the replay is the same run: bit for bit the same numbers
+            r = replay(ctrl, cond, 5, w["run"], record=False)
+            assert float(r["ise_ref"][0]) == (
+                w["metrics"]["ise_ref"] if w["metrics"]["ise_ref"] is not None else np.inf
+            )
+            # p50 <= p95, and the worst run is at least as bad as the p95 when it is unbounded
+            if agg["p95"]["ise_ref"] is not None:
+                assert agg["p50"]["ise_ref"] <= agg["p95"]["ise_ref"]
+
+
+def test_results_do_not_depend_on_the_chunk_size():
+    a = run_study(StudyOptions(**{**SMALL, "chunk": 1}), None, log=lambda _m: None, progress=False)
+    b = run_study(StudyOptions(**{**SMALL, "chunk": 100}), None, log=lambda _m: None, progress=False)
+    assert _results(a) == _results(b)
+
+
+def test_replay_command_line_prints_the_study_numbers():
+    r = replay("clsac", "moderate", 2, 3, record=False)
+    out = subprocess.run(
+        [sys.executable, "-m", "tools.study", "replay", "--controller", "clsac", "--condition", "moderate"]
+        + ["--seed", "2", "--run", "3"],
+        cwd=ROOT,
+        capture_output=True,
+        text=True,
+        timeout=120,
+    )
+    assert out.returncode == 0, out.stderr
+    assert f"ise_ref       {float(r['ise_ref'][0]):.10g}" in out.stdout
+
+
+@pytest.mark.parametrize(
+    "argv, message",
+    [
+        (["--runs", "0"], "--runs must be >= 1"),
+        (["--controllers", "nope"], "unknown controller 'nope'"),
+        (["--conditions", "calm"], "unknown condition 'calm'"),
+        (["--chunk", "0"], "--chunk must be >= 1"),
+        (["--scheduler", "localhost:8786"], "--scheduler must look like tcp://HOST:PORT"),
+    ],
+)
+def test_bad_study_flags_exit_2_with_one_line(argv, message, tmp_path):
+    out = subprocess.run(
+        [sys.executable, "-m", "tools.experiment", "robustness", "--out", str(tmp_path / "x"), *argv],
+        cwd=ROOT,
+        capture_output=True,
+        text=True,
+        timeout=60,
+    )
+    assert out.returncode == 2
+    lines = out.stderr.strip().splitlines()
+    assert len(lines) == 1 and message in lines[0], out.stderr
+
+
+def test_options_reject_unknown_names():
+    with pytest.raises(StudyError, match="unknown controller"):
+        StudyOptions(controllers=("pid",))
+    assert "baseline" in CONTROLLERS and "clsac_freeze" in CONTROLLERS
+
+
+def _free_port() -> int:
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+@pytest.mark.e2e
+def test_dask_cluster_of_two_workers_gives_the_local_results(tmp_path):
+    """A real cluster on loopback: ``dask scheduler`` and two ``dask worker`` processes started here."""
+    pytest.importorskip("distributed")
+    from distributed import Client
+
+    dask = shutil.which("dask", path=os.path.dirname(sys.executable)) or shutil.which("dask")
+    if dask is None:
+        pytest.skip("the dask command is not installed")
+    port = _free_port()
+    addr = f"tcp://127.0.0.1:{port}"
+    env = {**os.environ, "DASK_DISTRIBUTED__WORKER__DAEMON": "False"}
+    procs = []
+    logs = []
+    try:
+        sched_log = open(tmp_path / "scheduler.log", "w")  # noqa: SIM115
+        logs.append(sched_log)
+        procs.append(
+            subprocess.Popen(
+                [dask, "scheduler", "--host", "127.0.0.1", "--port", str(port), "--no-dashboard"],
+                stdout=sched_log,
+                stderr=subprocess.STDOUT,
+                cwd=ROOT,
+                env=env,
+            )
+        )
+        for i in range(2):
+            wlog = open(tmp_path / f"worker{i}.log", "w")  # noqa: SIM115
+            logs.append(wlog)
+            procs.append(
+                subprocess.Popen(
+                    [dask, "worker", addr, "--nthreads", "1", "--no-dashboard", "--host", "127.0.0.1"],
+                    stdout=wlog,
+                    stderr=subprocess.STDOUT,
+                    cwd=ROOT,
+                    env=env,
+                )
+            )
+        deadline = time.monotonic() + 60
+        client = None
+        while client is None:
+            try:
+                client = Client(addr, timeout="5s")
+            except (OSError, TimeoutError):
+                if time.monotonic() > deadline:
+                    raise
+                time.sleep(0.5)
+        with client:
+            client.wait_for_workers(2, timeout=60)
+            assert len(client.scheduler_info()["workers"]) == 2
+        opts = dict(SMALL, chunk=3)
+        local = run_study(StudyOptions(**opts), None, log=lambda _m: None, progress=False)
+        remote = run_study(StudyOptions(**opts, scheduler=addr), None, log=lambda _m: None, progress=False)
+        assert remote["scheduler"] == addr
+        assert _results(remote) == _results(local)
+    finally:
+        for p in reversed(procs):
+            p.terminate()
+        for p in procs:
+            try:
+                p.wait(timeout=15)
+            except subprocess.TimeoutExpired:
+                p.kill()
+                p.wait(timeout=5)
+        for f in logs:
+            f.close()
