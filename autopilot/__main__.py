@@ -17,6 +17,8 @@ from autopilot.shared.cli import (
     add_cpu_argument,
     add_pwm_arguments,
     add_rt_priority_argument,
+    add_signing_argument,
+    check_output_files,
     clock_s,
     duration_or_0,
     endpoint,
@@ -25,6 +27,7 @@ from autopilot.shared.cli import (
     nonneg_float,
     pwm_from_args,
     rate_hz,
+    signing_key_from_args,
     timeout_s,
 )
 from autopilot.shared.link import ANY_COMPONENT
@@ -177,6 +180,7 @@ def build_parser() -> OneLineArgumentParser:
     add_controller_arguments(p)
     add_telemetry_arguments(p)
     add_pwm_arguments(p)
+    add_signing_argument(p)
     add_cpu_argument(p)
     add_rt_priority_argument(p)
     return p
@@ -201,6 +205,7 @@ def _gcs_ids(parser, values):
 def main(argv=None) -> int:
     parser = build_parser()
     args = parser.parse_args(argv)
+    check_output_files(parser, args, "tlog", "stats_json", "series", "rrd")
     pwm = pwm_from_args(parser, args)
     if args.busy_wait:
         if args.lockstep:
@@ -248,6 +253,7 @@ def main(argv=None) -> int:
         gcs_bind=args.gcs_bind,
         gcs_ids=_gcs_ids(parser, args.gcs_id),
         gcs_peers=tuple(args.gcs_peer),
+        signing_key=signing_key_from_args(parser, args),
         lockstep_idle_exit_s=args.lockstep_idle_exit,
         lockstep_spin_s=args.lockstep_spin_us * 1e-6,
         name=args.name or args.controller,

@@ -50,6 +50,7 @@ from autopilot.shared.mavlink import (
 )
 from autopilot.shared.pwm import PwmMap
 from autopilot.shared.series import SeriesRecorder
+from autopilot.shared.signing import SIGNING_LINK_GCS, SIGNING_LINK_SITL, Signing
 from autopilot.step import ControlStep, Failsafe, StepResult
 
 M = mavlink
@@ -89,6 +90,7 @@ class AutopilotOptions:
     gcs_ids: tuple = ((GCS_ID[0], ANY_COMPONENT),)  # (sys, comp); comp ANY_COMPONENT = any
     gcs_peers: tuple = ()  # ground-station addresses admitted from the start (--gcs-peer)
     max_gcs: int = 8  # admitted ground-station addresses at most (docs/design.md, "Trust model")
+    signing_key: bytes | None = None  # MAVLink 2 signing on both links (autopilot.shared.signing); None = off
     lockstep_spin_s: float = 0.0  # lockstep: busy-poll this long for the next frame before sleeping in select
     lockstep_idle_exit_s: float = (
         0.0  # lockstep: exit after the last frame if the SITL stays silent this long (0 = never)
@@ -196,6 +198,7 @@ class Autopilot:
             opts.sitl,
             peers=[SITL_ID],
             msgids=[ATTITUDE, HEARTBEAT, STATUSTEXT],
+            signing=Signing(opts.signing_key, SIGNING_LINK_SITL) if opts.signing_key else None,
             tlog=tlog,
         )
         self.gcs = UdpLink(
@@ -207,6 +210,7 @@ class Autopilot:
             msgids=[SET_ATTITUDE_TARGET, HEARTBEAT],
             admit=opts.max_gcs,
             peer_addrs=opts.gcs_peers,
+            signing=Signing(opts.signing_key, SIGNING_LINK_GCS) if opts.signing_key else None,
             tlog=tlog,
         )
         self.hooks: list = []  # callables(StepRecord), after each step
@@ -216,6 +220,8 @@ class Autopilot:
         self.timing = TimingStats()
         self.stop_requested = False
         self.exit_reason = ""
+        self.peer_lost = None  # the peer whose silence ended the run early ("sitl"), for the launcher's verdict
+        self.hold_steps = 0  # real time: steps flown as a hold for want of attitude (all episodes)
         # attitude
         self.att = _Attitude()
         self.horizon_us = -1.0  # newest scheduled setpoint time received
@@ -532,6 +538,7 @@ class Autopilot:
                     and silent > opts.lockstep_idle_exit_s
                 ):
                     self.exit_reason = f"SITL silent for {silent:.1f} s after frame {self.last_frame}"
+                    self.peer_lost = "sitl"
                     break
             self._housekeeping(now)
         if self.finished:
@@ -588,6 +595,7 @@ class Autopilot:
                 t_sent = perf()
                 if att.valid:  # before the first attitude ever it is stand-by, not a failsafe
                     self.failsafe_steps += 1
+                    self.hold_steps += 1
                     if self.failsafe is Failsafe.NONE:
                         self.failsafe = res.failsafe = Failsafe.NO_ATTITUDE
                         self._enter_failsafe(age)
@@ -730,7 +738,14 @@ class Autopilot:
             "timing": self.timing.summary(self.period),
             "events": ev,
             "links": {"sitl": self.sitl.counters(), "gcs": self.gcs.counters()},
-            "exit_reason": self.exit_reason,
+            "exit_reason": self.exit_reason
+            + (f"; {self.hold_steps} steps flown as a hold without attitude" if self.hold_steps else ""),
+            # whose silence cost the run steps: the SITL (idle exit, attitude failsafe) or a GCS schedule (pacing)
+            "peer_lost": self.peer_lost
+            or ("gcs" if self._blocked_since is not None else None)
+            or ("sitl" if self.hold_steps or not self.control.metrics.n else None),
+            "hold_steps": self.hold_steps,
+            "setpoints_evicted": self.setpoints.evicted,
             "tlog_records": self.tlog.records if self.tlog is not None else 0,
         }
 

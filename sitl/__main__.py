@@ -14,6 +14,8 @@ from autopilot.shared.cli import (
     add_cpu_argument,
     add_pwm_arguments,
     add_rt_priority_argument,
+    add_signing_argument,
+    check_output_files,
     clock_s,
     default_physics_rate,
     duration_or_0,
@@ -24,6 +26,7 @@ from autopilot.shared.cli import (
     pwm_from_args,
     rate_hz,
     sensor_rate_hz,
+    signing_key_from_args,
     timeout_s,
 )
 from autopilot.shared.process import (
@@ -118,6 +121,7 @@ def build_parser() -> OneLineArgumentParser:
     disturbances.add_arguments(p)
     add_telemetry_arguments(p)
     add_pwm_arguments(p)
+    add_signing_argument(p)
     add_cpu_argument(p)
     add_rt_priority_argument(p)
     return p
@@ -126,6 +130,7 @@ def build_parser() -> OneLineArgumentParser:
 def main(argv=None) -> int:
     parser = build_parser()
     args = parser.parse_args(argv)
+    check_output_files(parser, args, "stats_json", "series", "rrd")
     pwm = pwm_from_args(parser, args)
     apply_cpu(parser, args.cpu)
     if args.physics_rate is None:
@@ -159,6 +164,7 @@ def main(argv=None) -> int:
         connect_timeout_s=args.connect_timeout,
         spin_s=args.spin_us * 1e-6,
         verbose=not args.quiet,
+        signing_key=signing_key_from_args(parser, args),
         disturbances=dist,
     )
     try:

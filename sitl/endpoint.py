@@ -32,6 +32,7 @@ from autopilot.shared.mavlink import AUTOPILOT_ID, SITL_ID, frame_ms, frame_usec
 from autopilot.shared.numerics import wrap_pi
 from autopilot.shared.pwm import PWM_VALID_RANGE, PwmMap
 from autopilot.shared.series import SeriesRecorder
+from autopilot.shared.signing import SIGNING_LINK_SIM, Signing
 from sitl.aircraft import Aircraft, AircraftConfig
 
 M = mavlink
@@ -63,6 +64,7 @@ class SitlOptions:
     connect_timeout_s: float = 0.0  # lockstep: wait this long for the autopilot (0 = forever)
     disturbances: object = None  # sitl.disturbances.Disturbances (air, sensors, link faults, plant); None = ideal
     verbose: bool = True
+    signing_key: bytes | None = None  # MAVLink 2 signing (autopilot.shared.signing); None = off
 
 
 class SitlRecord:
@@ -113,6 +115,7 @@ class Sitl:
             peers=[AUTOPILOT_ID],
             msgids=[SERVO_OUTPUT_RAW, HEARTBEAT],
             learn_remote=True,
+            signing=Signing(opts.signing_key, SIGNING_LINK_SIM) if opts.signing_key else None,
         )
         self.hooks: list = []
         self.events = Counter()
@@ -126,6 +129,7 @@ class Sitl:
         self.wall_last_frame = None
         self.sim_t0 = 0.0
         self.exit_reason = ""
+        self.peer_lost = None  # the peer whose silence ended the run ("autopilot"), for the launcher's verdict
         self._servos: list = []  # servo messages received, not yet consumed: (time_usec, msg, t_rx)
         self._fds = [self.link.sock]  # select(2): microsecond timeouts (epoll rounds up to milliseconds)
         self._pk_att = self.link.fast_packer(M.MAVLink_attitude_message)
@@ -166,6 +170,7 @@ class Sitl:
         """ATTITUDE with the sensor errors and the link faults of ``self.inj`` (see sitl.disturbances.Injector)."""
         inj = self.inj
         phi, p, r = inj.measure(self.aircraft.x)
+        phi = wrap_pi(phi)
         if k is not None:  # lockstep: this frame carries the newest sample delivered, once per datagram arriving
             (phi, p, r), n = inj.uplink_frame(k, (phi, p, r))
             raw = self.link.pack_fast(self._pk_att, ms, phi, 0.0, 0.0, p, 0.0, r)
@@ -211,6 +216,7 @@ class Sitl:
             now = perf()
             if opts.connect_timeout_s and now - t_start > opts.connect_timeout_s:
                 self.exit_reason = f"no autopilot after {opts.connect_timeout_s:g} s"
+                self.peer_lost = "autopilot"
                 raise LockstepGiveUp(
                     f"no autopilot talked to {link.local[0]}:{link.local[1]} within {opts.connect_timeout_s:g} s"
                 )
@@ -262,6 +268,7 @@ class Sitl:
                     now = perf()
                     if now >= t_give_up:
                         self.exit_reason = f"autopilot did not answer frame t={K / rate:.3f} s"
+                        self.peer_lost = "autopilot"
                         raise LockstepGiveUp(
                             f"no SERVO_OUTPUT_RAW for frame t={K / rate:.3f} s (time_usec {expected}) after "
                             f"{give_up:g} s, resent {ev['resends_frame']} times: is the autopilot running with "
@@ -426,6 +433,7 @@ class Sitl:
             "events": {k: v for k, v in self.events.items() if k != "resends_frame"},
             "link": self.link.counters(),
             "exit_reason": self.exit_reason,
+            "peer_lost": self.peer_lost,
             **({"disturbances": self.inj.stats()} if self.inj is not None else {}),
         }
 

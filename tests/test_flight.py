@@ -138,9 +138,17 @@ def test_experiment_transport_flies_the_scenario_like_the_wire_model(tmp_path):
         (dict(pfc="best"), "pfc", "'best'"),
         (dict(profile="triangle"), "profile", "'triangle'"),
         (dict(amplitude=math.nan), "amplitude", "nan"),
-        (dict(period=0), "period", "positive"),
+        (dict(period=0), "period", "(0, 86400] s"),
         (dict(rt_priority=100), "rt_priority", "100"),
         (dict(lv=-2), "lv", "-2"),
+        # values that parse but cannot be flown: rejected with the allowed range
+        (dict(duration=1e308), "duration", "(0, 86400] s, got 1e+308"),
+        (dict(lv=1e300), "lv", "[0, 10000]"),
+        (dict(start_time=5e6), "start_time", "[0, 86400] s"),
+        (dict(physics_rate=1e12), "physics_rate", "(0, 100000] Hz"),
+        (dict(sensor_rate=1e9), "sensor_rate", "(0, 1000] Hz"),
+        (dict(out="/etc/passwd"), "out", "not a folder"),
+        (dict(signing_key="/nonexistent.key"), "signing_key", "no such file"),
     ],
 )
 def test_bad_keywords_raise_flight_config_error(kwargs, field, needle):

@@ -41,6 +41,7 @@ class Child:
             bufsize=1,
         )
         self.started = time.monotonic()
+        self.exited_at: float | None = None  # monotonic time its exit was first seen (the verdict's exit order)
         self._reader = threading.Thread(target=self._read, name=f"read-{name}", daemon=True)
         self._reader.start()
 
@@ -60,7 +61,10 @@ class Child:
 
     @property
     def code(self):
-        return self.proc.poll()
+        code = self.proc.poll()
+        if code is not None and self.exited_at is None:
+            self.exited_at = time.monotonic()
+        return code
 
     def interrupt(self):
         if self.proc.poll() is None:
@@ -71,9 +75,10 @@ class Child:
 
     def wait(self, timeout: float) -> int | None:
         try:
-            return self.proc.wait(timeout=max(0.0, timeout))
+            self.proc.wait(timeout=max(0.0, timeout))
         except subprocess.TimeoutExpired:
             return None
+        return self.code
 
     def kill(self):
         if self.proc.poll() is None:

@@ -106,6 +106,8 @@ class FlightConfig:
     rrd: bool = True  # Rerun telemetry of the autopilot and the SITL, merged into DIR/flight.rrd
     series: bool = True  # per-step series in DIR/autopilot_series.npz and DIR/sitl_series.npz
     name: str | None = None  # run name in summary.json; default the controller
+    signing: bool = True  # MAVLink 2 signing on every link; a new key per flight in DIR/signing.key unless signing_key
+    signing_key: str | os.PathLike | None = None  # sign with this key file (autopilot.shared.signing) instead
     # Disturbances, passed to the SITL only (sitl.disturbances.FLAGS: text as on the command line, or parsed)
     turbulence: str | None = None  # light | moderate | severe Dryden turbulence
     turbulence_sigma: str | tuple | None = None  # "SV,SW" m/s
@@ -132,23 +134,23 @@ class FlightConfig:
         def put(name, value):
             object.__setattr__(self, name, value)
 
-        for name, check in (
-            ("duration", cli.positive_float),
+        for name, check in (  # the launcher's own argument types: values that cannot be flown are rejected here
+            ("duration", cli.duration_s),
             ("rate", cli.rate_hz),
-            ("sensor_rate", cli.positive_float),
-            ("sigma_xu", cli.nonneg_float),
-            ("start_time", cli.nonneg_float),
-            ("amplitude", cli.finite_float),
-            ("period", cli.positive_float),
-            ("u_limit_deg", cli.positive_float),
+            ("sensor_rate", cli.sensor_rate_hz),
+            ("sigma_xu", cli.gain),
+            ("start_time", cli.clock_s),
+            ("amplitude", cli.angle_deg),
+            ("period", cli.timeout_s),
+            ("u_limit_deg", cli.limit_deg),
             ("rt_priority", cli.rt_priority_arg),
         ):
             put(name, _checked(name, check, getattr(self, name)))
         for name, check in (
-            ("lv", cli.nonneg_float),
-            ("physics_rate", cli.positive_float),
+            ("lv", cli.gain),
+            ("physics_rate", cli.physics_rate_hz),
             ("telemetry_rate", cli.nonneg_float),
-            ("timeout", cli.positive_float),
+            ("timeout", cli.timeout_s),
         ):
             if getattr(self, name) is not None:
                 put(name, _checked(name, check, getattr(self, name)))
@@ -201,6 +203,17 @@ class FlightConfig:
             except (OSError, ProfileError) as exc:
                 raise FlightConfigError("csv", f"csv: {exc}") from None
         put("command", command)
+        if self.out is not None:
+            problem = cli.output_dir_problem(self.out)
+            _require(problem is None, "out", f"out: {problem}")
+        if self.signing_key is not None:
+            from autopilot.shared.signing import KeyFileError, load_key
+
+            _require(self.signing, "signing_key", "signing_key: give a key or signing=False (--no-signing), not both")
+            try:
+                load_key(self.signing_key)
+            except KeyFileError as exc:
+                raise FlightConfigError("signing_key", f"signing_key: {exc}") from None
         from sitl import disturbances
 
         try:
@@ -272,7 +285,12 @@ class FlightResult:
 
 # ---------------------------------------------------------------------------------------- child processes
 def child_argvs(
-    cfg: FlightConfig, out: Path, sitl_port: int, gcs_port: int, telemetry: dict[str, list[str]] | None = None
+    cfg: FlightConfig,
+    out: Path,
+    sitl_port: int,
+    gcs_port: int,
+    telemetry: dict[str, list[str]] | None = None,
+    key_file: Path | None = None,
 ) -> dict[str, list[str]]:
     """The command line of each process of the flight."""
     py = [sys.executable, "-u", "-m"]
@@ -368,7 +386,25 @@ def child_argvs(
     if telemetry:
         for name, argv in (("sitl", sitl), ("autopilot", ap)):
             argv += telemetry[name]
+    if key_file is not None:
+        for argv in (sitl, ap, gcs):
+            argv += ["--signing-key", str(key_file)]
     return {"sitl": sitl, "autopilot": ap, "gcs": gcs}
+
+
+def _flight_key(cfg: FlightConfig, out: Path) -> Path | None:
+    """The signing key file of the flight: ``signing_key``, else a new one in DIR/signing.key (mode 0600);
+    None when signing is off."""
+    if not cfg.signing:
+        return None
+    if cfg.signing_key is not None:
+        return Path(cfg.signing_key)
+    from autopilot.shared.signing import write_key
+
+    path = out / "signing.key"
+    path.unlink(missing_ok=True)
+    write_key(path)
+    return path
 
 
 def _telemetry_argvs(cfg: FlightConfig, out: Path) -> tuple[dict[str, list[str]] | None, dict[str, Path]]:
@@ -447,6 +483,7 @@ def build_summary(
         "runs": runs,
         "transport": "mavlink",
         "mode": "lockstep" if cfg.lockstep else "realtime",
+        "signing": cfg.signing,  # MAVLink 2 signing on every link (docs/design.md, "Trust model")
         "controller": cfg.controller,
         "Lv": cfg.lv_value,
         "pfc": cfg.pfc,
@@ -511,6 +548,81 @@ def load_series(out_dir) -> dict:
     except OSError:
         pass
     return series
+
+
+# ---------------------------------------------------------------------------------------- the verdict
+def flown_report(cfg: FlightConfig, stats: dict) -> dict:
+    """What flew against what was asked: control steps (real time: those flown on a fresh attitude, not as a
+    failsafe hold), SITL frames and sim time; ``fraction`` = steps flown / steps asked."""
+    ap, sitl = stats["autopilot"], stats["sitl"]
+    asked = round(cfg.duration * cfg.rate)
+    steps = ap["steps"] if ap else 0
+    flown = steps if cfg.lockstep or not ap else (steps - ap.get("hold_steps", 0) if ap["metric_samples"] else 0)
+    return {
+        "steps": flown,
+        "steps_asked": asked,
+        "fraction": flown / asked if asked else 0.0,
+        "frames": sitl.get("frames") if sitl else None,
+        "sim_time_s": flown / cfg.rate,
+        "duration_s": cfg.duration,
+        # lockstep: the SITL flew exactly the frames asked as well
+        "complete": flown >= asked and (not cfg.lockstep or (sitl or {}).get("frames") == asked),
+    }
+
+
+def verdict(
+    children: dict, stats: dict, flown: dict, exit_code: int, failed, error, t_end: float
+) -> tuple[int, str | None, str | None]:
+    """(exit code, process that failed first, reason) of a flight from what flew and how each process ended.
+
+    OK only if every step asked was flown (lockstep: and the SITL flew as many frames), every process exited with
+    status 0 and wrote its stats.  Otherwise the culprit is the process that exited first (a child that ends
+    early with status 0 included), or, when the first one ended because a peer went silent (its stats'
+    ``peer_lost``), that peer; the reason is the culprit's own error line or exit reason, plus the fraction flown.
+    """
+    complete = flown["complete"]
+    ap_exit = children["autopilot"].exited_at
+    ap_exit = t_end if ap_exit is None else min(ap_exit, t_end)
+    early = [  # a child that ended before the autopilot did, other than by reaching the end of the run itself
+        c
+        for n, c in children.items()
+        if n != "autopilot"
+        and c.exited_at is not None
+        and c.exited_at < ap_exit
+        and not str((stats.get(n) or {}).get("exit_reason", "")).startswith("end of run")
+    ]
+    clean = all(c.code == 0 for c in children.values()) and all(stats.values()) and not early
+    pct = 100.0 * flown["fraction"]
+    tail = (
+        f"; flown {pct:.3g} % ({flown['steps']} of {flown['steps_asked']} steps, "
+        f"{flown['sim_time_s']:g} of {flown['duration_s']:g} s)"
+    )
+    if complete and clean:
+        return (EXIT_OK, None, None) if exit_code == EXIT_OK else (exit_code, failed, f"{error}{tail}")
+    # exits seen while the flight ran (not those of stopping it), in order
+    order = sorted(
+        (c for c in children.values() if c.exited_at is not None and c.exited_at < t_end), key=lambda c: c.exited_at
+    )
+    first = order[0] if order else children.get(failed) or children["autopilot"]
+    name = first.name
+    seen = {name}
+    while (peer := (stats.get(name) or {}).get("peer_lost")) and peer in children and peer not in seen:
+        blamer, name = name, peer  # it ended because this peer went silent: blame the peer
+        seen.add(name)
+    culprit = children[name]
+    own = (stats.get(name) or {}).get("exit_reason")
+    if name != first.name:
+        why = f"{name} stalled or died: {blamer} reports: {(stats.get(blamer) or {}).get('exit_reason')}"
+    elif culprit.code not in (None, 0):
+        why = f"{name} failed (exit code {culprit.code}): {culprit.reason()}"
+    elif culprit.code == 0:
+        why = f"{name} exited early (exit code 0): {own or culprit.reason()}"
+    elif error:
+        why = error
+    else:
+        missing = [n for n, st in stats.items() if not st]
+        why = f"{name}: {own or culprit.reason()}" + (f" (no stats from {', '.join(missing)})" if missing else "")
+    return EXIT_FAILED, name, why + tail
 
 
 # ---------------------------------------------------------------------------------------- the flight
@@ -614,9 +726,10 @@ class Flight:
             (self.out / f).unlink(missing_ok=True)
         try:
             telemetry, self._parts = _telemetry_argvs(cfg, self.out)
+            key_file = _flight_key(cfg, self.out)
             for attempt in range(3):
                 ports = (cfg.base_port, cfg.base_port + 1) if cfg.base_port is not None else free_udp_ports(2)
-                self._spawn(child_argvs(cfg, self.out, *ports, telemetry))
+                self._spawn(child_argvs(cfg, self.out, *ports, telemetry, key_file))
                 failed = self._await_listening()
                 if failed is None:
                     break
@@ -717,14 +830,17 @@ class Flight:
     def _end(self, exit_code: int, failed: str | None, error: str | None, stopped: bool = False) -> None:
         """Stop what still runs, merge the telemetry, write summary.json and set ``result``."""
         cfg = self.config
+        t_end = time.monotonic()  # exits seen after this are those of stopping the flight
         stop_children(self._children.values())
         rrd_path, rrd_error = _merge_telemetry(self._parts, self.out)
         if rrd_error and exit_code == EXIT_OK:
             exit_code, failed, error = EXIT_FAILED, "telemetry", rrd_error
         stats = {n: _load(self.out / f"{n}.json") for n in PROCESSES}
+        flown = flown_report(cfg, stats)
         if stopped:
-            flown = stats["autopilot"]["steps"] / cfg.rate if stats["autopilot"] else 0.0
-            error = f"stopped by the caller after {flown:g} s of {cfg.duration:g} s (sim time)"
+            error = f"stopped by the caller after {flown['sim_time_s']:g} s of {cfg.duration:g} s (sim time)"
+        elif exit_code != EXIT_INTERRUPTED:
+            exit_code, failed, error = verdict(self._children, stats, flown, exit_code, failed, error, t_end)
         summary = build_summary(
             cfg,
             self.out,
@@ -736,6 +852,7 @@ class Flight:
             time.monotonic() - self._t0,
             rrd_path,
         )
+        summary["flown"] = flown
         write_json_atomic(self.out / "summary.json", summary)
         runs = summary["runs"]
         metrics = {k: runs[0]["metrics"].get(k) for k in METRIC_NAMES} if runs else dict.fromkeys(METRIC_NAMES)

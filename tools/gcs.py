@@ -26,12 +26,15 @@ from dataclasses import dataclass, fields
 from autopilot.shared.cli import (
     OneLineArgumentParser,
     add_cpu_argument,
+    add_signing_argument,
     angle_deg,
+    check_output_files,
     clock_s,
     duration_or_0,
     endpoint,
     fmt_endpoint,
     positive_float,
+    signing_key_from_args,
     timeout_s,
 )
 from autopilot.shared.events import printable
@@ -45,6 +48,7 @@ from autopilot.shared.mavlink import (
     roll_to_quaternion,
 )
 from autopilot.shared.process import apply_cpu, exit_code_for, install_stop_handlers, write_json_atomic
+from autopilot.shared.signing import SIGNING_LINK_GROUND, Signing
 from tools.profiles import Profile
 
 M = mavlink
@@ -68,6 +72,7 @@ class GcsOptions:
     wait_timeout: float = 60.0  # wall s without the vehicle's HEARTBEAT before giving up; 0 = forever
     vehicle_timeout: float = 5.0  # wall s of vehicle silence before giving up
     quiet: bool = False  # no live line
+    signing_key: bytes | None = None  # MAVLink 2 signing (autopilot.shared.signing); None = off
 
 
 class Gcs:
@@ -85,7 +90,10 @@ class Gcs:
             M.MAVLINK_MSG_ID_STATUSTEXT,
             M.MAVLINK_MSG_ID_SYSTEM_TIME,
         ]
-        self.link = UdpLink("vehicle", GCS_ID, opts.listen, None, peers=[AUTOPILOT_ID], msgids=ids, learn_remote=True)
+        signing = Signing(opts.signing_key, SIGNING_LINK_GROUND) if opts.signing_key else None
+        self.link = UdpLink(
+            "vehicle", GCS_ID, opts.listen, None, peers=[AUTOPILOT_ID], msgids=ids, learn_remote=True, signing=signing
+        )
         self.sel = selectors.DefaultSelector()
         self.sel.register(self.link.sock, selectors.EVENT_READ)
         self.stop_requested = False
@@ -101,6 +109,8 @@ class Gcs:
         self.statustexts = []
         self.last_vehicle_rx = None
         self._sim_rx = 0.0  # perf_counter when sim_ms was taken
+        self.exit_reason = ""
+        self.peer_lost = None
         self.clock_restarts = 0
 
     def _on_msg(self, msg, t_rx):
@@ -223,19 +233,17 @@ class Gcs:
             now = perf()
             if not self.vehicle:
                 if o.wait_timeout and now - t_start > o.wait_timeout:
-                    print(
-                        f"gcs: error: no vehicle HEARTBEAT on {fmt_endpoint(self.link.local)} after "
-                        f"{o.wait_timeout:g} s",
-                        file=sys.stderr,
-                        flush=True,
-                    )
+                    self._end(f"no vehicle HEARTBEAT on {fmt_endpoint(self.link.local)} after {o.wait_timeout:g} s")
+                    print(f"gcs: error: {self.exit_reason}", file=sys.stderr, flush=True)
                     return 1
                 continue
             if self.powered_off:
+                self.exit_reason = "end of run (vehicle powered off)"
                 print("gcs: vehicle powered off (run over)", file=self.out, flush=True)
                 return 0
             if now - self.last_vehicle_rx > o.vehicle_timeout:
-                print(f"gcs: error: vehicle lost (nothing for {o.vehicle_timeout:g} s)", file=sys.stderr, flush=True)
+                self._end(f"vehicle lost (nothing for {o.vehicle_timeout:g} s)")
+                print(f"gcs: error: {self.exit_reason}", file=sys.stderr, flush=True)
                 return 1
             if now >= next_hb:
                 next_hb = now + 1.0
@@ -264,9 +272,16 @@ class Gcs:
                 and self.sim_ms - self.origin_ms >= o.duration * 1000
                 and not o.lockstep
             ):
+                self.exit_reason = "end of run (profile done)"
                 print("gcs: profile done", file=self.out, flush=True)
                 return 0
+        self.exit_reason = "stopped by signal"
         return 0
+
+    def _end(self, reason: str) -> None:
+        """The vehicle went silent or never came: the launcher's verdict blames it (``peer_lost``)."""
+        self.exit_reason = reason
+        self.peer_lost = "autopilot"
 
     def stats(self) -> dict:
         return {
@@ -274,6 +289,8 @@ class Gcs:
             "origin_ms": self.origin_ms,
             "sim_ms": self.sim_ms,
             "clock_restarts": self.clock_restarts,
+            "exit_reason": self.exit_reason,
+            "peer_lost": self.peer_lost,
             "statustexts": self.statustexts[-50:],
             "link": self.link.counters(),
         }
@@ -348,6 +365,7 @@ def build_parser() -> OneLineArgumentParser:
     )
     p.add_argument("--stats-json", default=None, metavar="PATH", help="write counters to this JSON file at exit")
     p.add_argument("--quiet", action="store_true", help="no live line")
+    add_signing_argument(p)
     add_cpu_argument(p)
     return p
 
@@ -355,6 +373,7 @@ def build_parser() -> OneLineArgumentParser:
 def main(argv=None) -> int:
     parser = build_parser()
     args = parser.parse_args(argv)
+    check_output_files(parser, args, "stats_json")
     if args.csv and args.profile != "square":
         parser.error("give either a profile name or --csv, not both")
     try:
@@ -365,7 +384,8 @@ def main(argv=None) -> int:
         parser.error(f"--csv: {exc}")
     apply_cpu(parser, args.cpu)
     try:
-        gcs = Gcs(GcsOptions(**{f.name: getattr(args, f.name) for f in fields(GcsOptions)}), profile)
+        values = {f.name: getattr(args, f.name) for f in fields(GcsOptions)}
+        gcs = Gcs(GcsOptions(**{**values, "signing_key": signing_key_from_args(parser, args)}), profile)
     except OSError as exc:
         print(f"gcs: error: cannot listen on {fmt_endpoint(args.listen)}: {exc.strerror or exc}", file=sys.stderr)
         return exit_code_for(exc)

@@ -163,6 +163,11 @@ def build_parser() -> OneLineArgumentParser:
         help="show the flight live in a running Rerun viewer, e.g. rerun+http://127.0.0.1:9876/proxy",
     )
     g.add_argument("--no-rrd", dest="rrd", action="store_false", help="do not write DIR/flight.rrd")
+    g = p.add_argument_group("MAVLink 2 signing (default: a new key for each flight, DIR/signing.key, mode 0600)")
+    g.add_argument("--signing-key", default=None, metavar="FILE", help="sign every link with this key file instead")
+    g.add_argument(
+        "--no-signing", dest="signing", action="store_false", help="fly unsigned (anyone on the host can talk to it)"
+    )
     add_controller_arguments(p)
     disturbances.add_arguments(p)
     return p

@@ -9,7 +9,9 @@ from __future__ import annotations
 
 import argparse
 import math
+import os
 import sys
+from pathlib import Path
 
 from autopilot.shared.pwm import PwmConfigError, PwmMap
 
@@ -120,6 +122,70 @@ def default_physics_rate(control_rate: float, minimum: float = 1000.0) -> float:
     """The smallest whole multiple of the control rate that is at least ``minimum`` Hz (1 kHz): 1000 Hz at
     100 Hz control, 1200 Hz at 400 Hz (lockstep advances a whole number of physics steps per frame)."""
     return control_rate * max(1, math.ceil(minimum / control_rate - 1e-9))
+
+
+def output_dir_problem(path) -> str | None:
+    """None if ``path`` is a writable folder or can be created as one, else why not (one line)."""
+    p = Path(path)
+    if p.exists():
+        if not p.is_dir():
+            return f"{path} exists and is not a folder"
+        return None if os.access(p, os.W_OK | os.X_OK) else f"{path}: the folder is not writable"
+    parent = p.absolute().parent
+    while not parent.exists():
+        parent = parent.parent
+    if not parent.is_dir():
+        return f"{path}: {parent} is not a folder"
+    return None if os.access(parent, os.W_OK | os.X_OK) else f"{path}: cannot create it ({parent} is not writable)"
+
+
+def output_file_problem(path) -> str | None:
+    """None if the file ``path`` can be written (its folder exists and is writable, it is not a folder)."""
+    p = Path(path)
+    if p.is_dir():
+        return f"{path} is a folder"
+    folder = p.absolute().parent
+    if not folder.is_dir():
+        return f"{path}: no folder {folder}"
+    if not os.access(folder, os.W_OK | os.X_OK):
+        return f"{path}: the folder {folder} is not writable"
+    if p.exists() and not os.access(p, os.W_OK):
+        return f"{path}: the file is not writable"
+    return None
+
+
+def check_output_files(parser: argparse.ArgumentParser, args: argparse.Namespace, *names: str) -> None:
+    """Before anything runs: each output file flag given (``--stats-json`` for ``stats_json``, ...) must be
+    writable, else a one-line parser error (exit 2), so no flight ends with a traceback over a bad path."""
+    for name in names:
+        path = getattr(args, name, None)
+        problem = output_file_problem(path) if path else None
+        if problem:
+            parser.error(f"--{name.replace('_', '-')}: {problem}")
+
+
+def add_signing_argument(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument(
+        "--signing-key",
+        default=None,
+        metavar="FILE",
+        help="MAVLink 2 signing: sign everything sent and accept only packets signed with this key (a file of 64 "
+        "hex digits, mode 0600: python -m tools.keygen FILE); default off",
+    )
+
+
+def signing_key_from_args(parser: argparse.ArgumentParser, args: argparse.Namespace) -> bytes | None:
+    """The key of ``--signing-key`` (None without it); a missing, unreadable, world-readable or short key file is a
+    one-line parser error."""
+    if args.signing_key is None:
+        return None
+    from autopilot.shared.signing import KeyFileError, load_key
+
+    try:
+        return load_key(args.signing_key)
+    except KeyFileError as exc:
+        parser.error(f"--signing-key: {exc}")
+        raise  # unreachable
 
 
 def fmt_endpoint(ep) -> str:

@@ -28,6 +28,11 @@ import time
 KEY_BYTES = 32
 SIGNING_EPOCH_S = 1420070400  # 2015-01-01 00:00:00 UTC
 NEW_STREAM_WINDOW = 60 * 100_000  # 1 min in 10 us units
+# The link id each link signs with (a receiver keeps one timestamp stream per link id, system and component).
+SIGNING_LINK_SITL = 1  # the autopilot's SITL link
+SIGNING_LINK_GCS = 2  # the autopilot's GCS link
+SIGNING_LINK_SIM = 3  # the SITL's link
+SIGNING_LINK_GROUND = 4  # the GCS script's link
 _TS = struct.Struct("<BQ")  # link id + 8-byte timestamp (the first 7 bytes are sent)
 
 
