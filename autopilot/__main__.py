@@ -177,6 +177,17 @@ def build_parser() -> OneLineArgumentParser:
         help="record every control step (setpoint, roll, command, controller internals) to this .npz at exit",
     )
     p.add_argument("--quiet", action="store_true", help="only the start line and the counters")
+    p.add_argument(
+        "--params",
+        default=None,
+        metavar="FILE",
+        help="load a parameter file at start (MAVProxy 'param save' or QGroundControl format; overrides the flags)",
+    )
+    p.add_argument(
+        "--disarmed",
+        action="store_true",
+        help="start disarmed (rudder neutral until a ground station arms: COMPONENT_ARM_DISARM)",
+    )
     add_controller_arguments(p)
     add_telemetry_arguments(p)
     add_pwm_arguments(p)
@@ -237,14 +248,32 @@ def main(argv=None) -> int:
             ).with_pfc(args.pfc)
     except ConfigError as exc:
         parser.error(str(exc))
+    # The parameter table (autopilot.params): CLSAC_LV is the configured Lv, which mode SAC flies as 0.
+    from autopilot.params import ParamError, ParamTable, load_file
+    from autopilot.vehicle import Mode
+
+    if args.controller == "sac":
+        cfg = cfg.with_(lv=args.lv if args.lv is not None else default_lv("clsac"))
+    options = {
+        "attitude_timeout_s": args.attitude_timeout,
+        "setpoint_timeout_s": args.setpoint_timeout,
+        "max_roll_rad": math.radians(args.max_roll_deg),
+    }
+    params = ParamTable(cfg, options)
+    if args.params:
+        try:
+            params.update(load_file(args.params))
+        except (OSError, ParamError) as exc:
+            parser.error(f"--params {args.params}: {exc}")
+        cfg = params.config
+        options = {k: params.option(k) for k in options}
+    rate = cfg.control_rate_hz  # CLSAC_RATE from a parameter file wins over --rate
     opts = AutopilotOptions(
-        rate_hz=args.rate,
+        rate_hz=rate,
         lockstep=args.lockstep,
         duration_s=args.duration,
         telemetry_rate_hz=args.telemetry_rate,
-        attitude_timeout_s=args.attitude_timeout,
-        setpoint_timeout_s=args.setpoint_timeout,
-        max_roll_rad=math.radians(args.max_roll_deg),
+        **options,
         pace=args.pace,
         spin_s=math.inf if args.busy_wait else args.spin_us * 1e-6,
         sitl=args.sitl,
@@ -263,7 +292,15 @@ def main(argv=None) -> int:
     try:
         if args.tlog:
             tlog = TlogWriter(args.tlog)
-        ap = Autopilot(opts, cfg, pwm, tlog=tlog)
+        ap = Autopilot(
+            opts,
+            cfg,
+            pwm,
+            tlog=tlog,
+            params=params,
+            mode=Mode.SAC if args.controller == "sac" else Mode.CLSAC,
+            armed=not args.disarmed,
+        )
     except OSError as exc:
         print(f"autopilot: error: {exc}", file=sys.stderr)
         return exit_code_for(exc)
@@ -272,7 +309,7 @@ def main(argv=None) -> int:
     if args.series:
         recorder = series_recorder()
         ap.hooks.append(recorder)
-    tel = attach_telemetry(args, ap, control_rate_hz=args.rate)
+    tel = attach_telemetry(args, ap, control_rate_hz=rate)
     rt_note = apply_rt_priority(args.rt_priority, "autopilot")  # after the helper threads exist: they stay normal
     if args.busy_wait:
         rt_note += "; busy-wait (never sleeps)"
@@ -286,7 +323,7 @@ def main(argv=None) -> int:
     install_stop_handlers(stop)
     mode = "lockstep" if args.lockstep else "real time"
     print(
-        f"autopilot: {opts.name} (Lv={lv:g}) {mode} at {args.rate:g} Hz; SITL link {fmt_endpoint(ap.sitl.local)} -> "
+        f"autopilot: {opts.name} (Lv={lv:g}) {mode} at {rate:g} Hz; SITL link {fmt_endpoint(ap.sitl.local)} -> "
         f"{fmt_endpoint(args.sitl)}; GCS link {fmt_endpoint(ap.gcs.local)} -> {fmt_endpoint(args.gcs)}{rt_note}",
         flush=True,
     )

@@ -48,7 +48,7 @@ import math
 
 import numpy as np
 
-from autopilot.config import ClSacConfig, NonFiniteInputError
+from autopilot.config import ClSacConfig, ConfigError, NonFiniteInputError
 from autopilot.shared.numerics import zoh
 
 TELEMETRY_FIELDS = (
@@ -271,6 +271,22 @@ class ClSac:
             self.xd = self._phi_d @ self.xd + self._gam_d @ u[None, :]
             self.u = self.u_raw = u.copy()
         self.frozen = True
+
+    def reconfigure(self, config: ClSacConfig) -> None:
+        """Fly ``config`` from the next step on, keeping the states (a parameter change or a SAC <-> CL-SAC
+        switch in flight): the coefficients are discretised again, x_m, x_m,ol, the integral gains and the last
+        step's internals are kept.  A first-order PFC keeps its output y_d = C_d x_d (x_d rescaled), so y_a does
+        not jump; a PFC of another order starts from rest.  Raises ``ConfigError`` for other dimensions."""
+        if config.dims() != self.config.dims():
+            raise ConfigError(f"reconfigure needs the same dimensions {self.config.dims()}, got {config.dims()}")
+        kept = {k: v for k, v in vars(self).items() if not k.startswith("_") and k not in ("config", "dt")}
+        cd_old, nd_old = self._cd, self._nd
+        self.__init__(config, fast=self._fast)
+        if self._nd != nd_old:
+            del kept["xd"]
+        elif self._nd == 1:
+            kept["xd"] = kept["xd"] * float(cd_old[0, 0] / self._cd[0, 0])  # y_d = C_d x_d unchanged
+        vars(self).update(kept)
 
     def _step_siso(self, y, um):
         y = float(y)

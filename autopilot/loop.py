@@ -33,10 +33,12 @@ from dataclasses import dataclass, field
 
 from autopilot.clsac import ClSac
 from autopilot.config import ClSacConfig
+from autopilot.params import ParamTable
 from autopilot.shared.events import StatusEvents, printable
 from autopilot.shared.link import ANY_COMPONENT, UdpLink
 from autopilot.shared.mavlink import (
     AUTOPILOT_ID,
+    AUTOPILOT_SITL_ID,
     GCS_ID,
     SETPOINT_TYPEMASK,
     SITL_ID,
@@ -52,6 +54,8 @@ from autopilot.shared.pwm import PwmMap
 from autopilot.shared.series import SeriesRecorder
 from autopilot.shared.signing import SIGNING_LINK_GCS, SIGNING_LINK_SITL, Signing
 from autopilot.step import ControlStep, Failsafe, StepResult
+from autopilot.vehicle import MSGIDS as VEHICLE_MSGIDS
+from autopilot.vehicle import Mode, Vehicle
 
 M = mavlink
 ATTITUDE = M.MAVLINK_MSG_ID_ATTITUDE
@@ -130,6 +134,7 @@ class StepRecord:
 class _Attitude:
     ms: int = -1
     roll: float = 0.0
+    yaw: float = 0.0  # heading (ATTITUDE.yaw), relayed to the GCS
     p: float = 0.0
     r: float = 0.0
     t_rx: float = -1.0  # perf_counter when received
@@ -180,7 +185,20 @@ class TimingStats:
 
 
 class Autopilot:
-    def __init__(self, opts: AutopilotOptions, ctrl_config: ClSacConfig, pwm: PwmMap, tlog=None, out=None):
+    def __init__(
+        self,
+        opts: AutopilotOptions,
+        ctrl_config: ClSacConfig,
+        pwm: PwmMap,
+        tlog=None,
+        out=None,
+        *,
+        params: ParamTable | None = None,
+        mode: Mode = Mode.CLSAC,
+        armed: bool = True,
+    ):
+        """``ctrl_config``: the law at start; ``params``: the parameter table (default: from ``ctrl_config`` and
+        ``opts``; its CLSAC_LV is the configured L_v, which mode SAC flies as 0); ``mode``, ``armed``: at start."""
         self.opts = opts
         self.pwm = pwm
         self.tlog = tlog
@@ -193,7 +211,7 @@ class Autopilot:
         self.setpoints = self.control.setpoints
         self.sitl = UdpLink(
             "sitl",
-            AUTOPILOT_ID,
+            AUTOPILOT_SITL_ID,  # its own component: tlog readers separate it from the GCS link (1:1)
             opts.sitl_bind,
             opts.sitl,
             peers=[SITL_ID],
@@ -207,7 +225,7 @@ class Autopilot:
             opts.gcs_bind,
             opts.gcs,
             peers=opts.gcs_ids,
-            msgids=[SET_ATTITUDE_TARGET, HEARTBEAT],
+            msgids=[SET_ATTITUDE_TARGET, HEARTBEAT, *VEHICLE_MSGIDS],
             admit=opts.max_gcs,
             peer_addrs=opts.gcs_peers,
             signing=Signing(opts.signing_key, SIGNING_LINK_GCS) if opts.signing_key else None,
@@ -240,6 +258,14 @@ class Autopilot:
         self._next_heartbeat = 0.0
         self._next_flush = 0.0
         self._status_state = M.MAV_STATE_STANDBY
+        # The ground-station protocol (autopilot.vehicle): modes, parameters, commands, streams.
+        if params is None:
+            params = ParamTable(
+                ctrl_config,
+                {k: getattr(opts, k) for k in ("attitude_timeout_s", "setpoint_timeout_s", "max_roll_rad")},
+            )
+        self.params = params
+        self.vehicle = Vehicle(self, params, mode, armed)
         # lockstep
         self.first_frame = None
         self.last_frame = None  # last frame answered
@@ -280,6 +306,7 @@ class Autopilot:
             if not -3.1416 <= roll <= 3.1416:
                 self.sitl.reject("roll_out_of_range")
                 return
+            self.att.yaw = msg.yaw  # heading, for the GCS's ATTITUDE only (the law flies roll)
             ms = msg.time_boot_ms
             if self.opts.lockstep:
                 self._on_frame(ms, t_rx, roll, p, r)
@@ -302,6 +329,7 @@ class Autopilot:
 
     def _on_gcs(self, msg, t_rx):
         if msg.get_msgId() != SET_ATTITUDE_TARGET:
+            self.vehicle.handle(msg)  # commands, parameters, modes, manual input (autopilot.vehicle)
             return
         ev = self.events
         if msg.target_system not in (0, AUTOPILOT_ID[0]) or msg.target_component not in (0, AUTOPILOT_ID[1]):
@@ -360,23 +388,20 @@ class Autopilot:
         return (time_usec, *s[:8], 0, *s[8:])
 
     def _send_heartbeat(self, status=None):
-        status = self._status_state if status is None else status
-        base = M.MAV_MODE_FLAG_CUSTOM_MODE_ENABLED | M.MAV_MODE_FLAG_STABILIZE_ENABLED | M.MAV_MODE_FLAG_SAFETY_ARMED
+        hb = self.vehicle.heartbeat(self._status_state if status is None else status)
         for link in (self.gcs, self.sitl):
-            link.send(M.MAVLink_heartbeat_message(M.MAV_TYPE_FIXED_WING, M.MAV_AUTOPILOT_GENERIC, base, 0, status, 3))
+            link.send(hb)
 
     def _send_telemetry(self, t_ms: int, phi: float, p: float, r: float, servo_wire: tuple):
-        """ATTITUDE, ATTITUDE_TARGET and SERVO_OUTPUT_RAW to the GCS, in one datagram."""
+        """ATTITUDE (heading from the SITL), ATTITUDE_TARGET and SERVO_OUTPUT_RAW to every GCS, in one datagram."""
         g = self.gcs
-        if g.remote is None:
-            return
         q = roll_to_quaternion(self.setpoints.current)
         bufs = [
-            g.pack_fast(self._pk_att, t_ms, phi, 0.0, 0.0, p, 0.0, r),
+            g.pack_fast(self._pk_att, t_ms, phi, 0.0, self.att.yaw, p, 0.0, r),
             g.pack_fast(self._pk_att_target, t_ms, q[0], q[1], q[2], q[3], 0.0, 0.0, 0.0, 0.0, SETPOINT_TYPEMASK),
             g.pack_fast(self._pk_servo_gcs, *servo_wire),
         ]
-        g.send_batch(bufs, _TELEMETRY_IDS)
+        self.vehicle.stream(bufs, _TELEMETRY_IDS)
 
     # ============================================================ housekeeping
     def _housekeeping(self, now: float):
@@ -386,6 +411,7 @@ class Autopilot:
             self._send_heartbeat()
             if not self.opts.lockstep and self.att.valid:
                 self.gcs.send(M.MAVLink_system_time_message(time.time_ns() // 1000, self.att.ms))
+        self.vehicle.housekeeping(now)
         if self.tlog is not None and now >= self._next_flush:
             self._next_flush = now + 0.5
             self.tlog.flush()
@@ -465,6 +491,7 @@ class Autopilot:
         self.steps += 1
         if self._telemetry_every and self.steps % self._telemetry_every == 1 % self._telemetry_every:
             self._send_telemetry(att.ms, att.roll, att.p, att.r, wire)
+        self.vehicle.on_step(self.steps, att.ms)
         if self.hooks:
             rec = StepRecord(
                 result=res,
@@ -565,9 +592,6 @@ class Autopilot:
         control = self.control
         timing = self.timing
         sitl = self.sitl
-        att_timeout = opts.attitude_timeout_s
-        sp_timeout = opts.setpoint_timeout_s
-        tel_every = self._telemetry_every
         pk_servo = self._pk_servo_sitl
         sitl_handler = self._sitl_handler
         while not self.stop_requested:
@@ -587,7 +611,7 @@ class Autopilot:
             sitl.poll(sitl_handler)  # an attitude that came in during the spin is the freshest one
             # ---- the step (critical path: attitude -> controller -> servo out)
             age = t_wake - att.t_rx if att.valid else math.inf
-            if age > att_timeout:
+            if age > opts.attitude_timeout_s:  # CLSAC_FS_ATT_TMO may change in flight
                 # No (fresh) attitude: rudder neutral, PFC follows it, adaptation frozen.
                 res = control.hold(att.ms * 1e-3, att.roll, self.failsafe if att.valid else Failsafe.NONE)
                 wire = self._servo_wire(_wall_usec(), res.pwm)
@@ -604,7 +628,7 @@ class Autopilot:
                     self._leave_failsafe()
                 elif self._status_state == M.MAV_STATE_STANDBY:
                     self._status_state = M.MAV_STATE_ACTIVE
-                lost = t_wake - self.last_setpoint_wall > sp_timeout
+                lost = t_wake - self.last_setpoint_wall > opts.setpoint_timeout_s
                 if lost != self.setpoint_lost:
                     self._setpoint_stream(lost)
                 res = control(att.ms * 1e-3, att.roll, wings_level=lost)
@@ -623,8 +647,10 @@ class Autopilot:
             prev_wake = t_wake
             latency = (t_sent - att.t_rx) if att.valid else None
             timing.add(per, lateness, t_sent - t_wake, latency)
+            tel_every = self._telemetry_every  # SET_MESSAGE_INTERVAL / REQUEST_DATA_STREAM may change it
             if tel_every and self.steps % tel_every == 1 % tel_every:
                 self._send_telemetry(att.ms if att.valid else 0, att.roll, att.p, att.r, wire)
+            self.vehicle.on_step(self.steps, att.ms if att.valid else 0)
             if self.hooks:
                 rec = StepRecord(
                     result=res,
@@ -688,6 +714,7 @@ class Autopilot:
 
     def _leave_failsafe(self):
         self.failsafe = Failsafe.NONE
+        self.control.transfer()  # from neutral back to the law without a step
         self.recoveries += 1
         self._status_state = M.MAV_STATE_ACTIVE
         self._send_heartbeat()
@@ -700,6 +727,7 @@ class Autopilot:
         # collector's reach so a full collection never walks it inside the loop (several ms on this heap).
         gc.collect()
         gc.freeze()
+        self.params.flying = True  # CLSAC_RATE is read-only from now on
         try:
             return self.run_lockstep() if self.opts.lockstep else self.run_realtime()
         finally:
@@ -707,11 +735,7 @@ class Autopilot:
 
     def shutdown(self):
         try:
-            self.gcs.send(
-                M.MAVLink_heartbeat_message(
-                    M.MAV_TYPE_FIXED_WING, M.MAV_AUTOPILOT_GENERIC, 0, 0, M.MAV_STATE_POWEROFF, 3
-                )
-            )
+            self.gcs.send(self.vehicle.heartbeat(M.MAV_STATE_POWEROFF))
         except OSError:
             pass
         if self.tlog is not None:
@@ -779,6 +803,8 @@ SERIES_KEYS = (
     "kpu",
     "kiu",
     "ku",
+    "mode",
+    "armed",
 )
 
 
@@ -808,6 +834,8 @@ def _series_row(rec: StepRecord) -> tuple:
         c.kpu,
         c.kiu,
         c.ku,
+        int(rec.ap.vehicle.mode),  # HEARTBEAT.custom_mode (autopilot.vehicle.Mode)
+        rec.ap.control.armed,
     )
 
 

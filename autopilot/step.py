@@ -130,6 +130,9 @@ class ProfileSetpoints:
         return v
 
 
+TRANSFER_TAU_S = 0.2  # bumpless mode transfer: time constant of the command's approach to the new source
+
+
 class ControlStep:
     """The control step: ``step(t, phi) -> StepResult``.
 
@@ -157,6 +160,40 @@ class ControlStep:
         self.metrics_commanded = MetricsAccumulator(self.config.dt) if pwm is not None else self.metrics
         self.k = 0
         self.nonfinite_inputs = 0  # steps whose measurement or command was NaN/Inf: flown as a hold
+        # Ground-station modes (autopilot.vehicle): disarmed = rudder neutral; ``manual`` (rad, None = the law)
+        # flies a rudder command from the ground station while the law only follows it (ClSac.hold).
+        self.armed = True
+        self.manual: float | None = None
+        self.transfer_tau = TRANSFER_TAU_S
+        self._offset = 0.0  # bumpless transfer: added to the new source's command, decays with transfer_tau
+        self._decay = math.exp(-self.config.dt / TRANSFER_TAU_S)
+        self._transfer = False
+        self.u_last = 0.0
+
+    def transfer(self) -> None:
+        """A mode switch (or arming): the next command starts where the last one was and joins the new source
+        exponentially (time constant ``transfer_tau``), so the rudder command never steps."""
+        self._transfer = True
+
+    def reconfigure(self, config: ClSacConfig) -> None:
+        """Fly ``config`` from the next step, keeping the law's states (``ClSac.reconfigure``)."""
+        self.law.reconfigure(config)
+        self.config = config
+
+    def _source(self, u: float) -> float:
+        """The command after the bumpless transfer (the offset is 0.0 and untouched outside a transfer)."""
+        if self._transfer:
+            self._transfer = False
+            self._offset = self.u_last - u
+        if self._offset:
+            u += self._offset
+            self._offset = off = self._offset * self._decay
+            if abs(off) < 1e-9:
+                self._offset = 0.0
+            lim = self.config.u_limit_rad
+            u = lim if u > lim else (-lim if u < -lim else u)
+        self.u_last = u
+        return u
 
     def reset(self) -> None:
         """Back to the initial conditions (law, metrics, step count); the setpoints are the caller's."""
@@ -165,6 +202,8 @@ class ControlStep:
         self.metrics_commanded.reset()
         self.k = 0
         self.nonfinite_inputs = 0
+        self.u_last = self._offset = 0.0
+        self._transfer = False
 
     def __call__(self, t: float, phi: float, *, wings_level: bool = False) -> StepResult:
         """One step on the measured roll ``phi`` (rad) at sim time ``t`` (s).
@@ -176,12 +215,18 @@ class ControlStep:
         if wings_level:
             um = setpoints.current = 0.0
         law = self.law
+        if not self.armed or self.manual is not None:
+            # Disarmed: rudder neutral at once.  MANUAL: the ground station's rudder; the law follows it.
+            if not self.armed:
+                self.u_last = self._offset = 0.0
+            return self._hold_step(t, phi, um, self._source(self.manual) if self.armed else 0.0)
         try:
             u_cmd = law(phi, um)  # paper eqs. (6), (21), limited to +-u_limit (autopilot.clsac)
         except NonFiniteInputError:
             # A NaN/Inf measurement or command never reaches the states or the metrics: a hold step instead.
             self.nonfinite_inputs += 1
             return self.hold(t, phi, Failsafe.NO_ATTITUDE if phi - phi != 0.0 else Failsafe.NO_SETPOINT)
+        u_cmd = self._source(u_cmd)
         pwm_map = self.pwm
         if pwm_map is None:
             pwm = None
@@ -198,7 +243,17 @@ class ControlStep:
 
     def hold(self, t: float, phi: float = math.nan, failsafe: Failsafe = Failsafe.NO_ATTITUDE) -> StepResult:
         """A failsafe step: rudder neutral, the PFC follows it, adaptation frozen (``ClSac.hold``); no metrics."""
-        self.law.hold(0.0)
+        self.u_last = 0.0
+        self._offset = 0.0
+        return self._hold_step(t, phi, self.setpoints.current, 0.0, failsafe)
+
+    def _hold_step(self, t, phi, um, u_cmd: float, failsafe: Failsafe = Failsafe.NONE) -> StepResult:
+        """A step flown by someone else's command ``u_cmd`` (failsafe, disarmed, MANUAL): the PFC follows it,
+        adaptation frozen (``ClSac.hold``), no metrics."""
+        self.law.hold(u_cmd)
         self.k += 1
-        pwm = self.pwm.neutral if self.pwm is not None else None
-        return StepResult(self.k, t, self.setpoints.current, phi, 0.0, 0.0, pwm, failsafe, False)
+        pwm_map = self.pwm
+        if pwm_map is None:
+            return StepResult(self.k, t, um, phi, u_cmd, u_cmd, None, failsafe, False)
+        pwm = pwm_map.to_pwm(u_cmd)
+        return StepResult(self.k, t, um, phi, u_cmd, pwm_map.to_rad(pwm), pwm, failsafe, False)

@@ -28,7 +28,7 @@ from dataclasses import dataclass
 
 from autopilot.shared.events import StatusEvents
 from autopilot.shared.link import UdpLink
-from autopilot.shared.mavlink import AUTOPILOT_ID, SITL_ID, frame_ms, frame_usec, mavlink, usec_diff
+from autopilot.shared.mavlink import AUTOPILOT_SITL_ID, SITL_ID, frame_ms, frame_usec, mavlink, usec_diff
 from autopilot.shared.numerics import wrap_pi
 from autopilot.shared.pwm import PWM_VALID_RANGE, PwmMap
 from autopilot.shared.series import SeriesRecorder
@@ -112,7 +112,7 @@ class Sitl:
             SITL_ID,
             opts.listen,
             None,
-            peers=[AUTOPILOT_ID],
+            peers=[AUTOPILOT_SITL_ID],
             msgids=[SERVO_OUTPUT_RAW, HEARTBEAT],
             learn_remote=True,
             signing=Signing(opts.signing_key, SIGNING_LINK_SIM) if opts.signing_key else None,
@@ -133,6 +133,16 @@ class Sitl:
         self._servos: list = []  # servo messages received, not yet consumed: (time_usec, msg, t_rx)
         self._fds = [self.link.sock]  # select(2): microsecond timeouts (epoll rounds up to milliseconds)
         self._pk_att = self.link.fast_packer(M.MAVLink_attitude_message)
+        self._psi = self._psi_t = self._psi_r = 0.0  # heading, the time and yaw rate it was integrated to
+
+    def _heading(self) -> float:
+        """Heading psi (rad, wrapped to (-pi, pi]) for ATTITUDE.yaw: psi' = r (level turn, pitch 0), integrated with
+        the trapezoid rule between ATTITUDE messages.  Not a state of the lateral model (docs/design.md, "Units")."""
+        t, r = self.aircraft.time, float(self.aircraft.x[2])
+        if t > self._psi_t:
+            self._psi = wrap_pi(self._psi + 0.5 * (r + self._psi_r) * (t - self._psi_t))
+        self._psi_t, self._psi_r = t, r
+        return self._psi
 
     # ------------------------------------------------------------------ util
     def _heartbeat(self):
@@ -173,11 +183,11 @@ class Sitl:
         phi = wrap_pi(phi)
         if k is not None:  # lockstep: this frame carries the newest sample delivered, once per datagram arriving
             (phi, p, r), n = inj.uplink_frame(k, (phi, p, r))
-            raw = self.link.pack_fast(self._pk_att, ms, phi, 0.0, 0.0, p, 0.0, r)
+            raw = self.link.pack_fast(self._pk_att, ms, phi, 0.0, self._heading(), p, 0.0, r)
             for _ in range(max(1, n)):
                 self.link.send_raw(raw, ATTITUDE)
             return raw
-        raw = self.link.pack_fast(self._pk_att, ms, phi, 0.0, 0.0, p, 0.0, r)
+        raw = self.link.pack_fast(self._pk_att, ms, phi, 0.0, self._heading(), p, 0.0, r)
         for out in inj.uplink_raw(time.perf_counter(), raw):
             self.link.send_raw(out, ATTITUDE)
         return raw
@@ -190,7 +200,9 @@ class Sitl:
             return self._send_attitude_disturbed(ms, k)
         x = self.aircraft.x
         # roll wrapped to (-pi, pi] where it is measured, as a real attitude sensor reports it
-        raw = self.link.pack_fast(self._pk_att, ms, wrap_pi(float(x[3])), 0.0, 0.0, float(x[1]), 0.0, float(x[2]))
+        raw = self.link.pack_fast(
+            self._pk_att, ms, wrap_pi(float(x[3])), 0.0, self._heading(), float(x[1]), 0.0, float(x[2])
+        )
         self.link.send_raw(raw, ATTITUDE)
         return raw
 

@@ -120,7 +120,7 @@ def test_random_bytes(flight):
 
 def test_truncated_packets(flight):
     n = 100
-    good_sitl, good_gcs, good_ap = mav(1, 200), mav(255, 190), mav(1, 1)
+    good_sitl, good_gcs, good_ap = mav(1, 200), mav(255, 190), mav(1, 140)
     att = [_attitude(good_sitl)[: 8 + k % 10] for k in range(n)]
     sp = [_setpoint(good_gcs, [1.0, 0.0, 0.0, 0.0])[: -1 - k % 20] for k in range(n)]
     srv = [_servo(good_ap)[: 12 + k % 5] for k in range(n)]
@@ -156,7 +156,7 @@ def test_forged_attitude_and_servo_from_another_port(flight):
     # servo messages with the autopilot's IDs but time stamps 10 s old (real time: time_usec is the autopilot's
     # Unix-clock microseconds mod 2**32): stale, not applied
     old_usec = (time.time_ns() // 1000 - 10_000_000) % (1 << 32)
-    flight.send("sitl", [_servo(mav(1, 1), time_usec=(old_usec + k) % (1 << 32), pwm=2000) for k in range(50)])
+    flight.send("sitl", [_servo(mav(1, 140), time_usec=(old_usec + k) % (1 << 32), pwm=2000) for k in range(50)])
     ap, sitl = flight.finish()
     # the links are pinned to their peers: the right IDs from any other port are not even decoded
     assert _rejected(ap, "sitl")["not_peer"] == len(bad) + len(old)
@@ -190,11 +190,11 @@ def _flood_payloads(rng, right_id):
         elif kind == 1:
             out.append(_attitude(wrong, roll=0.5))
         else:
-            out.append(pack(right, mavlink.MAVLink_param_request_list_message(1, 1)))
+            out.append(pack(right, mavlink.MAVLink_named_value_int_message(0, b"unused", 1)))
     return out
 
 
-@pytest.mark.parametrize("where,right_id", [("ap_sitl", (1, 200)), ("ap_gcs", (255, 190)), ("sitl", (1, 1))])
+@pytest.mark.parametrize("where,right_id", [("ap_sitl", (1, 200)), ("ap_gcs", (255, 190)), ("sitl", (1, 140))])
 def test_flood_of_10000_packets_per_second(flight, where, right_id):
     rng = random.Random(3)
     payloads = _flood_payloads(rng, right_id)

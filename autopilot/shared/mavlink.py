@@ -11,7 +11,10 @@ import math
 from pymavlink.dialects.v20 import common as mavlink  # noqa: F401  (MAVLink 2, common dialect; re-exported)
 
 # ---------------------------------------------------------------------------------------------- IDs
-AUTOPILOT_ID = (1, 1)
+AUTOPILOT_ID = (1, 1)  # the autopilot as ground stations see it (its GCS link; MAV_COMP_ID_AUTOPILOT1)
+# The autopilot's link to the SITL: its own component (MAV_COMP_ID_SERVO1, it drives the rudder servo), so a tlog
+# reader tells its SERVO_OUTPUT_RAW to the SITL from the copy streamed to the ground stations by 1:1.
+AUTOPILOT_SITL_ID = (1, 140)
 SITL_ID = (1, 200)
 GCS_ID = (255, 190)
 

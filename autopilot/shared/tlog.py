@@ -93,7 +93,8 @@ def packet_payload(raw) -> bytes:
 # Messages whose emission is driven by wall-clock timers (1 Hz heartbeats, status texts, sim-time
 # announcements while waiting): their number and position depend on speed, so determinism
 # comparisons leave them out.  Everything else in a lockstep run is driven by the frames.
-WALL_CLOCK_MSG_IDS = frozenset({0, 2, 253})  # HEARTBEAT, SYSTEM_TIME, STATUSTEXT
+# HEARTBEAT, SYS_STATUS, SYSTEM_TIME, STATUSTEXT, CURRENT_MODE (1 Hz to the ground stations)
+WALL_CLOCK_MSG_IDS = frozenset({0, 1, 2, 253, 436})
 
 
 def payload_streams(path: str, exclude=WALL_CLOCK_MSG_IDS) -> dict[tuple[int, int, int], list[bytes]]:

@@ -179,7 +179,7 @@ def _floor_sitl_side(conn, cpu: int | None, spin_s: float, seconds: float, runs:
     import time
 
     from autopilot.shared.link import UdpLink
-    from autopilot.shared.mavlink import AUTOPILOT_ID, SITL_ID, frame_ms, frame_usec, mavlink
+    from autopilot.shared.mavlink import AUTOPILOT_SITL_ID, SITL_ID, frame_ms, frame_usec, mavlink
     from autopilot.shared.pwm import PwmMap
 
     try:
@@ -190,7 +190,7 @@ def _floor_sitl_side(conn, cpu: int | None, spin_s: float, seconds: float, runs:
             SITL_ID,
             ("127.0.0.1", 0),
             None,
-            peers=[AUTOPILOT_ID],
+            peers=[AUTOPILOT_SITL_ID],
             msgids=[servo_id, mavlink.MAVLINK_MSG_ID_HEARTBEAT],
             learn_remote=True,
         )
@@ -276,7 +276,7 @@ def _floor_autopilot_side(conn, cpu: int | None, spin_s: float) -> None:
     import time
 
     from autopilot.shared.link import UdpLink
-    from autopilot.shared.mavlink import AUTOPILOT_ID, SITL_ID, frame_from_ms, frame_usec, mavlink
+    from autopilot.shared.mavlink import AUTOPILOT_SITL_ID, SITL_ID, frame_from_ms, frame_usec, mavlink
     from autopilot.shared.pwm import PwmMap
 
     try:
@@ -286,7 +286,7 @@ def _floor_autopilot_side(conn, cpu: int | None, spin_s: float) -> None:
         servo_id = mavlink.MAVLINK_MSG_ID_SERVO_OUTPUT_RAW
         link = UdpLink(
             "sitl",
-            AUTOPILOT_ID,
+            AUTOPILOT_SITL_ID,
             ("127.0.0.1", 0),
             sitl_addr,
             peers=[SITL_ID],

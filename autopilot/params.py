@@ -1,0 +1,203 @@
+"""The autopilot's parameter table: every controller value as a named MAVLink parameter (docs/design.md, "MAVLink").
+
+Names are at most 16 characters (PARAM_VALUE.param_id), all ``CLSAC_*``, values SI (rad, s, Hz) and sent as
+REAL32.  :class:`ParamTable` holds the values, validates a set (a rejected set leaves the value unchanged and
+raises :class:`ParamError` with a one-line reason) and builds the :class:`~autopilot.config.ClSacConfig` the
+law flies.  :func:`load_file` / :func:`save_file` read and write the two parameter-file formats of the ground
+stations: MAVProxy's ``NAME VALUE`` lines and QGroundControl's tab-separated ``SYS COMP NAME VALUE TYPE``.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from pathlib import Path
+
+from autopilot.config import ClSacConfig, ConfigError
+
+PARAM_ID_LEN = 16  # PARAM_VALUE.param_id: char[16], no terminator when full
+MAV_PARAM_TYPE_REAL32 = 9  # what QGroundControl's file format writes in its last column
+
+
+class ParamError(ValueError):
+    """A parameter set or file line was rejected; the message says which name and why."""
+
+
+@dataclass(frozen=True)
+class Param:
+    """One parameter: ``name`` (<= 16 chars), the ``ClSacConfig`` field it sets (``field``) or an autopilot
+    option (``option``, a key of :class:`ParamTable` ``options``), a unit and a one-line description.
+    ``low``/``high`` bound options (configuration fields are validated by ``ClSacConfig`` itself);
+    ``flying_read_only``: rejected once the loop runs."""
+
+    name: str
+    unit: str
+    doc: str
+    field: str | None = None
+    option: str | None = None
+    low: float = -math.inf
+    high: float = math.inf
+    flying_read_only: bool = False
+
+
+# The order is the index of PARAM_REQUEST_READ / PARAM_VALUE.param_index.
+PARAMS: tuple[Param, ...] = (
+    Param("CLSAC_LV", "1/s", "closed-loop reference gain Lv (paper eq. (18)); mode SAC flies Lv = 0", field="lv"),
+    Param("CLSAC_SIGMA", "1/s", "sigma-modification of K_Ie (paper sec. 2)", field="sigma"),
+    Param("CLSAC_GAM_PE", "rad^-2", "adaptation weight Gamma_pe (paper sec. 2-3)", field="gamma_pe"),
+    Param("CLSAC_GAM_IE", "rad^-2/s", "adaptation weight Gamma_Ie", field="gamma_ie"),
+    Param("CLSAC_GAM_PX", "rad^-2", "adaptation weight Gamma_px", field="gamma_px"),
+    Param("CLSAC_GAM_IX", "rad^-2/s", "adaptation weight Gamma_Ix", field="gamma_ix"),
+    Param("CLSAC_GAM_PU", "rad^-2", "adaptation weight Gamma_pu", field="gamma_pu"),
+    Param("CLSAC_GAM_IU", "rad^-2/s", "adaptation weight Gamma_Iu", field="gamma_iu"),
+    Param("CLSAC_SIGMA_X", "1/s", "leakage of K_Ix (not in the paper; 0 = paper)", field="sigma_x"),
+    Param("CLSAC_SIGMA_U", "1/s", "leakage of K_Iu (not in the paper; 0 = paper)", field="sigma_u"),
+    Param("CLSAC_AM", "1/s", "reference model A_m (paper eq. (3))", field="am"),
+    Param("CLSAC_BM", "1/s", "reference model B_m", field="bm"),
+    Param("CLSAC_CM", "", "reference model C_m", field="cm"),
+    Param("CLSAC_PFC_NUM", "", "PFC D(s) = NUM / (DEN1 s + DEN0) (paper sec. 5.1: 10)", field="pfc_num"),
+    Param("CLSAC_PFC_DEN1", "s", "PFC denominator, s coefficient (paper: 4)", field="pfc_den"),
+    Param("CLSAC_PFC_DEN0", "", "PFC denominator, constant (paper: 40)", field="pfc_den"),
+    Param("CLSAC_U_LIMIT", "rad", "rudder command limit", field="u_limit_rad"),
+    Param("CLSAC_ANTIWINDUP", "", "conditional-integration anti-windup, 1 on / 0 off", field="anti_windup"),
+    Param("CLSAC_RATE", "Hz", "control rate (read-only while flying)", field="control_rate_hz", flying_read_only=True),
+    Param("CLSAC_FS_ATT_TMO", "s", "failsafe after this long without attitude", option="attitude_timeout_s", low=1e-3),
+    Param(
+        "CLSAC_FS_SP_TMO", "s", "wings level after this long without setpoint", option="setpoint_timeout_s", low=0.01
+    ),
+    Param("CLSAC_MAX_ROLL", "rad", "roll setpoint clamp", option="max_roll_rad", low=1e-3, high=math.pi / 2),
+)
+BY_NAME = {p.name: p for p in PARAMS}
+assert all(len(p.name) <= PARAM_ID_LEN for p in PARAMS)
+
+
+def _config_value(cfg: ClSacConfig, name: str) -> float:
+    p = BY_NAME[name]
+    if name == "CLSAC_PFC_NUM":
+        num = cfg.pfc_num
+        return float(num[-1]) if len(num) == 1 else math.nan
+    if name in ("CLSAC_PFC_DEN1", "CLSAC_PFC_DEN0"):
+        den = cfg.pfc_den
+        return float(den[0 if name.endswith("1") else 1]) if len(den) == 2 else math.nan
+    return float(getattr(cfg, p.field))
+
+
+class ParamTable:
+    """The values of :data:`PARAMS`: ``get``, ``set`` (validated), ``config``.
+
+    ``config``: the configured law (its ``lv`` is the configured L_v, whatever the mode flies).  ``options``:
+    the non-law values, keyed by ``Param.option`` (``attitude_timeout_s``, ``setpoint_timeout_s``,
+    ``max_roll_rad``).  The law's parameters describe the SISO CL-SAC law with a first-order PFC; for any other
+    law (the fixed-gain baseline) the table has the options only.  ``params``: the parameters, in index order.
+    """
+
+    def __init__(self, config, options: dict[str, float]):
+        clsac = isinstance(config, ClSacConfig) and config.is_siso and len(config.pfc_den) == 2
+        self.params = PARAMS if clsac else tuple(p for p in PARAMS if p.option)
+        self._names = {p.name: p for p in self.params}
+        self._config = config
+        self._options = {p.option: float(options[p.option]) for p in PARAMS if p.option}
+        self.flying = False  # set by the loop once it runs: CLSAC_RATE is then read-only
+
+    def __len__(self) -> int:
+        return len(self.params)
+
+    def __contains__(self, name: str) -> bool:
+        return name in self._names
+
+    @property
+    def config(self) -> ClSacConfig:
+        return self._config
+
+    def option(self, key: str) -> float:
+        return self._options[key]
+
+    def get(self, name: str) -> float:
+        p = self._names.get(name)
+        if p is None:
+            raise ParamError(f"unknown parameter {name!r}")
+        return self._options[p.option] if p.option else _config_value(self._config, name)
+
+    def index(self, name: str) -> int:
+        return self.params.index(self._names[name])
+
+    def items(self) -> list[tuple[str, float]]:
+        return [(p.name, self.get(p.name)) for p in self.params]
+
+    def set(self, name: str, value: float) -> float:
+        """Set ``name`` to ``value`` (validated); returns the value now held.  Raises :class:`ParamError`
+        (value unchanged) for an unknown name, a non-finite value, a read-only parameter or an invalid law."""
+        p = self._names.get(name)
+        if p is None:
+            raise ParamError(f"unknown parameter {name!r}")
+        value = float(value)
+        if not math.isfinite(value):
+            raise ParamError(f"{name} must be finite, got {value!r}")
+        if p.flying_read_only and self.flying and value != self.get(name):
+            raise ParamError(f"{name} is read-only while flying")
+        if p.option:
+            if not p.low <= value <= p.high:
+                raise ParamError(f"{name} must be in [{p.low:g}, {p.high:g}], got {value:g}")
+            self._options[p.option] = value
+            return value
+        cfg = self._config
+        if name == "CLSAC_PFC_NUM":
+            change = {"pfc_num": (value,)}
+        elif name == "CLSAC_PFC_DEN1":
+            change = {"pfc_den": (value, cfg.pfc_den[1])}
+        elif name == "CLSAC_PFC_DEN0":
+            change = {"pfc_den": (cfg.pfc_den[0], value)}
+        elif name == "CLSAC_ANTIWINDUP":
+            if value not in (0.0, 1.0):
+                raise ParamError(f"{name} must be 0 or 1, got {value:g}")
+            change = {"anti_windup": bool(value)}
+        else:
+            change = {p.field: value}
+        try:
+            self._config = cfg.with_(**change)
+        except ConfigError as exc:
+            raise ParamError(f"{name}={value:g} rejected: {exc}") from None
+        return self.get(name)
+
+    def update(self, values: dict[str, float]) -> None:
+        """Set several (a loaded file) in one go; the first rejected one raises and nothing is changed."""
+        saved = (self._config, dict(self._options))
+        try:
+            for name, value in values.items():
+                self.set(name, value)
+        except ParamError:
+            self._config, self._options = saved
+            raise
+
+
+def load_file(path) -> dict[str, float]:
+    """Read a parameter file: MAVProxy's ``NAME VALUE`` (comma or blanks) or QGroundControl's
+    ``SYS COMP NAME VALUE TYPE`` lines; ``#`` starts a comment.  Raises :class:`ParamError` naming the line."""
+    out: dict[str, float] = {}
+    for n, line in enumerate(Path(path).read_text().splitlines(), 1):
+        line = line.split("#", 1)[0].strip()
+        if not line:
+            continue
+        fields = line.replace(",", " ").split()
+        if len(fields) == 2:
+            name, value = fields
+        elif len(fields) == 5:
+            name, value = fields[2], fields[3]
+        else:
+            raise ParamError(f"{path}:{n}: expected 'NAME VALUE' or 'SYS COMP NAME VALUE TYPE', got {line!r}")
+        try:
+            out[name] = float(value)
+        except ValueError:
+            raise ParamError(f"{path}:{n}: {name}: not a number: {value!r}") from None
+    return out
+
+
+def save_file(path, items, *, qgc: bool = False, ids: tuple[int, int] = (1, 1)) -> None:
+    """Write ``(name, value)`` pairs in MAVProxy's format (``param load`` reads it) or, ``qgc=True``, in
+    QGroundControl's."""
+    if qgc:
+        lines = ["# Onboard parameters for Vehicle 1", "#", "# Vehicle-Id Component-Id Name Value Type"]
+        lines += [f"{ids[0]}\t{ids[1]}\t{n}\t{v:.9g}\t{MAV_PARAM_TYPE_REAL32}" for n, v in items]
+    else:
+        lines = [f"{n:<16s} {v:.9g}" for n, v in items]
+    Path(path).write_text("\n".join(lines) + "\n")

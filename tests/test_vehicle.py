@@ -1,0 +1,434 @@
+"""The autopilot as a MAVLink vehicle: a real pymavlink client over UDP against the real autopilot process.
+
+Parameters (download, read, accepted and rejected sets, save/load and ``--params``), commands (acks, unsupported,
+REQUEST_MESSAGE, SET_MESSAGE_INTERVAL), mission count, TIMESYNC, PING, arming, modes with a bumpless rudder, two
+ground stations, and a lockstep CLSAC_LV change mid-flight (autopilot.vehicle, autopilot.params).
+"""
+
+from __future__ import annotations
+
+import math
+import os
+import time
+
+import numpy as np
+import pytest
+
+os.environ.setdefault("MAVLINK20", "1")
+from pymavlink import mavutil  # noqa: E402
+from pymavlink.dialects.v20 import all as mavall  # noqa: E402
+
+from autopilot.config import ClSacConfig  # noqa: E402
+from autopilot.params import PARAMS, ParamError, ParamTable, load_file, save_file  # noqa: E402
+from autopilot.shared.fastmav import crc16  # noqa: E402
+from autopilot.vehicle import Mode  # noqa: E402
+from tests._mavlink_procs import Proc, free_ports  # noqa: E402
+
+pytestmark = pytest.mark.e2e
+A = mavall
+
+
+class Gcs:
+    """A ground station as MAVProxy is one: 255:230, listening on its UDP port, all-dialect decoder."""
+
+    def __init__(self, port: int, comp: int = 230):
+        self.conn = mavutil.mavlink_connection(
+            f"udpin:127.0.0.1:{port}", source_system=255, source_component=comp, dialect="all"
+        )
+        self.mav = self.conn.mav
+        self.texts: list[str] = []  # every STATUSTEXT seen
+        self.comp = comp
+
+    def wait(self, kind: str, timeout: float = 5.0, cond=None):
+        t_end = time.monotonic() + timeout
+        while time.monotonic() < t_end:
+            m = self.conn.recv_match(blocking=True, timeout=0.2)
+            if m is None or m.get_srcSystem() != 1:
+                continue
+            if m.get_type() == "STATUSTEXT":
+                self.texts.append(m.text)
+            if m.get_type() == kind and (cond is None or cond(m)):
+                return m
+        raise AssertionError(f"no {kind} within {timeout} s")
+
+    def connect(self):
+        self.wait("HEARTBEAT")
+        self.mav.heartbeat_send(A.MAV_TYPE_GCS, A.MAV_AUTOPILOT_INVALID, 0, 0, 0)
+
+    def command(self, cmd, *params, timeout=5.0):
+        p = list(params) + [0.0] * (7 - len(params))
+        self.mav.command_long_send(1, 1, cmd, 0, *p)
+        # every ground station sees every answer: ours names us in its target fields
+        return self.wait("COMMAND_ACK", timeout, cond=lambda m: m.command == cmd and m.target_component == self.comp)
+
+    def drain(self):
+        while (m := self.conn.recv_match(blocking=False)) is not None:
+            if m.get_type() == "STATUSTEXT":
+                self.texts.append(m.text)
+
+    def close(self):
+        self.conn.close()
+
+
+def _start_autopilot(tmp_path, name, gcs_port, *extra, sitl_port=None):
+    sitl_port = sitl_port or free_ports(1)[0]
+    args = ["--sitl", f"127.0.0.1:{sitl_port}", "--gcs", f"127.0.0.1:{gcs_port}", *extra]
+    ap = Proc("autopilot", args, tmp_path / f"{name}.log")
+    assert ap.wait_for("autopilot:", 30), ap.output()
+    return ap
+
+
+@pytest.fixture
+def vehicle(tmp_path):
+    """An autopilot process alone (stand-by: no SITL) and a ground station on its default GCS port."""
+    port = free_ports(1)[0]
+    gcs = Gcs(port)
+    ap = _start_autopilot(tmp_path, "autopilot", port)
+    gcs.connect()
+    yield gcs, ap
+    gcs.close()
+    ap.stop()
+
+
+def _download(gcs: Gcs) -> dict:
+    gcs.drain()
+    gcs.mav.param_request_list_send(1, 1)
+    got = {}
+    count = None
+    t_end = time.monotonic() + 10
+    while time.monotonic() < t_end and (count is None or len(got) < count):
+        m = gcs.conn.recv_match(type="PARAM_VALUE", blocking=True, timeout=0.5)
+        if m is not None:
+            count = m.param_count
+            got[m.param_index] = (m.param_id, m.param_value, m.param_type)
+    assert count is not None and len(got) == count, got
+    return {name: value for name, value, _ in got.values()}
+
+
+def _f32(x: float) -> float:
+    return float(np.float32(x))
+
+
+def test_full_parameter_download_and_reads(vehicle):
+    gcs, _ = vehicle
+    values = _download(gcs)
+    assert list(values) == [p.name for p in PARAMS]
+    assert all(len(n) <= 16 for n in values)
+    cfg = ClSacConfig()
+    expect = {
+        "CLSAC_LV": cfg.lv,
+        "CLSAC_SIGMA": cfg.sigma,
+        "CLSAC_GAM_PE": 10.0,
+        "CLSAC_GAM_IU": 10.0,
+        "CLSAC_AM": -5.0,
+        "CLSAC_BM": 5.0,
+        "CLSAC_PFC_NUM": 10.0,
+        "CLSAC_PFC_DEN1": 4.0,
+        "CLSAC_PFC_DEN0": 40.0,
+        "CLSAC_U_LIMIT": math.radians(30),
+        "CLSAC_RATE": 100.0,
+        "CLSAC_FS_ATT_TMO": 0.1,
+        "CLSAC_SIGMA_X": 0.0,
+    }
+    for name, v in expect.items():
+        assert values[name] == _f32(v), name
+    # by name and by index
+    gcs.mav.param_request_read_send(1, 1, b"CLSAC_SIGMA", -1)
+    m = gcs.wait("PARAM_VALUE", cond=lambda m: m.param_id == "CLSAC_SIGMA")
+    assert m.param_value == 5.0 and m.param_index == 1
+    gcs.mav.param_request_read_send(1, 1, b"", 10)
+    m = gcs.wait("PARAM_VALUE", cond=lambda m: m.param_index == 10)
+    assert m.param_id == "CLSAC_AM" and m.param_value == -5.0
+    gcs.mav.param_request_read_send(1, 1, b"NO_SUCH_PARAM", -1)
+    e = gcs.wait("PARAM_ERROR")
+    assert e.error == A.MAV_PARAM_ERROR_DOES_NOT_EXIST
+
+
+def test_accepted_and_rejected_sets(vehicle):
+    gcs, ap = vehicle
+    gcs.mav.param_set_send(1, 1, b"CLSAC_LV", 50.0, A.MAV_PARAM_TYPE_REAL32)
+    m = gcs.wait("PARAM_VALUE", cond=lambda m: m.param_id == "CLSAC_LV")
+    assert m.param_value == 50.0
+    # A_m = +1 is not Hurwitz: rejected, answered with the unchanged value and PARAM_ERROR
+    gcs.mav.param_set_send(1, 1, b"CLSAC_AM", 1.0, A.MAV_PARAM_TYPE_REAL32)
+    m = gcs.wait("PARAM_VALUE", cond=lambda m: m.param_id == "CLSAC_AM")
+    e = gcs.wait("PARAM_ERROR")
+    assert m.param_value == -5.0 and e.param_id == "CLSAC_AM"
+    assert e.error == A.MAV_PARAM_ERROR_VALUE_OUT_OF_RANGE
+    # the control rate is read-only while flying
+    gcs.mav.param_set_send(1, 1, b"CLSAC_RATE", 200.0, A.MAV_PARAM_TYPE_REAL32)
+    m = gcs.wait("PARAM_VALUE", cond=lambda m: m.param_id == "CLSAC_RATE")
+    e = gcs.wait("PARAM_ERROR")
+    assert m.param_value == 100.0 and e.error == A.MAV_PARAM_ERROR_READ_ONLY
+    values = _download(gcs)
+    assert values["CLSAC_LV"] == 50.0 and values["CLSAC_AM"] == -5.0
+    ap.stop()
+    assert "CLSAC_AM=1 rejected" in ap.output()
+
+
+def test_save_load_round_trip_and_params_flag(vehicle, tmp_path):
+    gcs, _ = vehicle
+    values = _download(gcs)
+    for qgc in (False, True):
+        path = tmp_path / ("qgc.params" if qgc else "mavproxy.parm")
+        save_file(path, values.items(), qgc=qgc)
+        assert {k: _f32(v) for k, v in load_file(path).items()} == values  # float32 on the wire, exact in files
+    values["CLSAC_LV"] = 35.0
+    values["CLSAC_FS_SP_TMO"] = 2.5
+    path = tmp_path / "tuned.parm"
+    save_file(path, values.items())
+    port = free_ports(1)[0]
+    gcs2 = Gcs(port)
+    ap2 = _start_autopilot(tmp_path, "autopilot2", port, "--params", str(path))
+    try:
+        gcs2.connect()
+        again = _download(gcs2)
+        assert again["CLSAC_LV"] == 35.0 and again["CLSAC_FS_SP_TMO"] == 2.5
+        assert again == values
+    finally:
+        gcs2.close()
+        ap2.stop()
+    # a bad file is refused with one line naming it
+    bad = tmp_path / "bad.parm"
+    bad.write_text("CLSAC_AM 3\n")
+    p = Proc("autopilot", ["--params", str(bad)], tmp_path / "bad.log")
+    assert p.p.wait(30) == 2
+    assert "--params" in p.output() and "CLSAC_AM" in p.output()
+
+
+def test_param_table_unit():
+    t = ParamTable(ClSacConfig(), {"attitude_timeout_s": 0.1, "setpoint_timeout_s": 1.0, "max_roll_rad": 0.7})
+    assert t.set("CLSAC_PFC_DEN1", 1.0) == 1.0 and t.config.pfc_den == (1.0, 40.0)
+    with pytest.raises(ParamError, match="CLSAC_GAM_PE"):
+        t.set("CLSAC_GAM_PE", -1.0)
+    with pytest.raises(ParamError, match="finite"):
+        t.set("CLSAC_LV", math.nan)
+    t.flying = True
+    with pytest.raises(ParamError, match="read-only"):
+        t.set("CLSAC_RATE", 50.0)
+    assert t.get("CLSAC_GAM_PE") == 10.0 and t.get("CLSAC_RATE") == 100.0
+
+
+def test_commands_answers_and_unsupported(vehicle):
+    gcs, _ = vehicle
+    ack = gcs.command(A.MAV_CMD_GET_HOME_POSITION)
+    assert ack.result == A.MAV_RESULT_UNSUPPORTED
+    ack = gcs.command(31999)  # not a command anybody knows: still answered
+    assert ack.result == A.MAV_RESULT_UNSUPPORTED
+    ack = gcs.command(A.MAV_CMD_REQUEST_MESSAGE, A.MAVLINK_MSG_ID_AUTOPILOT_VERSION)
+    assert ack.result == A.MAV_RESULT_ACCEPTED
+    v = gcs.wait("AUTOPILOT_VERSION")
+    assert (
+        v.capabilities & A.MAV_PROTOCOL_CAPABILITY_PARAM_FLOAT and v.capabilities & A.MAV_PROTOCOL_CAPABILITY_MAVLINK2
+    )
+    ack = gcs.command(A.MAV_CMD_REQUEST_MESSAGE, A.MAVLINK_MSG_ID_AVAILABLE_MODES, 0)
+    modes = {}
+    for _ in range(4):
+        m = gcs.wait("AVAILABLE_MODES")
+        modes[m.mode_name] = m
+    assert set(modes) == {"MANUAL", "SAC", "CLSAC", "FAILSAFE"} and modes["CLSAC"].number_modes == 4
+    assert modes["FAILSAFE"].properties & A.MAV_MODE_PROPERTY_NOT_USER_SELECTABLE
+    assert modes["SAC"].custom_mode == Mode.SAC
+    # PROTOCOL_VERSION is in no pymavlink dialect: check the raw frame (id 300, CRC extra 217 from its definition)
+    gcs.conn.mav.robust_parsing = True
+    sock = gcs.conn.port
+    gcs.mav.command_long_send(1, 1, A.MAV_CMD_REQUEST_PROTOCOL_VERSION, 0, 1, 0, 0, 0, 0, 0, 0)
+    t_end = time.monotonic() + 5
+    frame = None
+    while time.monotonic() < t_end and frame is None:
+        try:
+            data, _ = sock.recvfrom(4096)
+        except BlockingIOError:
+            time.sleep(0.01)
+            continue
+        i = 0
+        while i + 12 <= len(data) and data[i] == 0xFD:
+            n = 12 + data[i + 1]
+            if data[i + 7] | data[i + 8] << 8 | data[i + 9] << 16 == 300:
+                frame = data[i : i + n]
+            i += n
+    assert frame is not None
+    c = crc16(frame[1:-2] + bytes([217]))
+    assert frame[-2:] == bytes((c & 0xFF, c >> 8))
+    assert int.from_bytes(frame[10:12], "little") == 200  # MAVLink 2.0
+    # mission count, timesync, ping
+    gcs.mav.mission_request_list_send(1, 1)
+    assert gcs.wait("MISSION_COUNT").count == 0
+    gcs.mav.timesync_send(0, 12345)
+    ts = gcs.wait("TIMESYNC", cond=lambda m: m.ts1 == 12345)
+    assert ts.tc1 > 0
+    gcs.mav.ping_send(777, 5, 0, 0)
+    p = gcs.wait("PING", cond=lambda m: m.time_usec == 777)
+    assert p.seq == 5 and p.target_system == 255 and p.target_component == 230
+    # stream rates: ATTITUDE at 5 Hz, then off
+    ack = gcs.command(A.MAV_CMD_SET_MESSAGE_INTERVAL, A.MAVLINK_MSG_ID_NAMED_VALUE_FLOAT, 200000)
+    assert ack.result == A.MAV_RESULT_ACCEPTED
+    ack = gcs.command(A.MAV_CMD_SET_MESSAGE_INTERVAL, A.MAVLINK_MSG_ID_GPS_RAW_INT, 200000)
+    assert ack.result == A.MAV_RESULT_UNSUPPORTED
+
+
+def _count(gcs: Gcs, kind: str, seconds: float) -> int:
+    gcs.drain()
+    n = 0
+    t_end = time.monotonic() + seconds
+    while time.monotonic() < t_end:
+        m = gcs.conn.recv_match(type=kind, blocking=True, timeout=0.1)
+        if m is not None:
+            n += 1
+    return n
+
+
+@pytest.fixture
+def flight(tmp_path):
+    """SITL and autopilot in real time, a ground station on the default port and a second one (--gcs-peer)."""
+    sitl_port, port, port2 = free_ports(3)
+    sitl = Proc("sitl", ["--listen", f"127.0.0.1:{sitl_port}"], tmp_path / "sitl.log")
+    assert sitl.wait_for("sitl: listening", 30)
+    gcs, gcs2 = Gcs(port), Gcs(port2, comp=190)
+    series = tmp_path / "series.npz"
+    ap = _start_autopilot(
+        tmp_path,
+        "autopilot",
+        port,
+        "--gcs-peer",
+        f"127.0.0.1:{port2}",
+        "--series",
+        str(series),
+        "--setpoint-timeout",
+        "30",
+        sitl_port=sitl_port,
+    )
+    gcs.connect()
+    yield gcs, gcs2, ap, series
+    gcs.close()
+    gcs2.close()
+    ap.stop()
+    sitl.stop()
+
+
+def _setpoint(gcs: Gcs, deg: float):
+    q = [math.cos(math.radians(deg) / 2), math.sin(math.radians(deg) / 2), 0.0, 0.0]
+    gcs.mav.set_attitude_target_send(0, 1, 1, 71, q, 0, 0, 0, 0)
+
+
+def _fly(gcs: Gcs, seconds: float, deg: float):
+    t_end = time.monotonic() + seconds
+    while time.monotonic() < t_end:
+        _setpoint(gcs, deg)
+        gcs.drain()
+        time.sleep(0.05)
+
+
+def test_modes_bumpless_arming_and_two_ground_stations(flight):
+    gcs, gcs2, ap, series = flight
+    hb = gcs.wait("HEARTBEAT")
+    assert hb.type == A.MAV_TYPE_FIXED_WING and hb.custom_mode == Mode.CLSAC
+    assert mavutil.mode_string_v10(hb) == "Mode(101)"  # never a wrong ArduPlane name
+    # both ground stations get the stream (the second one is admitted by --gcs-peer)
+    assert _count(gcs, "ATTITUDE", 1.0) > 20 and _count(gcs2, "ATTITUDE", 1.0) > 20
+    assert gcs2.wait("NAMED_VALUE_FLOAT", cond=lambda m: m.name == "Ke")
+    att = gcs.wait("ATTITUDE")
+    assert att.pitch == 0.0
+    _fly(gcs, 3.0, 10.0)
+    # MANUAL from MANUAL_CONTROL: the rudder goes to -15 deg (r = -500 of 1000, limit 30 deg) without a step
+    ack = gcs.command(A.MAV_CMD_DO_SET_MODE, A.MAV_MODE_FLAG_CUSTOM_MODE_ENABLED, Mode.MANUAL)
+    assert ack.result == A.MAV_RESULT_ACCEPTED
+    hb = gcs.wait("HEARTBEAT", cond=lambda m: m.custom_mode == Mode.MANUAL)
+    assert mavutil.mode_string_v10(hb) == "MANUAL" and hb.base_mode & A.MAV_MODE_FLAG_MANUAL_INPUT_ENABLED
+    assert "mode MANUAL" in gcs.texts
+    t_end = time.monotonic() + 1.5
+    while time.monotonic() < t_end:
+        gcs.mav.manual_control_send(1, 0, 0, 0, -500, 0)
+        _setpoint(gcs, 10.0)
+        time.sleep(0.05)
+    # SAC by SET_MODE, then CLSAC again by COMMAND_LONG (from the second station)
+    gcs.mav.set_mode_send(1, A.MAV_MODE_FLAG_CUSTOM_MODE_ENABLED, Mode.SAC)
+    assert gcs.wait("COMMAND_ACK", cond=lambda m: m.command == A.MAV_CMD_DO_SET_MODE).result == 0
+    assert "mode SAC" in gcs.texts
+    _fly(gcs, 1.5, 10.0)
+    assert gcs2.command(A.MAV_CMD_DO_SET_MODE, 1, Mode.CLSAC).result == A.MAV_RESULT_ACCEPTED
+    ack = gcs.command(A.MAV_CMD_DO_SET_MODE, 1, Mode.FAILSAFE)  # entered by itself only
+    assert ack.result == A.MAV_RESULT_DENIED
+    _fly(gcs, 1.5, 10.0)
+    # disarm: rudder neutral; arm again
+    ack = gcs.command(A.MAV_CMD_COMPONENT_ARM_DISARM, 0)
+    assert ack.result == A.MAV_RESULT_ACCEPTED
+    hb = gcs.wait("HEARTBEAT", cond=lambda m: not m.base_mode & A.MAV_MODE_FLAG_SAFETY_ARMED)
+    time.sleep(0.2)
+    gcs.drain()
+    srv = gcs.wait("SERVO_OUTPUT_RAW")
+    assert srv.servo4_raw == 1500
+    ack = gcs.command(A.MAV_CMD_COMPONENT_ARM_DISARM, 1)
+    assert ack.result == A.MAV_RESULT_ACCEPTED
+    assert gcs.wait("HEARTBEAT", cond=lambda m: m.base_mode & A.MAV_MODE_FLAG_SAFETY_ARMED)
+    _fly(gcs, 1.0, 10.0)
+    ap.stop()
+    out = ap.output()
+    for text in ("mode MANUAL", "mode SAC", "mode CLSAC", "DISARMED", "ARMED"):
+        assert text in out
+    s = np.load(series)
+    u, mode, armed = s["u"], s["mode"], s["armed"].astype(bool)
+    lsb = math.radians(30) / 500  # one microsecond of PWM
+    switches = [k for k in range(1, len(u)) if mode[k] != mode[k - 1]]
+    assert [int(mode[k]) for k in switches] == [Mode.MANUAL, Mode.SAC, Mode.CLSAC]
+    # MANUAL -> SAC: the manual rudder was -15 deg (r = -500 of 1000, limit 30 deg), the law wanted another
+    # command: a plain switch would have stepped by that much; the transfer flies on from the last command
+    k = switches[1]
+    assert u[k - 1] == pytest.approx(math.radians(-15), abs=lsb)
+    assert abs(s["u_cmd"][k] - u[k - 1]) > 0.1
+    for k in switches:  # every switch: no step in the rudder command
+        assert abs(u[k] - u[k - 1]) <= 2 * lsb, (k, u[k - 3 : k + 3])
+    # disarmed: exactly neutral; arming again starts from neutral
+    assert (u[~armed] == 0.0).all() and (~armed).sum() >= 10
+    k_arm = int(np.flatnonzero(armed[1:] & ~armed[:-1])[0]) + 1
+    assert abs(u[k_arm]) <= 2 * lsb
+
+
+def test_lockstep_lv_change_mid_flight_is_deterministic(tmp_path):
+    """CLSAC_LV 20 -> 50 at t = 10 s of a lockstep flight: lower rudder energy afterwards than keeping 20;
+    the same flight twice gives the same command sequence bit for bit."""
+    a = _lockstep_flight(tmp_path / "a", change=True)
+    b = _lockstep_flight(tmp_path / "b", change=True)
+    c = _lockstep_flight(tmp_path / "c", change=False)
+    assert np.array_equal(a["u"], b["u"])
+    k = 1000
+    assert np.array_equal(a["u"][:k], c["u"][:k])  # identical until the change
+    assert not np.array_equal(a["u"][k:], c["u"][k:])
+    energy = lambda s: float(np.sum(s["u"][k:] ** 2) * 0.01)  # noqa: E731
+    assert energy(a) < 0.9 * energy(c), (energy(a), energy(c))
+
+
+def _lockstep_flight(d, change: bool) -> dict:
+    """Lockstep: the test is the ground station and schedules the setpoints (a +-10 deg square, period 4 s), so
+    the autopilot waits at t = 10 s until the parameter is set: the change lands on frame 1000 every time."""
+    d.mkdir()
+    sitl_port, port = free_ports(2)
+    sitl = Proc("sitl", ["--listen", f"127.0.0.1:{sitl_port}", "--lockstep", "--duration", "20"], d / "sitl.log")
+    assert sitl.wait_for("sitl: listening", 30)
+    gcs = Gcs(port)
+    series = d / "series.npz"
+    ap = _start_autopilot(
+        d, "autopilot", port, "--lockstep", "--duration", "20", "--series", str(series), sitl_port=sitl_port
+    )
+    try:
+        gcs.connect()
+
+        def schedule(t0, t1):  # a point every 100 ms and one at t1 - 10 ms: the horizon reaches the last frame
+            for ms in [*range(t0, t1, 100), t1 - 10]:
+                deg = 10.0 if (ms // 2000) % 2 == 0 else -10.0
+                q = [math.cos(math.radians(deg) / 2), math.sin(math.radians(deg) / 2), 0.0, 0.0]
+                gcs.mav.set_attitude_target_send(ms, 1, 1, 71, q, 0, 0, 0, 0)
+
+        gcs.wait("SYSTEM_TIME", timeout=30)  # the first frame waits for a schedule: sim time is known
+        schedule(0, 10000)  # up to 9.99 s: frame 1000 (t = 10 s) waits for the schedule
+        gcs.wait("SYSTEM_TIME", timeout=30, cond=lambda m: m.time_boot_ms == 10000)
+        if change:
+            gcs.mav.param_set_send(1, 1, b"CLSAC_LV", 50.0, A.MAV_PARAM_TYPE_REAL32)
+            assert gcs.wait("PARAM_VALUE", cond=lambda m: m.param_id == "CLSAC_LV").param_value == 50.0
+        schedule(10000, 20000)  # (at most 10 s ahead of sim time)
+        assert ap.p.wait(60) == 0
+    finally:
+        gcs.close()
+        ap.stop()
+        sitl.stop()
+    return dict(np.load(series))
