@@ -91,7 +91,7 @@ def test_paper_band_values(paper):
     lows_highs = [(b.low, b.high) for b in paper.bands]
     assert len(lows_highs) == 2  # a stable window between the two bands: [20.80, 27.29]
     np.testing.assert_allclose(np.ravel(lows_highs), [0.6215458, 20.803930, 27.288749, 1014.0569], rtol=1e-6)
-    assert paper.to_dict()["unstable_gain_band"] == pytest.approx([paper.bands[0].low, paper.bands[1].high])
+    assert paper.to_dict()["unstable_gain_bands_hull"] == pytest.approx([paper.bands[0].low, paper.bands[1].high])
 
 
 EDGES = [(0, "low"), (0, "high"), (1, "low"), (1, "high")]
@@ -170,7 +170,7 @@ def test_paper_discrete_band_is_a_boundary(paper):
 
 def test_robust_pfc_has_no_band(robust):
     assert robust.waspr and robust.minimum_phase and robust.relative_degree == 1 and robust.hf_gain == 10.0
-    assert robust.bands == [] and robust.to_dict()["unstable_gain_band"] is None
+    assert robust.bands == [] and robust.to_dict()["unstable_gain_bands_hull"] is None
     num_f, den_f = independent_f(*analysis.ROBUST_PFC)
     assert all(max_re(num_f, den_f, k) < 0 for k in np.logspace(-4, 7, 400))
     assert min(-z.real / abs(z) for z in robust.zeros) > 0.27  # well-damped zeros of F

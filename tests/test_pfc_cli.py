@@ -65,7 +65,7 @@ def result(args: tuple[str, ...]) -> tuple[int, str, str]:
     return _PROCS[args].returncode, out, err
 
 
-REQUIRED_KEYS = {"minimum_phase", "relative_degree", "hf_gain", "unstable_gain_band"}
+REQUIRED_KEYS = {"minimum_phase", "relative_degree", "hf_gain", "unstable_gain_bands"}
 
 
 def test_json_with_pfc_on_the_command_line():
@@ -75,12 +75,14 @@ def test_json_with_pfc_on_the_command_line():
     assert REQUIRED_KEYS <= d.keys()
     assert d["pfc"] == "paper" and d["pfc_num"] == [10.0] and d["pfc_den"] == [4.0, 40.0]
     assert d["minimum_phase"] is True and d["relative_degree"] == 1 and d["hf_gain"] == pytest.approx(2.5)
-    low, high = d["unstable_gain_band"]
+    # no single band claims the stable window [20.80, 27.29]: only the list, and a hull that says it is one
+    assert "unstable_gain_band" not in d
+    low, high = d["unstable_gain_bands_hull"]
     assert low == pytest.approx(0.6215458, rel=1e-6) and high == pytest.approx(1014.0569, rel=1e-6)
     edges = [x for b in d["unstable_gain_bands"] for x in (b["low"], b["high"])]
     assert edges == pytest.approx([0.6215458, 20.803930, 27.288749, 1014.0569], rel=1e-6)
     assert d["steady_state_error_deg"] == pytest.approx(0.017257, rel=1e-4)
-    assert d["discrete"]["unstable_gain_band"][1] is None  # the 100 Hz loop: unstable up to infinity
+    assert d["discrete"]["unstable_gain_bands_hull"][1] is None  # the 100 Hz loop: unstable up to infinity
 
 
 def test_json_robust_in_process(capsys):
@@ -91,12 +93,12 @@ def test_json_robust_in_process(capsys):
     assert REQUIRED_KEYS <= d.keys()
     assert d["pfc_num"] == [10.0] and d["pfc_den"] == [1.0, 10.0] and d["pfc"] == "robust"
     assert d["minimum_phase"] is True and d["relative_degree"] == 1 and d["hf_gain"] == pytest.approx(10.0)
-    assert d["unstable_gain_band"] is None and d["unstable_gain_bands"] == []
+    assert d["unstable_gain_bands_hull"] is None and d["unstable_gain_bands"] == []
 
 
 def test_help():
     rc, out, err = result(HELP)
-    assert rc == 0 and "--pfc-num" in out and "unstable_gain_band" in out
+    assert rc == 0 and "--pfc-num" in out and "unstable_gain_bands" in out
 
 
 @pytest.mark.parametrize("args", list(BAD), ids=[" ".join(a) for a in BAD])

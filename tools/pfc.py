@@ -23,13 +23,14 @@ EPILOG = """\
 coefficients are comma-separated, highest power first: --pfc-num 10 --pfc-den 4,40 is 10/(4s + 40).
 A list starting with a minus sign needs the = form: --pfc-den=-1,-2 (which is then rejected as unstable).
 
-JSON keys (docs/design.md, "Command lines"): minimum_phase, relative_degree, hf_gain, unstable_gain_band
-([low, high] spanning all bands, or null if 1 + Ke F is stable for every Ke > 0; a null high means the
-band extends to infinity), plus unstable_gain_bands (each band with the crossing frequencies in rad/s),
-waspr, plant/pfc/F numerators and denominators, zeros, poles, steady_state_error_deg,
-compensator_gain_margin, discrete (the same bands for the ZOH-sampled loop at --rate-hz), clsac_kx
-(bands of -Kx and +Kx destabilising CL-SAC's reference-model feedback at --lv), notes and,
-with --closed-loop, closed_loop (the paper scenario's metrics per run).
+JSON keys (docs/design.md, "Command lines"): minimum_phase, relative_degree, hf_gain, unstable_gain_bands
+(the answer: each band of Ke > 0 making 1 + Ke F unstable, with the crossing frequencies in rad/s; empty
+if none; a null high means the band extends to infinity), unstable_gain_bands_hull ([first low, last
+high]: a hull that also covers any stable window between bands, or null), waspr, plant/pfc/F numerators
+and denominators, zeros, poles, steady_state_error_deg, compensator_gain_margin, discrete (the same bands
+for the ZOH-sampled loop at --rate-hz), clsac_kx (bands of -Kx and +Kx destabilising CL-SAC's
+reference-model feedback at --lv), notes and, with --closed-loop, closed_loop (the paper scenario's
+metrics per run).
 
 exit status: 0 on success, 2 on bad input (one-line reason on stderr), 1 if the analysis fails.
 """

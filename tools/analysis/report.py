@@ -94,8 +94,10 @@ class WasprReport:
             "minimum_phase": self.minimum_phase,
             "relative_degree": self.relative_degree,
             "hf_gain": self.hf_gain,
-            "unstable_gain_band": None if span is None else [inf_none(span[0]), inf_none(span[1])],
+            # The list of bands is the answer (the paper's PFC has a stable window between two of them); the
+            # hull [first low, last high] is kept only under a name that says it covers those windows too.
             "unstable_gain_bands": bands_list(self.bands),
+            "unstable_gain_bands_hull": None if span is None else [inf_none(span[0]), inf_none(span[1])],
             "waspr": self.waspr,
             "pfc": self.pfc_name,
             "pfc_num": self.pfc_num.tolist(),
@@ -126,8 +128,8 @@ class WasprReport:
             span_d = (self.bands_discrete[0].low, self.bands_discrete[-1].high) if self.bands_discrete else None
             d["discrete"] = {
                 "rate_hz": self.rate_hz,
-                "unstable_gain_band": None if span_d is None else [inf_none(span_d[0]), inf_none(span_d[1])],
                 "unstable_gain_bands": bands_list(self.bands_discrete),
+                "unstable_gain_bands_hull": None if span_d is None else [inf_none(span_d[0]), inf_none(span_d[1])],
             }
         return d
 
