@@ -42,6 +42,7 @@ ALTITUDE = 10.0  # m
 # MIL-HDBK-1797 low-altitude turbulence: wind speed at 20 ft, W20 (light 15 kt, moderate 30 kt, severe 45 kt).
 W20 = {"light": 15.0 * KNOT, "moderate": 30.0 * KNOT, "severe": 45.0 * KNOT}
 V_G, P_G, R_G = 0, 1, 2  # indices in d
+_CHUNK = 50  # Atmosphere.sample advances the filter this many steps per matrix product
 
 
 class AtmosphereConfigError(ValueError):
@@ -249,21 +250,37 @@ class Atmosphere:
         self.rng = rng
         self.filter = DrydenFilter.build(cfg.turbulence, dt) if cfg.turbulence is not None else None
         self.x = self.filter.initial(rng) if self.filter is not None else None
+        self._cache: dict[int, tuple] = {}
+
+    def _blocks(self, m: int) -> tuple:
+        """m steps of the filter at once: d[0..m) = G0 x0 + H z, x[m] = A_d^m x0 + K z (z: the m x 4 unit normals,
+        flattened), with G0 = [C A_d^i], H[i, j] = C A_d^(i-1-j) L_d (j < i), K[j] = A_d^(m-1-j) L_d; cached per m."""
+        blk = self._cache.get(m)
+        if blk is None:
+            f = self.filter
+            powers = [np.eye(4)]
+            for _ in range(m):
+                powers.append(f.ad @ powers[-1])
+            g0 = np.vstack([f.c @ powers[i] for i in range(m)])
+            h = np.zeros((3 * m, 4 * m))
+            for i in range(m):
+                for j in range(i):
+                    h[3 * i : 3 * i + 3, 4 * j : 4 * j + 4] = f.c @ powers[i - 1 - j] @ f.ld
+            k = np.hstack([powers[m - 1 - j] @ f.ld for j in range(m)])
+            blk = self._cache[m] = (g0, h, powers[m], k)
+        return blk
 
     def sample(self, n: int) -> np.ndarray:
         """The disturbance for the next ``n`` steps, shape (n, 3); advances the clock by n dt."""
         d = np.zeros((n, 3))
-        f = self.filter
-        if f is not None:
-            x = self.x
-            ad_t, ld_t = f.ad.T, f.ld.T
-            z = self.rng.standard_normal((n, 4)) @ ld_t
-            xs = np.empty((n, 4))
-            for i in range(n):
-                xs[i] = x
-                x = x @ ad_t + z[i]
-            self.x = x
-            d += xs @ f.c.T
+        if self.filter is not None:
+            z = self.rng.standard_normal((n, 4))
+            for i in range(0, n, _CHUNK):
+                m = min(_CHUNK, n - i)
+                g0, h, an, k = self._blocks(m)
+                zi = z[i : i + m].ravel()
+                d[i : i + m] = (g0 @ self.x + h @ zi).reshape(m, 3)
+                self.x = an @ self.x + k @ zi
         if self.cfg.gusts:
             t = self.t0 + (self.k + np.arange(n)) * self.dt
             for g in self.cfg.gusts:
