@@ -203,3 +203,6 @@ def test_flight_keywords_validated_and_passed_to_the_sitl_only():
     with pytest.raises(FlightConfigError) as exc:
         FlightConfig(reorder=1.0)
     assert exc.value.field == "reorder"
+    # A disturbed flight is not the paper's reference scenario (summary.json "scenario").
+    assert FlightConfig().scenario == FlightConfig(seed=3).scenario == "paper"
+    assert FlightConfig(crosswind=1.0).scenario == FlightConfig(loss=0.01).scenario == "custom"

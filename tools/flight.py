@@ -227,6 +227,13 @@ class FlightConfig:
             raise FlightConfigError("disturbances", str(exc)) from None
 
     @property
+    def disturbed(self) -> bool:
+        """Any disturbance given (sitl.disturbances.FLAGS other than the seed): not the still-air, ideal flight."""
+        from sitl import disturbances
+
+        return any(getattr(self, k) is not None for k in disturbances.FLAGS if k != "seed")
+
+    @property
     def disturbance_argv(self) -> list[str]:
         """The SITL flags of the disturbances (empty for an ideal flight)."""
         from sitl import disturbances
@@ -262,6 +269,7 @@ class FlightConfig:
             and self.rate == 100.0
             and self.physics_rate == 1000.0
             and self.u_limit_deg == 30.0
+            and not self.disturbed
         )
         return "paper" if paper else "custom"
 
