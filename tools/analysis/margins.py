@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import math
+import warnings
 
 from autopilot.baseline import BaselineConfig
 from tools.analysis._common import ct
@@ -25,7 +26,9 @@ def baseline_margins(config: BaselineConfig | None = None, *, pfc_inverse: bool 
         T = cfg.dt
         num = [cfg.kd + cfg.kp * T + cfg.ki * T * T, -(cfg.kp * T + 2 * cfg.kd), cfg.kd]
         loop = control.tf(num, [T, -T, 0.0], T) * control.c2d(plant, T, "zoh")
-    gm, pm, wcg, wcp = control.margin(loop)
+    with warnings.catch_warnings():  # python-control notes it falls back to its frequency-response method
+        warnings.simplefilter("ignore", UserWarning)
+        gm, pm, wcg, wcp = control.margin(loop)
     closed = control.feedback(loop, 1)
     poles = control.poles(closed)
     stable = bool(max(abs(poles)) < 1.0) if loop.dt else bool(max(poles.real) < 0.0)
