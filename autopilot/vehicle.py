@@ -449,7 +449,9 @@ class Vehicle:
     def _sys_status(self):
         ap = self.ap
         sensors = M.MAV_SYS_STATUS_SENSOR_3D_GYRO | M.MAV_SYS_STATUS_SENSOR_ATTITUDE_STABILIZATION
-        healthy = sensors if ap.failsafe is Failsafe.NONE else 0
+        # Health bits of sensors not present read as healthy (as ArduPilot sends them; MAVProxy's fence module
+        # would otherwise announce "fence breach"); the attitude ones go unhealthy in the attitude failsafe.
+        healthy = 0xFFFFFFFF if ap.failsafe is Failsafe.NONE else 0xFFFFFFFF & ~sensors
         load = int(min(1000, 1000 * ap.timing.compute[-1] / ap.period)) if ap.timing.compute else 0
         rej = sum(ap.gcs.rejected.values())
         drop = int(min(10000, 10000 * rej / max(1, ap.gcs.rx_datagrams)))
