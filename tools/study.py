@@ -160,9 +160,9 @@ CONDITIONS: dict[str, Condition] = {
 }
 # One factor at a time from nominal: where does each controller stop being bounded?
 SWEEPS: dict[str, tuple[str, tuple[float, ...]]] = {
-    "loss": ("loss", (0.05, 0.1, 0.2, 0.3, 0.5)),
-    "delay": ("delay", (1, 2, 4, 8, 16)),
-    "turbulence": ("turbulence", (1 / 3, 2 / 3, 1.0, 2.0, 4.0)),
+    "loss": ("loss", (0.05, 0.1, 0.2, 0.3, 0.5, 0.7, 0.9)),
+    "delay": ("delay", (1, 2, 4, 8, 16, 32)),
+    "turbulence": ("turbulence", (1 / 3, 2 / 3, 1.0, 2.0, 4.0, 8.0)),
 }
 
 
@@ -621,13 +621,14 @@ def mavlink_command(controller: str, condition: str, seed: int, run: int, rec: d
 
 LONG_CONTROLLERS = ("clsac", "clsac_leak", "clsac_deadzone", "clsac_projection", "clsac_freeze", "baseline")
 LONG_DURATION_S = 600.0
+LONG_CONDITIONS = ("nominal", "moderate")
 
 
-def long_flight_summary(records: dict[tuple[str, int], dict]) -> dict:
+def long_flight_summary(records: dict[tuple[str, int], dict], condition: str) -> dict:
     """The drift of a 600 s flight: median peak |roll| (deg) of each 30 s window, per PFC."""
     out = {}
     for pfc in ("paper", "robust"):
-        rs = [r for r in records.values() if r["pfc"] == pfc]
+        rs = [r for (c, _), r in records.items() if r["pfc"] == pfc and c == condition]
         if not rs:
             continue
         peaks = np.array([r["window_peak_roll"] for r in rs]) / DEG
@@ -680,7 +681,7 @@ def run_study(opts: StudyOptions, out_dir: str | os.PathLike | None = None, *, l
     pairs += [(c, i) for c in sweeps for i in range(opts.sweep_runs)]
     tasks = make_tasks(opts.controllers, pairs, opts.seed, opts.chunk)
     long_ctrls = [c for c in LONG_CONTROLLERS if c in opts.controllers] if opts.long_runs else []
-    long_pairs = [("nominal", i) for i in range(opts.long_runs)]
+    long_pairs = [(c, i) for c in LONG_CONDITIONS for i in range(opts.long_runs)]
     long_tasks = make_tasks(long_ctrls, long_pairs, opts.seed, opts.chunk, LONG_DURATION_S)
     total = sum(len(t.runs) for t in tasks)
     bar = Progress(total, "30 s runs", enabled=progress)
@@ -723,16 +724,23 @@ def run_study(opts: StudyOptions, out_dir: str | os.PathLike | None = None, *, l
         lmerged = merge(long_tasks, lres)
         summary["long_flight"] = {
             "duration_s": LONG_DURATION_S,
-            "condition": "nominal",
             "window_s": WINDOW_S,
-            "controllers": {c: long_flight_summary(lmerged[c]) for c in long_ctrls},
+            "runs_per_condition": opts.long_runs,
+            "controllers": {
+                c: {cond: long_flight_summary(lmerged[c], cond) for cond in LONG_CONDITIONS} for c in long_ctrls
+            },
         }
     summary["created"] = _dt.datetime.now(_dt.timezone.utc).isoformat(timespec="seconds")
     if out_dir is not None:
         out = Path(out_dir)
         out.mkdir(parents=True, exist_ok=True)
         write_json_atomic(out / "summary.json", summary, indent=2, allow_nan=False)
-        (out / "table.md").write_text(format_table(summary) + "\n", encoding="utf-8")
+        tables = [format_table(summary)]
+        if summary["sweep_runs"]:
+            tables.append(format_breaks(summary))
+        if "long_flight" in summary:
+            tables.append(format_long(summary))
+        (out / "table.md").write_text("\n\n".join(tables) + "\n", encoding="utf-8")
         log(f"wrote {(out / 'summary.json').resolve()} and table.md")
         try:
             png = save_figure(merged, opts, out / "robustness.png")
@@ -747,19 +755,21 @@ def run_study(opts: StudyOptions, out_dir: str | os.PathLike | None = None, *, l
 
 def breaks(summary: dict, share: float = 0.9) -> dict:
     """Per controller and sweep: the smallest swept value at which fewer than ``share`` of the runs stay bounded
-    (None: bounded at every value tried)."""
+    (None: bounded at every value tried), over all runs and per PFC (``by_pfc``)."""
     out: dict = {}
     for ctrl, by_cond in summary["results"].items():
-        out[ctrl] = {}
+        out[ctrl] = {"by_pfc": {"paper": {}, "robust": {}}}
         for label, (_field, values) in SWEEPS.items():
-            hit = None
-            for v in values:
-                agg = by_cond.get(f"{label}={v:g}")
-                if agg and agg["bounded_share"] < share:
-                    hit = v
-                    break
-            if any(f"{label}={v:g}" in by_cond for v in values):
-                out[ctrl][label] = hit
+            aggs = [(v, by_cond.get(f"{label}={v:g}")) for v in values]
+            aggs = [(v, a) for v, a in aggs if a]
+            if not aggs:
+                continue
+            out[ctrl][label] = next((v for v, a in aggs if a["bounded_share"] < share), None)
+            for pfc in ("paper", "robust"):
+                if all(pfc in a["bounded_share_by_pfc"] for _, a in aggs):
+                    out[ctrl]["by_pfc"][pfc][label] = next(
+                        (v for v, a in aggs if a["bounded_share_by_pfc"][pfc] < share), None
+                    )
     return out
 
 
@@ -781,13 +791,44 @@ def format_table(summary: dict, conditions: Sequence[str] = ("nominal", "moderat
 
 
 def format_breaks(summary: dict) -> str:
-    lines = ["| controller | " + " | ".join(f"{k} breaks at" for k in SWEEPS) + " |", "|---|" + "---|" * len(SWEEPS)]
+    """Markdown: per controller, the loss probability, sensor delay (samples of 10 ms) and turbulence (x severe)
+    at which it stops being bounded, with the paper's PFC / the robust PFC ("-": bounded at every value tried)."""
+    head = "| controller | " + " | ".join(f"{k}: paper PFC / robust PFC" for k in SWEEPS) + " |"
+    lines = [head, "|---|" + "---|" * len(SWEEPS)]
     for ctrl, b in summary["breaks"].items():
         cells = []
         for k in SWEEPS:
-            v = b.get(k)
-            cells.append("bounded throughout" if v is None else f"{v:g}")
+            if ctrl == "baseline":
+                v = b.get(k)
+                cells.append(f"{'-' if v is None else f'{v:g}'} (no PFC)")
+                continue
+            pair = [b["by_pfc"][p].get(k) for p in ("paper", "robust")]
+            cells.append(" / ".join("-" if v is None else f"{v:g}" for v in pair))
         lines.append(f"| {ctrl} | " + " | ".join(cells) + " |")
+    return "\n".join(lines)
+
+
+def format_long(summary: dict) -> str:
+    """Markdown: the long flight's median peak |roll| (deg) in the first window, at 180-210 s and in the last
+    window, per controller, condition and PFC."""
+    lf = summary.get("long_flight")
+    if not lf:
+        return ""
+    lines = [
+        "| controller | condition | PFC | peak 0-30 s | peak 180-210 s | peak 570-600 s | bounded |",
+        "|---|---|---|---|---|---|---|",
+    ]
+    for ctrl, by_cond in lf["controllers"].items():
+        for cond, by_pfc in by_cond.items():
+            for pfc, d in by_pfc.items():
+                if ctrl == "baseline" and pfc == "robust":
+                    continue
+                cells = [d["peak_first_window_deg"], d["peak_180_210_s_deg"], d["peak_last_window_deg"]]
+                lines.append(
+                    f"| {ctrl} | {cond} | {'-' if ctrl == 'baseline' else pfc} | "
+                    + " | ".join("diverged" if v is None else f"{v:.1f} deg" for v in cells)
+                    + f" | {100 * d['bounded_share']:.0f} % |"
+                )
     return "\n".join(lines)
 
 
@@ -927,12 +968,16 @@ def main_run(args, prog: str) -> int:
     print()
     print(format_table(summary))
     print()
-    print("where each controller stops being bounded (< 90 % of runs), one factor at a time from nominal:")
-    print(format_breaks(summary))
+    if summary["sweep_runs"]:
+        print("where each controller stops being bounded (< 90 % of runs), one factor at a time from nominal:")
+        print(format_breaks(summary))
     for ctrl, by_cond in summary["results"].items():
         w = by_cond.get(opts.conditions[-1], {}).get("worst")
         if w:
             print(f"worst {ctrl} run under {opts.conditions[-1]}: {w['replay_inprocess']}")
+    if "long_flight" in summary:
+        print(f"\nlong flight ({LONG_DURATION_S:g} s), median peak |roll| per 30 s window:")
+        print(format_long(summary))
     t = summary["timing"]
     print(f"\n{t['runs']} runs in {t['wall_s']:.1f} s ({t['runs_per_s']:,.0f} runs/s); files in {out.resolve()}")
     return 0
