@@ -105,6 +105,9 @@ class FlightConfig:
     connect: str | None = None  # stream live to a running Rerun viewer at this URL
     rrd: bool = True  # Rerun telemetry of the autopilot and the SITL, merged into DIR/flight.rrd
     series: bool = True  # per-step series in DIR/autopilot_series.npz and DIR/sitl_series.npz
+    png: bool = True  # DIR/flight.png: roll vs command and reference models, rudder, adaptive gains (from the series)
+    web: bool = False  # serve the Rerun web viewer (HTTP WEB_PORT, gRPC WEB_GRPC_PORT) and stream the flight to it
+    gcs_peer: tuple = ()  # more ground stations (HOST:PORT) the autopilot streams to, e.g. MAVProxy on :14550
     name: str | None = None  # run name in summary.json; default the controller
     signing: bool = True  # MAVLink 2 signing on every link; a new key per flight in DIR/signing.key unless signing_key
     signing_key: str | os.PathLike | None = None  # sign with this key file (autopilot.shared.signing) instead
@@ -203,6 +206,7 @@ class FlightConfig:
             except (OSError, ProfileError) as exc:
                 raise FlightConfigError("csv", f"csv: {exc}") from None
         put("command", command)
+        put("gcs_peer", tuple(_checked("gcs_peer", cli.endpoint, p) for p in self.gcs_peer or ()))
         if self.out is not None:
             problem = cli.output_dir_problem(self.out)
             _require(problem is None, "out", f"out: {problem}")
@@ -397,6 +401,8 @@ def child_argvs(
     if key_file is not None:
         for argv in (sitl, ap, gcs):
             argv += ["--signing-key", str(key_file)]
+    for host, port in cfg.gcs_peer:
+        ap += ["--gcs-peer", f"{host}:{port}"]
     return {"sitl": sitl, "autopilot": ap, "gcs": gcs}
 
 
@@ -417,7 +423,7 @@ def _flight_key(cfg: FlightConfig, out: Path) -> Path | None:
 
 def _telemetry_argvs(cfg: FlightConfig, out: Path) -> tuple[dict[str, list[str]] | None, dict[str, Path]]:
     """One recording id for the flight; each process writes its own part file (merged at the end)."""
-    if not (cfg.rrd or cfg.viewer or cfg.connect):
+    if not (cfg.rrd or cfg.viewer or cfg.connect or cfg.web):
         return None, {}
     from autopilot.shared import telemetry as tm
 
@@ -427,6 +433,8 @@ def _telemetry_argvs(cfg: FlightConfig, out: Path) -> tuple[dict[str, list[str]]
         p.parent.mkdir(parents=True, exist_ok=True)
         p.unlink(missing_ok=True)
     url = cfg.connect or (tm.spawn_viewer() if cfg.viewer else None)  # one viewer for both processes
+    if cfg.web:
+        url = serve_web()
     if url:  # the processes send data only; the layout that joins them comes from here
         from tools.views import flight_blueprint
 
@@ -439,6 +447,53 @@ def _telemetry_argvs(cfg: FlightConfig, out: Path) -> tuple[dict[str, list[str]]
         if url:
             argv[name] += ["--connect", url]
     return argv, parts
+
+
+WEB_PORT = 9090  # --web: the Rerun web viewer over HTTP
+WEB_GRPC_PORT = 9877  # --web: the gRPC proxy the processes stream to and the web viewer reads from
+
+
+def serve_web(host: str = "0.0.0.0") -> str:
+    """Start ``rerun --serve-web`` (a gRPC proxy on ``WEB_GRPC_PORT`` plus the web viewer on ``WEB_PORT``, bound
+    to ``host``), or reuse the one already there; it stays up after the flight so a browser can still look.
+    Returns the URL the processes connect to; prints the address a browser on another machine opens."""
+    from autopilot.shared.telemetry.viewer import rerun_cli_path, viewer_reachable, viewer_url
+
+    url = viewer_url(WEB_GRPC_PORT)
+    if not viewer_reachable(url):
+        import subprocess
+
+        subprocess.Popen(
+            [rerun_cli_path(), "--serve-web", "--bind", host, "--port", str(WEB_GRPC_PORT)]
+            + ["--web-viewer-port", str(WEB_PORT), "--server-memory-limit", "25%"],
+            stdin=subprocess.DEVNULL,
+            stdout=subprocess.DEVNULL,
+            stderr=subprocess.DEVNULL,
+            start_new_session=True,  # outlives the launcher
+        )
+        t_end = time.monotonic() + 10.0
+        while not viewer_reachable(url) and time.monotonic() < t_end:
+            time.sleep(0.1)
+    print(
+        f"launch: web viewer: open http://<this host>:{WEB_PORT}/?url=rerun%2Bhttp://<this host>:{WEB_GRPC_PORT}/proxy"
+        f" in a browser (ports {WEB_PORT} and {WEB_GRPC_PORT} must be reachable)",
+        flush=True,
+    )
+    return url
+
+
+def write_flight_png(cfg: FlightConfig, out: Path, name: str, metrics: dict) -> Path | None:
+    """DIR/flight.png from the flight's series (``tools.plots.flight_figure``); None without series."""
+    from tools.plots import save_flight_figure
+    from tools.scenario import RunResult
+
+    series = load_series(out)
+    if not series or series.get("t") is None or not len(series["t"]):
+        return None
+    res = RunResult(name, cfg.lv_value if cfg.controller != "sac" else 0.0, metrics, series)
+    mode = "lockstep" if cfg.lockstep else "real time"
+    title = f"Flight {out.name}: {res.name}, {mode}, {cfg.rate:g} Hz"
+    return save_flight_figure(res, out / "flight.png", math.radians(cfg.u_limit_deg), title)
 
 
 def _merge_telemetry(parts: dict[str, Path], out: Path) -> tuple[Path | None, str | None]:
@@ -684,6 +739,7 @@ class Flight:
             quiet=True,
             series=True,
             rrd=False,
+            png=False,
             **options,
         )
 
@@ -861,9 +917,16 @@ class Flight:
             rrd_path,
         )
         summary["flown"] = flown
-        write_json_atomic(self.out / "summary.json", summary)
         runs = summary["runs"]
         metrics = {k: runs[0]["metrics"].get(k) for k in METRIC_NAMES} if runs else dict.fromkeys(METRIC_NAMES)
+        png = None
+        if cfg.png and cfg.series:
+            try:
+                png = write_flight_png(cfg, self.out, cfg.name or cfg.controller, metrics)
+            except (OSError, ValueError, KeyError) as exc:  # a picture never fails a flight: say why it is missing
+                print(f"launch: flight.png not written: {type(exc).__name__}: {exc}", file=sys.stderr, flush=True)
+        summary["files"]["png"] = str(png) if png else None
+        write_json_atomic(self.out / "summary.json", summary)
         self.result = FlightResult(exit_code == EXIT_OK, exit_code, error, metrics, self.out, summary)
 
 

@@ -85,6 +85,8 @@ def print_summary(s: dict) -> None:
     print(f"   files: {f['tlog']}{rrd}  {f['summary']}  logs: {Path(f['logs']['autopilot']).parent}/*.log")
     if f.get("rrd"):
         print(f"   open the flight in the Rerun viewer: rerun {f['rrd']}")
+    if f.get("png"):
+        print(f"   picture: {f['png']}")
 
 
 def build_parser() -> OneLineArgumentParser:
@@ -163,6 +165,23 @@ def build_parser() -> OneLineArgumentParser:
         help="show the flight live in a running Rerun viewer, e.g. rerun+http://127.0.0.1:9876/proxy",
     )
     g.add_argument("--no-rrd", dest="rrd", action="store_false", help="do not write DIR/flight.rrd")
+    g.add_argument(
+        "--web",
+        action="store_true",
+        help="serve the Rerun web viewer (HTTP port 9090, gRPC 9877, all interfaces) and stream the flight to it, "
+        "so a browser on another machine can watch a headless launch",
+    )
+    p.add_argument(
+        "--no-png", dest="png", action="store_false", help="do not draw DIR/flight.png (roll, rudder, adaptive gains)"
+    )
+    p.add_argument(
+        "--gcs-peer",
+        action="append",
+        default=[],
+        metavar="HOST:PORT",
+        help="one more ground station the autopilot streams to and accepts (repeatable), e.g. MAVProxy on "
+        "127.0.0.1:14550 (with --no-signing, or a ground station that signs)",
+    )
     g = p.add_argument_group("MAVLink 2 signing (default: a new key for each flight, DIR/signing.key, mode 0600)")
     g.add_argument("--signing-key", default=None, metavar="FILE", help="sign every link with this key file instead")
     g.add_argument(

@@ -409,3 +409,68 @@ def save_paper_figure(
     fig = paper_figure(results, scenario, title, notes)
     fig.savefig(path, format="png")
     return path
+
+
+def _mode_marks(ax, t: np.ndarray, mode: np.ndarray | None, label: bool) -> None:
+    """A vertical line at each mode switch of a flight (the series' ``mode`` column), named on the top axis."""
+    if mode is None:
+        return
+    from autopilot.vehicle import Mode  # HEARTBEAT.custom_mode
+
+    for k in np.flatnonzero(np.diff(mode)) + 1:
+        ax.axvline(t[k], color="0.3", lw=0.8, ls=":")
+        if label:
+            name = Mode(int(mode[k])).name
+            ax.text(t[k], 1.01, name, transform=ax.get_xaxis_transform(), fontsize=7, ha="left", va="bottom")
+
+
+def flight_figure(result: RunResult, u_limit_rad: float, title: str) -> Figure:
+    """One flight (``tools.flight``), like a column of the experiment figure: roll against the command and the
+    reference models, the rudder command, the adaptive gains K_e, K_x, K_u; mode switches marked."""
+    fig = Figure(figsize=(11, 11), dpi=100)
+    FigureCanvasAgg(fig)
+    axes = fig.subplots(3, 1, sharex=True, gridspec_kw={"height_ratios": (3, 2, 2)})
+    color = C_CLSAC if result.lv > 0 else C_SAC
+    _tracking(axes[0], result, "CL-SAC" if result.lv > 0 else "SAC", color, PAPER)
+    t, u = _sig(result, "t"), _sig(result, "u")
+    mode = _sig(result, "mode")
+    ax = axes[1]
+    if t is None or u is None:
+        _not_recorded(ax, ["u"])
+    else:
+        ax.plot(t, u * DEG, color=color, lw=1.0, label="rudder command (flown, after PWM)")
+        if np.max(np.abs(u)) > 0.5 * u_limit_rad:  # else the limits would squash a small command to a line
+            _limit_lines(ax, u_limit_rad)
+        ax.legend(loc="upper right", fontsize=7.5, framealpha=0.9)
+    ax.set_ylabel("rudder [deg]")
+    ax.set_title("Rudder command $u_p$", fontsize=10)
+    ax.grid(alpha=0.3)
+    ax = axes[2]
+    traces = [
+        (k, c, lab)
+        for k, c, lab in (("ke", "#ff7f0e", "$K_e$"), ("kx", "#9467bd", "$K_x$"), ("ku", "#8c564b", "$K_u$"))
+    ]
+    shown = [(k, c, lab) for k, c, lab in traces if _sig(result, k) is not None]
+    for k, c, lab in shown:
+        ax.plot(t, _sig(result, k), color=c, lw=1.0, label=lab)
+    if shown:
+        ax.legend(loc="upper right", fontsize=7.5, framealpha=0.9, ncol=3)
+    else:
+        _not_recorded(ax, [k for k, _, _ in traces])
+    ax.set_title("Adaptive gains $K = K_p + K_I$", fontsize=10)
+    ax.set_ylabel("[-]")
+    ax.set_xlabel("t [s]")
+    ax.grid(alpha=0.3)
+    if t is not None:
+        for i, a in enumerate(axes):
+            _mode_marks(a, t, mode, label=i == 0)
+    fig.suptitle(title, fontsize=12)
+    fig.subplots_adjust(left=0.08, right=0.98, bottom=0.05, top=0.92, hspace=0.3)
+    return fig
+
+
+def save_flight_figure(result: RunResult, path: str | Path, u_limit_rad: float, title: str) -> Path:
+    """Render :func:`flight_figure` to a PNG at ``path``; returns the path."""
+    path = Path(path)
+    flight_figure(result, u_limit_rad, title).savefig(path, format="png")
+    return path
