@@ -147,22 +147,27 @@ def load_states(
     return {k: sorted(v, key=lambda x: x[0]) for k, v in out.items()}
 
 
-def load_text(
-    path: str | os.PathLike, entity: str, *, timeline: str = SIM_TIME, recording_id: str | None = None
-) -> list[tuple[float, str]]:
-    """``TextLog`` lines of one entity: [(t seconds, text), ...] in time order."""
+def load_texts(
+    path: str | os.PathLike, *, timeline: str = SIM_TIME, recording_id: str | None = None
+) -> dict[str, list[tuple[float, str]]]:
+    """Every ``TextLog`` entity (the event logs): {path: [(t seconds, text), ...]} in time order."""
     r = _reader(path)
-    out: list[tuple[float, str]] = []
+    out: dict[str, list[tuple[float, str]]] = defaultdict(list)
     for chunk in r.stream(store=_store(r, recording_id)):
-        if chunk.entity_path != entity:
-            continue
         rb = chunk.to_record_batch()
         if "TextLog:text" not in rb.schema.names or timeline not in rb.schema.names:
             continue
         t = rb.column(timeline).cast("int64").to_numpy(zero_copy_only=False)
         for ti, txt in zip(t, _to_list(rb.column("TextLog:text"))):
-            out.append((ti * 1e-9, txt[0] if txt else ""))
-    return sorted(out, key=lambda x: x[0])
+            out[chunk.entity_path].append((ti * 1e-9, txt[0] if txt else ""))
+    return {k: sorted(v, key=lambda x: x[0]) for k, v in out.items()}
+
+
+def load_text(
+    path: str | os.PathLike, entity: str, *, timeline: str = SIM_TIME, recording_id: str | None = None
+) -> list[tuple[float, str]]:
+    """``TextLog`` lines of one entity: [(t seconds, text), ...] in time order."""
+    return load_texts(path, timeline=timeline, recording_id=recording_id).get(entity, [])
 
 
 def entity_paths(path: str | os.PathLike, recording_id: str | None = None) -> list[str]:
@@ -200,6 +205,11 @@ def summary(path: str | os.PathLike) -> str:
             lines.append(f"  {ep:32s} {len(sig.t):8d} rows  {span:22s} {', '.join(sig.names)}")
         for ep, states in sorted(load_states(path, recording_id=rid).items()):
             lines.append(f"  {ep:32s} {len(states):8d} states: " + ", ".join(s for _, s in states[:8]))
+        for ep, texts in sorted(load_texts(path, recording_id=rid).items()):
+            lines.append(f"  {ep:32s} {len(texts):8d} events" + (":" if texts else ""))
+            lines += [f"      {t:9.3f} s  {text}" for t, text in texts[:10]]
+            if len(texts) > 10:
+                lines.append(f"      ... {len(texts) - 10} more")
     lines.append(f"blueprint: {'yes' if has_blueprint(path) else 'no'}")
     return "\n".join(lines)
 
