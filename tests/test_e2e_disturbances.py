@@ -83,6 +83,8 @@ def test_realtime_flight_with_link_faults(tmp_path):
         c = inj[direction]
         assert c["sent"] > 200 and c["lost"] > 0 and c["duplicated"] > 0 and c["reordered"] > 0
         assert c["delivered"] <= c["sent"] - c["lost"] + c["duplicated"]
-    # The SITL sent every ATTITUDE the channel delivered, and nothing else (plus its heartbeats).
+    # The SITL sends only what the channel delivered (a send fails before the autopilot is known and after it
+    # has gone), and the duplicated and overtaken ATTITUDEs reach the autopilot, which rejects them as stale.
     sitl_tx = res.summary["counters"]["sitl"]["tx_by_type"]["ATTITUDE"]
-    assert sitl_tx == inj["uplink"]["delivered"]
+    assert inj["uplink"]["delivered"] - 50 < sitl_tx <= inj["uplink"]["delivered"]
+    assert sum(res.summary["counters"]["autopilot"]["sitl"]["rejected"].values()) > 0  # stale or replayed
