@@ -170,7 +170,7 @@ def sweep_conditions() -> dict[str, Condition]:
     out = {}
     for label, (field_name, values) in SWEEPS.items():
         for v in values:
-            name = f"{label}={v:g}"
+            name = f"{label}={v:.3g}"
             out[name] = dataclasses.replace(CONDITIONS["nominal"], name=name, **{field_name: v})
     return out
 
@@ -760,7 +760,7 @@ def breaks(summary: dict, share: float = 0.9) -> dict:
     for ctrl, by_cond in summary["results"].items():
         out[ctrl] = {"by_pfc": {"paper": {}, "robust": {}}}
         for label, (_field, values) in SWEEPS.items():
-            aggs = [(v, by_cond.get(f"{label}={v:g}")) for v in values]
+            aggs = [(v, by_cond.get(f"{label}={v:.3g}")) for v in values]
             aggs = [(v, a) for v, a in aggs if a]
             if not aggs:
                 continue
@@ -800,10 +800,10 @@ def format_breaks(summary: dict) -> str:
         for k in SWEEPS:
             if ctrl == "baseline":
                 v = b.get(k)
-                cells.append(f"{'-' if v is None else f'{v:g}'} (no PFC)")
+                cells.append(f"{'-' if v is None else f'{v:.3g}'} (no PFC)")
                 continue
             pair = [b["by_pfc"][p].get(k) for p in ("paper", "robust")]
-            cells.append(" / ".join("-" if v is None else f"{v:g}" for v in pair))
+            cells.append(" / ".join("-" if v is None else f"{v:.3g}" for v in pair))
         lines.append(f"| {ctrl} | " + " | ".join(cells) + " |")
     return "\n".join(lines)
 
