@@ -206,3 +206,14 @@ def test_flight_keywords_validated_and_passed_to_the_sitl_only():
     # A disturbed flight is not the paper's reference scenario (summary.json "scenario").
     assert FlightConfig().scenario == FlightConfig(seed=3).scenario == "paper"
     assert FlightConfig(crosswind=1.0).scenario == FlightConfig(loss=0.01).scenario == "custom"
+
+
+def test_injector_real_time_delays_datagrams_in_wall_seconds():
+    inj = Injector(Disturbances(faults=FaultConfig(delay=0.005)), 1e-3, 200.0, lockstep=False)
+    assert inj.uplink_raw(10.0, b"a") == [] and inj.downlink(10.001, ("s", 1)) == []
+    assert inj.next_due() == pytest.approx(10.005)
+    assert inj.uplink_raw(10.0049, None) == [] and inj.uplink_raw(10.005, None) == [b"a"]
+    assert inj.downlink(10.006) == [("s", 1)] and inj.next_due() == math.inf
+    # Without link faults the datagrams pass straight through.
+    plain = Injector(Disturbances(), 1e-3, 200.0, lockstep=False)
+    assert plain.uplink_raw(0.0, b"x") == [b"x"] and plain.downlink(0.0, 1) == [1]
