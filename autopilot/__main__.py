@@ -322,7 +322,7 @@ def main(argv=None) -> int:
 
     install_stop_handlers(stop)
     mode = "lockstep" if args.lockstep else "real time"
-    shown_lv = params.get("CLSAC_LV") if args.controller == "clsac" else lv  # the Lv flown (a --params file's)
+    shown_lv = params.get("CLSAC_LV") if args.controller == "clsac" else 0.0 if args.controller == "sac" else lv
     print(
         f"autopilot: {opts.name} (Lv={shown_lv:g}) {mode} at {rate:g} Hz; SITL link {fmt_endpoint(ap.sitl.local)} -> "
         f"{fmt_endpoint(args.sitl)}; GCS link {fmt_endpoint(ap.gcs.local)} -> {fmt_endpoint(args.gcs)}{rt_note}",
