@@ -432,3 +432,30 @@ def _lockstep_flight(d, change: bool) -> dict:
         ap.stop()
         sitl.stop()
     return dict(np.load(series))
+
+
+def test_launcher_png_events_and_a_second_ground_station(tmp_path):
+    """A launch (lockstep) with MAVProxy's set-up: unsigned, a ground station on a --gcs-peer port gets the
+    stream and its answers; flight.png is drawn; the rrd summary lists the event log."""
+    from tools import rrd
+    from tools.flight import Flight, FlightConfigError
+
+    with pytest.raises(FlightConfigError, match="gcs_peer"):
+        Flight(gcs_peer=("nowhere",))
+    port = free_ports(1)[0]
+    gcs = Gcs(port)
+    out = tmp_path / "flight"
+    try:
+        with Flight(lockstep=True, duration=20, out=out, signing=False, gcs_peer=(f"127.0.0.1:{port}",)) as flight:
+            hb = gcs.wait("HEARTBEAT", timeout=30)
+            assert hb.custom_mode == Mode.CLSAC and gcs.wait("ATTITUDE")
+            gcs.mav.param_request_read_send(1, 1, b"CLSAC_LV", -1)
+            assert gcs.wait("PARAM_VALUE", cond=lambda m: m.param_id == "CLSAC_LV").param_value == 20.0
+            res = flight.wait(timeout=120)
+    finally:
+        gcs.close()
+    assert res is not None and res.ok, res
+    png = out / "flight.png"
+    assert res.summary["files"]["png"] == str(png) and png.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+    text = rrd.summary(out / "flight.rrd")
+    assert "/autopilot/events" in text and "events:" in text
