@@ -11,7 +11,9 @@ from tools.study import StudyOptions, format_breaks, format_table, run_study
 
 README = Path(__file__).resolve().parents[1] / "README.md"
 # The command the README gives, and the options it means (the long flight is not re-run here: 2 minutes).
-COMMAND = "python -m tools.experiment robustness --runs 100 --seed 1 --sweep-runs 50 --long-runs 10 --out runs/robustness"
+COMMAND = (
+    "python -m tools.experiment robustness --runs 100 --seed 1 --sweep-runs 50 --long-runs 10 --out runs/robustness"
+)
 
 
 def _block(text: str, name: str) -> str:
@@ -22,7 +24,9 @@ def _block(text: str, name: str) -> str:
 
 @pytest.fixture(scope="module")
 def fresh():
-    return run_study(StudyOptions(runs=100, seed=1, sweep_runs=50, long_runs=0), None, log=lambda _m: None, progress=False)
+    return run_study(
+        StudyOptions(runs=100, seed=1, sweep_runs=50, long_runs=0), None, log=lambda _m: None, progress=False
+    )
 
 
 def test_readme_gives_the_command_it_publishes():

@@ -11,12 +11,14 @@ Figures, all measured in this one benchmark run:
   ``tools.scenario.run_inprocess`` (ControlStep + sitl.Aircraft, one run after the other, nominal condition:
   the plain loop has no disturbances, so it is the cheaper case), and their ratio ``speedup_vs_plain_loop``;
 * ``dask_2_over_1_worker_wall`` (target <= 0.75): the wall time of the same study on a local Dask cluster of 2
-  worker processes divided by that of 1 worker (1.0 = no scaling, 0.5 = perfect).
+  worker processes divided by that of 1 worker (1.0 = no scaling, 0.5 = perfect), best of two alternating
+  measurements each.
 """
 
 from __future__ import annotations
 
 import argparse
+import math
 import time
 
 from tools.bench import figure, load_warning, print_table
@@ -90,8 +92,11 @@ def main(argv: list[str] | None = None) -> dict:
         try:
             dask_runs = max(runs // 2, 1000)
             chunk = max(dask_runs // 4, 1)  # two chunks per worker
-            one = bench_dask(dask_runs, 1, chunk)
-            two = bench_dask(dask_runs, 2, chunk)
+            # alternate, best of two each: other processes on a shared 2-core machine take whole cores at random
+            one, two = math.inf, math.inf
+            for _ in range(2):
+                one = min(one, bench_dask(dask_runs, 1, chunk))
+                two = min(two, bench_dask(dask_runs, 2, chunk))
             figs["dask_1_worker_runs_per_s"] = figure(dask_runs / one, "run/s", None, runs=dask_runs, chunk=chunk)
             figs["dask_2_workers_runs_per_s"] = figure(dask_runs / two, "run/s", None, runs=dask_runs, chunk=chunk)
             figs["dask_2_over_1_worker_wall"] = figure(two / one, "1", TARGET_DASK_RATIO)
