@@ -28,7 +28,7 @@ SAMPLED = [
 def test_batch_law_equals_the_scalar_law_bit_for_bit_on_study_runs(controller, condition, run):
     """Replay what the batch law was fed in a study run (measured roll, command) through the scalar law: every
     command and every integral gain is the same double."""
-    r = replay(controller, condition, seed=4, run=run, record=True)
+    r = replay(controller, condition, seed=4, run=run, duration_s=10.0, record=True)
     s = {k: v[:, 0] for k, v in r["series"].items()}
     ctrl = CONTROLLERS[controller]
     pfc = "paper" if r["pfc_paper"][0] else "robust"

@@ -9,6 +9,9 @@ import pytest
 
 from tools.study import StudyOptions, format_breaks, format_table, run_study
 
+# The whole study (11,250 runs of 30 s, about 20 s): kept out of the fast suite with the end-to-end tests.
+pytestmark = pytest.mark.e2e
+
 README = Path(__file__).resolve().parents[1] / "README.md"
 # The command the README gives, and the options it means (the long flight is not re-run here: 2 minutes).
 COMMAND = (
