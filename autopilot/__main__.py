@@ -245,6 +245,9 @@ def main(argv=None) -> int:
                 u_limit_rad=math.radians(args.u_limit_deg),
                 sigma_x=args.sigma_xu,
                 sigma_u=args.sigma_xu,
+                dead_zone_rad=math.radians(args.dead_zone_deg),
+                ki_max=args.ki_max,
+                freeze_when_saturated=args.freeze_when_saturated,
             ).with_pfc(args.pfc)
     except ConfigError as exc:
         parser.error(str(exc))

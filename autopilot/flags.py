@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import argparse
 
-from autopilot.shared.cli import gain, limit_deg
+from autopilot.shared.cli import gain, limit_deg, nonneg_float, positive_float
 
 CONTROLLERS = ("sac", "clsac", "baseline")  # baseline: the fixed-gain PID of autopilot.baseline
 PFC_CHOICES = ("paper", "robust")  # the keys of autopilot.config.PFC_PRESETS (spelled out: --help needs no numpy)
@@ -43,5 +43,24 @@ def add_controller_arguments(parser: argparse.ArgumentParser) -> None:
         default=0.0,
         metavar="SIGMA",
         help="sigma-modification of K_Ix and K_Iu (default 0, the paper; 0.1 keeps long flights bounded)",
+    )
+    g.add_argument(
+        "--dead-zone-deg",
+        type=nonneg_float,
+        default=0.0,
+        metavar="DEG",
+        help="robustness option: no integral adaptation while |e| <= this (default 0: off, the paper)",
+    )
+    g.add_argument(
+        "--ki-max",
+        type=positive_float,
+        default=None,
+        metavar="K",
+        help="robustness option: project every integral gain onto [-K, K] (default: off, the paper)",
+    )
+    g.add_argument(
+        "--freeze-when-saturated",
+        action="store_true",
+        help="robustness option: no integral adaptation while the rudder command saturates (default: off)",
     )
     g.add_argument("--u-limit-deg", type=limit_deg, default=30.0, help="rudder command limit (default 30)")

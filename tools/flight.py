@@ -84,6 +84,9 @@ class FlightConfig:
     lv: float | None = None  # default 0 for sac, 20 for clsac
     pfc: str = "paper"  # a key of autopilot.config.PFC_PRESETS
     sigma_xu: float = 0.0  # sigma-modification of K_Ix, K_Iu (0 = the paper)
+    dead_zone_deg: float = 0.0  # robustness options of the law (ClSacConfig), off by default = the paper
+    ki_max: float | None = None
+    freeze_when_saturated: bool = False
     rate: float = 100.0  # control rate, Hz
     physics_rate: float | None = None  # Hz, a whole multiple of rate; default the smallest one >= 1 kHz
     sensor_rate: float = 200.0  # real time ATTITUDE rate, Hz
@@ -142,6 +145,7 @@ class FlightConfig:
             ("rate", cli.rate_hz),
             ("sensor_rate", cli.sensor_rate_hz),
             ("sigma_xu", cli.gain),
+            ("dead_zone_deg", cli.nonneg_float),
             ("start_time", cli.clock_s),
             ("amplitude", cli.angle_deg),
             ("period", cli.timeout_s),
@@ -151,6 +155,7 @@ class FlightConfig:
             put(name, _checked(name, check, getattr(self, name)))
         for name, check in (
             ("lv", cli.gain),
+            ("ki_max", cli.positive_float),
             ("physics_rate", cli.physics_rate_hz),
             ("telemetry_rate", cli.nonneg_float),
             ("timeout", cli.timeout_s),
@@ -343,6 +348,10 @@ def child_argvs(
             cfg.pfc,
             "--sigma-xu",
             repr(cfg.sigma_xu),
+            "--dead-zone-deg",
+            repr(cfg.dead_zone_deg),
+            *(["--ki-max", repr(cfg.ki_max)] if cfg.ki_max is not None else []),
+            *(["--freeze-when-saturated"] if cfg.freeze_when_saturated else []),
             "--name",
             cfg.name or cfg.controller,
             "--u-limit-deg",
@@ -551,6 +560,9 @@ def build_summary(
         "Lv": cfg.lv_value,
         "pfc": cfg.pfc,
         "sigma_xu": cfg.sigma_xu,
+        "dead_zone_deg": cfg.dead_zone_deg,
+        "ki_max": cfg.ki_max,
+        "freeze_when_saturated": cfg.freeze_when_saturated,
         "duration_s": cfg.duration,
         "rate_hz": cfg.rate,
         "physics_rate_hz": cfg.physics_rate,

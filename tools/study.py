@@ -595,8 +595,12 @@ def mavlink_command(controller: str, condition: str, seed: int, run: int, rec: d
         changes = dict(ctrl.changes)
         if "sigma_x" in changes:
             argv.append(f"--sigma-xu {changes['sigma_x']:g}")
-        if len(changes) > ("sigma_x" in changes) + ("sigma_u" in changes):
-            argv.append("(the modification has no launcher flag: replay in process)")
+        if "dead_zone_rad" in changes:
+            argv.append(f"--dead-zone-deg {changes['dead_zone_rad'] / DEG:.6g}")
+        if "ki_max" in changes:
+            argv.append(f"--ki-max {changes['ki_max']:g}")
+        if changes.get("freeze_when_saturated"):
+            argv.append("--freeze-when-saturated")
     for name, f in zip(SCALE_NAMES, d["scales"]):
         if f != 1.0:
             argv.append(f"--scale {name}={f:.6g}")
