@@ -267,6 +267,21 @@ def test_commands_answers_and_unsupported(vehicle):
     assert ack.result == A.MAV_RESULT_UNSUPPORTED
 
 
+def test_stream_rates_follow_set_message_interval_and_request_data_stream(vehicle):
+    gcs, _ = vehicle
+    assert _count(gcs, "ATTITUDE", 1.0) == pytest.approx(50, abs=8)  # --telemetry-rate default
+    ack = gcs.command(A.MAV_CMD_SET_MESSAGE_INTERVAL, A.MAVLINK_MSG_ID_ATTITUDE, 100000)  # 10 Hz
+    assert ack.result == A.MAV_RESULT_ACCEPTED
+    assert _count(gcs, "ATTITUDE", 2.0) == pytest.approx(20, abs=4)
+    assert _count(gcs, "NAMED_VALUE_FLOAT", 1.0) == pytest.approx(40, abs=8)  # Ke, Kx, Ku, e at 10 Hz
+    gcs.mav.request_data_stream_send(1, 1, A.MAV_DATA_STREAM_EXTRA1, 2, 1)  # 2 Hz
+    assert _count(gcs, "ATTITUDE", 2.0) == pytest.approx(4, abs=2)
+    gcs.mav.request_data_stream_send(1, 1, A.MAV_DATA_STREAM_ALL, 0, 0)  # everything off
+    time.sleep(0.2)
+    assert _count(gcs, "ATTITUDE", 1.0) == 0 and _count(gcs, "NAMED_VALUE_FLOAT", 1.0) == 0
+    assert _count(gcs, "HEARTBEAT", 1.5) >= 1  # the heartbeat is not a stream
+
+
 def _count(gcs: Gcs, kind: str, seconds: float) -> int:
     gcs.drain()
     n = 0
@@ -336,6 +351,11 @@ def test_modes_bumpless_arming_and_two_ground_stations(flight):
     hb = gcs.wait("HEARTBEAT", cond=lambda m: m.custom_mode == Mode.MANUAL)
     assert mavutil.mode_string_v10(hb) == "MANUAL" and hb.base_mode & A.MAV_MODE_FLAG_MANUAL_INPUT_ENABLED
     assert "mode MANUAL" in gcs.texts
+    t_end = time.monotonic() + 0.5
+    while time.monotonic() < t_end:  # RC_CHANNELS_OVERRIDE on the rudder channel: 1550 us = +3 deg
+        gcs.mav.rc_channels_override_send(1, 1, 0, 0, 0, 1550, 0, 0, 0, 0)
+        _setpoint(gcs, 10.0)
+        time.sleep(0.05)
     t_end = time.monotonic() + 1.5
     while time.monotonic() < t_end:
         gcs.mav.manual_control_send(1, 0, 0, 0, -500, 0)
@@ -373,6 +393,8 @@ def test_modes_bumpless_arming_and_two_ground_stations(flight):
     assert [int(mode[k]) for k in switches] == [Mode.MANUAL, Mode.SAC, Mode.CLSAC]
     # MANUAL -> SAC: the manual rudder was -15 deg (r = -500 of 1000, limit 30 deg), the law wanted another
     # command: a plain switch would have stepped by that much; the transfer flies on from the last command
+    manual = u[switches[0] : switches[1]]
+    assert np.isclose(manual, math.radians(3), atol=lsb).sum() > 20  # the RC override flew
     k = switches[1]
     assert u[k - 1] == pytest.approx(math.radians(-15), abs=lsb)
     assert abs(s["u_cmd"][k] - u[k - 1]) > 0.1
@@ -392,8 +414,10 @@ def test_lockstep_lv_change_mid_flight_is_deterministic(tmp_path):
     c = _lockstep_flight(tmp_path / "c", change=False)
     assert np.array_equal(a["u"], b["u"])
     k = 1000
-    assert np.array_equal(a["u"][:k], c["u"][:k])  # identical until the change
-    assert not np.array_equal(a["u"][k:], c["u"][k:])
+    # identical until the change, and the first step after it flies the very same command (no jump: the law keeps
+    # its states, a new Lv acts through the reference model from the next step on); different from then on
+    assert np.array_equal(a["u"][: k + 1], c["u"][: k + 1])
+    assert not np.array_equal(a["u"][k + 1 :], c["u"][k + 1 :])
     energy = lambda s: float(np.sum(s["u"][k:] ** 2) * 0.01)  # noqa: E731
     assert energy(a) < 0.9 * energy(c), (energy(a), energy(c))
 
