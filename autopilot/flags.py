@@ -12,7 +12,7 @@ PFC_CHOICES = ("paper", "robust")  # the keys of autopilot.config.PFC_PRESETS (s
 
 def default_lv(controller: str) -> float:
     """L_v of a named controller: 0 for SAC (paper sec. 2), 20 for CL-SAC (paper sec. 5)."""
-    return 0.0 if controller == "sac" else 20.0
+    return 20.0 if controller == "clsac" else 0.0  # the baseline has no reference-model feedback
 
 
 def add_controller_arguments(parser: argparse.ArgumentParser) -> None:
