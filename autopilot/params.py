@@ -197,7 +197,7 @@ def save_file(path, items, *, qgc: bool = False, ids: tuple[int, int] = (1, 1)) 
     QGroundControl's."""
     if qgc:
         lines = ["# Onboard parameters for Vehicle 1", "#", "# Vehicle-Id Component-Id Name Value Type"]
-        lines += [f"{ids[0]}\t{ids[1]}\t{n}\t{v:.9g}\t{MAV_PARAM_TYPE_REAL32}" for n, v in items]
+        lines += [f"{ids[0]}\t{ids[1]}\t{n}\t{float(v)!r}\t{MAV_PARAM_TYPE_REAL32}" for n, v in items]
     else:
-        lines = [f"{n:<16s} {v:.9g}" for n, v in items]
+        lines = [f"{n:<16s} {float(v)!r}" for n, v in items]  # repr: the exact value back
     Path(path).write_text("\n".join(lines) + "\n")

@@ -19,7 +19,7 @@ from pymavlink import mavutil  # noqa: E402
 from pymavlink.dialects.v20 import all as mavall  # noqa: E402
 
 from autopilot.config import ClSacConfig  # noqa: E402
-from autopilot.params import PARAMS, ParamError, ParamTable, load_file, save_file  # noqa: E402
+from autopilot.params import PARAMS, load_file, save_file  # noqa: E402
 from autopilot.shared.fastmav import crc16  # noqa: E402
 from autopilot.vehicle import Mode  # noqa: E402
 from tests._mavlink_procs import Proc, free_ports  # noqa: E402
@@ -194,19 +194,6 @@ def test_save_load_round_trip_and_params_flag(vehicle, tmp_path):
     p = Proc("autopilot", ["--params", str(bad)], tmp_path / "bad.log")
     assert p.p.wait(30) == 2
     assert "--params" in p.output() and "CLSAC_AM" in p.output()
-
-
-def test_param_table_unit():
-    t = ParamTable(ClSacConfig(), {"attitude_timeout_s": 0.1, "setpoint_timeout_s": 1.0, "max_roll_rad": 0.7})
-    assert t.set("CLSAC_PFC_DEN1", 1.0) == 1.0 and t.config.pfc_den == (1.0, 40.0)
-    with pytest.raises(ParamError, match="CLSAC_GAM_PE"):
-        t.set("CLSAC_GAM_PE", -1.0)
-    with pytest.raises(ParamError, match="finite"):
-        t.set("CLSAC_LV", math.nan)
-    t.flying = True
-    with pytest.raises(ParamError, match="read-only"):
-        t.set("CLSAC_RATE", 50.0)
-    assert t.get("CLSAC_GAM_PE") == 10.0 and t.get("CLSAC_RATE") == 100.0
 
 
 def test_commands_answers_and_unsupported(vehicle):
