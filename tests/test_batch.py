@@ -44,11 +44,11 @@ def test_batch_law_equals_the_scalar_law_bit_for_bit_on_study_runs(controller, c
 def test_batch_element_does_not_depend_on_the_rest_of_the_batch():
     """A run's numbers are the same alone, in a chunk, or with other conditions around it."""
     pairs = tuple(("severe", i) for i in range(7)) + tuple(("moderate", i) for i in range(5))
-    whole = simulate(Task("clsac", pairs, 11))
-    parts = [simulate(Task("clsac", pairs[a:b], 11)) for a, b in ((0, 3), (3, 4), (4, 12))]
+    whole = simulate(Task("clsac", pairs, 11, 10.0))
+    parts = [simulate(Task("clsac", pairs[a:b], 11, 10.0)) for a, b in ((0, 3), (3, 4), (4, 12))]
     for key in ("ise_ref", "ise_crm", "energy", "tv", "max_abs_u", "max_abs_roll", "sat_fraction", "bounded"):
         assert np.array_equal(whole[key], np.concatenate([p[key] for p in parts])), key
-    alone = simulate(Task("clsac", (pairs[9],), 11))
+    alone = simulate(Task("clsac", (pairs[9],), 11, 10.0))
     assert alone["ise_ref"][0] == whole["ise_ref"][9]
 
 

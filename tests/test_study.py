@@ -19,8 +19,10 @@ from tools.study import (
     CONTROLLERS,
     StudyError,
     StudyOptions,
+    Task,
     replay,
     run_study,
+    simulate,
 )
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -31,12 +33,19 @@ def _results(summary: dict) -> dict:
     return summary["results"]
 
 
-def test_summary_holds_shares_percentiles_and_a_replayable_worst_run(tmp_path):
+@pytest.mark.e2e  # slow: matplotlib and rerun imports, the figure and the Rerun recording of the worst runs
+def test_study_writes_its_files(tmp_path):
     summary = run_study(StudyOptions(**SMALL), tmp_path, log=lambda _m: None, progress=False)
     doc = json.loads((tmp_path / "summary.json").read_text())
     assert doc["results"] == json.loads(json.dumps(summary["results"]))
     assert (tmp_path / "table.md").read_text().startswith("| controller |")
     assert (tmp_path / "robustness.png").stat().st_size > 1000
+    assert (tmp_path / "worst.rrd").stat().st_size > 1000
+
+
+def test_summary_holds_shares_percentiles_and_a_replayable_worst_run():
+    summary = run_study(StudyOptions(**SMALL), None, log=lambda _m: None, progress=False)
+    doc = json.loads(json.dumps(summary, allow_nan=False))
     for ctrl in SMALL["controllers"]:
         for cond in CONDITIONS:
             agg = doc["results"][ctrl][cond]
@@ -45,6 +54,17 @@ def test_summary_holds_shares_percentiles_and_a_replayable_worst_run(tmp_path):
             w = agg["worst"]
             assert w["seed"] == 5 and w["replay_inprocess"].startswith("python -m tools.study replay")
             assert "--lockstep" in w["replay_mavlink"] and f"--seed {5 * 1_000_000 + w['run']}" in w["replay_mavlink"]
+            if cond != "severe":
+                continue
+            # the share and the percentiles against the per-run numbers of the same runs flown in one batch
+            runs = simulate(Task(ctrl, tuple((cond, i) for i in range(6)), 5))
+            assert agg["bounded_share"] == pytest.approx(float(np.mean(runs["bounded"])))
+            assert agg["p95"]["energy"] == float(np.sort(runs["energy"])[5])  # nearest rank: the 6th of 6
+            assert (
+                w["metrics"]["max_abs_roll"] == float(np.max(runs["max_abs_roll"][~runs["bounded"]]))
+                if not all(runs["bounded"])
+                else True
+            )
             # the replay is the same run: bit for bit the same numbers
             r = replay(ctrl, cond, 5, w["run"], record=False)
             assert float(r["ise_ref"][0]) == (
