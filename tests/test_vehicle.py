@@ -282,7 +282,8 @@ def _count(gcs: Gcs, kind: str, seconds: float) -> int:
 
 @pytest.fixture
 def flight(tmp_path):
-    """SITL and autopilot in real time, a ground station on the default port and a second one (--gcs-peer)."""
+    """SITL and autopilot in real time, two ground stations admitted with --gcs-peer (the first one also on the
+    default --gcs port)."""
     sitl_port, port, port2 = free_ports(3)
     sitl = Proc("sitl", ["--listen", f"127.0.0.1:{sitl_port}"], tmp_path / "sitl.log")
     assert sitl.wait_for("sitl: listening", 30)
@@ -292,6 +293,8 @@ def flight(tmp_path):
         tmp_path,
         "autopilot",
         port,
+        "--gcs-peer",
+        f"127.0.0.1:{port}",
         "--gcs-peer",
         f"127.0.0.1:{port2}",
         "--series",
