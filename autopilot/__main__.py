@@ -90,8 +90,8 @@ def build_parser() -> OneLineArgumentParser:
         type=endpoint,
         default=[],
         metavar="HOST:PORT",
-        help="a ground station admitted from the start (repeatable); without signing, the first GCS that "
-        "talks is admitted as well, and nobody else",
+        help="a ground station admitted from the start (repeatable); then, without signing, nobody else is "
+        "(default: the first GCS that talks; with --signing-key also any that signs with the key)",
     )
     p.add_argument("--lockstep", action="store_true", help="one control step per SITL frame (default: real time)")
     p.add_argument(

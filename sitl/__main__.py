@@ -50,6 +50,13 @@ def build_parser() -> OneLineArgumentParser:
         metavar="HOST:PORT",
         help="UDP address to listen on for the autopilot (default 127.0.0.1:14560)",
     )
+    p.add_argument(
+        "--autopilot",
+        type=endpoint,
+        default=None,
+        metavar="HOST:PORT",
+        help="the autopilot's address: only it is heard (default: the first that talks with the autopilot's IDs)",
+    )
     p.add_argument("--lockstep", action="store_true", help="SITL is the time master, one frame per control step")
     p.add_argument(
         "--rate", type=rate_hz, default=100.0, metavar="HZ", help="lockstep frame (control) rate (default 100)"
@@ -165,6 +172,7 @@ def main(argv=None) -> int:
         spin_s=args.spin_us * 1e-6,
         verbose=not args.quiet,
         signing_key=signing_key_from_args(parser, args),
+        peer=args.autopilot,
         disturbances=dist,
     )
     try:

@@ -65,6 +65,7 @@ class SitlOptions:
     disturbances: object = None  # sitl.disturbances.Disturbances (air, sensors, link faults, plant); None = ideal
     verbose: bool = True
     signing_key: bytes | None = None  # MAVLink 2 signing (autopilot.shared.signing); None = off
+    peer: tuple | None = None  # the autopilot's (host, port); None = the first that talks with its IDs
 
 
 class SitlRecord:
@@ -111,10 +112,10 @@ class Sitl:
             "autopilot",
             SITL_ID,
             opts.listen,
-            None,
+            opts.peer,  # the autopilot's address when given (--autopilot), else learned from its first packet
             peers=[AUTOPILOT_SITL_ID],
             msgids=[SERVO_OUTPUT_RAW, HEARTBEAT],
-            learn_remote=True,
+            learn_remote=opts.peer is None,
             signing=Signing(opts.signing_key, SIGNING_LINK_SIM) if opts.signing_key else None,
         )
         self.hooks: list = []
@@ -224,7 +225,7 @@ class Sitl:
         # Wait for the autopilot to announce itself (it sends HEARTBEAT at start-up and at 1 Hz).
         t_start = perf()
         next_hb = t_start
-        while link.remote is None and not self.stop_requested:
+        while not link.rx_accepted and not self.stop_requested:
             now = perf()
             if opts.connect_timeout_s and now - t_start > opts.connect_timeout_s:
                 self.exit_reason = f"no autopilot after {opts.connect_timeout_s:g} s"

@@ -180,9 +180,9 @@ class FlightConfig:
             f"physics_rate ({self.physics_rate:g}) must be a whole multiple of the control rate ({self.rate:g})",
         )
         _require(
-            self.base_port is None or (isinstance(self.base_port, int) and 1 <= self.base_port <= 65534),
+            self.base_port is None or (isinstance(self.base_port, int) and 1 <= self.base_port <= 65532),
             "base_port",
-            f"base_port must be in 1..65534, got {self.base_port!r}",
+            f"base_port must be in 1..65532 (it and the next three ports are used), got {self.base_port!r}",
         )
         _require(
             not (self.busy_wait and self.lockstep),
@@ -308,8 +308,10 @@ def child_argvs(
     gcs_port: int,
     telemetry: dict[str, list[str]] | None = None,
     key_file: Path | None = None,
+    ap_ports: tuple[int, int] | None = None,
 ) -> dict[str, list[str]]:
-    """The command line of each process of the flight."""
+    """The command line of each process of the flight; ``ap_ports``: the autopilot's SITL-link and GCS-link ports,
+    given to all three so that every link is pinned to its peer from the start (docs/design.md, "Trust model")."""
     py = [sys.executable, "-u", "-m"]
     pwm = ["--rudder-max-deg", repr(max(RUDDER_MAX_DEG, cfg.u_limit_deg))]
     sitl = (
@@ -410,6 +412,11 @@ def child_argvs(
     if key_file is not None:
         for argv in (sitl, ap, gcs):
             argv += ["--signing-key", str(key_file)]
+    if ap_ports is not None:
+        a_sitl, a_gcs = (f"127.0.0.1:{p}" for p in ap_ports)
+        ap += ["--sitl-bind", a_sitl, "--listen", a_gcs, "--gcs-peer", f"127.0.0.1:{gcs_port}"]
+        sitl += ["--autopilot", a_sitl]
+        gcs += ["--vehicle", a_gcs]
     for host, port in cfg.gcs_peer:
         ap += ["--gcs-peer", f"{host}:{port}"]
     return {"sitl": sitl, "autopilot": ap, "gcs": gcs}
@@ -804,8 +811,9 @@ class Flight:
             telemetry, self._parts = _telemetry_argvs(cfg, self.out)
             key_file = _flight_key(cfg, self.out)
             for attempt in range(3):
-                ports = (cfg.base_port, cfg.base_port + 1) if cfg.base_port is not None else free_udp_ports(2)
-                self._spawn(child_argvs(cfg, self.out, *ports, telemetry, key_file))
+                ports = range(cfg.base_port, cfg.base_port + 4) if cfg.base_port is not None else free_udp_ports(4)
+                sitl_port, gcs_port, *ap_ports = ports
+                self._spawn(child_argvs(cfg, self.out, sitl_port, gcs_port, telemetry, key_file, tuple(ap_ports)))
                 failed = self._await_listening()
                 if failed is None:
                     break

@@ -73,6 +73,7 @@ class GcsOptions:
     vehicle_timeout: float = 5.0  # wall s of vehicle silence before giving up
     quiet: bool = False  # no live line
     signing_key: bytes | None = None  # MAVLink 2 signing (autopilot.shared.signing); None = off
+    vehicle: tuple[str, int] | None = None  # the vehicle's (host, port); None = the first that talks with its IDs
 
 
 class Gcs:
@@ -92,7 +93,14 @@ class Gcs:
         ]
         signing = Signing(opts.signing_key, SIGNING_LINK_GROUND) if opts.signing_key else None
         self.link = UdpLink(
-            "vehicle", GCS_ID, opts.listen, None, peers=[AUTOPILOT_ID], msgids=ids, learn_remote=True, signing=signing
+            "vehicle",
+            GCS_ID,
+            opts.listen,
+            opts.vehicle,
+            peers=[AUTOPILOT_ID],
+            msgids=ids,
+            learn_remote=opts.vehicle is None,
+            signing=signing,
         )
         self.sel = selectors.DefaultSelector()
         self.sel.register(self.link.sock, selectors.EVENT_READ)
@@ -304,6 +312,13 @@ def build_parser() -> OneLineArgumentParser:
         default=("127.0.0.1", 14550),
         metavar="HOST:PORT",
         help="UDP address to listen on, like a ground station (default 127.0.0.1:14550)",
+    )
+    p.add_argument(
+        "--vehicle",
+        type=endpoint,
+        default=None,
+        metavar="HOST:PORT",
+        help="the vehicle's address: only it is heard (default: the first that talks with the vehicle's IDs)",
     )
     p.add_argument(
         "profile", nargs="?", choices=("square", "step", "sine"), default="square", help="roll profile (default square)"

@@ -123,7 +123,8 @@ def build_parser() -> OneLineArgumentParser:
         type=int,
         default=None,
         metavar="PORT",
-        help="SITL on PORT, GCS on PORT+1 (default: free ports chosen automatically)",
+        help="SITL on PORT, GCS on PORT+1, the autopilot on PORT+2 (SITL link) and PORT+3 (GCS link); default: free "
+        "ports chosen automatically",
     )
     p.add_argument("--start-time", type=clock_s, default=0.0, metavar="S", help="initial sim clock (default 0)")
     p.add_argument("profile", nargs="?", choices=PROFILES, default="square", help="GCS roll profile")

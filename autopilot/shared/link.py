@@ -33,8 +33,9 @@ so ``rx_datagrams == rx_accepted + sum(rejected.values())`` always holds.
   the one peer and ``remote``; any other address is ``not_peer`` from then on;
 * admitting (``admit=N``, the autopilot's ground-station link): ``remote`` is the default destination
   (e.g. 127.0.0.1:14550) and stays so; the addresses in ``peer_addrs`` are admitted from the start; without
-  signing the first address that talks with a peer's IDs is admitted too; with signing every address
-  whose packet carries a valid signature is admitted, up to N in all (more are ``not_peer``).
+  signing and without ``peer_addrs`` the first address that talks with a peer's IDs is admitted (with
+  ``peer_addrs``, nobody else); with signing every address whose packet carries a valid signature is
+  admitted, up to N in all (more are ``not_peer``).
   ``broadcast``/``send`` reach every admitted peer and ``remote``, each once.
 
 Sending: ``send(msg)`` packs with this link's own sequence counter and source IDs (signed when signing is on).
@@ -150,6 +151,7 @@ class UdpLink:
         self.admitted: list = list(dict.fromkeys(fixed))  # addresses we accept packets from
         self._admitted_set = set(self.admitted)
         self._learned = False
+        self._listed = bool(peer_addrs)
         self.rx_datagrams = 0
         self.rx_accepted = 0  # datagrams with at least one accepted packet
         self.rx_packets = 0  # packets accepted and decoded
@@ -267,7 +269,8 @@ class UdpLink:
     def _admit(self, addr, signed: bool) -> bool:
         """Whether a packet with a peer's IDs from the new address ``addr`` may make it a peer."""
         if self.admit:
-            if len(self.admitted) >= self.admit or not (signed or not self._learned):
+            # signed: any address, up to the bound; unsigned: the first one, unless the peers were listed
+            if len(self.admitted) >= self.admit or not (signed or not (self._learned or self._listed)):
                 return False
         elif not self.learn_remote or self._learned:
             return False
