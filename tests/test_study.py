@@ -77,6 +77,8 @@ def test_results_do_not_depend_on_the_chunk_size():
     one = {**SMALL, "controllers": ("clsac",)}
     a = run_study(StudyOptions(**{**one, "chunk": 7}), None, log=lambda _m: None, progress=False)
     b = run_study(StudyOptions(**{**one, "chunk": 100}), None, log=lambda _m: None, progress=False)
+    c = run_study(StudyOptions(**{**one, "chunk": 5, "workers": 2}), None, log=lambda _m: None, progress=False)
+    assert _results(c) == _results(a)
     assert _results(a) == _results(b)
 
 

@@ -489,15 +489,28 @@ class Progress:
         self.stream.flush()
 
 
-def execute(tasks: Sequence[Task], scheduler: str | None = None, progress: Progress | None = None) -> list[dict]:
-    """Run every task, locally one after the other (``scheduler`` None) or on the Dask cluster at ``scheduler``
-    (``tcp://HOST:PORT``); results in task order either way."""
+def execute(
+    tasks: Sequence[Task], scheduler: str | None = None, progress: Progress | None = None, workers: int = 1
+) -> list[dict]:
+    """Run every task: locally, one after the other (``workers`` 1) or in a pool of ``workers`` processes, or on
+    the Dask cluster at ``scheduler`` (``tcp://HOST:PORT``); results in task order whichever."""
     results: list[dict | None] = [None] * len(tasks)
-    if scheduler is None:
+    if scheduler is None and workers <= 1:
         for i, t in enumerate(tasks):
             results[i] = simulate(t)
             if progress:
                 progress.add(len(t.runs))
+        return results  # type: ignore[return-value]
+    if scheduler is None:
+        from concurrent.futures import ProcessPoolExecutor, as_completed
+
+        with ProcessPoolExecutor(max_workers=workers) as pool:
+            index = {pool.submit(simulate, t): i for i, t in enumerate(tasks)}
+            for fut in as_completed(index):
+                i = index[fut]
+                results[i] = fut.result()
+                if progress:
+                    progress.add(len(tasks[i].runs))
         return results  # type: ignore[return-value]
     try:
         from distributed import Client, as_completed  # lazy: dask is an optional (dev) dependency
@@ -659,6 +672,7 @@ class StudyOptions:
     long_runs: int = 10
     chunk: int = 2500
     scheduler: str | None = None
+    workers: int = 1  # local processes (ignored with a scheduler)
 
     def __post_init__(self) -> None:
         for name in ("runs", "sweep_runs", "long_runs"):
@@ -668,6 +682,8 @@ class StudyOptions:
             raise StudyError(f"--runs must be >= 1, got {self.runs}")
         if self.chunk < 1:
             raise StudyError(f"--chunk must be >= 1, got {self.chunk}")
+        if self.workers < 1:
+            raise StudyError(f"--workers must be >= 1, got {self.workers}")
         for c in self.controllers:
             get_controller(c)
         for c in self.conditions:
@@ -689,9 +705,9 @@ def run_study(opts: StudyOptions, out_dir: str | os.PathLike | None = None, *, l
     long_tasks = make_tasks(long_ctrls, long_pairs, opts.seed, opts.chunk, LONG_DURATION_S)
     total = sum(len(t.runs) for t in tasks)
     bar = Progress(total, "30 s runs", enabled=progress)
-    where = opts.scheduler or "this process"
+    where = opts.scheduler or ("this process" if opts.workers == 1 else f"{opts.workers} local processes")
     log(f"study: {len(opts.controllers)} controllers x {len(pairs)} runs = {total} runs of 30 s on {where}")
-    results = execute(tasks, opts.scheduler, bar)
+    results = execute(tasks, opts.scheduler, bar, opts.workers)
     wall = time.perf_counter() - t_start
     merged = merge(tasks, results)
     summary: dict = {
@@ -724,7 +740,7 @@ def run_study(opts: StudyOptions, out_dir: str | os.PathLike | None = None, *, l
     if long_tasks:
         n_long = sum(len(t.runs) for t in long_tasks)
         log(f"long flight: {len(long_ctrls)} controllers x {len(long_pairs)} runs of {LONG_DURATION_S:g} s")
-        lres = execute(long_tasks, opts.scheduler, Progress(n_long, "600 s runs", enabled=progress))
+        lres = execute(long_tasks, opts.scheduler, Progress(n_long, "600 s runs", enabled=progress), opts.workers)
         lmerged = merge(long_tasks, lres)
         summary["long_flight"] = {
             "duration_s": LONG_DURATION_S,
@@ -927,6 +943,9 @@ def add_run_arguments(r: argparse.ArgumentParser) -> None:
     r.add_argument("--long-runs", type=int, default=10, help="runs of the 600 s long flight (0: none; default 10)")
     r.add_argument("--chunk", type=int, default=2500, help="runs per batch (results do not depend on it)")
     r.add_argument("--scheduler", metavar="tcp://HOST:PORT", help="a Dask scheduler (default: run here)")
+    r.add_argument(
+        "--workers", type=int, default=1, help="local processes when no --scheduler (default 1; results do not change)"
+    )
     r.add_argument("--no-progress", action="store_true", help="no progress bar")
 
 
@@ -946,6 +965,7 @@ def options_from_args(args) -> StudyOptions:
         long_runs=args.long_runs,
         chunk=args.chunk,
         scheduler=args.scheduler,
+        workers=args.workers,
     )
     if args.controllers:
         kw["controllers"] = names(args.controllers)
