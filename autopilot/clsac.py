@@ -272,6 +272,17 @@ class ClSac:
             self.u = self.u_raw = u.copy()
         self.frozen = True
 
+    def flew(self, u_applied) -> None:
+        """This step's command was replaced by ``u_applied`` before it flew (a bumpless transfer): the PFC is
+        driven by what flew, as always (y_a describes the plant really driven), and ``u`` reports it."""
+        if self._fast:
+            u_applied = float(u_applied)
+            self.xd += self._s["g_d"] * (u_applied - self.u)
+        else:
+            u_applied = np.broadcast_to(np.asarray(u_applied, dtype=float), (self._m,)).copy()
+            self.xd = self.xd + self._gam_d @ (u_applied - self.u)[None, :]
+        self.u = u_applied
+
     def reconfigure(self, config: ClSacConfig) -> None:
         """Fly ``config`` from the next step on, keeping the states (a parameter change or a SAC <-> CL-SAC
         switch in flight): the coefficients are discretised again, x_m, x_m,ol, the integral gains and the last

@@ -226,7 +226,12 @@ class ControlStep:
             # A NaN/Inf measurement or command never reaches the states or the metrics: a hold step instead.
             self.nonfinite_inputs += 1
             return self.hold(t, phi, Failsafe.NO_ATTITUDE if phi - phi != 0.0 else Failsafe.NO_SETPOINT)
-        u_cmd = self._source(u_cmd)
+        if self._transfer or self._offset:
+            u_cmd = self._source(u_cmd)
+            if hasattr(law, "flew"):
+                law.flew(u_cmd)  # the PFC follows the command that flies
+        else:
+            self.u_last = u_cmd
         pwm_map = self.pwm
         if pwm_map is None:
             pwm = None

@@ -82,11 +82,14 @@ def test_transfer_flies_on_from_the_last_command_and_decays_exponentially():
     assert step(0.5, 0.0).u == 0.0  # disarmed: neutral at once
     step.armed = True
     step.transfer()
-    law_alone = ClSac(ClSacConfig())  # what the law commands, independent of the transfer
-    law_alone.__dict__.update({k: v for k, v in step.law.__dict__.items()})
+    before = ClSac(ClSacConfig())
+    before.__dict__.update(step.law.__dict__)  # the law's state before the transfer step
     u0 = step(0.51, 0.05).u
-    u_law = law_alone(0.05, 0.0)
-    assert u0 == 0.0 and u_law != 0.0  # the first command is the last one flown, not the law's
+    offset = u0 - step.law.u_raw  # the law's own (unsaturated) command this step
+    assert u0 == 0.0 and abs(offset) > 1e-3  # the first command is the last one flown, not the law's
+    before.hold(u0)  # the PFC driven by what flew (ClSac.hold: the PFC alone)
+    assert step.law.xd == before.xd and step.law.u == u0
     decay = math.exp(-0.01 / TRANSFER_TAU_S)
-    u1 = step(0.52, 0.05).u
-    assert u1 == pytest.approx(law_alone(0.05, 0.0) - u_law * decay, abs=1e-12)
+    for k in range(2, 40):  # the offset decays exponentially, exactly
+        u = step(0.5 + 0.01 * k, 0.05).u
+        assert u == pytest.approx(step.law.u_raw + offset * decay ** (k - 1), abs=1e-12)
