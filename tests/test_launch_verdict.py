@@ -1,0 +1,105 @@
+"""The launcher never calls a failed flight OK (issue #11): a stalled SITL, a child that ends early with status 0,
+impossible rates; and every process answers SIGINT within a period and still writes its stats."""
+
+from __future__ import annotations
+
+import json
+import os
+import signal
+import time
+
+import pytest
+from _mavlink_procs import Proc, free_ports, mav, mavlink, pack, run_cli, udp
+
+from tools.flight import Flight
+
+pytestmark = pytest.mark.e2e  # real processes over loopback UDP
+
+
+def _summary(res) -> dict:
+    with open(res.out / "summary.json") as f:
+        return json.load(f)
+
+
+def _wait_for_steps(flight: Flight, name: str, text: str, timeout: float = 60.0) -> None:
+    t0 = time.monotonic()
+    while text not in (flight.out / f"{name}.log").read_text():
+        assert time.monotonic() - t0 < timeout, f"no {text!r} in {name}.log"
+        time.sleep(0.05)
+
+
+def test_stalled_sitl_fails_the_flight_and_is_named(tmp_path):
+    kw = dict(lockstep=True, duration=3000.0, out=tmp_path, quiet=True, rrd=False, series=False)
+    with Flight(**kw) as flight:
+        _wait_for_steps(flight, "sitl", "lockstep from")
+        time.sleep(1.0)
+        os.kill(flight.pids["sitl"], signal.SIGSTOP)  # longer than the autopilot's 5 s lockstep idle timeout
+        res = flight.wait(timeout=120)
+    assert not res.ok and res.exit_code == 1
+    assert res.summary["failed"] == "sitl" and res.reason.startswith("sitl stalled or died"), res.reason
+    s = _summary(res)
+    assert s["ok"] is False and s["failed"] == "sitl"
+    assert 0.0 < s["flown"]["fraction"] < 1.0 and f"{100 * s['flown']['fraction']:.3g} %" in s["error"]
+
+
+def test_child_ending_early_with_status_0_fails_the_flight(tmp_path):
+    kw = dict(duration=8.0, out=tmp_path, quiet=True, rrd=False, series=False)
+    with Flight(**kw) as flight:
+        _wait_for_steps(flight, "gcs", "gcs: vehicle ")
+        time.sleep(1.5)
+        os.kill(flight.pids["sitl"], signal.SIGINT)  # a clean, early exit with status 0
+        res = flight.wait(timeout=120)
+    assert res.summary["exit_codes"]["sitl"] == 0
+    assert not res.ok and res.exit_code == 1
+    assert res.summary["failed"] == "sitl" and "sitl exited early (exit code 0)" in res.reason, res.reason
+    s = _summary(res)
+    assert s["ok"] is False and 0.0 < s["flown"]["fraction"] < 0.9
+
+
+@pytest.mark.parametrize(
+    "flag,value,needle",
+    [
+        ("--physics-rate", "1e12", "(0, 100000] Hz"),
+        ("--sensor-rate", "1e9", "(0, 1000] Hz"),
+        ("--rate", "5000", "at most 1000 Hz"),
+        ("--duration", "1e308", "(0, 86400] s"),
+        ("--start-time", "5e6", "[0, 86400] s"),
+        ("--lv", "1e300", "[0, 10000]"),
+    ],
+)
+def test_impossible_values_are_rejected_before_the_flight(tmp_path, flag, value, needle):
+    out = tmp_path / "never"
+    r = run_cli("tools.launch", flag, value, "--out", str(out), timeout=60)
+    lines = r.stderr.strip().splitlines()
+    assert r.returncode == 2 and len(lines) == 1 and flag in lines[0] and needle in lines[0], r.stderr
+    assert not out.exists()  # nothing was started
+
+
+@pytest.mark.parametrize("bad", ["file", "in_a_file"])
+def test_output_paths_are_checked_before_the_flight(tmp_path, bad):
+    f = tmp_path / "f"
+    f.write_text("x")
+    out = f if bad == "file" else f / "run"
+    r = run_cli("tools.launch", "--out", str(out), timeout=60)
+    assert r.returncode == 2 and len(r.stderr.strip().splitlines()) == 1 and "--out" in r.stderr, r.stderr
+    r = run_cli("autopilot", "--stats-json", str(tmp_path), timeout=60)
+    assert r.returncode == 2 and "--stats-json" in r.stderr and "is a folder" in r.stderr
+
+
+def test_lockstep_sitl_answers_sigint_while_waiting_and_writes_its_stats(tmp_path):
+    port = free_ports(1)[0]
+    stats = tmp_path / "sitl.json"
+    sitl = Proc("sitl", ["--listen", f"127.0.0.1:{port}", "--lockstep", "--stats-json", str(stats)], tmp_path / "s")
+    assert sitl.wait_for("listening on")
+    s = udp()  # an autopilot that announces itself and then never answers a frame
+    s.sendto(pack(mav(1, 1), mavlink.MAVLink_heartbeat_message(1, 0, 0, 0, 3, 3)), ("127.0.0.1", port))
+    s.sendto(pack(mav(1, 140), mavlink.MAVLink_heartbeat_message(1, 0, 0, 0, 3, 3)), ("127.0.0.1", port))
+    assert sitl.wait_for("lockstep from")
+    time.sleep(0.5)
+    t0 = time.monotonic()
+    sitl.p.send_signal(signal.SIGINT)
+    code = sitl.p.wait(10)
+    assert code == 0 and time.monotonic() - t0 < 1.0
+    sitl.stop()
+    s.close()
+    assert json.loads(stats.read_text())["exit_reason"] == "stopped by signal"
