@@ -125,10 +125,6 @@ class Condition:
     loss: float = 0.0  # probability per message, each direction
     pfc_paper_share: float = 0.5  # the PFC is drawn per run: paper with this probability, else robust
 
-    @property
-    def disturbed(self) -> bool:
-        return bool(self.turbulence or self.roll_noise or self.loss)
-
 
 CONDITIONS: dict[str, Condition] = {
     c.name: c
@@ -289,7 +285,7 @@ def simulate(task: Task) -> dict:
     gust_k = np.zeros((n, 0))
     g_first = np.zeros(n, dtype=int)
     if np.any(gust_amp != 0):
-        width = int(math.ceil(20.0 / dry_airspeed() * rate)) + 2
+        width = int(math.ceil(20.0 / _airspeed() * rate)) + 2  # the longest gust, 20 m
         g_first = np.ceil(gust_start * rate - 1e-9).astype(int)
         gust_k = np.zeros((n, width))
         for i in range(n):
@@ -424,7 +420,7 @@ def simulate(task: Task) -> dict:
     return out
 
 
-def dry_airspeed() -> float:
+def _airspeed() -> float:
     from sitl.atmosphere import AIRSPEED
 
     return AIRSPEED
