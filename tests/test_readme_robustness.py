@@ -42,3 +42,25 @@ def test_readme_results_table_equals_a_fresh_run(fresh):
 
 def test_readme_break_points_equal_a_fresh_run(fresh):
     assert _block(README.read_text(encoding="utf-8"), "robustness-breaks") == format_breaks(fresh)
+
+
+def test_readme_long_flight_rows_in_still_air_equal_a_fresh_run():
+    """The nominal rows of the long-flight table (every nominal run with the same PFC is the same flight, so any
+    runs give the median) and the drift the README quotes."""
+    from tools.study import LONG_DURATION_S, Task, format_long, long_flight_summary, merge, simulate
+
+    text = README.read_text(encoding="utf-8")
+    controllers = ("clsac", "clsac_leak", "clsac_projection")
+    pairs = tuple(("nominal", i) for i in range(4))
+    tasks = [Task(c, pairs, 1, LONG_DURATION_S) for c in controllers]
+    merged = merge(tasks, [simulate(t) for t in tasks])
+    summary = {
+        "long_flight": {"controllers": {c: {"nominal": long_flight_summary(merged[c], "nominal")} for c in controllers}}
+    }
+    rows = format_long(summary).splitlines()[2:]
+    assert len(rows) == 6
+    for row in rows:
+        assert row in text, row
+    paper = summary["long_flight"]["controllers"]["clsac"]["nominal"]["paper"]["median_window_peak_roll_deg"]
+    assert f"grows from {paper[0]:.1f} deg to {paper[6]:.1f} deg by 180-210 s" in text
+    assert f"breaks out in the next window ({paper[7]:.1f} deg)" in text
