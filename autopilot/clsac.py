@@ -273,15 +273,13 @@ class ClSac:
         self.frozen = True
 
     def flew(self, u_applied) -> None:
-        """This step's command was replaced by ``u_applied`` before it flew (a bumpless transfer): the PFC is
-        driven by what flew, as always (y_a describes the plant really driven), and ``u`` reports it."""
+        """This step's command ``u`` was replaced by ``u_applied`` before it flew (a bumpless transfer): the PFC
+        is driven by what flew, as always (y_a describes the plant really driven); ``u`` stays the law's own."""
         if self._fast:
-            u_applied = float(u_applied)
-            self.xd += self._s["g_d"] * (u_applied - self.u)
+            self.xd += self._s["g_d"] * (float(u_applied) - self.u)
         else:
-            u_applied = np.broadcast_to(np.asarray(u_applied, dtype=float), (self._m,)).copy()
+            u_applied = np.broadcast_to(np.asarray(u_applied, dtype=float), (self._m,))
             self.xd = self.xd + self._gam_d @ (u_applied - self.u)[None, :]
-        self.u = u_applied
 
     def reconfigure(self, config: ClSacConfig) -> None:
         """Fly ``config`` from the next step on, keeping the states (a parameter change or a SAC <-> CL-SAC

@@ -57,6 +57,7 @@ class Gcs:
 
     def command(self, cmd, *params, timeout=5.0):
         p = list(params) + [0.0] * (7 - len(params))
+        self.drain()  # a socket left unread for seconds is full: the answer would be dropped by the kernel
         self.mav.command_long_send(1, 1, cmd, 0, *p)
         # every ground station sees every answer: ours names us in its target fields
         return self.wait("COMMAND_ACK", timeout, cond=lambda m: m.command == cmd and m.target_component == self.comp)
