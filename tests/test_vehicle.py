@@ -286,7 +286,8 @@ def flight(tmp_path):
     """SITL and autopilot in real time, two ground stations admitted with --gcs-peer (the first one also on the
     default --gcs port)."""
     sitl_port, port, port2 = free_ports(3)
-    sitl = Proc("sitl", ["--listen", f"127.0.0.1:{sitl_port}"], tmp_path / "sitl.log")
+    sitl_args = ["--listen", f"127.0.0.1:{sitl_port}"]
+    sitl = Proc("sitl", sitl_args, tmp_path / "sitl.log")
     assert sitl.wait_for("sitl: listening", 30)
     gcs, gcs2 = Gcs(port), Gcs(port2, comp=190)
     series = tmp_path / "series.npz"
@@ -305,11 +306,18 @@ def flight(tmp_path):
         sitl_port=sitl_port,
     )
     gcs.connect()
-    yield gcs, gcs2, ap, series
+    procs = {"sitl": sitl}
+
+    def restart_sitl():
+        procs["sitl"].kill()
+        time.sleep(1.0)
+        procs["sitl"] = Proc("sitl", sitl_args, tmp_path / "sitl2.log")
+
+    yield gcs, gcs2, ap, series, restart_sitl
     gcs.close()
     gcs2.close()
     ap.stop()
-    sitl.stop()
+    procs["sitl"].stop()
 
 
 def _setpoint(gcs: Gcs, deg: float):
@@ -326,7 +334,7 @@ def _fly(gcs: Gcs, seconds: float, deg: float):
 
 
 def test_modes_bumpless_arming_and_two_ground_stations(flight):
-    gcs, gcs2, ap, series = flight
+    gcs, gcs2, ap, series, restart_sitl = flight
     hb = gcs.wait("HEARTBEAT")
     assert hb.type == A.MAV_TYPE_FIXED_WING and hb.custom_mode == Mode.CLSAC
     assert mavutil.mode_string_v10(hb) == "Mode(101)"  # never a wrong ArduPlane name
@@ -373,15 +381,27 @@ def test_modes_bumpless_arming_and_two_ground_stations(flight):
     assert ack.result == A.MAV_RESULT_ACCEPTED
     assert gcs.wait("HEARTBEAT", cond=lambda m: m.base_mode & A.MAV_MODE_FLAG_SAFETY_ARMED)
     _fly(gcs, 1.0, 10.0)
+    # FAILSAFE: entered by itself when the SITL vanishes, left by itself when a SITL is back
+    restart_sitl()
+    hb = gcs.wait("HEARTBEAT", cond=lambda m: m.custom_mode == Mode.FAILSAFE)
+    assert mavutil.mode_string_v10(hb) == "Mode(102)" and hb.system_status == A.MAV_STATE_CRITICAL
+    assert gcs.wait("HEARTBEAT", timeout=15, cond=lambda m: m.custom_mode == Mode.CLSAC)
+    _fly(gcs, 1.0, 10.0)
     ap.stop()
     out = ap.output()
-    for text in ("mode MANUAL", "mode SAC", "mode CLSAC", "DISARMED", "ARMED"):
+    for text in ("mode MANUAL", "mode SAC", "mode CLSAC", "DISARMED", "ARMED", "mode FAILSAFE"):
         assert text in out
+    assert "mode FAILSAFE" in gcs.texts
     s = np.load(series)
-    u, mode, armed = s["u"], s["mode"], s["armed"].astype(bool)
+    u, mode, armed, fs = s["u"], s["mode"], s["armed"].astype(bool), s["failsafe"].astype(bool)
     lsb = math.radians(30) / 500  # one microsecond of PWM
     switches = [k for k in range(1, len(u)) if mode[k] != mode[k - 1]]
-    assert [int(mode[k]) for k in switches] == [Mode.MANUAL, Mode.SAC, Mode.CLSAC]
+    modes = [Mode.MANUAL, Mode.SAC, Mode.CLSAC, Mode.FAILSAFE, Mode.CLSAC]
+    assert [int(mode[k]) for k in switches] == modes
+    # out of the failsafe (rudder neutral) the law takes over from neutral, without a step
+    k_back = int(np.flatnonzero(fs[:-1] & ~fs[1:])[-1]) + 1
+    assert abs(u[k_back]) <= 2 * lsb and fs[k_back - 1] and u[k_back - 1] == 0.0
+    switches = switches[:3]  # the ones the ground station made
     # MANUAL -> SAC: the manual rudder was -15 deg (r = -500 of 1000, limit 30 deg), the law wanted another
     # command: a plain switch would have stepped by that much; the transfer flies on from the last command
     manual = u[switches[0] : switches[1]]
