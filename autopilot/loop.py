@@ -24,6 +24,7 @@ from __future__ import annotations
 
 import gc
 import math
+import random
 import select
 import sys
 import time
@@ -70,7 +71,7 @@ _TELEMETRY_IDS = (ATTITUDE, M.MAVLINK_MSG_ID_ATTITUDE_TARGET, SERVO_OUTPUT_RAW)
 _SPIN_TIGHT_S = 50e-6
 SITL_RESTART_MS = 1000  # real time: an ATTITUDE this far behind the one held is a restarted SITL's clock
 ATTITUDE_AHEAD_MS = 50.0  # real time: an ATTITUDE this far ahead of the held one's clock is rejected
-TIMING_SAMPLES_MAX = 2_000_000  # per-step timing samples kept for percentiles (about 1.4 h at 400 Hz)
+TIMING_SAMPLES_MAX = 100_000  # per timing series: a uniform sample of all steps (reservoir), for the percentiles
 
 
 @dataclass
@@ -143,26 +144,47 @@ class _Attitude:
 
 @dataclass
 class TimingStats:
-    """Per-step timing samples (seconds) and summary percentiles."""
+    """Per-step timing (seconds) and summary percentiles, in bounded memory whatever the flight's length: each
+    series keeps a uniform random sample of at most TIMING_SAMPLES_MAX of its values (reservoir sampling,
+    Vitter's algorithm R) and its exact maximum; ``last_compute`` is the newest step's compute time."""
 
     period: array = field(default_factory=lambda: array("d"))
     lateness: array = field(default_factory=lambda: array("d"))
     compute: array = field(default_factory=lambda: array("d"))
     latency: array = field(default_factory=lambda: array("d"))
     missed: int = 0
+    last_compute: float = 0.0
+    seen: dict = field(default_factory=dict)  # series name -> values offered so far
+    maxima: dict = field(default_factory=dict)  # series name -> exact maximum
+    minima: dict = field(default_factory=dict)  # series name -> exact minimum
+    _rng: random.Random = field(default_factory=lambda: random.Random(0), repr=False)
+
+    def _sample(self, name: str, values: array, v: float) -> None:
+        n = self.seen.get(name, 0) + 1
+        self.seen[name] = n
+        if v > self.maxima.get(name, -math.inf):
+            self.maxima[name] = v
+        if v < self.minima.get(name, math.inf):
+            self.minima[name] = v
+        if len(values) < TIMING_SAMPLES_MAX:
+            values.append(v)
+        else:
+            j = int(self._rng.random() * n)
+            if j < TIMING_SAMPLES_MAX:
+                values[j] = v
 
     def add(self, period, lateness, compute, latency):
-        if len(self.compute) < TIMING_SAMPLES_MAX:
-            if period is not None:
-                self.period.append(period)
-            if lateness is not None:
-                self.lateness.append(lateness)
-            self.compute.append(compute)
-            if latency is not None:
-                self.latency.append(latency)
+        self.last_compute = compute
+        if period is not None:
+            self._sample("period", self.period, period)
+        if lateness is not None:
+            self._sample("lateness", self.lateness, lateness)
+        self._sample("compute", self.compute, compute)
+        if latency is not None:
+            self._sample("latency", self.latency, latency)
 
     def summary(self, nominal_period: float) -> dict:
-        def pct(values, scale=1e3):
+        def pct(values, name=None, top=None, scale=1e3):
             if not values:
                 return None
             s = sorted(values)
@@ -171,15 +193,19 @@ class TimingStats:
             def q(p):
                 return s[min(n - 1, int(math.ceil(p / 100.0 * n)) - 1 if p > 0 else 0)] * scale
 
-            return {"p50": q(50), "p99": q(99), "max": s[-1] * scale, "n": n}
+            top = self.maxima[name] if top is None else top  # exact, not the sample's
+            return {"p50": q(50), "p99": q(99), "max": top * scale, "n": self.seen.get(name, n)}
 
         jitter = [abs(p - nominal_period) for p in self.period]
+        jitter_max = (
+            max(self.maxima["period"] - nominal_period, nominal_period - self.minima["period"]) if jitter else None
+        )
         return {
             "period_ms": nominal_period * 1e3,
-            "period_jitter_ms": pct(jitter),
-            "lateness_ms": pct(self.lateness),
-            "compute_ms": pct(self.compute),
-            "latency_ms": pct(self.latency),
+            "period_jitter_ms": pct(jitter, "period", jitter_max),
+            "lateness_ms": pct(self.lateness, "lateness"),
+            "compute_ms": pct(self.compute, "compute"),
+            "latency_ms": pct(self.latency, "latency"),
             "missed_deadlines": self.missed,
         }
 

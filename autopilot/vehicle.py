@@ -452,7 +452,7 @@ class Vehicle:
         # Health bits of sensors not present read as healthy (as ArduPilot sends them; MAVProxy's fence module
         # would otherwise announce "fence breach"); the attitude ones go unhealthy in the attitude failsafe.
         healthy = 0xFFFFFFFF if ap.failsafe is Failsafe.NONE else 0xFFFFFFFF & ~sensors
-        load = int(min(1000, 1000 * ap.timing.compute[-1] / ap.period)) if ap.timing.compute else 0
+        load = int(min(1000, 1000 * ap.timing.last_compute / ap.period))
         rej = sum(ap.gcs.rejected.values())
         drop = int(min(10000, 10000 * rej / max(1, ap.gcs.rx_datagrams)))
         return M.MAVLink_sys_status_message(

@@ -147,6 +147,8 @@ class Gcs:
         elif mid == M.MAVLINK_MSG_ID_STATUSTEXT:
             text = printable(msg.text)  # escape codes and newlines from a peer never reach the terminal raw
             self.statustexts.append(text)
+            if len(self.statustexts) > 100:  # bounded on long flights: the stats keep the last 50
+                del self.statustexts[:50]
             print(f"gcs: vehicle says: {text}", file=self.out, flush=True)
 
     def _sim(self, ms: int, t_rx: float) -> bool:
