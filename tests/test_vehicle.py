@@ -217,6 +217,8 @@ def test_commands_answers_and_unsupported(vehicle):
     assert set(modes) == {"MANUAL", "SAC", "CLSAC", "FAILSAFE"} and modes["CLSAC"].number_modes == 4
     assert modes["FAILSAFE"].properties & A.MAV_MODE_PROPERTY_NOT_USER_SELECTABLE
     assert modes["SAC"].custom_mode == Mode.SAC
+    assert gcs.command(A.MAV_CMD_REQUEST_MESSAGE, A.MAVLINK_MSG_ID_CURRENT_MODE).result == A.MAV_RESULT_ACCEPTED
+    assert gcs.wait("CURRENT_MODE").custom_mode == Mode.CLSAC
     # PROTOCOL_VERSION is in no pymavlink dialect: check the raw frame (id 300, CRC extra 217 from its definition)
     gcs.conn.mav.robust_parsing = True
     sock = gcs.conn.port
@@ -264,6 +266,7 @@ def test_stream_rates_follow_set_message_interval_and_request_data_stream(vehicl
     assert _count(gcs, "NAMED_VALUE_FLOAT", 1.0) == pytest.approx(40, abs=8)  # Ke, Kx, Ku, e at 10 Hz
     gcs.mav.request_data_stream_send(1, 1, A.MAV_DATA_STREAM_EXTRA1, 2, 1)  # 2 Hz
     assert _count(gcs, "ATTITUDE", 2.0) == pytest.approx(4, abs=2)
+    assert _count(gcs, "SYS_STATUS", 2.05) in (2, 3)  # 1 Hz
     gcs.mav.request_data_stream_send(1, 1, A.MAV_DATA_STREAM_ALL, 0, 0)  # everything off
     time.sleep(0.2)
     assert _count(gcs, "ATTITUDE", 1.0) == 0 and _count(gcs, "NAMED_VALUE_FLOAT", 1.0) == 0
@@ -344,6 +347,19 @@ def test_modes_bumpless_arming_and_two_ground_stations(flight):
     att = gcs.wait("ATTITUDE")
     assert att.pitch == 0.0
     _fly(gcs, 3.0, 10.0)
+    # heading: the SITL integrates psi' = r; over 2 s of the stream, yaw moves by the integral of yawspeed
+    gcs.drain()
+    att = []
+    t_end = time.monotonic() + 2.0
+    while time.monotonic() < t_end:
+        _setpoint(gcs, 10.0)
+        m = gcs.conn.recv_match(type="ATTITUDE", blocking=True, timeout=0.05)
+        if m is not None:
+            att.append((m.time_boot_ms * 1e-3, m.yaw, m.yawspeed))
+    t, yaw, r = (np.array(c) for c in zip(*att))
+    turned = np.unwrap(yaw)[-1] - yaw[0]
+    assert abs(turned) > 0.05  # a 10 deg bank turns the aircraft
+    assert turned == pytest.approx(np.trapezoid(r, t), rel=0.05)
     # MANUAL from MANUAL_CONTROL: the rudder goes to -15 deg (r = -500 of 1000, limit 30 deg) without a step
     ack = gcs.command(A.MAV_CMD_DO_SET_MODE, A.MAV_MODE_FLAG_CUSTOM_MODE_ENABLED, Mode.MANUAL)
     assert ack.result == A.MAV_RESULT_ACCEPTED
