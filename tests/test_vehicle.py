@@ -197,6 +197,23 @@ def test_save_load_round_trip_and_params_flag(vehicle, tmp_path):
     assert "--params" in p.output() and "CLSAC_AM" in p.output()
 
 
+def test_disarmed_at_start_until_armed(tmp_path):
+    port = free_ports(1)[0]
+    gcs = Gcs(port)
+    ap = _start_autopilot(tmp_path, "autopilot", port, "--disarmed", "--controller", "sac")
+    try:
+        hb = gcs.wait("HEARTBEAT")
+        assert not hb.base_mode & A.MAV_MODE_FLAG_SAFETY_ARMED and hb.custom_mode == Mode.SAC
+        assert mavutil.mode_string_v10(hb) == "Mode(100)"
+        gcs.connect()
+        assert gcs.command(A.MAV_CMD_COMPONENT_ARM_DISARM, 1).result == A.MAV_RESULT_ACCEPTED
+        assert gcs.wait("HEARTBEAT", cond=lambda m: m.base_mode & A.MAV_MODE_FLAG_SAFETY_ARMED)
+        assert gcs.command(A.MAV_CMD_COMPONENT_ARM_DISARM, 0.5).result == A.MAV_RESULT_DENIED
+    finally:
+        gcs.close()
+        ap.stop()
+
+
 def test_commands_answers_and_unsupported(vehicle):
     gcs, _ = vehicle
     ack = gcs.command(A.MAV_CMD_GET_HOME_POSITION)
