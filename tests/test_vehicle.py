@@ -21,6 +21,7 @@ from pymavlink.dialects.v20 import all as mavall  # noqa: E402
 from autopilot.config import ClSacConfig  # noqa: E402
 from autopilot.params import PARAMS, load_file, save_file  # noqa: E402
 from autopilot.shared.fastmav import crc16  # noqa: E402
+from autopilot.shared.tlog import payload_streams  # noqa: E402
 from autopilot.vehicle import Mode  # noqa: E402
 from tests._mavlink_procs import Proc, free_ports  # noqa: E402
 
@@ -527,3 +528,8 @@ def test_launcher_png_events_and_a_second_ground_station(tmp_path):
     assert res.summary["files"]["png"] == str(png) and png.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
     text = rrd.summary(out / "flight.rrd")
     assert "/autopilot/events" in text and "events:" in text
+    # the autopilot's two links have their own component: the servo stream to the SITL (1:140) and its copy to the
+    # ground stations (1:1) are told apart in the tlog
+    streams = payload_streams(str(out / "flight.tlog"))
+    servo = A.MAVLINK_MSG_ID_SERVO_OUTPUT_RAW
+    assert len(streams[(1, 140, servo)]) == 2000 and 0 < len(streams[(1, 1, servo)]) < 2000
