@@ -48,6 +48,7 @@ from tools.profiles import Profile, ProfileError
 
 PROCESSES = ("sitl", "gcs", "autopilot")
 PROFILES = ("square", "step", "sine")
+MERGE_MAX_BYTES = 64 << 20  # larger telemetry parts are kept side by side, not merged (bounded memory)
 PNG_MAX_POINTS = 20_000  # flight.png plots every k-th step of a long flight: bounded memory whatever its length
 RUDDER_MAX_DEG = 30.0  # the servo calibration's full deflection (SITL and autopilot default)
 
@@ -513,14 +514,34 @@ def write_flight_png(cfg: FlightConfig, out: Path, name: str, metrics: dict) -> 
     return save_flight_figure(res, out / "flight.png", math.radians(cfg.u_limit_deg), title)
 
 
-def _merge_telemetry(parts: dict[str, Path], out: Path) -> tuple[Path | None, str | None]:
-    """Merge the processes' part files into DIR/flight.rrd (whatever ended the flight); (path, error)."""
+def _merge_telemetry(parts: dict[str, Path], out: Path) -> tuple[Path | list[Path] | None, str | None]:
+    """Merge the processes' part files into DIR/flight.rrd (whatever ended the flight); (path, error).
+
+    ``rerun rrd merge`` holds the whole recording in memory (about twice the files' size), so parts larger than
+    MERGE_MAX_BYTES in all (a flight of more than about 20 minutes at 100 Hz) are not merged: they are kept side
+    by side as DIR/flight-<process>.rrd with the layout in DIR/flight.rbl (the viewer joins them: one recording
+    id), and the path is that list.  Memory stays bounded whatever the flight's length."""
     existing = [p for p in parts.values() if p.exists() and p.stat().st_size > 0]
     if not existing:
         return None, ("no telemetry was written" if parts else None)
     from autopilot.shared import telemetry as tm
     from tools.views import flight_blueprint
 
+    if sum(p.stat().st_size for p in existing) > MERGE_MAX_BYTES:
+        files = []
+        for name, p in parts.items():
+            if p in existing:
+                files.append(p.replace(out / f"flight-{name}.rrd"))
+        try:
+            flight_blueprint().save(tm.APPLICATION_ID, str(out / "flight.rbl"))
+            files.append(out / "flight.rbl")
+        except Exception as exc:  # noqa: BLE001  (the recordings are there; only the layout is missing)
+            return files, f"writing the viewer layout {out / 'flight.rbl'} failed: {exc}"
+        try:
+            (out / ".parts").rmdir()
+        except OSError:
+            pass
+        return files, None
     target = out / "flight.rrd"
     try:
         tm.merge_recordings(existing, target, blueprint=flight_blueprint(), remove_parts=True)
@@ -551,7 +572,7 @@ def build_summary(
     error: str | None,
     exit_code: int,
     wall: float,
-    rrd_path: Path | None,
+    rrd_path: Path | list[Path] | None,
 ) -> dict:
     """summary.json of a flight from the processes' stats files (``stats``: process name -> dict or None)."""
     ap, sitl, gcs = stats["autopilot"], stats["sitl"], stats["gcs"]
@@ -599,7 +620,8 @@ def build_summary(
         },
         "files": {
             "tlog": str(out / "flight.tlog"),
-            "rrd": str(rrd_path) if rrd_path else None,
+            # DIR/flight.rrd, or for a long flight the list DIR/flight-<process>.rrd, DIR/flight.rbl (not merged)
+            "rrd": ([str(f) for f in rrd_path] if isinstance(rrd_path, list) else str(rrd_path)) if rrd_path else None,
             "summary": str(out / "summary.json"),
             "logs": {n: str(out / f"{n}.log") for n in PROCESSES},
             "stats": {n: str(out / f"{n}.json") for n in PROCESSES},

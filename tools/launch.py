@@ -81,10 +81,11 @@ def print_summary(s: dict) -> None:
     for direction, n in ((s.get("disturbances") or {}).get("injected") or {}).items():
         print(f"   link faults {direction:<9}" + "  ".join(f"{k} {v}" for k, v in n.items()))
     f = s["files"]
-    rrd = f"  {f['rrd']}" if f.get("rrd") else ""
-    print(f"   files: {f['tlog']}{rrd}  {f['summary']}  logs: {Path(f['logs']['autopilot']).parent}/*.log")
-    if f.get("rrd"):
-        print(f"   open the flight in the Rerun viewer: rerun {f['rrd']}")
+    rrd = " ".join(f["rrd"]) if isinstance(f.get("rrd"), list) else f.get("rrd")  # a long flight: side by side
+    logs = Path(f["logs"]["autopilot"]).parent
+    print(f"   files: {f['tlog']}{'  ' + rrd if rrd else ''}  {f['summary']}  logs: {logs}/*.log")
+    if rrd:
+        print(f"   open the flight in the Rerun viewer: rerun {rrd}")
     if f.get("png"):
         print(f"   picture: {f['png']}")
 
