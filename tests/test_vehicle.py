@@ -259,6 +259,11 @@ def test_commands_answers_and_unsupported(vehicle):
     c = crc16(frame[1:-2] + bytes([217]))
     assert frame[-2:] == bytes((c & 0xFF, c >> 8))
     assert int.from_bytes(frame[10:12], "little") == 200  # MAVLink 2.0
+    # the file-transfer protocol (MAVProxy asks for the parameter file first): NAK FileNotFound, seq + 1
+    req = bytes([7, 0, 1, 4, 0, 0, 0, 0, 0, 0, 0, 0]) + b"@PARAM/param.pck"  # seq 7, session 1, OpenFileRO
+    gcs.mav.file_transfer_protocol_send(0, 1, 1, list(req + bytes(251 - len(req))))
+    nak = bytes(gcs.wait("FILE_TRANSFER_PROTOCOL").payload)
+    assert nak[:6] == bytes([8, 0, 1, 129, 1, 4]) and nak[12] == 10  # NAK, size 1, for OpenFileRO: FileNotFound
     # mission count, timesync, ping
     gcs.mav.mission_request_list_send(1, 1)
     assert gcs.wait("MISSION_COUNT").count == 0
