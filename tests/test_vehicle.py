@@ -221,6 +221,10 @@ def test_commands_answers_and_unsupported(vehicle):
     assert ack.result == A.MAV_RESULT_UNSUPPORTED
     ack = gcs.command(31999)  # not a command anybody knows: still answered
     assert ack.result == A.MAV_RESULT_UNSUPPORTED
+    gcs.mav.command_int_send(1, 1, 0, A.MAV_CMD_DO_SET_MODE, 0, 0, 1, Mode.SAC, 0, 0, 0, 0, 0)  # COMMAND_INT too
+    ack = gcs.wait("COMMAND_ACK", cond=lambda m: m.command == A.MAV_CMD_DO_SET_MODE)
+    assert ack.result == A.MAV_RESULT_ACCEPTED and gcs.wait("HEARTBEAT", cond=lambda m: m.custom_mode == Mode.SAC)
+    assert gcs.command(A.MAV_CMD_DO_SET_MODE, 1, Mode.CLSAC).result == A.MAV_RESULT_ACCEPTED
     ack = gcs.command(A.MAV_CMD_REQUEST_MESSAGE, A.MAVLINK_MSG_ID_AUTOPILOT_VERSION)
     assert ack.result == A.MAV_RESULT_ACCEPTED
     v = gcs.wait("AUTOPILOT_VERSION")
