@@ -14,9 +14,9 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from autopilot.config import ClSacConfig, ConfigError
+from autopilot.shared.mavlink import mavlink
 
-PARAM_ID_LEN = 16  # PARAM_VALUE.param_id: char[16], no terminator when full
-MAV_PARAM_TYPE_REAL32 = 9  # what QGroundControl's file format writes in its last column
+PARAM_ID_LEN = 16  # PARAM_VALUE.param_id: char[16], no terminator when full (every name here fits)
 
 
 class ParamError(ValueError):
@@ -68,7 +68,6 @@ PARAMS: tuple[Param, ...] = (
     Param("CLSAC_MAX_ROLL", "rad", "roll setpoint clamp", option="max_roll_rad", low=1e-3, high=math.pi / 2),
 )
 BY_NAME = {p.name: p for p in PARAMS}
-assert all(len(p.name) <= PARAM_ID_LEN for p in PARAMS)
 
 
 def _config_value(cfg: ClSacConfig, name: str) -> float:
@@ -197,7 +196,7 @@ def save_file(path, items, *, qgc: bool = False, ids: tuple[int, int] = (1, 1)) 
     QGroundControl's."""
     if qgc:
         lines = ["# Onboard parameters for Vehicle 1", "#", "# Vehicle-Id Component-Id Name Value Type"]
-        lines += [f"{ids[0]}\t{ids[1]}\t{n}\t{float(v)!r}\t{MAV_PARAM_TYPE_REAL32}" for n, v in items]
+        lines += [f"{ids[0]}\t{ids[1]}\t{n}\t{float(v)!r}\t{mavlink.MAV_PARAM_TYPE_REAL32}" for n, v in items]
     else:
         lines = [f"{n:<16s} {float(v)!r}" for n, v in items]  # repr: the exact value back
     Path(path).write_text("\n".join(lines) + "\n")

@@ -164,15 +164,14 @@ class ControlStep:
         # flies a rudder command from the ground station while the law only follows it (ClSac.hold).
         self.armed = True
         self.manual: float | None = None
-        self.transfer_tau = TRANSFER_TAU_S
-        self._offset = 0.0  # bumpless transfer: added to the new source's command, decays with transfer_tau
+        self._offset = 0.0  # bumpless transfer: added to the new source's command, decays with TRANSFER_TAU_S
         self._decay = math.exp(-self.config.dt / TRANSFER_TAU_S)
         self._transfer = False
-        self.u_last = 0.0
+        self.u_last = 0.0  # the last command flown (rad): where a transfer starts
 
     def transfer(self) -> None:
         """A mode switch (or arming): the next command starts where the last one was and joins the new source
-        exponentially (time constant ``transfer_tau``), so the rudder command never steps."""
+        exponentially (time constant ``TRANSFER_TAU_S``), so the rudder command never steps."""
         self._transfer = True
 
     def reconfigure(self, config: ClSacConfig) -> None:

@@ -23,7 +23,7 @@ from types import SimpleNamespace
 # wire format is the same MAVLink 2 frame: a common-dialect link packs them with the message's own id and CRC extra.
 from pymavlink.dialects.v20 import all as _all
 
-from autopilot.params import ParamError, ParamTable
+from autopilot.params import PARAM_ID_LEN, ParamError, ParamTable
 from autopilot.shared.mavlink import AUTOPILOT_ID, mavlink
 from autopilot.step import Failsafe
 
@@ -31,7 +31,6 @@ M = mavlink
 
 AVAILABLE_MODES = _all.MAVLINK_MSG_ID_AVAILABLE_MODES  # 435
 CURRENT_MODE = _all.MAVLINK_MSG_ID_CURRENT_MODE  # 436
-AVAILABLE_MODES_MONITOR = _all.MAVLINK_MSG_ID_AVAILABLE_MODES_MONITOR  # 437
 # PROTOCOL_VERSION (300, minimal.xml) is in none of pymavlink 2.4's generated dialects: version, min_version,
 # max_version (uint16), spec_version_hash[8], library_version_hash[8] (uint8), CRC extra 217 (computed from the
 # definition with pymavlink's generator algorithm, tests/test_vehicle.py).
@@ -442,7 +441,7 @@ class Vehicle:
 
     def _param_error(self, msg, name: str, index: int, code: int):
         return M.MAVLink_param_error_message(
-            msg.get_srcSystem(), msg.get_srcComponent(), name.encode()[:16], index, code
+            msg.get_srcSystem(), msg.get_srcComponent(), name.encode()[:PARAM_ID_LEN], index, code
         )
 
     # -------------------------------------------------------------- messages
