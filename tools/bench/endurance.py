@@ -1,19 +1,20 @@
 """Bounded memory on long flights: lockstep flights of several hours of sim time with the .rrd and the series on.
 
-For each length (``--hours``, default 1 and 3) one launcher flight is flown; every 0.1 s the peak resident memory
-(VmHWM of /proc/PID/status) of each process is read: the SITL, the autopilot, the GCS script, the launcher (this
-process) and the step that finishes the recording (``rerun rrd merge``, a child of the launcher).  Figures: each
-process's peak at each length, and its growth per hour of sim time between the shortest and the longest flight,
-which must be about 0 (target: at most 2 MB per hour) for every process to stay below a fixed bound whatever the
-flight's length.
+For each length (``--hours``, default 1 and 3) one ``python -m tools.launch`` flight is flown in its own process;
+every 0.1 s the peak resident memory (VmHWM of /proc/PID/status) of each process is read: the launcher, the SITL,
+the autopilot, the GCS script and the step that finishes the recording (``rerun rrd merge``, when it runs).
+Figures: each process's peak at each length, and its growth per hour of sim time between the shortest and the
+longest flight, which must be about 0 (target: at most 2 MB per hour) for every process to stay below a fixed
+bound whatever the flight's length.
 """
 
 from __future__ import annotations
 
 import argparse
 import os
+import subprocess
+import sys
 import tempfile
-import threading
 import time
 from pathlib import Path
 
@@ -34,70 +35,54 @@ def _hwm_mb(pid: int) -> float | None:
     return None
 
 
-def _merge_pids() -> list[int]:
-    """This process's children that run ``rerun rrd merge``."""
-    me = str(os.getpid())
-    out = []
+def _children(ppid: int) -> dict[int, bytes]:
+    """The processes whose parent is ``ppid``: pid -> command line."""
+    out = {}
     for d in os.listdir("/proc"):
         if not d.isdigit():
             continue
         try:
             with open(f"/proc/{d}/stat") as f:
-                ppid = f.read().rsplit(")", 1)[1].split()[1]
-            if ppid != me:
-                continue
+                if int(f.read().rsplit(")", 1)[1].split()[1]) != ppid:
+                    continue
             with open(f"/proc/{d}/cmdline", "rb") as f:
-                if b"rrd\x00merge" in f.read():
-                    out.append(int(d))
-        except (OSError, IndexError):
+                out[int(d)] = f.read()
+        except (OSError, IndexError, ValueError):
             continue
     return out
 
 
-class PeakWatch(threading.Thread):
-    """Polls the peak memory of the flight's processes until stopped."""
-
-    def __init__(self, flight):
-        super().__init__(daemon=True)
-        self.flight = flight
-        self.peaks: dict[str, float] = {}
-        self.halt = threading.Event()
-
-    def _take(self, name: str, pid: int) -> None:
-        v = _hwm_mb(pid)
-        if v is not None and v > self.peaks.get(name, 0.0):
-            self.peaks[name] = v
-
-    def run(self) -> None:
-        while not self.halt.wait(0.1):
-            for name, pid in self.flight.pids.items():
-                self._take(name, pid)
-            for pid in _merge_pids():
-                self._take("rrd_merge", pid)
-            self._take("launcher", os.getpid())
+_NAMES = (
+    (b"-m\x00sitl", "sitl"),
+    (b"-m\x00autopilot", "autopilot"),
+    (b"-m\x00tools.gcs", "gcs"),
+    (b"rrd\x00merge", "rrd_merge"),
+)
 
 
-def fly(hours: float, rate: float, workdir: Path) -> tuple[dict, float, bool, str | None]:
-    from tools.flight import Flight
-
+def fly(hours: float, rate: float, workdir: Path) -> tuple[dict, float, int]:
+    """One ``python -m tools.launch`` flight in its own process; the peak memory of the launcher and of each of
+    its children (polled every 0.1 s), the wall time and the launcher's exit status."""
     out = workdir / f"{hours:g}h"
-    try:  # this process is the launcher of every flight: restart its high-water mark for this one
-        with open("/proc/self/clear_refs", "w") as f:
-            f.write("5")
-    except OSError:
-        pass
-    flight = Flight(
-        lockstep=True, duration=hours * 3600.0, rate=rate, out=out, quiet=True, rrd=True, series=True, timeout=86_400
-    )
+    argv = [sys.executable, "-m", "tools.launch", "--lockstep", "--duration", repr(hours * 3600.0)]
+    argv += ["--rate", repr(rate), "--quiet", "--out", str(out), "--timeout", "86400"]
     t0 = time.perf_counter()
-    with flight:
-        watch = PeakWatch(flight)
-        watch.start()
-        res = flight.wait()
-    time.sleep(0.3)  # the last polls see the merge's final peak
-    watch.halt.set()
-    watch.join()
-    return watch.peaks, time.perf_counter() - t0, res.ok, res.reason
+    launcher = subprocess.Popen(argv, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    peaks: dict[str, float] = {}
+
+    def take(name: str, pid: int) -> None:
+        v = _hwm_mb(pid)
+        if v is not None and v > peaks.get(name, 0.0):
+            peaks[name] = v
+
+    while launcher.poll() is None:
+        take("launcher", launcher.pid)
+        for pid, cmd in _children(launcher.pid).items():
+            for marker, name in _NAMES:
+                if marker in cmd:
+                    take(name, pid)
+        time.sleep(0.1)
+    return peaks, time.perf_counter() - t0, launcher.returncode
 
 
 def main(argv: list[str]) -> dict:
@@ -110,7 +95,8 @@ def main(argv: list[str]) -> dict:
     peaks: dict[float, dict] = {}
     with tempfile.TemporaryDirectory(prefix="bench-endurance-") as tmp:
         for h in lengths:
-            pk, wall, ok, reason = fly(h, args.rate, Path(tmp))
+            pk, wall, code = fly(h, args.rate, Path(tmp))
+            ok, reason = code == 0, f"launcher exit status {code}"
             peaks[h] = pk
             print(
                 f"  {h:g} h of sim time in {wall:.0f} s wall ({'ok' if ok else 'FAILED: ' + str(reason)}): "
