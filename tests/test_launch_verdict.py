@@ -103,3 +103,21 @@ def test_lockstep_sitl_answers_sigint_while_waiting_and_writes_its_stats(tmp_pat
     sitl.stop()
     s.close()
     assert json.loads(stats.read_text())["exit_reason"] == "stopped by signal"
+
+
+def test_stalled_autopilot_is_blamed_not_the_gcs_that_noticed(tmp_path):
+    kw = dict(duration=20.0, out=tmp_path, quiet=True, rrd=False, series=False)
+    with Flight(**kw) as flight:
+        _wait_for_steps(flight, "gcs", "gcs: vehicle ")
+        time.sleep(1.0)
+        os.kill(flight.pids["autopilot"], signal.SIGSTOP)  # longer than the GCS script's 5 s vehicle timeout
+        res = flight.wait(timeout=60)  # the launcher then kills the stopped process
+    assert not res.ok and res.exit_code == 1
+    assert res.summary["failed"] == "autopilot", res.reason
+    assert res.reason.startswith("autopilot stalled or died: gcs reports: vehicle lost"), res.reason
+
+
+def test_unresolvable_peer_is_a_one_line_error():
+    r = run_cli("autopilot", "--sitl", "no.such.host.invalid:5", "--duration", "1", timeout=60)
+    lines = r.stderr.strip().splitlines()
+    assert r.returncode == 1 and len(lines) == 1 and "no.such.host.invalid:5" in lines[0] and "resolve" in lines[0]
