@@ -138,8 +138,10 @@ def test_sitl_killed_puts_autopilot_in_failsafe_and_restart_recovers(tmp_path):
 
 
 def test_autopilot_killed_sitl_goes_neutral_and_recovers(tmp_path):
-    (sitl_port,) = free_ports(1)
-    ap_args = ["--sitl", f"127.0.0.1:{sitl_port}", "--gcs", "127.0.0.1:9", "--telemetry-rate", "0"]
+    sitl_port, ap_port = free_ports(2)
+    # the SITL is pinned to the autopilot's address: the restarted autopilot comes back on the same one
+    ap_args = ["--sitl", f"127.0.0.1:{sitl_port}", "--sitl-bind", f"127.0.0.1:{ap_port}", "--gcs", "127.0.0.1:9"]
+    ap_args += ["--telemetry-rate", "0"]
     sitl = Proc(
         "sitl",
         ["--listen", f"127.0.0.1:{sitl_port}", "--servo-timeout", "0.3", "--stats-json", str(tmp_path / "sitl.json")],
