@@ -49,8 +49,12 @@ def test_launch_realtime_busy_wait_pinned_serves_both_links(tmp_path):
     assert s["ok"] and s["runs"][0]["steps"] == 300
     assert s["timing"]["missed_deadlines"] <= 30  # loose: a loaded 2-core machine
     ap, gcs = s["counters"]["autopilot"], s["counters"]["gcs"]
-    # ATTITUDE at the 200 Hz sensor rate for 3 s, all of it read between steps; every setpoint sent was taken.
-    assert ap["sitl"]["rx_by_type"]["ATTITUDE"] >= 0.9 * 200 * 3
+    # ATTITUDE at about the 200 Hz sensor rate for 3 s (loose: the SITL shares CPU 0 with the GCS script), every
+    # one of them read between steps; every setpoint sent was taken.
+    sitl_sent = s["counters"]["sitl"]["tx_by_type"]["ATTITUDE"]
+    assert sitl_sent >= 0.75 * 200 * 3
+    # (the SITL goes on sending for a moment after the autopilot's last step, until the launcher stops it: 0.25 s)
+    assert ap["sitl"]["rx_by_type"]["ATTITUDE"] >= sitl_sent - 0.25 * 200
     assert ap["sitl"]["tx_by_type"]["SERVO_OUTPUT_RAW"] == 300
     sent = gcs["tx_by_type"]["SET_ATTITUDE_TARGET"]
     assert sent > 50 and ap["gcs"]["rx_by_type"]["SET_ATTITUDE_TARGET"] >= sent - 2

@@ -26,7 +26,7 @@ from tools.flight import Flight
 
 pytestmark = pytest.mark.e2e  # real processes over loopback UDP
 
-DURATION = 200.0  # lockstep sim seconds: a few wall seconds, long enough to attack during the flight
+DURATION = 60.0  # lockstep sim seconds: a few wall seconds, long enough to attack during the flight
 AP_GCS_ID = ids.AUTOPILOT_ID
 AP_SITL_ID = getattr(ids, "AUTOPILOT_SITL_ID", ids.AUTOPILOT_ID)  # the autopilot's IDs on its SITL link
 _LINE = re.compile(r"SITL link [\d.]+:(\d+) -> [\d.]+:(\d+); GCS link [\d.]+:(\d+) -> [\d.]+:(\d+)")
