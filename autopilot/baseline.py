@@ -30,6 +30,7 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
+from autopilot.clsac import telemetry_of
 from autopilot.config import ConfigError, NonFiniteInputError
 from autopilot.shared.numerics import zoh
 
@@ -102,27 +103,7 @@ class Baseline:
 
     def telemetry(self) -> tuple:
         """The internals after the last step, ordered like ``autopilot.clsac.TELEMETRY_FIELDS``."""
-        return (
-            self.um,
-            self.y,
-            self.ym,
-            self.ym_ol,
-            self.ya,
-            self.y_pfc,
-            self.e,
-            self.u_raw,
-            self.u,
-            self.saturated,
-            self.kpe,
-            self.kie,
-            self.ke,
-            self.kpx,
-            self.kix,
-            self.kx,
-            self.kpu,
-            self.kiu,
-            self.ku,
-        )
+        return telemetry_of(self)
 
     def __call__(self, y, um):
         return self.step(y, um)

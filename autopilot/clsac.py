@@ -45,6 +45,7 @@ The open-loop model x_m,ol' = A_m x_m,ol + B_m u_m is run alongside for telemetr
 from __future__ import annotations
 
 import math
+import operator
 
 import numpy as np
 
@@ -72,6 +73,8 @@ TELEMETRY_FIELDS = (
     "kiu",
     "ku",
 )
+# The internals of any law with these attributes (ClSac, autopilot.baseline.Baseline) as one tuple, built in C.
+telemetry_of = operator.attrgetter(*TELEMETRY_FIELDS)
 
 
 def pfc_state_space(num, den) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -228,27 +231,7 @@ class ClSac:
 
     def telemetry(self) -> tuple:
         """The internals after the last step, ordered like ``TELEMETRY_FIELDS``."""
-        return (
-            self.um,
-            self.y,
-            self.ym,
-            self.ym_ol,
-            self.ya,
-            self.y_pfc,
-            self.e,
-            self.u_raw,
-            self.u,
-            self.saturated,
-            self.kpe,
-            self.kie,
-            self.ke,
-            self.kpx,
-            self.kix,
-            self.kx,
-            self.kpu,
-            self.kiu,
-            self.ku,
-        )
+        return telemetry_of(self)
 
     # ------------------------------------------------------------------ step
     def __call__(self, y, um):
