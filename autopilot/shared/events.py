@@ -24,9 +24,9 @@ def printable(text) -> str:
 class StatusEvents:
     """``events(severity, text)``: one status event of process ``who``.
 
-    Counted in ``counter["statustext"]``, printed as ``who: text`` when ``verbose``, sent through ``link``
-    (an ``autopilot.shared.link.UdpLink``) as STATUSTEXT truncated to 50 bytes unless ``send=False``, and
-    handed to every ``hooks`` callable as ``(severity, text)`` (telemetry).
+    The text is made printable first (``printable``).  Counted in ``counter["statustext"]``, printed as
+    ``who: text`` when ``verbose``, sent through ``link`` (an ``autopilot.shared.link.UdpLink``) as STATUSTEXT
+    truncated to 50 bytes unless ``send=False``, and handed to every ``hooks`` callable as ``(severity, text)``.
     """
 
     def __init__(self, who: str, link, counter: Counter, *, verbose: bool = True, out=None):
@@ -38,6 +38,8 @@ class StatusEvents:
         self.hooks: list = []
 
     def __call__(self, severity: int, text: str, send: bool = True) -> None:
+        # Texts may quote a peer (a parameter name, a relayed STATUSTEXT): made printable here, once, for every path.
+        text = printable(text)
         self.counter["statustext"] += 1
         if self.verbose:
             print(f"{self.who}: {text}", file=self.out, flush=True)
