@@ -75,6 +75,11 @@ TELEMETRY_FIELDS = (
 )
 # The internals of any law with these attributes (ClSac, autopilot.baseline.Baseline) as one tuple, built in C.
 telemetry_of = operator.attrgetter(*TELEMETRY_FIELDS)
+# Two subsets the per-step series record: the reference model and error, and the six gains.
+MODEL_FIELDS = ("ym", "ym_ol", "ya", "y_pfc", "e")
+GAIN_FIELDS = ("kpe", "kie", "ke", "kpx", "kix", "kx", "kpu", "kiu", "ku")
+model_of = operator.attrgetter(*MODEL_FIELDS)
+gains_of = operator.attrgetter(*GAIN_FIELDS)
 
 
 def pfc_state_space(num, den) -> tuple[np.ndarray, np.ndarray, np.ndarray]:

@@ -32,7 +32,7 @@ from array import array
 from collections import Counter
 from dataclasses import dataclass, field
 
-from autopilot.clsac import ClSac
+from autopilot.clsac import GAIN_FIELDS, MODEL_FIELDS, ClSac, gains_of, model_of
 from autopilot.config import ClSacConfig
 from autopilot.params import ParamTable
 from autopilot.shared.events import StatusEvents, printable
@@ -815,20 +815,8 @@ SERIES_KEYS = (
     "u_cmd",
     "pwm",
     "failsafe",
-    "ym",
-    "ym_ol",
-    "ya",
-    "y_pfc",
-    "e",
-    "kpe",
-    "kie",
-    "ke",
-    "kpx",
-    "kix",
-    "kx",
-    "kpu",
-    "kiu",
-    "ku",
+    *MODEL_FIELDS,
+    *GAIN_FIELDS,
     "mode",
     "armed",
 )
@@ -846,20 +834,8 @@ def _series_row(rec: StepRecord) -> tuple:
         c.u,
         r.pwm,
         r.failsafe is not Failsafe.NONE,
-        c.ym,
-        c.ym_ol,
-        c.ya,
-        c.y_pfc,
-        c.e,
-        c.kpe,
-        c.kie,
-        c.ke,
-        c.kpx,
-        c.kix,
-        c.kx,
-        c.kpu,
-        c.kiu,
-        c.ku,
+        *model_of(c),
+        *gains_of(c),
         int(rec.ap.vehicle.mode),  # HEARTBEAT.custom_mode (autopilot.vehicle.Mode)
         rec.ap.control.armed,
     )
