@@ -21,7 +21,9 @@ packets was accepted, otherwise in ``rejected`` under the reason of its first pa
     not_peer       the right IDs from an address that is not this link's peer
     ignored_msg    a valid message this link does not use
     decode_error   the payload does not decode
-    over_budget    datagrams beyond the per-poll budget are read and dropped, so a flood cannot stall the loop
+    over_budget    a datagram from a non-admitted address beyond the per-poll budget for such addresses: read and
+                   dropped unchecked, so a flood cannot stall the loop (an admitted peer's datagrams are never
+                   over_budget: see ``poll``)
     (owner's)      reasons the owner gives with ``reject`` (nonfinite_attitude, bad_pwm, ...)
 
 so ``rx_datagrams == rx_accepted + sum(rejected.values())`` always holds.
@@ -37,6 +39,13 @@ so ``rx_datagrams == rx_accepted + sum(rejected.values())`` always holds.
   ``peer_addrs``, nobody else); with signing every address whose packet carries a valid signature is
   admitted, up to N in all (more are ``not_peer``).
   ``broadcast``/``send`` reach every admitted peer and ``remote``, each once.
+
+**Floods.**  ``poll(handler, budget)`` always feeds a datagram from an admitted address; those from every other
+address share ``budget`` per poll and the rest of them are ``over_budget``, so a flood from elsewhere costs a
+bounded amount of CPU and never makes the link drop a peer's datagram.  A poll reads at most ``16 * budget``
+datagrams (what is left waits in the socket for the next poll), and the socket asks for a 4 MiB receive buffer
+(the kernel caps it at ``net.core.rmem_max``) so a flood queued ahead of the peer's datagrams does not make the
+kernel drop them before they are read.
 
 Sending: ``send(msg)`` packs with this link's own sequence counter and source IDs (signed when signing is on).
 Every packet sent or accepted is written to the tlog (if one is attached) with the raw bytes.  A send error
@@ -120,7 +129,7 @@ class UdpLink:
         peer_addrs=(),
         signing=None,
         tlog=None,
-        rcvbuf: int = 1 << 20,
+        rcvbuf: int = 4 << 20,
     ):
         self.name = name
         self.signing = signing
@@ -132,8 +141,8 @@ class UdpLink:
         self._decoder = mavlink.MAVLink(None, src[0], src[1])  # never checks signatures itself: we do
         self.remote = resolve(remote, f"{name} link: peer") if remote is not None else None
         self.sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
-        try:
-            self.sock.setsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF, rcvbuf)
+        try:  # a deep queue, so a flood queued ahead of the peer's datagrams does not make the kernel drop them
+            self.sock.setsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF, rcvbuf)  # Linux: capped at net.core.rmem_max
         except OSError:
             pass
         self.sock.bind(resolve(bind, f"{name} link: local address"))
@@ -239,11 +248,20 @@ class UdpLink:
 
     # --------------------------------------------------------------- receive
     def poll(self, handler, budget: int = 256) -> int:
-        """Read every datagram waiting (up to ``budget`` processed; the rest read and dropped as over_budget),
-        calling ``handler(msg, t_rx)`` for each accepted message.  Returns the number of datagrams read."""
+        """Read the datagrams waiting, calling ``handler(msg, t_rx)`` for each accepted message; returns the number
+        of datagrams read.
+
+        A datagram from an admitted address (pinned, learned or admitted peer) is always fed.  Datagrams from any
+        other address share ``budget`` per poll: that many are fed (checked, counted under their reason), the
+        rest are read and counted ``over_budget``, so a flood from elsewhere can neither stall the loop nor crowd
+        out the peer.  At most ``16 * budget`` datagrams are read per poll; the rest wait in the socket for the
+        next one."""
         sock = self.sock
+        admitted = self._admitted_set  # updated in place when an address is learned or admitted
         n = 0
-        while True:
+        others = 0  # datagrams from non-admitted addresses fed in this poll
+        cap = 16 * budget
+        while n < cap:
             try:
                 data, addr = sock.recvfrom(4096)
             except BlockingIOError:
@@ -253,13 +271,14 @@ class UdpLink:
                     continue
                 raise
             n += 1
-            if n > budget:
-                self.rx_datagrams += 1
-                self.rejected["over_budget"] += 1
-                if n > 16 * budget:
-                    return n
-                continue
+            if addr not in admitted:
+                if others >= budget:
+                    self.rx_datagrams += 1
+                    self.rejected["over_budget"] += 1
+                    continue
+                others += 1
             self.feed(data, addr, handler)
+        return n
 
     def reject(self, reason: str) -> None:
         """Called by the owner's handler: the packet being handled is rejected for ``reason``."""
