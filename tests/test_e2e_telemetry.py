@@ -29,16 +29,20 @@ DURATION = 5.0
 RATE = 100.0
 
 
-@pytest.fixture(scope="module")
-def lockstep_flight(tmp_path_factory):
+@pytest.fixture(scope="module", params=["merged", "concatenated"])
+def lockstep_flight(tmp_path_factory, request):
+    """A short flight whose parts are merged (indexed, the default), and one whose parts are concatenated, as a
+    flight longer than ``--rrd-merge-max-mb`` is: the same recording either way."""
     out = tmp_path_factory.mktemp("rrd_flight")
-    r = run_cli("tools.launch", "--lockstep", "--quiet", "--duration", str(DURATION), "--out", str(out), timeout=180)
+    join = ["--rrd-merge-max-mb", "0"] if request.param == "concatenated" else []
+    argv = ["--lockstep", "--quiet", "--duration", str(DURATION), "--out", str(out), *join]
+    r = run_cli("tools.launch", *argv, timeout=180)
     assert r.returncode == 0, r.stdout + r.stderr
-    return out, load_json(out / "summary.json"), r.stdout
+    return out, load_json(out / "summary.json"), r.stdout, request.param
 
 
 def test_launch_leaves_one_recording_of_both_processes(lockstep_flight):
-    out, summary, stdout = lockstep_flight
+    out, summary, stdout, join = lockstep_flight
     path = out / "flight.rrd"
     assert summary["files"]["rrd"] == str(path) and path.stat().st_size > 10_000
     assert f"rerun {path}" in stdout  # the user is told how to open it
@@ -60,12 +64,17 @@ def test_launch_leaves_one_recording_of_both_processes(lockstep_flight):
     ):
         assert ep in paths, ep
     assert rrd.has_blueprint(path)
-    ok, text = rrd.verify(path)
+    assert len(rrd.blueprint_components(path, "ViewportBlueprint:root_container")) == 1  # one layout
+    indexed = summary["files"]["rrd_indexed"]
+    assert indexed is (join == "merged")
+    ok, text = rrd.verify(path, check_footers=False)  # a complete, valid stream either way
     assert ok, text
+    ok, text = rrd.verify(path)  # the footer (index) is there exactly when summary.json says so
+    assert ok is indexed, text
 
 
 def test_sample_counts_match_duration_and_rate(lockstep_flight):
-    out, _, _ = lockstep_flight
+    out, _, _, _ = lockstep_flight
     data = rrd.load(out / "flight.rrd")
     n = int(DURATION * RATE)
     ap = data[L.AP_ROLL]
@@ -76,7 +85,7 @@ def test_sample_counts_match_duration_and_rate(lockstep_flight):
 
 
 def test_truth_and_measured_roll_agree_to_float32_at_the_same_sim_time(lockstep_flight):
-    out, _, _ = lockstep_flight
+    out, _, _, _ = lockstep_flight
     data = rrd.load(out / "flight.rrd")
     truth, seen = data[S.SITL_ROLL], data[L.AP_ROLL]
     common, i_truth, i_seen = np.intersect1d(truth.t_ns, seen.t_ns, return_indices=True)
@@ -97,7 +106,7 @@ def test_truth_and_measured_roll_agree_to_float32_at_the_same_sim_time(lockstep_
 
 def test_flight_metrics_can_be_recomputed_from_the_recording(lockstep_flight):
     """summary.json's ise_crm equals sum(e^2) dt over the logged error: the recording is the flight."""
-    out, summary, _ = lockstep_flight
+    out, summary, _, _ = lockstep_flight
     data = rrd.load(out / "flight.rrd")
     e = data["/autopilot/error"].values[:, 0]
     assert summary["runs"][0]["metrics"]["ise_crm"] == pytest.approx(float(np.sum(e**2) / RATE), rel=1e-9)

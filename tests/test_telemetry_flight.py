@@ -306,6 +306,50 @@ def test_sigkill_loses_at_most_one_second(tmp_path):
     assert ok, msg
 
 
+def test_concatenation_is_the_merged_recording_without_index(flight, tmp_path):
+    """Long flights are concatenated (constant memory) instead of merged: the same recording, row for row."""
+    parts = list(flight["parts"].values())
+    joined = tm.concatenate_recordings(
+        parts, tmp_path / "flight.rrd", blueprint=flight_blueprint(), recording_id=flight["rid"]
+    )
+    assert rrd.recordings(joined) == [(tm.APPLICATION_ID, flight["rid"])]
+    a, b = rrd.load(joined), rrd.load(flight["path"])
+    assert sorted(a) == sorted(b) and len(a) >= len(L.AUTOPILOT.paths) + len(S.SITL_TABLE.paths)
+    for k in a:
+        np.testing.assert_array_equal(a[k].t_ns, b[k].t_ns, err_msg=k)
+        np.testing.assert_array_equal(a[k].values, b[k].values, err_msg=k)
+    assert len(rrd.blueprint_components(joined, "ViewportBlueprint:root_container")) == 1
+    assert tm.verify_rrd(joined, check_footers=False)[0]
+    assert not tm.verify_rrd(joined)[0]  # no footer: said, not hidden (summary.json rrd_indexed: false)
+    # each input's stream header was written once: the size is the parts' messages plus one header and the layout
+    assert joined.stat().st_size < sum(p.stat().st_size for p in flight["parts"].values()) + 200_000
+
+
+def test_concatenation_drops_a_torn_tail_and_refuses_foreign_files(flight, tmp_path):
+    part = flight["parts"]["autopilot"]
+    torn = tmp_path / "torn.rrd"
+    torn.write_bytes(part.read_bytes()[:-100])  # a SIGKILL in the middle of the last message
+    joined = tm.concatenate_recordings([torn, flight["parts"]["sitl"]], tmp_path / "joined.rrd")
+    data, whole = rrd.load(joined), rrd.load(part)
+    n = len(data[L.AP_ROLL].t)
+    assert 0 < n <= len(whole[L.AP_ROLL].t)  # every complete message kept, the torn one dropped
+    np.testing.assert_array_equal(data[L.AP_ROLL].t_ns, whole[L.AP_ROLL].t_ns[:n])
+    assert len(data[S.SITL_ROLL].t) == len(rrd.load(flight["parts"]["sitl"])[S.SITL_ROLL].t)
+    text = tmp_path / "notes.rrd"
+    text.write_text("not a recording at all\n")
+    with pytest.raises(tm.RrdError, match="not an RRD stream"):
+        tm.concatenate_recordings([part, text], tmp_path / "x.rrd")
+    odd = tmp_path / "odd.rrd"
+    raw = bytearray(part.read_bytes())
+    raw[4] ^= 0xFF  # another rerun version in the stream header
+    odd.write_bytes(bytes(raw))
+    with pytest.raises(tm.RrdError, match="stream header"):
+        tm.concatenate_recordings([part, odd], tmp_path / "y.rrd")
+    with pytest.raises(tm.RrdError, match="no recording to join"):
+        tm.concatenate_recordings([tmp_path / "missing.rrd"], tmp_path / "z.rrd")
+    assert not (tmp_path / "x.rrd").exists() and not (tmp_path / "y.rrd").exists()  # nothing half-written
+
+
 def _free_port() -> int:
     with socket.socket() as s:
         s.bind(("127.0.0.1", 0))

@@ -48,7 +48,7 @@ from tools.profiles import Profile, ProfileError
 
 PROCESSES = ("sitl", "gcs", "autopilot")
 PROFILES = ("square", "step", "sine")
-MERGE_MAX_BYTES = 64 << 20  # larger telemetry parts are kept side by side, not merged (bounded memory)
+MERGE_MAX_MB = 64.0  # default rrd_merge_max_mb: larger telemetry parts are concatenated (streamed), not merged
 PNG_MAX_POINTS = 20_000  # flight.png plots every k-th step of a long flight: bounded memory whatever its length
 RUDDER_MAX_DEG = 30.0  # the servo calibration's full deflection (SITL and autopilot default)
 
@@ -108,7 +108,10 @@ class FlightConfig:
     quiet: bool = False  # do not echo the children's output (it is still in DIR/<process>.log)
     viewer: bool = False  # spawn a Rerun viewer (or reuse the one on port 9876) and stream to it live
     connect: str | None = None  # stream live to a running Rerun viewer at this URL
-    rrd: bool = True  # Rerun telemetry of the autopilot and the SITL, merged into DIR/flight.rrd
+    rrd: bool = True  # Rerun telemetry of the autopilot and the SITL, joined into DIR/flight.rrd
+    # parts up to this size are merged (compacted, indexed: memory about twice their size); larger ones are
+    # concatenated (streamed into one file without an index: bounded memory whatever the flight's length)
+    rrd_merge_max_mb: float = MERGE_MAX_MB
     series: bool = True  # per-step series in DIR/autopilot_series.npz and DIR/sitl_series.npz
     png: bool = True  # DIR/flight.png: roll vs command and reference models, rudder, adaptive gains (from the series)
     web: bool = False  # serve the Rerun web viewer (HTTP WEB_PORT, gRPC WEB_GRPC_PORT) and stream the flight to it
@@ -153,6 +156,7 @@ class FlightConfig:
             ("period", cli.timeout_s),
             ("u_limit_deg", cli.limit_deg),
             ("rt_priority", cli.rt_priority_arg),
+            ("rrd_merge_max_mb", cli.bounded(0.0, 1e6, "MB")),
         ):
             put(name, _checked(name, check, getattr(self, name)))
         for name, check in (
@@ -439,10 +443,10 @@ def _flight_key(cfg: FlightConfig, out: Path) -> Path | None:
     return path
 
 
-def _telemetry_argvs(cfg: FlightConfig, out: Path) -> tuple[dict[str, list[str]] | None, dict[str, Path]]:
-    """One recording id for the flight; each process writes its own part file (merged at the end)."""
+def _telemetry_argvs(cfg: FlightConfig, out: Path) -> tuple[dict[str, list[str]] | None, dict[str, Path], str | None]:
+    """One recording id for the flight; each process writes its own part file (joined at the end)."""
     if not (cfg.rrd or cfg.viewer or cfg.connect or cfg.web):
-        return None, {}
+        return None, {}, None
     from autopilot.shared import telemetry as tm
 
     rid = tm.new_recording_id()
@@ -464,7 +468,7 @@ def _telemetry_argvs(cfg: FlightConfig, out: Path) -> tuple[dict[str, list[str]]
             argv[name] += ["--rrd", str(parts[name])]
         if url:
             argv[name] += ["--connect", url]
-    return argv, parts
+    return argv, parts, rid
 
 
 WEB_PORT = 9090  # --web: the Rerun web viewer over HTTP
@@ -514,44 +518,39 @@ def write_flight_png(cfg: FlightConfig, out: Path, name: str, metrics: dict) -> 
     return save_flight_figure(res, out / "flight.png", math.radians(cfg.u_limit_deg), title)
 
 
-def _merge_telemetry(parts: dict[str, Path], out: Path) -> tuple[Path | list[Path] | None, str | None]:
-    """Merge the processes' part files into DIR/flight.rrd (whatever ended the flight); (path, error).
+def _join_telemetry(
+    parts: dict[str, Path], out: Path, recording_id: str | None, merge_max_mb: float
+) -> tuple[Path | None, bool, str | None]:
+    """Join the processes' part files into DIR/flight.rrd (whatever ended the flight); (path, indexed, error).
 
-    ``rerun rrd merge`` holds the whole recording in memory (about twice the files' size), so parts larger than
-    MERGE_MAX_BYTES in all (a flight of more than about 20 minutes at 100 Hz) are not merged: they are kept side
-    by side as DIR/flight-<process>.rrd with the layout in DIR/flight.rbl (the viewer joins them: one recording
-    id), and the path is that list.  Memory stays bounded whatever the flight's length."""
+    ``rerun rrd merge`` compacts the chunks and writes the footer (index) the viewer uses for random access, but
+    holds the whole recording in memory (about twice the files' size).  So parts larger than ``merge_max_mb`` in
+    all (a flight of more than about 15 minutes at 100 Hz by default) are concatenated instead: their messages
+    are copied into the same one file without decoding, a buffer at a time (constant memory whatever the
+    flight's length; no footer, so ``indexed`` is False).  Either way the flight has one recording, with the
+    viewer layout."""
     existing = [p for p in parts.values() if p.exists() and p.stat().st_size > 0]
     if not existing:
-        return None, ("no telemetry was written" if parts else None)
+        return None, False, ("no telemetry was written" if parts else None)
     from autopilot.shared import telemetry as tm
     from tools.views import flight_blueprint
 
-    if sum(p.stat().st_size for p in existing) > MERGE_MAX_BYTES:
-        files = []
-        for name, p in parts.items():
-            if p in existing:
-                files.append(p.replace(out / f"flight-{name}.rrd"))
-        try:
-            flight_blueprint().save(tm.APPLICATION_ID, str(out / "flight.rbl"))
-            files.append(out / "flight.rbl")
-        except Exception as exc:  # noqa: BLE001  (the recordings are there; only the layout is missing)
-            return files, f"writing the viewer layout {out / 'flight.rbl'} failed: {exc}"
-        try:
-            (out / ".parts").rmdir()
-        except OSError:
-            pass
-        return files, None
     target = out / "flight.rrd"
+    indexed = sum(p.stat().st_size for p in existing) <= merge_max_mb * 1e6
     try:
-        tm.merge_recordings(existing, target, blueprint=flight_blueprint(), remove_parts=True)
+        if indexed:
+            tm.merge_recordings(existing, target, blueprint=flight_blueprint(), remove_parts=True)
+        else:
+            tm.concatenate_recordings(
+                existing, target, blueprint=flight_blueprint(), recording_id=recording_id, remove_parts=True
+            )
     except Exception as exc:  # noqa: BLE001  (a flight's other files stay valid; say what went wrong)
-        return None, f"merging telemetry into {target} failed: {exc}"
+        return None, False, f"joining telemetry into {target} failed: {exc}"
     try:
         (out / ".parts").rmdir()
     except OSError:
         pass
-    return target, None
+    return target, indexed, None
 
 
 # ---------------------------------------------------------------------------------------- summary
@@ -572,7 +571,8 @@ def build_summary(
     error: str | None,
     exit_code: int,
     wall: float,
-    rrd_path: Path | list[Path] | None,
+    rrd_path: Path | None,
+    rrd_indexed: bool = False,
 ) -> dict:
     """summary.json of a flight from the processes' stats files (``stats``: process name -> dict or None)."""
     ap, sitl, gcs = stats["autopilot"], stats["sitl"], stats["gcs"]
@@ -620,8 +620,9 @@ def build_summary(
         },
         "files": {
             "tlog": str(out / "flight.tlog"),
-            # DIR/flight.rrd, or for a long flight the list DIR/flight-<process>.rrd, DIR/flight.rbl (not merged)
-            "rrd": ([str(f) for f in rrd_path] if isinstance(rrd_path, list) else str(rrd_path)) if rrd_path else None,
+            "rrd": str(rrd_path) if rrd_path else None,  # DIR/flight.rrd, one recording with the viewer layout
+            # merged with rerun's footer (index); False: concatenated without one (a long flight, bounded memory)
+            "rrd_indexed": bool(rrd_path) and rrd_indexed,
             "summary": str(out / "summary.json"),
             "logs": {n: str(out / f"{n}.log") for n in PROCESSES},
             "stats": {n: str(out / f"{n}.json") for n in PROCESSES},
@@ -792,6 +793,7 @@ class Flight:
         self.result: FlightResult | None = None
         self._children: dict[str, Child] = {}
         self._parts: dict[str, Path] = {}
+        self._recording_id: str | None = None
         self._t0: float | None = None
         self._interrupt = threading.Event()
 
@@ -874,7 +876,7 @@ class Flight:
         for f in ("autopilot.json", "sitl.json", "gcs.json", "autopilot_series.npz", "sitl_series.npz"):
             (self.out / f).unlink(missing_ok=True)
         try:
-            telemetry, self._parts = _telemetry_argvs(cfg, self.out)
+            telemetry, self._parts, self._recording_id = _telemetry_argvs(cfg, self.out)
             key_file = _flight_key(cfg, self.out)
             for attempt in range(3):
                 ports = range(cfg.base_port, cfg.base_port + 4) if cfg.base_port is not None else free_udp_ports(4)
@@ -982,7 +984,9 @@ class Flight:
         cfg = self.config
         t_end = time.monotonic()  # exits seen after this are those of stopping the flight
         stop_children(self._children.values())
-        rrd_path, rrd_error = _merge_telemetry(self._parts, self.out)
+        rrd_path, rrd_indexed, rrd_error = _join_telemetry(
+            self._parts, self.out, self._recording_id, cfg.rrd_merge_max_mb
+        )
         if rrd_error and exit_code == EXIT_OK:
             exit_code, failed, error = EXIT_FAILED, "telemetry", rrd_error
         stats = {n: _load(self.out / f"{n}.json") for n in PROCESSES}
@@ -1001,6 +1005,7 @@ class Flight:
             exit_code,
             time.monotonic() - self._t0,
             rrd_path,
+            rrd_indexed,
         )
         summary["flown"] = flown
         runs = summary["runs"]

@@ -18,6 +18,7 @@ from autopilot.flags import add_controller_arguments
 from autopilot.shared.cli import (
     OneLineArgumentParser,
     angle_deg,
+    bounded,
     clock_s,
     duration_s,
     nonneg_float,
@@ -29,7 +30,7 @@ from autopilot.shared.cli import (
 )
 from autopilot.shared.process import install_stop_handlers
 from sitl import disturbances
-from tools.flight import PROCESSES, PROFILES, Flight, FlightConfigError
+from tools.flight import MERGE_MAX_MB, PROCESSES, PROFILES, Flight, FlightConfigError
 
 
 def print_summary(s: dict) -> None:
@@ -167,6 +168,14 @@ def build_parser() -> OneLineArgumentParser:
         help="show the flight live in a running Rerun viewer, e.g. rerun+http://127.0.0.1:9876/proxy",
     )
     g.add_argument("--no-rrd", dest="rrd", action="store_false", help="do not write DIR/flight.rrd")
+    g.add_argument(
+        "--rrd-merge-max-mb",
+        type=bounded(0.0, 1e6, "MB"),
+        default=MERGE_MAX_MB,
+        metavar="MB",
+        help=f"telemetry up to this size is merged into an indexed DIR/flight.rrd (memory about twice the size); "
+        f"more is concatenated into it without an index, in constant memory (default {MERGE_MAX_MB:g})",
+    )
     g.add_argument(
         "--web",
         action="store_true",

@@ -6,7 +6,7 @@
 * ``columns``  Arrow columns for ``RecordingStream.send_columns`` (scalars, time columns, series styles);
 * ``viewer``   a live viewer: URL, reachability, spawning one, showing a blueprint in it;
 * ``files``    one recording from several processes: ``new_recording_id``, ``part_paths``, ``merge_recordings``,
-               ``verify_rrd``, ``RrdError``;
+               ``concatenate_recordings``, ``verify_rrd``, ``RrdError``;
 * ``flags``    the command-line flags (``add_arguments``, ``requested``, ``from_args``, ``attach``);
 * ``hooks``    ``ProcessHook``, the part every process's telemetry hook shares (status events).
 
@@ -47,6 +47,7 @@ _LAZY = {
     "merge_recordings": "files",
     "new_recording_id": "files",
     "part_paths": "files",
+    "concatenate_recordings": "files",
     "verify_rrd": "files",
     "add_arguments": "flags",
     "attach": "flags",

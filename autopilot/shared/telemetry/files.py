@@ -1,17 +1,28 @@
-"""One recording from several processes: recording ids, part files, ``rerun rrd merge`` and ``rrd verify``.
+"""One recording from several processes: recording ids, part files, joining them, ``rerun rrd verify``.
 
 Each process of a flight writes its own part (``DIR/.parts/<process>.rrd``) with the same application id
-and recording id.  At the end the launcher calls ``merge_recordings``, which runs ``rerun rrd merge``
-(it recognises the shared store id and writes ONE recording, compacting the chunks and writing a
-footer) and adds the viewer layout it is given.  A part left without footer by a SIGKILL is still
-merged: rerun reads every complete message and stops at the torn tail.  No rerun import here: the
-rerun CLI does the work.
+and recording id, without rerun's footer (the footer's index grows with the number of chunks, about 0.5 kB
+each, measured, so a writer that keeps one grows with the flight's length).  At the end the launcher joins
+the parts and the viewer layout into ONE file in one of two ways:
+
+* ``merge_recordings`` runs ``rerun rrd merge``: it decodes everything, compacts the chunks and writes a
+  footer (the index the viewer uses for random access).  Its memory is about twice the parts' size, so it
+  is for short flights.
+* ``concatenate_recordings`` copies the parts' messages, framed but not decoded, into one stream (the
+  layout written beside them without a footer first), a buffer at a time: constant memory whatever the
+  flight's length, and as fast as the disk.  The file holds the same recording (one store id, every chunk,
+  the layout) without a footer: the viewer and ``rerun.chunk.RrdReader`` load it by scanning, ``rerun rrd
+  verify`` needs ``--check-footers=false``.  (``rerun rrd route`` would also stream, but in rerun 0.41 it
+  writes an empty footer that makes ``RrdReader`` see no recording, and panics on a footered input.)
+
+A part left without footer by a SIGKILL is still joined: every complete message is kept and the torn tail is
+dropped.  rerun itself is imported only to write the layout for a concatenation; ``rerun rrd`` does the rest.
 """
 
 from __future__ import annotations
 
 import os
-import shutil
+import struct
 import subprocess
 import tempfile
 import uuid
@@ -57,7 +68,7 @@ def merge_recordings(
     remove_parts: bool = False,
     timeout_s: float = 120.0,
 ) -> Path:
-    """Merge part files into ``out_path`` with ``rerun rrd merge``; returns the output path.
+    """Merge part files into ``out_path`` with ``rerun rrd merge`` (compacted, with a footer); the output path.
 
     ``blueprint``: a ``rerun.blueprint.Blueprint`` to add (saved for ``application_id``), or None to keep
     whatever the parts carry.  Missing or empty parts are skipped (a process that never started); if no
@@ -68,22 +79,117 @@ def merge_recordings(
     if not present:
         raise RrdError(f"no recording to merge: none of {[str(p) for p in parts]} exists or has data")
     out.parent.mkdir(parents=True, exist_ok=True)
-    with tempfile.TemporaryDirectory(prefix="rrd-merge-") as tmp:
+    # in the output's folder: the move is a rename, not a copy of a large file
+    with tempfile.TemporaryDirectory(prefix=".rrd-merge-", dir=out.parent) as tmp:
         inputs = [str(p) for p in present]
         if blueprint is not None:
             rbl = Path(tmp) / "blueprint.rbl"
             blueprint.save(application_id, str(rbl))
             inputs.append(str(rbl))
-        tmp_out = Path(tmp) / "merged.rrd"
+        tmp_out = Path(tmp) / "joined.rrd"
         cmd = [rerun_cli_path(), "rrd", "merge", "--continue-on-error", "-o", str(tmp_out), *inputs]
         proc = subprocess.run(cmd, capture_output=True, text=True, timeout=timeout_s, env=_cli_env())
         if proc.returncode != 0 or not tmp_out.is_file():
             raise RrdError(f"rerun rrd merge failed (exit {proc.returncode}): {_tail(proc.stderr)}")
-        shutil.move(str(tmp_out), str(out))
+        os.replace(tmp_out, out)
     if remove_parts:
         for p in present:
             p.unlink(missing_ok=True)
     return out
+
+
+# RRD stream framing (rerun 0.41 ``re_log_encoding``): a 12-byte stream header (magic b"RRF2", version, options),
+# then messages, each a little-endian (kind u64, length u64) header and ``length`` bytes of payload; kind 0 ends
+# the stream (a footer may follow).  Kinds 1-3: SetStoreInfo, ArrowMsg, BlueprintActivationCommand.
+_RRD_MAGIC = b"RRF2"
+_RRD_HEADER = 12
+_MSG_KINDS = (1, 2, 3)
+_COPY = 1 << 20  # bytes copied at a time
+
+
+def concatenate_recordings(
+    parts: Sequence[str | os.PathLike],
+    out_path: str | os.PathLike,
+    *,
+    blueprint=None,
+    recording_id: str | None = None,
+    application_id: str = APPLICATION_ID,
+    remove_parts: bool = False,
+) -> Path:
+    """Join part files into ``out_path`` as one stream, in constant memory (no footer); the output path.
+
+    ``blueprint``, with the parts' ``recording_id``, is written first (footerless) so the viewer shows the
+    layout.  Every part must carry the same stream header (rerun version and encoding options) as the first,
+    else RrdError.  A torn last message (a part cut by SIGKILL) is dropped; an unknown message kind is an
+    RrdError (a rerun format this code does not know).  Missing or empty parts are skipped.
+    """
+    out = Path(out_path)
+    present = [Path(p) for p in parts if Path(p).is_file() and Path(p).stat().st_size > _RRD_HEADER]
+    if not present:
+        raise RrdError(f"no recording to join: none of {[str(p) for p in parts]} exists or has data")
+    out.parent.mkdir(parents=True, exist_ok=True)
+    with tempfile.TemporaryDirectory(prefix=".rrd-join-", dir=out.parent) as tmp:
+        inputs = list(present)
+        if blueprint is not None:
+            if recording_id is None:
+                raise ValueError("concatenate_recordings: a blueprint needs the parts' recording_id")
+            rbl = Path(tmp) / "blueprint.rbl"
+            _save_blueprint_unindexed(blueprint, rbl, application_id, recording_id)
+            inputs.insert(0, rbl)
+        tmp_out = Path(tmp) / "joined.rrd"
+        header = None
+        with open(tmp_out, "wb") as dst:
+            for path in inputs:
+                with open(path, "rb") as src:
+                    head = src.read(_RRD_HEADER)
+                    if not head.startswith(_RRD_MAGIC):
+                        raise RrdError(f"{path}: not an RRD stream (header {head[:4]!r})")
+                    if header is None:
+                        header = head
+                        dst.write(head)
+                    elif head != header:
+                        raise RrdError(f"{path}: stream header {head.hex()} is not the first part's {header.hex()}")
+                    _copy_messages(src, dst, path)
+        os.replace(tmp_out, out)  # same folder: a rename
+    if remove_parts:
+        for p in present:
+            p.unlink(missing_ok=True)
+    return out
+
+
+def _copy_messages(src, dst, path) -> None:
+    """Copy framed messages from ``src`` (after its header) to ``dst`` up to the end marker, EOF or a torn tail."""
+    while True:
+        head = src.read(16)
+        if len(head) < 16:
+            return  # EOF (or a torn message header)
+        kind, length = struct.unpack("<QQ", head)
+        if kind == 0:
+            return  # end of stream: a footer may follow, not copied
+        if kind not in _MSG_KINDS:
+            raise RrdError(f"{path}: unknown RRD message kind {kind} at byte {src.tell() - 16}")
+        start = src.tell()
+        if os.fstat(src.fileno()).st_size - start < length:
+            return  # a torn last message: dropped
+        dst.write(head)
+        left = length
+        while left:
+            buf = src.read(min(left, _COPY))
+            dst.write(buf)
+            left -= len(buf)
+
+
+def _save_blueprint_unindexed(blueprint, path: Path, application_id: str, recording_id: str) -> None:
+    """``blueprint`` for ``recording_id`` as a footerless .rbl (no recording properties, no data)."""
+    import rerun as rr
+
+    rec = rr.RecordingStream(application_id, recording_id=recording_id, send_properties=False)
+    try:
+        rec.set_sinks(rr.FileSink(str(path), write_footer=False))
+        rec.send_blueprint(blueprint)
+        rec.flush()
+    finally:
+        rec.disconnect()
 
 
 def verify_rrd(path: str | os.PathLike, *, check_footers: bool = True, timeout_s: float = 120.0) -> tuple[bool, str]:
