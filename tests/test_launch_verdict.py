@@ -57,22 +57,37 @@ def test_child_ending_early_with_status_0_fails_the_flight(tmp_path):
 
 
 @pytest.mark.parametrize(
-    "flag,value,needle",
+    "argv,needle,process",
     [
-        ("--physics-rate", "1e12", "(0, 100000] Hz"),
-        ("--sensor-rate", "1e9", "(0, 1000] Hz"),
-        ("--rate", "5000", "at most 1000 Hz"),
-        ("--duration", "1e308", "(0, 86400] s"),
-        ("--start-time", "5e6", "[0, 86400] s"),
-        ("--lv", "1e300", "[0, 10000]"),
+        (["--physics-rate", "1e12"], "(0, 100000] Hz", "sitl"),
+        (["--sensor-rate", "1e9"], "(0, 1000] Hz", "sitl"),
+        (["--sensor-rate", "19.9"], "at least 20 Hz in real time", "sitl"),  # just below: attitude would time out
+        (["--rate", "5000"], "at most 1000 Hz", "autopilot"),
+        (["--rate", "100", "--physics-rate", "1050"], "whole multiple of the control rate", "sitl"),
+        (["--duration", "1e308"], "(0, 86400] s", "launch"),
+        (["--start-time", "5e6"], "[0, 86400] s", "sitl"),
+        (["--lv", "1e300"], "[0, 10000]", "autopilot"),
+        (["--amplitude", "1e9"], "[-180, 180] deg", "gcs"),
     ],
 )
-def test_impossible_values_are_rejected_before_the_flight(tmp_path, flag, value, needle):
+def test_impossible_values_are_refused_before_the_flight(tmp_path, argv, needle, process):
+    """Exit 2 with one line naming the flag and its range; nothing is started; summary.json says so."""
     out = tmp_path / "never"
-    r = run_cli("tools.launch", flag, value, "--out", str(out), timeout=60)
+    r = run_cli("tools.launch", *argv, "--out", str(out), timeout=60)
     lines = r.stderr.strip().splitlines()
-    assert r.returncode == 2 and len(lines) == 1 and flag in lines[0] and needle in lines[0], r.stderr
-    assert not out.exists()  # nothing was started
+    assert r.returncode == 2 and len(lines) == 1 and argv[-2] in lines[0] and needle in lines[0], r.stderr
+    assert sorted(p.name for p in out.iterdir()) == ["summary.json"]  # nothing was started, the verdict is written
+    s = json.loads((out / "summary.json").read_text())
+    assert s["ok"] is False and s["exit_code"] == 2 and s["refused"] is True
+    assert s["failed"] == process and needle in s["error"]
+    assert s["flown"]["fraction"] == 0.0 and s["flown"]["steps"] == 0
+
+
+def test_lowest_real_time_sensor_rate_is_flown(tmp_path):
+    """Just above the bound (20 Hz: two ATTITUDE per 0.1 s attitude timeout) the real-time flight is flown whole."""
+    res = Flight(duration=3.0, sensor_rate=20.0, out=tmp_path, quiet=True, rrd=False, series=False, png=False).run()
+    assert res.ok, res.reason
+    assert res.summary["flown"]["complete"] and res.summary["flown"]["fraction"] == 1.0
 
 
 @pytest.mark.parametrize("bad", ["file", "in_a_file"])

@@ -40,6 +40,7 @@ from autopilot.shared.process import (
     EXIT_FAILED,
     EXIT_INTERRUPTED,
     EXIT_OK,
+    EXIT_USAGE,
     rt_throttling,
     write_json_atomic,
 )
@@ -189,6 +190,15 @@ class FlightConfig:
             self.base_port is None or (isinstance(self.base_port, int) and 1 <= self.base_port <= 65532),
             "base_port",
             f"base_port must be in 1..65532 (it and the next three ports are used), got {self.base_port!r}",
+        )
+        from autopilot.loop import AutopilotOptions  # the autopilot's default attitude timeout
+
+        att_timeout = AutopilotOptions.attitude_timeout_s
+        _require(
+            self.lockstep or self.sensor_rate * att_timeout >= 2.0,
+            "sensor_rate",
+            f"sensor_rate must be at least {2.0 / att_timeout:g} Hz in real time (the autopilot holds wings level "
+            f"after {att_timeout:g} s without attitude: two ATTITUDE per timeout at least), got {self.sensor_rate:g}",
         )
         _require(
             not (self.busy_wait and self.lockstep),
@@ -700,6 +710,29 @@ def _stride(steps: int, max_points: int | None) -> int:
 
 
 # ---------------------------------------------------------------------------------------- the verdict
+def write_refusal(out: str | os.PathLike, process: str, reason: str) -> Path | None:
+    """DIR/summary.json of a flight refused before anything was started (a value that cannot be flown):
+    ``ok: false``, exit status 2, the process the value belongs to, the reason and nothing flown.  So a caller that
+    reads summary.json finds the verdict whatever ended the launch.  None if DIR cannot be made or written (the
+    one-line error on stderr still says why)."""
+    path = Path(out) / "summary.json"
+    summary = {
+        "ok": False,
+        "refused": True,  # nothing was started
+        "exit_code": EXIT_USAGE,
+        "failed": process,
+        "error": f"{process}: {reason} (refused before the flight: nothing was started)",
+        "flown": {"steps": 0, "steps_asked": None, "fraction": 0.0, "frames": 0, "sim_time_s": 0.0, "complete": False},
+        "files": {"summary": str(path)},
+    }
+    try:
+        path.parent.mkdir(parents=True, exist_ok=True)
+        write_json_atomic(path, summary)
+    except OSError:
+        return None
+    return path
+
+
 def flown_report(cfg: FlightConfig, stats: dict) -> dict:
     """What flew against what was asked: control steps (real time: those flown on a fresh attitude, not as a
     failsafe hold), SITL frames and sim time; ``fraction`` = steps flown / steps asked."""

@@ -28,9 +28,9 @@ from autopilot.shared.cli import (
     sensor_rate_hz,
     timeout_s,
 )
-from autopilot.shared.process import install_stop_handlers
+from autopilot.shared.process import EXIT_USAGE, install_stop_handlers
 from sitl import disturbances
-from tools.flight import MERGE_MAX_MB, PROCESSES, PROFILES, Flight, FlightConfigError
+from tools.flight import MERGE_MAX_MB, PROCESSES, PROFILES, Flight, FlightConfigError, write_refusal
 
 
 def print_summary(s: dict) -> None:
@@ -208,14 +208,50 @@ def _flag(keyword: str) -> str:
     return keyword if keyword == "profile" else "--" + keyword.replace("_", "-")
 
 
+# The process each flag configures: a value refused before the flight is reported as that process's failure.
+_OWNERS = {
+    "sitl": {"physics_rate", "sensor_rate", "start_time", *disturbances.FLAGS},
+    "autopilot": {"rate", "lv", "pfc", "sigma_xu", "dead_zone_deg", "ki_max", "u_limit_deg", "controller"}
+    | {"freeze_when_saturated", "rt_priority", "busy_wait", "telemetry_rate", "gcs_peer"},
+    "gcs": {"profile", "csv", "amplitude", "period"},
+}
+
+
+def _owner(parser, message: str | None, dest: str | None = None) -> str:
+    """The process a refused flag configures: ``dest``, or the flag an argparse error names (``argument --rate:
+    ...``); else the launcher itself."""
+    text = message or ""
+    if dest is None and text.startswith("argument "):
+        flag = text[len("argument ") :].split(":", 1)[0].split("/")[0].strip()
+        action = parser._option_string_actions.get(flag)  # noqa: SLF001 (argparse keeps no public index of flags)
+        dest = action.dest if action is not None else flag
+    return next((name for name, dests in _OWNERS.items() if dest in dests), "launch")
+
+
+def _parse(parser, argv) -> Flight:
+    """The flight the command line asks for; a refused value exits 2 with one line on stderr and, when ``--out``
+    was given, DIR/summary.json saying ``ok: false``, the process the value belongs to and nothing flown."""
+    dest = None
+    try:
+        args = parser.parse_args(argv)
+        try:
+            return Flight(**vars(args))
+        except FlightConfigError as exc:
+            dest, message = exc.field, str(exc)
+            parser.error(_flag(dest) + message[len(dest) :] if message.startswith(dest) else message)
+    except SystemExit as exc:
+        if exc.code == EXIT_USAGE:
+            pre = OneLineArgumentParser(add_help=False)
+            pre.add_argument("--out", default=None)
+            out = pre.parse_known_args(argv)[0].out
+            if out:
+                write_refusal(out, _owner(parser, parser.last_error, dest), parser.last_error or "refused")
+        raise
+
+
 def main(argv=None) -> int:
     parser = build_parser()
-    args = parser.parse_args(argv)
-    try:
-        flight = Flight(**vars(args))
-    except FlightConfigError as exc:
-        message = str(exc)
-        parser.error(_flag(exc.field) + message[len(exc.field) :] if message.startswith(exc.field) else message)
+    flight = _parse(parser, sys.argv[1:] if argv is None else list(argv))
     install_stop_handlers(flight.interrupt)
     res = flight.run()
     print_summary(res.summary)

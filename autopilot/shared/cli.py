@@ -19,7 +19,10 @@ from autopilot.shared.pwm import PwmConfigError, PwmMap
 class OneLineArgumentParser(argparse.ArgumentParser):
     """argparse with a one-line error (``prog: error: ...``) and exit status 2 on bad flags."""
 
+    last_error: str | None = None  # the message of the last error (a caller may report it elsewhere too)
+
     def error(self, message: str):  # noqa: D401
+        self.last_error = message
         sys.stderr.write(f"{self.prog}: error: {message}\n")
         raise SystemExit(2)
 
