@@ -235,6 +235,12 @@ def test_rrd_cli_summary_and_verify(tmp_path, capsys):
     assert len(rrd.blueprint_components(tmp_path / "m2.rrd", "ViewportBlueprint:root_container")) == 1
     assert rrd.main(["merge", "--no-blueprint", str(tmp_path / "bare.rrd"), str(path)]) == 0
     assert not rrd.has_blueprint(tmp_path / "bare.rrd")
+    # --concatenate (long flights): the same rows and one layout, no footer (the input's footer is not copied)
+    cat = tmp_path / "cat.rrd"
+    assert rrd.main(["merge", "--concatenate", str(cat), str(path)]) == 0
+    assert len(rrd.load(cat)["/sitl/roll"].t) == 5
+    assert len(rrd.blueprint_components(cat, "ViewportBlueprint:root_container")) == 1
+    assert rrd.main(["verify", "--no-footer-check", str(cat)]) == 0 and rrd.main(["verify", str(cat)]) == 1
 
 
 def test_loop_hooks_turn_step_records_into_telemetry(tmp_path):

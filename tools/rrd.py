@@ -9,7 +9,8 @@ Command line::
 
     python -m tools.rrd summary FILE.rrd            entities, rows, time span, recording ids, blueprint
     python -m tools.rrd verify FILE.rrd...          rerun rrd verify (footers required; --no-footer-check for parts)
-    python -m tools.rrd merge OUT.rrd PART.rrd...   merge the part files of one flight (+ flight blueprint)
+    python -m tools.rrd merge OUT.rrd PART.rrd...   merge the part files of one flight (+ flight blueprint);
+                                                    --concatenate: constant memory, no footer (long flights)
 """
 
 from __future__ import annotations
@@ -183,17 +184,24 @@ def verify(path: str | os.PathLike, *, check_footers: bool = True) -> tuple[bool
     return verify_rrd(path, check_footers=check_footers)
 
 
-def merge(out: str | os.PathLike, parts: list, *, blueprint: bool = True):
-    """Merge the part files of one flight into ``out``; adds the flight blueprint unless a part carries one
-    (a file never holds two competing layouts) or ``blueprint`` is False.  Returns the output path."""
-    from autopilot.shared.telemetry.files import merge_recordings
+def merge(out: str | os.PathLike, parts: list, *, blueprint: bool = True, concatenate: bool = False):
+    """Join the part files of one flight into ``out``; adds the flight blueprint unless a part carries one
+    (a file never holds two competing layouts) or ``blueprint`` is False.  Returns the output path.
+
+    ``concatenate``: copy the parts' messages in constant memory (no footer; for long flights) instead of
+    ``rerun rrd merge`` (compacted, with a footer; memory about twice the parts' size)."""
+    from autopilot.shared.telemetry.files import concatenate_recordings, merge_recordings
 
     layout = None
     if blueprint and not any(os.path.isfile(p) and has_blueprint(p) for p in parts):
         from tools.views import flight_blueprint
 
         layout = flight_blueprint()
-    return merge_recordings(parts, out, blueprint=layout)
+    if not concatenate:
+        return merge_recordings(parts, out, blueprint=layout)
+    present = [p for p in parts if os.path.isfile(p) and os.path.getsize(p) > 0]
+    rid = recordings(present[0])[0][1] if present and layout is not None else None
+    return concatenate_recordings(parts, out, blueprint=layout, recording_id=rid)
 
 
 def summary(path: str | os.PathLike) -> str:
@@ -228,6 +236,11 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("out")
     p.add_argument("parts", nargs="+")
     p.add_argument(
+        "--concatenate",
+        action="store_true",
+        help="copy the parts into one stream in constant memory, without rerun's footer (for long flights)",
+    )
+    p.add_argument(
         "--no-blueprint",
         action="store_true",
         help="never add the flight blueprint (by default it is added if no part has one)",
@@ -245,7 +258,7 @@ def main(argv: list[str] | None = None) -> int:
                 print(f"{f}: {'ok' if ok else 'FAILED'}" + ("" if ok else f"\n{msg}"))
                 bad += not ok
             return 1 if bad else 0
-        print(merge(args.out, args.parts, blueprint=not args.no_blueprint))
+        print(merge(args.out, args.parts, blueprint=not args.no_blueprint, concatenate=args.concatenate))
         return 0
     except (OSError, ValueError, RuntimeError) as exc:
         print(f"error: {exc}", file=sys.stderr)
