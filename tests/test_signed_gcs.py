@@ -138,6 +138,7 @@ def test_signed_stations_are_admitted_up_to_the_bound_the_others_rejected_and_co
         wrong = Station(port, 221, WRONG_KEY)  # "signing setup" with another passphrase
         rejected = [*over, unsigned, wrong]
         _until([*admitted, *rejected], lambda: False, timeout=1.5)
+        assert flight.wait(timeout=0) is None, "the flight ended before the stations were done (too slow a host?)"
         res = flight.wait(timeout=30)
     for s in [*admitted, *rejected]:
         s.close()

@@ -14,6 +14,14 @@ never from the command line, where it would stay in the shell history and show i
 command line).  A passphrase key is only as strong as the passphrase: anyone who records one signed packet can
 try passphrases offline, so use a long random one, or a random key file (no ``--passphrase``) where the ground
 station takes a raw key.
+
+In MAVProxy prefer ``signing key PASSPHRASE`` (or a ``~/.mavproxy/signing.keys`` line ``HOST:PORT PASSPHRASE``,
+which keeps the passphrase off MAVProxy's command line too) to ``signing setup``, which first sends the key itself,
+in a SETUP_SIGNING message over the link (unsigned unless signing was already on; this autopilot takes no key
+from a link and rejects it), and add ``set allow_unsigned 0``:
+by default MAVProxy also accepts packets whose signature is wrong.  Give each ground station its own component
+id (MAVProxy ``--source-component``): stations with the same ids share one timestamp stream and lose packets as
+``replay``.
 """
 
 from __future__ import annotations
