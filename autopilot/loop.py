@@ -11,7 +11,7 @@ are ``autopilot.shared.link``; this module reads the links, decides *when* to st
   itself.  No setpoint for ``setpoint_timeout_s`` -> wings level (0 deg), STATUSTEXT.
 * lockstep (:meth:`Autopilot.run_lockstep`): one step per SITL frame.  Frame k is recovered from
   ATTITUDE.time_boot_ms and the control rate; the answer is SERVO_OUTPUT_RAW with time_usec =
-  t_k in us mod 2**32.  A duplicate frame is answered by resending the stored bytes (no second step),
+  t_k in us mod 2**32.  A duplicate frame is answered by resending the stored answer (signed again; no second step),
   an older frame is counted and ignored.  With pacing on (default), frame k waits until a GCS has
   scheduled setpoints up to t_k (the schedule horizon), so results do not depend on speed.
 
@@ -465,7 +465,7 @@ class Autopilot:
         if last is not None and k == last:
             # Duplicate of the frame we answered (our answer was lost or late): resend it, do not step.
             self.events["duplicate_frames"] += 1
-            self.sitl.send_raw(self._last_answer, SERVO_OUTPUT_RAW)
+            self.sitl.resend(self._last_answer, SERVO_OUTPUT_RAW)  # re-signed: not a replay
             return
         if pending is not None and k == pending:
             self.events["duplicate_pending_frames"] += 1

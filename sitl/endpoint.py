@@ -9,9 +9,9 @@ autopilot is silent for ``servo_timeout_s`` the rudder goes to neutral and the S
 Lockstep (:meth:`Sitl.run_lockstep`), the SITL is the time master: frame k has sim time
 t_k = K/rate (global frame K = K0 + k, K0 = start_time * rate).  Send ATTITUDE(time_boot_ms = t_k in
 ms); wait for SERVO_OUTPUT_RAW with time_usec == t_k in us mod 2**32; anything else is counted
-(stale / unexpected) and ignored; resend the same ATTITUDE bytes every ``resend_timeout_s``; give up
-after ``give_up_s`` with a clear error; then advance one control period.  After the last frame the
-end-of-run frame (t0 + duration) is sent a few times so the autopilot knows the run is over.
+(stale / unexpected) and ignored; resend the same ATTITUDE (signed again: not a replay) every
+``resend_timeout_s``; give up after ``give_up_s`` with a clear error; then advance one control period.  After the
+last frame the end-of-run frame (t0 + duration) is sent a few times so the autopilot knows the run is over.
 
 Hook point: ``Sitl.hooks`` callables get a :class:`SitlRecord` after each frame (lockstep) or each
 ATTITUDE sent (real time).
@@ -262,7 +262,7 @@ class Sitl:
                 rec = None
                 for _ in range(2):
                     self._wait(0.01)
-                    link.send_raw(raw, ATTITUDE)
+                    link.resend(raw, ATTITUDE)
                 self.exit_reason = "end of run (duration reached)"
                 break
             raw = self._send_attitude(frame_ms(K, rate), K)
@@ -288,7 +288,7 @@ class Sitl:
                             f"--lockstep --rate {rate:g} (and a GCS, or --no-pace)?"
                         )
                     if now >= t_resend:
-                        link.send_raw(raw, ATTITUDE)
+                        link.resend(raw, ATTITUDE)
                         ev["resends"] += 1
                         ev["resends_frame"] += 1
                         t_resend = now + resend

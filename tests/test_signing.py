@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import math
 import os
+import threading
 import time
 
 import pytest
@@ -183,3 +184,99 @@ def test_the_same_flight_unsigned_obeys_them(tmp_path):
     rej = ap["links"]["gcs"]["rejected"]
     assert not {"unsigned", "bad_signature", "replay"} & set(rej)
     assert ap["events"]["setpoints_clamped"] == 1 + 30  # every forged 50 deg setpoint was obeyed
+
+
+class _LossyProxy:
+    """A UDP relay between a lockstep SITL and its autopilot that drops the ``drop_at``-th datagram carrying
+    message ``msgid`` (one real lost datagram, whatever the direction)."""
+
+    def __init__(self, sitl_addr, msgid: int, drop_at: int):
+        self.sitl_addr, self.msgid, self.drop_at = sitl_addr, msgid, drop_at
+        self.to_sitl, self.to_ap = udp(), udp()  # the SITL hears the autopilot at to_sitl; the autopilot's --sitl
+        self.ap_addr = None
+        self.seen = 0
+        self.dropped = 0
+        self._stop = threading.Event()
+        self._thread = threading.Thread(target=self._run, daemon=True)
+        self._thread.start()
+
+    @property
+    def for_autopilot(self) -> str:
+        return f"127.0.0.1:{self.to_ap.getsockname()[1]}"
+
+    @property
+    def for_sitl(self) -> str:
+        return f"127.0.0.1:{self.to_sitl.getsockname()[1]}"
+
+    def _lose(self, data: bytes) -> bool:
+        if len(data) > 10 and data[0] == 0xFD and (data[7] | data[8] << 8 | data[9] << 16) == self.msgid:
+            self.seen += 1
+            if self.seen == self.drop_at:
+                self.dropped += 1
+                return True
+        return False
+
+    def _run(self) -> None:
+        import select
+
+        while not self._stop.is_set():
+            for sock in select.select([self.to_sitl, self.to_ap], [], [], 0.05)[0]:
+                data, addr = sock.recvfrom(4096)
+                if self._lose(data):
+                    continue
+                if sock is self.to_ap:  # from the autopilot
+                    self.ap_addr = addr
+                    self.to_sitl.sendto(data, self.sitl_addr)
+                elif self.ap_addr is not None:  # from the SITL
+                    self.to_ap.sendto(data, self.ap_addr)
+
+    def close(self) -> None:
+        self._stop.set()
+        self._thread.join(2)
+        self.to_sitl.close()
+        self.to_ap.close()
+
+
+@pytest.mark.e2e
+@pytest.mark.parametrize("lost", ["SERVO_OUTPUT_RAW", "ATTITUDE"])
+def test_signed_lockstep_recovers_a_lost_datagram(tmp_path, lost):
+    """One datagram lost between a signed lockstep SITL and autopilot: the SITL resends the frame and, when the
+    answer was the one lost, the autopilot resends its answer.  Both resends are signed again, so neither is taken
+    for a replay, and the flight flies every frame (with byte-identical resends it stalled: ``replay``)."""
+    key_file = tmp_path / "k.key"
+    write_key(key_file, KEY)
+    sign = ["--signing-key", str(key_file)]
+    sitl_port = free_ports(1)[0]
+    msgid = {"SERVO_OUTPUT_RAW": mavlink.MAVLINK_MSG_ID_SERVO_OUTPUT_RAW, "ATTITUDE": mavlink.MAVLINK_MSG_ID_ATTITUDE}
+    proxy = _LossyProxy(("127.0.0.1", sitl_port), msgid[lost], drop_at=200)
+    procs = []
+    try:
+        sitl = Proc(
+            "sitl",
+            ["--lockstep", "--listen", f"127.0.0.1:{sitl_port}", "--autopilot", proxy.for_sitl, "--duration", "5"]
+            + ["--give-up", "3", "--stats-json", str(tmp_path / "sitl.json"), *sign],
+            tmp_path / "sitl.log",
+        )
+        procs.append(sitl)
+        assert sitl.wait_for("listening on")
+        ap = Proc(
+            "autopilot",
+            ["--lockstep", "--no-pace", "--sitl", proxy.for_autopilot, "--listen", f"127.0.0.1:{free_ports(1)[0]}"]
+            + ["--duration", "5", "--stats-json", str(tmp_path / "ap.json"), *sign],
+            tmp_path / "ap.log",
+        )
+        procs.append(ap)
+        assert ap.p.wait(60) == 0, ap.output()
+        assert sitl.p.wait(30) == 0, sitl.output()
+    finally:
+        for proc in procs:
+            proc.stop()
+        proxy.close()
+    assert proxy.dropped == 1
+    ap_stats, sitl_stats = load_json(tmp_path / "ap.json"), load_json(tmp_path / "sitl.json")
+    assert ap_stats["steps"] == 500 and sitl_stats["frames"] == 500  # every frame flown, one step each
+    assert sitl_stats["events"]["resends"] >= 1
+    if lost == "SERVO_OUTPUT_RAW":
+        assert ap_stats["events"]["duplicate_frames"] >= 1  # the frame came again: the answer was resent
+    for rej in (ap_stats["links"]["sitl"]["rejected"], sitl_stats["link"]["rejected"]):
+        assert not {"replay", "bad_signature", "unsigned"} & set(rej), rej

@@ -224,6 +224,13 @@ class UdpLink:
             return False
         return self._sendto((self.remote,), buf, () if msgid is None else (msgid,), (buf,))
 
+    def resend(self, buf: bytes, msgid: int | None = None) -> bool:
+        """Send again a packet this link sent before (lockstep recovery of a lost datagram).  With signing on it is
+        signed again with a fresh timestamp, else the peer would rightly reject it as a ``replay``."""
+        if self.signing is not None and len(buf) > 13 and buf[2] & 1:
+            buf = self.signing.resign(buf)
+        return self.send_raw(buf, msgid)
+
     def _sendto(self, targets, data: bytes, msgids, bufs) -> bool:
         ok = False
         for addr in targets:

@@ -112,6 +112,12 @@ class Signing:
         tail = _TS.pack(self.link_id, self.next_stamp())[:7]
         return tail + hashlib.sha256(self.key + signed_part + tail).digest()[:6]
 
+    def resign(self, packet: bytes) -> bytes:
+        """``packet`` (one whole signed packet of ours) signed again with a fresh timestamp: a resend that the peer
+        can tell from a replay (the same bytes twice are one, by the MAVLink signing rule)."""
+        signed_part = packet[:-13]
+        return signed_part + self.signature(signed_part)
+
     def check(self, packet: bytes, sysid: int, compid: int) -> str | None:
         """None if ``packet`` (one whole signed MAVLink 2 packet) is authentic and fresh, else the reason."""
         if hashlib.sha256(self.key + packet[:-6]).digest()[:6] != packet[-6:]:
