@@ -56,6 +56,119 @@ def test_child_ending_early_with_status_0_fails_the_flight(tmp_path):
     assert s["ok"] is False and 0.0 < s["flown"]["fraction"] < 0.9
 
 
+def test_wall_clock_limit_is_the_launchers_verdict_not_a_childs(tmp_path):
+    """A flight stopped by ``--timeout`` is failed by the launcher itself, not blamed on the child it stopped."""
+    res = Flight(lockstep=True, duration=3000.0, timeout=3.0, out=tmp_path, quiet=True, rrd=False, png=False).run()
+    s = _summary(res)
+    assert not res.ok and res.exit_code == 1 and s["ok"] is False
+    assert s["failed"] == "launch" and "did not finish within 3 s of wall clock (--timeout)" in s["error"], s["error"]
+    assert 0.0 < s["flown"]["fraction"] < 1.0 and "flown " in s["error"]
+
+
+def _kill_by_cmdline(needle: str) -> None:
+    """SIGKILL every process whose command line contains ``needle`` (the orphans of a killed launcher)."""
+    for d in os.listdir("/proc"):
+        if d.isdigit():
+            try:
+                with open(f"/proc/{d}/cmdline", "rb") as f:
+                    if needle.encode() in f.read():
+                        os.kill(int(d), signal.SIGKILL)
+            except OSError:
+                continue
+
+
+def test_a_killed_launcher_never_leaves_an_earlier_ok_verdict(tmp_path):
+    """A folder reused by a second flight whose launcher is SIGKILLed: summary.json says not OK (still running or
+    killed), never the first flight's "ok: true", and the first flight's stats, series and recording are gone."""
+    import subprocess
+    import sys
+
+    out = tmp_path / "reused"
+    r = run_cli("tools.launch", "--lockstep", "--duration", "2", "--quiet", "--no-png", "--out", str(out), timeout=120)
+    assert r.returncode == 0 and json.loads((out / "summary.json").read_text())["ok"] is True
+    argv = [sys.executable, "-m", "tools.launch", "--lockstep", "--duration", "3000", "--quiet", "--out", str(out)]
+    launcher = subprocess.Popen(argv, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    try:
+        t0 = time.monotonic()
+        while True:  # this flight's SITL (its log starts with its own command line) is flying
+            log = (out / "sitl.log").read_text() if (out / "sitl.log").exists() else ""
+            if "3000" in log.split("\n", 1)[0] and "lockstep from" in log:
+                break
+            assert time.monotonic() - t0 < 60 and launcher.poll() is None
+            time.sleep(0.05)
+        launcher.kill()
+        launcher.wait(10)
+        s = json.loads((out / "summary.json").read_text())
+        assert s["ok"] is False and s["running"] is True and s["exit_code"] is None
+        assert f"pid {launcher.pid}" in s["error"]
+        for stale in ("autopilot.json", "sitl.json", "gcs.json", "autopilot_series.npz", "flight.rrd"):
+            assert not (out / stale).exists(), stale
+    finally:
+        _kill_by_cmdline(str(out))
+
+
+def _raw_socket():
+    """A raw IP socket (root or CAP_NET_RAW), or skip: forging a source address needs one."""
+    import socket
+
+    try:
+        raw = socket.socket(socket.AF_INET, socket.SOCK_RAW, socket.IPPROTO_RAW)
+    except PermissionError:
+        pytest.skip("forging a source address needs root or CAP_NET_RAW")
+    raw.setsockopt(socket.IPPROTO_IP, socket.IP_HDRINCL, 1)
+    return raw
+
+
+def _send_forged(raw, payload: bytes, sport: int, dport: int) -> None:
+    """One UDP datagram from 127.0.0.1:``sport`` to 127.0.0.1:``dport`` (IPv4 header by hand; the kernel fills
+    the checksum of a loopback IP header, and a UDP checksum of 0 means none)."""
+    import socket
+    import struct
+
+    lo = socket.inet_aton("127.0.0.1")
+    ip = struct.pack("!BBHHHBBH4s4s", 0x45, 0, 28 + len(payload), 0, 0, 64, socket.IPPROTO_UDP, 0, lo, lo)
+    raw.sendto(ip + struct.pack("!HHHH", sport, dport, 8 + len(payload), 0) + payload, ("127.0.0.1", 0))
+
+
+def test_ground_station_ended_by_a_forged_poweroff_fails_the_flight(tmp_path):
+    """Unsigned, a HEARTBEAT POWEROFF forged with the autopilot's own address (what root can do: the README's
+    "not protected") ends the GCS script mid-profile with "end of run (vehicle powered off)".  The autopilot flies
+    on, wings level, every step on a fresh attitude: the verdict still says the flight failed, naming the GCS."""
+    raw = _raw_socket()
+    base = free_ports(4)[0]
+    kw = dict(duration=8.0, out=tmp_path, quiet=True, rrd=False, series=False, png=False, signing=False)
+    with Flight(base_port=base, **kw) as flight:
+        _wait_for_steps(flight, "gcs", "gcs: vehicle ")
+        time.sleep(1.5)
+        hb = mavlink.MAVLink_heartbeat_message(
+            mavlink.MAV_TYPE_FIXED_WING, mavlink.MAV_AUTOPILOT_GENERIC, 0, 0, mavlink.MAV_STATE_POWEROFF, 3
+        )
+        _send_forged(raw, pack(mav(1, 1), hb), sport=base + 3, dport=base + 1)  # "from" the autopilot's GCS link
+        res = flight.wait(timeout=120)
+    raw.close()
+    s = _summary(res)
+    gcs = json.loads((tmp_path / "gcs.json").read_text())
+    assert gcs["exit_reason"] == "end of run (vehicle powered off)"  # the forgery worked on the GCS script ...
+    assert res.summary["flown"]["complete"]  # ... and the autopilot flew every step
+    assert not res.ok and res.exit_code == 1 and s["ok"] is False  # but the flight did not do what was asked
+    assert s["failed"] == "gcs" and "gcs exited early (exit code 0)" in s["error"] and "of its profile" in s["error"]
+
+
+@pytest.mark.parametrize("seen_s,ok", [(7.5, True), (7.49, False), (8.0, True), (3.0, False), (None, False)])
+def test_a_ground_station_ends_the_run_only_at_its_end(seen_s, ok):
+    """The boundary of ``_reached_end`` for an 8 s flight: the GCS script's "end of run" counts only if the
+    vehicle clock it saw reached the duration, less one slack of 0.5 s (it sees the clock a telemetry period late)."""
+    from tools.flight import GCS_END_SLACK_S, _reached_end
+
+    assert GCS_END_SLACK_S == 0.5
+    st = {"exit_reason": "end of run (vehicle powered off)", "origin_ms": 2000, "sim_ms": None}
+    if seen_s is not None:
+        st["sim_ms"] = 2000 + round(seen_s * 1000)
+    assert _reached_end(st, 8.0) is ok
+    assert _reached_end({"exit_reason": "stopped by signal", "origin_ms": 0, "sim_ms": 8000}, 8.0) is False
+    assert _reached_end({"exit_reason": "end of run (duration reached)"}, 8.0) is True  # the SITL: by frame count
+
+
 @pytest.mark.parametrize(
     "argv,needle,process",
     [

@@ -710,6 +710,30 @@ def _stride(steps: int, max_points: int | None) -> int:
 
 
 # ---------------------------------------------------------------------------------------- the verdict
+# A previous flight's files in a reused folder: removed before a new flight starts, so none can pass for its own.
+STALE_FILES = (
+    "autopilot.json",
+    "sitl.json",
+    "gcs.json",
+    "autopilot_series.npz",
+    "sitl_series.npz",
+    "flight.rrd",
+    "flight.png",
+)
+
+
+def provisional_summary(pid: int) -> dict:
+    """DIR/summary.json while a flight runs: not OK until the launcher writes the verdict."""
+    return {
+        "ok": False,
+        "running": True,
+        "exit_code": None,
+        "failed": None,
+        "error": f"the flight has not ended: it is still running, or its launcher (pid {pid}) was killed",
+        "launcher_pid": pid,
+    }
+
+
 def write_refusal(out: str | os.PathLike, process: str, reason: str) -> Path | None:
     """DIR/summary.json of a flight refused before anything was started (a value that cannot be flown):
     ``ok: false``, exit status 2, the process the value belongs to, the reason and nothing flown.  So a caller that
@@ -752,6 +776,23 @@ def flown_report(cfg: FlightConfig, stats: dict) -> dict:
     }
 
 
+GCS_END_SLACK_S = 0.5  # the ground station sees the vehicle's clock a telemetry period late (0.1 s in lockstep)
+
+
+def _reached_end(st: dict | None, duration: float) -> bool:
+    """Whether a child that ended says it ended at the end of the run: its exit reason is "end of run" and, for
+    the ground-station script, the vehicle clock it saw reached the duration (a forged POWEROFF heartbeat also
+    reads "end of run (vehicle powered off)", but in the middle of the profile)."""
+    st = st or {}
+    if not str(st.get("exit_reason", "")).startswith("end of run"):
+        return False
+    if "sim_ms" in st:  # the GCS script: how far along its profile the vehicle's clock was
+        if st.get("sim_ms") is None or st.get("origin_ms") is None:
+            return False
+        return (st["sim_ms"] - st["origin_ms"]) / 1000.0 >= duration - GCS_END_SLACK_S
+    return True
+
+
 def verdict(
     children: dict, stats: dict, flown: dict, exit_code: int, failed, error, t_end: float
 ) -> tuple[int, str | None, str | None]:
@@ -771,7 +812,7 @@ def verdict(
         if n != "autopilot"
         and c.exited_at is not None
         and c.exited_at < ap_exit
-        and not str((stats.get(n) or {}).get("exit_reason", "")).startswith("end of run")
+        and not _reached_end(stats.get(n), flown["duration_s"])
     ]
     clean = all(c.code == 0 for c in children.values()) and all(stats.values()) and not early
     pct = 100.0 * flown["fraction"]
@@ -785,6 +826,8 @@ def verdict(
     order = sorted(
         (c for c in children.values() if c.exited_at is not None and c.exited_at < t_end), key=lambda c: c.exited_at
     )
+    if not order and failed is not None and failed not in children:  # the launcher itself ended it (wall clock)
+        return exit_code, failed, f"{error}{tail}"
     first = order[0] if order else children.get(failed) or children["autopilot"]
     name = first.name
     seen = {name}
@@ -799,6 +842,9 @@ def verdict(
         why = f"{name} failed (exit code {culprit.code}): {culprit.reason()}"
     elif culprit.code == 0:
         why = f"{name} exited early (exit code 0): {own or culprit.reason()}"
+        st = stats.get(name) or {}
+        if st.get("sim_ms") is not None and st.get("origin_ms") is not None:
+            why += f" after {(st['sim_ms'] - st['origin_ms']) / 1000.0:g} s of its profile"
     elif error:
         why = error
     else:
@@ -906,8 +952,11 @@ class Flight:
             else new_run_dir("runs", f"-{'lockstep' if cfg.lockstep else 'rt'}-{cfg.controller}")
         )
         self.out.mkdir(parents=True, exist_ok=True)
-        for f in ("autopilot.json", "sitl.json", "gcs.json", "autopilot_series.npz", "sitl_series.npz"):
+        for f in (*STALE_FILES, "summary.json"):
             (self.out / f).unlink(missing_ok=True)
+        # Until the flight ends the verdict is "not OK": a launcher killed outright (SIGKILL) leaves this, never
+        # an earlier flight's "ok: true" in a reused folder.
+        write_json_atomic(self.out / "summary.json", provisional_summary(os.getpid()))
         try:
             telemetry, self._parts, self._recording_id = _telemetry_argvs(cfg, self.out)
             key_file = _flight_key(cfg, self.out)
@@ -931,7 +980,7 @@ class Flight:
             interrupted = isinstance(exc, KeyboardInterrupt)
             self._end(
                 EXIT_INTERRUPTED if interrupted else EXIT_FAILED,
-                None if interrupted else "flight",
+                None if interrupted else "launch",
                 "interrupted (Ctrl-C)" if interrupted else f"start-up failed: {type(exc).__name__}: {exc}",
             )
             raise
@@ -993,7 +1042,8 @@ class Flight:
                 return True
         limit = self.config.wall_timeout
         if time.monotonic() - self._t0 > limit:
-            self._end(EXIT_FAILED, "flight", f"flight did not finish within {limit:.0f} s (wall clock)")
+            why = "--timeout" if self.config.timeout else "the default limit; --timeout S sets it"
+            self._end(EXIT_FAILED, "launch", f"flight did not finish within {limit:.0f} s of wall clock ({why})")
             return True
         return False
 

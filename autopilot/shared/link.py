@@ -12,7 +12,8 @@ packets was accepted, otherwise in ``rejected`` under the reason of its first pa
     bad_magic      the datagram (or its remainder) does not start with the MAVLink 2 start byte 0xFD
     mavlink1       a MAVLink 1 packet (0xFE): rejected on every link
     truncated      a packet shorter than its header says
-    unknown_msg    message id not in the common dialect (its CRC cannot be checked)
+    unknown_msg    message id in none of pymavlink's dialects (``all``: common plus the development and vendor
+                   sets; its CRC cannot be checked)
     bad_crc        CRC mismatch
     unsigned       signing is on and the packet carries no signature
     bad_signature  signing is on and the signature does not match the key
@@ -60,11 +61,14 @@ import socket
 import time
 from collections import Counter
 
+from pymavlink.dialects.v20 import all as _all_dialect
+
 from autopilot.shared.fastmav import FAST_DECODERS, FastPacker, crc16
 from autopilot.shared.mavlink import mavlink
 
-_MAVLINK_MAP = mavlink.mavlink_map
-_CRC_EXTRA = {mid: bytes([cls.crc_extra]) for mid, cls in _MAVLINK_MAP.items()}
+# CRC extras of every message pymavlink knows (a superset of common with the same extras), so a valid message of
+# another dialect, e.g. the vehicle's CURRENT_MODE (436, development), is a checked ``ignored_msg``, not unknown
+_CRC_EXTRA = {mid: bytes([cls.crc_extra]) for mid, cls in _all_dialect.mavlink_map.items()}
 REJECT_REASONS = (
     "empty",
     "bad_magic",
@@ -407,7 +411,7 @@ class UdpLink:
 
 
 def _name(msgid: int) -> str:
-    cls = _MAVLINK_MAP.get(msgid)
+    cls = _all_dialect.mavlink_map.get(msgid)
     return cls.msgname if cls is not None else str(msgid)
 
 
