@@ -11,6 +11,7 @@ A command-line front end of ``tools.flight.Flight``: each long flag is a keyword
 
 from __future__ import annotations
 
+import argparse
 import sys
 from pathlib import Path
 
@@ -241,9 +242,12 @@ def _parse(parser, argv) -> Flight:
             parser.error(_flag(dest) + message[len(dest) :] if message.startswith(dest) else message)
     except SystemExit as exc:
         if exc.code == EXIT_USAGE:
-            pre = OneLineArgumentParser(add_help=False)
+            pre = argparse.ArgumentParser(add_help=False, exit_on_error=False)
             pre.add_argument("--out", default=None)
-            out = pre.parse_known_args(argv)[0].out
+            try:
+                out = pre.parse_known_args(argv)[0].out
+            except (argparse.ArgumentError, SystemExit):  # --out itself is what was refused
+                out = None
             if out:
                 write_refusal(out, _owner(parser, parser.last_error, dest), parser.last_error or "refused")
         raise
