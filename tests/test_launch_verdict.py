@@ -164,9 +164,9 @@ def test_a_ground_station_ends_the_run_only_at_its_end(seen_s, ok):
     st = {"exit_reason": "end of run (vehicle powered off)", "origin_ms": 2000, "sim_ms": None}
     if seen_s is not None:
         st["sim_ms"] = 2000 + round(seen_s * 1000)
-    assert _reached_end(st, 8.0) is ok
-    assert _reached_end({"exit_reason": "stopped by signal", "origin_ms": 0, "sim_ms": 8000}, 8.0) is False
-    assert _reached_end({"exit_reason": "end of run (duration reached)"}, 8.0) is True  # the SITL: by frame count
+    assert _reached_end("gcs", st, 8.0) is ok
+    assert _reached_end("gcs", {"exit_reason": "stopped by signal", "origin_ms": 0, "sim_ms": 8000}, 8.0) is False
+    assert _reached_end("sitl", {"exit_reason": "end of run (duration reached)"}, 8.0) is True  # by frame count
 
 
 @pytest.mark.parametrize(

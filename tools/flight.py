@@ -779,14 +779,14 @@ def flown_report(cfg: FlightConfig, stats: dict) -> dict:
 GCS_END_SLACK_S = 0.5  # the ground station sees the vehicle's clock a telemetry period late (0.1 s in lockstep)
 
 
-def _reached_end(st: dict | None, duration: float) -> bool:
+def _reached_end(name: str, st: dict | None, duration: float) -> bool:
     """Whether a child that ended says it ended at the end of the run: its exit reason is "end of run" and, for
     the ground-station script, the vehicle clock it saw reached the duration (a forged POWEROFF heartbeat also
     reads "end of run (vehicle powered off)", but in the middle of the profile)."""
     st = st or {}
     if not str(st.get("exit_reason", "")).startswith("end of run"):
         return False
-    if "sim_ms" in st:  # the GCS script: how far along its profile the vehicle's clock was
+    if name == "gcs":  # how far along its profile the vehicle's clock was
         if st.get("sim_ms") is None or st.get("origin_ms") is None:
             return False
         return (st["sim_ms"] - st["origin_ms"]) / 1000.0 >= duration - GCS_END_SLACK_S
@@ -812,7 +812,7 @@ def verdict(
         if n != "autopilot"
         and c.exited_at is not None
         and c.exited_at < ap_exit
-        and not _reached_end(stats.get(n), flown["duration_s"])
+        and not _reached_end(n, stats.get(n), flown["duration_s"])
     ]
     clean = all(c.code == 0 for c in children.values()) and all(stats.values()) and not early
     pct = 100.0 * flown["fraction"]

@@ -159,6 +159,7 @@ def concatenate_recordings(
 
 def _copy_messages(src, dst, path) -> None:
     """Copy framed messages from ``src`` (after its header) to ``dst`` up to the end marker, EOF or a torn tail."""
+    size = os.fstat(src.fileno()).st_size
     while True:
         head = src.read(16)
         if len(head) < 16:
@@ -168,8 +169,7 @@ def _copy_messages(src, dst, path) -> None:
             return  # end of stream: a footer may follow, not copied
         if kind not in _MSG_KINDS:
             raise RrdError(f"{path}: unknown RRD message kind {kind} at byte {src.tell() - 16}")
-        start = src.tell()
-        if os.fstat(src.fileno()).st_size - start < length:
+        if size - src.tell() < length:
             return  # a torn last message: dropped
         dst.write(head)
         left = length
