@@ -11,7 +11,7 @@ from __future__ import annotations
 import math
 import sys
 
-from autopilot.flags import add_controller_arguments, default_lv
+from autopilot.flags import add_controller_arguments, add_envelope_arguments, default_lv, envelope_from_args
 from autopilot.shared.cli import (
     OneLineArgumentParser,
     add_cpu_argument,
@@ -189,6 +189,7 @@ def build_parser() -> OneLineArgumentParser:
         help="start disarmed (rudder neutral until a ground station arms: COMPONENT_ARM_DISARM)",
     )
     add_controller_arguments(p)
+    add_envelope_arguments(p)
     add_telemetry_arguments(p)
     add_pwm_arguments(p)
     add_signing_argument(p)
@@ -290,6 +291,7 @@ def main(argv=None) -> int:
         lockstep_spin_s=args.lockstep_spin_us * 1e-6,
         name=args.name or args.controller,
         verbose=not args.quiet,
+        envelope=envelope_from_args(args),
     )
     tlog = None
     try:
@@ -325,9 +327,10 @@ def main(argv=None) -> int:
 
     install_stop_handlers(stop)
     mode = "lockstep" if args.lockstep else "real time"
-    shown_lv = params.get("CLSAC_LV") if args.controller == "clsac" else 0.0 if args.controller == "sac" else lv
+    shown_lv = params.get("CLSAC_LV") if args.controller == "clsac" else 0.0
+    law = f" (Lv={shown_lv:g})" if args.controller != "baseline" else " (fixed-gain PID)"  # a PID has no Lv
     print(
-        f"autopilot: {opts.name} (Lv={shown_lv:g}) {mode} at {rate:g} Hz; SITL link {fmt_endpoint(ap.sitl.local)} -> "
+        f"autopilot: {opts.name}{law} {mode} at {rate:g} Hz; SITL link {fmt_endpoint(ap.sitl.local)} -> "
         f"{fmt_endpoint(args.sitl)}; GCS link {fmt_endpoint(ap.gcs.local)} -> {fmt_endpoint(args.gcs)}{rt_note}",
         flush=True,
     )
@@ -374,6 +377,7 @@ def _print_summary(stats: dict) -> None:
         flush=True,
     )
     print(f"autopilot: events: {ev}", flush=True)
+    print(f"autopilot: envelope: {stats['controlled']['reason']}", flush=True)
     for name, c in stats["links"].items():
         print(format_counters(f"autopilot {name} link", c), flush=True)
 

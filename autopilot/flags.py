@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import argparse
 
-from autopilot.shared.cli import gain, limit_deg, nonneg_float, positive_float
+from autopilot.shared.cli import bounded, gain, limit_deg, nonneg_float, positive_float
 
 CONTROLLERS = ("sac", "clsac", "baseline")  # baseline: the fixed-gain PID of autopilot.baseline
 PFC_CHOICES = ("paper", "robust")  # the keys of autopilot.config.PFC_PRESETS (spelled out: --help needs no numpy)
@@ -64,3 +64,43 @@ def add_controller_arguments(parser: argparse.ArgumentParser) -> None:
         help="robustness option: no integral adaptation while the rudder command saturates (default: off)",
     )
     g.add_argument("--u-limit-deg", type=limit_deg, default=30.0, help="rudder command limit (default 30)")
+
+
+# The envelope's limits on the command line (autopilot.envelope.Envelope takes the share as a fraction).
+envelope_roll_deg = bounded(0.0, 180.0, "deg", lo_open=True, name="envelope_roll_deg")
+envelope_saturated_pct = bounded(0.0, 100.0, "%", lo_open=True, name="envelope_saturated_pct")
+
+
+def add_envelope_arguments(parser: argparse.ArgumentParser) -> None:
+    """``--envelope-roll``, ``--envelope-saturated``, ``--no-envelope``: the limits of a controlled flight."""
+    from autopilot.envelope import MAX_ROLL_DEG, MAX_SATURATED_SHARE
+
+    g = parser.add_argument_group("flight envelope (a flight is controlled inside it; README, Flying)")
+    g.add_argument(
+        "--envelope-roll",
+        type=envelope_roll_deg,
+        default=MAX_ROLL_DEG,
+        metavar="DEG",
+        help=f"controlled only while |roll| < DEG (default {MAX_ROLL_DEG:g})",
+    )
+    g.add_argument(
+        "--envelope-saturated",
+        type=envelope_saturated_pct,
+        default=100.0 * MAX_SATURATED_SHARE,
+        metavar="PCT",
+        help=f"controlled only if the rudder command sat at its limit in < PCT %% of the control steps "
+        f"(default {100.0 * MAX_SATURATED_SHARE:g})",
+    )
+    g.add_argument(
+        "--no-envelope",
+        dest="envelope",
+        action="store_false",
+        help="do not judge the flight against the envelope (its numbers are still measured and reported)",
+    )
+
+
+def envelope_from_args(args: argparse.Namespace):
+    """The ``autopilot.envelope.Envelope`` of the parsed envelope flags."""
+    from autopilot.envelope import Envelope
+
+    return Envelope(args.envelope_roll, args.envelope_saturated / 100.0, check=args.envelope)

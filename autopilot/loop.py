@@ -34,6 +34,7 @@ from dataclasses import dataclass, field
 
 from autopilot.clsac import GAIN_FIELDS, MODEL_FIELDS, ClSac, gains_of, model_of
 from autopilot.config import ClSacConfig
+from autopilot.envelope import Envelope, EnvelopeMonitor
 from autopilot.params import ParamTable
 from autopilot.shared.events import StatusEvents, printable
 from autopilot.shared.link import ANY_COMPONENT, UdpLink
@@ -102,6 +103,7 @@ class AutopilotOptions:
     )
     name: str = "clsac"
     verbose: bool = True
+    envelope: Envelope = Envelope()  # the limits of a controlled flight (autopilot.envelope), judged every step
 
 
 @dataclass(slots=True, kw_only=True)
@@ -262,6 +264,8 @@ class Autopilot:
         self._event = StatusEvents("autopilot", self.gcs, self.events, verbose=opts.verbose, out=self.out)
         self.event_hooks = self._event.hooks  # callables(severity, text), for each status event
         self.timing = TimingStats()
+        # "Controlled": every step flown on an attitude against the envelope; each excursion announced once.
+        self.envelope = EnvelopeMonitor(opts.envelope)
         self.stop_requested = False
         self.exit_reason = ""
         self.peer_lost = None  # the peer whose silence ended the run early ("sitl"), for the launcher's verdict
@@ -535,6 +539,7 @@ class Autopilot:
             )
             for h in self.hooks:
                 h(rec)
+        self._judge_envelope(res)
 
     def run_lockstep(self) -> int:
         opts = self.opts
@@ -694,6 +699,8 @@ class Autopilot:
                 )
                 for h in self.hooks:
                     h(rec)
+            if att.valid:  # standby before the first attitude is not flight
+                self._judge_envelope(res)
             deadline += period
             if missed:
                 timing.missed += 1
@@ -711,6 +718,15 @@ class Autopilot:
         if self.stop_requested:
             self.exit_reason = self.exit_reason or "stopped by signal"
         return 0
+
+    def _judge_envelope(self, res: StepResult) -> None:
+        """One step against the envelope (``autopilot.envelope``): measured roll, the law's limited command and the
+        limit in force.  Leaving it is announced once per excursion: a STATUSTEXT warning to the ground stations,
+        the status event hooks (Rerun's ``/autopilot/events``) and the log."""
+        text = self.envelope.add(res.t, res.phi, res.u_cmd, self.control.config.u_limit_rad)
+        if text is not None:
+            self.events["envelope_exits"] += 1
+            self._event(M.MAV_SEVERITY_WARNING, text)
 
     def _enter_failsafe(self, age: float):
         self._status_state = M.MAV_STATE_CRITICAL
@@ -794,6 +810,7 @@ class Autopilot:
             "peer_lost": self.peer_lost
             or ("gcs" if self._blocked_since is not None else None)
             or ("sitl" if self.hold_steps or not self.control.metrics.n else None),
+            "controlled": self.envelope.result().to_dict(),  # the envelope verdict (autopilot.envelope)
             "hold_steps": self.hold_steps,
             "setpoints_evicted": self.setpoints.evicted,
             "tlog_records": self.tlog.records if self.tlog is not None else 0,

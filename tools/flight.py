@@ -32,7 +32,8 @@ from dataclasses import dataclass, field, fields
 from functools import cached_property
 from pathlib import Path
 
-from autopilot.flags import CONTROLLERS, default_lv
+from autopilot.envelope import MAX_ROLL_DEG, MAX_SATURATED_SHARE, Envelope
+from autopilot.flags import CONTROLLERS, default_lv, envelope_roll_deg, envelope_saturated_pct
 from autopilot.metrics import METRIC_NAMES
 from autopilot.shared import cli
 from autopilot.shared.process import (
@@ -40,6 +41,7 @@ from autopilot.shared.process import (
     EXIT_FAILED,
     EXIT_INTERRUPTED,
     EXIT_OK,
+    EXIT_OUT_OF_ENVELOPE,
     EXIT_USAGE,
     rt_throttling,
     write_json_atomic,
@@ -102,6 +104,11 @@ class FlightConfig:
     amplitude: float = 10.0  # deg
     period: float = 10.0  # s
     u_limit_deg: float = 30.0  # rudder command limit
+    # The envelope of a controlled flight (autopilot.envelope): |roll| < envelope_roll deg and the rudder saturated
+    # in < envelope_saturated % of the steps; envelope=False (--no-envelope): not judged, only measured
+    envelope_roll: float = MAX_ROLL_DEG
+    envelope_saturated: float = 100.0 * MAX_SATURATED_SHARE
+    envelope: bool = True
     timeout: float | None = None  # wall-clock limit of the whole flight, s; default from the duration
     rt_priority: int = 0  # real time: SCHED_FIFO priority of the autopilot (SITL one below), 0 = normal
     pin: bool = False  # the autopilot alone on CPU 1; the SITL and the GCS script on CPU 0
@@ -158,6 +165,8 @@ class FlightConfig:
             ("u_limit_deg", cli.limit_deg),
             ("rt_priority", cli.rt_priority_arg),
             ("rrd_merge_max_mb", cli.bounded(0.0, 1e6, "MB")),
+            ("envelope_roll", envelope_roll_deg),
+            ("envelope_saturated", envelope_saturated_pct),
         ):
             put(name, _checked(name, check, getattr(self, name)))
         for name, check in (
@@ -266,6 +275,11 @@ class FlightConfig:
         return disturbances.to_argv({k: getattr(self, k) for k in disturbances.FLAGS})
 
     @property
+    def flight_envelope(self) -> Envelope:
+        """The envelope the flight is judged against (``autopilot.envelope.Envelope``)."""
+        return Envelope(self.envelope_roll, self.envelope_saturated / 100.0, check=self.envelope)
+
+    @property
     def lv_value(self) -> float:
         """Lv flown: the given one, else 0 for sac and 20 for clsac."""
         return self.lv if self.lv is not None else default_lv(self.controller)
@@ -301,14 +315,24 @@ class FlightConfig:
 
 @dataclass(frozen=True)
 class FlightResult:
-    """How a flight ended and what it left; ``series`` is read from the run folder on first use."""
+    """How a flight ended and what it left; ``series`` is read from the run folder on first use.
+
+    Two facts: ``completed`` (flown to the end, every process clean) and ``controlled`` (it stayed inside the
+    envelope, ``autopilot.envelope``; None when the autopilot left no verdict).  ``ok`` is both."""
 
     ok: bool
-    exit_code: int  # 0 ok, 1 a process failed, 130 interrupted or stopped by the caller
-    reason: str | None  # None when ok, else one line naming what failed
+    exit_code: int  # 0 ok, 1 a process failed, 3 out of the envelope, 130 interrupted or stopped by the caller
+    reason: str | None  # None when ok, else one line: what failed, or why the flight was not controlled
     metrics: dict  # the five METRIC_NAMES of what flew (None if nothing flew)
     out: Path
     summary: dict  # what summary.json holds
+    completed: bool = False
+    controlled: bool | None = None
+
+    @property
+    def outcome(self) -> str:
+        """ "OK", "OUT OF ENVELOPE" or "FAILED" (``summary["outcome"]``)."""
+        return outcome_of(self.exit_code)
 
     @cached_property
     def series(self) -> dict:
@@ -374,6 +398,11 @@ def child_argvs(
             cfg.name or cfg.controller,
             "--u-limit-deg",
             repr(cfg.u_limit_deg),
+            "--envelope-roll",
+            repr(cfg.envelope_roll),
+            "--envelope-saturated",
+            repr(cfg.envelope_saturated),
+            *([] if cfg.envelope else ["--no-envelope"]),
             "--duration",
             repr(cfg.duration),
             "--telemetry-rate",
@@ -588,7 +617,15 @@ def build_summary(
     ap, sitl, gcs = stats["autopilot"], stats["sitl"], stats["gcs"]
     runs = []
     if ap and ap.get("metric_samples"):
-        runs.append({"name": ap["name"], "Lv": ap["Lv"], "metrics": ap["metrics"], "steps": ap["steps"]})
+        runs.append(
+            {
+                "name": ap["name"],
+                "Lv": ap["Lv"],
+                "metrics": ap["metrics"],
+                "steps": ap["steps"],
+                "controlled": ap.get("controlled"),
+            }
+        )
     return {
         "scenario": cfg.scenario,
         "runs": runs,
@@ -613,7 +650,11 @@ def build_summary(
             "csv": cfg.csv,
         },
         "ok": exit_code == 0,
+        "outcome": outcome_of(exit_code),
         "exit_code": exit_code,
+        # flown to the end with every process clean / inside the envelope (README, "Outcomes"; autopilot.envelope)
+        "completed": exit_code in (EXIT_OK, EXIT_OUT_OF_ENVELOPE),
+        "controlled": ap.get("controlled") if ap else None,
         "failed": failed,
         "error": error,
         "exit_codes": exit_codes,
@@ -853,6 +894,25 @@ def verdict(
     return EXIT_FAILED, name, why + tail
 
 
+def outcome_of(exit_code: int) -> str:
+    """The launcher's last line for an exit status: OK (0), OUT OF ENVELOPE (3) or FAILED (anything else)."""
+    return {EXIT_OK: "OK", EXIT_OUT_OF_ENVELOPE: "OUT OF ENVELOPE"}.get(exit_code, "FAILED")
+
+
+def envelope_verdict(
+    exit_code: int, failed: str | None, error: str | None, controlled: dict | None
+) -> tuple[int, str | None, str | None]:
+    """A completed flight (``exit_code`` 0 from ``verdict``) that left the envelope is OUT OF ENVELOPE (exit 3) with
+    the autopilot's reason; one without the autopilot's verdict fails.  Any other outcome stays as it is."""
+    if exit_code != EXIT_OK:
+        return exit_code, failed, error
+    if controlled is None:
+        return EXIT_FAILED, "autopilot", "autopilot: its stats have no envelope verdict (controlled)"
+    if not controlled["ok"]:
+        return EXIT_OUT_OF_ENVELOPE, None, f"out of envelope: {controlled['reason']}"
+    return exit_code, failed, error
+
+
 # ---------------------------------------------------------------------------------------- the flight
 class Flight:
     """One flight: ``run()`` blocks and returns its ``FlightResult``; as a context manager, entering starts the
@@ -1078,6 +1138,9 @@ class Flight:
             error = f"stopped by the caller after {flown['sim_time_s']:g} s of {cfg.duration:g} s (sim time)"
         elif exit_code != EXIT_INTERRUPTED:
             exit_code, failed, error = verdict(self._children, stats, flown, exit_code, failed, error, t_end)
+            exit_code, failed, error = envelope_verdict(
+                exit_code, failed, error, (stats["autopilot"] or {}).get("controlled")
+            )
         summary = build_summary(
             cfg,
             self.out,
@@ -1101,7 +1164,10 @@ class Flight:
                 print(f"launch: flight.png not written: {type(exc).__name__}: {exc}", file=sys.stderr, flush=True)
         summary["files"]["png"] = str(png) if png else None
         write_json_atomic(self.out / "summary.json", summary)
-        self.result = FlightResult(exit_code == EXIT_OK, exit_code, error, metrics, self.out, summary)
+        controlled = (summary["controlled"] or {}).get("ok")
+        self.result = FlightResult(
+            exit_code == EXIT_OK, exit_code, error, metrics, self.out, summary, summary["completed"], controlled
+        )
 
 
 def run_lockstep(scenario, run, workdir):

@@ -15,7 +15,7 @@ import argparse
 import sys
 from pathlib import Path
 
-from autopilot.flags import add_controller_arguments
+from autopilot.flags import add_controller_arguments, add_envelope_arguments
 from autopilot.shared.cli import (
     OneLineArgumentParser,
     angle_deg,
@@ -34,13 +34,26 @@ from sitl import disturbances
 from tools.flight import MERGE_MAX_MB, PROCESSES, PROFILES, Flight, FlightConfigError, write_refusal
 
 
+def outcome_line(s: dict) -> str:
+    """The last line the launcher prints: OK (flown to the end and controlled), OUT OF ENVELOPE (flown to the end,
+    not controlled: the reason and numbers) or FAILED (what failed)."""
+    outcome = s.get("outcome") or ("OK" if s.get("ok") else "FAILED")
+    if outcome == "OK":
+        return f"OK: flown to the end; {(s.get('controlled') or {}).get('reason', 'controlled')}"
+    if outcome == "OUT OF ENVELOPE":
+        return f"OUT OF ENVELOPE: {s['controlled']['reason']}"
+    return f"FAILED: {s.get('error')}"
+
+
+def _law(s: dict) -> str:
+    """The law in the header: Lv means something for SAC and CL-SAC only, not for the fixed-gain PID."""
+    return "baseline (fixed-gain PID)" if s["controller"] == "baseline" else f"{s['controller']} (Lv={s['Lv']:g})"
+
+
 def print_summary(s: dict) -> None:
-    """The summary table of a flight's summary.json."""
+    """The summary table of a flight's summary.json, ending with its outcome (``outcome_line``)."""
     print()
-    print(
-        f"== {s['mode']} flight, {s['controller']} (Lv={s['Lv']:g}), {s['rate_hz']:g} Hz, "
-        f"{s['duration_s']:g} s: {'OK' if s['ok'] else 'FAILED: ' + str(s['error'])}"
-    )
+    print(f"== {s['mode']} flight, {_law(s)}, {s['rate_hz']:g} Hz, {s['duration_s']:g} s: {s['outcome']}")
     if s["runs"]:
         m = s["runs"][0]["metrics"]
         print(f"   {'metric':<12}{'value':>14}")
@@ -90,6 +103,9 @@ def print_summary(s: dict) -> None:
         print(f"   open the flight in the Rerun viewer: rerun {rrd}")
     if f.get("png"):
         print(f"   picture: {f['png']}")
+    c = s.get("controlled")
+    if c:
+        print(f"   envelope          {c['reason']}")
 
 
 def build_parser() -> OneLineArgumentParser:
@@ -200,6 +216,7 @@ def build_parser() -> OneLineArgumentParser:
         "--no-signing", dest="signing", action="store_false", help="fly unsigned (anyone on the host can talk to it)"
     )
     add_controller_arguments(p)
+    add_envelope_arguments(p)
     disturbances.add_arguments(p)
     return p
 
@@ -213,7 +230,8 @@ def _flag(keyword: str) -> str:
 _OWNERS = {
     "sitl": {"physics_rate", "sensor_rate", "start_time", *disturbances.FLAGS},
     "autopilot": {"rate", "lv", "pfc", "sigma_xu", "dead_zone_deg", "ki_max", "u_limit_deg", "controller"}
-    | {"freeze_when_saturated", "rt_priority", "busy_wait", "telemetry_rate", "gcs_peer"},
+    | {"freeze_when_saturated", "rt_priority", "busy_wait", "telemetry_rate", "gcs_peer"}
+    | {"envelope_roll", "envelope_saturated"},
     "gcs": {"profile", "csv", "amplitude", "period"},
 }
 
@@ -259,8 +277,9 @@ def main(argv=None) -> int:
     install_stop_handlers(flight.interrupt)
     res = flight.run()
     print_summary(res.summary)
-    if not res.ok:
-        print(f"launch: error: {res.reason} (logs in {res.out})", file=sys.stderr)
+    if not res.completed:
+        print(f"launch: error: {res.reason} (logs in {res.out})", file=sys.stderr, flush=True)
+    print(outcome_line(res.summary), flush=True)  # the last line: OK, OUT OF ENVELOPE or FAILED
     return res.exit_code
 
 

@@ -31,7 +31,9 @@ roll delayed by D samples, plus bias and white noise (``sitl.sensors`` semantics
 with probability p (the law steps on the last roll received, as the real-time autopilot does before its 100 ms
 failsafe), each SERVO_OUTPUT_RAW with probability p (the servo keeps the last command).
 
-**Bounded**: max |roll| (truth) < 60 deg and the command saturated in < 20 % of the steps.
+**Bounded**: the flight stayed inside the default envelope of ``autopilot.envelope`` (the one definition of a
+controlled flight the autopilot and the launcher use too): max |roll| (truth) < 60 deg and the command saturated
+(``autopilot.envelope.saturated``: at the limit) in < 20 % of the steps.
 """
 
 from __future__ import annotations
@@ -49,12 +51,14 @@ from pathlib import Path
 
 import numpy as np
 
+from autopilot.envelope import Envelope, saturated, within
 from autopilot.shared.cli import OneLineArgumentParser
 from autopilot.shared.process import write_json_atomic
 
 DEG = math.pi / 180.0
-BOUND_ROLL_RAD = 60.0 * DEG
-BOUND_SAT_FRACTION = 0.2
+ENVELOPE = Envelope()  # "bounded" = inside the default envelope (autopilot.envelope.within)
+BOUND_ROLL_RAD = ENVELOPE.max_roll_rad
+BOUND_SAT_FRACTION = ENVELOPE.max_saturated_share
 METRICS = ("ise_ref", "ise_crm", "energy", "tv", "max_abs_u", "max_abs_roll", "sat_fraction")
 WINDOW_S = 30.0  # the long flight reports the peak |roll| of each such window
 BLOCK = 100  # control steps of noise drawn per run at a time
@@ -344,7 +348,7 @@ def simulate(task: Task) -> dict:
             if (k + 1) % window == 0 and (k + 1) // window <= peaks.shape[1]:
                 peaks[:, (k + 1) // window - 1] = wmax
                 wmax = np.zeros(n)
-            acc["sat"] += law.saturated
+            acc["sat"] += saturated(u, umax)  # the command at its limit (autopilot.envelope)
             if rec is not None:
                 _record(rec, k * dt, um, y, law, u, x)
             # disturbance d = [v_g, p_g, r_g], held over the period
@@ -404,7 +408,7 @@ def simulate(task: Task) -> dict:
     for key in METRICS:
         v = out[key]
         out[key] = np.where(np.isfinite(v), v, np.inf)  # a diverged run scores +inf, never NaN
-    out["bounded"] = (out["max_abs_roll"] < BOUND_ROLL_RAD) & (out["sat_fraction"] < BOUND_SAT_FRACTION)
+    out["bounded"] = within(out["max_abs_roll"], out["sat_fraction"], ENVELOPE)
     out["pfc_paper"] = pfc_paper
     out["window_peak_roll"] = np.where(np.isfinite(peaks), peaks, np.inf)
     out["draws"] = {

@@ -13,6 +13,7 @@ import threading
 EXIT_OK = 0
 EXIT_FAILED = 1
 EXIT_USAGE = 2  # a bad flag: one line on stderr (OneLineArgumentParser)
+EXIT_OUT_OF_ENVELOPE = 3  # the launcher: flown to the end, but not controlled (autopilot.envelope)
 EXIT_ADDRESS_IN_USE = 98  # a UDP port was taken (errno EADDRINUSE): the launcher retries with other ports
 EXIT_INTERRUPTED = 130  # the launcher was stopped with Ctrl-C / SIGTERM
 
