@@ -86,7 +86,7 @@ def test_summary_schema_and_runs_as_in_design(full):
     assert doc["scenario"] == "paper"
     assert [(r["name"], r["Lv"]) for r in doc["runs"]] == DESIGN_RUNS
     for run in doc["runs"]:
-        assert set(run) == {"name", "Lv", "metrics"}
+        assert set(run) == {"name", "Lv", "metrics", "controlled"}
         assert isinstance(run["Lv"], float)
         assert set(run["metrics"]) == METRICS
         assert all(isinstance(v, float) and math.isfinite(v) and v >= 0 for v in run["metrics"].values())
@@ -142,6 +142,24 @@ def test_saturation_line_agrees_with_the_metrics(full):
         at_limit = run["metrics"]["max_abs_u"] >= U_LIMIT * (1 - 1e-9)
         assert said[run["name"]] == ("yes" if at_limit else "no"), run["name"]
         assert doc["saturation"][run["name"]]["saturated"] is at_limit
+
+
+def test_runs_are_judged_against_the_envelope(full, paper_runs):
+    """Each run's ``controlled`` is the launcher's envelope (|roll| < 60 deg, rudder saturated < 20 %) on its series,
+    computed here straight from the in-process series; SAC with the paper's PFC leaves it, yet the experiment exits 0
+    (a comparison of laws, not a flight that failed) and prints why."""
+    stdout, _, doc = full
+    line = next(l for l in stdout.splitlines() if l.startswith("controlled ("))
+    for run in doc["runs"]:
+        s = paper_runs[run["name"]].series
+        roll = float(np.max(np.abs(s["phi"])))
+        share = float(np.mean(np.abs(s["u"]) >= U_LIMIT * (1 - 1e-9)))
+        c = run["controlled"]
+        assert c["max_abs_roll_deg"] == pytest.approx(math.degrees(roll), rel=1e-12)
+        assert c["saturated_share"] == share and c["ok"] is (roll < math.radians(60.0) and share < 0.2)
+        assert f"{run['name']} {'yes' if c['ok'] else 'NO: ' + c['reason']}" in line
+    by = {r["name"]: r["controlled"] for r in doc["runs"]}
+    assert not by["sac"]["ok"] and by["sac"]["saturated_share"] > 0.5 and by["clsac"]["ok"]
 
 
 def test_runs_subset_default_out_no_figure(cli):

@@ -181,6 +181,19 @@ def saturation(result: RunResult, u_limit_rad: float) -> dict:
     return {"saturated": bool(sat), "fraction": None}
 
 
+def controlled(result: RunResult, u_limit_rad: float) -> dict | None:
+    """Whether the run stayed inside the default envelope (``autopilot.envelope``, the launcher's "controlled"), from
+    its series: roll and the law's limited command (``u_cmd`` over MAVLink, where ``u`` is after the PWM map).
+    None without series."""
+    s = result.series or {}
+    if s.get("t") is None or not len(s["t"]):
+        return None
+    from autopilot.envelope import judge_series
+
+    u = s["u_cmd"] if s.get("u_cmd") is not None else s["u"]
+    return judge_series(s["t"], s["phi"], u, u_limit_rad).to_dict()
+
+
 def paper_checks(results: Sequence[RunResult]) -> dict[str, dict]:
     """The paper's section 5 claims, checked against these metrics (only those the runs allow)."""
     by = {r.name: r for r in results}
@@ -270,6 +283,7 @@ def write_summary(
                 "name": r.name,
                 "Lv": float(r.lv),
                 "metrics": {k: _finite_or_none(r.metrics[k]) for k in METRIC_NAMES},
+                "controlled": controlled(r, scenario.u_limit_rad),  # inside the envelope (autopilot.envelope)
             }
             for r in results
         ],
@@ -321,6 +335,11 @@ def format_table(results: Sequence[RunResult], scenario: Scenario | None = None)
         else:
             parts.append(f"{r.name} yes ({100 * s['fraction']:.1f}% of samples)")
     lines.append(f"rudder saturated (|u| at the {scenario.u_limit_rad * DEG:g} deg limit): " + "; ".join(parts))
+    verdicts = [(r.name, controlled(r, scenario.u_limit_rad)) for r in results]
+    lines.append(
+        "controlled (|roll| < 60 deg, rudder saturated < 20 % of the flight): "
+        + "; ".join(f"{n} {'yes' if c['ok'] else 'NO: ' + c['reason']}" for n, c in verdicts if c is not None)
+    )
     checks = _check_lines(paper_checks(results))
     if checks:
         lines.append("paper's claims (section 5) against these numbers:")
