@@ -208,15 +208,55 @@ def _square(t: np.ndarray, amplitude: float = 10.0 * DEG, period: float = 10.0) 
     return np.array([square(float(x), amplitude, period) for x in t])
 
 
+# The study's numbers must not depend on the CPU.  BLAS and LAPACK (scipy's expm, the Lyapunov solve) leave last
+# bits that depend on the kernel OpenBLAS picks for the CPU (measured: 29 of 66 entries of a plant's [Phi, Gamma]
+# differ between its SkylakeX and Haswell kernels, structural zeros coming out as +-1e-17), and over a 600 s
+# saturated limit cycle such a difference grows into degrees: the long flight's clsac / moderate / robust median
+# peak of 570-600 s read 63.1 deg on one kernel and 70.7 deg on the other.  So the plant and the law are discretised
+# without BLAS (``autopilot.shared.numerics.expm``) and the one Dryden filter, which needs LAPACK (a Lyapunov solve,
+# eigen-decompositions), is rounded to a grid (``canonical``) with its factors' column signs fixed.
+CANONICAL_BITS = 32
+
+
+def canonical(a) -> np.ndarray:
+    """``a`` rounded to the grid 2**(e - CANONICAL_BITS), 2**e > max |a| (about 1e-10 of its largest entry),
+    exactly.  A difference of a few ulp of max |a| changes an entry only if it straddles a grid point
+    (probability about 1e-7 per entry); entries that should be zero and come out as +-1e-17 become 0."""
+    a = np.asarray(a, dtype=float)
+    top = float(np.max(np.abs(a))) if a.size else 0.0
+    if top == 0.0:
+        return a.copy()
+    q = math.ldexp(1.0, math.frexp(top)[1] - CANONICAL_BITS)  # a power of two: a / q and its product are exact
+    return np.round(a / q) * q
+
+
 def _plant(scales: np.ndarray, dt: float):
-    """Per-run ZOH matrices of the scaled plant with inputs [u, v_g, p_g, r_g] held over dt."""
+    """Per-run ZOH matrices of the scaled plant with inputs [u, v_g, p_g, r_g] held over dt (the same bits on any
+    CPU: ``autopilot.shared.numerics.expm``)."""
     from autopilot.shared.numerics import zoh
     from sitl.atmosphere import disturbance_matrix
     from sitl.uncertainty import PlantScales
 
     a, b = PlantScales(*scales).matrices()
-    phi, gam = zoh(a, np.hstack([b, disturbance_matrix(a)]), dt)
-    return phi, gam
+    return zoh(a, np.hstack([b, disturbance_matrix(a)]), dt)
+
+
+def _signed_columns(a: np.ndarray) -> np.ndarray:
+    """The columns of a square-root factor (L L^T = Q) with the sign that makes each one's largest entry positive:
+    an eigen-decomposition may return any sign for each eigenvector, and LAPACK's choice depends on its kernel."""
+    top = a[np.argmax(np.abs(a), axis=0), np.arange(a.shape[1])]
+    return a * np.where(top < 0, -1.0, 1.0)
+
+
+def _dryden(dt: float):
+    """The Dryden filter at the control period (MIL-HDBK-1797 "severe", scaled per run): its coefficients
+    ``ad``, ``ld``, ``c``, ``l0`` rounded by ``canonical``, the factors' column signs fixed (``_signed_columns``)."""
+    from sitl.atmosphere import DrydenConfig, DrydenFilter
+
+    dry = DrydenFilter.build(DrydenConfig.intensity("severe"), dt)
+    out = {k: canonical(getattr(dry, k)) for k in ("ad", "ld", "c", "l0")}
+    out["ld"], out["l0"] = _signed_columns(out["ld"]), _signed_columns(out["l0"])
+    return argparse.Namespace(**out)
 
 
 def _columns(values: np.ndarray):
@@ -233,7 +273,7 @@ def simulate(task: Task) -> dict:
     from scipy.special import ndtri
 
     from autopilot.batch import BatchBaseline, BatchClSac
-    from sitl.atmosphere import DrydenConfig, DrydenFilter, Gust
+    from sitl.atmosphere import Gust
 
     ctrl = get_controller(task.controller)
     conds = [get_condition(c) for c, _ in task.runs]
@@ -280,10 +320,13 @@ def simulate(task: Task) -> dict:
     # Disturbances: Dryden at T, scaled per run; gust samples; crosswind.
     dist = bool(np.any(turb > 0) or np.any(gust_amp != 0) or np.any(crosswind != 0))
     noisy = bool(np.any(turb > 0) or np.any(noise > 0) or np.any(loss > 0))
-    dry = DrydenFilter.build(DrydenConfig.intensity("severe"), dt)
+    dry = _dryden(dt)
     xt = [np.zeros(n) for _ in range(4)]
     if np.any(turb > 0):
-        x0 = np.array([dry.l0 @ z for z in turb0])  # per run, so independent of the batch
+        l0 = dry.l0  # x0 = L0 z per run (so independent of the batch), as explicit sums in a fixed order
+        x0 = np.array(
+            [[l0[r, 0] * z[0] + l0[r, 1] * z[1] + l0[r, 2] * z[2] + l0[r, 3] * z[3] for r in range(4)] for z in turb0]
+        )
         xt = [np.ascontiguousarray(x0[:, j]) for j in range(4)]
     t_all = np.arange(steps) * dt
     gust_k = np.zeros((n, 0))
