@@ -227,7 +227,7 @@ def canonical(a) -> np.ndarray:
     if top == 0.0:
         return a.copy()
     q = math.ldexp(1.0, math.frexp(top)[1] - CANONICAL_BITS)  # a power of two: a / q and its product are exact
-    return np.round(a / q) * q
+    return np.round(a / q) * q + 0.0  # + 0.0: a -0.0 (rounded from -1e-17) becomes +0.0
 
 
 def _plant(scales: np.ndarray, dt: float):
@@ -245,7 +245,7 @@ def _signed_columns(a: np.ndarray) -> np.ndarray:
     """The columns of a square-root factor (L L^T = Q) with the sign that makes each one's largest entry positive:
     an eigen-decomposition may return any sign for each eigenvector, and LAPACK's choice depends on its kernel."""
     top = a[np.argmax(np.abs(a), axis=0), np.arange(a.shape[1])]
-    return a * np.where(top < 0, -1.0, 1.0)
+    return a * np.where(top < 0, -1.0, 1.0) + 0.0  # + 0.0: no -0.0 from flipping a zero
 
 
 def _dryden(dt: float):
