@@ -50,6 +50,8 @@ def test_readme_disturbance_example_ends_out_of_envelope_with_its_numbers(tmp_pa
     assert s["ok"] is False and s["completed"] is True and s["outcome"] == "OUT OF ENVELOPE"
     assert s["flown"]["complete"] and s["runs"][0]["controlled"] == c
     assert last == f"OUT OF ENVELOPE: {c['reason']}"
+    readme = README.read_text(encoding="utf-8")
+    assert f"`{last}`" in readme  # the line the README publishes (Disturbances) is what this flight prints
     roll_deg, share, first = _independent_verdict(out)
     # the aircraft ran away: past 60 deg and the rudder at its limit far beyond 20 % of the flight
     assert roll_deg > 90.0 and share > 0.4
@@ -102,3 +104,22 @@ def test_default_realtime_paper_flight_is_ok_and_says_so_last(tmp_path):
     assert c["saturated_share"] == pytest.approx(share, abs=1e-12) and share < 0.2 and roll_deg < 60.0
     assert r.stdout.strip().splitlines()[-1] == f"OK: flown to the end; {c['reason']}"
     assert c["reason"].startswith(f"controlled: max |roll| {roll_deg:.1f} deg, rudder saturated ")
+
+
+def test_readme_flight_example_prints_why(tmp_path):
+    """The README's ``Flight`` example, run as written: the SAC flight is completed but not controlled and says
+    why; the flight left early says it was stopped (issue 17: it printed a bare ``False``)."""
+    import re
+    import subprocess
+    import sys
+
+    text = README.read_text(encoding="utf-8")
+    code = next(b for b in re.findall(r"```python\n(.*?)```", text, re.S) if "from tools.flight import Flight" in b)
+    r = subprocess.run([sys.executable, "-c", code], cwd=tmp_path, capture_output=True, text=True, timeout=300)
+    assert r.returncode == 0, r.stderr[-2000:]
+    first, second = [ln for ln in r.stdout.splitlines() if ln.startswith(("True", "False"))]
+    assert first.startswith("False True False out of envelope: |roll| reached "), first
+    assert "False True False out of envelope" in text  # what the README says it prints
+    assert re.fullmatch(r"False stopped by the caller after [\d.]+ s of 600 s \(sim time\)", second), second
+    s = _summary(tmp_path / "runs" / "x")
+    assert s["outcome"] == "OUT OF ENVELOPE" and f"out of envelope: {s['controlled']['reason']}" in first
