@@ -4,7 +4,9 @@ Real time by default, ``--lockstep`` for as fast as the machine allows (determin
 ``DIR/flight.tlog`` (every packet the autopilot sent and received, standard tlog), ``DIR/summary.json``
 (one run, metrics from what flew, plus counters, timing and file names), ``DIR/flight.rrd``, the per-step
 series and each child's output in ``DIR/<name>.log``; prints a summary table.  Ctrl-C or a failing child stops
-everything cleanly, leaves valid files and exits non-zero naming the process that failed.
+everything cleanly, leaves valid files and exits non-zero naming the process that failed.  The last line printed
+is the outcome: ``OK`` (flown to the end and controlled, exit 0), ``OUT OF ENVELOPE`` (flown to the end, but not
+controlled: ``autopilot.envelope``, exit 3) or ``FAILED`` (exit 1).
 
 A command-line front end of ``tools.flight.Flight``: each long flag is a keyword of it.
 """
