@@ -241,21 +241,30 @@ def _plant(scales: np.ndarray, dt: float):
     return zoh(a, np.hstack([b, disturbance_matrix(a)]), dt)
 
 
-def _signed_columns(a: np.ndarray) -> np.ndarray:
-    """The columns of a square-root factor (L L^T = Q) with the sign that makes each one's largest entry positive:
-    an eigen-decomposition may return any sign for each eigenvector, and LAPACK's choice depends on its kernel."""
+# The sign of each column's largest entry in the Dryden filter's square-root factors: LAPACK's choice on the machine
+# the published numbers were computed on, now fixed for every machine (an eigen-decomposition may return either
+# sign of each eigenvector, and LAPACK's choice depends on its kernel; both give the same covariance, but another
+# turbulence sequence from the same draws).
+DRYDEN_COLUMN_SIGNS = {"ld": (1.0, 1.0, 1.0, -1.0), "l0": (1.0, -1.0, 1.0, -1.0)}
+
+
+def _signed_columns(a: np.ndarray, signs) -> np.ndarray:
+    """The columns of a square-root factor (L L^T = Q, unique up to each column's sign) with the sign that gives
+    each one's largest entry the sign in ``signs``."""
     top = a[np.argmax(np.abs(a), axis=0), np.arange(a.shape[1])]
-    return a * np.where(top < 0, -1.0, 1.0) + 0.0  # + 0.0: no -0.0 from flipping a zero
+    return a * np.where(np.sign(top) == np.asarray(signs), 1.0, -1.0) + 0.0  # + 0.0: no -0.0 from a flip
 
 
 def _dryden(dt: float):
     """The Dryden filter at the control period (MIL-HDBK-1797 "severe", scaled per run): its coefficients
-    ``ad``, ``ld``, ``c``, ``l0`` rounded by ``canonical``, the factors' column signs fixed (``_signed_columns``)."""
+    ``ad``, ``ld``, ``c``, ``l0`` rounded by ``canonical``, the factors' column signs fixed
+    (``DRYDEN_COLUMN_SIGNS``)."""
     from sitl.atmosphere import DrydenConfig, DrydenFilter
 
     dry = DrydenFilter.build(DrydenConfig.intensity("severe"), dt)
     out = {k: canonical(getattr(dry, k)) for k in ("ad", "ld", "c", "l0")}
-    out["ld"], out["l0"] = _signed_columns(out["ld"]), _signed_columns(out["l0"])
+    for k, signs in DRYDEN_COLUMN_SIGNS.items():
+        out[k] = _signed_columns(out[k], signs)
     return argparse.Namespace(**out)
 
 
