@@ -123,3 +123,18 @@ def test_readme_flight_example_prints_why(tmp_path):
     assert re.fullmatch(r"False stopped by the caller after [\d.]+ s of 600 s \(sim time\)", second), second
     s = _summary(tmp_path / "runs" / "x")
     assert s["outcome"] == "OUT OF ENVELOPE" and f"out of envelope: {s['controlled']['reason']}" in first
+
+
+def test_baseline_flight_header_names_the_pid_not_an_lv(tmp_path):
+    """Lv means nothing for the fixed-gain PID (issue 17): neither the launcher's header nor the autopilot's start
+    line print one for it; they still do for CL-SAC."""
+    out = tmp_path / "pid"
+    r = run_cli(
+        "tools.launch", "--lockstep", "--controller", "baseline", "--duration", "2", "--out", str(out), "--no-png"
+    )
+    assert r.returncode == 0, r.stdout[-2000:] + r.stderr[-2000:]
+    header = next(ln for ln in r.stdout.splitlines() if ln.startswith("== "))
+    assert header == "== lockstep flight, baseline (fixed-gain PID), 100 Hz, 2 s: OK"
+    start = next(ln for ln in (out / "autopilot.log").read_text().splitlines() if ln.startswith("autopilot: baseline"))
+    assert "Lv" not in start and start.startswith("autopilot: baseline (fixed-gain PID) lockstep at 100 Hz")
+    assert r.stdout.strip().splitlines()[-1].startswith("OK: flown to the end; controlled: max |roll| ")
