@@ -82,4 +82,4 @@ def test_readme_long_flight_clsac_under_moderate_equals_a_fresh_run():
     assert len(rows) == 2
     for row in rows:
         assert row in text, row
-    assert "(10 runs under each condition, 20 per controller; each run draws its PFC" in text
+    assert "(10 runs under each condition, 20 per controller; each run draws its PFC" in " ".join(text.split())
