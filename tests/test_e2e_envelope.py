@@ -67,6 +67,7 @@ def test_readme_disturbance_example_ends_out_of_envelope_with_its_numbers(tmp_pa
     texts = [t for t in gcs["statustexts"] if t.startswith("ENVELOPE: ")]
     assert any(t.startswith("ENVELOPE: |roll| ") and t.endswith(f"at {first:.1f} s") for t in texts), texts
     assert any(t.startswith("ENVELOPE: rudder saturated ") for t in texts), texts
+    assert f"e.g. `{texts[0]}`" in " ".join(readme.split())  # the README's example of an announcement
     exits = s["events"]["autopilot"]["envelope_exits"]
     assert 1 < exits < 3000 / 10  # once per excursion, not once per step
     from tools.rrd import load_text
