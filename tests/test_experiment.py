@@ -160,6 +160,9 @@ def test_runs_are_judged_against_the_envelope(full, paper_runs):
         assert f"{run['name']} {'yes' if c['ok'] else 'NO: ' + c['reason']}" in line
     by = {r["name"]: r["controlled"] for r in doc["runs"]}
     assert not by["sac"]["ok"] and by["sac"]["saturated_share"] > 0.5 and by["clsac"]["ok"]
+    assert 2.5 < by["sac"]["first_exit_s"] < 3.5  # README: "|roll| passes 60 deg after about 3 s"
+    readme = " ".join((ROOT / "README.md").read_text(encoding="utf-8").split())
+    assert "leaves it (|roll| passes 60 deg after about 3 s), the four CL-SAC runs stay inside" in readme
 
 
 def test_runs_subset_default_out_no_figure(cli):
