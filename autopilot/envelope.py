@@ -1,4 +1,4 @@
-"""The flight envelope: what "controlled" means, defined once (docs/design.md, section 4, "Outcomes").
+"""The flight envelope: what "controlled" means, defined once (docs/design.md, section 4, "Three outcomes").
 
 A flight is **controlled** when it stayed inside the envelope for the whole flight:
 
