@@ -8,6 +8,7 @@ defaults and units (degrees and Hz as on the flags)::
 
     result = Flight(lockstep=True, duration=5, controller="sac", out="runs/x").run()
     result.ok, result.metrics["ise_ref"], result.series["phi"]
+    result.completed, result.controlled, result.reason    # True, False, "out of envelope: |roll| reached ..."
 
     with Flight(lockstep=True, duration=600, out="runs/y") as flight:   # starts the three processes
         flight.wait(timeout=2.0)                                          # fly 2 s of wall clock, then leave
