@@ -5,6 +5,7 @@ the study's batch form."""
 from __future__ import annotations
 
 import math
+import re
 import subprocess
 import sys
 
@@ -194,14 +195,8 @@ def test_nothing_is_announced_with_the_check_off_or_inside():
     ],
 )
 def test_limits_out_of_range_are_refused(kw, text):
-    with pytest.raises(EnvelopeError, match=re_escape(text)):
+    with pytest.raises(EnvelopeError, match=re.escape(text)):
         Envelope(**kw)
-
-
-def re_escape(text: str) -> str:
-    import re
-
-    return re.escape(text)
 
 
 @pytest.mark.parametrize(
