@@ -36,7 +36,7 @@ from autopilot.clsac import GAIN_FIELDS, MODEL_FIELDS, ClSac, gains_of, model_of
 from autopilot.config import ClSacConfig
 from autopilot.params import ParamTable
 from autopilot.shared.events import StatusEvents, printable
-from autopilot.shared.link import ANY_COMPONENT, UdpLink
+from autopilot.shared.link import ANY_COMPONENT, SendClock, UdpLink
 from autopilot.shared.mavlink import (
     AUTOPILOT_ID,
     AUTOPILOT_SITL_ID,
@@ -235,6 +235,7 @@ class Autopilot:
         self.control = ControlStep(ctrl_config, pwm)
         self.ctrl = self.control.law
         self.setpoints = self.control.setpoints
+        self.send_clock = SendClock()  # both links: when this process last sent anything (the verdict's evidence)
         self.sitl = UdpLink(
             "sitl",
             AUTOPILOT_SITL_ID,  # its own component: tlog readers separate it from the GCS link (1:1)
@@ -244,6 +245,7 @@ class Autopilot:
             msgids=[ATTITUDE, HEARTBEAT, STATUSTEXT],
             signing=Signing(opts.signing_key, SIGNING_LINK_SITL) if opts.signing_key else None,
             tlog=tlog,
+            send_clock=self.send_clock,
         )
         self.gcs = UdpLink(
             "gcs",
@@ -256,6 +258,7 @@ class Autopilot:
             peer_addrs=opts.gcs_peers,
             signing=Signing(opts.signing_key, SIGNING_LINK_GCS) if opts.signing_key else None,
             tlog=tlog,
+            send_clock=self.send_clock,
         )
         self.hooks: list = []  # callables(StepRecord), after each step
         self.events = Counter()  # autopilot-level counters (failsafes, setpoints, frames)
@@ -266,6 +269,8 @@ class Autopilot:
         self.exit_reason = ""
         self.peer_lost = None  # the peer whose silence ended the run early ("sitl"), for the launcher's verdict
         self.hold_steps = 0  # real time: steps flown as a hold for want of attitude (all episodes)
+        self.late_steps = 0  # real time: steps that started later than the attitude timeout after their deadline
+        self.max_lateness_s = 0.0  # real time: the latest start after a deadline
         # attitude
         self.att = _Attitude()
         self.horizon_us = -1.0  # newest scheduled setpoint time received
@@ -669,6 +674,10 @@ class Autopilot:
             slot_end = deadline + period
             missed = t_sent > slot_end
             lateness = t_wake - deadline
+            if lateness > opts.attitude_timeout_s:  # flown too late to count as flown (the verdict's "late")
+                self.late_steps += 1
+            if lateness > self.max_lateness_s:
+                self.max_lateness_s = lateness
             per = None if prev_wake is None else t_wake - prev_wake
             prev_wake = t_wake
             latency = (t_sent - att.t_rx) if att.valid else None
@@ -758,6 +767,7 @@ class Autopilot:
             return self.run_lockstep() if self.opts.lockstep else self.run_realtime()
         finally:
             self.shutdown()
+            self.send_clock.end(time.monotonic())
 
     def shutdown(self):
         try:
@@ -795,6 +805,10 @@ class Autopilot:
             or ("gcs" if self._blocked_since is not None else None)
             or ("sitl" if self.hold_steps or not self.control.metrics.n else None),
             "hold_steps": self.hold_steps,
+            "late_steps": self.late_steps,  # real time: started more than the attitude timeout after the deadline
+            "max_lateness_s": self.max_lateness_s,
+            "attitude_timeout_s": self.opts.attitude_timeout_s,
+            "sent": self.send_clock.summary(),  # monotonic clock of its sends (the verdict's evidence)
             "setpoints_evicted": self.setpoints.evicted,
             "tlog_records": self.tlog.records if self.tlog is not None else 0,
         }

@@ -22,6 +22,7 @@ from autopilot.shared.cli import (
     endpoint,
     fmt_endpoint,
     nonneg_float,
+    peer_endpoint,
     physics_rate_hz,
     pwm_from_args,
     rate_hz,
@@ -52,7 +53,7 @@ def build_parser() -> OneLineArgumentParser:
     )
     p.add_argument(
         "--autopilot",
-        type=endpoint,
+        type=peer_endpoint,
         default=None,
         metavar="HOST:PORT",
         help="the autopilot's address: only it is heard (default: the first that talks with the autopilot's IDs)",
