@@ -213,6 +213,12 @@ class Sitl:
         self.link.send_raw(raw, ATTITUDE)
         return raw
 
+    def _servo_waiting(self) -> bool:
+        """Read what waits in the socket: a servo command there (this process was stopped or starved, not the
+        autopilot) is applied on the next pass instead of a servo timeout."""
+        self.link.poll(self._on_msg)
+        return bool(self._servos) or (self._rt_faults and self.inj.down.next_due() < float("inf"))
+
     def _wait(self, timeout: float):
         if select.select(self._fds, (), (), max(0.0, timeout))[0]:
             self.link.poll(self._on_msg)
@@ -412,7 +418,12 @@ class Sitl:
                 skipped = int((now - next_sensor) / sensor_period) + 1
                 ev["sensor_slots_skipped"] += skipped
                 next_sensor += skipped * sensor_period
-            if last_servo_wall is not None and not timed_out and now - last_servo_wall > opts.servo_timeout_s:
+            if (
+                last_servo_wall is not None
+                and not timed_out
+                and now - last_servo_wall > opts.servo_timeout_s
+                and not self._servo_waiting()
+            ):
                 timed_out = True
                 catch_up(now)
                 timeout_from = ac.steps

@@ -891,14 +891,17 @@ def first_stall(children: dict, stats: dict, t_end: float) -> tuple[str, float, 
     return name, t_from, seconds, evidence
 
 
-def shortfall(flown: dict, stats: dict) -> tuple[str, str]:
-    """(process, reason) of a flight the autopilot flew to its end with steps lost: the steps flown late and the
-    time the SITL flew without a command are the autopilot's; steps flown as a hold for want of attitude, the
-    SITL's (its attitude did not arrive within the attitude timeout)."""
+def shortfall(flown: dict, stats: dict, rate: float) -> tuple[str, str]:
+    """(process, reason) of a flight the autopilot flew to its end with steps lost.  The steps flown late and the
+    time the SITL flew without a command are the autopilot's loss; the steps flown as a hold for want of attitude,
+    the SITL's (its attitude did not arrive within the attitude timeout).  The owner of the larger loss, in control
+    periods, is named (the autopilot on a tie); the reason lists every loss."""
     ap = stats.get("autopilot") or {}
     lost = flown["lost"]
     tmo = ap.get("attitude_timeout_s")
-    parts, name = [], "autopilot"
+    autopilot_loss = lost["late_steps"] + round(lost["servo_timeout_s"] * rate)
+    name = "sitl" if lost["hold_steps"] > autopilot_loss else "autopilot"
+    parts = []
     if lost["late_steps"]:
         parts.append(
             f"{lost['late_steps']} steps flown later than the attitude timeout ({tmo:g} s) after their deadline "
@@ -907,8 +910,6 @@ def shortfall(flown: dict, stats: dict) -> tuple[str, str]:
     if lost["servo_timeout_s"]:
         parts.append(f"the SITL flew {lost['servo_timeout_s']:.3g} s on its servo timeout (rudder neutral, no command)")
     if lost["hold_steps"]:
-        if not parts:
-            name = "sitl"
         parts.append(f"{lost['hold_steps']} steps flown as a hold without attitude (none fresher than {tmo:g} s)")
     if not parts:
         parts.append(f"{flown['steps_asked'] - flown['steps']} of {flown['steps_asked']} steps not flown")
@@ -969,7 +970,7 @@ def verdict(
         ]
         return EXIT_FAILED, name, "; ".join([why, *reports]) + tail
     if not complete and _ended_normally(stats.get("autopilot")) and not any(c.code not in (None, 0) for c in order):
-        name, why = shortfall(flown, stats)
+        name, why = shortfall(flown, stats, flown["steps_asked"] / flown["duration_s"])
         return EXIT_FAILED, name, why + tail
     first = order[0] if order else children.get(failed) or children["autopilot"]
     name = first.name
