@@ -926,8 +926,8 @@ def verdict(
 
     1. the process that stopped sending first (``first_stall``: a silence of ``STALL_S`` or more on its own send
        clock, or on its peers' receive clocks if it left no stats), whoever noticed it;
-    2. if the autopilot flew its run to the end but steps were lost (real time: late, holds, servo timeout), the
-       owner of the loss (``shortfall``);
+    2. if the autopilot flew its run to the end, no other process ended early or failed, but steps were lost (real
+       time: late, holds, servo timeout), the owner of the larger loss (``shortfall``);
     3. the process that exited first (a child that ends early with status 0 included), or, when it ended because
        a peer went silent (its stats' ``peer_lost``), that peer.
 
@@ -969,7 +969,8 @@ def verdict(
             if n != name and st and st.get("peer_lost") and st.get("exit_reason")
         ]
         return EXIT_FAILED, name, "; ".join([why, *reports]) + tail
-    if not complete and _ended_normally(stats.get("autopilot")) and not any(c.code not in (None, 0) for c in order):
+    ended_early = early or any(c.code not in (None, 0) for c in order)
+    if not complete and _ended_normally(stats.get("autopilot")) and not ended_early:
         name, why = shortfall(flown, stats, flown["steps_asked"] / flown["duration_s"])
         return EXIT_FAILED, name, why + tail
     first = order[0] if order else children.get(failed) or children["autopilot"]
@@ -1195,12 +1196,14 @@ class Flight:
         """The autopilot ended the flight: the GCS sees it power off; the SITL ends by itself in lockstep, unless
         the autopilot ended before the end of the run (then nobody answers the SITL's frames: it is stopped now)."""
         failed = error = None
+        interrupted = set()
         if not self.config.lockstep or not _ended_normally(_load(self.out / "autopilot.json")):
             self._children["sitl"].interrupt()
+            interrupted.add("sitl")
         for name in ("gcs", "sitl"):
             c = self._children[name]
             code = c.wait(5.0)
-            if code is None:
+            if code is None and name not in interrupted:  # (one that ignores SIGINT is killed by _end)
                 c.interrupt()
                 code = c.wait(5.0)
             if code not in (None, 0):
