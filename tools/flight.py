@@ -891,6 +891,10 @@ def first_stall(children: dict, stats: dict, t_end: float) -> tuple[str, float, 
     return name, t_from, seconds, evidence
 
 
+def _steps(n: int) -> str:
+    return f"{n} step" if n == 1 else f"{n} steps"
+
+
 def shortfall(flown: dict, stats: dict, rate: float) -> tuple[str, str]:
     """(process, reason) of a flight the autopilot flew to its end with steps lost.  The steps flown late and the
     time the SITL flew without a command are the autopilot's loss; the steps flown as a hold for want of attitude,
@@ -904,13 +908,13 @@ def shortfall(flown: dict, stats: dict, rate: float) -> tuple[str, str]:
     parts = []
     if lost["late_steps"]:
         parts.append(
-            f"{lost['late_steps']} steps flown later than the attitude timeout ({tmo:g} s) after their deadline "
+            f"{_steps(lost['late_steps'])} flown later than the attitude timeout ({tmo:g} s) after their deadline "
             f"(the latest {ap.get('max_lateness_s', 0.0):.3g} s late)"
         )
     if lost["servo_timeout_s"]:
         parts.append(f"the SITL flew {lost['servo_timeout_s']:.3g} s on its servo timeout (rudder neutral, no command)")
     if lost["hold_steps"]:
-        parts.append(f"{lost['hold_steps']} steps flown as a hold without attitude (none fresher than {tmo:g} s)")
+        parts.append(f"{_steps(lost['hold_steps'])} flown as a hold without attitude (none fresher than {tmo:g} s)")
     if not parts:
         parts.append(f"{flown['steps_asked'] - flown['steps']} of {flown['steps_asked']} steps not flown")
     return name, f"{name}: " + "; ".join(parts)
