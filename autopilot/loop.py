@@ -269,8 +269,10 @@ class Autopilot:
         self.exit_reason = ""
         self.peer_lost = None  # the peer whose silence ended the run early ("sitl"), for the launcher's verdict
         self.hold_steps = 0  # real time: steps flown as a hold for want of attitude (all episodes)
-        self.late_steps = 0  # real time: steps that started later than the attitude timeout after their deadline
-        self.max_lateness_s = 0.0  # real time: the latest start after a deadline
+        # real time: steps that came later than the attitude timeout (after their deadline, or after the step
+        # before: a stall after a send moves the grid on, so only the gap shows it), and the worst of either
+        self.late_steps = 0
+        self.max_lateness_s = 0.0
         # attitude
         self.att = _Attitude()
         self.horizon_us = -1.0  # newest scheduled setpoint time received
@@ -674,11 +676,12 @@ class Autopilot:
             slot_end = deadline + period
             missed = t_sent > slot_end
             lateness = t_wake - deadline
-            if lateness > opts.attitude_timeout_s:  # flown too late to count as flown (the verdict's "late")
-                self.late_steps += 1
-            if lateness > self.max_lateness_s:
-                self.max_lateness_s = lateness
             per = None if prev_wake is None else t_wake - prev_wake
+            late = max(lateness, 0.0 if per is None else per - period)
+            if late > opts.attitude_timeout_s:  # flown too late to count as flown (the verdict's "late")
+                self.late_steps += 1
+            if late > self.max_lateness_s:
+                self.max_lateness_s = late
             prev_wake = t_wake
             latency = (t_sent - att.t_rx) if att.valid else None
             timing.add(per, lateness, t_sent - t_wake, latency)

@@ -895,6 +895,12 @@ def _steps(n: int) -> str:
     return f"{n} step" if n == 1 else f"{n} steps"
 
 
+def _stall_reason(children: dict, stall: tuple) -> str:
+    name, t_from, seconds, evidence = stall
+    t0 = min(c.started for c in children.values())
+    return f"{name} stalled: sent nothing for {seconds:.1f} s from {t_from - t0:.1f} s after start ({evidence})"
+
+
 def shortfall(flown: dict, stats: dict, rate: float) -> tuple[str, str]:
     """(process, reason) of a flight the autopilot flew to its end with steps lost.  The steps flown late and the
     time the SITL flew without a command are the autopilot's loss; the steps flown as a hold for want of attitude,
@@ -908,7 +914,7 @@ def shortfall(flown: dict, stats: dict, rate: float) -> tuple[str, str]:
     parts = []
     if lost["late_steps"]:
         parts.append(
-            f"{_steps(lost['late_steps'])} flown later than the attitude timeout ({tmo:g} s) after their deadline "
+            f"{_steps(lost['late_steps'])} flown later than the attitude timeout ({tmo:g} s) "
             f"(the latest {ap.get('max_lateness_s', 0.0):.3g} s late)"
         )
     if lost["servo_timeout_s"]:
@@ -928,10 +934,10 @@ def verdict(
     OK only if every step asked was flown (lockstep: and the SITL flew as many frames), every process exited with
     status 0 and wrote its stats.  Otherwise the culprit comes from evidence, in this order:
 
-    1. the process that stopped sending first (``first_stall``: a silence of ``STALL_S`` or more on its own send
+    1. if the autopilot flew its run to the end, no other process ended early or failed, but steps were lost (real
+       time: late, holds, servo timeout), the owner of the larger loss (``shortfall``; a stall is noted);
+    2. the process that stopped sending first (``first_stall``: a silence of ``STALL_S`` or more on its own send
        clock, or on its peers' receive clocks if it left no stats), whoever noticed it;
-    2. if the autopilot flew its run to the end, no other process ended early or failed, but steps were lost (real
-       time: late, holds, servo timeout), the owner of the larger loss (``shortfall``);
     3. the process that exited first (a child that ends early with status 0 included), or, when it ended because
        a peer went silent (its stats' ``peer_lost``), that peer.
 
@@ -963,20 +969,20 @@ def verdict(
     if not order and failed is not None and failed not in children:  # the launcher itself ended it (wall clock)
         return exit_code, failed, f"{error}{tail}"
     stall = first_stall(children, stats, t_end)
+    stalled = None if stall is None else _stall_reason(children, stall)
+    ended_early = early or any(c.code not in (None, 0) for c in order)
+    if not complete and _ended_normally(stats.get("autopilot")) and not ended_early:
+        # every process flew to the end: what failed the flight is the steps lost (a stall, if any, is noted)
+        name, why = shortfall(flown, stats, flown["steps_asked"] / flown["duration_s"])
+        return EXIT_FAILED, name, "; ".join([why, *([stalled] if stalled else [])]) + tail
     if stall is not None:
-        name, t_from, seconds, evidence = stall
-        t0 = min(c.started for c in children.values())
-        why = f"{name} stalled: sent nothing for {seconds:.1f} s from {t_from - t0:.1f} s after start ({evidence})"
+        name = stall[0]
         reports = [
             f"{n} reports: {st['exit_reason']}"
             for n, st in stats.items()
             if n != name and st and st.get("peer_lost") and st.get("exit_reason")
         ]
-        return EXIT_FAILED, name, "; ".join([why, *reports]) + tail
-    ended_early = early or any(c.code not in (None, 0) for c in order)
-    if not complete and _ended_normally(stats.get("autopilot")) and not ended_early:
-        name, why = shortfall(flown, stats, flown["steps_asked"] / flown["duration_s"])
-        return EXIT_FAILED, name, why + tail
+        return EXIT_FAILED, name, "; ".join([stalled, *reports]) + tail
     first = order[0] if order else children.get(failed) or children["autopilot"]
     name = first.name
     seen = {name}
