@@ -371,7 +371,8 @@ def _print_summary(stats: dict) -> None:
     print(
         f"autopilot: timing: jitter {f(t['period_jitter_ms'])}; compute {f(t['compute_ms'])}; "
         f"{'in-to-out latency' if lockstep else 'attitude age at servo out'} {f(t['latency_ms'])}; "
-        f"missed deadlines {t['missed_deadlines']}",
+        f"missed deadlines {t['missed_deadlines']}"
+        + ("" if lockstep else f"; steps later than the attitude timeout {stats['late_steps']}"),
         flush=True,
     )
     print(f"autopilot: events: {ev}", flush=True)

@@ -221,7 +221,8 @@ def main(argv=None) -> int:
     rtf = f"{stats['rtf']:.1f}x" if stats["rtf"] else "-"
     print(
         f"sitl: {stats['frames']} frames, sim {stats['sim_time_s']:.3f} s in {stats['wall_s']:.3f} s wall "
-        f"(real-time factor {rtf}); {stats['exit_reason']}; events {stats['events']}",
+        f"(real-time factor {rtf}); {stats['exit_reason']}; events {stats['events']}"
+        + (f"; {stats['servo_timeout_s']:.3f} s flown on the servo timeout" if stats["servo_timeout_s"] else ""),
         flush=True,
     )
     print(format_counters("sitl link", stats["link"]), flush=True)
