@@ -112,8 +112,8 @@ def test_sitl_counts_the_sim_time_flown_on_its_servo_timeout(tmp_path):
     s = json.loads(stats.read_text())
     assert s["events"]["servo_timeouts"] == 1
     assert t_back - t_neutral - 0.25 <= s["servo_timeout_s"] <= t_back - t_neutral + 0.1, (s, t_back - t_neutral)
-    assert s["servo_timeout_open_s"] == 0.0 and 0.0 < s["first_servo_sim_s"] < s["sim_time_s"] - 1.0
-    assert s["sent"]["sends"] > 100 and s["sent"]["longest_gap_s"] < 0.1  # the SITL itself never stopped
+    assert s["servo_timeout_open_s"] == 0.0 and 0.0 <= s["first_servo_sim_s"] < s["sim_time_s"] - 1.0
+    assert s["sent"]["sends"] > 100 and s["sent"]["longest_gap_s"] < STALL_S  # the SITL itself never stalled
 
 
 # ---------------------------------------------------------------------------------------- blame from evidence
