@@ -71,6 +71,7 @@ _TELEMETRY_IDS = (ATTITUDE, M.MAVLINK_MSG_ID_ATTITUDE_TARGET, SERVO_OUTPUT_RAW)
 _SPIN_TIGHT_S = 50e-6
 SITL_RESTART_MS = 1000  # real time: an ATTITUDE this far behind the one held is a restarted SITL's clock
 ATTITUDE_AHEAD_MS = 50.0  # real time: an ATTITUDE this far ahead of the held one's clock is rejected
+SELF_STALL_S = 1.0  # lockstep: a pass of the loop this long means the autopilot itself did not run
 TIMING_SAMPLES_MAX = 100_000  # per timing series: a uniform sample of all steps (reservoir), for the percentiles
 
 
@@ -552,6 +553,7 @@ class Autopilot:
         last_warn = now
         silent_reported = False
         lockstep_spin = opts.lockstep_spin_s
+        prev_pass = now
         while not self.stop_requested and not self.finished:
             if lockstep_spin > 0:
                 # Busy-poll briefly before sleeping: the SITL's next frame usually comes within tens of us,
@@ -583,7 +585,11 @@ class Autopilot:
                         file=self.out,
                         flush=True,
                     )
-            if self.att.valid:
+            # A pass takes ~20 ms: one of a second or more means this process did not run (stopped, starved), and
+            # what the SITL sent meanwhile may still wait in the socket: its silence is judged after another look.
+            own_stall = now - prev_pass >= SELF_STALL_S
+            prev_pass = now
+            if self.att.valid and not own_stall:
                 self._status_state = M.MAV_STATE_ACTIVE
                 silent = now - self.sitl.last_rx_wall
                 if silent > 2.0 and not silent_reported and self.pending_frame is None:
