@@ -257,3 +257,19 @@ def test_the_first_to_stop_sending_is_named_not_the_first_to_exit():
     assert (name, t_from) == ("sitl", 12.0) and seconds == pytest.approx(8.2) and "autopilot" in evidence
     stats["autopilot"]["links"]["sitl"]["last_rx_mono"] = 20.2 - STALL_S + 0.01  # heard until just under STALL_S
     assert first_stall(children, stats, t_end=20.2) is None
+
+
+def test_send_clock_keeps_the_longest_gap_and_the_tail_to_the_end():
+    """The longest interval without a send, between two sends or from the last one to the end of the run loop."""
+    from autopilot.shared.link import SendClock
+
+    clock = SendClock()
+    for t in (10.0, 10.01, 10.02, 13.52, 13.53):  # a 3.5 s gap from 10.02
+        clock.tick(t)
+    assert (clock.gap_s, clock.gap_from, clock.sends, clock.first) == (pytest.approx(3.5), 10.02, 5, 10.0)
+    clock.end(15.0)  # 1.47 s to the end: shorter, the 3.5 s gap stays
+    assert clock.gap_s == pytest.approx(3.5)
+    clock.end(20.0)  # stopped after its last send until its end: 6.47 s from 13.53
+    s = clock.summary()
+    assert s["longest_gap_s"] == pytest.approx(6.47) and s["longest_gap_from_mono"] == 13.53
+    assert s["last_mono"] == 13.53 and s["ended_mono"] == 20.0
