@@ -25,6 +25,7 @@ from autopilot.shared.cli import (
     fmt_endpoint,
     limit_deg,
     nonneg_float,
+    peer_endpoint,
     pwm_from_args,
     rate_hz,
     signing_key_from_args,
@@ -49,7 +50,7 @@ def build_parser() -> OneLineArgumentParser:
     p = OneLineArgumentParser(prog="python -m autopilot", description=__doc__.split("\n\n")[0])
     p.add_argument(
         "--sitl",
-        type=endpoint,
+        type=peer_endpoint,
         default=("127.0.0.1", 14560),
         metavar="HOST:PORT",
         help="where the SITL listens (default 127.0.0.1:14560)",
@@ -63,7 +64,7 @@ def build_parser() -> OneLineArgumentParser:
     )
     p.add_argument(
         "--gcs",
-        type=endpoint,
+        type=peer_endpoint,
         default=("127.0.0.1", 14550),
         metavar="HOST:PORT",
         help="where the GCS stream goes until a GCS talks to us (default 127.0.0.1:14550)",
@@ -87,7 +88,7 @@ def build_parser() -> OneLineArgumentParser:
     p.add_argument(
         "--gcs-peer",
         action="append",
-        type=endpoint,
+        type=peer_endpoint,
         default=[],
         metavar="HOST:PORT",
         help="a ground station admitted from the start (repeatable); then, without signing, nobody else is "
@@ -373,7 +374,8 @@ def _print_summary(stats: dict) -> None:
     print(
         f"autopilot: timing: jitter {f(t['period_jitter_ms'])}; compute {f(t['compute_ms'])}; "
         f"{'in-to-out latency' if lockstep else 'attitude age at servo out'} {f(t['latency_ms'])}; "
-        f"missed deadlines {t['missed_deadlines']}",
+        f"missed deadlines {t['missed_deadlines']}"
+        + ("" if lockstep else f"; steps later than the attitude timeout {stats['late_steps']}"),
         flush=True,
     )
     print(f"autopilot: events: {ev}", flush=True)

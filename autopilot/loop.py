@@ -37,7 +37,7 @@ from autopilot.config import ClSacConfig
 from autopilot.envelope import Envelope, EnvelopeMonitor
 from autopilot.params import ParamTable
 from autopilot.shared.events import StatusEvents, printable
-from autopilot.shared.link import ANY_COMPONENT, UdpLink
+from autopilot.shared.link import ANY_COMPONENT, SendClock, UdpLink
 from autopilot.shared.mavlink import (
     AUTOPILOT_ID,
     AUTOPILOT_SITL_ID,
@@ -72,6 +72,7 @@ _TELEMETRY_IDS = (ATTITUDE, M.MAVLINK_MSG_ID_ATTITUDE_TARGET, SERVO_OUTPUT_RAW)
 _SPIN_TIGHT_S = 50e-6
 SITL_RESTART_MS = 1000  # real time: an ATTITUDE this far behind the one held is a restarted SITL's clock
 ATTITUDE_AHEAD_MS = 50.0  # real time: an ATTITUDE this far ahead of the held one's clock is rejected
+SELF_STALL_S = 1.0  # lockstep: a pass of the loop this long means the autopilot itself did not run
 TIMING_SAMPLES_MAX = 100_000  # per timing series: a uniform sample of all steps (reservoir), for the percentiles
 
 
@@ -237,6 +238,7 @@ class Autopilot:
         self.control = ControlStep(ctrl_config, pwm)
         self.ctrl = self.control.law
         self.setpoints = self.control.setpoints
+        self.send_clock = SendClock()  # both links: when this process last sent anything (the verdict's evidence)
         self.sitl = UdpLink(
             "sitl",
             AUTOPILOT_SITL_ID,  # its own component: tlog readers separate it from the GCS link (1:1)
@@ -246,6 +248,7 @@ class Autopilot:
             msgids=[ATTITUDE, HEARTBEAT, STATUSTEXT],
             signing=Signing(opts.signing_key, SIGNING_LINK_SITL) if opts.signing_key else None,
             tlog=tlog,
+            send_clock=self.send_clock,
         )
         self.gcs = UdpLink(
             "gcs",
@@ -258,6 +261,7 @@ class Autopilot:
             peer_addrs=opts.gcs_peers,
             signing=Signing(opts.signing_key, SIGNING_LINK_GCS) if opts.signing_key else None,
             tlog=tlog,
+            send_clock=self.send_clock,
         )
         self.hooks: list = []  # callables(StepRecord), after each step
         self.events = Counter()  # autopilot-level counters (failsafes, setpoints, frames)
@@ -270,6 +274,10 @@ class Autopilot:
         self.exit_reason = ""
         self.peer_lost = None  # the peer whose silence ended the run early ("sitl"), for the launcher's verdict
         self.hold_steps = 0  # real time: steps flown as a hold for want of attitude (all episodes)
+        # real time: steps that came later than the attitude timeout (after their deadline, or after the step
+        # before: a stall after a send moves the grid on, so only the gap shows it), and the worst of either
+        self.late_steps = 0
+        self.max_lateness_s = 0.0
         # attitude
         self.att = _Attitude()
         self.horizon_us = -1.0  # newest scheduled setpoint time received
@@ -550,6 +558,7 @@ class Autopilot:
         last_warn = now
         silent_reported = False
         lockstep_spin = opts.lockstep_spin_s
+        prev_pass = now
         while not self.stop_requested and not self.finished:
             if lockstep_spin > 0:
                 # Busy-poll briefly before sleeping: the SITL's next frame usually comes within tens of us,
@@ -581,7 +590,11 @@ class Autopilot:
                         file=self.out,
                         flush=True,
                     )
-            if self.att.valid:
+            # A pass takes ~20 ms: one of a second or more means this process did not run (stopped, starved), and
+            # what the SITL sent meanwhile may still wait in the socket: its silence is judged after another look.
+            own_stall = now - prev_pass >= SELF_STALL_S
+            prev_pass = now
+            if self.att.valid and not own_stall:
                 self._status_state = M.MAV_STATE_ACTIVE
                 silent = now - self.sitl.last_rx_wall
                 if silent > 2.0 and not silent_reported and self.pending_frame is None:
@@ -675,6 +688,11 @@ class Autopilot:
             missed = t_sent > slot_end
             lateness = t_wake - deadline
             per = None if prev_wake is None else t_wake - prev_wake
+            late = max(lateness, 0.0 if per is None else per - period)
+            if late > opts.attitude_timeout_s:  # flown too late to count as flown (the verdict's "late")
+                self.late_steps += 1
+            if late > self.max_lateness_s:
+                self.max_lateness_s = late
             prev_wake = t_wake
             latency = (t_sent - att.t_rx) if att.valid else None
             timing.add(per, lateness, t_sent - t_wake, latency)
@@ -774,6 +792,7 @@ class Autopilot:
             return self.run_lockstep() if self.opts.lockstep else self.run_realtime()
         finally:
             self.shutdown()
+            self.send_clock.end(time.monotonic())
 
     def shutdown(self):
         try:
@@ -812,6 +831,10 @@ class Autopilot:
             or ("sitl" if self.hold_steps or not self.control.metrics.n else None),
             "controlled": self.envelope.result().to_dict(),  # the envelope verdict (autopilot.envelope)
             "hold_steps": self.hold_steps,
+            "late_steps": self.late_steps,  # real time: started more than the attitude timeout after the deadline
+            "max_lateness_s": self.max_lateness_s,
+            "attitude_timeout_s": self.opts.attitude_timeout_s,
+            "sent": self.send_clock.summary(),  # monotonic clock of its sends (the verdict's evidence)
             "setpoints_evicted": self.setpoints.evicted,
             "tlog_records": self.tlog.records if self.tlog is not None else 0,
         }

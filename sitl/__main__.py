@@ -22,6 +22,7 @@ from autopilot.shared.cli import (
     endpoint,
     fmt_endpoint,
     nonneg_float,
+    peer_endpoint,
     physics_rate_hz,
     pwm_from_args,
     rate_hz,
@@ -52,7 +53,7 @@ def build_parser() -> OneLineArgumentParser:
     )
     p.add_argument(
         "--autopilot",
-        type=endpoint,
+        type=peer_endpoint,
         default=None,
         metavar="HOST:PORT",
         help="the autopilot's address: only it is heard (default: the first that talks with the autopilot's IDs)",
@@ -220,7 +221,8 @@ def main(argv=None) -> int:
     rtf = f"{stats['rtf']:.1f}x" if stats["rtf"] else "-"
     print(
         f"sitl: {stats['frames']} frames, sim {stats['sim_time_s']:.3f} s in {stats['wall_s']:.3f} s wall "
-        f"(real-time factor {rtf}); {stats['exit_reason']}; events {stats['events']}",
+        f"(real-time factor {rtf}); {stats['exit_reason']}; events {stats['events']}"
+        + (f"; {stats['servo_timeout_s']:.3f} s flown on the servo timeout" if stats["servo_timeout_s"] else ""),
         flush=True,
     )
     print(format_counters("sitl link", stats["link"]), flush=True)

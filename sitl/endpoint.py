@@ -131,6 +131,12 @@ class Sitl:
         self.sim_t0 = 0.0
         self.exit_reason = ""
         self.peer_lost = None  # the peer whose silence ended the run ("autopilot"), for the launcher's verdict
+        # real time: sim time flown on the servo timeout (rudder neutral, no command from the autopilot), in the
+        # episodes that ended (the autopilot came back) and in the one still on when the run ended
+        self.servo_timeout_s = 0.0
+        self.servo_timeout_open_s = 0.0
+        self.first_servo_sim_s = None  # real time: sim time when the first servo command was applied ...
+        self.last_servo_sim_s = None  # ... and the last one
         self._servos: list = []  # servo messages received, not yet consumed: (time_usec, msg, t_rx)
         self._fds = [self.link.sock]  # select(2): microsecond timeouts (epoll rounds up to milliseconds)
         self._pk_att = self.link.fast_packer(M.MAVLink_attitude_message)
@@ -206,6 +212,12 @@ class Sitl:
         )
         self.link.send_raw(raw, ATTITUDE)
         return raw
+
+    def _servo_waiting(self) -> bool:
+        """Read what waits in the socket: a servo command there (this process was stopped or starved, not the
+        autopilot) is applied on the next pass instead of a servo timeout."""
+        self.link.poll(self._on_msg)
+        return bool(self._servos) or (self._rt_faults and self.inj.down.next_due() < float("inf"))
 
     def _wait(self, timeout: float):
         if select.select(self._fds, (), (), max(0.0, timeout))[0]:
@@ -353,6 +365,7 @@ class Sitl:
         last_usec = None
         last_servo_wall = None
         timed_out = False
+        timeout_from = 0  # physics step at which the current servo timeout began
         self.wall_first_frame = t0
         n_frames = int(round(opts.duration_s * opts.sensor_rate_hz)) if opts.duration_s > 0 else 0
 
@@ -380,6 +393,11 @@ class Sitl:
                     pwm = self._servo_pwm(msg)
                     if pwm is not None:
                         catch_up(t_rx)  # the old command held up to the moment the new one arrived
+                        if timed_out:
+                            self.servo_timeout_s += (ac.steps - timeout_from) / phys_rate
+                        if last_usec is None:
+                            self.first_servo_sim_s = ac.steps / phys_rate  # as sim_time_s: from the start
+                        self.last_servo_sim_s = ac.steps / phys_rate
                         last_usec = usec
                         last_servo_wall = t_rx
                         self.pwm_applied = pwm
@@ -400,9 +418,15 @@ class Sitl:
                 skipped = int((now - next_sensor) / sensor_period) + 1
                 ev["sensor_slots_skipped"] += skipped
                 next_sensor += skipped * sensor_period
-            if last_servo_wall is not None and not timed_out and now - last_servo_wall > opts.servo_timeout_s:
+            if (
+                last_servo_wall is not None
+                and not timed_out
+                and now - last_servo_wall > opts.servo_timeout_s
+                and not self._servo_waiting()
+            ):
                 timed_out = True
                 catch_up(now)
+                timeout_from = ac.steps
                 self.u = 0.0
                 self.pwm_applied = self.pwm.neutral
                 ev["servo_timeouts"] += 1
@@ -417,6 +441,8 @@ class Sitl:
             if n_frames and self.frames >= n_frames:
                 self.exit_reason = "end of run (duration reached)"
                 break
+        if timed_out:
+            self.servo_timeout_open_s = (ac.steps - timeout_from) / phys_rate
         if self.stop_requested:
             self.exit_reason = self.exit_reason or "stopped by signal"
         return 0
@@ -424,7 +450,10 @@ class Sitl:
     def run(self) -> int:
         gc.collect()
         gc.freeze()  # the long-lived heap (numpy, scipy) stays out of the cyclic collector's full passes
-        return self.run_lockstep() if self.opts.lockstep else self.run_realtime()
+        try:
+            return self.run_lockstep() if self.opts.lockstep else self.run_realtime()
+        finally:
+            self.link.send_clock.end(time.monotonic())
 
     def stats(self) -> dict:
         wall = (
@@ -447,6 +476,13 @@ class Sitl:
             "link": self.link.counters(),
             "exit_reason": self.exit_reason,
             "peer_lost": self.peer_lost,
+            # real time: sim s flown on the servo timeout (rudder neutral), ended episodes and the one open at the end
+            "servo_timeout_s": self.servo_timeout_s,
+            "servo_timeout_open_s": self.servo_timeout_open_s,
+            "servo_timeout_s_limit": self.opts.servo_timeout_s,
+            "first_servo_sim_s": self.first_servo_sim_s,
+            "last_servo_sim_s": self.last_servo_sim_s,
+            "sent": self.link.send_clock.summary(),  # monotonic clock of its sends (the verdict's evidence)
             **({"disturbances": self.inj.stats()} if self.inj is not None else {}),
         }
 

@@ -33,6 +33,7 @@ from autopilot.shared.cli import (
     duration_or_0,
     endpoint,
     fmt_endpoint,
+    peer_endpoint,
     positive_float,
     signing_key_from_args,
     timeout_s,
@@ -52,6 +53,7 @@ from autopilot.shared.signing import SIGNING_LINK_GROUND, Signing
 from tools.profiles import Profile
 
 M = mavlink
+SELF_STALL_S = 1.0  # one pass of the loop takes ~20 ms: a pass this long means this process did not run
 CLOCK_RESTART_MS = 1000  # the vehicle's sim time this far behind the one held: its clock restarted
 CLOCK_AHEAD_MS = 1000  # the bound on a sim time ahead of the clock held (see Gcs._sim)
 
@@ -120,6 +122,8 @@ class Gcs:
         self.exit_reason = ""
         self.peer_lost = None
         self.clock_restarts = 0
+        self.own_stalls = 0
+        self.own_stall_max_s = 0.0
 
     def _on_msg(self, msg, t_rx):
         mid = msg.get_msgId()
@@ -224,6 +228,12 @@ class Gcs:
         self.next_point_rel_ms = end_rel + 1
 
     def run(self) -> int:
+        try:
+            return self._run()
+        finally:
+            self.link.send_clock.end(time.monotonic())
+
+    def _run(self) -> int:
         o = self.opts
         perf = time.perf_counter
         t_start = perf()
@@ -237,10 +247,18 @@ class Gcs:
             file=self.out,
             flush=True,
         )
+        prev = perf()
         while not self.stop_requested:
             for _ in self.sel.select(0.02):
                 self.link.poll(self._on_msg)
             now = perf()
+            if now - prev >= SELF_STALL_S:
+                # This process did not run (stopped, starved): what the vehicle sent meanwhile may still wait in
+                # the socket, so its silence is not judged before another look (never "vehicle lost" for our stall).
+                self._own_stall(now - prev)
+                prev = now
+                continue
+            prev = now
             if not self.vehicle:
                 if o.wait_timeout and now - t_start > o.wait_timeout:
                     self._end(f"no vehicle HEARTBEAT on {fmt_endpoint(self.link.local)} after {o.wait_timeout:g} s")
@@ -288,6 +306,13 @@ class Gcs:
         self.exit_reason = "stopped by signal"
         return 0
 
+    def _own_stall(self, gap: float) -> None:
+        self.own_stalls += 1
+        self.own_stall_max_s = max(self.own_stall_max_s, gap)
+        print(
+            f"gcs: this script did not run for {gap:.1f} s (stopped or starved); reading on", file=self.out, flush=True
+        )
+
     def _end(self, reason: str) -> None:
         """The vehicle went silent or never came: the launcher's verdict blames it (``peer_lost``)."""
         self.exit_reason = reason
@@ -301,6 +326,9 @@ class Gcs:
             "clock_restarts": self.clock_restarts,
             "exit_reason": self.exit_reason,
             "peer_lost": self.peer_lost,
+            "own_stalls": self.own_stalls,  # its own loop did not run for SELF_STALL_S or more (stopped, starved)
+            "own_stall_max_s": self.own_stall_max_s,
+            "sent": self.link.send_clock.summary(),  # monotonic clock of its sends (the verdict's evidence)
             "statustexts": self.statustexts[-50:],
             "link": self.link.counters(),
         }
@@ -317,7 +345,7 @@ def build_parser() -> OneLineArgumentParser:
     )
     p.add_argument(
         "--vehicle",
-        type=endpoint,
+        type=peer_endpoint,
         default=None,
         metavar="HOST:PORT",
         help="the vehicle's address: only it is heard (default: the first that talks with the vehicle's IDs)",

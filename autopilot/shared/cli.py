@@ -48,6 +48,15 @@ def endpoint(text: str) -> tuple[str, int]:
     return host, p
 
 
+def peer_endpoint(text: str) -> tuple[str, int]:
+    """``HOST:PORT`` of a peer to send to (port 1..65535): port 0 means "any port" only where a socket is bound,
+    and nothing listens on it."""
+    host, port = endpoint(text)
+    if port == 0:
+        raise argparse.ArgumentTypeError(f"a peer's port must be in 1..65535 (0 only binds), got 0 in {text!r}")
+    return host, port
+
+
 def positive_float(text: str) -> float:
     v = _number(text)
     if not (math.isfinite(v) and v > 0):

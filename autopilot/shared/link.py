@@ -108,6 +108,52 @@ def resolve(host_port, what: str) -> tuple[str, int]:
     return infos[0][4][0], int(port)
 
 
+class SendClock:
+    """When a process last sent anything, and the longest time it sent nothing, on ``time.monotonic()``
+    (CLOCK_MONOTONIC: one clock for every process of the machine, so the launcher can compare them).
+
+    Shared by the links of one process (``UdpLink(send_clock=...)``): a process that is stopped (SIGSTOP),
+    starved or hung sends on none of them, and its own clock shows the gap when it runs again.  That is the
+    evidence of who stopped sending first (docs/design.md, "Trust model", honest outcomes)."""
+
+    __slots__ = ("last", "first", "sends", "gap_s", "gap_from", "ended")
+
+    def __init__(self):
+        self.last: float | None = None  # monotonic time of the last send attempt
+        self.first: float | None = None
+        self.sends = 0
+        self.gap_s = 0.0  # the longest interval between two sends ...
+        self.gap_from: float | None = None  # ... and when it began (monotonic)
+        self.ended: float | None = None  # when the process's run loop ended (``end``)
+
+    def tick(self, now: float) -> None:
+        last = self.last
+        if last is None:
+            self.first = now
+        elif now - last > self.gap_s:
+            self.gap_s, self.gap_from = now - last, last
+        self.last = now
+        self.sends += 1
+
+    def end(self, now: float) -> None:
+        """The run loop ended: the time since the last send counts as a gap too (a process stopped until its end
+        may never send again)."""
+        self.ended = now
+        if self.last is not None and now - self.last > self.gap_s:
+            self.gap_s, self.gap_from = now - self.last, self.last
+
+    def summary(self) -> dict:
+        return {
+            "ended_mono": self.ended,
+            "first_mono": self.first,
+            "last_mono": self.last,
+            "sends": self.sends,
+            "longest_gap_s": self.gap_s,
+            "longest_gap_from_mono": self.gap_from,
+            "stats_mono": time.monotonic(),  # when this was taken: the clock of the process's end
+        }
+
+
 class UdpLink:
     """A MAVLink endpoint on one UDP socket.
 
@@ -134,8 +180,10 @@ class UdpLink:
         signing=None,
         tlog=None,
         rcvbuf: int = 4 << 20,
+        send_clock: SendClock | None = None,
     ):
         self.name = name
+        self.send_clock = send_clock if send_clock is not None else SendClock()
         self.signing = signing
         self.mav = mavlink.MAVLink(None, src[0], src[1])
         if signing is not None:
@@ -237,6 +285,7 @@ class UdpLink:
 
     def _sendto(self, targets, data: bytes, msgids, bufs) -> bool:
         ok = False
+        self.send_clock.tick(time.monotonic())  # an attempt counts: the process is alive and sending
         for addr in targets:
             try:
                 self.sock.sendto(data, addr)
@@ -399,6 +448,8 @@ class UdpLink:
             "rx_packets": self.rx_packets,
             "tx_packets": self.tx_packets,
             "tx_errors": self.tx_errors,
+            # monotonic time of the last packet accepted from the peer (perf_counter is CLOCK_MONOTONIC on Linux)
+            "last_rx_mono": self.last_rx_wall if self.rx_accepted else None,
             "admitted": [f"{a[0]}:{a[1]}" for a in self.admitted],
             "rx_by_type": {_name(k): v for k, v in sorted(self.rx_by_type.items())},
             "tx_by_type": {_name(k): v for k, v in sorted(self.tx_by_type.items())},

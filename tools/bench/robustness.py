@@ -8,7 +8,8 @@ MAVLink 2 packets, every message id of the common dialect in turn, random payloa
 the IDs of the port's real peer (spoofed).  Figures, each with target 0:
 
 * ``crashes``: processes that did not exit with status 0 (and the flight must be OK);
-* ``control_steps_lost``: steps asked minus steps flown on a fresh attitude;
+* ``control_steps_lost``: steps asked minus steps flown (``tools.flight.flown_report``: holds for want of attitude,
+  steps later than the attitude timeout, the SITL's time on its servo timeout);
 * ``accepted_from_non_peer``: packets a link accepted beyond what its real peer sent (per message type, from the
   peers' own send counters: anything more came from the fuzzer);
 * ``counter_mismatch``: sum over the links of |rx_datagrams - rx_accepted - sum(rejected)|.
