@@ -3,7 +3,8 @@
 Listens like a ground station (default 127.0.0.1:14550), waits for the vehicle's HEARTBEAT (system 1
 component 1), then sends SET_ATTITUDE_TARGET setpoints for a roll profile: ``square`` (default
 10 deg, 10 s period, +amplitude first), ``step``, ``sine`` or ``--csv FILE`` (rows ``time_s, roll_deg``,
-held until the next row).  Prints a live line (sim time, setpoint, roll, error) about twice a second.
+held until the next row, never interpolated; the profile ends at the last row unless --duration is given).
+Prints a live line (sim time, setpoint, roll, error) about twice a second.
 
 Profile time 0 is the first sim time seen from the vehicle (ATTITUDE or SYSTEM_TIME), or --start-time.
 
@@ -33,7 +34,7 @@ from autopilot.shared.cli import (
     duration_or_0,
     endpoint,
     fmt_endpoint,
-    positive_float,
+    message_rate_hz,
     signing_key_from_args,
     timeout_s,
 )
@@ -325,16 +326,22 @@ def build_parser() -> OneLineArgumentParser:
     p.add_argument(
         "profile", nargs="?", choices=("square", "step", "sine"), default="square", help="roll profile (default square)"
     )
-    p.add_argument("--csv", default=None, metavar="FILE", help="fly a CSV profile: rows 'time_s, roll_deg'")
+    p.add_argument(
+        "--csv",
+        default=None,
+        metavar="FILE",
+        help="fly a CSV profile: rows 'time_s, roll_deg', each held until the next (not interpolated), to the last",
+    )
     p.add_argument("--amplitude", type=angle_deg, default=10.0, metavar="DEG", help="amplitude (default 10)")
     p.add_argument("--period", type=timeout_s, default=10.0, metavar="S", help="square/sine period (default 10)")
     p.add_argument("--step-time", type=clock_s, default=1.0, metavar="S", help="step: switch time (default 1)")
     p.add_argument(
         "--duration",
         type=duration_or_0,
-        default=0.0,
+        default=None,
         metavar="S",
-        help="profile length in sim seconds (0 = until the vehicle powers off)",
+        help="profile length in sim seconds (0 = until the vehicle powers off; default 0, with --csv the file's "
+        "last breakpoint)",
     )
     p.add_argument("--lockstep", action="store_true", help="schedule the profile on sim time (deterministic runs)")
     p.add_argument(
@@ -353,19 +360,19 @@ def build_parser() -> OneLineArgumentParser:
     )
     p.add_argument(
         "--point-dt",
-        type=positive_float,
+        type=timeout_s,
         default=0.1,
         metavar="S",
         help="lockstep: one scheduled setpoint every S s of sim time besides the discontinuities (default 0.1)",
     )
     p.add_argument(
         "--setpoint-rate",
-        type=positive_float,
+        type=message_rate_hz,
         default=20.0,
         metavar="HZ",
         help="real time: setpoints per second (default 20)",
     )
-    p.add_argument("--print-rate", type=positive_float, default=2.0, metavar="HZ", help="live line rate (default 2)")
+    p.add_argument("--print-rate", type=message_rate_hz, default=2.0, metavar="HZ", help="live line rate (default 2)")
     p.add_argument(
         "--wait-timeout",
         type=clock_s,
@@ -399,6 +406,8 @@ def main(argv=None) -> int:
         )
     except (OSError, ValueError) as exc:
         parser.error(f"--csv: {exc}")
+    if args.duration is None:  # a CSV profile lasts to its last breakpoint; the others until the vehicle stops
+        args.duration = profile.end or 0.0
     apply_cpu(parser, args.cpu)
     try:
         values = {f.name: getattr(args, f.name) for f in fields(GcsOptions)}
