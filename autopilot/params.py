@@ -36,7 +36,8 @@ class Param:
 
     ``low``/``high`` (``low_open``/``high_open``: that end excluded) bound the value, in SI: the one table of
     bounds that the command-line flags (:func:`arg_type`), parameter files and PARAM_SET all check
-    (``ClSacConfig`` checks what depends on several values: Hurwitz, a stable PFC).
+    (``ClSacConfig`` checks the law again; for the SISO law every value inside the bounds is a valid law,
+    CLSAC_ANTIWINDUP takes 0 or 1 only).
     ``flying_read_only``: rejected once the loop runs."""
 
     name: str
@@ -74,10 +75,14 @@ PARAMS: tuple[Param, ...] = (
     # A_m < 0: the reference model must be stable (paper eq. (3)); the PFC's stability is ClSacConfig's check
     Param("CLSAC_AM", "1/s", "reference model A_m (paper eq. (3))", field="am", high=0.0, high_open=True),
     Param("CLSAC_BM", "1/s", "reference model B_m", field="bm"),
-    Param("CLSAC_CM", "", "reference model C_m", field="cm"),
-    Param("CLSAC_PFC_NUM", "", "PFC D(s) = NUM / (DEN1 s + DEN0) (paper sec. 5.1: 10)", field="pfc_num"),
-    Param("CLSAC_PFC_DEN1", "s", "PFC denominator, s coefficient (paper: 4)", field="pfc_den"),
-    Param("CLSAC_PFC_DEN0", "", "PFC denominator, constant (paper: 40)", field="pfc_den"),
+    # C_m > 0 with L_v >= 0 and A_m < 0 keeps A_m - L_v C_m Hurwitz (paper eq. (19)); a positive PFC with positive
+    # denominator coefficients is stable: every value inside these bounds makes a valid law
+    Param("CLSAC_CM", "", "reference model C_m", field="cm", low=0.0, low_open=True),
+    Param(
+        "CLSAC_PFC_NUM", "", "PFC D(s) = NUM / (DEN1 s + DEN0) (paper sec. 5.1: 10)", "pfc_num", low=0, low_open=True
+    ),
+    Param("CLSAC_PFC_DEN1", "s", "PFC denominator, s coefficient (paper: 4)", "pfc_den", low=0.0, low_open=True),
+    Param("CLSAC_PFC_DEN0", "", "PFC denominator, constant (paper: 40)", "pfc_den", low=0.0, low_open=True),
     Param(
         "CLSAC_U_LIMIT", "rad", "rudder command limit", field="u_limit_rad", low=0.0, high=math.pi / 2, low_open=True
     ),
