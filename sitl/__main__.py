@@ -134,6 +134,13 @@ def build_parser() -> OneLineArgumentParser:
     return p
 
 
+def ending(exit_reason: str) -> str:
+    """How the run ended, for the last line.  A real-time SITL has no end of its own: it flies until asked to stop
+    (the launcher sends SIGINT once the autopilot is done), so a stop by signal is said as the normal end it is;
+    summary.json and --stats-json keep the exit reason as it was."""
+    return "stopped on request (SIGINT/SIGTERM)" if exit_reason == "stopped by signal" else exit_reason
+
+
 def main(argv=None) -> int:
     parser = build_parser()
     args = parser.parse_args(argv)
@@ -220,7 +227,7 @@ def main(argv=None) -> int:
     rtf = f"{stats['rtf']:.1f}x" if stats["rtf"] else "-"
     print(
         f"sitl: {stats['frames']} frames, sim {stats['sim_time_s']:.3f} s in {stats['wall_s']:.3f} s wall "
-        f"(real-time factor {rtf}); {stats['exit_reason']}; events {stats['events']}",
+        f"(real-time factor {rtf}); {ending(stats['exit_reason'])}; events {stats['events']}",
         flush=True,
     )
     print(format_counters("sitl link", stats["link"]), flush=True)

@@ -77,6 +77,11 @@ class GcsOptions:
     vehicle: tuple[str, int] | None = None  # the vehicle's (host, port); None = the first that talks with its IDs
 
 
+def _deg(rad: float, width: int) -> str:
+    """``rad`` in degrees, signed, ``width`` wide; ``-`` if it is not a number (not received yet)."""
+    return f"{math.degrees(rad):+{width}.2f}" if math.isfinite(rad) else "-".rjust(width)
+
+
 class Gcs:
     def __init__(self, opts: GcsOptions, profile: Profile, out=None):
         self.opts = opts
@@ -269,13 +274,7 @@ class Gcs:
                 self._send_setpoint(0, self.profile.value((self.sim_ms - self.origin_ms) / 1000.0))
             if not o.quiet and now >= next_print and self.sim_ms is not None:
                 next_print = now + 1.0 / o.print_rate
-                err = self.target - self.roll
-                print(
-                    f"gcs: t={self.sim_ms / 1000.0:9.3f} s  setpoint={math.degrees(self.target):+7.2f} deg  "
-                    f"roll={math.degrees(self.roll):+7.2f} deg  error={math.degrees(err):+6.2f} deg",
-                    file=self.out,
-                    flush=True,
-                )
+                print(self.live_line(), file=self.out, flush=True)
             if (
                 o.duration > 0
                 and self.sim_ms is not None
@@ -288,6 +287,14 @@ class Gcs:
                 return 0
         self.exit_reason = "stopped by signal"
         return 0
+
+    def live_line(self) -> str:
+        """The live line: sim time, the vehicle's setpoint and roll and their difference, in deg; a value not
+        received yet (the first line can come from SYSTEM_TIME alone) reads ``-``, never ``nan``."""
+        return (
+            f"gcs: t={self.sim_ms / 1000.0:9.3f} s  setpoint={_deg(self.target, 7)} deg  roll={_deg(self.roll, 7)} deg"
+            f"  error={_deg(self.target - self.roll, 6)} deg"
+        )
 
     def _end(self, reason: str) -> None:
         """The vehicle went silent or never came: the launcher's verdict blames it (``peer_lost``)."""
@@ -305,6 +312,14 @@ class Gcs:
             "statustexts": self.statustexts[-50:],
             "link": self.link.counters(),
         }
+
+
+def profile_duration(duration: float | None, profile: Profile) -> float:
+    """``--duration``, or when not given: a CSV profile's last breakpoint (it lasts to its end), else 0 (until the
+    vehicle powers off)."""
+    if duration is not None:
+        return duration
+    return profile.end or 0.0
 
 
 def build_parser() -> OneLineArgumentParser:
@@ -406,8 +421,7 @@ def main(argv=None) -> int:
         )
     except (OSError, ValueError) as exc:
         parser.error(f"--csv: {exc}")
-    if args.duration is None:  # a CSV profile lasts to its last breakpoint; the others until the vehicle stops
-        args.duration = profile.end or 0.0
+    args.duration = profile_duration(args.duration, profile)
     apply_cpu(parser, args.cpu)
     try:
         values = {f.name: getattr(args, f.name) for f in fields(GcsOptions)}
