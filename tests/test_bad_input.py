@@ -92,6 +92,7 @@ def test_a_bad_parameter_file_is_one_line_and_the_autopilot_never_starts(tmp_pat
             "--duration: must be in (0, 86400] s",
         ),  # noqa: E501
         ("tools.experiment", ["robustness", "--seed", "-1"], "--seed: must be in [0, 2^63-1]"),
+        ("tools.experiment", ["paper", "--sigma-xu", "1e300"], "--sigma-xu: must be in [0, 10000] 1/s (CLSAC_SIGMA_X)"),
     ],
 )
 def test_bad_flags_are_one_line(module, args, needle):
