@@ -21,12 +21,12 @@ from autopilot.shared.cli import (
     duration_or_0,
     endpoint,
     fmt_endpoint,
-    nonneg_float,
     physics_rate_hz,
     pwm_from_args,
     rate_hz,
     sensor_rate_hz,
     signing_key_from_args,
+    spin_us,
     timeout_s,
 )
 from autopilot.shared.process import (
@@ -112,7 +112,7 @@ def build_parser() -> OneLineArgumentParser:
     # See autopilot --lockstep-spin-us: polling before sleeping saves the wake-up latency of each frame.
     p.add_argument(
         "--spin-us",
-        type=nonneg_float,
+        type=spin_us,
         default=500.0,
         metavar="US",
         help="lockstep: busy-poll this long for each answer before sleeping (default 500)",

@@ -931,19 +931,40 @@ def build_parser(prog: str = "python -m tools.study") -> argparse.ArgumentParser
 
 
 def add_run_arguments(r: argparse.ArgumentParser) -> None:
-    r.add_argument("--runs", type=int, default=1000, help="runs per controller and condition (default 1000)")
+    r.add_argument(
+        "--runs",
+        type=cli.count(1, 10**7, name="runs"),
+        default=1000,
+        help="runs per controller and condition (default 1000)",
+    )
     r.add_argument("--seed", type=cli.seed, default=0, help="run i draws from numpy default_rng([seed, i]) (default 0)")
     r.add_argument("--out", metavar="DIR", help="output folder (default: a new runs/robustness-<timestamp>/)")
     r.add_argument("--controllers", metavar="A,B", help=f"subset of: {','.join(CONTROLLERS)} (default all)")
     r.add_argument("--conditions", metavar="A,B", help="subset of: nominal,moderate,severe (default all)")
     r.add_argument(
-        "--sweep-runs", type=int, default=100, help="runs per sweep point (loss, delay, turbulence; 0: none)"
+        "--sweep-runs",
+        type=cli.count(0, 10**6, name="sweep_runs"),
+        default=100,
+        help="runs per sweep point (loss, delay, turbulence; 0: none)",
     )
-    r.add_argument("--long-runs", type=int, default=10, help="runs of the 600 s long flight (0: none; default 10)")
-    r.add_argument("--chunk", type=int, default=2500, help="runs per batch (results do not depend on it)")
+    r.add_argument(
+        "--long-runs",
+        type=cli.count(0, 10**6, name="long_runs"),
+        default=10,
+        help="runs of the 600 s long flight (0: none; default 10)",
+    )
+    r.add_argument(
+        "--chunk",
+        type=cli.count(1, 10**6, name="chunk"),
+        default=2500,
+        help="runs per batch (results do not depend on it)",
+    )
     r.add_argument("--scheduler", metavar="tcp://HOST:PORT", help="a Dask scheduler (default: run here)")
     r.add_argument(
-        "--workers", type=int, default=1, help="local processes when no --scheduler (default 1; results do not change)"
+        "--workers",
+        type=cli.count(1, 1024, name="workers"),
+        default=1,
+        help="local processes when no --scheduler (default 1; results do not change)",
     )
     r.add_argument("--no-progress", action="store_true", help="no progress bar")
 
