@@ -11,7 +11,15 @@ from __future__ import annotations
 import math
 import sys
 
-from autopilot.flags import add_controller_arguments, add_envelope_arguments, default_lv, envelope_from_args
+from autopilot.flags import (
+    DEG,
+    add_controller_arguments,
+    add_envelope_arguments,
+    default_lv,
+    envelope_from_args,
+    rate_arg,
+)
+from autopilot.params import arg_type
 from autopilot.shared.cli import (
     OneLineArgumentParser,
     add_cpu_argument,
@@ -23,13 +31,11 @@ from autopilot.shared.cli import (
     duration_or_0,
     endpoint,
     fmt_endpoint,
-    limit_deg,
-    nonneg_float,
     peer_endpoint,
     pwm_from_args,
-    rate_hz,
     signing_key_from_args,
-    timeout_s,
+    spin_us,
+    stream_rate_or_0,
 )
 from autopilot.shared.link import ANY_COMPONENT
 from autopilot.shared.mavlink import GCS_ID
@@ -101,7 +107,7 @@ def build_parser() -> OneLineArgumentParser:
         action="store_false",
         help="lockstep: do not wait for GCS setpoints scheduled up to each frame's time",
     )
-    p.add_argument("--rate", type=rate_hz, default=100.0, metavar="HZ", help="control rate (default 100)")
+    p.add_argument("--rate", type=rate_arg, default=100.0, metavar="HZ", help="control rate (default 100)")
     p.add_argument("--name", default=None, help="run name in the stats (default: the controller)")
     p.add_argument(
         "--duration",
@@ -112,29 +118,31 @@ def build_parser() -> OneLineArgumentParser:
     )
     p.add_argument(
         "--telemetry-rate",
-        type=nonneg_float,
+        type=stream_rate_or_0,
         default=50.0,
         metavar="HZ",
         help="ATTITUDE/ATTITUDE_TARGET/SERVO_OUTPUT_RAW to the GCS, per control steps (default 50, 0 = off)",
     )
     p.add_argument(
         "--attitude-timeout",
-        type=timeout_s,
+        type=arg_type("CLSAC_FS_ATT_TMO"),
         default=0.1,
         metavar="S",
         help="real time: failsafe after S s without attitude (default 0.1)",
     )
     p.add_argument(
         "--setpoint-timeout",
-        type=timeout_s,
+        type=arg_type("CLSAC_FS_SP_TMO"),
         default=1.0,
         metavar="S",
         help="real time: wings level after S s without setpoint (default 1.0)",
     )
-    p.add_argument("--max-roll-deg", type=limit_deg, default=45.0, help="setpoint clamp (default 45)")
+    p.add_argument(
+        "--max-roll-deg", type=arg_type("CLSAC_MAX_ROLL", DEG, "deg"), default=45.0, help="setpoint clamp (default 45)"
+    )
     p.add_argument(
         "--spin-us",
-        type=nonneg_float,
+        type=spin_us,
         default=300.0,
         help="real time: busy-wait this long before each deadline for precise timing (default 300)",
     )
@@ -150,7 +158,7 @@ def build_parser() -> OneLineArgumentParser:
     # briefly first raised the lockstep real-time factor from ~45x to ~70x (100 Hz) and ~13x to ~16x (400 Hz).
     p.add_argument(
         "--lockstep-spin-us",
-        type=nonneg_float,
+        type=spin_us,
         default=500.0,
         metavar="US",
         help="lockstep: busy-poll this long for the next frame before sleeping (default 500)",
@@ -268,8 +276,11 @@ def main(argv=None) -> int:
     if args.params:
         try:
             params.update(load_file(args.params))
-        except (OSError, ParamError) as exc:
-            parser.error(f"--params {args.params}: {exc}")
+        except OSError as exc:
+            parser.error(f"--params {args.params}: {exc.strerror or exc}")
+        except ParamError as exc:  # a line's error names the file already: "FILE:LINE: ..."
+            where = "" if str(exc).startswith(str(args.params)) else f"{args.params}: "
+            parser.error(f"--params {where}{exc}")
         cfg = params.config
         options = {k: params.option(k) for k in options}
     rate = cfg.control_rate_hz  # CLSAC_RATE from a parameter file wins over --rate

@@ -3,11 +3,20 @@
 from __future__ import annotations
 
 import argparse
+import math
 
-from autopilot.shared.cli import bounded, gain, limit_deg, nonneg_float, positive_float
+from autopilot.params import arg_type
+from autopilot.shared.cli import bounded, limit_deg, nonneg_float, positive_float
 
 CONTROLLERS = ("sac", "clsac", "baseline")  # baseline: the fixed-gain PID of autopilot.baseline
 PFC_CHOICES = ("paper", "robust")  # the keys of autopilot.config.PFC_PRESETS (spelled out: --help needs no numpy)
+DEG = math.pi / 180.0
+# The flags' types come from the parameter table (autopilot.params.PARAMS): one set of bounds for a flag, a
+# parameter file and PARAM_SET.
+lv_arg = arg_type("CLSAC_LV")
+sigma_xu_arg = arg_type("CLSAC_SIGMA_X")  # --sigma-xu sets CLSAC_SIGMA_X and CLSAC_SIGMA_U (same bounds)
+u_limit_deg_arg = arg_type("CLSAC_U_LIMIT", DEG, "deg")
+rate_arg = arg_type("CLSAC_RATE")
 
 
 def default_lv(controller: str) -> float:
@@ -27,7 +36,7 @@ def add_controller_arguments(parser: argparse.ArgumentParser) -> None:
     )
     g.add_argument(
         "--lv",
-        type=gain,
+        type=lv_arg,
         default=None,
         help="override the closed-loop reference gain Lv (default: 0 for sac, 20 for clsac)",
     )
@@ -39,7 +48,7 @@ def add_controller_arguments(parser: argparse.ArgumentParser) -> None:
     )
     g.add_argument(
         "--sigma-xu",
-        type=gain,
+        type=sigma_xu_arg,
         default=0.0,
         metavar="SIGMA",
         help="sigma-modification of K_Ix and K_Iu (default 0, the paper; 0.1 keeps long flights bounded)",
@@ -63,6 +72,7 @@ def add_controller_arguments(parser: argparse.ArgumentParser) -> None:
         action="store_true",
         help="robustness option: no integral adaptation while the rudder command saturates (default: off)",
     )
+    g.add_argument("--u-limit-deg", type=u_limit_deg_arg, default=30.0, help="rudder command limit (default 30)")
     g.add_argument("--u-limit-deg", type=limit_deg, default=30.0, help="rudder command limit (default 30)")
 
 

@@ -9,14 +9,20 @@ stations: MAVProxy's ``NAME VALUE`` lines and QGroundControl's tab-separated ``S
 
 from __future__ import annotations
 
+import argparse
 import math
 from dataclasses import dataclass
 from pathlib import Path
+from typing import TYPE_CHECKING
 
-from autopilot.config import ClSacConfig, ConfigError
-from autopilot.shared.mavlink import mavlink
+from autopilot.shared import cli
+from autopilot.shared.mavlink import MAX_LOCKSTEP_RATE_HZ, mavlink
 
 PARAM_ID_LEN = 16  # PARAM_VALUE.param_id: char[16], no terminator when full (every name here fits)
+if TYPE_CHECKING:  # numpy, only where a law is built: the flags' types (arg_type) need none
+    from autopilot.config import ClSacConfig
+
+G = cli.MAX_GAIN  # the bound of every gain, weight and coefficient: beyond it the discretised law is meaningless
 
 
 class ParamError(ValueError):
@@ -27,7 +33,11 @@ class ParamError(ValueError):
 class Param:
     """One parameter: ``name`` (<= 16 chars), the ``ClSacConfig`` field it sets (``field``) or an autopilot
     option (``option``, a key of :class:`ParamTable` ``options``), a unit and a one-line description.
-    ``low``/``high`` bound options (configuration fields are validated by ``ClSacConfig`` itself);
+
+    ``low``/``high`` (``low_open``/``high_open``: that end excluded) bound the value, in SI: the one table of
+    bounds that the command-line flags (:func:`arg_type`), parameter files and PARAM_SET all check
+    (``ClSacConfig`` checks the law again; for the SISO law every value inside the bounds is a valid law,
+    CLSAC_ANTIWINDUP takes 0 or 1 only).
     ``flying_read_only``: rejected once the loop runs."""
 
     name: str
@@ -35,39 +45,98 @@ class Param:
     doc: str
     field: str | None = None
     option: str | None = None
-    low: float = -math.inf
-    high: float = math.inf
+    low: float = -G
+    high: float = G
+    low_open: bool = False
+    high_open: bool = False
     flying_read_only: bool = False
+
+    def bounds(self, per: float = 1.0, unit: str | None = None) -> str:
+        """The allowed range as an error message gives it, in units of ``per`` SI units (``unit``)."""
+        u = self.unit if unit is None else unit
+        return cli.bounds_text(self.low / per, self.high / per, u, lo_open=self.low_open, hi_open=self.high_open)
+
+    def admits(self, value: float) -> bool:
+        return cli.in_bounds(value, self.low, self.high, lo_open=self.low_open, hi_open=self.high_open)
 
 
 # The order is the index of PARAM_REQUEST_READ / PARAM_VALUE.param_index.
 PARAMS: tuple[Param, ...] = (
-    Param("CLSAC_LV", "1/s", "closed-loop reference gain Lv (paper eq. (18)); mode SAC flies Lv = 0", field="lv"),
-    Param("CLSAC_SIGMA", "1/s", "sigma-modification of K_Ie (paper sec. 2)", field="sigma"),
-    Param("CLSAC_GAM_PE", "rad^-2", "adaptation weight Gamma_pe (paper sec. 2-3)", field="gamma_pe"),
-    Param("CLSAC_GAM_IE", "rad^-2/s", "adaptation weight Gamma_Ie", field="gamma_ie"),
-    Param("CLSAC_GAM_PX", "rad^-2", "adaptation weight Gamma_px", field="gamma_px"),
-    Param("CLSAC_GAM_IX", "rad^-2/s", "adaptation weight Gamma_Ix", field="gamma_ix"),
-    Param("CLSAC_GAM_PU", "rad^-2", "adaptation weight Gamma_pu", field="gamma_pu"),
-    Param("CLSAC_GAM_IU", "rad^-2/s", "adaptation weight Gamma_Iu", field="gamma_iu"),
-    Param("CLSAC_SIGMA_X", "1/s", "leakage of K_Ix (not in the paper; 0 = paper)", field="sigma_x"),
-    Param("CLSAC_SIGMA_U", "1/s", "leakage of K_Iu (not in the paper; 0 = paper)", field="sigma_u"),
-    Param("CLSAC_AM", "1/s", "reference model A_m (paper eq. (3))", field="am"),
+    Param("CLSAC_LV", "1/s", "closed-loop reference gain Lv (paper eq. (18)); mode SAC flies Lv = 0", "lv", low=0.0),
+    Param("CLSAC_SIGMA", "1/s", "sigma-modification of K_Ie (paper sec. 2)", field="sigma", low=0.0),
+    Param("CLSAC_GAM_PE", "rad^-2", "adaptation weight Gamma_pe (paper sec. 2-3)", field="gamma_pe", low=0.0),
+    Param("CLSAC_GAM_IE", "rad^-2/s", "adaptation weight Gamma_Ie", field="gamma_ie", low=0.0),
+    Param("CLSAC_GAM_PX", "rad^-2", "adaptation weight Gamma_px", field="gamma_px", low=0.0),
+    Param("CLSAC_GAM_IX", "rad^-2/s", "adaptation weight Gamma_Ix", field="gamma_ix", low=0.0),
+    Param("CLSAC_GAM_PU", "rad^-2", "adaptation weight Gamma_pu", field="gamma_pu", low=0.0),
+    Param("CLSAC_GAM_IU", "rad^-2/s", "adaptation weight Gamma_Iu", field="gamma_iu", low=0.0),
+    Param("CLSAC_SIGMA_X", "1/s", "leakage of K_Ix (not in the paper; 0 = paper)", field="sigma_x", low=0.0),
+    Param("CLSAC_SIGMA_U", "1/s", "leakage of K_Iu (not in the paper; 0 = paper)", field="sigma_u", low=0.0),
+    # A_m < 0: the reference model must be stable (paper eq. (3)); the PFC's stability is ClSacConfig's check
+    Param("CLSAC_AM", "1/s", "reference model A_m (paper eq. (3))", field="am", high=0.0, high_open=True),
     Param("CLSAC_BM", "1/s", "reference model B_m", field="bm"),
-    Param("CLSAC_CM", "", "reference model C_m", field="cm"),
-    Param("CLSAC_PFC_NUM", "", "PFC D(s) = NUM / (DEN1 s + DEN0) (paper sec. 5.1: 10)", field="pfc_num"),
-    Param("CLSAC_PFC_DEN1", "s", "PFC denominator, s coefficient (paper: 4)", field="pfc_den"),
-    Param("CLSAC_PFC_DEN0", "", "PFC denominator, constant (paper: 40)", field="pfc_den"),
-    Param("CLSAC_U_LIMIT", "rad", "rudder command limit", field="u_limit_rad"),
-    Param("CLSAC_ANTIWINDUP", "", "conditional-integration anti-windup, 1 on / 0 off", field="anti_windup"),
-    Param("CLSAC_RATE", "Hz", "control rate (read-only while flying)", field="control_rate_hz", flying_read_only=True),
-    Param("CLSAC_FS_ATT_TMO", "s", "failsafe after this long without attitude", option="attitude_timeout_s", low=1e-3),
+    # C_m > 0 with L_v >= 0 and A_m < 0 keeps A_m - L_v C_m Hurwitz (paper eq. (19)); a positive PFC with positive
+    # denominator coefficients is stable: every value inside these bounds makes a valid law
+    Param("CLSAC_CM", "", "reference model C_m", field="cm", low=0.0, low_open=True),
     Param(
-        "CLSAC_FS_SP_TMO", "s", "wings level after this long without setpoint", option="setpoint_timeout_s", low=0.01
+        "CLSAC_PFC_NUM", "", "PFC D(s) = NUM / (DEN1 s + DEN0) (paper sec. 5.1: 10)", "pfc_num", low=0, low_open=True
     ),
-    Param("CLSAC_MAX_ROLL", "rad", "roll setpoint clamp", option="max_roll_rad", low=1e-3, high=math.pi / 2),
+    Param("CLSAC_PFC_DEN1", "s", "PFC denominator, s coefficient (paper: 4)", "pfc_den", low=0.0, low_open=True),
+    Param("CLSAC_PFC_DEN0", "", "PFC denominator, constant (paper: 40)", "pfc_den", low=0.0, low_open=True),
+    Param(
+        "CLSAC_U_LIMIT", "rad", "rudder command limit", field="u_limit_rad", low=0.0, high=math.pi / 2, low_open=True
+    ),
+    Param("CLSAC_ANTIWINDUP", "", "conditional-integration anti-windup, 1 on / 0 off", "anti_windup", low=0, high=1),
+    Param(
+        "CLSAC_RATE",
+        "Hz",
+        "control rate (read-only while flying)",
+        field="control_rate_hz",
+        low=0.0,
+        high=MAX_LOCKSTEP_RATE_HZ,  # a lockstep frame is identified by its millisecond
+        low_open=True,
+        flying_read_only=True,
+    ),
+    Param(
+        "CLSAC_FS_ATT_TMO",
+        "s",
+        "failsafe after this long without attitude",
+        option="attitude_timeout_s",
+        low=1e-3,
+        high=cli.MAX_SIM_S,
+    ),
+    Param(
+        "CLSAC_FS_SP_TMO",
+        "s",
+        "wings level after this long without setpoint",
+        option="setpoint_timeout_s",
+        low=0.01,
+        high=cli.MAX_SIM_S,
+    ),
+    Param(
+        "CLSAC_MAX_ROLL", "rad", "roll setpoint clamp", option="max_roll_rad", low=0.0, high=math.pi / 2, low_open=True
+    ),
 )
 BY_NAME = {p.name: p for p in PARAMS}
+
+
+def arg_type(name: str, per: float = 1.0, unit: str | None = None):
+    """The argparse type of a flag that sets parameter ``name`` in units of ``per`` SI units (``--u-limit-deg``:
+    ``per = pi/180``, ``unit = "deg"``): the parameter's own bounds, in the flag's unit."""
+    p = BY_NAME[name]
+    text = p.bounds(per, unit)
+
+    def check(value) -> float:
+        try:
+            v = float(value)
+        except (TypeError, ValueError):
+            raise argparse.ArgumentTypeError(f"expected a number, got {value!r}") from None
+        if not p.admits(v * per):
+            raise argparse.ArgumentTypeError(f"must be in {text} ({name}), got {value!r}")
+        return v
+
+    check.__name__ = name.lower()
+    return check
 
 
 def _config_value(cfg: ClSacConfig, name: str) -> float:
@@ -91,6 +160,8 @@ class ParamTable:
     """
 
     def __init__(self, config, options: dict[str, float]):
+        from autopilot.config import ClSacConfig
+
         clsac = isinstance(config, ClSacConfig) and config.is_siso and len(config.pfc_den) == 2
         self.params = PARAMS if clsac else tuple(p for p in PARAMS if p.option)
         self._names = {p.name: p for p in self.params}
@@ -134,11 +205,13 @@ class ParamTable:
             raise ParamError(f"{name} must be finite, got {value!r}")
         if p.flying_read_only and self.flying and value != self.get(name):
             raise ParamError(f"{name} is read-only while flying")
+        if not p.admits(value):
+            raise ParamError(f"{name} must be in {p.bounds()}, got {value:g}")
         if p.option:
-            if not p.low <= value <= p.high:
-                raise ParamError(f"{name} must be in [{p.low:g}, {p.high:g}], got {value:g}")
             self._options[p.option] = value
             return value
+        from autopilot.config import ConfigError
+
         cfg = self._config
         if name == "CLSAC_PFC_NUM":
             change = {"pfc_num": (value,)}
@@ -173,7 +246,14 @@ def load_file(path) -> dict[str, float]:
     """Read a parameter file: MAVProxy's ``NAME VALUE`` (comma or blanks) or QGroundControl's
     ``SYS COMP NAME VALUE TYPE`` lines; ``#`` starts a comment.  Raises :class:`ParamError` naming the line."""
     out: dict[str, float] = {}
-    for n, line in enumerate(Path(path).read_text().splitlines(), 1):
+    data = Path(path).read_bytes()
+    try:
+        text = data.decode("utf-8")
+    except UnicodeDecodeError as exc:
+        raise ParamError(f"{path}: not a text parameter file (byte {exc.start} is not UTF-8)") from None
+    if "\0" in text:
+        raise ParamError(f"{path}: not a text parameter file (it holds NUL bytes)")
+    for n, line in enumerate(text.splitlines(), 1):
         line = line.split("#", 1)[0].strip()
         if not line:
             continue

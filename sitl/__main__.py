@@ -21,13 +21,13 @@ from autopilot.shared.cli import (
     duration_or_0,
     endpoint,
     fmt_endpoint,
-    nonneg_float,
     peer_endpoint,
     physics_rate_hz,
     pwm_from_args,
     rate_hz,
     sensor_rate_hz,
     signing_key_from_args,
+    spin_us,
     timeout_s,
 )
 from autopilot.shared.process import (
@@ -113,7 +113,7 @@ def build_parser() -> OneLineArgumentParser:
     # See autopilot --lockstep-spin-us: polling before sleeping saves the wake-up latency of each frame.
     p.add_argument(
         "--spin-us",
-        type=nonneg_float,
+        type=spin_us,
         default=500.0,
         metavar="US",
         help="lockstep: busy-poll this long for each answer before sleeping (default 500)",
@@ -133,6 +133,13 @@ def build_parser() -> OneLineArgumentParser:
     add_cpu_argument(p)
     add_rt_priority_argument(p)
     return p
+
+
+def ending(exit_reason: str) -> str:
+    """How the run ended, for the last line.  A real-time SITL has no end of its own: it flies until asked to stop
+    (the launcher sends SIGINT once the autopilot is done), so a stop by signal is said as the normal end it is;
+    summary.json and --stats-json keep the exit reason as it was."""
+    return "stopped on request (SIGINT/SIGTERM)" if exit_reason == "stopped by signal" else exit_reason
 
 
 def main(argv=None) -> int:
@@ -221,7 +228,7 @@ def main(argv=None) -> int:
     rtf = f"{stats['rtf']:.1f}x" if stats["rtf"] else "-"
     print(
         f"sitl: {stats['frames']} frames, sim {stats['sim_time_s']:.3f} s in {stats['wall_s']:.3f} s wall "
-        f"(real-time factor {rtf}); {stats['exit_reason']}; events {stats['events']}"
+        f"(real-time factor {rtf}); {ending(stats['exit_reason'])}; events {stats['events']}"
         + (f"; {stats['servo_timeout_s']:.3f} s flown on the servo timeout" if stats["servo_timeout_s"] else ""),
         flush=True,
     )

@@ -14,6 +14,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from autopilot.shared.cli import bounded, count
+from autopilot.shared.cli import seed as seed_arg
 from sitl.atmosphere import ALTITUDE, Atmosphere, AtmosphereConfig, AtmosphereConfigError, DrydenConfig, Gust
 from sitl.faults import FaultChannel, FaultConfig, FaultConfigError
 from sitl.sensors import SensorConfig, SensorConfigError, Sensors
@@ -107,7 +109,11 @@ FLAGS = {
     ),
     "altitude": (
         "--altitude",
-        dict(type=float, metavar="M", help=f"altitude for the turbulence scales (default {ALTITUDE:g})"),
+        dict(
+            type=bounded(0.0, 10_000.0, "m", lo_open=True),
+            metavar="M",
+            help=f"altitude for the turbulence scales (default {ALTITUDE:g})",
+        ),
     ),
     "gust": (
         "--gust",
@@ -118,22 +124,38 @@ FLAGS = {
             help="1-cosine side gust: peak m/s, length m, start s (repeatable)",
         ),
     ),
-    "crosswind": ("--crosswind", dict(type=float, metavar="M/S", help="steady side wind, m/s")),
-    "roll_noise": ("--roll-noise", dict(type=float, metavar="DEG", help="white noise sigma on the reported roll")),
-    "roll_bias": ("--roll-bias", dict(type=float, metavar="DEG", help="bias on the reported roll")),
+    "crosswind": ("--crosswind", dict(type=bounded(-100.0, 100.0, "m/s"), metavar="M/S", help="steady side wind, m/s")),
+    "roll_noise": (
+        "--roll-noise",
+        dict(type=bounded(0.0, 180.0, "deg"), metavar="DEG", help="white noise sigma on the reported roll"),
+    ),
+    "roll_bias": (
+        "--roll-bias",
+        dict(type=bounded(-180.0, 180.0, "deg"), metavar="DEG", help="bias on the reported roll"),
+    ),
     "rate_noise": (
         "--rate-noise",
-        dict(type=float, metavar="DEG/S", help="white noise sigma on the reported roll rate"),
+        dict(type=bounded(0.0, 10_000.0, "deg/s"), metavar="DEG/S", help="white noise sigma on the reported roll rate"),
     ),
-    "rate_bias": ("--rate-bias", dict(type=float, metavar="DEG/S", help="bias on the reported roll rate")),
-    "sensor_delay": ("--sensor-delay", dict(type=int, metavar="N", help="delay of the reported attitude, in samples")),
+    "rate_bias": (
+        "--rate-bias",
+        dict(type=bounded(-10_000.0, 10_000.0, "deg/s"), metavar="DEG/S", help="bias on the reported roll rate"),
+    ),
+    "sensor_delay": (
+        "--sensor-delay",
+        dict(type=count(0, 100_000, "samples"), metavar="N", help="delay of the reported attitude, in samples"),
+    ),
     "loss": (
         "--loss",
         dict(type=probability_arg, metavar="P", help="link: loss probability per packet, each direction"),
     ),
     "delay": (
         "--delay",
-        dict(type=float, metavar="S", help="link: one-way delay (sim s in lockstep, wall s in real time)"),
+        dict(
+            type=bounded(0.0, 60.0, "s"),
+            metavar="S",
+            help="link: one-way delay (sim s in lockstep, wall s in real time)",
+        ),
     ),
     "duplicate": ("--duplicate", dict(type=probability_arg, metavar="P", help="link: duplication probability")),
     "reorder": ("--reorder", dict(type=probability_arg, metavar="P", help="link: reordering probability")),
@@ -146,7 +168,7 @@ FLAGS = {
             help="plant scale factor, or a range drawn with the seed (repeatable)",
         ),
     ),
-    "seed": ("--seed", dict(type=int, metavar="N", help="seed of every disturbance (default 0)")),
+    "seed": ("--seed", dict(type=seed_arg, metavar="N", help="seed of every disturbance (default 0)")),
 }
 
 

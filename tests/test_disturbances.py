@@ -181,7 +181,7 @@ def test_bad_flags_exit_2_with_one_line(capsys):
         (sitl_main, ["--scale", "wing=2"], "--scale"),
         (sitl_main, ["--altitude", "20"], "--altitude"),
         (launch_main, ["--gust", "1,2"], "--gust"),
-        (launch_main, ["--sensor-delay", "-1"], "sensor delay"),
+        (launch_main, ["--sensor-delay", "-1"], "--sensor-delay: must be in [0, 100000] samples"),
     ):
         with pytest.raises(SystemExit) as exc:
             main(argv)

@@ -130,8 +130,8 @@ def test_experiment_transport_flies_the_scenario_like_the_wire_model(tmp_path):
 @pytest.mark.parametrize(
     "kwargs,field,needle",
     [
-        (dict(rate=0), "rate", "positive"),
-        (dict(rate=5000), "rate", "at most"),
+        (dict(rate=0), "rate", "(0, 1000] Hz"),
+        (dict(rate=5000), "rate", "(0, 1000] Hz (CLSAC_RATE), got 5000"),
         (dict(rate=400, physics_rate=1000), "physics_rate", "whole multiple"),
         (dict(duration=-1), "duration", "-1"),
         (dict(duration="abc"), "duration", "'abc'"),

@@ -175,7 +175,7 @@ def test_a_ground_station_ends_the_run_only_at_its_end(seen_s, ok):
         (["--physics-rate", "1e12"], "(0, 100000] Hz", "sitl"),
         (["--sensor-rate", "1e9"], "(0, 1000] Hz", "sitl"),
         (["--sensor-rate", "19.9"], "at least 20 Hz in real time", "sitl"),  # just below: attitude would time out
-        (["--rate", "5000"], "at most 1000 Hz", "autopilot"),
+        (["--rate", "5000"], "(0, 1000] Hz", "autopilot"),
         (["--rate", "100", "--physics-rate", "1050"], "whole multiple of the control rate", "sitl"),
         (["--duration", "1e308"], "(0, 86400] s", "launch"),
         (["--start-time", "5e6"], "[0, 86400] s", "sitl"),

@@ -28,8 +28,10 @@ def test_sets_are_validated_and_a_refused_one_changes_nothing():
     t = ParamTable(ClSacConfig(), OPTIONS)
     assert t.set("CLSAC_PFC_DEN1", 1.0) == 1.0 and t.config.pfc_den == (1.0, 40.0)
     for name, value, match in (
-        ("CLSAC_GAM_PE", -1.0, "gamma_pe"),
-        ("CLSAC_AM", 3.0, "Hurwitz"),
+        ("CLSAC_GAM_PE", -1.0, r"CLSAC_GAM_PE must be in \[0, 10000\]"),  # the table's bound
+        ("CLSAC_AM", 3.0, r"CLSAC_AM must be in \[-10000, 0\)"),
+        ("CLSAC_CM", -1.0, r"CLSAC_CM must be in \(0, 10000\]"),  # A_m - L_v C_m = -5 + 20 would not be Hurwitz
+        ("CLSAC_PFC_DEN0", -40.0, r"CLSAC_PFC_DEN0 must be in \(0"),  # an unstable PFC
         ("CLSAC_LV", math.nan, "finite"),
         ("CLSAC_ANTIWINDUP", 0.5, "0 or 1"),
         ("CLSAC_FS_ATT_TMO", 0.0, r"\[0.001"),

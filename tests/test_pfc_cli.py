@@ -35,7 +35,9 @@ BAD_IN_PROCESS = {
     ("--pfc-num", "1"): "without --pfc-den",
     ("--pfc", "paper", "--pfc-num", "1", "--pfc-den", "1,1"): "mutually exclusive",
     ("--pfc", "best"): "invalid choice: 'best'",
-    ("--rate-hz", "-5"): "-5.0",
+    ("--rate-hz", "-5"): "--rate-hz: must be in (0, 1000] Hz (CLSAC_RATE), got '-5'",
+    ("--lv", "1e300"): "--lv: must be in [0, 10000] 1/s (CLSAC_LV), got '1e300'",  # was an overflow in the analysis
+    ("--command-deg", "1e308"): "--command-deg: must be in [-180, 180] deg",
     ("--pfc-num", "0,0", "--pfc-den", "1,1"): "all zeros",
 }
 

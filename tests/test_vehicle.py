@@ -162,10 +162,17 @@ def test_accepted_and_rejected_sets(vehicle):
     m = gcs.wait("PARAM_VALUE", cond=lambda m: m.param_id == "CLSAC_RATE")
     e = gcs.wait("PARAM_ERROR")
     assert m.param_value == 100.0 and e.error == A.MAV_PARAM_ERROR_READ_ONLY
+    # beyond the parameter table's bounds (the flags' and the files' too): refused, the value unchanged
+    for name, value, held in (("CLSAC_LV", 1e30, 50.0), ("CLSAC_FS_ATT_TMO", 1e30, _f32(0.1))):
+        gcs.mav.param_set_send(1, 1, name.encode(), value, A.MAV_PARAM_TYPE_REAL32)
+        m = gcs.wait("PARAM_VALUE", cond=lambda m, name=name: m.param_id == name)
+        e = gcs.wait("PARAM_ERROR")
+        assert m.param_value == held and e.error == A.MAV_PARAM_ERROR_VALUE_OUT_OF_RANGE, name
     values = _download(gcs)
     assert values["CLSAC_LV"] == 50.0 and values["CLSAC_AM"] == -5.0
     ap.stop()
-    assert "CLSAC_AM=1 rejected" in ap.output()
+    assert "CLSAC_AM must be in [-10000, 0) 1/s, got 1" in ap.output()
+    assert "CLSAC_FS_ATT_TMO must be in [0.001, 86400] s, got 1e+30" in ap.output()
 
 
 def test_save_load_round_trip_and_params_flag(vehicle, tmp_path):

@@ -29,6 +29,7 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Callable, Iterable, Sequence
 
 from autopilot.metrics import METRIC_NAMES
+from autopilot.params import arg_type
 from autopilot.shared.cli import OneLineArgumentParser
 from autopilot.shared.process import write_json_atomic
 
@@ -461,7 +462,7 @@ def build_parser() -> argparse.ArgumentParser:
     )
     p.add_argument(
         "--sigma-xu",
-        type=float,
+        type=arg_type("CLSAC_SIGMA_X"),  # the parameter table's bounds, as python -m autopilot --sigma-xu
         default=None,
         metavar="SIGMA",
         help="sigma-modification of K_Ix, K_Iu for every run (default 0, the paper)",

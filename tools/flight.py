@@ -33,6 +33,7 @@ from dataclasses import dataclass, field, fields
 from functools import cached_property
 from pathlib import Path
 
+from autopilot import flags
 from autopilot.envelope import MAX_ROLL_DEG, MAX_SATURATED_SHARE, Envelope
 from autopilot.flags import CONTROLLERS, default_lv, envelope_roll_deg, envelope_saturated_pct
 from autopilot.metrics import METRIC_NAMES
@@ -54,6 +55,7 @@ PROCESSES = ("sitl", "gcs", "autopilot")
 PROFILES = ("square", "step", "sine")
 MERGE_MAX_MB = 64.0  # default rrd_merge_max_mb: larger telemetry parts are concatenated (streamed), not merged
 PNG_MAX_POINTS = 20_000  # flight.png plots every k-th step of a long flight: bounded memory whatever its length
+DEFAULT_DURATION_S = 30.0  # a flight's length unless given (a csv profile: its last breakpoint)
 RUDDER_MAX_DEG = 30.0  # the servo calibration's full deflection (SITL and autopilot default)
 
 
@@ -85,7 +87,7 @@ class FlightConfig:
     """The keywords of ``Flight``, validated: the long flags of ``python -m tools.launch``."""
 
     lockstep: bool = False  # SITL as time master, as fast as the machine allows (default: real time)
-    duration: float = 30.0  # sim s
+    duration: float | None = None  # sim s; default 30, or a csv profile's last breakpoint (its end)
     controller: str = "clsac"  # one of CONTROLLERS
     lv: float | None = None  # default 0 for sac, 20 for clsac
     pfc: str = "paper"  # a key of autopilot.config.PFC_PRESETS
@@ -155,15 +157,14 @@ class FlightConfig:
             object.__setattr__(self, name, value)
 
         for name, check in (  # the launcher's own argument types: values that cannot be flown are rejected here
-            ("duration", cli.duration_s),
-            ("rate", cli.rate_hz),
+            ("rate", flags.rate_arg),  # the parameter table's bounds (autopilot.params.PARAMS), as the flags
             ("sensor_rate", cli.sensor_rate_hz),
-            ("sigma_xu", cli.gain),
+            ("sigma_xu", flags.sigma_xu_arg),
             ("dead_zone_deg", cli.nonneg_float),
             ("start_time", cli.clock_s),
             ("amplitude", cli.angle_deg),
             ("period", cli.timeout_s),
-            ("u_limit_deg", cli.limit_deg),
+            ("u_limit_deg", flags.u_limit_deg_arg),
             ("rt_priority", cli.rt_priority_arg),
             ("rrd_merge_max_mb", cli.bounded(0.0, 1e6, "MB")),
             ("envelope_roll", envelope_roll_deg),
@@ -171,11 +172,13 @@ class FlightConfig:
         ):
             put(name, _checked(name, check, getattr(self, name)))
         for name, check in (
-            ("lv", cli.gain),
+            ("duration", cli.duration_s),
+            ("lv", flags.lv_arg),
             ("ki_max", cli.positive_float),
             ("physics_rate", cli.physics_rate_hz),
-            ("telemetry_rate", cli.nonneg_float),
+            ("telemetry_rate", cli.stream_rate_or_0),
             ("timeout", cli.timeout_s),
+            ("connect", cli.viewer_url),
         ):
             if getattr(self, name) is not None:
                 put(name, _checked(name, check, getattr(self, name)))
@@ -237,6 +240,13 @@ class FlightConfig:
             except (OSError, ProfileError) as exc:
                 raise FlightConfigError("csv", f"csv: {exc}") from None
         put("command", command)
+        if self.duration is None:  # a csv profile flies to its last breakpoint, any other 30 s
+            _require(
+                command.end is None or command.end > 0,
+                "csv",
+                f"csv: the last breakpoint of {self.csv!r} is at 0 s: give a duration",
+            )
+            put("duration", DEFAULT_DURATION_S if command.end is None else command.end)
         put("gcs_peer", tuple(_checked("gcs_peer", cli.peer_endpoint, p) for p in self.gcs_peer or ()))
         if self.out is not None:
             problem = cli.output_dir_problem(self.out)

@@ -3,7 +3,8 @@
 Listens like a ground station (default 127.0.0.1:14550), waits for the vehicle's HEARTBEAT (system 1
 component 1), then sends SET_ATTITUDE_TARGET setpoints for a roll profile: ``square`` (default
 10 deg, 10 s period, +amplitude first), ``step``, ``sine`` or ``--csv FILE`` (rows ``time_s, roll_deg``,
-held until the next row).  Prints a live line (sim time, setpoint, roll, error) about twice a second.
+held until the next row, never interpolated; the profile ends at the last row unless --duration is given).
+Prints a live line (sim time, setpoint, roll, error) about twice a second.
 
 Profile time 0 is the first sim time seen from the vehicle (ATTITUDE or SYSTEM_TIME), or --start-time.
 
@@ -33,8 +34,8 @@ from autopilot.shared.cli import (
     duration_or_0,
     endpoint,
     fmt_endpoint,
+    message_rate_hz,
     peer_endpoint,
-    positive_float,
     signing_key_from_args,
     timeout_s,
 )
@@ -76,6 +77,11 @@ class GcsOptions:
     quiet: bool = False  # no live line
     signing_key: bytes | None = None  # MAVLink 2 signing (autopilot.shared.signing); None = off
     vehicle: tuple[str, int] | None = None  # the vehicle's (host, port); None = the first that talks with its IDs
+
+
+def _deg(rad: float, width: int) -> str:
+    """``rad`` in degrees, signed, ``width`` wide; ``-`` if it is not a number (not received yet)."""
+    return f"{math.degrees(rad):+{width}.2f}" if math.isfinite(rad) else "-".rjust(width)
 
 
 class Gcs:
@@ -286,13 +292,7 @@ class Gcs:
                 self._send_setpoint(0, self.profile.value((self.sim_ms - self.origin_ms) / 1000.0))
             if not o.quiet and now >= next_print and self.sim_ms is not None:
                 next_print = now + 1.0 / o.print_rate
-                err = self.target - self.roll
-                print(
-                    f"gcs: t={self.sim_ms / 1000.0:9.3f} s  setpoint={math.degrees(self.target):+7.2f} deg  "
-                    f"roll={math.degrees(self.roll):+7.2f} deg  error={math.degrees(err):+6.2f} deg",
-                    file=self.out,
-                    flush=True,
-                )
+                print(self.live_line(), file=self.out, flush=True)
             if (
                 o.duration > 0
                 and self.sim_ms is not None
@@ -311,6 +311,14 @@ class Gcs:
         self.own_stall_max_s = max(self.own_stall_max_s, gap)
         print(
             f"gcs: this script did not run for {gap:.1f} s (stopped or starved); reading on", file=self.out, flush=True
+        )
+
+    def live_line(self) -> str:
+        """The live line: sim time, the vehicle's setpoint and roll and their difference, in deg; a value not
+        received yet (the first line can come from SYSTEM_TIME alone) reads ``-``, never ``nan``."""
+        return (
+            f"gcs: t={self.sim_ms / 1000.0:9.3f} s  setpoint={_deg(self.target, 7)} deg  roll={_deg(self.roll, 7)} deg"
+            f"  error={_deg(self.target - self.roll, 6)} deg"
         )
 
     def _end(self, reason: str) -> None:
@@ -334,6 +342,14 @@ class Gcs:
         }
 
 
+def profile_duration(duration: float | None, profile: Profile) -> float:
+    """``--duration``, or when not given: a CSV profile's last breakpoint (it lasts to its end), else 0 (until the
+    vehicle powers off)."""
+    if duration is not None:
+        return duration
+    return profile.end or 0.0
+
+
 def build_parser() -> OneLineArgumentParser:
     p = OneLineArgumentParser(prog="python -m tools.gcs", description=__doc__.split("\n\n")[0])
     p.add_argument(
@@ -353,16 +369,22 @@ def build_parser() -> OneLineArgumentParser:
     p.add_argument(
         "profile", nargs="?", choices=("square", "step", "sine"), default="square", help="roll profile (default square)"
     )
-    p.add_argument("--csv", default=None, metavar="FILE", help="fly a CSV profile: rows 'time_s, roll_deg'")
+    p.add_argument(
+        "--csv",
+        default=None,
+        metavar="FILE",
+        help="fly a CSV profile: rows 'time_s, roll_deg', each held until the next (not interpolated), to the last",
+    )
     p.add_argument("--amplitude", type=angle_deg, default=10.0, metavar="DEG", help="amplitude (default 10)")
     p.add_argument("--period", type=timeout_s, default=10.0, metavar="S", help="square/sine period (default 10)")
     p.add_argument("--step-time", type=clock_s, default=1.0, metavar="S", help="step: switch time (default 1)")
     p.add_argument(
         "--duration",
         type=duration_or_0,
-        default=0.0,
+        default=None,
         metavar="S",
-        help="profile length in sim seconds (0 = until the vehicle powers off)",
+        help="profile length in sim seconds (0 = until the vehicle powers off; default 0, with --csv the file's "
+        "last breakpoint)",
     )
     p.add_argument("--lockstep", action="store_true", help="schedule the profile on sim time (deterministic runs)")
     p.add_argument(
@@ -381,19 +403,19 @@ def build_parser() -> OneLineArgumentParser:
     )
     p.add_argument(
         "--point-dt",
-        type=positive_float,
+        type=timeout_s,
         default=0.1,
         metavar="S",
         help="lockstep: one scheduled setpoint every S s of sim time besides the discontinuities (default 0.1)",
     )
     p.add_argument(
         "--setpoint-rate",
-        type=positive_float,
+        type=message_rate_hz,
         default=20.0,
         metavar="HZ",
         help="real time: setpoints per second (default 20)",
     )
-    p.add_argument("--print-rate", type=positive_float, default=2.0, metavar="HZ", help="live line rate (default 2)")
+    p.add_argument("--print-rate", type=message_rate_hz, default=2.0, metavar="HZ", help="live line rate (default 2)")
     p.add_argument(
         "--wait-timeout",
         type=clock_s,
@@ -427,6 +449,7 @@ def main(argv=None) -> int:
         )
     except (OSError, ValueError) as exc:
         parser.error(f"--csv: {exc}")
+    args.duration = profile_duration(args.duration, profile)
     apply_cpu(parser, args.cpu)
     try:
         values = {f.name: getattr(args, f.name) for f in fields(GcsOptions)}

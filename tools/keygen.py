@@ -31,8 +31,7 @@ import hashlib
 import os
 import sys
 
-from autopilot.shared.cli import OneLineArgumentParser
-from autopilot.shared.process import EXIT_FAILED
+from autopilot.shared.cli import OneLineArgumentParser, output_file_problem
 from autopilot.shared.signing import KeyFileError, write_key
 
 PROG = "python -m tools.keygen"
@@ -88,6 +87,9 @@ def main(argv=None) -> int:
     args = p.parse_args(argv)
     if os.path.lexists(args.file):  # before asking for a passphrase (write_key checks again, atomically)
         p.error(f"{args.file} exists: remove it first or choose another name")
+    problem = output_file_problem(args.file)  # an unwritable place: before asking for a passphrase too
+    if problem:
+        p.error(problem)
     key = None
     if args.passphrase:
         try:
@@ -98,9 +100,8 @@ def main(argv=None) -> int:
         write_key(args.file, key)
     except FileExistsError:
         p.error(f"{args.file} exists: remove it first or choose another name")
-    except (OSError, KeyFileError) as exc:
-        print(f"{PROG}: error: {args.file}: {getattr(exc, 'strerror', None) or exc}", file=sys.stderr)
-        return EXIT_FAILED
+    except (OSError, KeyFileError) as exc:  # a bad FILE, as every other error of this command: exit 2
+        p.error(f"{args.file}: {getattr(exc, 'strerror', None) or exc}")
     how = " (SHA-256 of the passphrase, as MAVProxy's signing setup)" if args.passphrase else ""
     print(f"signing key written to {args.file} (mode 0600){how}")
     return 0

@@ -17,19 +17,19 @@ import argparse
 import sys
 from pathlib import Path
 
-from autopilot.flags import add_controller_arguments, add_envelope_arguments
+from autopilot.flags import add_controller_arguments, add_envelope_arguments, rate_arg
 from autopilot.shared.cli import (
     OneLineArgumentParser,
     angle_deg,
     bounded,
     clock_s,
     duration_s,
-    nonneg_float,
     physics_rate_hz,
-    rate_hz,
     rt_priority_arg,
     sensor_rate_hz,
+    stream_rate_or_0,
     timeout_s,
+    viewer_url,
 )
 from autopilot.shared.process import EXIT_USAGE, install_stop_handlers
 from sitl import disturbances
@@ -116,9 +116,13 @@ def build_parser() -> OneLineArgumentParser:
         "--lockstep", action="store_true", help="SITL as time master, as fast as possible (default: real time)"
     )
     p.add_argument(
-        "--duration", type=duration_s, default=30.0, metavar="S", help="flight length in sim seconds (default 30)"
+        "--duration",
+        type=duration_s,
+        default=None,
+        metavar="S",
+        help="flight length in sim seconds (default 30; with --csv: the file's last breakpoint)",
     )
-    p.add_argument("--rate", type=rate_hz, default=100.0, metavar="HZ", help="control rate (default 100)")
+    p.add_argument("--rate", type=rate_arg, default=100.0, metavar="HZ", help="control rate (default 100)")
     p.add_argument(
         "--physics-rate",
         type=physics_rate_hz,
@@ -131,7 +135,7 @@ def build_parser() -> OneLineArgumentParser:
     )
     p.add_argument(
         "--telemetry-rate",
-        type=nonneg_float,
+        type=stream_rate_or_0,
         default=None,
         metavar="HZ",
         help="GCS stream rate (default 50 Hz in real time, 10 Hz of sim time in lockstep)",
@@ -149,7 +153,13 @@ def build_parser() -> OneLineArgumentParser:
     )
     p.add_argument("--start-time", type=clock_s, default=0.0, metavar="S", help="initial sim clock (default 0)")
     p.add_argument("profile", nargs="?", choices=PROFILES, default="square", help="GCS roll profile")
-    p.add_argument("--csv", default=None, metavar="FILE", help="GCS profile from a CSV file (time s, roll deg)")
+    p.add_argument(
+        "--csv",
+        default=None,
+        metavar="FILE",
+        help="GCS profile from a CSV file of 'time s, roll deg' rows, each held until the next (not interpolated); "
+        "the flight ends at the last row's time unless --duration is given",
+    )
     p.add_argument("--amplitude", type=angle_deg, default=10.0, metavar="DEG", help="profile amplitude (default 10)")
     p.add_argument("--period", type=timeout_s, default=10.0, metavar="S", help="profile period (default 10)")
     p.add_argument("--timeout", type=timeout_s, default=None, metavar="S", help="wall-clock limit of the whole flight")
@@ -182,6 +192,7 @@ def build_parser() -> OneLineArgumentParser:
     )
     g.add_argument(
         "--connect",
+        type=viewer_url,
         metavar="URL",
         default=None,
         help="show the flight live in a running Rerun viewer, e.g. rerun+http://127.0.0.1:9876/proxy",

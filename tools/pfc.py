@@ -16,7 +16,8 @@ import sys
 
 import numpy as np
 
-from autopilot.shared.cli import OneLineArgumentParser
+from autopilot import flags
+from autopilot.shared.cli import OneLineArgumentParser, angle_deg
 from tools import analysis
 
 EPILOG = """\
@@ -55,21 +56,21 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--pfc-den", metavar="LIST", help="denominator of a custom PFC D(s) (needs --pfc-num)")
     p.add_argument(
         "--command-deg",
-        type=float,
+        type=angle_deg,
         default=10.0,
         metavar="DEG",
         help="steady roll command for the steady-state error the PFC adds (default 10, the paper scenario)",
     )
     p.add_argument(
         "--rate-hz",
-        type=float,
+        type=flags.rate_arg,  # the parameter table's bounds (autopilot.params.PARAMS), as the flying commands
         default=100.0,
         metavar="HZ",
         help="control rate for the sampled-loop (ZOH) analysis (default 100, the paper scenario)",
     )
     p.add_argument(
         "--lv",
-        type=float,
+        type=flags.lv_arg,
         default=20.0,
         metavar="LV",
         help="CL-SAC Lv for the reference-model feedback loop through Kx (default 20, the paper's)",

@@ -10,6 +10,8 @@ import math
 from bisect import bisect_right
 from dataclasses import dataclass
 
+from autopilot.shared.cli import MAX_SIM_S
+
 KINDS = ("square", "step", "sine", "csv")
 
 
@@ -34,7 +36,8 @@ def from_csv(path: str) -> tuple[list[float], list[float]]:
     """Read a profile from a CSV file of ``time_s, roll_deg`` rows (header and ``#`` lines skipped).
 
     Returns (times in s, rolls in rad), times strictly increasing.  Raises ValueError with the line
-    number on a malformed, non-finite or out-of-order row.
+    number on a malformed, non-finite, out-of-range or out-of-order row: times are bounded like durations, in
+    [0, MAX_SIM_S] s (a day of sim time), rolls like ``--amplitude``, in [-180, 180] deg.
     """
     times: list[float] = []
     rolls: list[float] = []
@@ -52,6 +55,10 @@ def from_csv(path: str) -> tuple[list[float], list[float]]:
                 raise ValueError(f"{path}:{lineno}: expected 'time_s, roll_deg', got {text!r}") from None
             if not (math.isfinite(t) and math.isfinite(r)):
                 raise ValueError(f"{path}:{lineno}: values must be finite, got {text!r}")
+            if not 0.0 <= t <= MAX_SIM_S:
+                raise ValueError(f"{path}:{lineno}: time must be in [0, {MAX_SIM_S:g}] s, got {parts[0]!r}")
+            if not -180.0 <= r <= 180.0:
+                raise ValueError(f"{path}:{lineno}: roll must be in [-180, 180] deg, got {parts[1]!r}")
             if times and t <= times[-1]:
                 raise ValueError(f"{path}:{lineno}: times must increase, got {t} after {times[-1]}")
             times.append(t)
@@ -80,7 +87,8 @@ class Profile:
     """A roll command profile: ``value(t)`` in rad at time ``t`` in s from the profile's start.
 
     ``amplitude`` in rad (square, step, sine), ``period`` in s (square, sine), ``step_time`` in s (step),
-    ``times`` in s and ``values`` in rad (csv: each value held until the next time).
+    ``times`` in s and ``values`` in rad (csv: each value held until the next time, never interpolated; the
+    last time is the profile's end, :attr:`end`).
     """
 
     kind: str = "square"
@@ -117,6 +125,17 @@ class Profile:
         for a, b in zip(self.times, self.times[1:]):
             if b <= a:
                 raise ProfileError("times", f"times must increase, got {b!r} after {a!r}")
+        if not (0.0 <= self.times[0] and self.times[-1] <= MAX_SIM_S):
+            raise ProfileError(
+                "times", f"times must be in [0, {MAX_SIM_S:g}] s, got {self.times[0]!r}..{self.times[-1]!r}"
+            )
+        if any(abs(v) > math.pi for v in self.values):
+            raise ProfileError("values", f"values must be in [-pi, pi] rad, got {max(self.values, key=abs)!r}")
+
+    @property
+    def end(self) -> float | None:
+        """A CSV profile's last breakpoint (s): where the flight ends unless a duration is given; None otherwise."""
+        return self.times[-1] if self.kind == "csv" else None
 
     @classmethod
     def square(cls, amplitude_deg: float = 10.0, period: float = 10.0) -> Profile:

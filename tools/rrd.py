@@ -177,10 +177,30 @@ def entity_paths(path: str | os.PathLike, recording_id: str | None = None) -> li
     return sorted({c.entity_path for c in r.stream(store=_store(r, recording_id))})
 
 
+def unreadable(path: str | os.PathLike) -> str | None:
+    """Why ``path`` is not a readable recording (one line), or None: missing, empty, cut off inside a message
+    (``RrdReader`` decodes every frame header), or holding no recording.  ``rerun rrd verify`` of rerun-sdk 0.41
+    passes an empty file and one cut after 7 or 100 bytes, so :func:`verify` asks this first."""
+    if not os.path.isfile(path):
+        return "no such file"
+    if os.path.getsize(path) == 0:
+        return "empty file"
+    try:
+        r = _reader(path)
+        if not r.recordings() and not r.blueprints():
+            return "no recording in the file"
+    except (RuntimeError, OSError, ValueError) as exc:
+        return str(exc).strip().splitlines()[0].replace(f"Failed to read RRD file at {path}: ", "")
+    return None
+
+
 def verify(path: str | os.PathLike, *, check_footers: bool = True) -> tuple[bool, str]:
-    """``rerun rrd verify`` (the CLI of the installed rerun-sdk): (ok, output)."""
+    """(ok, output): :func:`unreadable` first, then ``rerun rrd verify`` (the CLI of the installed rerun-sdk)."""
     from autopilot.shared.telemetry.files import verify_rrd
 
+    problem = unreadable(path)
+    if problem:
+        return False, problem
     return verify_rrd(path, check_footers=check_footers)
 
 
@@ -222,6 +242,13 @@ def summary(path: str | os.PathLike) -> str:
     return "\n".join(lines)
 
 
+def _first_error(text: str) -> str:
+    """The one line of a verification's output that says what is wrong (rerun prints the file, then why)."""
+    lines = [ln.strip() for ln in text.strip().splitlines() if ln.strip()]
+    why = [ln for ln in lines if not ln.startswith("Error: Verification failed")]
+    return (why or lines or ["failed"])[0]
+
+
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(prog="python -m tools.rrd", description="Inspect, verify and merge .rrd files.")
     sub = ap.add_subparsers(dest="cmd", required=True)
@@ -255,7 +282,7 @@ def main(argv: list[str] | None = None) -> int:
             bad = 0
             for f in args.files:
                 ok, msg = verify(f, check_footers=not args.no_footer_check)
-                print(f"{f}: {'ok' if ok else 'FAILED'}" + ("" if ok else f"\n{msg}"))
+                print(f"{f}: {'ok' if ok else 'FAILED: ' + _first_error(msg)}")
                 bad += not ok
             return 1 if bad else 0
         print(merge(args.out, args.parts, blueprint=not args.no_blueprint, concatenate=args.concatenate))

@@ -52,6 +52,7 @@ from pathlib import Path
 import numpy as np
 
 from autopilot.envelope import Envelope, saturated, within
+from autopilot.shared import cli
 from autopilot.shared.cli import OneLineArgumentParser
 from autopilot.shared.process import write_json_atomic
 
@@ -730,6 +731,8 @@ class StudyOptions:
         for name in ("runs", "sweep_runs", "long_runs"):
             if getattr(self, name) < 0:
                 raise StudyError(f"--{name.replace('_', '-')} must be >= 0, got {getattr(self, name)}")
+        if not 0 <= self.seed <= cli.MAX_SEED:
+            raise StudyError(f"--seed must be in [0, 2^63-1], got {self.seed}")
         if self.runs < 1:
             raise StudyError(f"--runs must be >= 1, got {self.runs}")
         if self.chunk < 1:
@@ -977,26 +980,47 @@ def build_parser(prog: str = "python -m tools.study") -> argparse.ArgumentParser
     q = sub.add_parser("replay", help="one run of the study, alone, with its metrics")
     q.add_argument("--controller", required=True, choices=tuple(CONTROLLERS))
     q.add_argument("--condition", required=True)
-    q.add_argument("--seed", type=int, required=True)
-    q.add_argument("--run", type=int, required=True)
-    q.add_argument("--duration", type=float, default=30.0)
+    q.add_argument("--seed", type=cli.seed, required=True)
+    q.add_argument("--run", type=cli.count(0, 10**9, name="run"), required=True)
+    q.add_argument("--duration", type=cli.duration_s, default=30.0)
     return p
 
 
 def add_run_arguments(r: argparse.ArgumentParser) -> None:
-    r.add_argument("--runs", type=int, default=1000, help="runs per controller and condition (default 1000)")
-    r.add_argument("--seed", type=int, default=0, help="run i draws from numpy default_rng([seed, i]) (default 0)")
+    r.add_argument(
+        "--runs",
+        type=cli.count(1, 10**7, name="runs"),
+        default=1000,
+        help="runs per controller and condition (default 1000)",
+    )
+    r.add_argument("--seed", type=cli.seed, default=0, help="run i draws from numpy default_rng([seed, i]) (default 0)")
     r.add_argument("--out", metavar="DIR", help="output folder (default: a new runs/robustness-<timestamp>/)")
     r.add_argument("--controllers", metavar="A,B", help=f"subset of: {','.join(CONTROLLERS)} (default all)")
     r.add_argument("--conditions", metavar="A,B", help="subset of: nominal,moderate,severe (default all)")
     r.add_argument(
-        "--sweep-runs", type=int, default=100, help="runs per sweep point (loss, delay, turbulence; 0: none)"
+        "--sweep-runs",
+        type=cli.count(0, 10**6, name="sweep_runs"),
+        default=100,
+        help="runs per sweep point (loss, delay, turbulence; 0: none)",
     )
-    r.add_argument("--long-runs", type=int, default=10, help="runs of the 600 s long flight (0: none; default 10)")
-    r.add_argument("--chunk", type=int, default=2500, help="runs per batch (results do not depend on it)")
+    r.add_argument(
+        "--long-runs",
+        type=cli.count(0, 10**6, name="long_runs"),
+        default=10,
+        help="runs of the 600 s long flight (0: none; default 10)",
+    )
+    r.add_argument(
+        "--chunk",
+        type=cli.count(1, 10**6, name="chunk"),
+        default=2500,
+        help="runs per batch (results do not depend on it)",
+    )
     r.add_argument("--scheduler", metavar="tcp://HOST:PORT", help="a Dask scheduler (default: run here)")
     r.add_argument(
-        "--workers", type=int, default=1, help="local processes when no --scheduler (default 1; results do not change)"
+        "--workers",
+        type=cli.count(1, 1024, name="workers"),
+        default=1,
+        help="local processes when no --scheduler (default 1; results do not change)",
     )
     r.add_argument("--no-progress", action="store_true", help="no progress bar")
 

@@ -88,16 +88,27 @@ def rate_hz(text: str) -> float:
     return v
 
 
-def bounded(lo: float, hi: float, unit: str, *, lo_open: bool = False, name: str = "bounded"):
-    """An argument type: a finite number in [lo, hi] (``lo_open``: (lo, hi]); the error gives the allowed range.
+def bounds_text(lo: float, hi: float, unit: str, *, lo_open: bool = False, hi_open: bool = False) -> str:
+    """``[lo, hi] unit`` with ``(`` / ``)`` for an open end: the range an error message gives."""
+    return f"{'(' if lo_open else '['}{lo:g}, {hi:g}{')' if hi_open else ']'} {unit}".rstrip()
+
+
+def in_bounds(v: float, lo: float, hi: float, *, lo_open: bool = False, hi_open: bool = False) -> bool:
+    """``v`` finite and in the range (``lo_open`` / ``hi_open``: that end excluded)."""
+    return math.isfinite(v) and (v > lo if lo_open else v >= lo) and (v < hi if hi_open else v <= hi)
+
+
+def bounded(lo: float, hi: float, unit: str, *, lo_open: bool = False, hi_open: bool = False, name: str = "bounded"):
+    """An argument type: a finite number in [lo, hi] (``lo_open``: (lo, ...; ``hi_open``: ..., hi)); the error
+    gives the allowed range.
 
     For values that parse but cannot be flown: a duration or a clock beyond a day of sim time, a rate the
     process cannot keep, a gain that overflows the law."""
-    lo_txt = f"{'(' if lo_open else '['}{lo:g}, {hi:g}] {unit}".rstrip()
+    lo_txt = bounds_text(lo, hi, unit, lo_open=lo_open, hi_open=hi_open)
 
     def check(text) -> float:
         v = _number(text)
-        if not (math.isfinite(v) and (v > lo if lo_open else v >= lo) and v <= hi):
+        if not in_bounds(v, lo, hi, lo_open=lo_open, hi_open=hi_open):
             raise argparse.ArgumentTypeError(f"must be in {lo_txt}, got {text!r}")
         return v
 
@@ -118,6 +129,61 @@ sensor_rate_hz = bounded(0.0, MAX_SENSOR_RATE_HZ, "Hz", lo_open=True, name="sens
 gain = bounded(0.0, MAX_GAIN, "", name="gain")
 angle_deg = bounded(-180.0, 180.0, "deg", name="angle_deg")
 limit_deg = bounded(0.0, 90.0, "deg", lo_open=True, name="limit_deg")
+MAX_MESSAGE_RATE_HZ = 1_000.0  # a stream or a setpoint rate: at most one message a millisecond
+message_rate_hz = bounded(0.0, MAX_MESSAGE_RATE_HZ, "Hz", lo_open=True, name="message_rate_hz")
+stream_rate_or_0 = bounded(0.0, MAX_MESSAGE_RATE_HZ, "Hz (0 = off)", name="stream_rate_or_0")
+spin_us = bounded(0.0, 1e6, "us", name="spin_us")  # a busy-wait before a deadline: at most a second
+MAX_SEED = 2**63 - 1  # numpy's SeedSequence takes any integer >= 0; this one fits an int64 everywhere
+
+
+def seed(text) -> int:
+    """A random seed: a whole number in [0, 2^63 - 1] (numpy refuses negative ones with a traceback)."""
+    try:
+        v = int(str(text).strip())
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected a whole number in [0, 2^63-1], got {text!r}") from None
+    if not 0 <= v <= MAX_SEED:
+        raise argparse.ArgumentTypeError(f"must be in [0, 2^63-1], got {text!r}")
+    return v
+
+
+def count(lo: int, hi: int, what: str = "", name: str = "count"):
+    """An argument type: a whole number in [lo, hi] (runs, samples, workers)."""
+
+    def check(text) -> int:
+        try:
+            v = int(str(text).strip())
+        except ValueError:
+            raise argparse.ArgumentTypeError(f"expected a whole number in [{lo}, {hi}], got {text!r}") from None
+        if not lo <= v <= hi:
+            raise argparse.ArgumentTypeError(f"must be in [{lo}, {hi}]{' ' + what if what else ''}, got {text!r}")
+        return v
+
+    check.__name__ = name
+    return check
+
+
+VIEWER_SCHEMES = ("rerun", "rerun+http", "rerun+https")  # rerun.connect_grpc (rerun-sdk 0.41)
+
+
+def viewer_url(text) -> str:
+    """A Rerun viewer's gRPC address for ``--connect``: ``SCHEME://HOST:PORT/proxy`` with SCHEME one of
+    rerun, rerun+http, rerun+https (what ``rerun.connect_grpc`` takes), e.g. rerun+http://127.0.0.1:9876/proxy."""
+    from urllib.parse import urlsplit
+
+    example = "e.g. rerun+http://127.0.0.1:9876/proxy"
+    u = urlsplit(str(text))
+    try:
+        port = u.port
+    except ValueError:
+        port = None
+    if u.scheme not in VIEWER_SCHEMES or not u.hostname or port is None or not 1 <= port <= 65535:
+        raise argparse.ArgumentTypeError(
+            f"expected {'|'.join(VIEWER_SCHEMES)}://HOST:PORT/proxy (port 1..65535), {example}; got {text!r}"
+        )
+    if u.path.rstrip("/") != "/proxy" or u.query or u.fragment:
+        raise argparse.ArgumentTypeError(f"the path must be /proxy, {example}; got {text!r}")
+    return str(text)
 
 
 def rt_priority_arg(text: str) -> int:

@@ -467,12 +467,16 @@ def _name(msgid: int) -> str:
 
 
 def format_counters(name: str, c: dict, extra: dict | None = None) -> str:
-    """One line: ``name: rx N (ATTITUDE=.., ...) tx N rejected {reason: n}``."""
+    """One line: ``name: received N messages (ATTITUDE=.., ...) in D datagrams; sent N (...); rejected: ...``.
+
+    Messages and datagrams differ: a peer may pack several messages into one datagram (N > D), and a rejected
+    datagram carries none (N < D)."""
     rx = ", ".join(f"{k}={v}" for k, v in c["rx_by_type"].items())
     tx = ", ".join(f"{k}={v}" for k, v in c["tx_by_type"].items())
     rej = ", ".join(f"{k}={v}" for k, v in c["rejected"].items()) or "none"
     s = (
-        f"{name}: received {c['rx_packets']} ({rx}) of {c['rx_datagrams']} datagrams; sent {c['tx_packets']} ({tx})"
+        f"{name}: received {c['rx_packets']} messages ({rx}) in {c['rx_datagrams']} datagrams; "
+        f"sent {c['tx_packets']} messages ({tx})"
         f"{'; send errors ' + str(c['tx_errors']) if c['tx_errors'] else ''}; rejected: {rej}"
     )
     if extra:

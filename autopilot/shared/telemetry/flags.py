@@ -8,6 +8,8 @@ from __future__ import annotations
 import argparse
 from collections.abc import Callable
 
+from autopilot.shared.cli import viewer_url
+
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     """``--rrd PATH``, ``--recording-id ID``, ``--connect URL``, ``--viewer`` (telemetry group)."""
@@ -21,6 +23,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     )
     g.add_argument(
         "--connect",
+        type=viewer_url,
         metavar="URL",
         default=None,
         help="stream live to a running Rerun viewer, e.g. rerun+http://127.0.0.1:9876/proxy",
