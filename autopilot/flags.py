@@ -6,7 +6,7 @@ import argparse
 import math
 
 from autopilot.params import arg_type
-from autopilot.shared.cli import bounded, limit_deg, nonneg_float, positive_float
+from autopilot.shared.cli import bounded, nonneg_float, positive_float
 
 CONTROLLERS = ("sac", "clsac", "baseline")  # baseline: the fixed-gain PID of autopilot.baseline
 PFC_CHOICES = ("paper", "robust")  # the keys of autopilot.config.PFC_PRESETS (spelled out: --help needs no numpy)
@@ -73,7 +73,6 @@ def add_controller_arguments(parser: argparse.ArgumentParser) -> None:
         help="robustness option: no integral adaptation while the rudder command saturates (default: off)",
     )
     g.add_argument("--u-limit-deg", type=u_limit_deg_arg, default=30.0, help="rudder command limit (default 30)")
-    g.add_argument("--u-limit-deg", type=limit_deg, default=30.0, help="rudder command limit (default 30)")
 
 
 # The envelope's limits on the command line (autopilot.envelope.Envelope takes the share as a fraction).
