@@ -121,7 +121,7 @@ def test_readme_flight_example_prints_why(tmp_path):
     first, second = [ln for ln in r.stdout.splitlines() if ln.startswith(("True", "False"))]
     assert first.startswith("False True False out of envelope: |roll| reached "), first
     assert "False True False out of envelope" in text  # what the README says it prints
-    assert re.fullmatch(r"False stopped by the caller after [\d.]+ s of 600 s \(sim time\)", second), r.stdout
+    assert re.fullmatch(r"False stopped by the caller after [\d.]+ s of 3600 s \(sim time\)", second), r.stdout
     s = _summary(tmp_path / "runs" / "x")
     assert s["outcome"] == "OUT OF ENVELOPE" and f"out of envelope: {s['controlled']['reason']}" in first
 
