@@ -18,6 +18,7 @@ from autopilot.shared.cli import (
     add_pwm_arguments,
     add_rt_priority_argument,
     add_signing_argument,
+    add_sysid_argument,
     check_output_files,
     clock_s,
     duration_or_0,
@@ -31,7 +32,7 @@ from autopilot.shared.cli import (
     timeout_s,
 )
 from autopilot.shared.link import ANY_COMPONENT
-from autopilot.shared.mavlink import GCS_ID
+from autopilot.shared.mavlink import GCS_SYSTEMS
 from autopilot.shared.process import (
     apply_cpu,
     apply_rt_priority,
@@ -82,8 +83,10 @@ def build_parser() -> OneLineArgumentParser:
         action="append",
         default=None,
         metavar="SYS:COMP",
-        help=f"accepted GCS system:component (repeatable; default system {GCS_ID[0]} with any component)",
+        help=f"accepted GCS system:component (repeatable; default systems {' and '.join(map(str, GCS_SYSTEMS))} "
+        "with any component, and any system that sends a MAV_TYPE_GCS HEARTBEAT)",
     )
+    add_sysid_argument(p, "the vehicle's MAVLink system id: N:1 to the ground stations, N:140 to the SITL")
     p.add_argument(
         "--gcs-peer",
         action="append",
@@ -199,7 +202,7 @@ def build_parser() -> OneLineArgumentParser:
 
 def _gcs_ids(parser, values):
     if not values:
-        return ((GCS_ID[0], ANY_COMPONENT),)
+        return tuple((s, ANY_COMPONENT) for s in GCS_SYSTEMS)
     out = []
     for v in values:
         try:
@@ -283,7 +286,9 @@ def main(argv=None) -> int:
         sitl_bind=args.sitl_bind,
         gcs=args.gcs,
         gcs_bind=args.gcs_bind,
+        sysid=args.sysid,
         gcs_ids=_gcs_ids(parser, args.gcs_id),
+        learn_gcs=not args.gcs_id,  # --gcs-id narrows the ground stations to those listed
         gcs_peers=tuple(args.gcs_peer),
         signing_key=signing_key_from_args(parser, args),
         lockstep_idle_exit_s=args.lockstep_idle_exit,
@@ -328,7 +333,8 @@ def main(argv=None) -> int:
     shown_lv = params.get("CLSAC_LV") if args.controller == "clsac" else 0.0 if args.controller == "sac" else lv
     print(
         f"autopilot: {opts.name} (Lv={shown_lv:g}) {mode} at {rate:g} Hz; SITL link {fmt_endpoint(ap.sitl.local)} -> "
-        f"{fmt_endpoint(args.sitl)}; GCS link {fmt_endpoint(ap.gcs.local)} -> {fmt_endpoint(args.gcs)}{rt_note}",
+        f"{fmt_endpoint(args.sitl)}; GCS link {fmt_endpoint(ap.gcs.local)} -> {fmt_endpoint(args.gcs)}; system id "
+        f"{args.sysid}{rt_note}",
         flush=True,
     )
     code = 0

@@ -35,14 +35,11 @@ from dataclasses import dataclass, field
 from autopilot.clsac import GAIN_FIELDS, MODEL_FIELDS, ClSac, gains_of, model_of
 from autopilot.config import ClSacConfig
 from autopilot.params import ParamTable
-from autopilot.shared.events import StatusEvents, printable
+from autopilot.shared.events import StatusEvents, StatusTextAssembler
 from autopilot.shared.link import ANY_COMPONENT, UdpLink
 from autopilot.shared.mavlink import (
-    AUTOPILOT_ID,
-    AUTOPILOT_SITL_ID,
-    GCS_ID,
+    GCS_SYSTEMS,
     SETPOINT_TYPEMASK,
-    SITL_ID,
     TYPEMASK_IGNORE_ATTITUDE,
     frame_from_ms,
     frame_ms,
@@ -50,6 +47,7 @@ from autopilot.shared.mavlink import (
     mavlink,
     quaternion_to_roll,
     roll_to_quaternion,
+    vehicle_ids,
 )
 from autopilot.shared.pwm import PwmMap
 from autopilot.shared.series import SeriesRecorder
@@ -92,7 +90,9 @@ class AutopilotOptions:
     sitl_bind: tuple = ("127.0.0.1", 0)
     gcs: tuple = ("127.0.0.1", 14550)
     gcs_bind: tuple = ("127.0.0.1", 0)
-    gcs_ids: tuple = ((GCS_ID[0], ANY_COMPONENT),)  # (sys, comp); comp ANY_COMPONENT = any
+    sysid: int = 1  # the vehicle's MAVLink system id (--sysid): 1:1 to the ground stations, 1:140 to the SITL
+    gcs_ids: tuple = tuple((s, ANY_COMPONENT) for s in GCS_SYSTEMS)  # (sys, comp); comp ANY_COMPONENT = any
+    learn_gcs: bool = True  # also take any system that sends a MAV_TYPE_GCS HEARTBEAT (off with --gcs-id)
     gcs_peers: tuple = ()  # ground-station addresses admitted from the start (--gcs-peer)
     max_gcs: int = 8  # admitted ground-station addresses at most (docs/design.md, "Trust model")
     signing_key: bytes | None = None  # MAVLink 2 signing on both links (autopilot.shared.signing); None = off
@@ -235,22 +235,25 @@ class Autopilot:
         self.control = ControlStep(ctrl_config, pwm)
         self.ctrl = self.control.law
         self.setpoints = self.control.setpoints
+        self.ids, sitl_src, sitl_id = vehicle_ids(opts.sysid)  # GCS link N:1, SITL link N:140, the SITL N:200
         self.sitl = UdpLink(
             "sitl",
-            AUTOPILOT_SITL_ID,  # its own component: tlog readers separate it from the GCS link (1:1)
+            sitl_src,  # its own component: tlog readers separate it from the GCS link (N:1)
             opts.sitl_bind,
             opts.sitl,
-            peers=[SITL_ID],
+            peers=[sitl_id],
             msgids=[ATTITUDE, HEARTBEAT, STATUSTEXT],
             signing=Signing(opts.signing_key, SIGNING_LINK_SITL) if opts.signing_key else None,
             tlog=tlog,
         )
         self.gcs = UdpLink(
             "gcs",
-            AUTOPILOT_ID,
+            self.ids,
             opts.gcs_bind,
             opts.gcs,
             peers=opts.gcs_ids,
+            learn_gcs=opts.max_gcs if opts.learn_gcs else 0,
+            gcs_systems=GCS_SYSTEMS,
             msgids=[SET_ATTITUDE_TARGET, HEARTBEAT, *VEHICLE_MSGIDS],
             admit=opts.max_gcs,
             peer_addrs=opts.gcs_peers,
@@ -261,6 +264,8 @@ class Autopilot:
         self.events = Counter()  # autopilot-level counters (failsafes, setpoints, frames)
         self._event = StatusEvents("autopilot", self.gcs, self.events, verbose=opts.verbose, out=self.out)
         self.event_hooks = self._event.hooks  # callables(severity, text), for each status event
+        self.gcs.on_refused_gcs = self._on_refused_gcs
+        self._sitl_texts = StatusTextAssembler()
         self.timing = TimingStats()
         self.stop_requested = False
         self.exit_reason = ""
@@ -351,14 +356,16 @@ class Autopilot:
                     return
             att.ms, att.roll, att.p, att.r, att.t_rx, att.valid = ms, roll, p, r, t_rx, True
         elif mid == STATUSTEXT:
-            self._event(msg.severity, f"SITL: {printable(msg.text)}")
+            text = self._sitl_texts.add(msg)  # a long text arrives in chunks (autopilot.shared.events)
+            if text is not None:
+                self._event(msg.severity, f"SITL: {text}")
 
     def _on_gcs(self, msg, t_rx):
         if msg.get_msgId() != SET_ATTITUDE_TARGET:
             self.vehicle.handle(msg)  # commands, parameters, modes, manual input (autopilot.vehicle)
             return
         ev = self.events
-        if msg.target_system not in (0, AUTOPILOT_ID[0]) or msg.target_component not in (0, AUTOPILOT_ID[1]):
+        if msg.target_system not in (0, self.ids[0]) or msg.target_component not in (0, self.ids[1]):
             self.gcs.reject("wrong_target")
             return
         if msg.type_mask & TYPEMASK_IGNORE_ATTITUDE:
@@ -398,6 +405,11 @@ class Autopilot:
             self.horizon_us = t_us
         if self.opts.lockstep and self.pending_frame is not None:
             self._try_step(t_rx)
+
+    def _on_refused_gcs(self, reason: str, sysid: int, compid: int, addr) -> None:
+        """The first refused packet of a would-be ground station (``UdpLink.on_refused_gcs``): say why, once."""
+        self.events["refused_gcs"] += 1
+        self._event(M.MAV_SEVERITY_WARNING, refusal_text(reason, sysid, compid, addr, self.opts))
 
     def _now_sim_us(self) -> float | None:
         """The current sim time in us (None before the first attitude)."""
@@ -839,6 +851,24 @@ def _series_row(rec: StepRecord) -> tuple:
         int(rec.ap.vehicle.mode),  # HEARTBEAT.custom_mode (autopilot.vehicle.Mode)
         rec.ap.control.armed,
     )
+
+
+def refusal_text(reason: str, sysid: int, compid: int, addr, opts: AutopilotOptions) -> str:
+    """Why the GCS link refused a would-be ground station's packet, in one line (docs/design.md, "Which ground
+    stations are admitted")."""
+    if reason == "unsigned":
+        why = "unsigned; this vehicle takes only packets signed with its key"
+    elif reason == "bad_signature":
+        why = "signed with another key than this vehicle's"
+    elif reason == "not_peer":
+        why = "its address is not admitted (add it with --gcs-peer, or sign with the vehicle's key)"
+    elif opts.learn_gcs:
+        systems = ", ".join(str(s) for s in GCS_SYSTEMS)
+        why = f"system {sysid} is not a ground station's ({systems}) and sent no MAV_TYPE_GCS HEARTBEAT first"
+    else:
+        ids = ", ".join(f"{s}:{'any' if c is ANY_COMPONENT else c}" for s, c in opts.gcs_ids)
+        why = f"not one of the accepted --gcs-id {ids}"
+    return f"GCS {sysid}:{compid} at {addr[0]}:{addr[1]} refused: {why}"
 
 
 def series_recorder() -> SeriesRecorder:
