@@ -300,3 +300,27 @@ def test_mavproxy_signed_launch_with_passphrase(tmp_path, mavproxy_python):
     assert ap["events"]["param_sets"] == 1  # MAVProxy's PARAM_SET passed the signature check (unsigned: refused)
     assert not {"unsigned", "bad_signature"} & set(gcs["rejected"]), gcs["rejected"]
     assert load_json(out / "summary.json")["ok"] is True
+
+
+def test_mavproxy_sees_two_vehicles_with_sysid_1_and_2(tmp_path, mavproxy_python):
+    """Two launches (lockstep) with --sysid 1 and 2 streaming to MAVProxy's one port: MAVProxy detects two vehicles
+    (tests/test_sysid.py checks each one's HEARTBEAT and ATTITUDE stream on such a port)."""
+    port = free_ports(1)[0]
+    mp = MavProxy(mavproxy_python, port, tmp_path)
+    launches = [
+        subprocess.Popen(
+            [sys.executable, "-m", "tools.launch", "--lockstep", "--duration", "10", "--sysid", str(n), "--gcs-peer"]
+            + [f"127.0.0.1:{port}", "--out", str(tmp_path / f"v{n}"), "--no-rrd", "--no-png", "--quiet"],
+            stdout=subprocess.DEVNULL,
+            stderr=subprocess.DEVNULL,
+            stdin=subprocess.DEVNULL,
+        )
+        for n in (1, 2)
+    ]
+    try:
+        mp.wait_for(r"Detected vehicle 1:1", 30)
+        mp.wait_for(r"Detected vehicle 2:1", 30)
+    finally:
+        mp.close()
+        codes = [p.wait(120) for p in launches]
+    assert codes == [0, 0]
