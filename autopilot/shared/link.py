@@ -45,9 +45,10 @@ so ``rx_datagrams == rx_accepted + sum(rejected.values())`` always holds.
 **Ground-station systems.**  ``peers`` lists the source (sysid, compid) pairs taken.  With ``learn_gcs=N`` a packet
 from another system is still taken if it is a HEARTBEAT of type MAV_TYPE_GCS that passes every other check (from
 an admitted or admissible address): its system joins the peers with any component, up to N systems.  A refused
-packet (``wrong_id`` or ``not_peer``) whose IDs look like a ground station's (``looks_like_gcs``) is counted per
-source in ``refused_gcs`` and handed once per (reason, system) to ``on_refused_gcs(reason, sysid, compid, addr)``
-(at most ``REFUSED_GCS_REPORTS`` calls), so the owner can say why.
+packet (``wrong_id``, ``not_peer``, ``unsigned`` or ``bad_signature``) whose IDs look like a ground station's
+(``looks_like_gcs``) is counted per source in ``refused_gcs`` (at most ``REFUSED_GCS_KEYS`` sources, the rest
+together as system and component -1) and handed once per (reason, system) to ``on_refused_gcs(reason, sysid,
+compid, addr)`` (at most ``REFUSED_GCS_REPORTS`` calls), so the owner can say why.
 
 **Floods.**  ``poll(handler, budget)`` always feeds a datagram from an admitted address; those from every other
 address share ``budget`` per poll and the rest of them are ``over_budget``, so a flood from elsewhere costs a
@@ -100,6 +101,7 @@ _HEARTBEAT = mavlink.MAVLINK_MSG_ID_HEARTBEAT
 _MAV_TYPE_GCS = mavlink.MAV_TYPE_GCS
 GCS_COMPONENT = mavlink.MAV_COMP_ID_MISSIONPLANNER  # 190: the component QGroundControl, MAVSDK, the GCS script use
 REFUSED_GCS_REPORTS = 8  # on_refused_gcs calls at most, per link (the packets are counted whatever their number)
+REFUSED_GCS_KEYS = 64  # distinct (reason, sysid, compid) counted in refused_gcs; more share (reason, -1, -1)
 
 
 def heartbeat_type(raw: bytes) -> int:
@@ -366,11 +368,14 @@ class UdpLink:
         """Count a refused packet that looks like a ground station's; report the first of each (reason, system)."""
         if not looks_like_gcs(raw, sysid, compid, self.gcs_systems):
             return
-        self.refused_gcs[(reason, sysid, compid)] += 1
-        key = (reason, sysid)
-        if key in self._refusals_reported or len(self._refusals_reported) >= REFUSED_GCS_REPORTS:
+        key = (reason, sysid, compid)
+        if key not in self.refused_gcs and len(self.refused_gcs) >= REFUSED_GCS_KEYS:
+            key = (reason, -1, -1)  # a spoofer cycling through ids cannot grow the counter without bound
+        self.refused_gcs[key] += 1
+        report = (reason, sysid)
+        if report in self._refusals_reported or len(self._refusals_reported) >= REFUSED_GCS_REPORTS:
             return
-        self._refusals_reported.add(key)
+        self._refusals_reported.add(report)
         if self.on_refused_gcs is not None:
             self.on_refused_gcs(reason, sysid, compid, addr)
 
