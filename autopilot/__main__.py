@@ -135,6 +135,14 @@ def build_parser() -> OneLineArgumentParser:
     )
     p.add_argument("--max-roll-deg", type=limit_deg, default=45.0, help="setpoint clamp (default 45)")
     p.add_argument(
+        "--setpoint-time",
+        choices=("sim", "now"),
+        default="sim",
+        help="SET_ATTITUDE_TARGET time_boot_ms: 'sim' schedules the setpoint on sim time (0 or past = now; "
+        "default), 'now' ignores it and flies every setpoint on arrival, for a ground station that stamps its own "
+        "clock (MAVSDK stamps its host's uptime)",
+    )
+    p.add_argument(
         "--spin-us",
         type=nonneg_float,
         default=300.0,
@@ -281,6 +289,7 @@ def main(argv=None) -> int:
         telemetry_rate_hz=args.telemetry_rate,
         **options,
         pace=args.pace,
+        setpoint_time=args.setpoint_time,
         spin_s=math.inf if args.busy_wait else args.spin_us * 1e-6,
         sitl=args.sitl,
         sitl_bind=args.sitl_bind,

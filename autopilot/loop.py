@@ -84,6 +84,10 @@ class AutopilotOptions:
     setpoint_timeout_s: float = 1.0
     max_roll_rad: float = math.radians(45.0)
     setpoint_ahead_s: float = 10.0  # a SET_ATTITUDE_TARGET scheduled further ahead of sim time is rejected
+    # SET_ATTITUDE_TARGET.time_boot_ms: "sim" = a schedule on sim time (0 or past = now; the GCS script's lockstep
+    # schedule); "now" = ignored, every setpoint flies on arrival (as ArduPilot and PX4 do), for ground stations
+    # that stamp their own clock (MAVSDK stamps its host's uptime)
+    setpoint_time: str = "sim"
     pace: bool = True  # lockstep: wait for the GCS schedule horizon
     spin_s: float = 0.0003  # real time: busy-wait (serving the links) this long before each deadline; inf = never sleep
     sitl: tuple = ("127.0.0.1", 14560)
@@ -375,13 +379,14 @@ class Autopilot:
         if roll - roll != 0.0 or not all(math.isfinite(v) for v in msg.q):
             self.gcs.reject("nonfinite_setpoint")
             return
-        ms = msg.time_boot_ms
+        ms = msg.time_boot_ms if self.opts.setpoint_time == "sim" else 0
         now_us = self._now_sim_us()
         t_us = (now_us or 0.0) if ms == 0 else ms * 1000.0  # 0 means now
         if ms and (now_us is None or t_us > now_us + self.opts.setpoint_ahead_s * 1e6):
             # scheduled further ahead of the current sim time than any schedule needs (or before there is a
             # clock): it could only fill the queue
             self.gcs.reject("future_setpoint")
+            self._report_future_setpoint(msg, now_us)
             return
         lim = self.opts.max_roll_rad
         clamped = math.copysign(lim, roll) if (roll > lim or roll < -lim) else None
@@ -410,6 +415,20 @@ class Autopilot:
         """The first refused packet of a would-be ground station (``UdpLink.on_refused_gcs``): say why, once."""
         self.events["refused_gcs"] += 1
         self._event(M.MAV_SEVERITY_WARNING, refusal_text(reason, sysid, compid, addr, self.opts))
+
+    def _report_future_setpoint(self, msg, now_us: float | None) -> None:
+        """The first ``future_setpoint`` of the run, said once: most likely a ground station that stamps its own
+        clock, which ``--setpoint-time now`` serves."""
+        if self.events["future_setpoint_reported"]:
+            return
+        self.events["future_setpoint_reported"] = 1
+        clock = "before the vehicle has a clock" if now_us is None else f"sim time is {now_us * 1e-6:.1f} s"
+        self._event(
+            M.MAV_SEVERITY_WARNING,
+            f"setpoint from {msg.get_srcSystem()}:{msg.get_srcComponent()} stamped {msg.time_boot_ms / 1000:.1f} s "
+            f"refused ({clock}, at most {self.opts.setpoint_ahead_s:g} s ahead); a ground station stamping its own "
+            f"clock (MAVSDK) needs --setpoint-time now",
+        )
 
     def _now_sim_us(self) -> float | None:
         """The current sim time in us (None before the first attitude)."""

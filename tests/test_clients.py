@@ -58,15 +58,13 @@ def _free_tcp_port() -> int:
 
 
 class Vehicle:
-    """A real SITL (real time, its clock from 1000 s so that a client's own time_boot_ms is never ahead of it) and a
-    real autopilot streaming to ``gcs_port``: unsigned, so the first ground station that talks is admitted."""
+    """A real SITL (real time) and a real autopilot streaming to ``gcs_port``: unsigned, so the first ground station
+    that talks is admitted."""
 
     def __init__(self, tmp_path: Path, gcs_port: int, *extra: str):
         sitl_port = free_ports(1)[0]
         self.stats = tmp_path / "autopilot.json"
-        self.sitl = Proc(
-            "sitl", ["--listen", f"127.0.0.1:{sitl_port}", "--start-time", "1000", "--quiet"], tmp_path / "sitl.log"
-        )
+        self.sitl = Proc("sitl", ["--listen", f"127.0.0.1:{sitl_port}", "--quiet"], tmp_path / "sitl.log")
         assert self.sitl.wait_for("sitl: listening", 30), self.sitl.output()
         args = ["--sitl", f"127.0.0.1:{sitl_port}", "--gcs", f"127.0.0.1:{gcs_port}", "--stats-json", str(self.stats)]
         self.ap = Proc("autopilot", [*args, *extra], tmp_path / "autopilot.log")
@@ -85,11 +83,26 @@ class Vehicle:
         return load_json(self.stats)
 
 
+def _vehicle(tmp_path, *extra):
+    port = free_ports(1)[0]
+    v = Vehicle(tmp_path, port, *extra)
+    v.port = port
+    return v
+
+
 @pytest.fixture
 def vehicle(tmp_path):
-    port = free_ports(1)[0]
-    v = Vehicle(tmp_path, port)
-    v.port = port
+    v = _vehicle(tmp_path)
+    yield v
+    v.ap.stop()
+    v.sitl.stop()
+
+
+@pytest.fixture
+def mavsdk_vehicle(tmp_path):
+    """MAVSDK stamps SET_ATTITUDE_TARGET.time_boot_ms with its host's uptime, not the vehicle's sim time: the
+    autopilot flies its setpoints on arrival with --setpoint-time now (README, "MAVSDK")."""
+    v = _vehicle(tmp_path, "--setpoint-time", "now")
     yield v
     v.ap.stop()
     v.sitl.stop()
@@ -119,6 +132,7 @@ def _check_mavsdk_session(out: dict, vehicle: Vehicle) -> None:
     gcs = stats["links"]["gcs"]
     assert "wrong_id" not in gcs["rejected"], gcs["rejected"]  # 245:190 is a ground station by default
     assert gcs["rx_by_type"].get("SET_ATTITUDE_TARGET", 0) > 50  # Offboard.set_attitude's setpoints were flown
+    assert "future_setpoint" not in gcs["rejected"]
     assert stats["events"]["param_sets"] == 1
 
 
@@ -138,17 +152,17 @@ def _run_session(py: str, script: str, args: list, tmp_path: Path, timeout: floa
     return json.loads(out_path.read_text())
 
 
-def test_mavsdk3_default_ids_full_session(vehicle, tmp_path):
+def test_mavsdk3_default_ids_full_session(mavsdk_vehicle, tmp_path):
     py = _client_python(CLIENTS_VENV, "mavsdk", "mavsdk<4", "CLSAC_CLIENTS_VENV")
-    out = _run_session(py, "mavsdk3_session.py", [vehicle.port, _free_tcp_port()], tmp_path)
-    _check_mavsdk_session(out, vehicle)
+    out = _run_session(py, "mavsdk3_session.py", [mavsdk_vehicle.port, _free_tcp_port()], tmp_path)
+    _check_mavsdk_session(out, mavsdk_vehicle)
 
 
-def test_mavsdk4_default_ids_full_session(vehicle, tmp_path):
+def test_mavsdk4_default_ids_full_session(mavsdk_vehicle, tmp_path):
     py = _client_python(MAVSDK4_VENV, "mavsdk.plugins.param", "mavsdk>=4", "CLSAC_MAVSDK4_VENV")
-    out = _run_session(py, "mavsdk4_session.py", [vehicle.port], tmp_path)
+    out = _run_session(py, "mavsdk4_session.py", [mavsdk_vehicle.port], tmp_path)
     assert out["connect"]["system_id"] == 1
-    _check_mavsdk_session(out, vehicle)
+    _check_mavsdk_session(out, mavsdk_vehicle)
 
 
 # ------------------------------------------------------------------------------------------------------ MAVProxy

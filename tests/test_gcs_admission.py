@@ -155,3 +155,32 @@ def test_unsigned_ground_station_told_why_by_a_signed_vehicle(start, tmp_path):
     assert _count(ap.output().splitlines(), why) == 1
     ap.stop()
     assert load_json(stats)["links"]["gcs"]["refused_gcs"] == {"unsigned 255:190": 6}
+
+
+def _setpoint_far_ahead(st: Station) -> None:
+    # MAVSDK's stamp: its host's uptime in ms, here ~11.6 days, far ahead of any sim time the vehicle has
+    st.conn.mav.set_attitude_target_send(1_000_000_000, 1, 1, 71, [1.0, 0.0, 0.0, 0.0], 0, 0, 0, 0)
+
+
+def test_a_setpoint_stamped_with_the_senders_clock_is_refused_and_said_once(start):
+    ap, st, stats = start()
+    for _ in range(10):
+        _setpoint_far_ahead(st)
+    st.recv(timeout=1.0)
+    why = "a ground station stamping its own clock (MAVSDK) needs --setpoint-time now"
+    assert sum(why in t for t in st.texts) == 1, st.texts
+    assert sum(why in line for line in ap.output().splitlines()) == 1
+    ap.stop()
+    s = load_json(stats)
+    assert s["links"]["gcs"]["rejected"]["future_setpoint"] == 10 and s["events"].get("setpoints", 0) == 0
+
+
+def test_setpoint_time_now_flies_a_setpoint_whatever_its_stamp(start):
+    ap, st, stats = start("--setpoint-time", "now")
+    for _ in range(10):
+        _setpoint_far_ahead(st)
+    st.recv(timeout=1.0)
+    ap.stop()
+    s = load_json(stats)
+    assert "future_setpoint" not in s["links"]["gcs"]["rejected"]
+    assert s["events"]["setpoints"] == 10 and s["events"]["setpoints_now"] == 10
