@@ -879,6 +879,8 @@ def refusal_text(reason: str, sysid: int, compid: int, addr, opts: AutopilotOpti
         why = "unsigned; this vehicle takes only packets signed with its key"
     elif reason == "bad_signature":
         why = "signed with another key than this vehicle's"
+    elif reason == "not_peer" and opts.signing_key:
+        why = f"its address is not admitted: {opts.max_gcs} ground stations are already"  # signed: over the bound
     elif reason == "not_peer":
         why = "its address is not admitted (add it with --gcs-peer, or sign with the vehicle's key)"
     elif opts.learn_gcs:

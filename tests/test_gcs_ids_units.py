@@ -90,3 +90,22 @@ def test_refusals_are_counted_by_source_in_bounded_memory_and_reported_a_bounded
     assert link.refused_gcs[("wrong_id", -1, -1)] == 3 * REFUSED_GCS_KEYS
     assert sum(link.refused_gcs.values()) == link.rejected["wrong_id"] == 6 * REFUSED_GCS_KEYS
     assert len(calls) == REFUSED_GCS_REPORTS and calls[0] == ("wrong_id", 2, 190, ADDR)
+
+
+def test_refusal_text_names_the_reason_and_the_way_in():
+    from autopilot.loop import AutopilotOptions, refusal_text
+
+    default, narrowed = AutopilotOptions(), AutopilotOptions(gcs_ids=((255, 190),), learn_gcs=False)
+    signed = AutopilotOptions(signing_key=b"k" * 32)
+    head = "GCS 42:190 at 127.0.0.1:40000 refused: "
+    cases = [
+        ("wrong_id", default, "system 42 is not a ground station's (255, 245) and sent no MAV_TYPE_GCS HEARTBEAT"),
+        ("wrong_id", narrowed, "not one of the accepted --gcs-id 255:190"),
+        ("not_peer", default, "its address is not admitted (add it with --gcs-peer, or sign"),
+        ("not_peer", signed, "its address is not admitted: 8 ground stations are already"),
+        ("unsigned", signed, "unsigned; this vehicle takes only packets signed with its key"),
+        ("bad_signature", signed, "signed with another key"),
+    ]
+    for reason, opts, why in cases:
+        text = refusal_text(reason, 42, 190, ADDR, opts)
+        assert text.startswith(head + why), text
