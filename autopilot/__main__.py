@@ -26,6 +26,7 @@ from autopilot.shared.cli import (
     add_pwm_arguments,
     add_rt_priority_argument,
     add_signing_argument,
+    add_sysid_argument,
     check_output_files,
     clock_s,
     duration_or_0,
@@ -38,7 +39,7 @@ from autopilot.shared.cli import (
     stream_rate_or_0,
 )
 from autopilot.shared.link import ANY_COMPONENT
-from autopilot.shared.mavlink import GCS_ID
+from autopilot.shared.mavlink import GCS_SYSTEMS
 from autopilot.shared.process import (
     apply_cpu,
     apply_rt_priority,
@@ -89,8 +90,10 @@ def build_parser() -> OneLineArgumentParser:
         action="append",
         default=None,
         metavar="SYS:COMP",
-        help=f"accepted GCS system:component (repeatable; default system {GCS_ID[0]} with any component)",
+        help=f"accepted GCS system:component (repeatable; default systems {' and '.join(map(str, GCS_SYSTEMS))} "
+        "with any component, and any system that sends a MAV_TYPE_GCS HEARTBEAT)",
     )
+    add_sysid_argument(p, "the vehicle's MAVLink system id: N:1 to the ground stations, N:140 to the SITL")
     p.add_argument(
         "--gcs-peer",
         action="append",
@@ -139,6 +142,14 @@ def build_parser() -> OneLineArgumentParser:
     )
     p.add_argument(
         "--max-roll-deg", type=arg_type("CLSAC_MAX_ROLL", DEG, "deg"), default=45.0, help="setpoint clamp (default 45)"
+    )
+    p.add_argument(
+        "--setpoint-time",
+        choices=("sim", "now"),
+        default="sim",
+        help="SET_ATTITUDE_TARGET time_boot_ms: 'sim' schedules the setpoint on sim time (0 or past = now; "
+        "default), 'now' ignores it and flies every setpoint on arrival, for a ground station that stamps its own "
+        "clock (MAVSDK stamps its host's uptime)",
     )
     p.add_argument(
         "--spin-us",
@@ -209,7 +220,7 @@ def build_parser() -> OneLineArgumentParser:
 
 def _gcs_ids(parser, values):
     if not values:
-        return ((GCS_ID[0], ANY_COMPONENT),)
+        return tuple((s, ANY_COMPONENT) for s in GCS_SYSTEMS)
     out = []
     for v in values:
         try:
@@ -291,12 +302,15 @@ def main(argv=None) -> int:
         telemetry_rate_hz=args.telemetry_rate,
         **options,
         pace=args.pace,
+        setpoint_time=args.setpoint_time,
         spin_s=math.inf if args.busy_wait else args.spin_us * 1e-6,
         sitl=args.sitl,
         sitl_bind=args.sitl_bind,
         gcs=args.gcs,
         gcs_bind=args.gcs_bind,
+        sysid=args.sysid,
         gcs_ids=_gcs_ids(parser, args.gcs_id),
+        learn_gcs=not args.gcs_id,  # --gcs-id narrows the ground stations to those listed
         gcs_peers=tuple(args.gcs_peer),
         signing_key=signing_key_from_args(parser, args),
         lockstep_idle_exit_s=args.lockstep_idle_exit,
@@ -343,7 +357,8 @@ def main(argv=None) -> int:
     law = f" (Lv={shown_lv:g})" if args.controller != "baseline" else " (fixed-gain PID)"  # a PID has no Lv
     print(
         f"autopilot: {opts.name}{law} {mode} at {rate:g} Hz; SITL link {fmt_endpoint(ap.sitl.local)} -> "
-        f"{fmt_endpoint(args.sitl)}; GCS link {fmt_endpoint(ap.gcs.local)} -> {fmt_endpoint(args.gcs)}{rt_note}",
+        f"{fmt_endpoint(args.sitl)}; GCS link {fmt_endpoint(ap.gcs.local)} -> {fmt_endpoint(args.gcs)}; system id "
+        f"{args.sysid}{rt_note}",
         flush=True,
     )
     code = 0

@@ -36,14 +36,11 @@ from autopilot.clsac import GAIN_FIELDS, MODEL_FIELDS, ClSac, gains_of, model_of
 from autopilot.config import ClSacConfig
 from autopilot.envelope import Envelope, EnvelopeMonitor
 from autopilot.params import ParamTable
-from autopilot.shared.events import StatusEvents, printable
+from autopilot.shared.events import StatusEvents, StatusTextAssembler
 from autopilot.shared.link import ANY_COMPONENT, SendClock, UdpLink
 from autopilot.shared.mavlink import (
-    AUTOPILOT_ID,
-    AUTOPILOT_SITL_ID,
-    GCS_ID,
+    GCS_SYSTEMS,
     SETPOINT_TYPEMASK,
-    SITL_ID,
     TYPEMASK_IGNORE_ATTITUDE,
     frame_from_ms,
     frame_ms,
@@ -51,6 +48,7 @@ from autopilot.shared.mavlink import (
     mavlink,
     quaternion_to_roll,
     roll_to_quaternion,
+    vehicle_ids,
 )
 from autopilot.shared.pwm import PwmMap
 from autopilot.shared.series import SeriesRecorder
@@ -88,13 +86,19 @@ class AutopilotOptions:
     setpoint_timeout_s: float = 1.0
     max_roll_rad: float = math.radians(45.0)
     setpoint_ahead_s: float = 10.0  # a SET_ATTITUDE_TARGET scheduled further ahead of sim time is rejected
+    # SET_ATTITUDE_TARGET.time_boot_ms: "sim" = a schedule on sim time (0 or past = now; the GCS script's lockstep
+    # schedule); "now" = ignored, every setpoint flies on arrival (as ArduPilot and PX4 do), for ground stations
+    # that stamp their own clock (MAVSDK stamps its host's uptime)
+    setpoint_time: str = "sim"
     pace: bool = True  # lockstep: wait for the GCS schedule horizon
     spin_s: float = 0.0003  # real time: busy-wait (serving the links) this long before each deadline; inf = never sleep
     sitl: tuple = ("127.0.0.1", 14560)
     sitl_bind: tuple = ("127.0.0.1", 0)
     gcs: tuple = ("127.0.0.1", 14550)
     gcs_bind: tuple = ("127.0.0.1", 0)
-    gcs_ids: tuple = ((GCS_ID[0], ANY_COMPONENT),)  # (sys, comp); comp ANY_COMPONENT = any
+    sysid: int = 1  # the vehicle's MAVLink system id (--sysid): 1:1 to the ground stations, 1:140 to the SITL
+    gcs_ids: tuple = tuple((s, ANY_COMPONENT) for s in GCS_SYSTEMS)  # (sys, comp); comp ANY_COMPONENT = any
+    learn_gcs: bool = True  # also take any system that sends a MAV_TYPE_GCS HEARTBEAT (off with --gcs-id)
     gcs_peers: tuple = ()  # ground-station addresses admitted from the start (--gcs-peer)
     max_gcs: int = 8  # admitted ground-station addresses at most (docs/design.md, "Trust model")
     signing_key: bytes | None = None  # MAVLink 2 signing on both links (autopilot.shared.signing); None = off
@@ -239,12 +243,13 @@ class Autopilot:
         self.ctrl = self.control.law
         self.setpoints = self.control.setpoints
         self.send_clock = SendClock()  # both links: when this process last sent anything (the verdict's evidence)
+        self.ids, sitl_src, sitl_id = vehicle_ids(opts.sysid)  # GCS link N:1, SITL link N:140, the SITL N:200
         self.sitl = UdpLink(
             "sitl",
-            AUTOPILOT_SITL_ID,  # its own component: tlog readers separate it from the GCS link (1:1)
+            sitl_src,  # its own component: tlog readers separate it from the GCS link (N:1)
             opts.sitl_bind,
             opts.sitl,
-            peers=[SITL_ID],
+            peers=[sitl_id],
             msgids=[ATTITUDE, HEARTBEAT, STATUSTEXT],
             signing=Signing(opts.signing_key, SIGNING_LINK_SITL) if opts.signing_key else None,
             tlog=tlog,
@@ -252,10 +257,12 @@ class Autopilot:
         )
         self.gcs = UdpLink(
             "gcs",
-            AUTOPILOT_ID,
+            self.ids,
             opts.gcs_bind,
             opts.gcs,
             peers=opts.gcs_ids,
+            learn_gcs=opts.max_gcs if opts.learn_gcs else 0,
+            gcs_systems=GCS_SYSTEMS,
             msgids=[SET_ATTITUDE_TARGET, HEARTBEAT, *VEHICLE_MSGIDS],
             admit=opts.max_gcs,
             peer_addrs=opts.gcs_peers,
@@ -267,6 +274,8 @@ class Autopilot:
         self.events = Counter()  # autopilot-level counters (failsafes, setpoints, frames)
         self._event = StatusEvents("autopilot", self.gcs, self.events, verbose=opts.verbose, out=self.out)
         self.event_hooks = self._event.hooks  # callables(severity, text), for each status event
+        self.gcs.on_refused_gcs = self._on_refused_gcs
+        self._sitl_texts = StatusTextAssembler()
         self.timing = TimingStats()
         # "Controlled": every step flown on an attitude against the envelope; each excursion announced once.
         self.envelope = EnvelopeMonitor(opts.envelope)
@@ -363,14 +372,16 @@ class Autopilot:
                     return
             att.ms, att.roll, att.p, att.r, att.t_rx, att.valid = ms, roll, p, r, t_rx, True
         elif mid == STATUSTEXT:
-            self._event(msg.severity, f"SITL: {printable(msg.text)}")
+            text = self._sitl_texts.add(msg)  # a long text arrives in chunks (autopilot.shared.events)
+            if text is not None:
+                self._event(msg.severity, f"SITL: {text}")
 
     def _on_gcs(self, msg, t_rx):
         if msg.get_msgId() != SET_ATTITUDE_TARGET:
             self.vehicle.handle(msg)  # commands, parameters, modes, manual input (autopilot.vehicle)
             return
         ev = self.events
-        if msg.target_system not in (0, AUTOPILOT_ID[0]) or msg.target_component not in (0, AUTOPILOT_ID[1]):
+        if msg.target_system not in (0, self.ids[0]) or msg.target_component not in (0, self.ids[1]):
             self.gcs.reject("wrong_target")
             return
         if msg.type_mask & TYPEMASK_IGNORE_ATTITUDE:
@@ -380,13 +391,14 @@ class Autopilot:
         if roll - roll != 0.0 or not all(math.isfinite(v) for v in msg.q):
             self.gcs.reject("nonfinite_setpoint")
             return
-        ms = msg.time_boot_ms
+        ms = msg.time_boot_ms if self.opts.setpoint_time == "sim" else 0
         now_us = self._now_sim_us()
         t_us = (now_us or 0.0) if ms == 0 else ms * 1000.0  # 0 means now
         if ms and (now_us is None or t_us > now_us + self.opts.setpoint_ahead_s * 1e6):
             # scheduled further ahead of the current sim time than any schedule needs (or before there is a
             # clock): it could only fill the queue
             self.gcs.reject("future_setpoint")
+            self._report_future_setpoint(msg, now_us)
             return
         lim = self.opts.max_roll_rad
         clamped = math.copysign(lim, roll) if (roll > lim or roll < -lim) else None
@@ -410,6 +422,25 @@ class Autopilot:
             self.horizon_us = t_us
         if self.opts.lockstep and self.pending_frame is not None:
             self._try_step(t_rx)
+
+    def _on_refused_gcs(self, reason: str, sysid: int, compid: int, addr) -> None:
+        """The first refused packet of a would-be ground station (``UdpLink.on_refused_gcs``): say why, once."""
+        self.events["refused_gcs"] += 1
+        self._event(M.MAV_SEVERITY_WARNING, refusal_text(reason, sysid, compid, addr, self.opts))
+
+    def _report_future_setpoint(self, msg, now_us: float | None) -> None:
+        """The first ``future_setpoint`` of the run, said once: most likely a ground station that stamps its own
+        clock, which ``--setpoint-time now`` serves."""
+        if self.events["future_setpoint_reported"]:
+            return
+        self.events["future_setpoint_reported"] = 1
+        clock = "before the vehicle has a clock" if now_us is None else f"sim time is {now_us * 1e-6:.1f} s"
+        self._event(
+            M.MAV_SEVERITY_WARNING,
+            f"setpoint from {msg.get_srcSystem()}:{msg.get_srcComponent()} stamped {msg.time_boot_ms / 1000:.1f} s "
+            f"refused ({clock}, at most {self.opts.setpoint_ahead_s:g} s ahead); a ground station stamping its own "
+            f"clock (MAVSDK) needs --setpoint-time now",
+        )
 
     def _now_sim_us(self) -> float | None:
         """The current sim time in us (None before the first attitude)."""
@@ -879,6 +910,26 @@ def _series_row(rec: StepRecord) -> tuple:
         int(rec.ap.vehicle.mode),  # HEARTBEAT.custom_mode (autopilot.vehicle.Mode)
         rec.ap.control.armed,
     )
+
+
+def refusal_text(reason: str, sysid: int, compid: int, addr, opts: AutopilotOptions) -> str:
+    """Why the GCS link refused a would-be ground station's packet, in one line (docs/design.md, "Which ground
+    stations are admitted")."""
+    if reason == "unsigned":
+        why = "unsigned; this vehicle takes only packets signed with its key"
+    elif reason == "bad_signature":
+        why = "signed with another key than this vehicle's"
+    elif reason == "not_peer" and opts.signing_key:
+        why = f"its address is not admitted: {opts.max_gcs} ground stations are already"  # signed: over the bound
+    elif reason == "not_peer":
+        why = "its address is not admitted (add it with --gcs-peer, or sign with the vehicle's key)"
+    elif opts.learn_gcs:
+        systems = ", ".join(str(s) for s in GCS_SYSTEMS)
+        why = f"system {sysid} is not a ground station's ({systems}) and sent no MAV_TYPE_GCS HEARTBEAT first"
+    else:
+        ids = ", ".join(f"{s}:{'any' if c is ANY_COMPONENT else c}" for s, c in opts.gcs_ids)
+        why = f"not one of the accepted --gcs-id {ids}"
+    return f"GCS {sysid}:{compid} at {addr[0]}:{addr[1]} refused: {why}"
 
 
 def series_recorder() -> SeriesRecorder:

@@ -24,7 +24,7 @@ from types import SimpleNamespace
 from pymavlink.dialects.v20 import all as _all
 
 from autopilot.params import PARAM_ID_LEN, ParamError, ParamTable
-from autopilot.shared.mavlink import AUTOPILOT_ID, mavlink
+from autopilot.shared.mavlink import mavlink
 from autopilot.step import Failsafe
 
 M = mavlink
@@ -108,6 +108,7 @@ class Vehicle:
             raise ValueError(f"start mode must be one of {[m.name for m in self.selectable]}, got {mode!r}")
         self.ap = ap
         self.link = ap.gcs
+        self.sysid, self.compid = ap.gcs.mav.srcSystem, ap.gcs.mav.srcComponent  # --sysid N: N:1
         self.params = params
         self.selected = mode
         self.mode = mode
@@ -177,7 +178,7 @@ class Vehicle:
             handler(self, msg)
 
     def _for_us(self, msg) -> bool:
-        ok = msg.target_system in (0, AUTOPILOT_ID[0]) and msg.target_component in (0, AUTOPILOT_ID[1])
+        ok = msg.target_system in (0, self.sysid) and msg.target_component in (0, self.compid)
         if not ok:
             self.link.reject("wrong_target")
         return ok
@@ -198,7 +199,7 @@ class Vehicle:
             after()
 
     def _on_set_mode(self, msg) -> None:
-        if msg.target_system not in (0, AUTOPILOT_ID[0]):
+        if msg.target_system not in (0, self.sysid):
             self.link.reject("wrong_target")
             return
         result = self._set_mode(msg.base_mode, msg.custom_mode)
@@ -275,7 +276,7 @@ class Vehicle:
             self._set_rate(g, hz)
 
     def _on_manual_control(self, msg) -> None:
-        if msg.target not in (0, AUTOPILOT_ID[0]):
+        if msg.target not in (0, self.sysid):
             self.link.reject("wrong_target")
             return
         # r (yaw axis, -1000..1000) is the rudder: full scale = the rudder command limit.

@@ -15,6 +15,7 @@ from autopilot.shared.cli import (
     add_pwm_arguments,
     add_rt_priority_argument,
     add_signing_argument,
+    add_sysid_argument,
     check_output_files,
     clock_s,
     default_physics_rate,
@@ -130,6 +131,7 @@ def build_parser() -> OneLineArgumentParser:
     add_telemetry_arguments(p)
     add_pwm_arguments(p)
     add_signing_argument(p)
+    add_sysid_argument(p, "the vehicle's system id, as the autopilot's --sysid: the SITL is N:200, talks to N:140")
     add_cpu_argument(p)
     add_rt_priority_argument(p)
     return p
@@ -182,6 +184,7 @@ def main(argv=None) -> int:
         signing_key=signing_key_from_args(parser, args),
         peer=args.autopilot,
         disturbances=dist,
+        sysid=args.sysid,
     )
     try:
         sitl = Sitl(opts, pwm)

@@ -28,7 +28,7 @@ from dataclasses import dataclass
 
 from autopilot.shared.events import StatusEvents
 from autopilot.shared.link import UdpLink
-from autopilot.shared.mavlink import AUTOPILOT_SITL_ID, SITL_ID, frame_ms, frame_usec, mavlink, usec_diff
+from autopilot.shared.mavlink import frame_ms, frame_usec, mavlink, usec_diff, vehicle_ids
 from autopilot.shared.numerics import wrap_pi
 from autopilot.shared.pwm import PWM_VALID_RANGE, PwmMap
 from autopilot.shared.series import SeriesRecorder
@@ -66,6 +66,7 @@ class SitlOptions:
     verbose: bool = True
     signing_key: bytes | None = None  # MAVLink 2 signing (autopilot.shared.signing); None = off
     peer: tuple | None = None  # the autopilot's (host, port); None = the first that talks with its IDs
+    sysid: int = 1  # the vehicle's system id (--sysid): the SITL is N:200, the autopilot's SITL link N:140
 
 
 class SitlRecord:
@@ -108,12 +109,13 @@ class Sitl:
         self.aircraft = Aircraft(AircraftConfig(physics_rate_hz=opts.physics_rate_hz), params=params)
         self._advance = self.aircraft.advance if self.inj is None else self._advance_disturbed
         self._rt_faults = self.inj is not None and not opts.lockstep and self.inj.up is not None
+        _, autopilot_id, sitl_id = vehicle_ids(opts.sysid)
         self.link = UdpLink(
             "autopilot",
-            SITL_ID,
+            sitl_id,
             opts.listen,
             opts.peer,  # the autopilot's address when given (--autopilot), else learned from its first packet
-            peers=[AUTOPILOT_SITL_ID],
+            peers=[autopilot_id],
             msgids=[SERVO_OUTPUT_RAW, HEARTBEAT],
             learn_remote=opts.peer is None,
             signing=Signing(opts.signing_key, SIGNING_LINK_SIM) if opts.signing_key else None,

@@ -130,6 +130,7 @@ class FlightConfig:
     name: str | None = None  # run name in summary.json; default the controller
     signing: bool = True  # MAVLink 2 signing on every link; a new key per flight in DIR/signing.key unless signing_key
     signing_key: str | os.PathLike | None = None  # sign with this key file (autopilot.shared.signing) instead
+    sysid: int = 1  # the vehicle's MAVLink system id (all three processes' --sysid): launches with others are others
     # Disturbances, passed to the SITL only (sitl.disturbances.FLAGS: text as on the command line, or parsed)
     turbulence: str | None = None  # light | moderate | severe Dryden turbulence
     turbulence_sigma: str | tuple | None = None  # "SV,SW" m/s
@@ -169,6 +170,7 @@ class FlightConfig:
             ("rrd_merge_max_mb", cli.bounded(0.0, 1e6, "MB")),
             ("envelope_roll", envelope_roll_deg),
             ("envelope_saturated", envelope_saturated_pct),
+            ("sysid", cli.sysid_arg),
         ):
             put(name, _checked(name, check, getattr(self, name)))
         for name, check in (
@@ -468,6 +470,8 @@ def child_argvs(
     if key_file is not None:
         for argv in (sitl, ap, gcs):
             argv += ["--signing-key", str(key_file)]
+    for argv in (sitl, ap, gcs):
+        argv += ["--sysid", str(cfg.sysid)]
     if ap_ports is not None:
         a_sitl, a_gcs = (f"127.0.0.1:{p}" for p in ap_ports)
         ap += ["--sitl-bind", a_sitl, "--listen", a_gcs, "--gcs-peer", f"127.0.0.1:{gcs_port}"]

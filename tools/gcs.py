@@ -1,7 +1,7 @@
 """``python -m tools.gcs``: a minimal ground station that flies a roll profile.
 
-Listens like a ground station (default 127.0.0.1:14550), waits for the vehicle's HEARTBEAT (system 1
-component 1), then sends SET_ATTITUDE_TARGET setpoints for a roll profile: ``square`` (default
+Listens like a ground station (default 127.0.0.1:14550), waits for the vehicle's HEARTBEAT (system --sysid,
+default 1, component 1), then sends SET_ATTITUDE_TARGET setpoints for a roll profile: ``square`` (default
 10 deg, 10 s period, +amplitude first), ``step``, ``sine`` or ``--csv FILE`` (rows ``time_s, roll_deg``,
 held until the next row, never interpolated; the profile ends at the last row unless --duration is given).
 Prints a live line (sim time, setpoint, roll, error) about twice a second.
@@ -28,6 +28,7 @@ from autopilot.shared.cli import (
     OneLineArgumentParser,
     add_cpu_argument,
     add_signing_argument,
+    add_sysid_argument,
     angle_deg,
     check_output_files,
     clock_s,
@@ -39,15 +40,15 @@ from autopilot.shared.cli import (
     signing_key_from_args,
     timeout_s,
 )
-from autopilot.shared.events import printable
+from autopilot.shared.events import StatusTextAssembler
 from autopilot.shared.link import UdpLink, format_counters
 from autopilot.shared.mavlink import (
-    AUTOPILOT_ID,
     GCS_ID,
     SETPOINT_TYPEMASK,
     mavlink,
     quaternion_to_roll,
     roll_to_quaternion,
+    vehicle_ids,
 )
 from autopilot.shared.process import apply_cpu, exit_code_for, install_stop_handlers, write_json_atomic
 from autopilot.shared.signing import SIGNING_LINK_GROUND, Signing
@@ -77,6 +78,7 @@ class GcsOptions:
     quiet: bool = False  # no live line
     signing_key: bytes | None = None  # MAVLink 2 signing (autopilot.shared.signing); None = off
     vehicle: tuple[str, int] | None = None  # the vehicle's (host, port); None = the first that talks with its IDs
+    sysid: int = 1  # the vehicle's system id (--sysid): the GCS flies vehicle N:1 and hears only it
 
 
 def _deg(rad: float, width: int) -> str:
@@ -88,6 +90,7 @@ class Gcs:
     def __init__(self, opts: GcsOptions, profile: Profile, out=None):
         self.opts = opts
         self.profile = profile
+        self.vehicle_id = vehicle_ids(opts.sysid)[0]
         self.out = out or sys.stdout
         # Everything the vehicle streams is taken (SERVO_OUTPUT_RAW only counted): a valid message the GCS
         # did not take would be reported among the link's rejections.
@@ -105,7 +108,7 @@ class Gcs:
             GCS_ID,
             opts.listen,
             opts.vehicle,
-            peers=[AUTOPILOT_ID],
+            peers=[self.vehicle_id],
             msgids=ids,
             learn_remote=opts.vehicle is None,
             signing=signing,
@@ -123,6 +126,7 @@ class Gcs:
         self.next_point_rel_ms = 0
         self.points_sent = 0
         self.statustexts = []
+        self._texts = StatusTextAssembler()
         self.last_vehicle_rx = None
         self._sim_rx = 0.0  # perf_counter when sim_ms was taken
         self.exit_reason = ""
@@ -138,7 +142,7 @@ class Gcs:
             if not self.vehicle:
                 self.vehicle = True
                 print(
-                    f"gcs: vehicle {AUTOPILOT_ID[0]}:{AUTOPILOT_ID[1]} at {fmt_endpoint(self.link.remote)} "
+                    f"gcs: vehicle {self.vehicle_id[0]}:{self.vehicle_id[1]} at {fmt_endpoint(self.link.remote)} "
                     f"(type {msg.type}, status {msg.system_status})",
                     file=self.out,
                     flush=True,
@@ -155,7 +159,10 @@ class Gcs:
         elif mid == M.MAVLINK_MSG_ID_SYSTEM_TIME:
             self._sim(msg.time_boot_ms, t_rx)
         elif mid == M.MAVLINK_MSG_ID_STATUSTEXT:
-            text = printable(msg.text)  # escape codes and newlines from a peer never reach the terminal raw
+            # whole texts, reassembled from their chunks and made printable (no escape codes reach the terminal)
+            text = self._texts.add(msg)
+            if text is None:
+                return
             self.statustexts.append(text)
             if len(self.statustexts) > 100:  # bounded on long flights: the stats keep the last 50
                 del self.statustexts[:50]
@@ -199,8 +206,8 @@ class Gcs:
         self.link.send(
             M.MAVLink_set_attitude_target_message(
                 time_boot_ms,
-                AUTOPILOT_ID[0],
-                AUTOPILOT_ID[1],
+                self.vehicle_id[0],
+                self.vehicle_id[1],
                 SETPOINT_TYPEMASK,
                 roll_to_quaternion(roll),
                 0.0,
@@ -433,6 +440,7 @@ def build_parser() -> OneLineArgumentParser:
     p.add_argument("--stats-json", default=None, metavar="PATH", help="write counters to this JSON file at exit")
     p.add_argument("--quiet", action="store_true", help="no live line")
     add_signing_argument(p)
+    add_sysid_argument(p, "the system id of the vehicle to fly (its --sysid): only N:1 is heard and commanded")
     add_cpu_argument(p)
     return p
 

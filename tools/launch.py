@@ -28,6 +28,7 @@ from autopilot.shared.cli import (
     rt_priority_arg,
     sensor_rate_hz,
     stream_rate_or_0,
+    sysid_arg,
     timeout_s,
     viewer_url,
 )
@@ -222,6 +223,14 @@ def build_parser() -> OneLineArgumentParser:
         metavar="HOST:PORT",
         help="one more ground station the autopilot streams to and accepts (repeatable), e.g. MAVProxy on "
         "127.0.0.1:14550 (with --no-signing, or a ground station that signs)",
+    )
+    p.add_argument(
+        "--sysid",
+        type=sysid_arg,
+        default=1,
+        metavar="N",
+        help="the vehicle's MAVLink system id, 1..254 (default 1): launches with different ids streaming to one "
+        "ground-station port are different vehicles",
     )
     g = p.add_argument_group("MAVLink 2 signing (default: a new key for each flight, DIR/signing.key, mode 0600)")
     g.add_argument("--signing-key", default=None, metavar="FILE", help="sign every link with this key file instead")

@@ -196,6 +196,29 @@ def rt_priority_arg(text: str) -> int:
     return v
 
 
+def sysid_arg(text: str) -> int:
+    """The vehicle's MAVLink system id: an integer 1..254 (0 is the broadcast id, 255 the ground stations')."""
+    from autopilot.shared.mavlink import SYSID_RANGE
+
+    lo, hi = SYSID_RANGE
+    try:
+        if isinstance(text, bool) or not isinstance(text, (int, str)):  # 1.5 or True is no system id
+            raise ValueError(text)
+        v = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected an integer {lo}..{hi}, got {text!r}") from None
+    if not lo <= v <= hi:
+        raise argparse.ArgumentTypeError(
+            f"must be {lo}..{hi} (0 is the broadcast id, 255 the ground stations'), got {v}"
+        )
+    return v
+
+
+def add_sysid_argument(parser: argparse.ArgumentParser, what: str) -> None:
+    """``--sysid N``: the vehicle's system id, the same on the autopilot, the SITL and the GCS script."""
+    parser.add_argument("--sysid", type=sysid_arg, default=1, metavar="N", help=f"{what} (1..254, default 1)")
+
+
 def default_physics_rate(control_rate: float, minimum: float = 1000.0) -> float:
     """The smallest whole multiple of the control rate that is at least ``minimum`` Hz (1 kHz): 1000 Hz at
     100 Hz control, 1200 Hz at 400 Hz (lockstep advances a whole number of physics steps per frame)."""

@@ -18,7 +18,8 @@ packets was accepted, otherwise in ``rejected`` under the reason of its first pa
     unsigned       signing is on and the packet carries no signature
     bad_signature  signing is on and the signature does not match the key
     replay         signing is on and the timestamp is not newer than the stream's last (or over a minute old)
-    wrong_id       source (sysid, compid) not one this link talks to
+    wrong_id       source (sysid, compid) not one this link talks to (a link that learns ground stations,
+                   ``learn_gcs``, also takes a new system whose HEARTBEAT says MAV_TYPE_GCS)
     not_peer       the right IDs from an address that is not this link's peer
     ignored_msg    a valid message this link does not use
     decode_error   the payload does not decode
@@ -40,6 +41,14 @@ so ``rx_datagrams == rx_accepted + sum(rejected.values())`` always holds.
   ``peer_addrs``, nobody else); with signing every address whose packet carries a valid signature is
   admitted, up to N in all (more are ``not_peer``).
   ``broadcast``/``send`` reach every admitted peer and ``remote``, each once.
+
+**Ground-station systems.**  ``peers`` lists the source (sysid, compid) pairs taken.  With ``learn_gcs=N`` a packet
+from another system is still taken if it is a HEARTBEAT of type MAV_TYPE_GCS that passes every other check (from
+an admitted or admissible address): its system joins the peers with any component, up to N systems.  A refused
+packet (``wrong_id``, ``not_peer``, ``unsigned`` or ``bad_signature``) whose IDs look like a ground station's
+(``looks_like_gcs``) is counted per source in ``refused_gcs`` (at most ``REFUSED_GCS_KEYS`` sources, the rest
+together as system and component -1) and handed once per (reason, system) to ``on_refused_gcs(reason, sysid,
+compid, addr)`` (at most ``REFUSED_GCS_REPORTS`` calls), so the owner can say why.
 
 **Floods.**  ``poll(handler, budget)`` always feeds a datagram from an admitted address; those from every other
 address share ``budget`` per poll and the rest of them are ``over_budget``, so a flood from elsewhere costs a
@@ -88,6 +97,26 @@ REJECT_REASONS = (
 # sendto errors after which nothing will ever arrive: fatal (the others are counted and the link goes on)
 _FATAL_SEND_ERRNOS = (errno.EHOSTUNREACH, errno.ENETUNREACH, errno.EADDRNOTAVAIL, errno.EAFNOSUPPORT, errno.EINVAL)
 ANY_COMPONENT = None  # a peer (sysid, ANY_COMPONENT) accepts that system with any component
+_HEARTBEAT = mavlink.MAVLINK_MSG_ID_HEARTBEAT
+_MAV_TYPE_GCS = mavlink.MAV_TYPE_GCS
+GCS_COMPONENT = mavlink.MAV_COMP_ID_MISSIONPLANNER  # 190: the component QGroundControl, MAVSDK, the GCS script use
+REFUSED_GCS_REPORTS = 8  # on_refused_gcs calls at most, per link (the packets are counted whatever their number)
+REFUSED_GCS_KEYS = 64  # distinct (reason, sysid, compid) counted in refused_gcs; more share (reason, -1, -1)
+
+
+def heartbeat_type(raw: bytes) -> int:
+    """HEARTBEAT.type of a framed, CRC-checked MAVLink 2 HEARTBEAT packet: payload byte 4 (after the uint32
+    custom_mode); MAVLink 2 trims trailing zero bytes, so a payload of 4 bytes or less has type 0."""
+    return raw[10 + 4] if raw[1] > 4 else 0
+
+
+def looks_like_gcs(raw: bytes, sysid: int, compid: int, gcs_systems=()) -> bool:
+    """Whether a packet's IDs look like a ground station's: a MAV_TYPE_GCS HEARTBEAT, a system of ``gcs_systems``
+    (255, 245) or component 190 (MAV_COMP_ID_MISSIONPLANNER, the ground stations' usual one)."""
+    msgid = raw[7] | (raw[8] << 8) | (raw[9] << 16)
+    if msgid == _HEARTBEAT and heartbeat_type(raw) == _MAV_TYPE_GCS:
+        return True
+    return sysid in gcs_systems or compid == GCS_COMPONENT
 
 
 class LinkError(OSError):
@@ -162,7 +191,9 @@ class UdpLink:
     ``ANY_COMPONENT`` (None) accepts any component of that system.  ``msgids``: accepted message ids (others
     are counted as ``ignored_msg`` without decoding).  ``admit``, ``peer_addrs``: see the module docstring.
     ``signing``: an ``autopilot.shared.signing.Signing``: everything sent is signed and everything received
-    must be signed with the same key.
+    must be signed with the same key.  ``learn_gcs``: take up to that many more systems from their MAV_TYPE_GCS
+    HEARTBEAT; ``gcs_systems``: the system ids that look like a ground station's in a refused packet (both: see
+    the module docstring, "Ground-station systems").
     """
 
     def __init__(
@@ -181,6 +212,8 @@ class UdpLink:
         tlog=None,
         rcvbuf: int = 4 << 20,
         send_clock: SendClock | None = None,
+        learn_gcs: int = 0,
+        gcs_systems=(),
     ):
         self.name = name
         self.send_clock = send_clock if send_clock is not None else SendClock()
@@ -221,6 +254,12 @@ class UdpLink:
         self.rx_by_type: Counter = Counter()
         self.tx_by_type: Counter = Counter()
         self.rejected: Counter = Counter()
+        self.learn_gcs = int(learn_gcs)
+        self.gcs_systems = frozenset(gcs_systems)
+        self.learned_systems: list = []  # systems taken from their MAV_TYPE_GCS HEARTBEAT (learn_gcs)
+        self.refused_gcs: Counter = Counter()  # (reason, sysid, compid) -> refused packets that look like a GCS's
+        self._refusals_reported: set = set()  # (reason, sysid) handed to on_refused_gcs
+        self.on_refused_gcs = None  # callable(reason, sysid, compid, addr), once per (reason, system)
         self.last_rx_wall = 0.0  # perf_counter of the last accepted packet
         self.peer_addr = None  # address of the last accepted packet
         self._verdict = None  # the owner's rejection of the packet being handled
@@ -360,6 +399,35 @@ class UdpLink:
             self.remote = addr
         return True
 
+    def _learnable(self, raw: bytes, msgid: int, sysid: int) -> bool:
+        """A new system's MAV_TYPE_GCS HEARTBEAT, while ``learn_gcs`` has room (never the vehicle's own system or
+        the broadcast id 0)."""
+        return (
+            msgid == _HEARTBEAT
+            and len(self.learned_systems) < self.learn_gcs
+            and sysid not in (0, self.mav.srcSystem)
+            and heartbeat_type(raw) == _MAV_TYPE_GCS
+        )
+
+    def _learn_system(self, sysid: int) -> None:
+        self.learned_systems.append(sysid)
+        self._any_comp = self._any_comp | {sysid}
+
+    def _refused(self, reason: str, raw: bytes, sysid: int, compid: int, addr) -> None:
+        """Count a refused packet that looks like a ground station's; report the first of each (reason, system)."""
+        if not looks_like_gcs(raw, sysid, compid, self.gcs_systems):
+            return
+        key = (reason, sysid, compid)
+        if key not in self.refused_gcs and len(self.refused_gcs) >= REFUSED_GCS_KEYS:
+            key = (reason, -1, -1)  # a spoofer cycling through ids cannot grow the counter without bound
+        self.refused_gcs[key] += 1
+        report = (reason, sysid)
+        if report in self._refusals_reported or len(self._refusals_reported) >= REFUSED_GCS_REPORTS:
+            return
+        self._refusals_reported.add(report)
+        if self.on_refused_gcs is not None:
+            self.on_refused_gcs(reason, sysid, compid, addr)
+
     def feed(self, data: bytes, addr, handler) -> None:
         """Frame, check and decode one datagram; count it once (``rx_accepted`` or one reason)."""
         t_rx = time.perf_counter()
@@ -400,14 +468,23 @@ class UdpLink:
             if signing is not None:
                 why = signing.check(raw, sysid, compid) if signed else "unsigned"
                 if why is not None:
+                    if why != "replay":  # a ground station without the key (a replay is nobody's mistake)
+                        self._refused(why, raw, sysid, compid, addr)
                     reason = reason or why
                     continue
+            learn = False
             if (sysid, compid) not in self.peers and sysid not in self._any_comp:
-                reason = reason or "wrong_id"
-                continue
+                learn = self.learn_gcs and self._learnable(raw, msgid, sysid)
+                if not learn:
+                    self._refused("wrong_id", raw, sysid, compid, addr)
+                    reason = reason or "wrong_id"
+                    continue
             if addr not in self._admitted_set and not self._admit(addr, signing is not None):
+                self._refused("not_peer", raw, sysid, compid, addr)
                 reason = reason or "not_peer"
                 continue
+            if learn:
+                self._learn_system(sysid)
             if msgid not in self.msgids:
                 reason = reason or "ignored_msg"
                 continue
@@ -451,6 +528,12 @@ class UdpLink:
             # monotonic time of the last packet accepted from the peer (perf_counter is CLOCK_MONOTONIC on Linux)
             "last_rx_mono": self.last_rx_wall if self.rx_accepted else None,
             "admitted": [f"{a[0]}:{a[1]}" for a in self.admitted],
+            **({"learned_gcs_systems": list(self.learned_systems)} if self.learn_gcs else {}),
+            **(
+                {"refused_gcs": {f"{r} {s}:{c}": n for (r, s, c), n in sorted(self.refused_gcs.items())}}
+                if self.refused_gcs
+                else {}
+            ),
             "rx_by_type": {_name(k): v for k, v in sorted(self.rx_by_type.items())},
             "tx_by_type": {_name(k): v for k, v in sorted(self.tx_by_type.items())},
             # the link's own reasons first, then those the owner adds (nonfinite_attitude, bad_pwm, ...)

@@ -17,6 +17,18 @@ AUTOPILOT_ID = (1, 1)  # the autopilot as ground stations see it (its GCS link; 
 AUTOPILOT_SITL_ID = (1, 140)
 SITL_ID = (1, 200)
 GCS_ID = (255, 190)
+# The ground stations admitted by default (docs/design.md, "Which ground stations are admitted"): QGroundControl,
+# Mission Planner and MAVProxy talk as system 255, MAVSDK as 245 (its default 245:190); any other system that
+# announces itself with a MAV_TYPE_GCS heartbeat is admitted too (``UdpLink(learn_gcs=...)``).
+GCS_SYSTEMS = (255, 245)
+SYSID_RANGE = (1, 254)  # the vehicle's system id (--sysid): 0 is broadcast, 255 the ground stations'
+
+
+def vehicle_ids(sysid: int = AUTOPILOT_ID[0]) -> tuple[tuple[int, int], tuple[int, int], tuple[int, int]]:
+    """(autopilot GCS link, autopilot SITL link, SITL) system:component of the vehicle with system id ``sysid``:
+    the same components as AUTOPILOT_ID, AUTOPILOT_SITL_ID and SITL_ID, under the vehicle's own system id."""
+    return (sysid, AUTOPILOT_ID[1]), (sysid, AUTOPILOT_SITL_ID[1]), (sysid, SITL_ID[1])
+
 
 # ---------------------------------------------------------------------------------------- frames
 USEC_WRAP = 1 << 32  # SERVO_OUTPUT_RAW.time_usec is uint32: wraps every 4294.967296 s (71.6 min)
