@@ -22,6 +22,12 @@ import urllib.request
 from pathlib import Path
 
 CHROMIUM = "/usr/bin/chromium"
+# An intercepted internet request's answer may be read by the page (cross-origin): allow it, preflights included.
+_CORS = [
+    {"name": "Access-Control-Allow-Origin", "value": "*"},
+    {"name": "Access-Control-Allow-Headers", "value": "*"},
+    {"name": "Access-Control-Allow-Methods", "value": "GET, POST, OPTIONS"},
+]
 
 
 class BrowserError(RuntimeError):
@@ -83,12 +89,16 @@ class Browser:
             start_new_session=True,
         )
         self.console: list[dict] = []  # {"level", "text"} of every console message and exception
+        self.external: list[str] = []  # internet URLs the page asked for (answered 204, the network is closed)
         self._id = 0
         try:
             ws_url = self._page_websocket(start_timeout_s)
             self.ws = websocket.create_connection(ws_url, timeout=60, suppress_origin=True)
             for method in ("Page.enable", "Runtime.enable", "Log.enable"):
                 self.call(method)
+            # The machine's network is closed: what the viewer fetches from the internet (web fonts, its release
+            # check, its analytics) is answered here with an empty 204 instead of failing with console errors.
+            self.call("Fetch.enable", {"patterns": [{"urlPattern": "https://*"}]})
             self.call(
                 "Emulation.setDeviceMetricsOverride",
                 {"width": width, "height": height, "deviceScaleFactor": 1, "mobile": False},
@@ -128,9 +138,19 @@ class Browser:
             self._record(msg)
         raise BrowserError(f"{method}: no answer in {timeout_s:g} s")
 
+    def _send(self, method: str, params: dict) -> None:
+        """A command whose answer nobody waits for (``call`` skips answers that are not its own)."""
+        self._id += 1
+        self.ws.send(json.dumps({"id": self._id, "method": method, "params": params}))
+
     def _record(self, msg: dict) -> None:
         method, p = msg.get("method"), msg.get("params", {})
-        if method == "Runtime.consoleAPICalled":
+        if method == "Fetch.requestPaused":  # an internet request (the only ones intercepted)
+            self.external.append(p.get("request", {}).get("url", ""))
+            self._send(
+                "Fetch.fulfillRequest", {"requestId": p["requestId"], "responseCode": 204, "responseHeaders": _CORS}
+            )
+        elif method == "Runtime.consoleAPICalled":
             text = " ".join(str(a.get("value", a.get("description", ""))) for a in p.get("args", []))
             self.console.append({"level": p.get("type", "log"), "text": text})
         elif method == "Runtime.exceptionThrown":
