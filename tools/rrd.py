@@ -132,6 +132,28 @@ def load(
     return out
 
 
+def load_poses(
+    path: str | os.PathLike, *, timeline: str = SIM_TIME, recording_id: str | None = None
+) -> dict[str, tuple[np.ndarray, np.ndarray]]:
+    """``Transform3D`` quaternions (the 3D attitudes): {path: (t seconds (n,), quaternions (n, 4) as x, y, z, w)}."""
+    r = _reader(path)
+    times: dict[str, list] = defaultdict(list)
+    quats: dict[str, list] = defaultdict(list)
+    for chunk in r.stream(store=_store(r, recording_id)):
+        rb = chunk.to_record_batch()
+        if "Transform3D:quaternion" not in rb.schema.names or timeline not in rb.schema.names:
+            continue
+        times[chunk.entity_path].append(rb.column(timeline).cast("int64").to_numpy(zero_copy_only=False))
+        q = rb.column("Transform3D:quaternion").flatten().flatten().to_numpy(zero_copy_only=False)
+        quats[chunk.entity_path].append(q.astype(np.float64).reshape(-1, 4))
+    out = {}
+    for ep in times:
+        t_ns = np.concatenate(times[ep])
+        order = np.argsort(t_ns, kind="stable")
+        out[ep] = (t_ns[order] * 1e-9, np.concatenate(quats[ep])[order])
+    return out
+
+
 def load_states(
     path: str | os.PathLike, *, timeline: str = SIM_TIME, recording_id: str | None = None
 ) -> dict[str, list[tuple[float, str]]]:
