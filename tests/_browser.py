@@ -91,6 +91,7 @@ class Browser:
         self.console: list[dict] = []  # {"level", "text"} of every console message and exception
         self.external: list[str] = []  # internet URLs the page asked for (answered 204, the network is closed)
         self._id = 0
+        self._loaded = False
         try:
             ws_url = self._page_websocket(start_timeout_s)
             self.ws = websocket.create_connection(ws_url, timeout=60, suppress_origin=True)
@@ -145,7 +146,9 @@ class Browser:
 
     def _record(self, msg: dict) -> None:
         method, p = msg.get("method"), msg.get("params", {})
-        if method == "Fetch.requestPaused":  # an internet request (the only ones intercepted)
+        if method == "Page.loadEventFired":
+            self._loaded = True
+        elif method == "Fetch.requestPaused":  # an internet request (the only ones intercepted)
             self.external.append(p.get("request", {}).get("url", ""))
             self._send(
                 "Fetch.fulfillRequest", {"requestId": p["requestId"], "responseCode": 204, "responseHeaders": _CORS}
@@ -166,8 +169,15 @@ class Browser:
         return [m["text"] for m in self.console if m["level"] in ("error", "exception")]
 
     # ------------------------------------------------------------------ page
-    def open(self, url: str) -> None:
+    def open(self, url: str, timeout_s: float = 120.0) -> None:
+        """Navigate and wait for the page's load event (the viewer's wasm then starts; drawing comes later)."""
+        self._loaded = False
         self.call("Page.navigate", {"url": url})
+        deadline = time.monotonic() + timeout_s
+        while not self._loaded:
+            if time.monotonic() > deadline:
+                raise BrowserError(f"{url}: no load event within {timeout_s:g} s")
+            self.pump(0.5)
 
     def evaluate(self, expression: str):
         r = self.call("Runtime.evaluate", {"expression": expression, "returnByValue": True})

@@ -107,10 +107,11 @@ def load(
             continue
         rb = chunk.to_record_batch()
         cols = rb.schema.names
-        if "SeriesLines:names" in cols:
-            for v in _to_list(rb.column("SeriesLines:names")):
-                if v:
-                    names[ep] = tuple(v)
+        for style in ("SeriesLines:names", "SeriesPoints:names"):  # lines, or markers (events)
+            if style in cols:
+                for v in _to_list(rb.column(style)):
+                    if v:
+                        names[ep] = tuple(v)
         if "Scalars:scalars" not in cols or timeline not in cols:
             continue
         t = rb.column(timeline).cast("int64").to_numpy(zero_copy_only=False)

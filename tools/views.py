@@ -103,7 +103,7 @@ def flight_blueprint() -> rrb.Blueprint:
             rrb.StateTimelineView(name="Mode and failsafe", origin=A.AP_STATUS, time_view=_axis()),
             rrb.TextLogView(name="Events", origin="/", contents=[A.AP_EVENTS, S.SITL_EVENTS]),
         ),
-        row_shares=[2.6, 1.7, 1.7, 1.4, 1.6],
+        row_shares=[2.5, 1.6, 1.6, 1.3, 1.9],
         name="Flight",
     )
     details = rrb.Grid(
