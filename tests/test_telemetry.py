@@ -61,6 +61,28 @@ def test_state_colours_are_exactly_the_states_emitted():
     assert L.FAILSAFE_WARN == {"NO_ATTITUDE", "NO_SETPOINT"}
 
 
+def test_roll_quaternions_put_the_right_wing_down_for_positive_roll():
+    """q = (sin(phi/2), 0, 0, cos(phi/2)): its rotation matrix (Hamilton, x y z w) takes the body's right wing
+    (0, 1, 0) to (0, cos phi, sin phi), i.e. down (+z in FRD) for phi > 0, and the nose stays on x."""
+    from autopilot.shared.telemetry.columns import roll_quaternions
+
+    phi = np.radians([-30.0, 0.0, 10.0, 45.0])
+    for (x, y, z, w), p in zip(roll_quaternions(phi), phi):
+        rot = np.array(
+            [
+                [1 - 2 * (y * y + z * z), 2 * (x * y - z * w), 2 * (x * z + y * w)],
+                [2 * (x * y + z * w), 1 - 2 * (x * x + z * z), 2 * (y * z - x * w)],
+                [2 * (x * z - y * w), 2 * (y * z + x * w), 1 - 2 * (x * x + y * y)],
+            ]
+        )
+        np.testing.assert_allclose(rot @ [0, 1, 0], [0, math.cos(p), math.sin(p)], atol=1e-15)
+        np.testing.assert_allclose(rot @ [1, 0, 0], [1, 0, 0], atol=1e-15)
+    with pytest.raises(ValueError, match="unknown field"):
+        tm.TableLayout("t", ("a",), (), poses=(tm.layout.Pose("/p", "phi", "x", (0, 0, 0, 255)),))
+    with pytest.raises(ValueError, match="scale"):
+        tm.Plot("/x", ("a",), ("a",), (tm.layout.GREY,), scale=0.0)
+
+
 def test_sim_time_is_rounded_not_truncated():
     # rerun's own float path computes (t * 1e9).astype(int): 0.0075 s -> 7499999 ns
     col = sim_time_column(np.array([0.0075, 1234 / 1000, 1234 * 0.001, 3 * 0.1]))
@@ -179,8 +201,10 @@ def test_log_experiment_writes_every_run_side_by_side(tmp_path, paper_results):
     data = rrd.load(path)
     n = PAPER.steps
     first = paper_results[0].series
-    np.testing.assert_array_equal(data[views.RUN_COMMAND].values[:, 0], first["um"])
-    np.testing.assert_array_equal(data[views.RUN_REFERENCE_OL].values[:, 0], first["ym_ol"])
+    # angles are shown in degrees (the series in rad times 180/pi); gains as they are
+    deg = dict(rtol=1e-15, atol=0)
+    np.testing.assert_allclose(data[views.RUN_COMMAND].values[:, 0], np.degrees(first["um"]), **deg)
+    np.testing.assert_allclose(data[views.RUN_REFERENCE_OL].values[:, 0], np.degrees(first["ym_ol"]), **deg)
     for r in paper_results:
         s = r.series
         base = f"{views.RUNS}/{r.name}"
@@ -195,7 +219,10 @@ def test_log_experiment_writes_every_run_side_by_side(tmp_path, paper_results):
         ):
             sig = data[f"{base}/{what}"]
             assert len(sig.t) == n, f"{base}/{what}"
-            np.testing.assert_array_equal(sig.values[:, 0], s[key])
+            if key in ("phi", "ym", "e", "u"):
+                np.testing.assert_allclose(sig.values[:, 0], np.degrees(s[key]), **deg)
+            else:
+                np.testing.assert_array_equal(sig.values[:, 0], s[key])
         np.testing.assert_array_equal(data[f"{base}/roll"].t_ns, np.rint(s["t"] * 1e9).astype(np.int64))
         assert data[f"{base}/gains/parts"].values.shape == (n, 6)
         assert data[f"{base}/state"].values.shape == (n, 4)
@@ -204,8 +231,8 @@ def test_log_experiment_writes_every_run_side_by_side(tmp_path, paper_results):
     assert not np.array_equal(data[views.run_path("sac", "roll")].values, data[views.run_path("clsac", "roll")].values)
     assert rrd.has_blueprint(path)
     names = rrd.blueprint_components(path, "ViewBlueprint:display_name")
-    assert "Roll: command, open-loop reference and every run [rad]" in names
-    assert {f"{r.name}: roll [rad]" for r in paper_results} <= set(names)  # one tab per run too
+    assert "Roll: command, open-loop reference and every run [deg]" in names
+    assert {f"{r.name}: roll [deg]" for r in paper_results} <= set(names)  # one tab per run too
     queries = rrd.blueprint_components(path, "ViewContents:query")
     for r in paper_results:  # the overlay plot lists every run
         assert views.run_path(r.name, "roll") in queries

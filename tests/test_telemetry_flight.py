@@ -241,15 +241,20 @@ def test_blueprint_present_once_and_verified(flight):
     assert len(rrd.blueprint_components(path, "ViewportBlueprint:root_container")) == 1  # one layout, not two
     names = rrd.blueprint_components(path, "ViewBlueprint:display_name")
     for expected in (
-        "Roll tracking [rad]",
-        "Error e = ym - ya [rad]",
-        "Rudder [rad]",
-        "Gain Ke (error)",
+        "Roll tracking [deg]",
+        "Attitude: aircraft (true roll) and reference ym (ghost)",
+        "Error e = ym - ya [deg]",
+        "Rudder [deg]",
+        "Gain Ke (error), PARAM_SET marks",
         "Loop timing [s]",
         "Link counters",
         "Mode and failsafe",
     ):
         assert expected in names
+    # the side panels start collapsed (the Flight tab then fits 1600x1000); the time bar stays
+    collapsed = 2  # rerun.blueprint.PanelState.Collapsed
+    assert rrd.blueprint_components(path, "PanelBlueprint:state") == [collapsed, collapsed]  # blueprint, selection
+    assert rrd.blueprint_components(path, "TimePanelBlueprint:state") == [collapsed]
     assert rrd.blueprint_components(path, "TimePanelBlueprint:timeline") == ["sim_time"]
     links = rrd.blueprint_components(path, "TimeAxis:link")
     assert links and all(v == 2 for v in links)  # LinkToGlobal on every plot
@@ -393,7 +398,7 @@ def test_live_stream_from_two_processes_is_one_recording(tmp_path):
     data = rrd.load(live)
     assert len(data[L.AP_ROLL].t) == int(RATE) and len(data[S.SITL_ROLL].t) == int(RATE)
     assert rrd.has_blueprint(live)
-    assert "Roll tracking [rad]" in rrd.blueprint_components(live, "ViewBlueprint:display_name")
+    assert "Roll tracking [deg]" in rrd.blueprint_components(live, "ViewBlueprint:display_name")
 
 
 def _port_free(port: int) -> bool:

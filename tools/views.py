@@ -132,12 +132,12 @@ def experiment_blueprint(run_names: Sequence[str]) -> rrb.Blueprint:
         return [run_path(n, what) for n in names]
 
     overlay = rrb.Vertical(
-        _plot("Roll: command, open-loop reference and every run [rad]", [RUN_COMMAND, RUN_REFERENCE_OL, *each("roll")]),
+        _plot("Roll: command, open-loop reference and every run [deg]", [RUN_COMMAND, RUN_REFERENCE_OL, *each("roll")]),
         rrb.Horizontal(
-            _plot("Closed-loop reference ym per run [rad]", [RUN_REFERENCE_OL, *each("reference")]),
-            _plot("Error e per run [rad]", each("error")),
+            _plot("Closed-loop reference ym per run [deg]", [RUN_REFERENCE_OL, *each("reference")]),
+            _plot("Error e per run [deg]", each("error")),
         ),
-        _plot("Rudder command u per run [rad]", each("rudder")),
+        _plot("Rudder command u per run [deg]", each("rudder")),
         rrb.Horizontal(
             _plot("Ke per run", each("gains/ke")),
             _plot("Kx per run", each("gains/kx")),
@@ -149,8 +149,8 @@ def experiment_blueprint(run_names: Sequence[str]) -> rrb.Blueprint:
     )
     per_run = [
         rrb.Vertical(
-            _plot(f"{n}: roll [rad]", [RUN_COMMAND, RUN_REFERENCE_OL, run_path(n, "reference"), run_path(n, "roll")]),
-            _plot(f"{n}: rudder [rad]", [run_path(n, "rudder")]),
+            _plot(f"{n}: roll [deg]", [RUN_COMMAND, RUN_REFERENCE_OL, run_path(n, "reference"), run_path(n, "roll")]),
+            _plot(f"{n}: rudder [deg]", [run_path(n, "rudder")]),
             _plot(f"{n}: gains, proportional and integral parts", [run_path(n, "gains/parts")]),
             _plot(f"{n}: aircraft state", [run_path(n, "state")]),
             name=n,
