@@ -214,3 +214,18 @@ def test_flags_are_checked():
     )
     assert r.returncode == 2 and r.stderr.strip().count("\n") == 0, r.stderr
     assert "--web-port: expected a TCP port in 1..65535, got 70000" in r.stderr
+
+
+def test_an_exception_in_the_caller_ends_the_server(tmp_path):
+    """``Flight`` as a context manager: an exception in the ``with`` body still ends the server (``__exit__``)."""
+    from tools.flight import Flight
+
+    http, grpc = free_tcp_port(), free_tcp_port()
+    flight = Flight(lockstep=True, duration=60, web=True, web_port=http, web_grpc_port=grpc, out=tmp_path / "f")
+    with pytest.raises(RuntimeError, match="the caller failed"):
+        with flight:
+            assert listeners(grpc) == {"127.0.0.1"} and listeners(http) == {"127.0.0.1"}
+            raise RuntimeError("the caller failed")
+    assert listeners(grpc) == set() and listeners(http) == set()
+    assert serve_web_pids(grpc) == []
+    assert flight.result is not None and not flight.result.ok  # stopped by the caller

@@ -15,8 +15,9 @@ defaults and units (degrees and Hz as on the flags)::
 
 Every flight, however it ends, leaves in its folder ``flight.tlog`` (every packet the autopilot sent and received),
 ``summary.json`` (one run with the metrics of what flew, plus counters, timing, events and exit codes),
-``<process>.log`` for each child, ``flight.rrd`` (``rrd``) and ``autopilot_series.npz``/``sitl_series.npz``
-(``series``).  A bad keyword value raises ``FlightConfigError`` at construction, an unknown keyword TypeError.
+``<process>.log`` for each child (and ``web.log``, the ``--web`` server's, with ``web``), ``flight.rrd`` (``rrd``)
+and ``autopilot_series.npz``/``sitl_series.npz`` (``series``).  A bad keyword value raises ``FlightConfigError`` at
+construction, an unknown keyword TypeError.
 """
 
 from __future__ import annotations

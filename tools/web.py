@@ -9,7 +9,8 @@ the whole recording and write rows and texts into it.  So:
 * it is the launcher's own: a port already taken (by another server, or anything) is an error, never a server to reuse;
 * it ends with the launcher: ``WebServer.stop`` ends its process group (the flight calls it however it ends), and the
   kernel sends it SIGTERM if the launcher dies without stopping it (``PR_SET_PDEATHSIG``), so it is never left running
-  reparented to pid 1.
+  reparented to pid 1.  (The kernel watches the thread that started it: start it from a thread that lives as long
+  as the flight, as ``Flight.start`` in the launcher's main thread does.)
 """
 
 from __future__ import annotations
@@ -196,7 +197,11 @@ class WebServer:
         finally:
             if log is not subprocess.DEVNULL:
                 log.close()
-        self._await_listening(timeout_s)
+        try:
+            self._await_listening(timeout_s)
+        except BaseException:  # Ctrl-C while waiting included: never leave it behind
+            self.stop()
+            raise
         return self.grpc_url
 
     def _await_listening(self, timeout_s: float) -> None:
