@@ -185,7 +185,8 @@ class Browser:
 
     def screenshot(self, path: Path | None = None) -> bytes:
         """A PNG of the page (the whole 1600x1000 viewport)."""
-        data = base64.b64decode(self.call("Page.captureScreenshot", {"format": "png"})["data"])
+        # a software-rendered frame of the whole viewer: a minute or more on a loaded 2-core machine
+        data = base64.b64decode(self.call("Page.captureScreenshot", {"format": "png"}, timeout_s=300)["data"])
         if path is not None:
             Path(path).write_bytes(data)
         return data
