@@ -1,8 +1,11 @@
 """Read flight and experiment recordings back (rerun-sdk 0.41 ``rerun.chunk.RrdReader``), for tests and notebooks.
 
+Values are what the viewer shows: angles in degrees and angular rates in deg/s (the layouts' ``scale``), the rest SI.
+
     from tools import rrd
     data = rrd.load("runs/x/flight.rrd")              # {entity_path: Signal}
-    roll = data["/autopilot/roll"]                     # roll.t (s), roll.values (n, k), roll.names
+    roll = data["/autopilot/roll"]                     # roll.t (s), roll.values (n, k) in deg, roll.names
+    rrd.load_poses("runs/x/flight.rrd")["/sitl/attitude"]   # (t, quaternions x y z w) of the 3D aircraft
     rrd.has_blueprint("runs/x/flight.rrd")
 
 Command line::
