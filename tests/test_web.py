@@ -229,3 +229,15 @@ def test_an_exception_in_the_caller_ends_the_server(tmp_path):
     assert listeners(grpc) == set() and listeners(http) == set()
     assert serve_web_pids(grpc) == []
     assert flight.result is not None and not flight.result.ok  # stopped by the caller
+
+
+def test_equal_web_ports_are_refused_in_one_line():
+    r = subprocess.run(
+        [sys.executable, "-m", "tools.launch", "--web", "--web-port", "9000", "--web-grpc-port", "9000"],
+        cwd=ROOT,
+        capture_output=True,
+        text=True,
+        timeout=60,
+    )
+    assert r.returncode == 2 and r.stderr.strip().count("\n") == 0, r.stderr
+    assert "--web-port must differ from the gRPC port (web_grpc_port), both are 9000" in r.stderr

@@ -240,7 +240,7 @@ class FlightConfig:
         _require(
             self.web_port != self.web_grpc_port,
             "web_port",
-            f"web_port and web_grpc_port must differ, both are {self.web_port}",
+            f"web_port must differ from the gRPC port (web_grpc_port), both are {self.web_port}",
         )
         if self.out is not None:
             problem = cli.output_dir_problem(self.out)
