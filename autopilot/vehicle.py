@@ -114,6 +114,8 @@ class Vehicle:
         self.mode = mode
         self.control = control = ap.control
         control.armed = armed
+        # callables(name, value, accepted): each PARAM_SET for us, after it was applied or refused (telemetry)
+        self.param_hooks: list = []
         self.every = {"attitude": ap._telemetry_every, "gains": self._every(GAINS_RATE_HZ)}
         self.status_period_s = 1.0
         self._next_status = 0.0
@@ -238,6 +240,8 @@ class Vehicle:
         except ParamError as exc:
             self.ap.events["param_rejected"] += 1
             self.ap._event(M.MAV_SEVERITY_WARNING, str(exc))
+            for hook in self.param_hooks:
+                hook(name, float(msg.param_value), False)
             if name not in self.params:
                 self.reply(self._param_error(msg, name, -1, M.MAV_PARAM_ERROR_DOES_NOT_EXIST))
                 return
@@ -249,6 +253,8 @@ class Vehicle:
         self._apply_params(name)
         self.ap.events["param_sets"] += 1
         self.send_all(self._param_value(name, self.params.get(name)))
+        for hook in self.param_hooks:
+            hook(name, float(self.params.get(name)), True)
 
     def _on_mission_request_list(self, msg) -> None:
         if self._for_us(msg):

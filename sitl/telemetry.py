@@ -2,8 +2,10 @@
 
 One row per frame (lockstep) or per ATTITUDE sent (real time): the truth state x_p in ``sitl.model.STATE_NAMES``
 order, then the servo command the SITL applied (rad, after the PWM -> angle mapping) and the PWM it received.
-``sim_time`` is the SITL's clock (``steps * dt``), the same instant the autopilot logs for that frame.  Units
-are SI (m/s, rad/s, rad); PWM in us.  Imports only ``autopilot.shared`` and ``sitl``.
+``sim_time`` is the SITL's clock (``steps * dt``), the same instant the autopilot logs for that frame.  The rows
+are SI (m/s, rad/s, rad); the plots send angles in degrees and angular rates in deg/s (``scale=DEG_PER_RAD``),
+PWM in us.  The true roll phi is also drawn as the aircraft in 3D (``SITL_ATTITUDE``).  Imports only
+``autopilot.shared`` and ``sitl``.
 """
 
 from __future__ import annotations
@@ -13,15 +15,17 @@ import time
 
 from autopilot.shared.telemetry.flags import attach as attach_hook
 from autopilot.shared.telemetry.hooks import ProcessHook, nan_if_none
-from autopilot.shared.telemetry.layout import GREEN, GREY, PURPLE, Plot, TableLayout
+from autopilot.shared.telemetry.layout import DEG_PER_RAD as DEG
+from autopilot.shared.telemetry.layout import GREEN, GREY, PURPLE, Plot, Pose, TableLayout
 from sitl.model import STATE_NAMES
 
 SITL = "/sitl"
-SITL_ROLL = f"{SITL}/roll"  # phi truth                                  rad
-SITL_RATES = f"{SITL}/rates"  # p, r truth                               rad/s
+SITL_ROLL = f"{SITL}/roll"  # phi truth                                  deg
+SITL_RATES = f"{SITL}/rates"  # p, r truth                               deg/s
 SITL_SIDE_VELOCITY = f"{SITL}/side_velocity"  # v truth                  m/s
-SITL_RUDDER = f"{SITL}/rudder"  # delta_r truth, servo command applied   rad
-SITL_RUDDER_RATE = f"{SITL}/rudder_rate"  # delta_r_dot truth            rad/s
+SITL_RUDDER = f"{SITL}/rudder"  # delta_r truth, servo command applied   deg
+SITL_RUDDER_RATE = f"{SITL}/rudder_rate"  # delta_r_dot truth            deg/s
+SITL_ATTITUDE = f"{SITL}/attitude"  # Transform3D at the true roll phi + the aircraft shape
 SITL_SERVO_PWM = f"{SITL}/servo_pwm"  # PWM as received                  us
 SITL_EVENTS = f"{SITL}/events"  # TextLog: status events
 
@@ -32,15 +36,20 @@ SITL_TABLE = TableLayout(
     "sitl",
     SITL_FIELDS,
     (
-        Plot(SITL_ROLL, ("phi",), ("roll phi (truth)",), (PURPLE,)),
-        Plot(SITL_RATES, ("p", "r"), ("roll rate p (truth)", "yaw rate r (truth)"), (PURPLE, GREEN)),
+        Plot(SITL_ROLL, ("phi",), ("roll phi (truth)",), (PURPLE,), scale=DEG),
+        Plot(SITL_RATES, ("p", "r"), ("roll rate p (truth)", "yaw rate r (truth)"), (PURPLE, GREEN), scale=DEG),
         Plot(SITL_SIDE_VELOCITY, ("v",), ("side velocity v (truth)",), (GREEN,)),
         Plot(
-            SITL_RUDDER, ("delta_r", "delta_cmd"), ("rudder delta_r (truth)", "servo command applied"), (PURPLE, GREY)
+            SITL_RUDDER,
+            ("delta_r", "delta_cmd"),
+            ("rudder delta_r (truth)", "servo command applied"),
+            (PURPLE, GREY),
+            scale=DEG,
         ),
-        Plot(SITL_RUDDER_RATE, ("delta_r_dot",), ("rudder rate (truth)",), (PURPLE,)),
+        Plot(SITL_RUDDER_RATE, ("delta_r_dot",), ("rudder rate (truth)",), (PURPLE,), scale=DEG),
         Plot(SITL_SERVO_PWM, ("pwm",), ("servo PWM received [us]",), (PURPLE,), step=True),
     ),
+    poses=(Pose(SITL_ATTITUDE, "phi", "aircraft (true roll phi)", (*PURPLE, 255)),),
 )
 
 

@@ -90,25 +90,27 @@ def test_truth_and_measured_roll_agree_to_float32_at_the_same_sim_time(lockstep_
     truth, seen = data[S.SITL_ROLL], data[L.AP_ROLL]
     common, i_truth, i_seen = np.intersect1d(truth.t_ns, seen.t_ns, return_indices=True)
     assert len(common) == len(seen.t) - 1  # every frame but t = 0 (the SITL logs after advancing)
-    phi_truth = truth.values[i_truth, 0]
-    phi_seen = seen.values[i_seen, 3]  # "y": the roll the controller received in ATTITUDE (float32)
+    # shown in degrees (the rows in rad times 180/pi); back in rad the roll seen is the float32 of the truth
+    phi_truth = np.radians(truth.values[i_truth, 0])
+    phi_seen = np.radians(seen.values[i_seen, 3])  # "y": the roll the controller received in ATTITUDE (float32)
     assert np.max(np.abs(phi_truth)) > math.radians(8)
-    np.testing.assert_array_equal(phi_seen, phi_truth.astype(np.float32).astype(np.float64))
+    np.testing.assert_allclose(phi_seen, phi_truth.astype(np.float32).astype(np.float64), rtol=1e-14, atol=0)
     # The PWM the autopilot sent at frame k is the PWM the SITL applied over frame k (logged at t_k+1).
     pwm_sent = data["/autopilot/rudder_pwm"]
     pwm_applied = data["/sitl/servo_pwm"]
     np.testing.assert_array_equal(pwm_sent.values[:-1, 0], pwm_applied.values[: len(pwm_sent.t) - 1, 0])
-    # ... and the applied command in rad is that PWM through the calibration.
+    # ... and the applied command (shown in degrees) is that PWM through the calibration.
     pwm = PwmMap()
     applied = data[S.SITL_RUDDER].values[:, 1]
-    np.testing.assert_allclose(applied, [pwm.to_rad(int(p)) for p in pwm_applied.values[:, 0]], rtol=0, atol=1e-12)
+    expect_deg = [math.degrees(pwm.to_rad(int(p))) for p in pwm_applied.values[:, 0]]
+    np.testing.assert_allclose(applied, expect_deg, rtol=0, atol=1e-10)
 
 
 def test_flight_metrics_can_be_recomputed_from_the_recording(lockstep_flight):
     """summary.json's ise_crm equals sum(e^2) dt over the logged error: the recording is the flight."""
     out, summary, _, _ = lockstep_flight
     data = rrd.load(out / "flight.rrd")
-    e = data["/autopilot/error"].values[:, 0]
+    e = np.radians(data["/autopilot/error"].values[:, 0])  # shown in degrees; the metric is in rad^2 s
     assert summary["runs"][0]["metrics"]["ise_crm"] == pytest.approx(float(np.sum(e**2) / RATE), rel=1e-9)
 
 

@@ -24,6 +24,7 @@ from autopilot.shared.telemetry.columns import sim_time_column
 from autopilot.step import Failsafe
 from autopilot.telemetry import layout as L
 from autopilot.telemetry.hooks import AutopilotHook, autopilot_tables
+from autopilot.vehicle import Mode
 from sitl import telemetry as S
 from sitl.model import STATE_NAMES
 from tools import recording, rrd, views
@@ -50,12 +51,36 @@ def test_layouts_cover_every_field_of_both_processes():
 
 
 def test_state_colours_are_exactly_the_states_emitted():
-    """Mode: ADAPTIVE or HOLD; failsafe: OK for Failsafe.NONE, else the member's name (NO_ATTITUDE included)."""
+    """Mode: the vehicle's own modes (autopilot.vehicle.Mode); failsafe: OK for Failsafe.NONE, else the member's name
+    (NO_ATTITUDE included)."""
     assert set(L.FAILSAFE_COLORS) == {"OK", *(f.name for f in Failsafe if f is not Failsafe.NONE)}
     assert set(L.FAILSAFE_COLORS) == {L.failsafe_state(f) for f in Failsafe}
     assert L.failsafe_state(Failsafe.NONE) == "OK" and L.failsafe_state(Failsafe.NO_ATTITUDE) == "NO_ATTITUDE"
-    assert set(L.MODE_COLORS) == {L.MODE_ADAPTIVE, L.MODE_HOLD}
+    assert set(L.MODE_COLORS) == {"MANUAL", "SAC", "CLSAC", "BASELINE", "FAILSAFE"} == {m.name for m in Mode}
+    assert L.MODE_WARN == {"FAILSAFE"}
     assert L.FAILSAFE_WARN == {"NO_ATTITUDE", "NO_SETPOINT"}
+
+
+def test_roll_quaternions_put_the_right_wing_down_for_positive_roll():
+    """q = (sin(phi/2), 0, 0, cos(phi/2)): its rotation matrix (Hamilton, x y z w) takes the body's right wing
+    (0, 1, 0) to (0, cos phi, sin phi), i.e. down (+z in FRD) for phi > 0, and the nose stays on x."""
+    from autopilot.shared.telemetry.columns import roll_quaternions
+
+    phi = np.radians([-30.0, 0.0, 10.0, 45.0])
+    for (x, y, z, w), p in zip(roll_quaternions(phi), phi):
+        rot = np.array(
+            [
+                [1 - 2 * (y * y + z * z), 2 * (x * y - z * w), 2 * (x * z + y * w)],
+                [2 * (x * y + z * w), 1 - 2 * (x * x + z * z), 2 * (y * z - x * w)],
+                [2 * (x * z - y * w), 2 * (y * z + x * w), 1 - 2 * (x * x + y * y)],
+            ]
+        )
+        np.testing.assert_allclose(rot @ [0, 1, 0], [0, math.cos(p), math.sin(p)], atol=1e-15)
+        np.testing.assert_allclose(rot @ [1, 0, 0], [1, 0, 0], atol=1e-15)
+    with pytest.raises(ValueError, match="unknown field"):
+        tm.TableLayout("t", ("a",), (), poses=(tm.layout.Pose("/p", "phi", "x", (0, 0, 0, 255)),))
+    with pytest.raises(ValueError, match="scale"):
+        tm.Plot("/x", ("a",), ("a",), (tm.layout.GREY,), scale=0.0)
 
 
 def test_sim_time_is_rounded_not_truncated():
@@ -94,9 +119,14 @@ def test_rows_round_trip_exactly(tmp_path):
     assert tel.rows_sent["autopilot"] == 1000
     data = rrd.load(path)
     expect = np.array(rows, dtype=np.float64)
+    # angles (rad rows) are shown in degrees, the roll rate in deg/s; everything else exactly as appended
+    in_degrees = {L.AP_ROLL, L.AP_ROLL_RATE, L.AP_ERROR, L.AP_AUGMENTED, L.AP_RUDDER}
     for plot in L.AUTOPILOT.plots:
         idx = [L.AUTOPILOT_FIELDS.index(f) for f in plot.fields]
-        np.testing.assert_array_equal(data[plot.path].values, expect[:, idx], err_msg=plot.path)
+        if plot.path in in_degrees:
+            np.testing.assert_allclose(data[plot.path].values, np.degrees(expect[:, idx]), rtol=1e-15, atol=0)
+        else:
+            np.testing.assert_array_equal(data[plot.path].values, expect[:, idx], err_msg=plot.path)
         assert data[plot.path].names == plot.labels
     wall = rrd.load(path, timeline=tm.WALL_TIME)[L.AP_ROLL]
     np.testing.assert_allclose(wall.t, t_wall0 + np.arange(1000) / 400, atol=1e-6)
@@ -119,17 +149,17 @@ def test_state_channel_ignores_repeats_and_logs_text(tmp_path):
     path = tmp_path / "t.rrd"
     with tm.Telemetry("autopilot", None, path) as tel:
         _, _, mode, failsafe = autopilot_tables(tel, links=())
-        assert mode.set(0.0, 0.0, "ADAPTIVE")
-        assert not mode.set(0.1, 0.0, "ADAPTIVE")
-        assert mode.set(1.0, 0.0, "HOLD")
+        assert mode.set(0.0, 0.0, "CLSAC")
+        assert not mode.set(0.1, 0.0, "CLSAC")
+        assert mode.set(1.0, 0.0, "FAILSAFE")
         assert failsafe.set(2.0, 0.0, "NO_ATTITUDE", "no ATTITUDE for 0.5 s")
     states = rrd.load_states(path)
-    assert states[L.AP_MODE] == [(0.0, "ADAPTIVE"), (1.0, "HOLD")]
+    assert states[L.AP_MODE] == [(0.0, "CLSAC"), (1.0, "FAILSAFE")]
     assert states[L.AP_FAILSAFE] == [(2.0, "NO_ATTITUDE")]
     text = rrd.load_text(path, L.AP_EVENTS)
     assert text == [
-        (0.0, "mode: - -> ADAPTIVE"),
-        (1.0, "mode: ADAPTIVE -> HOLD"),
+        (0.0, "mode: - -> CLSAC"),
+        (1.0, "mode: CLSAC -> FAILSAFE"),
         (2.0, "failsafe: - -> NO_ATTITUDE (no ATTITUDE for 0.5 s)"),
     ]
 
@@ -171,8 +201,10 @@ def test_log_experiment_writes_every_run_side_by_side(tmp_path, paper_results):
     data = rrd.load(path)
     n = PAPER.steps
     first = paper_results[0].series
-    np.testing.assert_array_equal(data[views.RUN_COMMAND].values[:, 0], first["um"])
-    np.testing.assert_array_equal(data[views.RUN_REFERENCE_OL].values[:, 0], first["ym_ol"])
+    # angles are shown in degrees (the series in rad times 180/pi); gains as they are
+    deg = dict(rtol=1e-15, atol=0)
+    np.testing.assert_allclose(data[views.RUN_COMMAND].values[:, 0], np.degrees(first["um"]), **deg)
+    np.testing.assert_allclose(data[views.RUN_REFERENCE_OL].values[:, 0], np.degrees(first["ym_ol"]), **deg)
     for r in paper_results:
         s = r.series
         base = f"{views.RUNS}/{r.name}"
@@ -187,7 +219,10 @@ def test_log_experiment_writes_every_run_side_by_side(tmp_path, paper_results):
         ):
             sig = data[f"{base}/{what}"]
             assert len(sig.t) == n, f"{base}/{what}"
-            np.testing.assert_array_equal(sig.values[:, 0], s[key])
+            if key in ("phi", "ym", "e", "u"):
+                np.testing.assert_allclose(sig.values[:, 0], np.degrees(s[key]), **deg)
+            else:
+                np.testing.assert_array_equal(sig.values[:, 0], s[key])
         np.testing.assert_array_equal(data[f"{base}/roll"].t_ns, np.rint(s["t"] * 1e9).astype(np.int64))
         assert data[f"{base}/gains/parts"].values.shape == (n, 6)
         assert data[f"{base}/state"].values.shape == (n, 4)
@@ -196,8 +231,8 @@ def test_log_experiment_writes_every_run_side_by_side(tmp_path, paper_results):
     assert not np.array_equal(data[views.run_path("sac", "roll")].values, data[views.run_path("clsac", "roll")].values)
     assert rrd.has_blueprint(path)
     names = rrd.blueprint_components(path, "ViewBlueprint:display_name")
-    assert "Roll: command, open-loop reference and every run [rad]" in names
-    assert {f"{r.name}: roll [rad]" for r in paper_results} <= set(names)  # one tab per run too
+    assert "Roll: command, open-loop reference and every run [deg]" in names
+    assert {f"{r.name}: roll [deg]" for r in paper_results} <= set(names)  # one tab per run too
     queries = rrd.blueprint_components(path, "ViewContents:query")
     for r in paper_results:  # the overlay plot lists every run
         assert views.run_path(r.name, "roll") in queries
@@ -253,7 +288,7 @@ def test_loop_hooks_turn_step_records_into_telemetry(tmp_path):
     from sitl.aircraft import Aircraft
 
     links = {name: NS(rx_packets=0, tx_packets=0, rejected=Counter()) for name in L.LINKS}
-    ap_obj = NS(timing=NS(missed=0), **links)
+    ap_obj = NS(timing=NS(missed=0), vehicle=NS(mode=Mode.CLSAC), **links)
     step = ControlStep(ClSacConfig(control_rate_hz=400.0), PwmMap(), ProfileSetpoints(lambda _t: 0.1))
     ac = Aircraft()
     rid = tm.new_recording_id()
@@ -266,6 +301,8 @@ def test_loop_hooks_turn_step_records_into_telemetry(tmp_path):
         for k in range(400):
             t = k / 400
             phi = float(np.float32(ac.phi))
+            # the vehicle's mode as Vehicle.housekeeping sets it: FAILSAFE while the attitude is lost
+            ap_obj.vehicle.mode = Mode.FAILSAFE if 100 <= k < 120 else Mode.CLSAC
             if 100 <= k < 120:
                 res = step.hold(t, phi)  # no attitude: rudder neutral, adaptation frozen
             else:
@@ -310,16 +347,20 @@ def test_loop_hooks_turn_step_records_into_telemetry(tmp_path):
     states = rrd.load_states(merged)
     assert [s for _, s in states[L.AP_FAILSAFE]] == ["OK", "NO_ATTITUDE", "OK", "NO_SETPOINT", "OK"]
     assert [t for t, _ in states[L.AP_FAILSAFE]] == pytest.approx([0.0, 0.25, 0.3, 0.5, 0.55])
-    assert [s for _, s in states[L.AP_MODE]] == ["ADAPTIVE", "HOLD", "ADAPTIVE"]
+    assert [s for _, s in states[L.AP_MODE]] == ["CLSAC", "FAILSAFE", "CLSAC"]
     text = [x for _, x in rrd.load_text(merged, L.AP_EVENTS)]
     assert "FAILSAFE no attitude 101.0 ms: rudder neutral" in text
     assert "failsafe: OK -> NO_ATTITUDE" in text
     assert [x for _, x in rrd.load_text(merged, S.SITL_EVENTS)] == ["servo timeout: rudder neutral"]
     i = np.searchsorted(data[S.SITL_ROLL].t_ns, data[L.AP_ROLL].t_ns)
     stepped = np.r_[0:100, 120:400]  # while held (failsafe) the controller does not take a measurement
-    np.testing.assert_array_equal(
+    # Both are shown in degrees (rad rows times 180/pi): the measured roll is the float32 of the true one.
+    phi_truth = data[S.SITL_ROLL].values[i[stepped], 0] * (math.pi / 180.0)
+    np.testing.assert_allclose(
         data[L.AP_ROLL].values[stepped, 3],
-        data[S.SITL_ROLL].values[i[stepped], 0].astype(np.float32).astype(np.float64),
+        np.degrees(phi_truth.astype(np.float32).astype(np.float64)),
+        rtol=1e-14,
+        atol=0,
     )
     assert rrd.has_blueprint(merged)
 

@@ -55,7 +55,7 @@ def _writer(role: str, recording_id: str, path: str, duration_s: float, connect:
         with tel:
             if role == "autopilot":
                 ap, links, mode, failsafe = autopilot_tables(tel)
-                mode.set(0.0, time.time(), "ADAPTIVE")
+                mode.set(0.0, time.time(), "CLSAC")
                 failsafe.set(0.0, time.time(), "OK")
             else:
                 st = tel.table(S.SITL_TABLE)
@@ -204,10 +204,12 @@ def test_truth_and_autopilot_roll_agree_to_float32(flight):
     truth, seen = data[S.SITL_ROLL], data[L.AP_ROLL]
     common, i_truth, i_seen = np.intersect1d(truth.t_ns, seen.t_ns, return_indices=True)
     assert len(common) == len(truth.t_ns)
-    phi_truth = truth.values[i_truth, 0]
-    phi_meas = seen.values[i_seen, 3]  # "y": the roll the controller used
+    # The recording shows degrees: the rows (rad) times 180/pi.  Back in rad, the measured roll is the float32 of
+    # the true one (to the last bits of the two conversions).
+    phi_truth = np.radians(truth.values[i_truth, 0])
+    phi_meas = np.radians(seen.values[i_seen, 3])  # "y": the roll the controller used
     assert np.max(np.abs(phi_truth)) > math.radians(5)  # the aircraft did roll
-    np.testing.assert_array_equal(phi_meas, phi_truth.astype(np.float32).astype(np.float64))
+    np.testing.assert_allclose(phi_meas, phi_truth.astype(np.float32).astype(np.float64), rtol=1e-14, atol=0)
     assert np.max(np.abs(phi_meas - phi_truth)) <= np.max(np.abs(phi_truth)) * 2.0**-23
     # rudder: what the autopilot commanded is what the SITL applied
     u_ap = data[L.AP_RUDDER].values[i_seen, 0]
@@ -226,7 +228,7 @@ def test_gains_are_sum_of_parts(flight):
 
 def test_mode_and_failsafe_are_state_changes(flight):
     states = rrd.load_states(flight["path"])
-    assert [s for _, s in states[L.AP_MODE]] == ["ADAPTIVE"]
+    assert [s for _, s in states[L.AP_MODE]] == ["CLSAC"]
     assert [s for _, s in states[L.AP_FAILSAFE]] == ["OK", "NO_ATTITUDE", "OK"]
     assert states[L.AP_FAILSAFE][1][0] == pytest.approx(0.5)
     lines = [txt for _, txt in rrd.load_text(flight["path"], L.AP_EVENTS)]
@@ -239,15 +241,20 @@ def test_blueprint_present_once_and_verified(flight):
     assert len(rrd.blueprint_components(path, "ViewportBlueprint:root_container")) == 1  # one layout, not two
     names = rrd.blueprint_components(path, "ViewBlueprint:display_name")
     for expected in (
-        "Roll tracking [rad]",
-        "Error e = ym - ya [rad]",
-        "Rudder [rad]",
-        "Gain Ke (error)",
+        "Roll tracking [deg]",
+        "Attitude: aircraft (true roll) and reference ym (ghost)",
+        "Error e = ym - ya [deg]",
+        "Rudder [deg]",
+        "Gain Ke (error), PARAM_SET marks",
         "Loop timing [s]",
         "Link counters",
         "Mode and failsafe",
     ):
         assert expected in names
+    # the side panels start collapsed (the Flight tab then fits 1600x1000); the time bar stays
+    collapsed = 2  # rerun.blueprint.PanelState.Collapsed
+    assert rrd.blueprint_components(path, "PanelBlueprint:state") == [collapsed, collapsed]  # blueprint, selection
+    assert rrd.blueprint_components(path, "TimePanelBlueprint:state") == [collapsed]
     assert rrd.blueprint_components(path, "TimePanelBlueprint:timeline") == ["sim_time"]
     links = rrd.blueprint_components(path, "TimeAxis:link")
     assert links and all(v == 2 for v in links)  # LinkToGlobal on every plot
@@ -391,7 +398,7 @@ def test_live_stream_from_two_processes_is_one_recording(tmp_path):
     data = rrd.load(live)
     assert len(data[L.AP_ROLL].t) == int(RATE) and len(data[S.SITL_ROLL].t) == int(RATE)
     assert rrd.has_blueprint(live)
-    assert "Roll tracking [rad]" in rrd.blueprint_components(live, "ViewBlueprint:display_name")
+    assert "Roll tracking [deg]" in rrd.blueprint_components(live, "ViewBlueprint:display_name")
 
 
 def _port_free(port: int) -> bool:

@@ -16,8 +16,9 @@ defaults and units (degrees and Hz as on the flags)::
 
 Every flight, however it ends, leaves in its folder ``flight.tlog`` (every packet the autopilot sent and received),
 ``summary.json`` (one run with the metrics of what flew, plus counters, timing, events and exit codes),
-``<process>.log`` for each child, ``flight.rrd`` (``rrd``) and ``autopilot_series.npz``/``sitl_series.npz``
-(``series``).  A bad keyword value raises ``FlightConfigError`` at construction, an unknown keyword TypeError.
+``<process>.log`` for each child (and ``web.log``, the ``--web`` server's, with ``web``), ``flight.rrd`` (``rrd``)
+and ``autopilot_series.npz``/``sitl_series.npz`` (``series``).  A bad keyword value raises ``FlightConfigError`` at
+construction, an unknown keyword TypeError.
 """
 
 from __future__ import annotations
@@ -125,7 +126,10 @@ class FlightConfig:
     rrd_merge_max_mb: float = MERGE_MAX_MB
     series: bool = True  # per-step series in DIR/autopilot_series.npz and DIR/sitl_series.npz
     png: bool = True  # DIR/flight.png: roll vs command and reference models, rudder, adaptive gains (from the series)
-    web: bool = False  # serve the Rerun web viewer (HTTP WEB_PORT, gRPC WEB_GRPC_PORT) and stream the flight to it
+    web: bool = False  # serve the Rerun web viewer (tools.web: HTTP web_port, gRPC web_grpc_port) and stream to it
+    web_host: str = "127.0.0.1"  # the address it binds: loopback unless asked (0.0.0.0 exposes it, unauthenticated)
+    web_port: int = 9090  # its HTTP port (the page a browser opens)
+    web_grpc_port: int = 9877  # its gRPC proxy (the processes stream to it, the browser reads it)
     gcs_peer: tuple = ()  # more ground stations (HOST:PORT) the autopilot streams to, e.g. MAVProxy on :14550
     name: str | None = None  # run name in summary.json; default the controller
     signing: bool = True  # MAVLink 2 signing on every link; a new key per flight in DIR/signing.key unless signing_key
@@ -250,6 +254,16 @@ class FlightConfig:
             )
             put("duration", DEFAULT_DURATION_S if command.end is None else command.end)
         put("gcs_peer", tuple(_checked("gcs_peer", cli.peer_endpoint, p) for p in self.gcs_peer or ()))
+        from tools import web
+
+        put("web_host", _checked("web_host", web.bind_host, self.web_host))
+        for name in ("web_port", "web_grpc_port"):
+            put(name, _checked(name, web.tcp_port, getattr(self, name)))
+        _require(
+            self.web_port != self.web_grpc_port,
+            "web_port",
+            f"web_port must differ from the gRPC port (web_grpc_port), both are {self.web_port}",
+        )
         if self.out is not None:
             problem = cli.output_dir_problem(self.out)
             _require(problem is None, "out", f"out: {problem}")
@@ -497,8 +511,11 @@ def _flight_key(cfg: FlightConfig, out: Path) -> Path | None:
     return path
 
 
-def _telemetry_argvs(cfg: FlightConfig, out: Path) -> tuple[dict[str, list[str]] | None, dict[str, Path], str | None]:
-    """One recording id for the flight; each process writes its own part file (joined at the end)."""
+def _telemetry_argvs(
+    cfg: FlightConfig, out: Path, web_url: str | None = None
+) -> tuple[dict[str, list[str]] | None, dict[str, Path], str | None]:
+    """One recording id for the flight; each process writes its own part file (joined at the end).  ``web_url``: the
+    flight's web viewer (``--web``, already started), which the processes stream to."""
     if not (cfg.rrd or cfg.viewer or cfg.connect or cfg.web):
         return None, {}, None
     from autopilot.shared import telemetry as tm
@@ -509,8 +526,8 @@ def _telemetry_argvs(cfg: FlightConfig, out: Path) -> tuple[dict[str, list[str]]
         p.parent.mkdir(parents=True, exist_ok=True)
         p.unlink(missing_ok=True)
     url = cfg.connect or (tm.spawn_viewer() if cfg.viewer else None)  # one viewer for both processes
-    if cfg.web:
-        url = serve_web()
+    if web_url is not None:
+        url = web_url
     if url:  # the processes send data only; the layout that joins them comes from here
         from tools.views import flight_blueprint
 
@@ -525,37 +542,20 @@ def _telemetry_argvs(cfg: FlightConfig, out: Path) -> tuple[dict[str, list[str]]
     return argv, parts, rid
 
 
-WEB_PORT = 9090  # --web: the Rerun web viewer over HTTP
-WEB_GRPC_PORT = 9877  # --web: the gRPC proxy the processes stream to and the web viewer reads from
-
-
-def serve_web(host: str = "0.0.0.0") -> str:
-    """Start ``rerun --serve-web`` (a gRPC proxy on ``WEB_GRPC_PORT`` plus the web viewer on ``WEB_PORT``, bound
-    to ``host``), or reuse the one already there; it stays up after the flight so a browser can still look.
-    Returns the URL the processes connect to; prints the address a browser on another machine opens."""
-    from autopilot.shared.telemetry.viewer import rerun_cli_path, viewer_reachable, viewer_url
-
-    url = viewer_url(WEB_GRPC_PORT)
-    if not viewer_reachable(url):
-        import subprocess
-
-        subprocess.Popen(
-            [rerun_cli_path(), "--serve-web", "--bind", host, "--port", str(WEB_GRPC_PORT)]
-            + ["--web-viewer-port", str(WEB_PORT), "--server-memory-limit", "25%"],
-            stdin=subprocess.DEVNULL,
-            stdout=subprocess.DEVNULL,
-            stderr=subprocess.DEVNULL,
-            start_new_session=True,  # outlives the launcher
-        )
-        t_end = time.monotonic() + 10.0
-        while not viewer_reachable(url) and time.monotonic() < t_end:
-            time.sleep(0.1)
-    print(
-        f"launch: web viewer: open http://<this host>:{WEB_PORT}/?url=rerun%2Bhttp://<this host>:{WEB_GRPC_PORT}/proxy"
-        f" in a browser (ports {WEB_PORT} and {WEB_GRPC_PORT} must be reachable)",
-        flush=True,
-    )
+def serve_web(web) -> str:
+    """Start the flight's web viewer (a ``tools.web.WebServer``, bound to loopback unless ``web_host`` says otherwise)
+    and print where to open it; the URL the processes stream to.  It ends with the flight (``Flight._stop_web``)."""
+    url = web.start()
+    for line in web.notice():
+        print(line, flush=True)
     return url
+
+
+def _web_server(cfg: FlightConfig, out: Path):
+    """The flight's ``tools.web.WebServer`` (not started), its output in DIR/web.log."""
+    from tools.web import WebServer
+
+    return WebServer(cfg.web_host, cfg.web_port, cfg.web_grpc_port, log_path=out / "web.log")
 
 
 def write_flight_png(cfg: FlightConfig, out: Path, name: str, metrics: dict) -> Path | None:
@@ -1103,6 +1103,7 @@ class Flight:
         self._children: dict[str, Child] = {}
         self._parts: dict[str, Path] = {}
         self._recording_id: str | None = None
+        self._web = None  # the --web server (tools.web.WebServer), stopped when the flight ends
         self._t0: float | None = None
         self._interrupt = threading.Event()
 
@@ -1153,12 +1154,31 @@ class Flight:
         return self.start()
 
     def __exit__(self, exc_type, exc, tb) -> bool:
-        if self.result is None:
-            if exc_type is KeyboardInterrupt:
-                self._end(EXIT_INTERRUPTED, None, "interrupted (Ctrl-C)")
-            else:
-                self.stop()
+        try:
+            if self.result is None:
+                if exc_type is KeyboardInterrupt:
+                    self._end(EXIT_INTERRUPTED, None, "interrupted (Ctrl-C)")
+                else:
+                    self.stop()
+        finally:
+            self._stop_web()  # whatever happened above
         return False
+
+    def _start_web(self) -> str:
+        """Start the --web server before anything else; a port taken (or rerun failing) refuses the flight: one
+        line, DIR/summary.json says so, nothing started (``tools.web.WebServerError`` is raised to the caller)."""
+        from tools.web import WebServerError
+
+        self._web = _web_server(self.config, self.out)
+        try:
+            return serve_web(self._web)
+        except WebServerError as exc:
+            write_refusal(self.out, "web", str(exc))
+            raise
+
+    def _stop_web(self) -> None:
+        if self._web is not None:
+            self._web.stop()
 
     def run(self) -> FlightResult:
         """Fly to the end (or until interrupted) and return the result."""
@@ -1187,8 +1207,9 @@ class Flight:
         # Until the flight ends the verdict is "not OK": a launcher killed outright (SIGKILL) leaves this, never
         # an earlier flight's "ok: true" in a reused folder.
         write_json_atomic(self.out / "summary.json", provisional_summary(os.getpid()))
+        web_url = self._start_web() if cfg.web else None
         try:
-            telemetry, self._parts, self._recording_id = _telemetry_argvs(cfg, self.out)
+            telemetry, self._parts, self._recording_id = _telemetry_argvs(cfg, self.out, web_url)
             key_file = _flight_key(cfg, self.out)
             for attempt in range(3):
                 ports = range(cfg.base_port, cfg.base_port + 4) if cfg.base_port is not None else free_udp_ports(4)
@@ -1299,7 +1320,10 @@ class Flight:
         """Stop what still runs, merge the telemetry, write summary.json and set ``result``."""
         cfg = self.config
         t_end = time.monotonic()  # exits seen after this are those of stopping the flight
-        stop_children(self._children.values())
+        try:
+            stop_children(self._children.values())
+        finally:
+            self._stop_web()  # nothing streams any more: the server ends with the flight
         rrd_path, rrd_indexed, rrd_error = _join_telemetry(
             self._parts, self.out, self._recording_id, cfg.rrd_merge_max_mb
         )

@@ -35,6 +35,7 @@ from autopilot.shared.cli import (
 from autopilot.shared.process import EXIT_USAGE, install_stop_handlers
 from sitl import disturbances
 from tools.flight import MERGE_MAX_MB, PROCESSES, PROFILES, Flight, FlightConfigError, write_refusal
+from tools.web import DEFAULT_GRPC_PORT, DEFAULT_HOST, DEFAULT_HTTP_PORT, WebServerError, bind_host, tcp_port
 
 
 def outcome_line(s: dict) -> str:
@@ -210,8 +211,26 @@ def build_parser() -> OneLineArgumentParser:
     g.add_argument(
         "--web",
         action="store_true",
-        help="serve the Rerun web viewer (HTTP port 9090, gRPC 9877, all interfaces) and stream the flight to it, "
-        "so a browser on another machine can watch a headless launch",
+        help="serve the Rerun web viewer (HTTP --web-port, gRPC --web-grpc-port, on 127.0.0.1) and stream the flight "
+        "to it; a browser elsewhere watches through ssh -L (README); the server ends with the launch",
+    )
+    g.add_argument(
+        "--web-host",
+        type=bind_host,
+        default=DEFAULT_HOST,
+        metavar="IP",
+        help="the address --web binds (default 127.0.0.1); 0.0.0.0 exposes it on every interface, without "
+        "authentication: anyone who reaches its ports can read and write the recording",
+    )
+    g.add_argument(
+        "--web-port", type=tcp_port, default=DEFAULT_HTTP_PORT, metavar="PORT", help="--web: HTTP port (default 9090)"
+    )
+    g.add_argument(
+        "--web-grpc-port",
+        type=tcp_port,
+        default=DEFAULT_GRPC_PORT,
+        metavar="PORT",
+        help="--web: gRPC port the processes stream to and the browser reads (default 9877)",
     )
     p.add_argument(
         "--no-png", dest="png", action="store_false", help="do not draw DIR/flight.png (roll, rudder, adaptive gains)"
@@ -297,7 +316,11 @@ def main(argv=None) -> int:
     parser = build_parser()
     flight = _parse(parser, sys.argv[1:] if argv is None else list(argv))
     install_stop_handlers(flight.interrupt)
-    res = flight.run()
+    try:
+        res = flight.run()
+    except WebServerError as exc:  # a --web port taken: nothing was started
+        print(f"launch: error: {exc}", file=sys.stderr)
+        return EXIT_USAGE
     print_summary(res.summary)
     if not res.completed:
         print(f"launch: error: {res.reason} (logs in {res.out})", file=sys.stderr, flush=True)

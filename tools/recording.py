@@ -1,15 +1,17 @@
 """Experiments in the viewer: every run of a scenario in one ``.rrd``, one entity subtree per run.
 
-    /runs/command                 um (shared: every run gets the same command)
-    /runs/reference_ol            ym_ol (shared: the open-loop model is driven by the command alone)
-    /runs/<name>/roll             phi
-    /runs/<name>/reference        ym (closed-loop reference: depends on the run through L_v)
-    /runs/<name>/error            e
-    /runs/<name>/rudder           u
+    /runs/command                 um (shared: every run gets the same command)                      deg
+    /runs/reference_ol            ym_ol (shared: the open-loop model is driven by the command alone)  deg
+    /runs/<name>/roll             phi                                                                 deg
+    /runs/<name>/reference        ym (closed-loop reference: depends on the run through L_v)          deg
+    /runs/<name>/error            e                                                                   deg
+    /runs/<name>/rudder           u                                                                   deg
     /runs/<name>/gains/ke|kx|ku   total gains
     /runs/<name>/gains/parts      Kpe, KIe, Kpx, KIx, Kpu, KIu
-    /runs/<name>/state            v, p, r, delta_r
-    /runs/metrics                 table of the metrics (markdown)
+    /runs/<name>/state            v [m/s], p [deg/s], r [deg/s], delta_r [deg]
+    /runs/metrics                 table of the metrics (markdown, SI: rad^2 s, rad)
+
+The series are SI (rad); angles are shown in degrees and rates in deg/s, as in a flight's recording.
 
 Time is ``sim_time`` (the runs are simulations; there is no meaningful wall time).  The entity paths and
 the layout are ``tools.views``; the column helpers ``autopilot.shared.telemetry.columns``.
@@ -39,6 +41,7 @@ from autopilot.shared.telemetry.layout import (
     YELLOW,
     Rgb,
 )
+from autopilot.shared.telemetry.layout import DEG_PER_RAD as DEG
 from tools.views import RUN_COMMAND, RUN_METRICS, RUN_REFERENCE_OL, experiment_blueprint, run_path
 
 EXPERIMENT_APPLICATION_ID = "clsac_experiment"  # paper.rrd: its own blueprint, never mixed with a flight's
@@ -107,9 +110,9 @@ def log_experiment(
 
         first = results[0].series
         rec.log(RUN_COMMAND, series_style(["roll command um"], [GREY]), static=True)
-        send(RUN_COMMAND, first["t"], first["um"])
+        send(RUN_COMMAND, first["t"], first["um"] * DEG)
         rec.log(RUN_REFERENCE_OL, series_style(["open-loop reference ym_ol"], [WHITE]), static=True)
-        send(RUN_REFERENCE_OL, first["t"], first["ym_ol"])
+        send(RUN_REFERENCE_OL, first["t"], first["ym_ol"] * DEG)
 
         for i, r in enumerate(results):
             s = r.series
@@ -117,10 +120,10 @@ def log_experiment(
             c = run_color(r.name, i)
             label = f"{r.name} (Lv={r.lv:g})"
             plots = [
-                ("roll", [f"phi {label}"], [c], [s["phi"]]),
-                ("reference", [f"ym {label}"], [_shade(c, 0.7)], [s["ym"]]),
-                ("error", [f"e {label}"], [c], [s["e"]]),
-                ("rudder", [f"u {label}"], [c], [s["u"]]),
+                ("roll", [f"phi {label}"], [c], [s["phi"] * DEG]),
+                ("reference", [f"ym {label}"], [_shade(c, 0.7)], [s["ym"] * DEG]),
+                ("error", [f"e {label}"], [c], [s["e"] * DEG]),
+                ("rudder", [f"u {label}"], [c], [s["u"] * DEG]),
                 ("gains/ke", [f"Ke {label}"], [c], [s["ke"]]),
                 ("gains/kx", [f"Kx {label}"], [c], [s["kx"]]),
                 ("gains/ku", [f"Ku {label}"], [c], [s["ku"]]),
@@ -132,9 +135,9 @@ def log_experiment(
                 ),
                 (
                     "state",
-                    ["v [m/s]", "p [rad/s]", "r [rad/s]", "delta_r [rad]"],
+                    ["v [m/s]", "p [deg/s]", "r [deg/s]", "delta_r [deg]"],
                     [GREEN, YELLOW, PURPLE, BLUE],
-                    [s["v"], s["p"], s["r"], s["delta_r"]],
+                    [s["v"], s["p"] * DEG, s["r"] * DEG, s["delta_r"] * DEG],
                 ),
             ]
             for what, labels, colors, cols in plots:

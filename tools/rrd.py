@@ -1,8 +1,11 @@
 """Read flight and experiment recordings back (rerun-sdk 0.41 ``rerun.chunk.RrdReader``), for tests and notebooks.
 
+Values are what the viewer shows: angles in degrees and angular rates in deg/s (the layouts' ``scale``), the rest SI.
+
     from tools import rrd
     data = rrd.load("runs/x/flight.rrd")              # {entity_path: Signal}
-    roll = data["/autopilot/roll"]                     # roll.t (s), roll.values (n, k), roll.names
+    roll = data["/autopilot/roll"]                     # roll.t (s), roll.values (n, k) in deg, roll.names
+    rrd.load_poses("runs/x/flight.rrd")["/sitl/attitude"]   # (t, quaternions x y z w) of the 3D aircraft
     rrd.has_blueprint("runs/x/flight.rrd")
 
 Command line::
@@ -107,10 +110,11 @@ def load(
             continue
         rb = chunk.to_record_batch()
         cols = rb.schema.names
-        if "SeriesLines:names" in cols:
-            for v in _to_list(rb.column("SeriesLines:names")):
-                if v:
-                    names[ep] = tuple(v)
+        for style in ("SeriesLines:names", "SeriesPoints:names"):  # lines, or markers (events)
+            if style in cols:
+                for v in _to_list(rb.column(style)):
+                    if v:
+                        names[ep] = tuple(v)
         if "Scalars:scalars" not in cols or timeline not in cols:
             continue
         t = rb.column(timeline).cast("int64").to_numpy(zero_copy_only=False)
@@ -129,6 +133,28 @@ def load(
         order = np.argsort(t_ns, kind="stable")
         t_ns = t_ns[order]
         out[ep] = Signal(t_ns.astype(np.float64) * 1e-9, vals[order], names.get(ep, ()), t_ns)
+    return out
+
+
+def load_poses(
+    path: str | os.PathLike, *, timeline: str = SIM_TIME, recording_id: str | None = None
+) -> dict[str, tuple[np.ndarray, np.ndarray]]:
+    """``Transform3D`` quaternions (the 3D attitudes): {path: (t seconds (n,), quaternions (n, 4) as x, y, z, w)}."""
+    r = _reader(path)
+    times: dict[str, list] = defaultdict(list)
+    quats: dict[str, list] = defaultdict(list)
+    for chunk in r.stream(store=_store(r, recording_id)):
+        rb = chunk.to_record_batch()
+        if "Transform3D:quaternion" not in rb.schema.names or timeline not in rb.schema.names:
+            continue
+        times[chunk.entity_path].append(rb.column(timeline).cast("int64").to_numpy(zero_copy_only=False))
+        q = rb.column("Transform3D:quaternion").flatten().flatten().to_numpy(zero_copy_only=False)
+        quats[chunk.entity_path].append(q.astype(np.float64).reshape(-1, 4))
+    out = {}
+    for ep in times:
+        t_ns = np.concatenate(times[ep])
+        order = np.argsort(t_ns, kind="stable")
+        out[ep] = (t_ns[order] * 1e-9, np.concatenate(quats[ep])[order])
     return out
 
 

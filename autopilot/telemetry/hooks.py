@@ -14,20 +14,23 @@ from collections.abc import Sequence
 from autopilot.shared.telemetry.hooks import ProcessHook, nan_if_none
 from autopilot.telemetry import layout as L
 
+_GAIN_INDEX = tuple(L.AUTOPILOT.index(k) for k in ("ke", "kx", "ku"))  # in the autopilot's row
+
 
 def autopilot_tables(tel, links: Sequence[str] = L.LINKS):
     """Register the autopilot's layout with a writer: (main table, {link: table}, mode channel, failsafe channel)."""
     return (
         tel.table(L.AUTOPILOT),
         {name: tel.table(L.link_layout(name, i)) for i, name in enumerate(links)},
-        tel.state_channel(L.AP_MODE, "mode", L.MODE_COLORS),
+        tel.state_channel(L.AP_MODE, "mode", L.MODE_COLORS, warn=L.MODE_WARN),
         tel.state_channel(L.AP_FAILSAFE, "failsafe", L.FAILSAFE_COLORS, warn=L.FAILSAFE_WARN),
     )
 
 
 class AutopilotHook(ProcessHook):
-    """``Autopilot.hooks`` callable: the controller row every step, link counters at ``link_rate_hz``, the mode
-    (``ADAPTIVE`` / ``HOLD`` while the controller is frozen) and the failsafe (``OK`` or the member's name).
+    """``Autopilot.hooks`` callable: the controller row every step, link counters at ``link_rate_hz``, the vehicle's
+    mode (``autopilot.vehicle.Mode`` name) and the failsafe (``OK`` or the member's name).  ``param_set`` (a
+    ``Vehicle.param_hooks`` callable) logs each PARAM_SET and marks it on the gain plots.
 
     ``control_rate_hz`` paces the link counters on the step count (exact in lockstep); without it, on sim time.
     """
@@ -42,6 +45,8 @@ class AutopilotHook(ProcessHook):
         self._link_every = max(1, int(round(control_rate_hz / link_rate_hz))) if control_rate_hz else None
         self._next_link_t = -math.inf
         self._failsafe = None  # the last Failsafe member seen
+        self.param_sets = tel.table(L.PARAM_SETS)
+        self._row: tuple | None = None  # the last step's row: its Ke, Kx, Ku are where a PARAM_SET's markers sit
 
     def __call__(self, rec) -> None:
         wall = time.time()
@@ -50,22 +55,16 @@ class AutopilotHook(ProcessHook):
         self.last_t = t
         ctrl = rec.ctrl
         ap = rec.ap
-        self._push(
-            (
-                t,
-                wall,
-                ctrl.telemetry()
-                + (
-                    nan_if_none(rec.p),
-                    nan_if_none(res.pwm),
-                    nan_if_none(rec.period),
-                    nan_if_none(rec.compute),
-                    nan_if_none(rec.lateness),
-                    float(ap.timing.missed),
-                ),
-            )
+        self._row = row = ctrl.telemetry() + (
+            nan_if_none(rec.p),
+            nan_if_none(res.pwm),
+            nan_if_none(rec.period),
+            nan_if_none(rec.compute),
+            nan_if_none(rec.lateness),
+            float(ap.timing.missed),
         )
-        mode = L.MODE_HOLD if ctrl.frozen else L.MODE_ADAPTIVE
+        self._push((t, wall, row))
+        mode = ap.vehicle.mode.name
         if mode != self.mode.last:
             self.mode.set(t, wall, mode)
         fs = res.failsafe
@@ -81,3 +80,13 @@ class AutopilotHook(ProcessHook):
                 table.push(
                     (t, wall, (float(link.rx_packets), float(link.tx_packets), float(sum(link.rejected.values()))))
                 )
+
+    def param_set(self, name: str, value: float, accepted: bool) -> None:
+        """A ``Vehicle.param_hooks`` callable: the PARAM_SET as a line in the event log (refused at WARN; the reason
+        is the status text logged just before) and a marker on each gain plot at the last step's gains."""
+        wall = time.time()
+        text = f"PARAM_SET {name} = {value:.6g}: {'accepted' if accepted else 'refused'}"
+        self.tel.log_event(self.last_t, wall, text, "INFO" if accepted else "WARN")
+        row = self._row
+        gains = (0.0, 0.0, 0.0) if row is None else tuple(float(row[i]) for i in _GAIN_INDEX)
+        self.param_sets.push((self.last_t, wall, L.param_set_row(gains, accepted)))

@@ -1,10 +1,13 @@
 """The autopilot's part of a flight recording: entity paths, its row layouts, legend names and colours.
 
 Plain data, no rerun import.  One table per control step (the controller's ``TELEMETRY_FIELDS``, then the
-measured roll rate, the rudder PWM and the loop timing), one table of counters per MAVLink link, and two
-state channels: the mode (``ADAPTIVE``, or ``HOLD`` while the controller is frozen) and the failsafe
-(``OK`` for ``Failsafe.NONE``, else the ``autopilot.step.Failsafe`` member's name).  Units are SI (rad,
-rad/s, s); PWM in us, counters.  ``sim_time`` is the ATTITUDE's ``time_boot_ms``.
+measured roll rate, the rudder PWM and the loop timing), one table of counters per MAVLink link, one row per
+PARAM_SET (a marker on each gain plot at the gain's value then: accepted or refused), and two state channels:
+the vehicle's mode (``autopilot.vehicle.Mode``: MANUAL, SAC, CLSAC, BASELINE, FAILSAFE) and the failsafe (``OK``
+for ``Failsafe.NONE``, else the ``autopilot.step.Failsafe`` member's name).  The rows are SI; the plots of angles
+are sent in degrees and of angular rates in deg/s (``scale=DEG_PER_RAD``), times in s, PWM in us, counters.  The
+reference model's roll ym is drawn in 3D as a ghost aircraft (``AP_REFERENCE_ATTITUDE``).  ``sim_time`` is the
+ATTITUDE's ``time_boot_ms``.
 """
 
 from __future__ import annotations
@@ -21,17 +24,21 @@ from autopilot.shared.telemetry.layout import (
     WHITE,
     YELLOW,
     Plot,
+    Pose,
     Rgb,
     TableLayout,
 )
+from autopilot.shared.telemetry.layout import DEG_PER_RAD as DEG
 from autopilot.step import Failsafe
+from autopilot.vehicle import Mode
 
 AP = "/autopilot"
-AP_ROLL = f"{AP}/roll"  # um, ym, ym_ol, y (measured phi)                 rad
-AP_ROLL_RATE = f"{AP}/roll_rate"  # p measured (ATTITUDE rollspeed)       rad/s
-AP_ERROR = f"{AP}/error"  # e = ym - ya                                   rad
-AP_AUGMENTED = f"{AP}/augmented"  # ya = y + y_pfc, y_pfc                 rad
-AP_RUDDER = f"{AP}/rudder"  # u (limited), u_raw                          rad
+AP_ROLL = f"{AP}/roll"  # um, ym, ym_ol, y (measured phi)                 deg
+AP_ROLL_RATE = f"{AP}/roll_rate"  # p measured (ATTITUDE rollspeed)       deg/s
+AP_ERROR = f"{AP}/error"  # e = ym - ya                                   deg
+AP_AUGMENTED = f"{AP}/augmented"  # ya = y + y_pfc, y_pfc                 deg
+AP_RUDDER = f"{AP}/rudder"  # u (limited), u_raw                          deg
+AP_REFERENCE_ATTITUDE = f"{AP}/reference_attitude"  # Transform3D at roll ym + the aircraft shape (ghost)
 AP_RUDDER_PWM = f"{AP}/rudder_pwm"  # SERVO_OUTPUT_RAW rudder channel      us
 AP_SATURATED = f"{AP}/saturated"  # 1 while |u_raw| > limit
 AP_GAINS = f"{AP}/gains"
@@ -46,6 +53,10 @@ AP_STATUS = f"{AP}/status"
 AP_MODE = f"{AP_STATUS}/mode"  # StateChange
 AP_FAILSAFE = f"{AP_STATUS}/failsafe"  # StateChange
 AP_EVENTS = f"{AP}/events"  # TextLog: status events and every state change as a readable line
+AP_PARAM_SET = f"{AP}/param_set"  # /autopilot/param_set/ke|kx|ku: a marker per PARAM_SET at that gain's value
+AP_PARAM_SET_KE = f"{AP_PARAM_SET}/ke"
+AP_PARAM_SET_KX = f"{AP_PARAM_SET}/kx"
+AP_PARAM_SET_KU = f"{AP_PARAM_SET}/ku"
 
 # The autopilot's row: the controller's telemetry tuple (ClSac.telemetry(), TELEMETRY_FIELDS order),
 # then what the loop knows: measured roll rate, rudder PWM and the loop timing of this step.
@@ -61,12 +72,17 @@ AUTOPILOT = TableLayout(
             ("um", "ym", "ym_ol", "y"),
             ("roll command um", "reference ym (closed loop)", "reference ym_ol (open loop)", "roll phi (measured)"),
             (GREY, ORANGE, SKY, YELLOW),
+            scale=DEG,
         ),
-        Plot(AP_ROLL_RATE, ("p",), ("roll rate p (measured)",), (YELLOW,)),
-        Plot(AP_ERROR, ("e",), ("error e = ym - ya",), (VERMILLION,)),
-        Plot(AP_AUGMENTED, ("ya", "y_pfc"), ("augmented output ya", "PFC output y_pfc"), (GREEN, PURPLE)),
+        Plot(AP_ROLL_RATE, ("p",), ("roll rate p (measured)",), (YELLOW,), scale=DEG),
+        Plot(AP_ERROR, ("e",), ("error e = ym - ya",), (VERMILLION,), scale=DEG),
+        Plot(AP_AUGMENTED, ("ya", "y_pfc"), ("augmented output ya", "PFC output y_pfc"), (GREEN, PURPLE), scale=DEG),
         Plot(
-            AP_RUDDER, ("u", "u_raw"), ("rudder command u (limited)", "rudder command u_raw (unlimited)"), (BLUE, SKY)
+            AP_RUDDER,
+            ("u", "u_raw"),
+            ("rudder command u (limited)", "rudder command u_raw (unlimited)"),
+            (BLUE, SKY),
+            scale=DEG,
         ),
         Plot(AP_RUDDER_PWM, ("pwm",), ("rudder PWM [us]",), (BLUE,), step=True),
         Plot(AP_SATURATED, ("saturated",), ("rudder saturated",), (VERMILLION,), step=True),
@@ -81,7 +97,28 @@ AUTOPILOT = TableLayout(
         ),
         Plot(AP_TIMING_MISSED, ("missed",), ("missed deadlines",), (VERMILLION,), step=True),
     ),
+    poses=(Pose(AP_REFERENCE_ATTITUDE, "ym", "reference ym (ghost)", (*ORANGE, 110)),),
 )
+
+# One row per PARAM_SET a ground station sent: each gain's value at that moment, in the series of the outcome
+# (the other one NaN, not drawn), so a marker sits on every gain plot where the tuning happened.
+PARAM_SET_FIELDS = ("ke_accepted", "ke_refused", "kx_accepted", "kx_refused", "ku_accepted", "ku_refused")
+PARAM_SET_LABELS = ("PARAM_SET accepted", "PARAM_SET refused")
+PARAM_SETS = TableLayout(
+    "param_sets",
+    PARAM_SET_FIELDS,
+    tuple(
+        Plot(path, (f"{k}_accepted", f"{k}_refused"), PARAM_SET_LABELS, (GREEN, VERMILLION), points=True)
+        for k, path in (("ke", AP_PARAM_SET_KE), ("kx", AP_PARAM_SET_KX), ("ku", AP_PARAM_SET_KU))
+    ),
+)
+
+
+def param_set_row(gains: tuple[float, float, float], accepted: bool) -> tuple[float, ...]:
+    """The PARAM_SETS row of one PARAM_SET: the gains (Ke, Kx, Ku) in the outcome's series, NaN in the other."""
+    nan = float("nan")
+    return tuple(v for g in gains for v in ((g, nan) if accepted else (nan, g)))
+
 
 LINKS = ("sitl", "gcs")  # the autopilot's MAVLink links (attributes of the Autopilot)
 LINK_FIELDS = ("rx", "tx", "rejected")
@@ -116,10 +153,16 @@ def link_layout(name: str, index: int = 0) -> TableLayout:
     )
 
 
-# The states the hook emits, each with its colour in the state timeline view (and nothing else).
-MODE_ADAPTIVE = "ADAPTIVE"
-MODE_HOLD = "HOLD"  # the controller is frozen (ClSac.hold: failsafe steps)
-MODE_COLORS: dict[str, Rgb] = {MODE_ADAPTIVE: GREEN, MODE_HOLD: ORANGE}
+# The states the hook emits, each with its colour in the state timeline view (and nothing else): the vehicle's
+# own modes (what its HEARTBEAT's custom_mode says; FAILSAFE while the attitude or the setpoints are lost).
+MODE_COLORS: dict[str, Rgb] = {
+    Mode.MANUAL.name: GREY,
+    Mode.SAC.name: SKY,
+    Mode.CLSAC.name: GREEN,
+    Mode.BASELINE.name: BLUE,
+    Mode.FAILSAFE.name: VERMILLION,
+}
+MODE_WARN = frozenset({Mode.FAILSAFE.name})  # logged at WARN in the event log
 FAILSAFE_OK = "OK"
 
 

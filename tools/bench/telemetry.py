@@ -266,7 +266,7 @@ def bench_size(tmp: Path, rate: float, sitl_rate: float, minutes: float = 1.0) -
     """One simulated flight-minute through the real writers (batched as in real time), merged as the launcher does."""
     from autopilot.shared import telemetry as tm
     from autopilot.telemetry.hooks import autopilot_tables
-    from autopilot.telemetry.layout import MODE_ADAPTIVE
+    from autopilot.vehicle import Mode
     from sitl.telemetry import SITL_TABLE
     from tools.views import flight_blueprint
 
@@ -285,7 +285,7 @@ def bench_size(tmp: Path, rate: float, sitl_rate: float, minutes: float = 1.0) -
         wall0 = time.time()
         batch = int(round(rate * tm.DEFAULT_FLUSH_INTERVAL_S))
         sitl_every = max(1, int(round(rate / sitl_rate)))
-        mode.set(0.0, wall0, MODE_ADAPTIVE)
+        mode.set(0.0, wall0, Mode.CLSAC.name)
         rng = np.random.default_rng(1)
         for k in range(n):
             t = k * period

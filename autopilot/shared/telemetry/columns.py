@@ -8,7 +8,7 @@ import numpy as np
 import pyarrow as pa
 import rerun as rr
 
-from autopilot.shared.telemetry.layout import SIM_TIME, WALL_TIME, Rgb
+from autopilot.shared.telemetry.layout import AIRCRAFT_BOXES, SIM_TIME, WALL_TIME, Rgb, Rgba
 
 
 class _ArrowBatch:
@@ -51,8 +51,43 @@ def wall_time_column(epoch_seconds: np.ndarray, timeline: str = WALL_TIME) -> rr
     return rr.TimeColumn(timeline, timestamp=ns.astype("datetime64[ns]"))
 
 
-def series_style(labels: Sequence[str], colors: Sequence[Rgb], step: bool = False) -> rr.SeriesLines:
-    """Legend names and colours of the series of one entity; ``step`` draws staircases."""
+def series_style(
+    labels: Sequence[str], colors: Sequence[Rgb], step: bool = False, points: bool = False
+) -> rr.SeriesLines | rr.SeriesPoints:
+    """Legend names and colours of the series of one entity; ``step`` draws staircases, ``points`` markers only
+    (a triangle per event)."""
+    if points:
+        n = len(labels)
+        return rr.SeriesPoints(
+            names=list(labels), colors=[list(c) for c in colors], markers=["Up"] * n, marker_sizes=[6.0] * n
+        )
     return rr.SeriesLines(
         names=list(labels), colors=[list(c) for c in colors], interpolation_mode="StepAfter" if step else None
+    )
+
+
+def roll_quaternions(roll_rad: np.ndarray) -> np.ndarray:
+    """(n, 4) unit quaternions (x, y, z, w) of rotations by ``roll_rad`` about the body x axis:
+    q = (sin(phi/2) e_x, cos(phi/2)), the rotation R_x(phi) that takes the body axes to the level frame (FRD:
+    positive roll puts the right wing down)."""
+    half = 0.5 * np.asarray(roll_rad, dtype=np.float64)
+    q = np.zeros((half.shape[0], 4))
+    q[:, 0] = np.sin(half)
+    q[:, 3] = np.cos(half)
+    return q
+
+
+def pose_columns(roll_rad: np.ndarray):
+    """``Transform3D`` columns (one quaternion per row) of the aircraft at ``roll_rad``."""
+    return rr.Transform3D.columns(quaternion=roll_quaternions(roll_rad))
+
+
+def aircraft_shape(color: Rgba) -> rr.Boxes3D:
+    """The aircraft (``AIRCRAFT_BOXES``: fuselage, wing, tailplane, fin) as boxes in ``color``: solid when opaque,
+    a translucent fill with its edges (a ghost) when alpha < 255."""
+    return rr.Boxes3D(
+        centers=[c for _, c, _ in AIRCRAFT_BOXES],
+        half_sizes=[h for _, _, h in AIRCRAFT_BOXES],
+        colors=[list(color)] * len(AIRCRAFT_BOXES),
+        fill_mode="Solid" if color[3] == 255 else "TransparentFillMajorWireframe",
     )

@@ -7,8 +7,10 @@ static data).  Signals that belong in one chart share one entity, so a TimeSerie
 without any set-up.  Which tables a process has is its own layout (``autopilot.telemetry.layout``,
 ``sitl.telemetry``).
 
-Units are SI everywhere (rad, rad/s, m/s, s); the only others are PWM pulse widths (us, as on the wire)
-and counters.
+Rows are in SI units (rad, rad/s, m/s, s); the only others are PWM pulse widths (us, as on the wire) and
+counters.  What the viewer shows may be scaled: a plot's ``scale`` multiplies its series before they are sent, so
+angles are recorded and shown in degrees (``DEG_PER_RAD``; rates in deg/s), as the flags, flight.png and the
+summaries give them.  A ``Pose`` draws the aircraft shape (``AIRCRAFT_BOXES``) at a row's roll angle in 3D.
 
 Timelines (both on every row):
   ``sim_time``   duration, the simulated time of the sample, rounded to the nanosecond so that every
@@ -18,6 +20,7 @@ Timelines (both on every row):
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 APPLICATION_ID = "clsac_autopilot"  # every process of a flight must use it (it is part of the store id)
@@ -25,6 +28,9 @@ SIM_TIME = "sim_time"
 WALL_TIME = "wall_time"
 
 Rgb = tuple[int, int, int]
+Rgba = tuple[int, int, int, int]
+
+DEG_PER_RAD = 180.0 / math.pi  # a plot's scale for angles (rad rows shown in deg) and rates (rad/s in deg/s)
 
 # Colour-blind-safe palette (Okabe-Ito), readable on the viewer's dark background.
 GREY: Rgb = (200, 200, 200)
@@ -48,10 +54,38 @@ class Plot:
     labels: tuple[str, ...]
     colors: tuple[Rgb, ...]
     step: bool = False  # staircase lines (counters, 0/1 flags)
+    scale: float = 1.0  # the series sent are the row's values times this (DEG_PER_RAD: angles in degrees)
+    points: bool = False  # markers at each row (events), no lines
 
     def __post_init__(self) -> None:
         if not (len(self.fields) == len(self.labels) == len(self.colors)) or not self.fields:
             raise ValueError(f"{self.path}: fields, labels and colors must have the same non-zero length")
+        if not self.path.startswith("/"):
+            raise ValueError(f"entity paths are absolute, got {self.path!r}")
+        if not (math.isfinite(self.scale) and self.scale != 0.0):
+            raise ValueError(f"{self.path}: scale must be finite and non-zero, got {self.scale!r}")
+
+
+# The aircraft drawn in 3D: (part, centre, half sizes) in body axes (x forward, y right, z down; a 1 m fuselage).
+AIRCRAFT_BOXES: tuple[tuple[str, tuple[float, float, float], tuple[float, float, float]], ...] = (
+    ("fuselage", (0.0, 0.0, 0.0), (0.5, 0.05, 0.05)),
+    ("wing", (0.08, 0.0, 0.0), (0.12, 0.75, 0.012)),
+    ("tailplane", (-0.42, 0.0, 0.0), (0.07, 0.25, 0.01)),
+    ("fin", (-0.42, 0.0, -0.13), (0.07, 0.01, 0.13)),
+)
+
+
+@dataclass(frozen=True)
+class Pose:
+    """The aircraft shape at ``path``, rotated by a row's roll angle ``roll`` (rad, a table field) about the body x
+    axis (a ``Transform3D`` per row); ``color`` with alpha below 255 draws it as a translucent ghost."""
+
+    path: str
+    roll: str
+    label: str
+    color: Rgba
+
+    def __post_init__(self) -> None:
         if not self.path.startswith("/"):
             raise ValueError(f"entity paths are absolute, got {self.path!r}")
 
@@ -63,6 +97,7 @@ class TableLayout:
     name: str
     fields: tuple[str, ...]
     plots: tuple[Plot, ...]
+    poses: tuple[Pose, ...] = ()  # 3D attitudes drawn from the same rows
 
     def __post_init__(self) -> None:
         if len(set(self.fields)) != len(self.fields):
@@ -71,6 +106,9 @@ class TableLayout:
             missing = [f for f in plot.fields if f not in self.fields]
             if missing:
                 raise ValueError(f"table {self.name}: plot {plot.path} uses unknown fields {missing}")
+        for pose in self.poses:
+            if pose.roll not in self.fields:
+                raise ValueError(f"table {self.name}: pose {pose.path} uses unknown field {pose.roll!r}")
 
     def index(self, field: str) -> int:
         return self.fields.index(field)

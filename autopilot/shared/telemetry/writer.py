@@ -38,7 +38,14 @@ import numpy as np
 import rerun as rr
 
 from autopilot.shared.telemetry import viewer as _viewer
-from autopilot.shared.telemetry.columns import scalar_column, series_style, sim_time_column, wall_time_column
+from autopilot.shared.telemetry.columns import (
+    aircraft_shape,
+    pose_columns,
+    scalar_column,
+    series_style,
+    sim_time_column,
+    wall_time_column,
+)
 from autopilot.shared.telemetry.files import RrdError, merge_recordings, new_recording_id
 from autopilot.shared.telemetry.layout import APPLICATION_ID, PALETTE, Plot, Rgb, TableLayout
 
@@ -222,7 +229,9 @@ class Telemetry:
             self._tables.append(table)
             self.rows_sent.setdefault(table_layout.name, 0)
         for plot in table_layout.plots:
-            self._statics.append((plot.path, series_style(plot.labels, plot.colors, plot.step)))
+            self._statics.append((plot.path, series_style(plot.labels, plot.colors, plot.step, plot.points)))
+        for pose in table_layout.poses:
+            self._statics.append((pose.path, aircraft_shape(pose.color)))
         return table
 
     def series(
@@ -338,13 +347,35 @@ class Telemetry:
         indexes = [sim_time_column(sim), wall_time_column(wall)]
         self._yield()
         for plot, idx in table._plots:
+            cols = vals[:, idx] if plot.scale == 1.0 else vals[:, idx] * plot.scale
             try:
-                self.rec.send_columns(plot.path, indexes=indexes, columns=[scalar_column(vals[:, idx])], strict=True)
+                self.rec.send_columns(plot.path, indexes=indexes, columns=[scalar_column(cols)], strict=True)
                 self.chunks_sent += 1
             except Exception as exc:  # noqa: BLE001 - telemetry never stops the process
                 self._error(f"{plot.path}: {exc}")
             self._yield()
+        for pose in table.layout.poses:
+            self._send_pose(pose, sim, wall, vals[:, table.layout.index(pose.roll)])
         self.rows_sent[name] = self.rows_sent.get(name, 0) + n
+
+    def _send_pose(self, pose, sim: np.ndarray, wall: np.ndarray, roll: np.ndarray) -> None:
+        """One ``Transform3D`` per row with a finite roll angle (a step without one keeps the last attitude)."""
+        ok = np.isfinite(roll)
+        if not ok.any():
+            return
+        if not ok.all():
+            sim, wall, roll = sim[ok], wall[ok], roll[ok]
+        try:
+            self.rec.send_columns(
+                pose.path,
+                indexes=[sim_time_column(sim), wall_time_column(wall)],
+                columns=pose_columns(roll),
+                strict=True,
+            )
+            self.chunks_sent += 1
+        except Exception as exc:  # noqa: BLE001 - telemetry never stops the process
+            self._error(f"{pose.path}: {exc}")
+        self._yield()
 
     def _flush_channels(self) -> None:
         lines: list[tuple[float, float, str, str]] = []
