@@ -51,6 +51,7 @@ import numpy as np
 
 from autopilot.shared.cli import OneLineArgumentParser
 from autopilot.shared.process import write_json_atomic
+from tools.outdir import check_out_dir, default_out_dir, prepare_out_dir
 
 DEG = math.pi / 180.0
 BOUND_ROLL_RAD = 60.0 * DEG
@@ -973,8 +974,6 @@ def options_from_args(args) -> StudyOptions:
 def main_run(args, prog: str) -> int:
     try:
         opts = options_from_args(args)
-        from tools.experiment import check_out_dir, default_out_dir, prepare_out_dir
-
         out = Path(args.out) if args.out else default_out_dir("robustness")
         check_out_dir(out)
         out = prepare_out_dir(out)
