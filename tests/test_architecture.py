@@ -121,3 +121,80 @@ def test_the_simulator_process_does_not_load_the_control_law():
     """)
     out = subprocess.run([sys.executable, "-c", code], cwd=ROOT, capture_output=True, text=True, check=True)
     assert out.stdout.strip() == "[]", out.stdout + out.stderr
+
+
+def _module_names(root: Path) -> dict[str, Path]:
+    """Every module of the project: ``a.b`` for ``a/b.py``, ``a`` for ``a/__init__.py``."""
+    out = {}
+    for package in PROJECT:
+        for path in sorted((root / package).rglob("*.py")):
+            parts = path.relative_to(root).with_suffix("").parts
+            out[".".join(parts[:-1] if parts[-1] == "__init__" else parts)] = path
+    return out
+
+
+def import_cycles(root: Path = ROOT) -> list[list[str]]:
+    """The import circles among the project's modules (every import counts, lazy ones too): the strongly
+    connected components of more than one module of the import graph (Tarjan's algorithm, iterative)."""
+    modules = _module_names(root)
+
+    def resolve(name: str) -> str | None:  # ``a.b.C`` (a name in module a.b) -> ``a.b``
+        while name and name not in modules:
+            name = name.rpartition(".")[0]
+        return name or None
+
+    graph = {m: sorted({r for _, i in _imports(p, root) if (r := resolve(i)) and r != m}) for m, p in modules.items()}
+    index: dict[str, int] = {}
+    low: dict[str, int] = {}
+    stack: list[str] = []
+    on_stack: set[str] = set()
+    cycles = []
+    for start in graph:
+        if start in index:
+            continue
+        work = [(start, iter(graph[start]))]
+        index[start] = low[start] = len(index)
+        stack.append(start)
+        on_stack.add(start)
+        while work:
+            v, children = work[-1]
+            w = next(children, None)
+            if w is not None:
+                if w not in index:
+                    index[w] = low[w] = len(index)
+                    stack.append(w)
+                    on_stack.add(w)
+                    work.append((w, iter(graph[w])))
+                elif w in on_stack:
+                    low[v] = min(low[v], index[w])
+                continue
+            work.pop()
+            if work:
+                low[work[-1][0]] = min(low[work[-1][0]], low[v])
+            if low[v] == index[v]:
+                component = []
+                while True:
+                    w = stack.pop()
+                    on_stack.discard(w)
+                    component.append(w)
+                    if w == v:
+                        break
+                if len(component) > 1:
+                    cycles.append(sorted(component))
+    return cycles
+
+
+def test_no_import_circle():
+    assert import_cycles() == []
+
+
+def test_an_import_circle_is_reported(tmp_path):
+    """The check is not vacuous: a circle of three modules, one of its imports lazy, is found whole."""
+    for pkg in PROJECT:
+        (tmp_path / pkg).mkdir()
+        (tmp_path / pkg / "__init__.py").write_text("")
+    (tmp_path / "tools" / "a.py").write_text("from tools.b import f\n")
+    (tmp_path / "tools" / "b.py").write_text("def f():\n    from tools import c\n")
+    (tmp_path / "tools" / "c.py").write_text("import tools.a\nfrom sitl import x\n")
+    (tmp_path / "sitl" / "x.py").write_text("")
+    assert import_cycles(tmp_path) == [["tools.a", "tools.b", "tools.c"]]

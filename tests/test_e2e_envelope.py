@@ -17,7 +17,15 @@ from tools.flight import Flight
 
 pytestmark = pytest.mark.e2e  # real processes over loopback UDP
 
-README = Path(__file__).resolve().parents[1] / "README.md"
+ROOT = Path(__file__).resolve().parents[1]
+# The front page and the manual (the Python API page first: its Flight example is the one run below).
+PAGES = [ROOT / "docs" / "python-api.md", ROOT / "README.md", *sorted((ROOT / "docs").glob("*.md"))]
+
+
+def _manual() -> str:
+    return "\n".join(p.read_text(encoding="utf-8") for p in PAGES)
+
+
 # The README's disturbance example, verbatim (Disturbances).
 DISTURBED = (
     "python -m tools.launch --lockstep --turbulence moderate --gust 2,10,5 --roll-noise 0.2 --sensor-delay 1 "
@@ -40,7 +48,7 @@ def _independent_verdict(out: Path, u_limit_rad: float = math.radians(30.0)) -> 
 
 
 def test_readme_disturbance_example_ends_out_of_envelope_with_its_numbers(tmp_path):
-    assert DISTURBED in README.read_text(encoding="utf-8")
+    assert DISTURBED in _manual()
     out = tmp_path / "run"
     r = run_cli(*DISTURBED.split()[2:], "--out", str(out), "--quiet", "--no-png", timeout=300)
     assert r.returncode == EXIT_OUT_OF_ENVELOPE == 3, r.stdout[-2000:] + r.stderr[-2000:]
@@ -50,7 +58,7 @@ def test_readme_disturbance_example_ends_out_of_envelope_with_its_numbers(tmp_pa
     assert s["ok"] is False and s["completed"] is True and s["outcome"] == "OUT OF ENVELOPE"
     assert s["flown"]["complete"] and s["runs"][0]["controlled"] == c
     assert last == f"OUT OF ENVELOPE: {c['reason']}"
-    readme = README.read_text(encoding="utf-8")
+    readme = _manual()
     assert f"`{last}`" in readme  # the line the README publishes (Disturbances) is what this flight prints
     roll_deg, share, first = _independent_verdict(out)
     # the aircraft ran away: past 60 deg and the rudder at its limit far beyond 20 % of the flight
@@ -114,7 +122,7 @@ def test_readme_flight_example_prints_why(tmp_path):
     import subprocess
     import sys
 
-    text = README.read_text(encoding="utf-8")
+    text = _manual()
     code = next(b for b in re.findall(r"```python\n(.*?)```", text, re.S) if "from tools.flight import Flight" in b)
     r = subprocess.run([sys.executable, "-c", code], cwd=tmp_path, capture_output=True, text=True, timeout=300)
     assert r.returncode == 0, r.stderr[-2000:]

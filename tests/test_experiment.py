@@ -161,7 +161,7 @@ def test_runs_are_judged_against_the_envelope(full, paper_runs):
     by = {r["name"]: r["controlled"] for r in doc["runs"]}
     assert not by["sac"]["ok"] and by["sac"]["saturated_share"] > 0.5 and by["clsac"]["ok"]
     assert 2.5 < by["sac"]["first_exit_s"] < 3.5  # README: "|roll| passes 60 deg after about 3 s"
-    readme = " ".join((ROOT / "README.md").read_text(encoding="utf-8").split())
+    readme = " ".join((ROOT / "docs" / "experiments.md").read_text(encoding="utf-8").split())
     assert "leaves it (|roll| passes 60 deg after about 3 s), the four CL-SAC runs stay inside" in readme
 
 

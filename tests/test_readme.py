@@ -1,4 +1,4 @@
-"""The README's promises that can be run: the ten-line closed loop with the two public imports."""
+"""The manual's promises that can be run: the ten-line closed loop with the two public imports (docs/python-api.md)."""
 
 from __future__ import annotations
 
@@ -8,16 +8,16 @@ from pathlib import Path
 from tools.profiles import Profile
 from tools.scenario import RunSpec, Scenario, run_inprocess
 
-README = Path(__file__).resolve().parents[1] / "README.md"
+API_PAGE = Path(__file__).resolve().parents[1] / "docs" / "python-api.md"
 
 
 def _ten_line_loop() -> str:
-    m = re.search(r"<!-- ten-line-loop -->\s*```python\n(.*?)```", README.read_text(), re.S)
-    assert m, "README.md has no <!-- ten-line-loop --> python block"
+    m = re.search(r"<!-- ten-line-loop -->\s*```python\n(.*?)```", API_PAGE.read_text(), re.S)
+    assert m, "docs/python-api.md has no <!-- ten-line-loop --> python block"
     return m.group(1)
 
 
-def test_the_readme_loop_is_ten_lines_with_two_imports():
+def test_the_manual_loop_is_ten_lines_with_two_imports():
     code = _ten_line_loop()
     lines = [ln for ln in code.splitlines() if ln.strip()]
     assert len(lines) <= 10, code
@@ -25,15 +25,15 @@ def test_the_readme_loop_is_ten_lines_with_two_imports():
     assert imports == ["from autopilot import ClSac, ClSacConfig", "from sitl import Aircraft, AircraftConfig"]
 
 
-def test_the_readme_loop_flies_the_paper_law(capsys):
-    """Run the README's block as written: it tracks the square wave, and it is exactly the in-process runner
+def test_the_manual_loop_flies_the_paper_law(capsys):
+    """Run the manual's block as written: it tracks the square wave, and it is exactly the in-process runner
     (the runner's own numbers are checked against independent computations in test_closed_loop.py)."""
     ns: dict = {}
-    exec(compile(_ten_line_loop(), "README.md", "exec"), ns)  # noqa: S102
+    exec(compile(_ten_line_loop(), "docs/python-api.md", "exec"), ns)  # noqa: S102
     ac = ns["ac"]
     assert "roll" in capsys.readouterr().out
     # After 3000 steps (30 s) the command has been -0.1745 rad for 5 s: the roll has settled on it.
     assert abs(ac.phi - (-0.1745)) < 0.005
-    # The same law and aircraft stepped by tools.scenario: phi at step 3000 is the roll after the README's loop.
+    # The same law and aircraft stepped by tools.scenario: phi at step 3000 is the roll after the manual's loop.
     ref = run_inprocess(Scenario(profile=Profile("square", 0.1745, 10.0), duration_s=30.01), RunSpec("clsac", 20.0))
     assert ac.phi == ref.series["phi"][-1]

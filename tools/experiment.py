@@ -23,7 +23,6 @@ import datetime as _dt
 import math
 import os
 import sys
-import tempfile
 import time
 from pathlib import Path
 from typing import TYPE_CHECKING, Callable, Iterable, Sequence
@@ -32,6 +31,7 @@ from autopilot.metrics import METRIC_NAMES
 from autopilot.params import arg_type
 from autopilot.shared.cli import OneLineArgumentParser
 from autopilot.shared.process import write_json_atomic
+from tools.outdir import OutDirError, check_out_dir, default_out_dir, prepare_out_dir
 
 if TYPE_CHECKING:
     from tools.scenario import RunResult, RunSpec, Scenario
@@ -124,49 +124,6 @@ def select_runs(runs: Iterable[str | RunSpec] | None, available: Sequence[RunSpe
     if not out:
         raise ExperimentError("no runs selected")
     return out
-
-
-def prepare_out_dir(out_dir: str | os.PathLike) -> Path:
-    """Create ``out_dir`` if needed and check that files can be written in it."""
-    path = Path(out_dir)
-    if path.exists() and not path.is_dir():
-        raise ExperimentError(f"output directory {str(path)!r} exists and is not a directory")
-    try:
-        path.mkdir(parents=True, exist_ok=True)
-        with tempfile.NamedTemporaryFile(dir=path, prefix=".write-test-"):
-            pass
-    except OSError as exc:
-        raise ExperimentError(f"cannot write to output directory {str(path)!r}: {exc.strerror or exc}") from None
-    return path
-
-
-def check_out_dir(out_dir: str | os.PathLike) -> Path:
-    """Reject an output path that cannot become a folder, without creating anything."""
-    path = Path(out_dir)
-    if path.exists():
-        if not path.is_dir():
-            raise ExperimentError(f"output directory {str(path)!r} exists and is not a directory")
-        probe = path
-    else:
-        probe = path.absolute().parent
-        while not probe.exists():
-            probe = probe.parent
-        if not probe.is_dir():
-            raise ExperimentError(f"cannot create output directory {str(path)!r}: {str(probe)!r} is not a directory")
-    if not os.access(probe, os.W_OK | os.X_OK):
-        raise ExperimentError(f"cannot write to output directory {str(path)!r}: {str(probe)!r} is not writable")
-    return path
-
-
-def default_out_dir(scenario: str = "paper", root: str | os.PathLike = "runs") -> Path:
-    """A new folder ``runs/<scenario>-YYYYmmdd-HHMMSS[-n]`` (relative to the working directory)."""
-    stamp = _dt.datetime.now().strftime("%Y%m%d-%H%M%S")
-    base = Path(root) / f"{scenario}-{stamp}"
-    path, n = base, 1
-    while path.exists():
-        path = base.with_name(f"{base.name}-{n}")
-        n += 1
-    return path
 
 
 # ---------------------------------------------------------------------------------------- analysis
@@ -364,7 +321,8 @@ def run_experiment(
     """Fly the scenario's runs with ``transport``; write ``out_dir/summary.json`` and (``plot``) ``paper.png``.
 
     ``runs``: names (or RunSpecs) of the scenario's runs, None for all.  ``log``: called with progress
-    lines (the CLI passes ``print``).  Raises ExperimentError on bad input, before flying anything.
+    lines (the CLI passes ``print``).  Raises ExperimentError on bad input (OutDirError for a folder that cannot
+    be written), before flying anything.
     ``pfc`` (a PFC preset name) and ``sigma_xu`` (K_Ix/K_Iu leakage) apply to every run; None keeps the paper's.
     Returns the RunResults (metrics and series) in run order.
     """
@@ -507,7 +465,7 @@ def main(argv: Sequence[str] | None = None) -> int:
             sigma_xu=args.sigma_xu,
             rrd=not args.no_rrd,
         )
-    except ExperimentError as exc:
+    except (ExperimentError, OutDirError) as exc:
         print(f"python -m tools.experiment: error: {exc}", file=sys.stderr)
         return 2
     except (RuntimeError, OSError) as exc:  # a transport's run failed, or the disk did

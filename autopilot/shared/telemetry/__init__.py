@@ -45,7 +45,7 @@ _LAZY = {
     "viewer_url": "viewer",
     "RrdError": "files",
     "merge_recordings": "files",
-    "new_recording_id": "files",
+    "new_recording_id": "layout",
     "part_paths": "files",
     "concatenate_recordings": "files",
     "verify_rrd": "files",

@@ -25,21 +25,15 @@ import os
 import struct
 import subprocess
 import tempfile
-import uuid
 from collections.abc import Sequence
 from pathlib import Path
 
-from autopilot.shared.telemetry.layout import APPLICATION_ID
+from autopilot.shared.telemetry.layout import APPLICATION_ID, new_recording_id  # noqa: F401  (part of this module's API)
 from autopilot.shared.telemetry.viewer import rerun_cli_path
 
 
 class RrdError(RuntimeError):
     """A rerun CLI operation on .rrd files failed; the message carries rerun's own last lines."""
-
-
-def new_recording_id() -> str:
-    """A fresh recording id for one flight; give the same one to every process of that flight."""
-    return str(uuid.uuid4())
 
 
 def part_paths(out_dir: str | os.PathLike, processes: Sequence[str] = ("autopilot", "sitl")) -> dict[str, Path]:

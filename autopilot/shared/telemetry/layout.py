@@ -21,9 +21,18 @@ Timelines (both on every row):
 from __future__ import annotations
 
 import math
+import uuid
 from dataclasses import dataclass
 
 APPLICATION_ID = "clsac_autopilot"  # every process of a flight must use it (it is part of the store id)
+
+
+def new_recording_id() -> str:
+    """A fresh recording id for one flight (the other part of the store id); give the same one to every process
+    of that flight."""
+    return str(uuid.uuid4())
+
+
 SIM_TIME = "sim_time"
 WALL_TIME = "wall_time"
 

@@ -14,7 +14,7 @@ import sys
 from pathlib import Path
 from urllib.parse import urlparse
 
-from autopilot.shared.telemetry.layout import APPLICATION_ID
+from autopilot.shared.telemetry.layout import APPLICATION_ID, new_recording_id
 
 log = logging.getLogger(__name__)
 
@@ -85,8 +85,6 @@ def spawn_viewer(
         )
         return None
     import rerun as rr
-
-    from autopilot.shared.telemetry.files import new_recording_id
 
     rec = rr.RecordingStream(application_id, recording_id=new_recording_id(), send_properties=False)
     try:
