@@ -205,7 +205,7 @@ _MATRICES = """
 import json, sys
 import numpy as np
 from autopilot import ClSac, ClSacConfig
-from tools.study import _dryden, _plant
+from tools.study.simulation import _dryden, _plant
 rng = np.random.default_rng(5)
 out = [m.ravel() for _ in range(20) for m in _plant(1 + 0.4 * (2 * rng.random(6) - 1), 0.01)]
 out += [getattr(_dryden(0.01), k).ravel() for k in ("ad", "ld", "c", "l0")]
