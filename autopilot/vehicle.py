@@ -23,7 +23,7 @@ from types import SimpleNamespace
 # wire format is the same MAVLink 2 frame: a common-dialect link packs them with the message's own id and CRC extra.
 from pymavlink.dialects.v20 import all as _all
 
-from autopilot.params import PARAM_ID_LEN, ParamError, ParamTable
+from autopilot.params import PARAM_ID_LEN, PARAMS, ParamError, ParamTable
 from autopilot.shared.mavlink import mavlink
 from autopilot.step import Failsafe
 
@@ -239,7 +239,7 @@ class Vehicle:
             self.params.set(name, msg.param_value)
         except ParamError as exc:
             self.ap.events["param_rejected"] += 1
-            self.ap._event(M.MAV_SEVERITY_WARNING, str(exc))
+            self.ap._event(M.MAV_SEVERITY_WARNING, refusal_text(name, msg.param_value, exc))
             for hook in self.param_hooks:
                 hook(name, float(msg.param_value), False)
             if name not in self.params:
@@ -513,3 +513,15 @@ class Vehicle:
         self.every[group] = n = self._every(hz)
         if group == "attitude":
             self.ap._telemetry_every = n
+
+
+_DOCS = {p.name: p.doc for p in PARAMS}
+
+
+def refusal_text(name: str, value: float, exc: ParamError) -> str:
+    """The status text of a refused PARAM_SET: which value, why, and what the parameter is, in one sentence
+    (``NAME=VALUE rejected: ...``), sent in MAVLink 2 chunks if it is longer than one STATUSTEXT."""
+    why = str(exc)
+    text = why if why.startswith(f"{name}=") else f"{name}={value:g} rejected: {why}"
+    doc = _DOCS.get(name)
+    return f"{text} ({doc})" if doc else text

@@ -101,10 +101,10 @@ def test_replay_command_line_prints_the_study_numbers():
 @pytest.mark.parametrize(
     "argv, message",
     [
-        (["--runs", "0"], "--runs must be >= 1"),
+        (["--runs", "0"], "--runs: must be in [1, 10000000], got '0'"),
         (["--controllers", "nope"], "unknown controller 'nope'"),
         (["--conditions", "calm"], "unknown condition 'calm'"),
-        (["--chunk", "0"], "--chunk must be >= 1"),
+        (["--chunk", "0"], "--chunk: must be in [1, 1000000], got '0'"),
         (["--scheduler", "localhost:8786"], "--scheduler must look like tcp://HOST:PORT"),
     ],
 )
