@@ -111,7 +111,7 @@ def _from_transfer_function(path, air: dict) -> tuple[np.ndarray, np.ndarray, np
     c[0, 0] = 1.0
     truth = np.zeros((4, n))
     truth[model.PHI] = c[0]
-    if abs(float(c @ b)) == 0.0:
+    if abs(float((c @ b)[0, 0])) == 0.0:
         truth[model.P] = (c @ a)[0]
     return a, b, c, [f"x{i + 1}" for i in range(n)], truth
 

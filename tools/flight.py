@@ -138,6 +138,8 @@ class FlightConfig:
     reorder: float | None = None  # link reordering probability
     scale: str | tuple | None = None  # "NAME=F" or "NAME=LO:HI" plant scale factor, or a list of them
     seed: int | None = None  # seed of every disturbance (default 0)
+    plant: str = "kh2013a"  # the SITL's plant (sitl.plant): kh2013a, FILE.toml or jsbsim:MODEL[:KEY=VALUE,...]
+    params: str | os.PathLike | None = None  # the autopilot's parameter file; default the plant's designed one
     command: Profile = field(init=False, repr=False, compare=False)  # the profile the GCS flies
 
     def __post_init__(self) -> None:
@@ -250,6 +252,36 @@ class FlightConfig:
             raise FlightConfigError(exc.field, str(exc)) from None
         except disturbances.ERRORS as exc:
             raise FlightConfigError("disturbances", str(exc)) from None
+        self._check_plant()
+
+    def _check_plant(self) -> None:
+        from autopilot.params import ParamError, load_file
+        from sitl import disturbances
+        from sitl import plant as plants
+
+        try:
+            plants.check(self.plant)
+            plants.check_disturbances(self.plant, {k: getattr(self, k) for k in disturbances.FLAGS})
+        except plants.PlantError as exc:
+            raise FlightConfigError("plant", f"plant: {exc}") from None
+        if self.params is not None:
+            try:
+                load_file(self.params)
+            except (OSError, ParamError) as exc:
+                raise FlightConfigError("params", f"params: {exc}") from None
+
+    @property
+    def params_file(self) -> str | None:
+        """The autopilot's --params: the one given, else the PFC designed for the plant (tools.pfc design, shipped
+        beside it), for SAC/CL-SAC only (the baseline has no PFC)."""
+        if self.params is not None:
+            return str(self.params)
+        if self.controller == "baseline":
+            return None
+        from tools.plant import designed_params
+
+        path = designed_params(self.plant)
+        return None if path is None else str(path)
 
     @property
     def disturbed(self) -> bool:
@@ -295,6 +327,7 @@ class FlightConfig:
             and self.physics_rate == 1000.0
             and self.u_limit_deg == 30.0
             and not self.disturbed
+            and self.plant == "kh2013a"
         )
         return "paper" if paper else "custom"
 
@@ -347,6 +380,7 @@ def child_argvs(
         ]
         + pwm
         + cfg.disturbance_argv
+        + (["--plant", cfg.plant] if cfg.plant != "kh2013a" else [])
     )
     ap = (
         py
@@ -385,6 +419,8 @@ def child_argvs(
         ]
         + pwm
     )
+    if cfg.params_file is not None:
+        ap += ["--params", cfg.params_file]
     # Lockstep: the GCS schedules the profile up to the end; real time: it flies until the autopilot powers off.
     gcs = py + [
         "tools.gcs",
@@ -901,6 +937,8 @@ class Flight:
             amplitude=math.degrees(profile.amplitude),
             period=profile.period,
             u_limit_deg=math.degrees(scenario.u_limit_rad),
+            plant=scenario.plant,
+            params=scenario.params,
             out=out,
             quiet=True,
             series=True,

@@ -13,7 +13,7 @@ from autopilot.config import ClSacConfig
 from autopilot.shared.mavlink import quaternion_to_roll, roll_to_quaternion
 from autopilot.shared.pwm import PwmMap
 from autopilot.step import ControlStep, ProfileSetpoints
-from sitl.aircraft import Aircraft, AircraftConfig
+from sitl import plant as plants
 from tools.profiles import Profile
 
 
@@ -29,6 +29,8 @@ class Scenario:
     control_rate_hz: float = 100.0
     physics_rate_hz: float = 1000.0
     u_limit_rad: float = math.radians(30.0)
+    plant: str = plants.KH2013A  # sitl.plant: kh2013a, FILE.toml or jsbsim:MODEL[:KEY=VALUE,...]
+    params: str | None = None  # a parameter file (autopilot.params) applied to every CL-SAC run, e.g. a designed PFC
 
     def __post_init__(self) -> None:
         if not isinstance(self.profile, Profile):
@@ -90,9 +92,20 @@ BASELINE_RUN = RunSpec("baseline", 0.0, controller="baseline")
 OPTIONAL_RUNS = (BASELINE_RUN,)
 
 
+def params_config(path: str) -> ClSacConfig:
+    """The CL-SAC configuration of a parameter file (``autopilot.params``: the default values, then the file's)."""
+    from autopilot.params import ParamTable, load_file
+
+    table = ParamTable(ClSacConfig(), {"attitude_timeout_s": 0.1, "setpoint_timeout_s": 1.0, "max_roll_rad": 0.8})
+    table.update(load_file(path))
+    return table.config
+
+
 def controller_config(scenario: Scenario, run: RunSpec, base: ClSacConfig | None = None) -> ClSacConfig:
     if run.controller == "baseline":
         return BaselineConfig(control_rate_hz=scenario.control_rate_hz, u_limit_rad=scenario.u_limit_rad)
+    if base is None and scenario.params is not None:
+        base = params_config(scenario.params)
     cfg = (base or ClSacConfig()).with_(
         lv=run.lv, control_rate_hz=scenario.control_rate_hz, u_limit_rad=scenario.u_limit_rad
     )
@@ -149,14 +162,14 @@ def run_inprocess(
 
     step = ControlStep(controller_config(scenario, run, base), wire, ProfileSetpoints(command))
     law = step.law
-    ac = Aircraft(AircraftConfig(physics_rate_hz=scenario.physics_rate_hz))
+    ac = plants.build(scenario.plant, scenario.physics_rate_hz)
     n = scenario.steps
     nphys = scenario.physics_per_control
     out = np.empty((n, len(SERIES)))
     rate = scenario.control_rate_hz
     for k in range(n):
         t = k / rate
-        x = ac.x
+        x = ac.truth
         phi = float(x[3]) if wire is None else float(np.float32(x[3]))  # ATTITUDE.roll travels as float32
         r = step(t, phi)
         out[k] = (
