@@ -140,6 +140,7 @@ class FlightConfig:
     seed: int | None = None  # seed of every disturbance (default 0)
     plant: str = "kh2013a"  # the SITL's plant (sitl.plant): kh2013a, FILE.toml or jsbsim:MODEL[:KEY=VALUE,...]
     params: str | os.PathLike | None = None  # the autopilot's parameter file; default the plant's designed one
+    baseline_gains: str | tuple | None = None  # "KP,KI,KD" of the baseline; default the plant's designed ones
     command: Profile = field(init=False, repr=False, compare=False)  # the profile the GCS flies
 
     def __post_init__(self) -> None:
@@ -264,6 +265,12 @@ class FlightConfig:
             plants.check_disturbances(self.plant, {k: getattr(self, k) for k in disturbances.FLAGS})
         except plants.PlantError as exc:
             raise FlightConfigError("plant", f"plant: {exc}") from None
+        if self.baseline_gains is not None:
+            from autopilot.flags import baseline_gains
+
+            gains = self.baseline_gains
+            text = gains if isinstance(gains, str) else ",".join(repr(float(g)) for g in gains)
+            object.__setattr__(self, "baseline_gains", _checked("baseline_gains", baseline_gains, text))
         if self.params is not None:
             try:
                 load_file(self.params)
@@ -282,6 +289,25 @@ class FlightConfig:
 
         path = designed_params(self.plant)
         return None if path is None else str(path)
+
+    @property
+    def surface_limit_deg(self) -> float | None:
+        """The plant's surface stop (deg; None: unlimited, the KH2013A)."""
+        from sitl import plant as plants
+
+        limit = plants.surface_limit_rad(self.plant)
+        return None if limit is None else math.degrees(limit)
+
+    @property
+    def baseline_gains_flown(self) -> tuple | None:
+        """The baseline's gains: the ones given, else those designed for the plant; None: the built-in defaults."""
+        if self.controller != "baseline":
+            return None
+        if self.baseline_gains is not None:
+            return tuple(self.baseline_gains)
+        from tools.plant import designed_baseline
+
+        return designed_baseline(self.plant)
 
     @property
     def disturbed(self) -> bool:
@@ -421,6 +447,10 @@ def child_argvs(
     )
     if cfg.params_file is not None:
         ap += ["--params", cfg.params_file]
+    if cfg.baseline_gains_flown is not None:
+        ap += ["--baseline-gains", ",".join(repr(g) for g in cfg.baseline_gains_flown)]
+    if cfg.controller == "baseline" and cfg.surface_limit_deg is not None:  # SAC/CL-SAC: CLSAC_U_LIMIT of the file
+        ap += ["--u-limit-deg", repr(min(cfg.u_limit_deg, cfg.surface_limit_deg))]
     # Lockstep: the GCS schedules the profile up to the end; real time: it flies until the autopilot powers off.
     gcs = py + [
         "tools.gcs",
@@ -939,6 +969,7 @@ class Flight:
             u_limit_deg=math.degrees(scenario.u_limit_rad),
             plant=scenario.plant,
             params=scenario.params,
+            baseline_gains=scenario.baseline_gains,
             out=out,
             quiet=True,
             series=True,

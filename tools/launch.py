@@ -226,7 +226,7 @@ def _flag(keyword: str) -> str:
 _OWNERS = {
     "sitl": {"physics_rate", "sensor_rate", "start_time", "plant", *disturbances.FLAGS},
     "autopilot": {"rate", "lv", "pfc", "sigma_xu", "dead_zone_deg", "ki_max", "u_limit_deg", "controller"}
-    | {"freeze_when_saturated", "rt_priority", "busy_wait", "telemetry_rate", "gcs_peer", "params"},
+    | {"freeze_when_saturated", "rt_priority", "busy_wait", "telemetry_rate", "gcs_peer", "params", "baseline_gains"},
     "gcs": {"profile", "csv", "amplitude", "period"},
 }
 

@@ -4,7 +4,8 @@ Thin command line over ``tools.analysis`` (flags and JSON keys: docs/design.md, 
 the transfer functions T(s) and F(s) = T(s) + D(s), the W-ASPR conditions of F, the bands of constant
 K_e > 0 for which 1 + K_e F is unstable (continuous time, and sampled with a zero-order hold at the control
 rate) and the steady-state error the PFC adds; ``--closed-loop`` also flies the paper scenario in-process.
-``--json`` prints one JSON object instead.
+``--json`` prints one JSON object instead.  ``python -m tools.pfc design PLANT`` designs a PFC for another plant
+(``tools.pfc_design``).
 """
 
 from __future__ import annotations
@@ -231,6 +232,11 @@ def format_text(rep: analysis.WasprReport, cl: list[dict] | None = None) -> str:
 
 # ----------------------------------------------------------------------------- main
 def main(argv: list[str] | None = None) -> int:
+    argv = list(sys.argv[1:] if argv is None else argv)
+    if argv[:1] == ["design"]:  # a PFC (and a baseline) designed for a plant: tools.pfc_design
+        from tools.pfc_design import main as design_main
+
+        return design_main(argv[1:])
     parser = build_parser()
     args = parser.parse_args(argv)
     try:

@@ -48,6 +48,22 @@ def designed_params(plant: str) -> Path | None:
     return path if path.is_file() else None
 
 
+BASELINE_KEY = "# baseline_gains ="  # the designed file's line the launcher reads for --controller baseline
+
+
+def designed_baseline(plant: str) -> tuple[float, float, float] | None:
+    """The baseline gains designed for ``plant`` (the ``# baseline_gains = KP,KI,KD`` line of its designed
+    parameter file, written by ``python -m tools.pfc design``), or None."""
+    path = designed_params(plant)
+    if path is None:
+        return None
+    for line in path.read_text().splitlines():
+        if line.startswith(BASELINE_KEY):
+            kp, ki, kd = (float(v) for v in line[len(BASELINE_KEY) :].split("#")[0].split(","))
+            return kp, ki, kd
+    return None
+
+
 def linearise(spec, physics_rate_hz: float = 1000.0) -> dict:
     """The roll channel of a trimmed JSBSim model: {"A", "B", "C", "trim", ...} (SI, input in rad)."""
     import jsbsim

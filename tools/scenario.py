@@ -30,7 +30,10 @@ class Scenario:
     physics_rate_hz: float = 1000.0
     u_limit_rad: float = math.radians(30.0)
     plant: str = plants.KH2013A  # sitl.plant: kh2013a, FILE.toml or jsbsim:MODEL[:KEY=VALUE,...]
-    params: str | None = None  # a parameter file (autopilot.params) applied to every CL-SAC run, e.g. a designed PFC
+    # A parameter file (autopilot.params) on top of every SAC/CL-SAC run's configuration, and the baseline's gains;
+    # None: the ones designed for the plant (tools.plant.designed_params, designed_baseline), else the defaults.
+    params: str | None = None
+    baseline_gains: tuple | None = None
 
     def __post_init__(self) -> None:
         if not isinstance(self.profile, Profile):
@@ -92,23 +95,30 @@ BASELINE_RUN = RunSpec("baseline", 0.0, controller="baseline")
 OPTIONAL_RUNS = (BASELINE_RUN,)
 
 
-def params_config(path: str) -> ClSacConfig:
-    """The CL-SAC configuration of a parameter file (``autopilot.params``: the default values, then the file's)."""
+def params_config(path: str, cfg: ClSacConfig) -> ClSacConfig:
+    """``cfg`` with a parameter file's values (``autopilot.params``) on top, as ``python -m autopilot --params`` does:
+    the file overrides the flags."""
     from autopilot.params import ParamTable, load_file
 
-    table = ParamTable(ClSacConfig(), {"attitude_timeout_s": 0.1, "setpoint_timeout_s": 1.0, "max_roll_rad": 0.8})
+    table = ParamTable(cfg, {"attitude_timeout_s": 0.1, "setpoint_timeout_s": 1.0, "max_roll_rad": 0.8})
     table.update(load_file(path))
     return table.config
 
 
 def controller_config(scenario: Scenario, run: RunSpec, base: ClSacConfig | None = None) -> ClSacConfig:
+    from tools.plant import designed_baseline, designed_params
+
     if run.controller == "baseline":
-        return BaselineConfig(control_rate_hz=scenario.control_rate_hz, u_limit_rad=scenario.u_limit_rad)
-    if base is None and scenario.params is not None:
-        base = params_config(scenario.params)
+        flown = scenario.baseline_gains or designed_baseline(scenario.plant)
+        gains = dict(zip(("kp", "ki", "kd"), flown)) if flown else {}
+        limit = min(scenario.u_limit_rad, plants.surface_limit_rad(scenario.plant) or math.inf)  # the surface's stop
+        return BaselineConfig(control_rate_hz=scenario.control_rate_hz, u_limit_rad=limit, **gains)
     cfg = (base or ClSacConfig()).with_(
         lv=run.lv, control_rate_hz=scenario.control_rate_hz, u_limit_rad=scenario.u_limit_rad
     )
+    params = scenario.params or designed_params(scenario.plant)  # as tools.flight.FlightConfig.params_file
+    if base is None and params is not None:
+        cfg = params_config(str(params), cfg)
     if run.pfc is not None:
         cfg = cfg.with_pfc(run.pfc)
     if run.sigma_xu is not None:
