@@ -252,3 +252,36 @@ def test_jsbsim_flies_the_paper_scenario_in_process():
     assert math.radians(5.0) < phi[400:500].mean() < math.radians(20.0)
     assert -math.radians(20.0) < phi[900:1000].mean() < -math.radians(5.0)
     assert Path(KH_FILE).is_file()
+
+
+# ---------------------------------------------------------------------------------------- JSBSim over MAVLink
+@pytest.mark.e2e
+def test_two_lockstep_jsbsim_flights_in_turbulence_are_identical(tmp_path):
+    from tools.flight import Flight
+
+    def fly(name, seed):
+        res = Flight(
+            lockstep=True,
+            duration=6,
+            plant="jsbsim:c172x",
+            turbulence="moderate",
+            seed=seed,
+            out=tmp_path / name,
+            quiet=True,
+            rrd=False,
+            png=False,
+        ).run()
+        assert res.ok, res.reason
+        return res
+
+    a, b, c = fly("a", 4), fly("b", 4), fly("c", 5)
+    assert a.metrics == b.metrics
+    for key in a.series:
+        assert np.array_equal(a.series[key], b.series[key]), key
+    for name in ("sitl_series.npz",):
+        sa, sb = np.load(tmp_path / "a" / name), np.load(tmp_path / "b" / name)
+        assert all(np.array_equal(sa[k], sb[k]) for k in sa.files)
+    assert not np.array_equal(a.series["phi"], c.series["phi"])  # the seed reaches JSBSim's turbulence
+    # the +10 deg step is flown in the turbulence, with the PFC designed for the aircraft
+    phi = a.series["phi"]
+    assert math.radians(5.0) < phi[300:500].mean() < math.radians(15.0)

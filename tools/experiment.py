@@ -329,6 +329,20 @@ def format_table(results: Sequence[RunResult], scenario: Scenario | None = None)
 
 
 # ---------------------------------------------------------------------------------------- run
+def with_plant(scenario: Scenario, plant: str) -> Scenario:
+    """The scenario on another plant (checked: ExperimentError), its command limit clipped to the plant's surface."""
+    from dataclasses import replace
+
+    from sitl import plant as plants
+
+    try:
+        plants.check(plant)
+    except plants.PlantError as exc:
+        raise ExperimentError(f"--plant: {exc}") from None
+    limit = min(scenario.u_limit_rad, plants.surface_limit_rad(plant) or math.inf)
+    return replace(scenario, plant=plant, u_limit_rad=limit)
+
+
 def run_experiment(
     out_dir: str | os.PathLike,
     transport: str = "inprocess",
@@ -340,12 +354,15 @@ def run_experiment(
     pfc: str | None = None,
     sigma_xu: float | None = None,
     rrd: bool = True,
+    plant: str | None = None,
 ) -> list[RunResult]:
     """Fly the scenario's runs with ``transport``; write ``out_dir/summary.json`` and (``plot``) ``paper.png``.
 
     ``runs``: names (or RunSpecs) of the scenario's runs, None for all.  ``log``: called with progress
     lines (the CLI passes ``print``).  Raises ExperimentError on bad input, before flying anything.
     ``pfc`` (a PFC preset name) and ``sigma_xu`` (K_Ix/K_Iu leakage) apply to every run; None keeps the paper's.
+    ``plant``: the SITL's plant (``sitl.plant``: kh2013a, FILE.toml, jsbsim:MODEL[:...]); None keeps the scenario's.
+    On another plant the runs fly the PFC designed for it (``tools.plant.designed_params``) unless ``pfc`` is given.
     Returns the RunResults (metrics and series) in run order.
     """
     from dataclasses import replace
@@ -369,6 +386,8 @@ def run_experiment(
         replace(s, pfc=pfc if pfc is not None else s.pfc, sigma_xu=sigma_xu if sigma_xu is not None else s.sigma_xu)
         for s in specs
     ]
+    if plant is not None:
+        scen = with_plant(scen, plant)
     runner = get_transport(transport)
     out = prepare_out_dir(out_dir)
     results: list[RunResult] = []
@@ -384,6 +403,11 @@ def run_experiment(
             f" energy={res.metrics['energy']:.4g}" + (" (rudder saturated)" if sat["saturated"] else "")
         )
     controller = {"pfc": pfc or "paper", "pfc_num_den": PFC_PRESETS[pfc or "paper"], "sigma_xu": sigma_xu or 0.0}
+    if scen.plant != "kh2013a":
+        from tools.plant import designed_params
+
+        designed = None if pfc is not None else designed_params(scen.plant)
+        controller.update(plant=scen.plant, params=None if designed is None else str(designed))
     summary = write_summary(
         results, out / "summary.json", scenario=scen, transport=transport, extra={"controller": controller}
     )
@@ -447,6 +471,12 @@ def build_parser() -> argparse.ArgumentParser:
         metavar="SIGMA",
         help="sigma-modification of K_Ix, K_Iu for every run (default 0, the paper)",
     )
+    p.add_argument(
+        "--plant",
+        default=None,
+        metavar="PLANT",
+        help="the plant: kh2013a (default), FILE.toml or jsbsim:MODEL[:KEY=VALUE,...] (README, Plants)",
+    )
     return p
 
 
@@ -470,8 +500,10 @@ def main(argv: Sequence[str] | None = None) -> int:
             raise ExperimentError(f"--sigma-xu must be finite and >= 0, got {args.sigma_xu!r}")
         out = Path(args.out) if args.out else default_out_dir(args.scenario)
         check_out_dir(out)
-        _, available = get_scenario(args.scenario)
+        scen, available = get_scenario(args.scenario)
         specs = select_runs(runs, available)
+        if args.plant is not None:
+            with_plant(scen, args.plant)  # a bad plant fails before any folder is made
         get_transport(args.transport)  # fail before creating any folder if it is unavailable
         out = prepare_out_dir(out)
         t0 = time.perf_counter()
@@ -486,6 +518,7 @@ def main(argv: Sequence[str] | None = None) -> int:
             pfc=args.pfc,
             sigma_xu=args.sigma_xu,
             rrd=not args.no_rrd,
+            plant=args.plant,
         )
     except ExperimentError as exc:
         print(f"python -m tools.experiment: error: {exc}", file=sys.stderr)
@@ -498,6 +531,8 @@ def main(argv: Sequence[str] | None = None) -> int:
         print("python -m tools.experiment: interrupted", file=sys.stderr)
         return 130
     scen, _ = get_scenario(args.scenario)
+    if args.plant is not None:
+        scen = with_plant(scen, args.plant)
     print()
     print(format_table(results, scen))
     print()
