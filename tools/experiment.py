@@ -343,6 +343,26 @@ def with_plant(scenario: Scenario, plant: str) -> Scenario:
     return replace(scenario, plant=plant, u_limit_rad=limit)
 
 
+def with_disturbances(scenario: Scenario, values: dict, transport: str) -> Scenario:
+    """The scenario with the SITL's disturbances (checked: ExperimentError); they need the mavlink transport."""
+    from dataclasses import replace
+
+    from sitl import disturbances
+    from sitl import plant as plants
+
+    given = {k: v for k, v in values.items() if v is not None}
+    if not given:
+        return scenario
+    if transport != "mavlink":
+        raise ExperimentError(f"--{next(iter(given)).replace('_', '-')} needs --transport mavlink (the SITL flies it)")
+    try:
+        disturbances.from_values(given)
+        plants.check_disturbances(scenario.plant, given)
+    except (*disturbances.ERRORS, disturbances.DisturbanceValueError, plants.PlantError) as exc:
+        raise ExperimentError(str(exc)) from None
+    return replace(scenario, disturbances=tuple(sorted(given.items())))
+
+
 def run_experiment(
     out_dir: str | os.PathLike,
     transport: str = "inprocess",
@@ -355,12 +375,14 @@ def run_experiment(
     sigma_xu: float | None = None,
     rrd: bool = True,
     plant: str | None = None,
+    disturbances: dict | None = None,
 ) -> list[RunResult]:
     """Fly the scenario's runs with ``transport``; write ``out_dir/summary.json`` and (``plot``) ``paper.png``.
 
     ``runs``: names (or RunSpecs) of the scenario's runs, None for all.  ``log``: called with progress
     lines (the CLI passes ``print``).  Raises ExperimentError on bad input, before flying anything.
     ``pfc`` (a PFC preset name) and ``sigma_xu`` (K_Ix/K_Iu leakage) apply to every run; None keeps the paper's.
+    ``disturbances``: the SITL's (``{dest: value}`` of ``sitl.disturbances.FLAGS``), mavlink transport only.
     ``plant``: the SITL's plant (``sitl.plant``: kh2013a, FILE.toml, jsbsim:MODEL[:...]); None keeps the scenario's.
     On another plant the runs fly the PFC designed for it (``tools.plant.designed_params``) unless ``pfc`` is given.
     Returns the RunResults (metrics and series) in run order.
@@ -388,6 +410,8 @@ def run_experiment(
     ]
     if plant is not None:
         scen = with_plant(scen, plant)
+    if disturbances:
+        scen = with_disturbances(scen, disturbances, transport)
     runner = get_transport(transport)
     out = prepare_out_dir(out_dir)
     results: list[RunResult] = []
@@ -409,7 +433,11 @@ def run_experiment(
         designed = None if pfc is not None else designed_params(scen.plant)
         controller.update(plant=scen.plant, params=None if designed is None else str(designed))
     summary = write_summary(
-        results, out / "summary.json", scenario=scen, transport=transport, extra={"controller": controller}
+        results,
+        out / "summary.json",
+        scenario=scen,
+        transport=transport,
+        extra={"controller": controller, "disturbances": dict(scen.disturbances)},
     )
     say(f"wrote {summary.resolve()}")
     if rrd:
@@ -471,6 +499,8 @@ def build_parser() -> argparse.ArgumentParser:
         metavar="SIGMA",
         help="sigma-modification of K_Ix, K_Iu for every run (default 0, the paper)",
     )
+    p.add_argument("--turbulence", choices=("light", "moderate", "severe"), default=None, help="mavlink: turbulence")
+    p.add_argument("--seed", type=int, default=None, metavar="N", help="mavlink: seed of the disturbances (default 0)")
     p.add_argument(
         "--plant",
         default=None,
@@ -503,7 +533,9 @@ def main(argv: Sequence[str] | None = None) -> int:
         scen, available = get_scenario(args.scenario)
         specs = select_runs(runs, available)
         if args.plant is not None:
-            with_plant(scen, args.plant)  # a bad plant fails before any folder is made
+            scen = with_plant(scen, args.plant)  # a bad plant fails before any folder is made
+        dist = {"turbulence": args.turbulence, "seed": args.seed}
+        with_disturbances(scen, dist, args.transport)
         get_transport(args.transport)  # fail before creating any folder if it is unavailable
         out = prepare_out_dir(out)
         t0 = time.perf_counter()
@@ -519,6 +551,7 @@ def main(argv: Sequence[str] | None = None) -> int:
             sigma_xu=args.sigma_xu,
             rrd=not args.no_rrd,
             plant=args.plant,
+            disturbances=dist,
         )
     except ExperimentError as exc:
         print(f"python -m tools.experiment: error: {exc}", file=sys.stderr)

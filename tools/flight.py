@@ -970,6 +970,7 @@ class Flight:
             plant=scenario.plant,
             params=scenario.params,
             baseline_gains=scenario.baseline_gains,
+            **dict(scenario.disturbances),
             out=out,
             quiet=True,
             series=True,

@@ -34,6 +34,8 @@ class Scenario:
     # None: the ones designed for the plant (tools.plant.designed_params, designed_baseline), else the defaults.
     params: str | None = None
     baseline_gains: tuple | None = None
+    # The SITL's disturbances ((dest, value) pairs of sitl.disturbances.FLAGS): flown over MAVLink only.
+    disturbances: tuple = ()
 
     def __post_init__(self) -> None:
         if not isinstance(self.profile, Profile):
@@ -170,6 +172,8 @@ def run_inprocess(
         def command(t: float, _f=scenario.command) -> float:  # SET_ATTITUDE_TARGET.q travels as float32
             return quaternion_to_roll(np.float32(roll_to_quaternion(_f(t))))
 
+    if scenario.disturbances:
+        raise ValueError("disturbances fly over MAVLink only (tools.flight, the mavlink transport)")
     step = ControlStep(controller_config(scenario, run, base), wire, ProfileSetpoints(command))
     law = step.law
     ac = plants.build(scenario.plant, scenario.physics_rate_hz)
