@@ -285,3 +285,42 @@ def test_two_lockstep_jsbsim_flights_in_turbulence_are_identical(tmp_path):
     # the +10 deg step is flown in the turbulence, with the PFC designed for the aircraft
     phi = a.series["phi"]
     assert math.radians(5.0) < phi[300:500].mean() < math.radians(15.0)
+
+
+@pytest.mark.e2e
+def test_the_launcher_flies_jsbsim_roll_steps_with_the_designed_pfc_and_records_the_held_axes(tmp_path):
+    """python -m tools.launch --lockstep --plant jsbsim:c172x: OK, the designed PFC flown, the roll steps followed
+    within the envelope, ATTITUDE carrying JSBSim's pitch and heading, the safety pilot's axes in flight.rrd."""
+    from pymavlink import mavutil
+
+    from tools import rrd
+
+    out = tmp_path / "f"
+    r = subprocess.run(
+        [sys.executable, "-m", "tools.launch", "--lockstep", "--plant", "jsbsim:c172x", "--duration", "12"]
+        + ["--out", str(out), "--quiet", "--no-png"],
+        capture_output=True,
+        text=True,
+        timeout=300,
+    )
+    assert r.returncode == 0, r.stdout + r.stderr
+    assert "--params " + str(plants.shipped("jsbsim-c172x.params")) in (out / "autopilot.log").read_text()
+    s = np.load(out / "autopilot_series.npz")
+    phi, t = s["phi"], s["t"]
+    assert np.max(np.abs(phi)) < math.radians(60.0)
+    on = (t > 3.0) & (t < 5.0)
+    assert np.all(np.abs(phi[on] - math.radians(10.0)) < math.radians(3.0))  # the +10 deg step, held
+    # ATTITUDE is JSBSim's: a pitch near the trim's, a heading that turns right while banked right
+    mlog = mavutil.mavlink_connection(str(out / "flight.tlog"))
+    att = []
+    while (m := mlog.recv_match(type="ATTITUDE")) is not None:
+        att.append((m.time_boot_ms, m.pitch, m.yaw))
+    att = np.array(att)
+    assert np.all(np.abs(att[:, 1]) < math.radians(5.0)) and np.any(att[:, 1] != 0.0)
+    at5 = att[np.argmin(np.abs(att[:, 0] - 5000)), 2]
+    assert at5 > math.radians(2.0)
+    held = rrd.load(out / "flight.rrd", prefix="/sitl/held")
+    alt = held["/sitl/held/altitude"].values[:, 0]
+    assert alt.size >= 1000 and np.max(np.abs(alt - 1000.0)) < 5.0  # the safety pilot held 1000 m
+    v = held["/sitl/held/airspeed"].values[:, 0]
+    assert np.max(np.abs(v - 100 * 1852 / 3600)) < 2.0
