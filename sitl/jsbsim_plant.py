@@ -34,7 +34,8 @@ from sitl import model
 FT = 0.3048  # m per ft
 KT = 1852.0 / 3600.0  # m/s per kt
 PILOT_EVERY = 10  # safety pilot period in physics steps (100 Hz at 1 kHz physics)
-# Safety pilot gains (SI: rad, m, m/s).  Tuned on c172x at 100 kt: +-10 deg roll steps hold 1000 m to 1 m.
+# Safety pilot gains (SI: rad, m, m/s).  Tuned on c172x at 100 kt: +-10 deg roll steps hold 1000 m to 1 m
+# (default flight condition 90 kt, 1000 m: 0.7x and 1.3x of it, 63 and 117 kt, still trim; 130 kt does not).
 K_H, K_HDOT, THETA_MAX = 0.01, 0.02, math.radians(5.0)
 K_THETA, K_I, K_Q = 4.0, 1.0, 1.5
 K_V, K_VI = 0.05, 0.01
@@ -55,7 +56,7 @@ class JsbsimSpec:
     """``jsbsim:MODEL[:airspeed_kt=KT,altitude_m=M,surface=aileron|rudder,surface_max_deg=DEG]``."""
 
     model: str = "c172x"
-    airspeed_kt: float = 100.0
+    airspeed_kt: float = 90.0
     altitude_m: float = 1000.0
     surface: str = "aileron"
     surface_max_deg: float | None = None  # rad of surface per unit normalised command; default SURFACE_MAX_DEG
