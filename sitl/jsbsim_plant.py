@@ -135,6 +135,7 @@ def trimmed_fdm(spec: JsbsimSpec, dt: float, seed: int = 0):
     fdm = _new_fdm()
     if not fdm.load_model(spec.model):
         raise JsbsimPlantError(f"jsbsim plant: JSBSim could not load model {spec.model!r}")
+    fdm.disable_output()  # the model's own <output> (c172x: JSBout172B.csv in the working folder): none
     fdm.set_dt(dt)
     fdm["simulation/randomseed"] = float(seed)
     fdm["ic/vc-kts"] = spec.airspeed_kt

@@ -83,5 +83,5 @@ class SitlHook(ProcessHook):
 
 def attach(args: argparse.Namespace, sitl):
     """If a telemetry flag was given, build the writer and register a ``SitlHook`` on ``sitl``; the writer or None."""
-    held = hasattr(sitl.aircraft, "held")
+    held = hasattr(getattr(sitl, "aircraft", None), "held")  # a JSBSim plant
     return attach_hook(args, "sitl", sitl, lambda tel: SitlHook(tel, held))

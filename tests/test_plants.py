@@ -170,7 +170,8 @@ def test_an_unknown_jsbsim_model_lists_the_available_ones():
     assert all(name in line for name in available_models())
 
 
-def test_jsbsim_trim_holds_level_flight_with_zero_roll_command_for_60_s():
+def test_jsbsim_trim_holds_level_flight_with_zero_roll_command_for_60_s(tmp_path, monkeypatch):
+    monkeypatch.chdir(tmp_path)
     ac = plants.build("jsbsim:c172x", 1000.0)
     h0 = ac.held()["altitude_m"]
     rolls, heights = [], []
@@ -184,6 +185,7 @@ def test_jsbsim_trim_holds_level_flight_with_zero_roll_command_for_60_s():
     # the attitude is JSBSim's own: roll and the roll rate of the truth, a heading near the trim's 0
     phi, _theta, psi, p, _q, _r = ac.attitude()
     assert (phi, p) == (ac.truth[model.PHI], ac.truth[model.P]) and abs(psi) < math.radians(5.0)
+    assert list(tmp_path.iterdir()) == []  # the model's own <output> file is not written
 
 
 def test_the_servo_drives_the_aileron_on_top_of_the_trim():
