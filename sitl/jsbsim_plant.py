@@ -135,7 +135,12 @@ def trimmed_fdm(spec: JsbsimSpec, dt: float, seed: int = 0):
     fdm = _new_fdm()
     if not fdm.load_model(spec.model):
         raise JsbsimPlantError(f"jsbsim plant: JSBSim could not load model {spec.model!r}")
-    fdm.disable_output()  # the model's own <output> (c172x: JSBout172B.csv in the working folder): none
+    # The model's own <output> (c172x: JSBout172B.csv in the working folder, opened by run_ic even when disabled):
+    # pointed at the null device, and off.
+    n = 0
+    while fdm.set_output_filename(n, os.devnull):
+        n += 1
+    fdm.disable_output()
     fdm.set_dt(dt)
     fdm["simulation/randomseed"] = float(seed)
     fdm["ic/vc-kts"] = spec.airspeed_kt
