@@ -353,13 +353,17 @@ def with_disturbances(scenario: Scenario, values: dict, transport: str) -> Scena
     given = {k: v for k, v in values.items() if v is not None}
     if not given:
         return scenario
-    if transport != "mavlink":
-        raise ExperimentError(f"--{next(iter(given)).replace('_', '-')} needs --transport mavlink (the SITL flies it)")
     try:
-        disturbances.from_values(given)
+        dist = disturbances.from_values(given)
         plants.check_disturbances(scenario.plant, given)
     except (*disturbances.ERRORS, disturbances.DisturbanceValueError, plants.PlantError) as exc:
         raise ExperimentError(str(exc)) from None
+    rest = plants.injected(scenario.plant, dist)  # what only the SITL's injector can apply
+    if transport != "mavlink" and (rest.atmosphere.active or rest.sensors.active or rest.faults.active):
+        raise ExperimentError(
+            f"--{next(iter(given)).replace('_', '-')} needs --transport mavlink on --plant {scenario.plant} "
+            "(the SITL flies it; in-process only a JSBSim plant's own turbulence)"
+        )
     return replace(scenario, disturbances=tuple(sorted(given.items())))
 
 
@@ -499,8 +503,13 @@ def build_parser() -> argparse.ArgumentParser:
         metavar="SIGMA",
         help="sigma-modification of K_Ix, K_Iu for every run (default 0, the paper)",
     )
-    p.add_argument("--turbulence", choices=("light", "moderate", "severe"), default=None, help="mavlink: turbulence")
-    p.add_argument("--seed", type=int, default=None, metavar="N", help="mavlink: seed of the disturbances (default 0)")
+    p.add_argument(
+        "--turbulence",
+        choices=("light", "moderate", "severe"),
+        default=None,
+        help="turbulence (mavlink; in-process too on a JSBSim plant, which flies its own)",
+    )
+    p.add_argument("--seed", type=int, default=None, metavar="N", help="seed of the disturbances (default 0)")
     p.add_argument(
         "--plant",
         default=None,

@@ -150,6 +150,20 @@ SERIES = (
 )
 
 
+def _inprocess_disturbances(scenario: Scenario):
+    """The disturbances a plant flies by itself (a JSBSim plant's turbulence, crosswind, seed), or None; anything the
+    SITL's injector would have to apply (sensors, link, the KH2013A atmosphere) flies over MAVLink only."""
+    if not scenario.disturbances:
+        return None
+    from sitl.disturbances import from_values
+
+    dist = from_values(dict(scenario.disturbances))
+    rest = plants.injected(scenario.plant, dist)
+    if rest.atmosphere.active or rest.sensors.active or rest.faults.active or rest.scales:
+        raise ValueError("these disturbances fly over MAVLink only (tools.flight, the mavlink transport)")
+    return dist
+
+
 def run_inprocess(
     scenario: Scenario = PAPER,
     run: RunSpec = PAPER_RUNS[1],
@@ -172,11 +186,9 @@ def run_inprocess(
         def command(t: float, _f=scenario.command) -> float:  # SET_ATTITUDE_TARGET.q travels as float32
             return quaternion_to_roll(np.float32(roll_to_quaternion(_f(t))))
 
-    if scenario.disturbances:
-        raise ValueError("disturbances fly over MAVLink only (tools.flight, the mavlink transport)")
     step = ControlStep(controller_config(scenario, run, base), wire, ProfileSetpoints(command))
     law = step.law
-    ac = plants.build(scenario.plant, scenario.physics_rate_hz)
+    ac = plants.build(scenario.plant, scenario.physics_rate_hz, None, _inprocess_disturbances(scenario))
     n = scenario.steps
     nphys = scenario.physics_per_control
     out = np.empty((n, len(SERIES)))

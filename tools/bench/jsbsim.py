@@ -5,7 +5,9 @@
 Targets: the lockstep flight at 100 Hz control and 1 kHz physics, MAVLink signing on and the .rrd written
 (the launcher's defaults), at least 20x real time: <= 50 ms of wall time per simulated second (median of the
 runs).  The physics step (``JsbsimPlant.advance``: the servo, the safety pilot every 10 steps and one
-``FGFDMExec.run``) is reported per step, without a target (JSBSim's own step is about 11 us).
+``FGFDMExec.run``) is reported per step, without a target (JSBSim's own step is about 11 us).  The JSBSim Monte
+Carlo (``tools.jsbsim_study``: in-process 30 s flights on ``tools.study.execute``) in flights per second for 1 and
+2 local workers, without a target.
 """
 
 from __future__ import annotations
@@ -51,6 +53,17 @@ def bench_lockstep(runs: int, duration: float) -> list[float]:
     return rtf
 
 
+def bench_monte_carlo(workers: int, seeds: int) -> float:
+    """Flights per second of the JSBSim Monte Carlo with ``workers`` local processes."""
+    from tools.jsbsim_study import make_flights, simulate
+    from tools.study import execute
+
+    flights = make_flights("c172x", ["clsac"], [63.0, 117.0], ["none", "moderate"], seeds)
+    t0 = time.perf_counter()
+    execute(flights, None, None, workers, simulate=simulate)
+    return len(flights) / (time.perf_counter() - t0)
+
+
 def main(argv: list[str] | None = None) -> dict:
     p = argparse.ArgumentParser(prog="python -m tools.bench.jsbsim", description=__doc__.split("\n\n")[0])
     p.add_argument("--quick", action="store_true", help="fewer, shorter runs")
@@ -73,6 +86,10 @@ def main(argv: list[str] | None = None) -> dict:
             note="wall ms per sim s, 1 kHz physics, signing, .rrd",
         ),
     }
+    for workers in (1, 2):
+        figs[f"jsbsim_monte_carlo_{workers}_worker{'s' if workers > 1 else ''}"] = figure(
+            bench_monte_carlo(workers, 1 if args.quick else 2), "1/s", note="30 s flights per wall second"
+        )
     print_table(f"JSBSim (c172x), load {load['load1']} on {load['cpus']} CPU(s)", figs)
     warning = load_warning()
     if warning:
