@@ -121,6 +121,9 @@ def test_the_launcher_flies_the_shipped_design_by_default():
 
     cfg = FlightConfig(plant="jsbsim:c172x", lockstep=True)
     assert cfg.params_file == str(path)
+    assert cfg.u_limit_deg == pytest.approx(17.5)  # the command stops at c172x's aileron range, as the file's
+    assert load_file(path)["CLSAC_U_LIMIT"] == pytest.approx(math.radians(17.5))
+    assert FlightConfig(plant="jsbsim:c172x", u_limit_deg=10.0).u_limit_deg == 10.0
     assert FlightConfig(plant="jsbsim:c172x", controller="baseline").baseline_gains_flown == designed_baseline(
         "jsbsim:c172x"
     )

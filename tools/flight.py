@@ -101,7 +101,7 @@ class FlightConfig:
     csv: str | None = None  # a profile from a CSV file of "time_s, roll_deg" rows instead
     amplitude: float = 10.0  # deg
     period: float = 10.0  # s
-    u_limit_deg: float = 30.0  # rudder command limit
+    u_limit_deg: float = 30.0  # rudder command limit (clipped to the plant's surface limit, e.g. 17.5 deg on c172x)
     timeout: float | None = None  # wall-clock limit of the whole flight, s; default from the duration
     rt_priority: int = 0  # real time: SCHED_FIFO priority of the autopilot (SITL one below), 0 = normal
     pin: bool = False  # the autopilot alone on CPU 1; the SITL and the GCS script on CPU 0
@@ -265,6 +265,8 @@ class FlightConfig:
             plants.check_disturbances(self.plant, {k: getattr(self, k) for k in disturbances.FLAGS})
         except plants.PlantError as exc:
             raise FlightConfigError("plant", f"plant: {exc}") from None
+        if self.surface_limit_deg is not None and self.u_limit_deg > self.surface_limit_deg:
+            object.__setattr__(self, "u_limit_deg", self.surface_limit_deg)  # the command stops at the surface's stop
         if self.baseline_gains is not None:
             from autopilot.flags import baseline_gains
 
@@ -449,8 +451,6 @@ def child_argvs(
         ap += ["--params", cfg.params_file]
     if cfg.baseline_gains_flown is not None:
         ap += ["--baseline-gains", ",".join(repr(g) for g in cfg.baseline_gains_flown)]
-    if cfg.controller == "baseline" and cfg.surface_limit_deg is not None:  # SAC/CL-SAC: CLSAC_U_LIMIT of the file
-        ap += ["--u-limit-deg", repr(min(cfg.u_limit_deg, cfg.surface_limit_deg))]
     # Lockstep: the GCS schedules the profile up to the end; real time: it flies until the autopilot powers off.
     gcs = py + [
         "tools.gcs",
