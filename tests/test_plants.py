@@ -326,3 +326,29 @@ def test_the_launcher_flies_jsbsim_roll_steps_with_the_designed_pfc_and_records_
     assert alt.size >= 1000 and np.max(np.abs(alt - 1000.0)) < 5.0  # the safety pilot held 1000 m
     v = held["/sitl/held/airspeed"].values[:, 0]
     assert np.max(np.abs(v - 90 * 1852 / 3600)) < 2.0  # the default 90 kt
+
+
+@pytest.mark.e2e
+def test_the_kh2013a_file_over_mavlink_equals_the_built_in_bit_for_bit(tmp_path):
+    from tools.flight import Flight
+
+    def fly(name, plant):
+        res = Flight(
+            lockstep=True,
+            duration=4,
+            plant=plant,
+            gust="1.5,10,1",
+            out=tmp_path / name,
+            quiet=True,
+            rrd=False,
+            png=False,
+        ).run()
+        assert res.ok, res.reason
+        return res
+
+    built_in, from_file = fly("built_in", "kh2013a"), fly("file", KH_FILE)
+    assert from_file.metrics == built_in.metrics
+    for key in built_in.series:
+        assert np.array_equal(from_file.series[key], built_in.series[key]), key
+    a, b = np.load(tmp_path / "built_in" / "sitl_series.npz"), np.load(tmp_path / "file" / "sitl_series.npz")
+    assert all(np.array_equal(a[k], b[k]) for k in a.files)
