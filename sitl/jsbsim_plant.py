@@ -3,7 +3,8 @@
 JSBSim's nonlinear 6-DOF model (the wheel's own aircraft, nothing downloaded), trimmed in level flight at the
 requested airspeed and altitude (``simulation/do_simple_trim``), stepped at the physics rate.  The autopilot's
 command goes through the servo (paper eq. (65) form, exact ZOH per physics step) to the chosen surface, added to
-the trim deflection: ``fcs/aileron-cmd-norm`` (or ``fcs/rudder-cmd-norm``) = trim + delta / surface_max.
+the trim deflection: ``fcs/aileron-cmd-norm`` (or ``fcs/rudder-cmd-norm``) = trim + sign delta / surface_max, the
+sign (``SURFACE_SIGN``) making a positive command roll the aircraft right.
 
 The axes the roll autopilot does not fly are held by the SITL's safety pilot (:class:`SafetyPilot`), every
 ``PILOT_EVERY`` physics steps counted from the start, so its rate does not depend on how the steps are chunked:
@@ -45,6 +46,9 @@ TURBULENCE = {"light": (15.0, 3), "moderate": (30.0, 4), "severe": (45.0, 6)}
 SURFACES = {"aileron": "fcs/aileron-cmd-norm", "rudder": "fcs/rudder-cmd-norm"}
 # c172x: effective aileron 0.5 (left - right) = 17.5 deg per unit command (range -20..15 deg each side); rudder 16.
 SURFACE_MAX_DEG = {"aileron": 17.5, "rudder": 16.0}
+# JSBSim's signs: a positive aileron command rolls right, a positive rudder command yaws and then rolls left.  The
+# command is mapped with this sign so that a positive command rolls right, as the law assumes (hf gain > 0).
+SURFACE_SIGN = {"aileron": 1.0, "rudder": -1.0}
 
 
 class JsbsimPlantError(ValueError):
@@ -216,7 +220,7 @@ class JsbsimPlant:
         self.fdm = fdm = trimmed_fdm(spec, dt, seed)
         self.surface_trim = fdm[SURFACES[spec.surface]]
         self._cmd = fdm.get_property_manager().get_node(SURFACES[spec.surface])
-        self._per_norm = 1.0 / spec.surface_max_rad
+        self._per_norm = SURFACE_SIGN[spec.surface] / spec.surface_max_rad
         self.pilot = SafetyPilot(fdm, dt)
         if turbulence is not None:
             w20, severity = TURBULENCE[turbulence]

@@ -117,6 +117,7 @@ def test_the_launcher_flies_the_shipped_design_by_default():
     assert "CLSAC_LV" not in load_file(path)  # --lv / the run's Lv still chooses SAC or CL-SAC
     assert designed_baseline("jsbsim:c172x") is not None
     assert designed_params("kh2013a") is None and designed_baseline("kh2013a") is None
+    assert designed_params("jsbsim:c172x:surface=rudder") is None  # the aileron's design is not the rudder's
     from tools.flight import FlightConfig
 
     cfg = FlightConfig(plant="jsbsim:c172x", lockstep=True)
@@ -127,3 +128,11 @@ def test_the_launcher_flies_the_shipped_design_by_default():
     assert FlightConfig(plant="jsbsim:c172x", controller="baseline").baseline_gains_flown == designed_baseline(
         "jsbsim:c172x"
     )
+
+
+def test_the_rudder_of_the_c172x_gets_a_clear_refusal(tmp_path):
+    """Roll through the rudder (yaw, then dihedral) of the c172x: its lightly damped dutch roll leaves no first-order
+    PFC with margin; the designer says so in one line instead of writing a file."""
+    r = _design("jsbsim:c172x:surface=rudder", "--out", str(tmp_path / "r.params"))
+    assert r.returncode == 2 and "no PFC k/(s + a) makes this plant W-ASPR" in r.stderr
+    assert len(r.stderr.strip().splitlines()[-1:]) == 1 and not (tmp_path / "r.params").exists()

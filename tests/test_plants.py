@@ -197,6 +197,14 @@ def test_the_servo_drives_the_aileron_on_top_of_the_trim():
     assert ac.truth[model.P] > 0  # a positive command rolls right: the sign the law assumes (positive hf gain)
 
 
+def test_a_positive_rudder_command_rolls_right_too():
+    ac = plants.build("jsbsim:c172x:surface=rudder", 1000.0)
+    phi0 = ac.truth[model.PHI]
+    ac.advance(math.radians(2.0), 2000)
+    assert ac.truth[model.PHI] - phi0 > math.radians(1.0)  # JSBSim's positive rudder rolls left: mapped with -1
+    assert ac.fdm["fcs/rudder-cmd-norm"] < ac.surface_trim
+
+
 def test_jsbsim_turbulence_is_seeded():
     def roll_after(seed):
         ac = plants.build("jsbsim:c172x", 1000.0, None, from_values({"turbulence": "moderate", "seed": seed}))

@@ -4,9 +4,10 @@ as a linear plant file (``sitl.linear_plant``).
 JSBSim's own linearisation (``jsbsim.FGLinearization``: A, B, C, D of its 13 states and 4 inputs, by central
 differences at the trim point of ``sitl.jsbsim_plant.trimmed_fdm``) reduced to the lateral states the loop flies,
 x = [beta, phi, p, r] (rad, rad, rad/s, rad/s), and the chosen surface's input, rescaled from JSBSim's normalised
-command to radians (B_rad = B_norm / surface_max, the SITL's mapping).  The longitudinal states are left out: in
-the SITL the safety pilot holds them.  The servo of the file is the SITL's (paper eq. (65) form), so flying the
-file and flying the JSBSim plant differ only by what the linearisation leaves out.
+command to radians (B_rad = sign B_norm / surface_max, the SITL's mapping: a positive command rolls right).  The
+longitudinal states are left out: in the SITL the safety pilot holds them.  The servo of the file is the SITL's
+(paper eq. (65) form), so flying the file and flying the JSBSim plant differ only by what the linearisation
+leaves out.
 
 Also: :func:`designed_params`, the parameter file designed for a plant (``python -m tools.pfc design``) that the
 launcher gives the autopilot by default.
@@ -33,14 +34,18 @@ class LinearisationError(RuntimeError):
 
 
 def designed_params(plant: str) -> Path | None:
-    """The parameter file shipped for ``plant``: ``sitl/plants/jsbsim-MODEL.params`` for ``jsbsim:MODEL[...]``,
-    ``FILE.params`` beside a plant ``FILE.toml``; None if there is none (and for kh2013a: the paper's defaults)."""
+    """The parameter file shipped for ``plant``: ``sitl/plants/jsbsim-MODEL.params`` for ``jsbsim:MODEL[...]`` on the
+    aileron (``jsbsim-MODEL-rudder.params`` on the rudder), ``FILE.params`` beside a plant ``FILE.toml``; None if
+    there is none (and for kh2013a: the paper's defaults).  Any airspeed: a design is flown off its design point."""
     from sitl import plant as plants
 
     kind = plants.kind(plant)
     if kind == "jsbsim":
-        model = plant.split(":")[1]
-        path = plants.shipped(f"jsbsim-{model}.params")
+        from sitl.jsbsim_plant import parse_spec
+
+        spec = parse_spec(plant)
+        suffix = "" if spec.surface == "aileron" else f"-{spec.surface}"
+        path = plants.shipped(f"jsbsim-{spec.model}{suffix}.params")
     elif kind == "file":
         path = Path(plant).with_suffix(".params")
     else:
@@ -68,7 +73,7 @@ def linearise(spec, physics_rate_hz: float = 1000.0) -> dict:
     """The roll channel of a trimmed JSBSim model: {"A", "B", "C", "trim", ...} (SI, input in rad)."""
     import jsbsim
 
-    from sitl.jsbsim_plant import trimmed_fdm
+    from sitl.jsbsim_plant import SURFACE_SIGN, trimmed_fdm
 
     fdm = trimmed_fdm(spec, 1.0 / physics_rate_hz)
     lin = jsbsim.FGLinearization(fdm)
@@ -79,7 +84,8 @@ def linearise(spec, physics_rate_hz: float = 1000.0) -> dict:
     idx = [x_names.index(n) for n in LATERAL]
     a_full, b_full = np.array(lin.system_matrix), np.array(lin.input_matrix)
     a = a_full[np.ix_(idx, idx)]
-    b = b_full[idx, u_names.index(INPUTS[spec.surface])].reshape(-1, 1) / spec.surface_max_rad
+    sign = SURFACE_SIGN[spec.surface]  # as the SITL maps the command: positive rolls right
+    b = sign * b_full[idx, u_names.index(INPUTS[spec.surface])].reshape(-1, 1) / spec.surface_max_rad
     c = np.zeros((1, 4))
     c[0, STATES.index("phi")] = 1.0
     return {
