@@ -136,3 +136,23 @@ def test_the_rudder_of_the_c172x_gets_a_clear_refusal(tmp_path):
     r = _design("jsbsim:c172x:surface=rudder", "--out", str(tmp_path / "r.params"))
     assert r.returncode == 2 and "no PFC k/(s + a) makes this plant W-ASPR" in r.stderr
     assert len(r.stderr.strip().splitlines()[-1:]) == 1 and not (tmp_path / "r.params").exists()
+
+
+def test_the_analysis_of_the_designed_pfc_on_the_plant_file_confirms_its_margin(designed):
+    """python -m tools.pfc --plant FILE analyses another plant; on the design it finds C = 1/D at 1/3 of the gain
+    that destabilises 1 + C T (computed there by the compensator-margin code, not by the designer)."""
+    import json
+
+    path, _out = designed
+    v = load_file(path)
+    r = subprocess.run(
+        [sys.executable, "-m", "tools.pfc", "--plant", str(SHIPPED), "--json"]
+        + [f"--pfc-num={v['CLSAC_PFC_NUM']!r}", f"--pfc-den={v['CLSAC_PFC_DEN1']!r},{v['CLSAC_PFC_DEN0']!r}"],
+        capture_output=True,
+        text=True,
+        timeout=120,
+    )
+    assert r.returncode == 0, r.stderr
+    d = json.loads(r.stdout)
+    assert d["waspr"] and d["relative_degree"] == 1 and d["unstable_gain_bands"] == []
+    assert d["compensator_gain_margin"] == pytest.approx(3.0, rel=1e-3)

@@ -76,6 +76,12 @@ def build_parser() -> argparse.ArgumentParser:
         help="CL-SAC Lv for the reference-model feedback loop through Kx (default 20, the paper's)",
     )
     p.add_argument(
+        "--plant",
+        default=None,
+        metavar="FILE.toml",
+        help="analyse a linear plant file of your own (sitl.linear_plant) instead of the KH2013A",
+    )
+    p.add_argument(
         "--closed-loop",
         action="store_true",
         help="also fly the paper scenario's five runs in-process with this PFC and report their metrics",
@@ -157,11 +163,11 @@ def _bands_str(bands, gain: str = "Ke") -> str:
     return ("\n" + " " * 4).join(out)
 
 
-def format_text(rep: analysis.WasprReport, cl: list[dict] | None = None) -> str:
+def format_text(rep: analysis.WasprReport, cl: list[dict] | None = None, plant_name: str = "KH2013A") -> str:
     ss = rep.steady_state
     g = rep.compensator_gain_margin
     lines = [
-        "W-ASPR analysis, KH2013A roll (Jana & Bhat 2017, sections 2 and 5)",
+        f"W-ASPR analysis, {plant_name} roll (Jana & Bhat 2017, sections 2 and 5)",
         "",
         "plant T(s) = C_p (sI - A_p)^-1 B_p = num/den",
         f"  num = {_poly_str(rep.plant_num)}",
@@ -230,6 +236,21 @@ def format_text(rep: analysis.WasprReport, cl: list[dict] | None = None) -> str:
     return "\n".join(lines)
 
 
+def _plant(args, parser):
+    """(A_p, B_p, C_p) of --plant FILE.toml and its name, or (None, "KH2013A")."""
+    if args.plant is None or args.plant == "kh2013a":
+        return None, "KH2013A"
+    if args.closed_loop:
+        parser.error("--closed-loop flies the KH2013A paper scenario: not with --plant")
+    from sitl.linear_plant import PlantFileError, load
+
+    try:
+        lp = load(args.plant)
+    except PlantFileError as exc:
+        parser.error(str(exc))
+    return (lp.a_p, lp.b_p, lp.c_p), lp.name
+
+
 # ----------------------------------------------------------------------------- main
 def main(argv: list[str] | None = None) -> int:
     argv = list(sys.argv[1:] if argv is None else argv)
@@ -247,8 +268,15 @@ def main(argv: list[str] | None = None) -> int:
             parser.error(f"--rate-hz must be positive and finite, got {args.rate_hz!r}")
         if not (math.isfinite(args.lv) and args.lv >= 0):
             parser.error(f"--lv must be finite and >= 0, got {args.lv!r}")
+        mats, plant_name = _plant(args, parser)
         rep = analysis.analyse(
-            num, den, command_rad=math.radians(args.command_deg), rate_hz=args.rate_hz, lv=args.lv, pfc_name=name
+            num,
+            den,
+            command_rad=math.radians(args.command_deg),
+            rate_hz=args.rate_hz,
+            lv=args.lv,
+            pfc_name=name,
+            plant=mats,
         )
     except analysis.PfcError as exc:
         parser.error(str(exc))
@@ -262,7 +290,7 @@ def main(argv: list[str] | None = None) -> int:
             d["closed_loop"] = cl
         print(json.dumps(d, indent=2, allow_nan=False))
     else:
-        print(format_text(rep, cl))
+        print(format_text(rep, cl, plant_name))
     return 0
 
 
