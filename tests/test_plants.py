@@ -334,6 +334,8 @@ def test_the_launcher_flies_jsbsim_roll_steps_with_the_designed_pfc_and_records_
     assert alt.size >= 1000 and np.max(np.abs(alt - 1000.0)) < 5.0  # the safety pilot held 1000 m
     v = held["/sitl/held/airspeed"].values[:, 0]
     assert np.max(np.abs(v - 90 * 1852 / 3600)) < 2.0  # the default 90 kt
+    names = [str(n) for n in rrd.blueprint_components(out / "flight.rrd", "ViewBlueprint:display_name")]
+    assert any("Altitude [m]" in n for n in names) and any("Safety pilot" in n for n in names)  # a tab shows them
 
 
 @pytest.mark.e2e
