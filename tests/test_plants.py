@@ -362,3 +362,22 @@ def test_the_kh2013a_file_over_mavlink_equals_the_built_in_bit_for_bit(tmp_path)
         assert np.array_equal(from_file.series[key], built_in.series[key]), key
     a, b = np.load(tmp_path / "built_in" / "sitl_series.npz"), np.load(tmp_path / "file" / "sitl_series.npz")
     assert all(np.array_equal(a[k], b[k]) for k in a.files)
+
+
+@pytest.mark.parametrize(
+    "kwargs, field, needle",
+    [
+        ({"plant": "jsbsim:c173"}, "plant", "no model 'c173'; available:"),
+        ({"plant": "/no/such.toml"}, "plant", "cannot read"),
+        ({"plant": "jsbsim:c172x", "gust": "1,10,2"}, "plant", "--gust cannot fly on --plant jsbsim:c172x"),
+        ({"plant": "jsbsim:c172x:airspeed_kt=-5"}, "plant", "airspeed_kt must be positive"),
+        ({"params": "/no/such.params"}, "params", "cannot read /no/such.params: No such file or directory"),
+        ({"baseline_gains": "1,2"}, "baseline_gains", "expected KP,KI,KD"),
+    ],
+)
+def test_a_bad_plant_or_parameter_file_is_refused_by_flight(kwargs, field, needle):
+    from tools.flight import Flight, FlightConfigError
+
+    with pytest.raises(FlightConfigError) as err:
+        Flight(**kwargs)
+    assert err.value.field == field and needle in str(err.value)

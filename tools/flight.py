@@ -276,7 +276,9 @@ class FlightConfig:
         if self.params is not None:
             try:
                 load_file(self.params)
-            except (OSError, ParamError) as exc:
+            except OSError as exc:
+                raise FlightConfigError("params", f"params: cannot read {self.params}: {exc.strerror or exc}") from None
+            except ParamError as exc:
                 raise FlightConfigError("params", f"params: {exc}") from None
 
     @property
