@@ -88,7 +88,7 @@ def main(argv: list[str] | None = None) -> dict:
     }
     for workers in (1, 2):
         figs[f"jsbsim_monte_carlo_{workers}_worker{'s' if workers > 1 else ''}"] = figure(
-            bench_monte_carlo(workers, 1 if args.quick else 2), "1/s", note="30 s flights per wall second"
+            bench_monte_carlo(workers, 1 if args.quick else 6), "1/s", note="30 s flights per wall second"
         )
     print_table(f"JSBSim (c172x), load {load['load1']} on {load['cpus']} CPU(s)", figs)
     warning = load_warning()
