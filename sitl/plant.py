@@ -73,11 +73,21 @@ def check(text: str) -> str:
     return text
 
 
+ATMOSPHERE = ("turbulence", "turbulence_sigma", "turbulence_length", "gust", "crosswind")
+
+
 def check_disturbances(text: str, given: dict) -> None:
     """Raise PlantError if a disturbance flag given (``{dest: value}``, None = not given) cannot fly on this plant."""
     for dest, why in UNSUPPORTED.get(kind(text), {}).items():
         if given.get(dest) is not None:
             raise PlantError(f"--{dest.replace('_', '-')} cannot fly on --plant {text}: {why}")
+    air = [d for d in ATMOSPHERE if given.get(d) is not None]
+    if air and kind(text) == "file" and load_file(text).truth is not None:
+        # the gusts enter through the aerodynamic columns of v, p, r (sitl.atmosphere.disturbance_matrix)
+        raise PlantError(
+            f"--{air[0].replace('_', '-')} cannot fly on --plant {text}: the atmosphere needs the airframe states "
+            "[v, p, r, phi], in that order"
+        )
 
 
 def injected(text: str, dist):

@@ -158,6 +158,14 @@ def test_scale_on_a_plant_file_is_refused_by_name(tmp_path):
     assert r.returncode == 2 and "--scale cannot fly on --plant" in r.stderr
 
 
+def test_turbulence_on_a_plant_file_without_the_kh2013a_states_is_refused(tmp_path):
+    f = tmp_path / "roll.toml"
+    f.write_text(ROLL_MODE + SERVO)
+    r = _sitl("--plant", str(f), "--turbulence", "light")
+    assert r.returncode == 2 and "the atmosphere needs the airframe states [v, p, r, phi]" in r.stderr
+    assert _sitl("--plant", KH_FILE, "--turbulence", "light", "--lockstep", "--connect-timeout", "0.2").returncode == 1
+
+
 # ------------------------------------------------------------------------------------------------------- JSBSim
 def test_an_unknown_jsbsim_model_lists_the_available_ones():
     r = _sitl("--plant", "jsbsim:c173")
