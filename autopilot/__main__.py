@@ -258,7 +258,8 @@ def main(argv=None) -> int:
         if args.controller == "baseline":
             from autopilot.baseline import BaselineConfig
 
-            cfg = BaselineConfig(control_rate_hz=args.rate, u_limit_rad=math.radians(args.u_limit_deg))
+            gains = dict(zip(("kp", "ki", "kd"), args.baseline_gains)) if args.baseline_gains else {}
+            cfg = BaselineConfig(control_rate_hz=args.rate, u_limit_rad=math.radians(args.u_limit_deg), **gains)
         else:
             cfg = ClSacConfig(
                 control_rate_hz=args.rate,

@@ -24,6 +24,17 @@ def default_lv(controller: str) -> float:
     return 20.0 if controller == "clsac" else 0.0  # the baseline has no reference-model feedback
 
 
+def baseline_gains(text: str) -> tuple[float, float, float]:
+    """``KP,KI,KD``: three finite numbers (rad/rad, 1/s, s), the fixed-gain baseline's PID gains."""
+    try:
+        values = tuple(float(v) for v in str(text).split(","))
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected KP,KI,KD (three numbers), got {text!r}") from None
+    if len(values) != 3 or not all(v == v and abs(v) != float("inf") for v in values):
+        raise argparse.ArgumentTypeError(f"expected KP,KI,KD (three finite numbers), got {text!r}")
+    return values
+
+
 def add_controller_arguments(parser: argparse.ArgumentParser) -> None:
     """``--controller``, ``--lv``, ``--pfc``, ``--sigma-xu``, ``--u-limit-deg``."""
     g = parser.add_argument_group("controller")
@@ -73,6 +84,14 @@ def add_controller_arguments(parser: argparse.ArgumentParser) -> None:
         help="robustness option: no integral adaptation while the rudder command saturates (default: off)",
     )
     g.add_argument("--u-limit-deg", type=u_limit_deg_arg, default=30.0, help="rudder command limit (default 30)")
+    g.add_argument(
+        "--baseline-gains",
+        type=baseline_gains,
+        default=None,
+        metavar="KP,KI,KD",
+        help="the baseline's PID gains (default 0.1,0.1,0.02, tuned on the KH2013A; python -m tools.pfc design "
+        "tunes them for another plant)",
+    )
 
 
 # The envelope's limits on the command line (autopilot.envelope.Envelope takes the share as a fraction).

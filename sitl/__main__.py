@@ -7,6 +7,7 @@ control frame, waiting for that frame's SERVO_OUTPUT_RAW).  Prints its counters 
 
 from __future__ import annotations
 
+import argparse
 import sys
 
 from autopilot.shared.cli import (
@@ -40,7 +41,27 @@ from autopilot.shared.process import (
 )
 from autopilot.shared.telemetry.flags import add_arguments as add_telemetry_arguments
 from sitl import disturbances
+from sitl import plant as plants
 from sitl.telemetry import attach as attach_telemetry
+
+
+def plant_arg(text: str) -> str:
+    """A --plant value, checked (sitl.plant.check): one-line error on a bad file, spec or model."""
+    try:
+        return plants.check(text)
+    except plants.PlantError as exc:
+        raise argparse.ArgumentTypeError(str(exc)) from None
+
+
+def add_plant_argument(p) -> None:
+    p.add_argument(
+        "--plant",
+        type=plant_arg,
+        default=plants.KH2013A,
+        metavar="PLANT",
+        help="kh2013a (the paper's model, default), FILE.toml (a linear plant of your own) or "
+        "jsbsim:MODEL[:airspeed_kt=KT,altitude_m=M,surface=aileron|rudder] (a JSBSim aircraft, e.g. jsbsim:c172x)",
+    )
 
 
 def build_parser() -> OneLineArgumentParser:
@@ -127,6 +148,7 @@ def build_parser() -> OneLineArgumentParser:
         help="record the truth state after every frame / sensor message to this .npz at exit",
     )
     p.add_argument("--quiet", action="store_true", help="only the start line and the counters")
+    add_plant_argument(p)
     disturbances.add_arguments(p)
     add_telemetry_arguments(p)
     add_pwm_arguments(p)
@@ -160,6 +182,10 @@ def main(argv=None) -> int:
         parser.error(f"--start-time ({args.start_time:g}) must be a whole number of frames at --rate {args.rate:g}")
     dist = None
     given = {k: v for k, v in vars(args).items() if k in disturbances.FLAGS and v is not None}
+    try:
+        plants.check_disturbances(args.plant, given)
+    except plants.PlantError as exc:
+        parser.error(str(exc))
     if set(given) - {"seed"}:
         try:
             dist = disturbances.from_values(given)
@@ -185,9 +211,12 @@ def main(argv=None) -> int:
         peer=args.autopilot,
         disturbances=dist,
         sysid=args.sysid,
+        plant=args.plant,
     )
     try:
         sitl = Sitl(opts, pwm)
+    except plants.PlantError as exc:
+        parser.error(str(exc))
     except OSError as exc:
         print(f"sitl: error: cannot listen on {fmt_endpoint(args.listen)}: {exc.strerror or exc}", file=sys.stderr)
         return exit_code_for(exc)

@@ -51,6 +51,10 @@ class AircraftConfig:
 class Aircraft:
     """KH2013A lateral dynamics with the rudder servo, x_p = [v, p, r, phi, delta_r, delta_r_dot].
 
+    Any linear plant with the servo's two states last flies the same way (``sitl.linear_plant``): ``params``
+    holds its ``A`` (n x n) and ``B`` (n x 1) and ``truth`` (4 x n-2, optional) maps its airframe states onto
+    [v, p, r, phi]; :attr:`truth` is then [v, p, r, phi, delta, delta_dot] whatever the plant's states.
+
     Example::
 
         ac = Aircraft()
@@ -62,17 +66,20 @@ class Aircraft:
         self.config = config or AircraftConfig()
         params = params or {}
         self._a = np.asarray(params.get("A", model.A_P), dtype=float)
-        self._b = np.asarray(params.get("B", model.B_P), dtype=float).reshape(6, 1)
+        self.n = n = self._a.shape[0]
+        self._b = np.asarray(params.get("B", model.B_P), dtype=float).reshape(n, 1)
+        self._i_delta, self._i_delta_dot = n - 2, n - 1  # the servo's states are the last two
+        self._truth_map = params.get("truth")  # None: the states are [v, p, r, phi, delta, delta_dot] already
         # x[k+1] = Ad x[k] + Bd u[k]  (exact ZOH of x' = A_p x + B_p u over one physics step)
         self._ad, bd = zoh(self._a, self._b, self.config.dt)
         self._bd = bd.ravel()
         self._multi: dict[int, tuple[np.ndarray, np.ndarray]] = {}
         self._ed: np.ndarray | None = None  # ZOH of the disturbance input, built on first use
         self._multi_d: dict[int, np.ndarray] = {}
-        self._x0 = np.zeros(6) if x0 is None else np.asarray(x0, dtype=float).copy()
-        if self._x0.shape != (6,):
+        self._x0 = np.zeros(n) if x0 is None else np.asarray(x0, dtype=float).copy()
+        if self._x0.shape != (n,):
             raise AircraftConfigError(
-                f"x0 must have 6 elements [v, p, r, phi, delta_r, delta_r_dot], got shape {self._x0.shape}"
+                f"x0 must have {n} elements (KH2013A: [v, p, r, phi, delta_r, delta_r_dot]), got shape {self._x0.shape}"
             )
         self._limited = self.config.rudder_limit_rad is not None or self.config.rudder_rate_limit_rad_s is not None
         self.reset()
@@ -93,16 +100,30 @@ class Aircraft:
         return self.x.copy()
 
     @property
+    def truth(self) -> np.ndarray:
+        """[v, p, r, phi, delta, delta_dot] (``sitl.model.STATE_NAMES``): the state itself for KH2013A (a view, do
+        not modify), the airframe states mapped through the plant file's ``truth`` rows otherwise."""
+        if self._truth_map is None:
+            return self.x
+        return np.concatenate((self._truth_map @ self.x[: self.n - 2], self.x[self.n - 2 :]))
+
+    def attitude(self) -> tuple[float, float, float | None, float, float, float]:
+        """(roll, pitch, yaw, p, q, r): the lateral model has no pitch (0) and no heading state (None: the endpoint
+        integrates psi' = r)."""
+        x = self.truth
+        return float(x[model.PHI]), 0.0, None, float(x[model.P]), 0.0, float(x[model.R])
+
+    @property
     def phi(self) -> float:
-        return float(self.x[model.PHI])
+        return float(self.truth[model.PHI])
 
     @property
     def p(self) -> float:
-        return float(self.x[model.P])
+        return float(self.truth[model.P])
 
     @property
     def r(self) -> float:
-        return float(self.x[model.R])
+        return float(self.truth[model.R])
 
     def _check(self, delta_command: float) -> float:
         u = float(delta_command)
@@ -113,18 +134,23 @@ class Aircraft:
     def _apply_limits(self) -> None:
         cfg = self.config
         x = self.x
-        if cfg.rudder_limit_rad is not None and abs(x[model.DELTA_R]) >= cfg.rudder_limit_rad:
+        i, j = self._i_delta, self._i_delta_dot
+        if cfg.rudder_limit_rad is not None and abs(x[i]) >= cfg.rudder_limit_rad:
             # Mechanical stop: deflection clamped, rate into the stop removed.
-            x[model.DELTA_R] = math.copysign(cfg.rudder_limit_rad, x[model.DELTA_R])
-            if x[model.DELTA_R] * x[model.DELTA_R_DOT] > 0:
-                x[model.DELTA_R_DOT] = 0.0
-        if cfg.rudder_rate_limit_rad_s is not None and abs(x[model.DELTA_R_DOT]) > cfg.rudder_rate_limit_rad_s:
-            x[model.DELTA_R_DOT] = math.copysign(cfg.rudder_rate_limit_rad_s, x[model.DELTA_R_DOT])
+            x[i] = math.copysign(cfg.rudder_limit_rad, x[i])
+            if x[i] * x[j] > 0:
+                x[j] = 0.0
+        if cfg.rudder_rate_limit_rad_s is not None and abs(x[j]) > cfg.rudder_rate_limit_rad_s:
+            x[j] = math.copysign(cfg.rudder_rate_limit_rad_s, x[j])
 
     @property
     def disturbance_zoh(self) -> np.ndarray:
         """E_d = int_0^h e^{A_p s} ds E (6x3): x[k+1] = Ad x[k] + Bd u[k] + E_d d[k]."""
         if self._ed is None:
+            if self.n != 6 or self._truth_map is not None:
+                raise AircraftConfigError(
+                    "the atmosphere (turbulence, gusts, crosswind) needs the airframe states [v, p, r, phi]"
+                )
             from sitl.atmosphere import disturbance_matrix
 
             self._ed = zoh(self._a, disturbance_matrix(self._a), self.config.dt)[1]
@@ -168,8 +194,8 @@ class Aircraft:
             return self.x
         pair = self._multi.get(n)
         if pair is None:
-            ad_n = np.eye(6)
-            bd_n = np.zeros(6)
+            ad_n = np.eye(self.n)
+            bd_n = np.zeros(self.n)
             for _ in range(n):
                 bd_n = self._ad @ bd_n + self._bd
                 ad_n = self._ad @ ad_n

@@ -33,7 +33,7 @@ from autopilot.shared.numerics import wrap_pi
 from autopilot.shared.pwm import PWM_VALID_RANGE, PwmMap
 from autopilot.shared.series import SeriesRecorder
 from autopilot.shared.signing import SIGNING_LINK_SIM, Signing
-from sitl.aircraft import Aircraft, AircraftConfig
+from sitl import plant as plants
 
 M = mavlink
 ATTITUDE = M.MAVLINK_MSG_ID_ATTITUDE
@@ -67,6 +67,7 @@ class SitlOptions:
     signing_key: bytes | None = None  # MAVLink 2 signing (autopilot.shared.signing); None = off
     peer: tuple | None = None  # the autopilot's (host, port); None = the first that talks with its IDs
     sysid: int = 1  # the vehicle's system id (--sysid): the SITL is N:200, the autopilot's SITL link N:140
+    plant: str = plants.KH2013A  # sitl.plant: kh2013a, FILE.toml or jsbsim:MODEL[:KEY=VALUE,...]
 
 
 class SitlRecord:
@@ -100,13 +101,15 @@ class Sitl:
         self.out = out or sys.stdout
         self.inj = None  # sitl.disturbances.Injector when opts.disturbances is given
         params = None
-        if opts.disturbances is not None:
+        dist = plants.injected(opts.plant, opts.disturbances)  # JSBSim flies its own atmosphere
+        if dist is not None:
             from sitl.disturbances import Injector
 
             rate = opts.rate_hz if opts.lockstep else opts.sensor_rate_hz
-            self.inj = Injector(opts.disturbances, 1.0 / opts.physics_rate_hz, rate, opts.lockstep, opts.start_time_s)
+            self.inj = Injector(dist, 1.0 / opts.physics_rate_hz, rate, opts.lockstep, opts.start_time_s)
             params = self.inj.params()
-        self.aircraft = Aircraft(AircraftConfig(physics_rate_hz=opts.physics_rate_hz), params=params)
+        self.aircraft = plants.build(opts.plant, opts.physics_rate_hz, params, opts.disturbances)
+        self._euler = plants.kind(opts.plant) == "jsbsim"  # ATTITUDE carries the plant's own pitch, yaw and q
         self._advance = self.aircraft.advance if self.inj is None else self._advance_disturbed
         self._rt_faults = self.inj is not None and not opts.lockstep and self.inj.up is not None
         _, autopilot_id, sitl_id = vehicle_ids(opts.sysid)
@@ -147,7 +150,7 @@ class Sitl:
     def _heading(self) -> float:
         """Heading psi (rad, wrapped to (-pi, pi]) for ATTITUDE.yaw: psi' = r (level turn, pitch 0), integrated with
         the trapezoid rule between ATTITUDE messages.  Not a state of the lateral model (docs/design.md, "Units")."""
-        t, r = self.aircraft.time, float(self.aircraft.x[2])
+        t, r = self.aircraft.time, float(self.aircraft.truth[2])
         if t > self._psi_t:
             self._psi = wrap_pi(self._psi + 0.5 * (r + self._psi_r) * (t - self._psi_t))
         self._psi_t, self._psi_r = t, r
@@ -188,15 +191,16 @@ class Sitl:
     def _send_attitude_disturbed(self, ms: int, k: int | None) -> bytes:
         """ATTITUDE with the sensor errors and the link faults of ``self.inj`` (see sitl.disturbances.Injector)."""
         inj = self.inj
-        phi, p, r = inj.measure(self.aircraft.x)
+        phi, p, r = inj.measure(self.aircraft.truth)
         phi = wrap_pi(phi)
+        theta, psi, q = self._pitch_yaw_q()
         if k is not None:  # lockstep: this frame carries the newest sample delivered, once per datagram arriving
             (phi, p, r), n = inj.uplink_frame(k, (phi, p, r))
-            raw = self.link.pack_fast(self._pk_att, ms, phi, 0.0, self._heading(), p, 0.0, r)
+            raw = self.link.pack_fast(self._pk_att, ms, phi, theta, psi, p, q, r)
             for _ in range(max(1, n)):
                 self.link.send_raw(raw, ATTITUDE)
             return raw
-        raw = self.link.pack_fast(self._pk_att, ms, phi, 0.0, self._heading(), p, 0.0, r)
+        raw = self.link.pack_fast(self._pk_att, ms, phi, theta, psi, p, q, r)
         for out in inj.uplink_raw(time.perf_counter(), raw):
             self.link.send_raw(out, ATTITUDE)
         return raw
@@ -207,7 +211,12 @@ class Sitl:
         ``k``: the global frame index in lockstep (for the link faults)."""
         if self.inj is not None:
             return self._send_attitude_disturbed(ms, k)
-        x = self.aircraft.x
+        if self._euler:
+            phi, theta, psi, p, q, r = self.aircraft.attitude()
+            raw = self.link.pack_fast(self._pk_att, ms, phi, theta, psi, p, q, r)
+            self.link.send_raw(raw, ATTITUDE)
+            return raw
+        x = self.aircraft.truth
         # roll wrapped to (-pi, pi] where it is measured, as a real attitude sensor reports it
         raw = self.link.pack_fast(
             self._pk_att, ms, wrap_pi(float(x[3])), 0.0, self._heading(), float(x[1]), 0.0, float(x[2])
@@ -220,6 +229,13 @@ class Sitl:
         autopilot) is applied on the next pass instead of a servo timeout."""
         self.link.poll(self._on_msg)
         return bool(self._servos) or (self._rt_faults and self.inj.down.next_due() < float("inf"))
+
+    def _pitch_yaw_q(self) -> tuple[float, float, float]:
+        """(pitch, yaw, pitch rate) for ATTITUDE: the plant's own (JSBSim), else 0, the integrated heading, 0."""
+        if self._euler:
+            _phi, theta, psi, _p, q, _r = self.aircraft.attitude()
+            return theta, psi, q
+        return 0.0, self._heading(), 0.0
 
     def _wait(self, timeout: float):
         if select.select(self._fds, (), (), max(0.0, timeout))[0]:
@@ -337,7 +353,7 @@ class Sitl:
             self.frames += 1
             self.wall_last_frame = perf()
             if hooks:
-                rec = SitlRecord(K / rate, ac.x.copy(), u, pwm, K, self)
+                rec = SitlRecord(K / rate, ac.truth.copy(), u, pwm, K, self)
             now = self.wall_last_frame
             if now >= next_hb:
                 next_hb = now + 1.0
@@ -437,7 +453,8 @@ class Sitl:
                 next_hb = now + 1.0
                 self._heartbeat()
             if self.hooks:
-                rec = SitlRecord(self.sim_t0 + ac.steps / phys_rate, ac.x.copy(), self.u, self.pwm_applied, None, self)
+                t_rec = self.sim_t0 + ac.steps / phys_rate
+                rec = SitlRecord(t_rec, ac.truth.copy(), self.u, self.pwm_applied, None, self)
                 for h in self.hooks:
                     h(rec)
             if n_frames and self.frames >= n_frames:
@@ -473,7 +490,8 @@ class Sitl:
             "wall_s": wall,
             "rtf": (sim / wall) if wall > 0 else None,
             "physics_steps": self.aircraft.steps,
-            "final_state": [float(v) for v in self.aircraft.x],
+            "final_state": [float(v) for v in self.aircraft.truth],
+            "plant": self.opts.plant,
             "events": {k: v for k, v in self.events.items() if k != "resends_frame"},
             "link": self.link.counters(),
             "exit_reason": self.exit_reason,

@@ -28,6 +28,11 @@ SITL_RUDDER_RATE = f"{SITL}/rudder_rate"  # delta_r_dot truth            deg/s
 SITL_ATTITUDE = f"{SITL}/attitude"  # Transform3D at the true roll phi + the aircraft shape
 SITL_SERVO_PWM = f"{SITL}/servo_pwm"  # PWM as received                  us
 SITL_EVENTS = f"{SITL}/events"  # TextLog: status events
+# A JSBSim plant (sitl.jsbsim_plant): what the safety pilot holds, so a user sees what it did.
+SITL_ALTITUDE = f"{SITL}/held/altitude"  # altitude above sea level     m
+SITL_AIRSPEED = f"{SITL}/held/airspeed"  # calibrated airspeed            m/s
+SITL_PITCH = f"{SITL}/held/pitch"  # pitch theta                          rad
+SITL_PILOT = f"{SITL}/held/pilot"  # elevator and throttle commands       normalised
 
 SITL_EXTRA_FIELDS = ("delta_cmd", "pwm")
 SITL_FIELDS = tuple(STATE_NAMES) + SITL_EXTRA_FIELDS
@@ -53,19 +58,39 @@ SITL_TABLE = TableLayout(
 )
 
 
-class SitlHook(ProcessHook):
-    """``Sitl.hooks`` callable: the truth state, the applied servo command (rad) and its PWM, per ``SitlRecord``."""
+HELD_FIELDS = ("altitude_m", "airspeed_m_s", "theta", "elevator", "throttle")  # sitl.jsbsim_plant.JsbsimPlant.held
+SITL_HELD_TABLE = TableLayout(
+    "sitl_held",
+    HELD_FIELDS,
+    (
+        Plot(SITL_ALTITUDE, ("altitude_m",), ("altitude [m]",), (PURPLE,)),
+        Plot(SITL_AIRSPEED, ("airspeed_m_s",), ("airspeed [m/s]",), (PURPLE,)),
+        Plot(SITL_PITCH, ("theta",), ("pitch theta (truth)",), (PURPLE,)),
+        Plot(SITL_PILOT, ("elevator", "throttle"), ("safety pilot: elevator", "safety pilot: throttle"), (GREEN, GREY)),
+    ),
+)
 
-    def __init__(self, tel):
+
+class SitlHook(ProcessHook):
+    """``Sitl.hooks`` callable: the truth state, the applied servo command (rad) and its PWM, per ``SitlRecord``;
+    with ``held`` (a JSBSim plant) also what the safety pilot holds."""
+
+    def __init__(self, tel, held: bool = False):
         super().__init__(tel)
         self.table = tel.table(SITL_TABLE)
         self._push = self.table.push
+        self._held = tel.table(SITL_HELD_TABLE).push if held else None
 
     def __call__(self, rec) -> None:
         self.last_t = t = rec.t_sim
-        self._push((t, time.time(), tuple(rec.x.tolist()) + (nan_if_none(rec.u), nan_if_none(rec.pwm))))
+        wall = time.time()
+        self._push((t, wall, tuple(rec.x.tolist()) + (nan_if_none(rec.u), nan_if_none(rec.pwm))))
+        if self._held is not None:
+            held = rec.sitl.aircraft.held()
+            self._held((t, wall, tuple(held[k] for k in HELD_FIELDS)))
 
 
 def attach(args: argparse.Namespace, sitl):
     """If a telemetry flag was given, build the writer and register a ``SitlHook`` on ``sitl``; the writer or None."""
-    return attach_hook(args, "sitl", sitl, SitlHook)
+    held = hasattr(getattr(sitl, "aircraft", None), "held")  # a JSBSim plant
+    return attach_hook(args, "sitl", sitl, lambda tel: SitlHook(tel, held))

@@ -306,6 +306,44 @@ def format_table(results: Sequence[RunResult], scenario: Scenario | None = None)
 
 
 # ---------------------------------------------------------------------------------------- run
+def with_plant(scenario: Scenario, plant: str) -> Scenario:
+    """The scenario on another plant (checked: ExperimentError), its command limit clipped to the plant's surface."""
+    from dataclasses import replace
+
+    from sitl import plant as plants
+
+    try:
+        plants.check(plant)
+    except plants.PlantError as exc:
+        raise ExperimentError(f"--plant: {exc}") from None
+    limit = min(scenario.u_limit_rad, plants.surface_limit_rad(plant) or math.inf)
+    return replace(scenario, plant=plant, u_limit_rad=limit)
+
+
+def with_disturbances(scenario: Scenario, values: dict, transport: str) -> Scenario:
+    """The scenario with the SITL's disturbances (checked: ExperimentError); they need the mavlink transport."""
+    from dataclasses import replace
+
+    from sitl import disturbances
+    from sitl import plant as plants
+
+    given = {k: v for k, v in values.items() if v is not None}
+    if not given:
+        return scenario
+    try:
+        dist = disturbances.from_values(given)
+        plants.check_disturbances(scenario.plant, given)
+    except (*disturbances.ERRORS, disturbances.DisturbanceValueError, plants.PlantError) as exc:
+        raise ExperimentError(str(exc)) from None
+    rest = plants.injected(scenario.plant, dist)  # what only the SITL's injector can apply
+    if transport != "mavlink" and (rest.atmosphere.active or rest.sensors.active or rest.faults.active):
+        raise ExperimentError(
+            f"--{next(iter(given)).replace('_', '-')} needs --transport mavlink on --plant {scenario.plant} "
+            "(the SITL flies it; in-process only a JSBSim plant's own turbulence)"
+        )
+    return replace(scenario, disturbances=tuple(sorted(given.items())))
+
+
 def run_experiment(
     out_dir: str | os.PathLike,
     transport: str = "inprocess",
@@ -317,6 +355,8 @@ def run_experiment(
     pfc: str | None = None,
     sigma_xu: float | None = None,
     rrd: bool = True,
+    plant: str | None = None,
+    disturbances: dict | None = None,
 ) -> list[RunResult]:
     """Fly the scenario's runs with ``transport``; write ``out_dir/summary.json`` and (``plot``) ``paper.png``.
 
@@ -324,6 +364,9 @@ def run_experiment(
     lines (the CLI passes ``print``).  Raises ExperimentError on bad input (OutDirError for a folder that cannot
     be written), before flying anything.
     ``pfc`` (a PFC preset name) and ``sigma_xu`` (K_Ix/K_Iu leakage) apply to every run; None keeps the paper's.
+    ``disturbances``: the SITL's (``{dest: value}`` of ``sitl.disturbances.FLAGS``), mavlink transport only.
+    ``plant``: the SITL's plant (``sitl.plant``: kh2013a, FILE.toml, jsbsim:MODEL[:...]); None keeps the scenario's.
+    On another plant the runs fly the PFC designed for it (``tools.plant.designed_params``) unless ``pfc`` is given.
     Returns the RunResults (metrics and series) in run order.
     """
     from dataclasses import replace
@@ -347,6 +390,10 @@ def run_experiment(
         replace(s, pfc=pfc if pfc is not None else s.pfc, sigma_xu=sigma_xu if sigma_xu is not None else s.sigma_xu)
         for s in specs
     ]
+    if plant is not None:
+        scen = with_plant(scen, plant)
+    if disturbances:
+        scen = with_disturbances(scen, disturbances, transport)
     runner = get_transport(transport)
     out = prepare_out_dir(out_dir)
     results: list[RunResult] = []
@@ -362,8 +409,17 @@ def run_experiment(
             f" energy={res.metrics['energy']:.4g}" + (" (rudder saturated)" if sat["saturated"] else "")
         )
     controller = {"pfc": pfc or "paper", "pfc_num_den": PFC_PRESETS[pfc or "paper"], "sigma_xu": sigma_xu or 0.0}
+    if scen.plant != "kh2013a":
+        from tools.plant import designed_params
+
+        designed = None if pfc is not None else designed_params(scen.plant)
+        controller.update(plant=scen.plant, params=None if designed is None else str(designed))
     summary = write_summary(
-        results, out / "summary.json", scenario=scen, transport=transport, extra={"controller": controller}
+        results,
+        out / "summary.json",
+        scenario=scen,
+        transport=transport,
+        extra={"controller": controller, "disturbances": dict(scen.disturbances)},
     )
     say(f"wrote {summary.resolve()}")
     if rrd:
@@ -425,6 +481,19 @@ def build_parser() -> argparse.ArgumentParser:
         metavar="SIGMA",
         help="sigma-modification of K_Ix, K_Iu for every run (default 0, the paper)",
     )
+    p.add_argument(
+        "--turbulence",
+        choices=("light", "moderate", "severe"),
+        default=None,
+        help="turbulence (mavlink; in-process too on a JSBSim plant, which flies its own)",
+    )
+    p.add_argument("--seed", type=int, default=None, metavar="N", help="seed of the disturbances (default 0)")
+    p.add_argument(
+        "--plant",
+        default=None,
+        metavar="PLANT",
+        help="the plant: kh2013a (default), FILE.toml or jsbsim:MODEL[:KEY=VALUE,...] (README, Plants)",
+    )
     return p
 
 
@@ -448,8 +517,12 @@ def main(argv: Sequence[str] | None = None) -> int:
             raise ExperimentError(f"--sigma-xu must be finite and >= 0, got {args.sigma_xu!r}")
         out = Path(args.out) if args.out else default_out_dir(args.scenario)
         check_out_dir(out)
-        _, available = get_scenario(args.scenario)
+        scen, available = get_scenario(args.scenario)
         specs = select_runs(runs, available)
+        if args.plant is not None:
+            scen = with_plant(scen, args.plant)  # a bad plant fails before any folder is made
+        dist = {"turbulence": args.turbulence, "seed": args.seed}
+        with_disturbances(scen, dist, args.transport)
         get_transport(args.transport)  # fail before creating any folder if it is unavailable
         out = prepare_out_dir(out)
         t0 = time.perf_counter()
@@ -464,6 +537,8 @@ def main(argv: Sequence[str] | None = None) -> int:
             pfc=args.pfc,
             sigma_xu=args.sigma_xu,
             rrd=not args.no_rrd,
+            plant=args.plant,
+            disturbances=dist,
         )
     except (ExperimentError, OutDirError) as exc:
         print(f"python -m tools.experiment: error: {exc}", file=sys.stderr)
@@ -476,6 +551,8 @@ def main(argv: Sequence[str] | None = None) -> int:
         print("python -m tools.experiment: interrupted", file=sys.stderr)
         return 130
     scen, _ = get_scenario(args.scenario)
+    if args.plant is not None:
+        scen = with_plant(scen, args.plant)
     print()
     print(format_table(results, scen))
     print()

@@ -107,7 +107,7 @@ class FlightConfig:
     csv: str | None = None  # a profile from a CSV file of "time_s, roll_deg" rows instead
     amplitude: float = 10.0  # deg
     period: float = 10.0  # s
-    u_limit_deg: float = 30.0  # rudder command limit
+    u_limit_deg: float = 30.0  # rudder command limit (clipped to the plant's surface limit, e.g. 17.5 deg on c172x)
     # The envelope of a controlled flight (autopilot.envelope): |roll| < envelope_roll deg and the rudder saturated
     # in < envelope_saturated % of the steps; envelope=False (--no-envelope): not judged, only measured
     envelope_roll: float = MAX_ROLL_DEG
@@ -153,6 +153,9 @@ class FlightConfig:
     reorder: float | None = None  # link reordering probability
     scale: str | tuple | None = None  # "NAME=F" or "NAME=LO:HI" plant scale factor, or a list of them
     seed: int | None = None  # seed of every disturbance (default 0)
+    plant: str = "kh2013a"  # the SITL's plant (sitl.plant): kh2013a, FILE.toml or jsbsim:MODEL[:KEY=VALUE,...]
+    params: str | os.PathLike | None = None  # the autopilot's parameter file; default the plant's designed one
+    baseline_gains: str | tuple | None = None  # "KP,KI,KD" of the baseline; default the plant's designed ones
     command: Profile = field(init=False, repr=False, compare=False)  # the profile the GCS flies
 
     def __post_init__(self) -> None:
@@ -286,6 +289,65 @@ class FlightConfig:
             raise FlightConfigError(exc.field, str(exc)) from None
         except disturbances.ERRORS as exc:
             raise FlightConfigError("disturbances", str(exc)) from None
+        self._check_plant()
+
+    def _check_plant(self) -> None:
+        from autopilot.params import ParamError, load_file
+        from sitl import disturbances
+        from sitl import plant as plants
+
+        try:
+            plants.check(self.plant)
+            plants.check_disturbances(self.plant, {k: getattr(self, k) for k in disturbances.FLAGS})
+        except plants.PlantError as exc:
+            raise FlightConfigError("plant", f"plant: {exc}") from None
+        if self.surface_limit_deg is not None and self.u_limit_deg > self.surface_limit_deg:
+            object.__setattr__(self, "u_limit_deg", self.surface_limit_deg)  # the command stops at the surface's stop
+        if self.baseline_gains is not None:
+            from autopilot.flags import baseline_gains
+
+            gains = self.baseline_gains
+            text = gains if isinstance(gains, str) else ",".join(repr(float(g)) for g in gains)
+            object.__setattr__(self, "baseline_gains", _checked("baseline_gains", baseline_gains, text))
+        if self.params is not None:
+            try:
+                load_file(self.params)
+            except OSError as exc:
+                raise FlightConfigError("params", f"params: cannot read {self.params}: {exc.strerror or exc}") from None
+            except ParamError as exc:
+                raise FlightConfigError("params", f"params: {exc}") from None
+
+    @property
+    def params_file(self) -> str | None:
+        """The autopilot's --params: the one given, else the PFC designed for the plant (tools.pfc design, shipped
+        beside it), for SAC/CL-SAC only (the baseline has no PFC)."""
+        if self.params is not None:
+            return str(self.params)
+        if self.controller == "baseline":
+            return None
+        from tools.plant import designed_params
+
+        path = designed_params(self.plant)
+        return None if path is None else str(path)
+
+    @property
+    def surface_limit_deg(self) -> float | None:
+        """The plant's surface stop (deg; None: unlimited, the KH2013A)."""
+        from sitl import plant as plants
+
+        limit = plants.surface_limit_rad(self.plant)
+        return None if limit is None else math.degrees(limit)
+
+    @property
+    def baseline_gains_flown(self) -> tuple | None:
+        """The baseline's gains: the ones given, else those designed for the plant; None: the built-in defaults."""
+        if self.controller != "baseline":
+            return None
+        if self.baseline_gains is not None:
+            return tuple(self.baseline_gains)
+        from tools.plant import designed_baseline
+
+        return designed_baseline(self.plant)
 
     @property
     def disturbed(self) -> bool:
@@ -336,6 +398,7 @@ class FlightConfig:
             and self.physics_rate == 1000.0
             and self.u_limit_deg == 30.0
             and not self.disturbed
+            and self.plant == "kh2013a"
         )
         return "paper" if paper else "custom"
 
@@ -398,6 +461,7 @@ def child_argvs(
         ]
         + pwm
         + cfg.disturbance_argv
+        + (["--plant", cfg.plant] if cfg.plant != "kh2013a" else [])
     )
     ap = (
         py
@@ -441,6 +505,10 @@ def child_argvs(
         ]
         + pwm
     )
+    if cfg.params_file is not None:
+        ap += ["--params", cfg.params_file]
+    if cfg.baseline_gains_flown is not None:
+        ap += ["--baseline-gains", ",".join(repr(g) for g in cfg.baseline_gains_flown)]
     # Lockstep: the GCS schedules the profile up to the end; real time: it flies until the autopilot powers off.
     gcs = py + [
         "tools.gcs",
@@ -1132,6 +1200,10 @@ class Flight:
             amplitude=math.degrees(profile.amplitude),
             period=profile.period,
             u_limit_deg=math.degrees(scenario.u_limit_rad),
+            plant=scenario.plant,
+            params=scenario.params,
+            baseline_gains=scenario.baseline_gains,
+            **dict(scenario.disturbances),
             out=out,
             quiet=True,
             series=True,

@@ -256,6 +256,19 @@ def build_parser() -> OneLineArgumentParser:
     g.add_argument(
         "--no-signing", dest="signing", action="store_false", help="fly unsigned (anyone on the host can talk to it)"
     )
+    p.add_argument(
+        "--plant",
+        default="kh2013a",
+        metavar="PLANT",
+        help="the SITL's plant: kh2013a (default), FILE.toml (a linear plant of your own) or jsbsim:MODEL[:KEY=VALUE,"
+        "...] (a JSBSim aircraft, e.g. jsbsim:c172x; see README, Plants)",
+    )
+    p.add_argument(
+        "--params",
+        default=None,
+        metavar="FILE",
+        help="the autopilot's parameter file (default: the PFC designed for the plant, if it ships one)",
+    )
     add_controller_arguments(p)
     add_envelope_arguments(p)
     disturbances.add_arguments(p)
@@ -269,9 +282,9 @@ def _flag(keyword: str) -> str:
 
 # The process each flag configures: a value refused before the flight is reported as that process's failure.
 _OWNERS = {
-    "sitl": {"physics_rate", "sensor_rate", "start_time", *disturbances.FLAGS},
+    "sitl": {"physics_rate", "sensor_rate", "start_time", "plant", *disturbances.FLAGS},
     "autopilot": {"rate", "lv", "pfc", "sigma_xu", "dead_zone_deg", "ki_max", "u_limit_deg", "controller"}
-    | {"freeze_when_saturated", "rt_priority", "busy_wait", "telemetry_rate", "gcs_peer"}
+    | {"freeze_when_saturated", "rt_priority", "busy_wait", "telemetry_rate", "gcs_peer", "params", "baseline_gains"}
     | {"envelope_roll", "envelope_saturated"},
     "gcs": {"profile", "csv", "amplitude", "period"},
 }

@@ -4,7 +4,8 @@ Thin command line over ``tools.analysis`` (flags and JSON keys: docs/design.md, 
 the transfer functions T(s) and F(s) = T(s) + D(s), the W-ASPR conditions of F, the bands of constant
 K_e > 0 for which 1 + K_e F is unstable (continuous time, and sampled with a zero-order hold at the control
 rate) and the steady-state error the PFC adds; ``--closed-loop`` also flies the paper scenario in-process.
-``--json`` prints one JSON object instead.
+``--json`` prints one JSON object instead.  ``python -m tools.pfc design PLANT`` designs a PFC for another plant
+(``tools.pfc_design``).
 """
 
 from __future__ import annotations
@@ -74,6 +75,12 @@ def build_parser() -> argparse.ArgumentParser:
         default=20.0,
         metavar="LV",
         help="CL-SAC Lv for the reference-model feedback loop through Kx (default 20, the paper's)",
+    )
+    p.add_argument(
+        "--plant",
+        default=None,
+        metavar="FILE.toml",
+        help="analyse a linear plant file of your own (sitl.linear_plant) instead of the KH2013A",
     )
     p.add_argument(
         "--closed-loop",
@@ -157,11 +164,11 @@ def _bands_str(bands, gain: str = "Ke") -> str:
     return ("\n" + " " * 4).join(out)
 
 
-def format_text(rep: analysis.WasprReport, cl: list[dict] | None = None) -> str:
+def format_text(rep: analysis.WasprReport, cl: list[dict] | None = None, plant_name: str = "KH2013A") -> str:
     ss = rep.steady_state
     g = rep.compensator_gain_margin
     lines = [
-        "W-ASPR analysis, KH2013A roll (Jana & Bhat 2017, sections 2 and 5)",
+        f"W-ASPR analysis, {plant_name} roll (Jana & Bhat 2017, sections 2 and 5)",
         "",
         "plant T(s) = C_p (sI - A_p)^-1 B_p = num/den",
         f"  num = {_poly_str(rep.plant_num)}",
@@ -230,8 +237,28 @@ def format_text(rep: analysis.WasprReport, cl: list[dict] | None = None) -> str:
     return "\n".join(lines)
 
 
+def _plant(args, parser):
+    """(A_p, B_p, C_p) of --plant FILE.toml and its name, or (None, "KH2013A")."""
+    if args.plant is None or args.plant == "kh2013a":
+        return None, "KH2013A"
+    if args.closed_loop:
+        parser.error("--closed-loop flies the KH2013A paper scenario: not with --plant")
+    from sitl.linear_plant import PlantFileError, load
+
+    try:
+        lp = load(args.plant)
+    except PlantFileError as exc:
+        parser.error(str(exc))
+    return (lp.a_p, lp.b_p, lp.c_p), lp.name
+
+
 # ----------------------------------------------------------------------------- main
 def main(argv: list[str] | None = None) -> int:
+    argv = list(sys.argv[1:] if argv is None else argv)
+    if argv[:1] == ["design"]:  # a PFC (and a baseline) designed for a plant: tools.pfc_design
+        from tools.pfc_design import main as design_main
+
+        return design_main(argv[1:])
     parser = build_parser()
     args = parser.parse_args(argv)
     try:
@@ -242,8 +269,15 @@ def main(argv: list[str] | None = None) -> int:
             parser.error(f"--rate-hz must be positive and finite, got {args.rate_hz!r}")
         if not (math.isfinite(args.lv) and args.lv >= 0):
             parser.error(f"--lv must be finite and >= 0, got {args.lv!r}")
+        mats, plant_name = _plant(args, parser)
         rep = analysis.analyse(
-            num, den, command_rad=math.radians(args.command_deg), rate_hz=args.rate_hz, lv=args.lv, pfc_name=name
+            num,
+            den,
+            command_rad=math.radians(args.command_deg),
+            rate_hz=args.rate_hz,
+            lv=args.lv,
+            pfc_name=name,
+            plant=mats,
         )
     except analysis.PfcError as exc:
         parser.error(str(exc))
@@ -257,7 +291,7 @@ def main(argv: list[str] | None = None) -> int:
             d["closed_loop"] = cl
         print(json.dumps(d, indent=2, allow_nan=False))
     else:
-        print(format_text(rep, cl))
+        print(format_text(rep, cl, plant_name))
     return 0
 
 

@@ -393,7 +393,9 @@ def paper_figure(
     _lv_tracking(fig, outer[3, 0], sweep, scenario)
     _lv_control(fig, outer[3, 1], sweep)
     _table(fig.add_subplot(outer[3, 2]), results, scenario, notes)
-    fig.suptitle(title or "CL-SAC roll autopilot, KH2013A: scenario 'paper' (Jana & Bhat 2017, section 5)", fontsize=14)
+    plant = "KH2013A" if getattr(scenario, "plant", "kh2013a") == "kh2013a" else scenario.plant
+    default = f"CL-SAC roll autopilot, {plant}: scenario 'paper' (Jana & Bhat 2017, section 5)"
+    fig.suptitle(title or default, fontsize=14)
     return fig
 
 

@@ -13,7 +13,7 @@ from autopilot.config import ClSacConfig
 from autopilot.shared.mavlink import quaternion_to_roll, roll_to_quaternion
 from autopilot.shared.pwm import PwmMap
 from autopilot.step import ControlStep, ProfileSetpoints
-from sitl.aircraft import Aircraft, AircraftConfig
+from sitl import plant as plants
 from tools.profiles import Profile
 
 
@@ -29,6 +29,13 @@ class Scenario:
     control_rate_hz: float = 100.0
     physics_rate_hz: float = 1000.0
     u_limit_rad: float = math.radians(30.0)
+    plant: str = plants.KH2013A  # sitl.plant: kh2013a, FILE.toml or jsbsim:MODEL[:KEY=VALUE,...]
+    # A parameter file (autopilot.params) on top of every SAC/CL-SAC run's configuration, and the baseline's gains;
+    # None: the ones designed for the plant (tools.plant.designed_params, designed_baseline), else the defaults.
+    params: str | None = None
+    baseline_gains: tuple | None = None
+    # The SITL's disturbances ((dest, value) pairs of sitl.disturbances.FLAGS): flown over MAVLink only.
+    disturbances: tuple = ()
 
     def __post_init__(self) -> None:
         if not isinstance(self.profile, Profile):
@@ -90,12 +97,30 @@ BASELINE_RUN = RunSpec("baseline", 0.0, controller="baseline")
 OPTIONAL_RUNS = (BASELINE_RUN,)
 
 
+def params_config(path: str, cfg: ClSacConfig) -> ClSacConfig:
+    """``cfg`` with a parameter file's values (``autopilot.params``) on top, as ``python -m autopilot --params`` does:
+    the file overrides the flags."""
+    from autopilot.params import ParamTable, load_file
+
+    table = ParamTable(cfg, {"attitude_timeout_s": 0.1, "setpoint_timeout_s": 1.0, "max_roll_rad": 0.8})
+    table.update(load_file(path))
+    return table.config
+
+
 def controller_config(scenario: Scenario, run: RunSpec, base: ClSacConfig | None = None) -> ClSacConfig:
+    from tools.plant import designed_baseline, designed_params
+
     if run.controller == "baseline":
-        return BaselineConfig(control_rate_hz=scenario.control_rate_hz, u_limit_rad=scenario.u_limit_rad)
+        flown = scenario.baseline_gains or designed_baseline(scenario.plant)
+        gains = dict(zip(("kp", "ki", "kd"), flown)) if flown else {}
+        limit = min(scenario.u_limit_rad, plants.surface_limit_rad(scenario.plant) or math.inf)  # the surface's stop
+        return BaselineConfig(control_rate_hz=scenario.control_rate_hz, u_limit_rad=limit, **gains)
     cfg = (base or ClSacConfig()).with_(
         lv=run.lv, control_rate_hz=scenario.control_rate_hz, u_limit_rad=scenario.u_limit_rad
     )
+    params = scenario.params or designed_params(scenario.plant)  # as tools.flight.FlightConfig.params_file
+    if base is None and params is not None:
+        cfg = params_config(str(params), cfg)
     if run.pfc is not None:
         cfg = cfg.with_pfc(run.pfc)
     if run.sigma_xu is not None:
@@ -125,6 +150,20 @@ SERIES = (
 )
 
 
+def _inprocess_disturbances(scenario: Scenario):
+    """The disturbances a plant flies by itself (a JSBSim plant's turbulence, crosswind, seed), or None; anything the
+    SITL's injector would have to apply (sensors, link, the KH2013A atmosphere) flies over MAVLink only."""
+    if not scenario.disturbances:
+        return None
+    from sitl.disturbances import from_values
+
+    dist = from_values(dict(scenario.disturbances))
+    rest = plants.injected(scenario.plant, dist)
+    if rest.atmosphere.active or rest.sensors.active or rest.faults.active or rest.scales:
+        raise ValueError("these disturbances fly over MAVLink only (tools.flight, the mavlink transport)")
+    return dist
+
+
 def run_inprocess(
     scenario: Scenario = PAPER,
     run: RunSpec = PAPER_RUNS[1],
@@ -149,14 +188,14 @@ def run_inprocess(
 
     step = ControlStep(controller_config(scenario, run, base), wire, ProfileSetpoints(command))
     law = step.law
-    ac = Aircraft(AircraftConfig(physics_rate_hz=scenario.physics_rate_hz))
+    ac = plants.build(scenario.plant, scenario.physics_rate_hz, None, _inprocess_disturbances(scenario))
     n = scenario.steps
     nphys = scenario.physics_per_control
     out = np.empty((n, len(SERIES)))
     rate = scenario.control_rate_hz
     for k in range(n):
         t = k / rate
-        x = ac.x
+        x = ac.truth
         phi = float(x[3]) if wire is None else float(np.float32(x[3]))  # ATTITUDE.roll travels as float32
         r = step(t, phi)
         out[k] = (

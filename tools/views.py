@@ -75,7 +75,8 @@ def flight_blueprint() -> rrb.Blueprint:
       5. The vehicle's mode (MANUAL, SAC, CLSAC, BASELINE, FAILSAFE) and failsafe state lanes | event log of both
          processes (status texts, state changes, every PARAM_SET).
     Details tab: augmented output and PFC output, roll rate (measured vs truth) and yaw rate, side
-    velocity, rudder rate, saturation flag.
+    velocity, rudder rate, saturation flag.  Held axes tab (a JSBSim plant): altitude, airspeed, pitch and the
+    safety pilot's elevator and throttle.
     """
     flight = rrb.Vertical(
         rrb.Horizontal(
@@ -115,8 +116,16 @@ def flight_blueprint() -> rrb.Blueprint:
         grid_columns=2,
         name="Details",
     )
+    held = rrb.Grid(  # a JSBSim plant only (sitl.telemetry.SITL_HELD_TABLE): what the SITL's safety pilot held
+        _plot("Altitude [m]", [S.SITL_ALTITUDE]),
+        _plot("Airspeed [m/s]", [S.SITL_AIRSPEED]),
+        _plot("Pitch theta [rad]", [S.SITL_PITCH]),
+        _plot("Safety pilot: elevator and throttle", [S.SITL_PILOT]),
+        grid_columns=2,
+        name="Held axes (JSBSim)",
+    )
     return rrb.Blueprint(
-        rrb.Tabs(flight, details, active_tab=0),
+        rrb.Tabs(flight, details, held, active_tab=0),
         rrb.BlueprintPanel(state="collapsed"),
         rrb.SelectionPanel(state="collapsed"),
         rrb.TimePanel(timeline=SIM_TIME, state="collapsed"),

@@ -10,16 +10,18 @@ from tools.analysis._common import ct
 from tools.analysis.plant import plant_tf
 
 
-def baseline_margins(config: BaselineConfig | None = None, *, pfc_inverse: bool = False) -> dict[str, float]:
+def baseline_margins(
+    config: BaselineConfig | None = None, *, pfc_inverse: bool = False, plant=None
+) -> dict[str, float]:
     """Gain margin (dB), phase margin (deg) and the crossover frequencies (rad/s) of the loop on the nominal plant.
 
     Default: the baseline PID sampled at its control rate, C(z) = K_p + K_i T z/(z - 1) + K_d (z - 1)/(T z),
     times the ZOH-sampled plant.  ``pfc_inverse``: the continuous loop C(s) T(s) with the C(s) = (4s + 40)/10
-    whose inverse is the paper's PFC (sec. 5.1).
+    whose inverse is the paper's PFC (sec. 5.1).  ``plant``: another plant's (A_p, B_p, C_p); default the KH2013A's.
     """
     control = ct()
     cfg = config or BaselineConfig()
-    plant = plant_tf()
+    plant = plant_tf(plant)
     if pfc_inverse:
         loop = control.tf([4.0, 40.0], [10.0]) * plant
     else:

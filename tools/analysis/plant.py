@@ -129,9 +129,11 @@ def ss_to_tf(a, b, c, d=0.0, dt=0) -> TransferFunction:
     return ct().tf(poly(num) if np.any(num) else [0.0], den, dt)
 
 
-def plant_tf() -> TransferFunction:
-    """T(s) = C_p (sI - A_p)^-1 B_p of the 6-state augmented plant (paper sec. 5, num(s)/den(s))."""
-    return ss_to_tf(model.A_P, model.B_P, model.C_P)
+def plant_tf(plant=None) -> TransferFunction:
+    """T(s) = C_p (sI - A_p)^-1 B_p of the 6-state augmented plant (paper sec. 5, num(s)/den(s)); ``plant``:
+    another plant's (A_p, B_p, C_p) (``sitl.linear_plant``), by default the KH2013A's."""
+    a, b, c = plant if plant is not None else (model.A_P, model.B_P, model.C_P)
+    return ss_to_tf(a, b, c)
 
 
 def pfc_tf(num: Sequence[float] = PAPER_PFC[0], den: Sequence[float] = PAPER_PFC[1]) -> TransferFunction:
@@ -147,17 +149,20 @@ def augmented_tf(plant: TransferFunction, pfc: TransferFunction) -> TransferFunc
     return plant + pfc
 
 
-def augmented_realisation(pfc_num: Sequence[float] = PAPER_PFC[0], pfc_den: Sequence[float] = PAPER_PFC[1]):
+def augmented_realisation(pfc_num: Sequence[float] = PAPER_PFC[0], pfc_den: Sequence[float] = PAPER_PFC[1], plant=None):
     """State space (A, B, C) of F = T + D: the plant (A_p, B_p, C_p) in parallel with a realisation of
-    D, which is what the controller computes (paper sec. 5, Fig. 5: y_a = y_p + D(s) u_p)."""
+    D, which is what the controller computes (paper sec. 5, Fig. 5: y_a = y_p + D(s) u_p).  ``plant``: another
+    plant's (A_p, B_p, C_p), by default the KH2013A's."""
+    a_p, b_p, c_p = plant if plant is not None else (model.A_P, model.B_P, model.C_P)
     n, d = validate_pfc(pfc_num, pfc_den)
     dss = ct().tf2ss(ct().tf(n, d))
     nd = dss.nstates
-    a = np.zeros((6 + nd, 6 + nd))
-    a[:6, :6] = model.A_P
-    a[6:, 6:] = dss.A
-    b = np.vstack([model.B_P, dss.B])
-    c = np.hstack([model.C_P, dss.C])
+    m = a_p.shape[0]
+    a = np.zeros((m + nd, m + nd))
+    a[:m, :m] = a_p
+    a[m:, m:] = dss.A
+    b = np.vstack([b_p, dss.B])
+    c = np.hstack([c_p, dss.C])
     return a, b, c
 
 

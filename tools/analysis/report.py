@@ -142,17 +142,19 @@ def analyse(
     rate_hz: float | None = 100.0,
     lv: float = 20.0,
     pfc_name: str = "custom",
+    plant=None,
 ) -> WasprReport:
     """The W-ASPR analysis of F = T + D for a PFC D = pfc_num/pfc_den (paper secs. 2 and 5).
 
     ``command_rad``: the steady roll command for the steady-state offset (paper scenario: 10 deg).
     ``rate_hz``: also analyse the ZOH-discretised loop at this control rate (None to skip).
     ``lv``: the CL-SAC L_v for ``clsac_kx_bands`` (paper: 20).
+    ``plant``: another plant's (A_p, B_p, C_p) (``sitl.linear_plant``); default the KH2013A's.
     Raises ``PfcError`` for an unusable PFC, ``AnalysisError`` for other bad input.
     """
     if not math.isfinite(command_rad):
         raise AnalysisError(f"command must be finite, got {command_rad!r}")
-    t = plant_tf()
+    t = plant_tf(plant)
     d = pfc_tf(pfc_num, pfc_den)
     f = augmented_tf(t, d)
     tn, td = tf_coefficients(t)
@@ -160,7 +162,7 @@ def analyse(
     fn, fd = tf_coefficients(f)
     zeros = np.roots(fn) if fn.size > 1 else np.array([], dtype=complex)
     poles = np.roots(fd)
-    real = augmented_realisation(pfc_num, pfc_den)
+    real = augmented_realisation(pfc_num, pfc_den, plant)
     bands = unstable_gain_bands(fn, fd, realisation=real)
     bands_d = None if rate_hz is None else discrete_bands(real, rate_hz)
     t_dc, d_dc = dc_gain(tn, td), dc_gain(dn, dd)

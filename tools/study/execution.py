@@ -41,10 +41,16 @@ class Progress:
 
 
 def execute(
-    tasks: Sequence[Task], scheduler: str | None = None, progress: Progress | None = None, workers: int = 1
+    tasks: Sequence[Task],
+    scheduler: str | None = None,
+    progress: Progress | None = None,
+    workers: int = 1,
+    simulate=simulate,
 ) -> list[dict]:
     """Run every task: locally, one after the other (``workers`` 1) or in a pool of ``workers`` processes, or on
-    the Dask cluster at ``scheduler`` (``tcp://HOST:PORT``); results in task order whichever."""
+    the Dask cluster at ``scheduler`` (``tcp://HOST:PORT``); results in task order whichever.  ``simulate``: the
+    task function (a picklable module-level function of a task with ``runs``; ``tools.jsbsim_study`` passes its
+    own)."""
     results: list[dict | None] = [None] * len(tasks)
     if scheduler is None and workers <= 1:
         for i, t in enumerate(tasks):

@@ -1,0 +1,311 @@
+"""A JSBSim aircraft behind the SITL's plant interface (``--plant jsbsim:MODEL[:KEY=VALUE,...]``).
+
+JSBSim's nonlinear 6-DOF model (the wheel's own aircraft, nothing downloaded), trimmed in level flight at the
+requested airspeed and altitude (``simulation/do_simple_trim``), stepped at the physics rate.  The autopilot's
+command goes through the servo (paper eq. (65) form, exact ZOH per physics step) to the chosen surface, added to
+the trim deflection: ``fcs/aileron-cmd-norm`` (or ``fcs/rudder-cmd-norm``) = trim + sign delta / surface_max, the
+sign (``SURFACE_SIGN``) making a positive command roll the aircraft right.
+
+The axes the roll autopilot does not fly are held by the SITL's safety pilot (:class:`SafetyPilot`), every
+``PILOT_EVERY`` physics steps counted from the start, so its rate does not depend on how the steps are chunked:
+  - altitude: theta_ref = theta_trim + sat(K_H (h_trim - h) - K_HDOT h', +-THETA_MAX), and the elevator
+    delta_e = -(K_THETA e + K_I int e - K_Q q), e = theta_ref - theta, added to the trim;
+  - airspeed: throttle = trim + K_V (V_trim - V) + K_VI int (V_trim - V), clipped to [0, 1].
+(c172x's own ``c172ap.xml`` altitude hold was tried: it oscillates +-3 deg in pitch and rolls the aircraft by
+1.2 deg within 60 s, so the product flies these documented loops instead.)
+
+The truth state is [v, p, r, phi, delta, delta_dot] (``sitl.model.STATE_NAMES``: body side velocity m/s, body
+rates rad/s, roll rad, the servo's deflection rad and rate rad/s); :meth:`attitude` gives JSBSim's roll, pitch,
+yaw (heading, wrapped to (-pi, pi]) and body rates.  Turbulence is JSBSim's own MIL-F-8785C model, seeded with
+``simulation/randomseed``.  Units: SI inside, knots only in the spec's ``airspeed_kt``.
+"""
+
+from __future__ import annotations
+
+import math
+import os
+from dataclasses import dataclass, replace
+from pathlib import Path
+
+import numpy as np
+
+from autopilot.shared.numerics import wrap_pi, zoh
+from sitl import model
+
+FT = 0.3048  # m per ft
+KT = 1852.0 / 3600.0  # m/s per kt
+PILOT_EVERY = 10  # safety pilot period in physics steps (100 Hz at 1 kHz physics)
+# Safety pilot gains (SI: rad, m, m/s).  Tuned on c172x at 100 kt: +-10 deg roll steps hold 1000 m to 1 m
+# (default flight condition 90 kt, 1000 m: 0.7x and 1.3x of it, 63 and 117 kt, still trim; 130 kt does not).
+K_H, K_HDOT, THETA_MAX = 0.01, 0.02, math.radians(5.0)
+K_THETA, K_I, K_Q = 4.0, 1.0, 1.5
+K_V, K_VI = 0.05, 0.01
+# MIL-F-8785C turbulence as JSBSim offers it (atmosphere/turb-type 3): wind at 20 ft (kt) and the
+# probability-of-exceedance index (3: 1e-2 light, 4: 1e-3 moderate, 6: 1e-5 severe).
+TURBULENCE = {"light": (15.0, 3), "moderate": (30.0, 4), "severe": (45.0, 6)}
+SURFACES = {"aileron": "fcs/aileron-cmd-norm", "rudder": "fcs/rudder-cmd-norm"}
+# c172x: effective aileron 0.5 (left - right) = 17.5 deg per unit command (range -20..15 deg each side); rudder 16.
+SURFACE_MAX_DEG = {"aileron": 17.5, "rudder": 16.0}
+# JSBSim's signs: a positive aileron command rolls right, a positive rudder command yaws and then rolls left.  The
+# command is mapped with this sign so that a positive command rolls right, as the law assumes (hf gain > 0).
+SURFACE_SIGN = {"aileron": 1.0, "rudder": -1.0}
+
+
+class JsbsimPlantError(ValueError):
+    """A JSBSim plant spec is malformed, its model does not exist, or the trim failed."""
+
+
+@dataclass(frozen=True)
+class JsbsimSpec:
+    """``jsbsim:MODEL[:airspeed_kt=KT,altitude_m=M,surface=aileron|rudder,surface_max_deg=DEG]``."""
+
+    model: str = "c172x"
+    airspeed_kt: float = 90.0
+    altitude_m: float = 1000.0
+    surface: str = "aileron"
+    surface_max_deg: float | None = None  # rad of surface per unit normalised command; default SURFACE_MAX_DEG
+
+    def __post_init__(self) -> None:
+        if self.surface not in SURFACES:
+            raise JsbsimPlantError(f"jsbsim plant: surface must be aileron or rudder, got {self.surface!r}")
+        for name in ("airspeed_kt", "altitude_m", "surface_max_deg"):
+            v = getattr(self, name)
+            if v is not None and not (math.isfinite(v) and v > 0):
+                raise JsbsimPlantError(f"jsbsim plant: {name} must be positive and finite, got {v!r}")
+
+    @property
+    def surface_max_rad(self) -> float:
+        return math.radians(self.surface_max_deg or SURFACE_MAX_DEG[self.surface])
+
+    def text(self) -> str:
+        """The spec string back (``jsbsim:c172x:airspeed_kt=100.0,...``)."""
+        keys = ("airspeed_kt", "altitude_m", "surface") + (("surface_max_deg",) if self.surface_max_deg else ())
+        return f"jsbsim:{self.model}:" + ",".join(f"{k}={getattr(self, k)}" for k in keys)
+
+
+def parse_spec(text: str) -> JsbsimSpec:
+    """``jsbsim:MODEL[:KEY=VALUE,...]`` -> JsbsimSpec; raises JsbsimPlantError naming the bad part."""
+    parts = text.split(":", 2)
+    if len(parts) < 2 or parts[0] != "jsbsim" or not parts[1]:
+        raise JsbsimPlantError(f"expected jsbsim:MODEL[:KEY=VALUE,...], got {text!r}")
+    spec = JsbsimSpec(model=parts[1])
+    if len(parts) == 3 and parts[2]:
+        changes = {}
+        for item in parts[2].split(","):
+            key, sep, value = item.partition("=")
+            if not sep or key not in ("airspeed_kt", "altitude_m", "surface", "surface_max_deg"):
+                raise JsbsimPlantError(
+                    f"jsbsim plant: expected KEY=VALUE with KEY one of airspeed_kt, altitude_m, surface, "
+                    f"surface_max_deg, got {item!r}"
+                )
+            if key == "surface":
+                changes[key] = value
+                continue
+            try:
+                changes[key] = float(value)
+            except ValueError:
+                raise JsbsimPlantError(f"jsbsim plant: {key} must be a number, got {value!r}") from None
+        spec = replace(spec, **changes)
+    return spec
+
+
+def _root() -> Path:
+    import jsbsim
+
+    return Path(jsbsim.get_default_root_dir())
+
+
+def available_models() -> list[str]:
+    """The aircraft the installed JSBSim wheel ships (``aircraft/NAME/NAME.xml``)."""
+    root = _root() / "aircraft"
+    return sorted(d.name for d in root.iterdir() if (d / f"{d.name}.xml").is_file())
+
+
+def _new_fdm():
+    os.environ.setdefault("JSBSIM_DEBUG", "0")  # no start-up banner on the SITL's stdout
+    import jsbsim
+
+    fdm = jsbsim.FGFDMExec(None)  # None: the wheel's own root (its aircraft, engines, systems)
+    fdm.set_debug_level(0)
+    return fdm
+
+
+def trimmed_fdm(spec: JsbsimSpec, dt: float, seed: int = 0):
+    """A JSBSim executive with ``spec.model`` loaded and trimmed in wings-level flight; raises JsbsimPlantError."""
+    import jsbsim
+
+    if spec.model not in available_models():
+        raise JsbsimPlantError(f"jsbsim plant: no model {spec.model!r}; available: {', '.join(available_models())}")
+    fdm = _new_fdm()
+    if not fdm.load_model(spec.model):
+        raise JsbsimPlantError(f"jsbsim plant: JSBSim could not load model {spec.model!r}")
+    # The model's own <output> (c172x: JSBout172B.csv in the working folder, opened by run_ic even when disabled):
+    # pointed at the null device, and off.
+    n = 0
+    while fdm.set_output_filename(n, os.devnull):
+        n += 1
+    fdm.disable_output()
+    fdm.set_dt(dt)
+    fdm["simulation/randomseed"] = float(seed)
+    fdm["ic/vc-kts"] = spec.airspeed_kt
+    fdm["ic/h-sl-ft"] = spec.altitude_m / FT
+    fdm["ic/psi-true-deg"] = 0.0
+    fdm.run_ic()
+    fdm["propulsion/set-running"] = -1
+    try:
+        fdm["simulation/do_simple_trim"] = 1
+    except jsbsim.TrimFailureError as exc:
+        raise JsbsimPlantError(
+            f"jsbsim plant: {spec.model} does not trim in level flight at {spec.airspeed_kt:g} kt, "
+            f"{spec.altitude_m:g} m ({exc})"
+        ) from None
+    return fdm
+
+
+class SafetyPilot:
+    """Holds the trim altitude (elevator, through pitch) and airspeed (throttle); see the module docstring."""
+
+    def __init__(self, fdm, dt: float):
+        self.fdm = fdm
+        self.dt = dt * PILOT_EVERY
+        self.h0 = fdm["position/h-sl-ft"] * FT
+        self.theta0 = fdm["attitude/theta-rad"]
+        self.v0 = fdm["velocities/vc-kts"] * KT
+        self.elevator0 = fdm["fcs/elevator-cmd-norm"]
+        self.throttle0 = fdm["fcs/throttle-cmd-norm"]
+        self.int_theta = 0.0
+        self.int_v = 0.0
+        pm = fdm.get_property_manager()
+        self._elevator = pm.get_node("fcs/elevator-cmd-norm")
+        self._throttle = pm.get_node("fcs/throttle-cmd-norm")
+
+    def __call__(self) -> None:
+        f = self.fdm
+        h, hdot = f["position/h-sl-ft"] * FT, f["velocities/h-dot-fps"] * FT
+        theta_ref = self.theta0 + min(THETA_MAX, max(-THETA_MAX, K_H * (self.h0 - h) - K_HDOT * hdot))
+        e = theta_ref - f["attitude/theta-rad"]
+        self.int_theta += e * self.dt
+        de = -(K_THETA * e + K_I * self.int_theta - K_Q * f["velocities/q-rad_sec"])
+        self._elevator.set_double_value(min(1.0, max(-1.0, self.elevator0 + de)))
+        ev = self.v0 - f["velocities/vc-kts"] * KT
+        self.int_v += ev * self.dt
+        thr = self.throttle0 + K_V * ev + K_VI * self.int_v
+        self._throttle.set_double_value(min(1.0, max(0.0, thr)))
+
+
+@dataclass(frozen=True)
+class JsbsimConfig:
+    physics_rate_hz: float = 1000.0
+
+    @property
+    def dt(self) -> float:
+        return 1.0 / self.physics_rate_hz
+
+
+class JsbsimPlant:
+    """The plant interface on JSBSim: ``advance(u, n)``, ``truth``, ``attitude()``, ``steps``, ``time``."""
+
+    def __init__(
+        self,
+        spec: JsbsimSpec,
+        physics_rate_hz: float = 1000.0,
+        turbulence: str | None = None,
+        seed: int = 0,
+        crosswind: float = 0.0,
+        servo: tuple[float, float] = (model.SERVO_WN2, model.SERVO_2ZETA_WN),
+    ):
+        self.spec = spec
+        self.config = JsbsimConfig(physics_rate_hz)
+        dt = self.config.dt
+        self.fdm = fdm = trimmed_fdm(spec, dt, seed)
+        self.surface_trim = fdm[SURFACES[spec.surface]]
+        self._cmd = fdm.get_property_manager().get_node(SURFACES[spec.surface])
+        self._per_norm = SURFACE_SIGN[spec.surface] / spec.surface_max_rad
+        self.pilot = SafetyPilot(fdm, dt)
+        if turbulence is not None:
+            w20, severity = TURBULENCE[turbulence]
+            fdm["atmosphere/turb-type"] = 3
+            fdm["atmosphere/turbulence/milspec/windspeed_at_20ft_AGL-fps"] = w20 * KT / FT
+            fdm["atmosphere/turbulence/milspec/severity"] = severity
+        if crosswind:
+            fdm["atmosphere/wind-east-fps"] = crosswind / FT  # side wind on the trim heading (north)
+        wn2, two_zeta_wn = servo
+        ad, bd = zoh(np.array([[0.0, 1.0], [-wn2, -two_zeta_wn]]), np.array([[0.0], [wn2]]), dt)
+        self._servo = (*(float(v) for v in ad.ravel()), *(float(v) for v in bd.ravel()))
+        self.delta = self.delta_dot = 0.0
+        self.steps = 0
+        self.n = 6
+        self._read()
+
+    @property
+    def time(self) -> float:
+        return self.steps * self.config.dt
+
+    def _read(self) -> None:
+        f = self.fdm
+        self.x = np.array(
+            (
+                f["velocities/v-fps"] * FT,
+                f["velocities/p-rad_sec"],
+                f["velocities/r-rad_sec"],
+                f["attitude/phi-rad"],
+                self.delta,
+                self.delta_dot,
+            )
+        )
+
+    @property
+    def truth(self) -> np.ndarray:
+        """[v, p, r, phi, delta, delta_dot] after the last advance (a view, do not modify)."""
+        return self.x
+
+    @property
+    def state(self) -> np.ndarray:
+        return self.x.copy()
+
+    def attitude(self) -> tuple[float, float, float, float, float, float]:
+        """JSBSim's (roll, pitch, yaw, p, q, r): Euler angles rad (yaw wrapped to (-pi, pi]), body rates rad/s."""
+        f = self.fdm
+        return (
+            f["attitude/phi-rad"],
+            f["attitude/theta-rad"],
+            wrap_pi(f["attitude/psi-rad"]),
+            f["velocities/p-rad_sec"],
+            f["velocities/q-rad_sec"],
+            f["velocities/r-rad_sec"],
+        )
+
+    def held(self) -> dict[str, float]:
+        """What the safety pilot holds: altitude m, airspeed m/s, pitch rad, elevator and throttle commands."""
+        f = self.fdm
+        return {
+            "altitude_m": f["position/h-sl-ft"] * FT,
+            "airspeed_m_s": f["velocities/vc-kts"] * KT,
+            "theta": f["attitude/theta-rad"],
+            "elevator": f["fcs/elevator-cmd-norm"],
+            "throttle": f["fcs/throttle-cmd-norm"],
+        }
+
+    def advance(self, delta_command: float, n: int, d=None) -> np.ndarray:
+        """``n`` physics steps with the servo command held; ``d`` must be None (JSBSim has its own atmosphere)."""
+        if d is not None:
+            raise ValueError("a JSBSim plant takes no disturbance input: its turbulence is JSBSim's own")
+        u = float(delta_command)
+        if not math.isfinite(u):
+            from sitl.aircraft import NonFiniteCommandError
+
+            raise NonFiniteCommandError(f"servo command must be finite, got {delta_command!r}")
+        a00, a01, a10, a11, b0, b1 = self._servo
+        d_, dd = self.delta, self.delta_dot
+        run, cmd, trim, k = self.fdm.run, self._cmd.set_double_value, self.surface_trim, self._per_norm
+        steps = self.steps
+        for _ in range(n):
+            d_, dd = a00 * d_ + a01 * dd + b0 * u, a10 * d_ + a11 * dd + b1 * u  # exact ZOH of eq. (65)
+            cmd(min(1.0, max(-1.0, trim + d_ * k)))
+            if steps % PILOT_EVERY == 0:
+                self.pilot()
+            run()
+            steps += 1
+        self.delta, self.delta_dot, self.steps = d_, dd, steps
+        self._read()
+        return self.x

@@ -1,0 +1,157 @@
+"""The SITL's plants behind one interface (``--plant``), like ArduPilot's SIM_Aircraft.  No I/O but the plant file.
+
+A plant has ``advance(delta_command, n, d=None)`` (n physics steps with the servo command held and the
+disturbance d, if any, per step), ``truth`` ([v, p, r, phi, delta, delta_dot], ``sitl.model.STATE_NAMES``),
+``attitude()`` (roll, pitch, yaw or None, p, q, r), ``steps``, ``time`` and ``config.dt``.  Three kinds:
+
+- ``kh2013a`` (the default): the paper's model, ``sitl.aircraft.Aircraft``;
+- ``FILE.toml``: a linear plant of your own (``sitl.linear_plant``), flown by the same ``Aircraft``;
+- ``jsbsim:MODEL[:KEY=VALUE,...]``: a JSBSim aircraft (``sitl.jsbsim_plant``).
+"""
+
+from __future__ import annotations
+
+from dataclasses import replace
+from importlib import resources
+from pathlib import Path
+
+from sitl.aircraft import Aircraft, AircraftConfig
+from sitl.linear_plant import PlantFileError
+from sitl.linear_plant import load as load_file
+
+KH2013A = "kh2013a"
+JSBSIM = "jsbsim:"
+# Disturbance flags (sitl.disturbances.FLAGS) a plant kind cannot apply, and why.
+UNSUPPORTED = {
+    "file": {"scale": "--scale names KH2013A coefficients"},
+    "jsbsim": {
+        "scale": "--scale names KH2013A coefficients",
+        "gust": "--gust is a KH2013A side-gust model (JSBSim flies its own atmosphere: use --turbulence)",
+        "turbulence_sigma": "JSBSim's MIL-F-8785C turbulence takes an intensity only (--turbulence)",
+        "turbulence_length": "JSBSim's MIL-F-8785C turbulence takes an intensity only (--turbulence)",
+        "altitude": "the JSBSim altitude is the plant's own: jsbsim:MODEL:altitude_m=M",
+    },
+}
+
+
+class PlantError(ValueError):
+    """A --plant value is unusable (a bad file, a bad JSBSim spec or model, a disturbance it cannot fly)."""
+
+
+def kind(text: str) -> str:
+    """``kh2013a``, ``jsbsim`` or ``file``."""
+    if text == KH2013A:
+        return "kh2013a"
+    return "jsbsim" if text.startswith(JSBSIM) else "file"
+
+
+def shipped(name: str) -> Path:
+    """A plant file shipped with the package (``sitl/plants/NAME``)."""
+    return Path(str(resources.files("sitl") / "plants" / name))
+
+
+def check(text: str) -> str:
+    """Validate a --plant value (file parsed, JSBSim spec parsed and its model found); returns it.  Raises
+    PlantError with a one-line reason."""
+    k = kind(text)
+    try:
+        if k == "file":
+            load_file(text)
+        elif k == "jsbsim":
+            from sitl.jsbsim_plant import JsbsimPlantError, available_models, parse_spec
+
+            try:
+                spec = parse_spec(text)
+                if spec.model not in available_models():
+                    raise JsbsimPlantError(
+                        f"jsbsim plant: no model {spec.model!r}; available: {', '.join(available_models())}"
+                    )
+            except JsbsimPlantError as exc:
+                raise PlantError(str(exc)) from None
+    except PlantFileError as exc:
+        raise PlantError(str(exc)) from None
+    return text
+
+
+ATMOSPHERE = ("turbulence", "turbulence_sigma", "turbulence_length", "gust", "crosswind")
+
+
+def check_disturbances(text: str, given: dict) -> None:
+    """Raise PlantError if a disturbance flag given (``{dest: value}``, None = not given) cannot fly on this plant."""
+    for dest, why in UNSUPPORTED.get(kind(text), {}).items():
+        if given.get(dest) is not None:
+            raise PlantError(f"--{dest.replace('_', '-')} cannot fly on --plant {text}: {why}")
+    air = [d for d in ATMOSPHERE if given.get(d) is not None]
+    if air and kind(text) == "file" and load_file(text).truth is not None:
+        # the gusts enter through the aerodynamic columns of v, p, r (sitl.atmosphere.disturbance_matrix)
+        raise PlantError(
+            f"--{air[0].replace('_', '-')} cannot fly on --plant {text}: the atmosphere needs the airframe states "
+            "[v, p, r, phi], in that order"
+        )
+
+
+def injected(text: str, dist):
+    """What ``sitl.disturbances.Injector`` applies on this plant: everything but the atmosphere for JSBSim (it flies
+    its own), all of it otherwise."""
+    if dist is None or kind(text) != "jsbsim":
+        return dist
+    from sitl.atmosphere import AtmosphereConfig
+
+    return replace(dist, atmosphere=AtmosphereConfig())
+
+
+def _turbulence_name(dist) -> str | None:
+    """The --turbulence intensity behind ``dist`` (JSBSim plants take only the intensity, see UNSUPPORTED)."""
+    from sitl.atmosphere import ALTITUDE, DrydenConfig
+
+    turb = None if dist is None else dist.atmosphere.turbulence
+    if turb is None:
+        return None
+    for name in ("light", "moderate", "severe"):
+        if DrydenConfig.intensity(name, ALTITUDE) == turb:
+            return name
+    raise PlantError("JSBSim's MIL-F-8785C turbulence takes an intensity only (--turbulence)")
+
+
+def build(text: str, physics_rate_hz: float, params: dict | None = None, dist=None):
+    """The plant ``text`` names, at the physics rate; ``params``: KH2013A's perturbed matrices (``--scale``);
+    ``dist``: the flight's ``sitl.disturbances.Disturbances`` (JSBSim takes its turbulence, crosswind and seed)."""
+    k = kind(text)
+    if k == "kh2013a":
+        return Aircraft(AircraftConfig(physics_rate_hz=physics_rate_hz), params=params)
+    if k == "file":
+        try:
+            lp = load_file(text)
+        except PlantFileError as exc:
+            raise PlantError(str(exc)) from None
+        cfg = AircraftConfig(
+            physics_rate_hz=physics_rate_hz, rudder_limit_rad=lp.limit_rad, rudder_rate_limit_rad_s=lp.rate_limit_rad_s
+        )
+        return Aircraft(cfg, params=lp.aircraft_params())
+    from sitl.jsbsim_plant import JsbsimPlant, JsbsimPlantError, parse_spec
+
+    try:
+        return JsbsimPlant(
+            parse_spec(text),
+            physics_rate_hz,
+            turbulence=_turbulence_name(dist),
+            seed=0 if dist is None else dist.seed,
+            crosswind=0.0 if dist is None else dist.atmosphere.crosswind,
+        )
+    except JsbsimPlantError as exc:
+        raise PlantError(str(exc)) from None
+
+
+def surface_limit_rad(text: str) -> float | None:
+    """The surface's deflection limit (rad) of a plant, None if unlimited (KH2013A, a file without ``limit``)."""
+    k = kind(text)
+    if k == "file":
+        return load_file(text).limit_rad
+    if k == "jsbsim":
+        from sitl.jsbsim_plant import parse_spec
+
+        return parse_spec(text).surface_max_rad
+    return None
+
+
+__all__ = ["PlantError", "build", "check", "check_disturbances", "injected", "kind", "shipped", "surface_limit_rad"]

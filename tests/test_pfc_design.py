@@ -1,0 +1,158 @@
+"""python -m tools.pfc design: the PFC it designs passes an independent W-ASPR check; a plant it cannot make W-ASPR
+gets a clear error; the shipped c172x design is what the launcher flies by default."""
+
+from __future__ import annotations
+
+import math
+import subprocess
+import sys
+
+import numpy as np
+import pytest
+import scipy.linalg
+
+from autopilot.params import load_file
+from sitl import linear_plant
+from sitl import plant as plants
+from tools.plant import designed_baseline, designed_params
+
+SHIPPED = plants.shipped("jsbsim-c172x.toml")
+
+
+def _design(*args, cwd=None) -> subprocess.CompletedProcess:
+    return subprocess.run(
+        [sys.executable, "-m", "tools.pfc", "design", *args], capture_output=True, text=True, timeout=300, cwd=cwd
+    )
+
+
+def _independent_waspr(a_p, b_p, c_p, k, a):
+    """Zeros, relative degree and high-frequency gain of F = T + k/(s + a), from the matrices alone: the finite
+    generalised eigenvalues of the Rosenbrock pencil [[A, B], [C, 0]] - s [[I, 0], [0, 0]] of the parallel
+    realisation (no transfer function, no python-control)."""
+    n = a_p.shape[0]
+    A = np.zeros((n + 1, n + 1))
+    A[:n, :n], A[n, n] = a_p, -a
+    B = np.vstack([b_p, [[1.0]]])
+    C = np.hstack([c_p, [[k]]])
+    pencil = np.block([[A, B], [C, np.zeros((1, 1))]])
+    E = np.zeros_like(pencil)
+    E[: n + 1, : n + 1] = np.eye(n + 1)
+    z = scipy.linalg.eigvals(pencil, E)
+    zeros = z[np.isfinite(z)]
+    cb = float((C @ B)[0, 0])
+    return zeros, cb
+
+
+@pytest.fixture(scope="module")
+def designed(tmp_path_factory):
+    d = tmp_path_factory.mktemp("design")
+    r = _design(str(SHIPPED), "--out", str(d / "c172x.params"))
+    assert r.returncode == 0, r.stderr
+    return d / "c172x.params", r.stdout
+
+
+def test_the_designed_pfc_passes_the_independent_waspr_check(designed):
+    path, _out = designed
+    values = load_file(path)
+    k, den1, a = values["CLSAC_PFC_NUM"], values["CLSAC_PFC_DEN1"], values["CLSAC_PFC_DEN0"]
+    assert den1 == 1.0 and k > 0 and a > 0
+    lp = linear_plant.load(SHIPPED)
+    zeros, cb = _independent_waspr(lp.a_p, lp.b_p, lp.c_p, k, a)
+    assert cb == pytest.approx(k) and cb > 0  # relative degree 1 (C B != 0), positive high-frequency gain
+    n = lp.a_p.shape[0]
+    assert zeros.size == n  # n + 1 states, relative degree 1: n finite zeros
+    assert np.all(zeros.real < 0)  # minimum phase
+    # with margin: u = -g C y, C = (s + a)/k, stabilises the plant for g = 1 (the zeros of F are the poles of
+    # 1 + C T) and still for g just under the margin of 3; y' = C_p A_p x since C_p B_p = 0
+    assert float((lp.c_p @ lp.b_p)[0, 0]) == 0.0
+    for g in (1.0, 2.9):
+        acl = lp.a_p - (g / k) * lp.b_p @ lp.c_p @ lp.a_p - (g * a / k) * lp.b_p @ lp.c_p
+        assert np.max(np.linalg.eigvals(acl).real) < 0, g
+
+
+def test_the_design_reports_how_the_pfc_was_chosen(designed):
+    _path, out = designed
+    assert "Barkana" in out and "D(s) = 1/C(s)" in out and "W-ASPR yes" in out
+    assert "unstable Ke bands of 1 + Ke F: continuous none" in out
+    assert "baseline PID" in out and "phase margin" in out
+
+
+def test_the_designed_baseline_has_the_margins_it_claims(designed):
+    path, _out = designed
+    line = next(x for x in path.read_text().splitlines() if x.startswith("# baseline_gains ="))
+    kp, ki, kd = (float(v) for v in line.split("=", 1)[1].split("#")[0].split(","))
+    import control
+
+    lp = linear_plant.load(SHIPPED)
+    T = 0.01
+    plant_z = control.c2d(control.ss(lp.a_p, lp.b_p, lp.c_p, 0), T, "zoh")
+    pid = control.tf([kd + kp * T + ki * T * T, -(kp * T + 2 * kd), kd], [T, -T, 0.0], T)
+    gm, pm, _wcg, _wcp = control.margin(control.tf(plant_z) * pid)
+    assert 20 * math.log10(gm) >= 10.0 and pm >= 60.0
+
+
+def test_a_plant_no_pfc_can_make_waspr_is_a_clear_error(tmp_path):
+    wrong = tmp_path / "wrong_sign.toml"
+    # the c172x roll channel with the aileron's sign reversed: C = g (s + a), g > 0, is positive feedback; only a
+    # tiny g keeps it stable, and the PFC k = 3/g* that follows dominates F and breaks the sampled loop
+    text = SHIPPED.read_text()
+    start = text.index("B = [[")
+    end = text.index("\n", start)
+    b = [float(v.strip("[] ")) for v in text[start + 4 : end].split(",")]
+    text = text[:start] + "B = [" + ", ".join(f"[{-v!r}]" for v in b) + "]" + text[end:]
+    wrong.write_text(text)
+    r = _design(str(wrong), "--out", str(tmp_path / "w.params"))
+    assert r.returncode == 2
+    line = r.stderr.strip()
+    assert len(line.splitlines()) == 1 and "Traceback" not in r.stderr
+    assert "no PFC k/(s + a) makes this plant W-ASPR with a gain margin of 3" in line
+    assert "16 corner(s): sampled loop unstable for Ke < 50" in line  # why, for every corner tried
+    assert not (tmp_path / "w.params").exists()
+
+
+def test_the_launcher_flies_the_shipped_design_by_default():
+    path = designed_params("jsbsim:c172x:airspeed_kt=70")
+    assert path is not None and path.name == "jsbsim-c172x.params"
+    assert set(load_file(path)) >= {"CLSAC_PFC_NUM", "CLSAC_PFC_DEN1", "CLSAC_PFC_DEN0", "CLSAC_U_LIMIT"}
+    assert "CLSAC_LV" not in load_file(path)  # --lv / the run's Lv still chooses SAC or CL-SAC
+    assert designed_baseline("jsbsim:c172x") is not None
+    assert designed_params("kh2013a") is None and designed_baseline("kh2013a") is None
+    assert designed_params("jsbsim:c172x:surface=rudder") is None  # the aileron's design is not the rudder's
+    from tools.flight import FlightConfig
+
+    cfg = FlightConfig(plant="jsbsim:c172x", lockstep=True)
+    assert cfg.params_file == str(path)
+    assert cfg.u_limit_deg == pytest.approx(17.5)  # the command stops at c172x's aileron range, as the file's
+    assert load_file(path)["CLSAC_U_LIMIT"] == pytest.approx(math.radians(17.5))
+    assert FlightConfig(plant="jsbsim:c172x", u_limit_deg=10.0).u_limit_deg == 10.0
+    assert FlightConfig(plant="jsbsim:c172x", controller="baseline").baseline_gains_flown == designed_baseline(
+        "jsbsim:c172x"
+    )
+
+
+def test_the_rudder_of_the_c172x_gets_a_clear_refusal(tmp_path):
+    """Roll through the rudder (yaw, then dihedral) of the c172x: its lightly damped dutch roll leaves no first-order
+    PFC with margin; the designer says so in one line instead of writing a file."""
+    r = _design("jsbsim:c172x:surface=rudder", "--out", str(tmp_path / "r.params"))
+    assert r.returncode == 2 and "no PFC k/(s + a) makes this plant W-ASPR" in r.stderr
+    assert len(r.stderr.strip().splitlines()[-1:]) == 1 and not (tmp_path / "r.params").exists()
+
+
+def test_the_analysis_of_the_designed_pfc_on_the_plant_file_confirms_its_margin(designed):
+    """python -m tools.pfc --plant FILE analyses another plant; on the design it finds C = 1/D at 1/3 of the gain
+    that destabilises 1 + C T (computed there by the compensator-margin code, not by the designer)."""
+    import json
+
+    path, _out = designed
+    v = load_file(path)
+    r = subprocess.run(
+        [sys.executable, "-m", "tools.pfc", "--plant", str(SHIPPED), "--json"]
+        + [f"--pfc-num={v['CLSAC_PFC_NUM']!r}", f"--pfc-den={v['CLSAC_PFC_DEN1']!r},{v['CLSAC_PFC_DEN0']!r}"],
+        capture_output=True,
+        text=True,
+        timeout=120,
+    )
+    assert r.returncode == 0, r.stderr
+    d = json.loads(r.stdout)
+    assert d["waspr"] and d["relative_degree"] == 1 and d["unstable_gain_bands"] == []
+    assert d["compensator_gain_margin"] == pytest.approx(3.0, rel=1e-3)
