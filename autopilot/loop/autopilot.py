@@ -1,0 +1,221 @@
+"""``Autopilot``: the autopilot process's loop, the two schedulers around one set of link handlers, its state,
+its stats and its shutdown.
+"""
+
+from __future__ import annotations
+
+import gc
+import sys
+import time
+from collections import Counter
+
+from autopilot.config import ClSacConfig
+from autopilot.envelope import EnvelopeMonitor
+from autopilot.loop.common import (
+    ATTITUDE,
+    HEARTBEAT,
+    SET_ATTITUDE_TARGET,
+    STATUSTEXT,
+    AutopilotOptions,
+    M,
+    TimingStats,
+    _Attitude,
+)
+from autopilot.loop.handlers import LinkHandlers
+from autopilot.loop.lockstep import LockstepScheduler
+from autopilot.loop.realtime import RealtimeScheduler
+from autopilot.params import ParamTable
+from autopilot.shared.events import StatusEvents, StatusTextAssembler
+from autopilot.shared.link import SendClock, UdpLink
+from autopilot.shared.mavlink import (
+    GCS_SYSTEMS,
+    vehicle_ids,
+)
+from autopilot.shared.pwm import PwmMap
+from autopilot.shared.signing import SIGNING_LINK_GCS, SIGNING_LINK_SITL, Signing
+from autopilot.step import ControlStep, Failsafe
+from autopilot.vehicle import MSGIDS as VEHICLE_MSGIDS
+from autopilot.vehicle import Mode, Vehicle
+
+
+class Autopilot(LinkHandlers, LockstepScheduler, RealtimeScheduler):
+    """The autopilot process: the control step between a SITL link and a GCS link, run by one of the two schedulers
+    (``run_lockstep``, ``run_realtime``) around one set of link handlers; ``run()`` picks the one asked for."""
+
+    def __init__(
+        self,
+        opts: AutopilotOptions,
+        ctrl_config: ClSacConfig,
+        pwm: PwmMap,
+        tlog=None,
+        out=None,
+        *,
+        params: ParamTable | None = None,
+        mode: Mode = Mode.CLSAC,
+        armed: bool = True,
+    ):
+        """``ctrl_config``: the law at start; ``params``: the parameter table (default: from ``ctrl_config`` and
+        ``opts``; its CLSAC_LV is the configured L_v, which mode SAC flies as 0); ``mode``, ``armed``: at start."""
+        self.opts = opts
+        self.pwm = pwm
+        self.tlog = tlog
+        self.out = out or sys.stdout
+        self.rate = float(opts.rate_hz)
+        self.period = 1.0 / self.rate
+        # The control step: setpoint queue, law, limit, PWM map, metrics from what flew (autopilot.step).
+        self.control = ControlStep(ctrl_config, pwm)
+        self.ctrl = self.control.law
+        self.setpoints = self.control.setpoints
+        self.send_clock = SendClock()  # both links: when this process last sent anything (the verdict's evidence)
+        self.ids, sitl_src, sitl_id = vehicle_ids(opts.sysid)  # GCS link N:1, SITL link N:140, the SITL N:200
+        self.sitl = UdpLink(
+            "sitl",
+            sitl_src,  # its own component: tlog readers separate it from the GCS link (N:1)
+            opts.sitl_bind,
+            opts.sitl,
+            peers=[sitl_id],
+            msgids=[ATTITUDE, HEARTBEAT, STATUSTEXT],
+            signing=Signing(opts.signing_key, SIGNING_LINK_SITL) if opts.signing_key else None,
+            tlog=tlog,
+            send_clock=self.send_clock,
+        )
+        self.gcs = UdpLink(
+            "gcs",
+            self.ids,
+            opts.gcs_bind,
+            opts.gcs,
+            peers=opts.gcs_ids,
+            learn_gcs=opts.max_gcs if opts.learn_gcs else 0,
+            gcs_systems=GCS_SYSTEMS,
+            msgids=[SET_ATTITUDE_TARGET, HEARTBEAT, *VEHICLE_MSGIDS],
+            admit=opts.max_gcs,
+            peer_addrs=opts.gcs_peers,
+            signing=Signing(opts.signing_key, SIGNING_LINK_GCS) if opts.signing_key else None,
+            tlog=tlog,
+            send_clock=self.send_clock,
+        )
+        self.hooks: list = []  # callables(StepRecord), after each step
+        self.events = Counter()  # autopilot-level counters (failsafes, setpoints, frames)
+        self._event = StatusEvents("autopilot", self.gcs, self.events, verbose=opts.verbose, out=self.out)
+        self.event_hooks = self._event.hooks  # callables(severity, text), for each status event
+        self.gcs.on_refused_gcs = self._on_refused_gcs
+        self._sitl_texts = StatusTextAssembler()
+        self.timing = TimingStats()
+        # "Controlled": every step flown on an attitude against the envelope; each excursion announced once.
+        self.envelope = EnvelopeMonitor(opts.envelope)
+        self.stop_requested = False
+        self.exit_reason = ""
+        self.peer_lost = None  # the peer whose silence ended the run early ("sitl"), for the launcher's verdict
+        self.hold_steps = 0  # real time: steps flown as a hold for want of attitude (all episodes)
+        # real time: steps that came later than the attitude timeout (after their deadline, or after the step
+        # before: a stall after a send moves the grid on, so only the gap shows it), and the worst of either
+        self.late_steps = 0
+        self.max_lateness_s = 0.0
+        # attitude
+        self.att = _Attitude()
+        self.horizon_us = -1.0  # newest scheduled setpoint time received
+        self.last_setpoint_wall = None
+        self.setpoint_lost = False
+        self._last_clamp_report = -1e9
+        # state
+        self.steps = 0
+        self.failsafe = Failsafe.NONE  # the attitude failsafe (setpoint loss is self.setpoint_lost)
+        self.failsafe_steps = 0
+        self.failsafe_entries: list = []  # attitude age (s) when each failsafe began
+        self.recoveries = 0
+        self._telemetry_every = (
+            max(1, int(round(self.rate / opts.telemetry_rate_hz))) if opts.telemetry_rate_hz > 0 else 0
+        )
+        self._next_heartbeat = 0.0
+        self._next_flush = 0.0
+        self._status_state = M.MAV_STATE_STANDBY
+        # The ground-station protocol (autopilot.vehicle): modes, parameters, commands, streams.
+        if params is None:
+            params = ParamTable(
+                ctrl_config,
+                {k: getattr(opts, k) for k in ("attitude_timeout_s", "setpoint_timeout_s", "max_roll_rad")},
+            )
+        self.params = params
+        self.vehicle = Vehicle(self, params, mode, armed)
+        # lockstep
+        self.first_frame = None
+        self.last_frame = None  # last frame answered
+        self._last_answer = b""
+        self.pending_frame = None
+        self.pending_t_rx = 0.0
+        self._next_systime = 0.0
+        self._blocked_since = None
+        self.finished = False
+        self.t_first_step = None
+        self.t_last_step = None
+        # select(2) has microsecond timeouts (epoll rounds up to whole milliseconds: 1 ms of jitter)
+        self._fds = [self.sitl.sock, self.gcs.sock]
+        self._sitl_handler = self._on_sitl
+        self._gcs_handler = self._on_gcs
+        # fast, byte-identical encoders for the per-step messages (autopilot.shared.fastmav)
+        self._pk_servo_sitl = self.sitl.fast_packer(M.MAVLink_servo_output_raw_message)
+        self._pk_servo_gcs = self.gcs.fast_packer(M.MAVLink_servo_output_raw_message)
+        self._pk_att = self.gcs.fast_packer(M.MAVLink_attitude_message)
+        self._pk_att_target = self.gcs.fast_packer(M.MAVLink_attitude_target_message)
+
+    # ================================================================== exit
+    def run(self) -> int:
+        # Everything allocated so far (numpy, scipy, pymavlink tables) is long-lived: move it out of the cyclic
+        # collector's reach so a full collection never walks it inside the loop (several ms on this heap).
+        gc.collect()
+        gc.freeze()
+        self.params.flying = True  # CLSAC_RATE is read-only from now on
+        try:
+            return self.run_lockstep() if self.opts.lockstep else self.run_realtime()
+        finally:
+            self.shutdown()
+            self.send_clock.end(time.monotonic())
+
+    def shutdown(self):
+        try:
+            self.gcs.send(self.vehicle.heartbeat(M.MAV_STATE_POWEROFF))
+        except OSError:
+            pass
+        if self.tlog is not None:
+            self.tlog.flush()
+
+    def stats(self) -> dict:
+        wall = (self.t_last_step - self.t_first_step) if self.t_first_step is not None else 0.0
+        ev = dict(self.events)
+        if self.control.nonfinite_inputs:
+            ev["controller_errors"] = self.control.nonfinite_inputs  # NaN/Inf reached the law: flown as a hold
+        ev.update(failsafe_entries_ms=[a * 1e3 for a in self.failsafe_entries], recoveries=self.recoveries)
+        return {
+            "name": self.opts.name,
+            "Lv": float(self.ctrl.config.lv) if isinstance(self.ctrl.config.lv, (int, float)) else None,
+            "mode": "lockstep" if self.opts.lockstep else "realtime",
+            "rate_hz": self.rate,
+            "steps": self.steps,
+            "metric_samples": self.control.metrics.n,
+            "metrics": self.control.metrics.result(),
+            "metrics_commanded": self.control.metrics_commanded.result(),
+            "first_frame": self.first_frame,
+            "last_frame": self.last_frame,
+            "wall_s": wall,
+            "timing": self.timing.summary(self.period),
+            "events": ev,
+            "links": {"sitl": self.sitl.counters(), "gcs": self.gcs.counters()},
+            "exit_reason": self.exit_reason
+            + (f"; {self.hold_steps} steps flown as a hold without attitude" if self.hold_steps else ""),
+            # whose silence cost the run steps: the SITL (idle exit, attitude failsafe) or a GCS schedule (pacing)
+            "peer_lost": self.peer_lost
+            or ("gcs" if self._blocked_since is not None else None)
+            or ("sitl" if self.hold_steps or not self.control.metrics.n else None),
+            "controlled": self.envelope.result().to_dict(),  # the envelope verdict (autopilot.envelope)
+            "hold_steps": self.hold_steps,
+            "late_steps": self.late_steps,  # real time: started more than the attitude timeout after the deadline
+            "max_lateness_s": self.max_lateness_s,
+            "attitude_timeout_s": self.opts.attitude_timeout_s,
+            "sent": self.send_clock.summary(),  # monotonic clock of its sends (the verdict's evidence)
+            "setpoints_evicted": self.setpoints.evicted,
+            "tlog_records": self.tlog.records if self.tlog is not None else 0,
+        }
+
+    def close(self):
+        self.sitl.close()
+        self.gcs.close()

@@ -1,0 +1,262 @@
+"""The autopilot's link handlers (``LinkHandlers``, a part of ``autopilot.loop.Autopilot``): inputs from the SITL
+and the ground stations, outputs, housekeeping, failsafe and envelope transitions; both schedulers call them.
+"""
+
+from __future__ import annotations
+
+import math
+import select
+import time
+
+from autopilot.loop.common import (
+    _TELEMETRY_IDS,
+    ATTITUDE,
+    ATTITUDE_AHEAD_MS,
+    SET_ATTITUDE_TARGET,
+    SITL_RESTART_MS,
+    STATUSTEXT,
+    AutopilotOptions,
+    M,
+)
+from autopilot.shared.link import ANY_COMPONENT
+from autopilot.shared.mavlink import (
+    GCS_SYSTEMS,
+    SETPOINT_TYPEMASK,
+    TYPEMASK_IGNORE_ATTITUDE,
+    quaternion_to_roll,
+    roll_to_quaternion,
+)
+from autopilot.step import Failsafe, StepResult
+
+
+def refusal_text(reason: str, sysid: int, compid: int, addr, opts: AutopilotOptions) -> str:
+    """Why the GCS link refused a would-be ground station's packet, in one line (docs/design.md, "Which ground
+    stations are admitted")."""
+    if reason == "unsigned":
+        why = "unsigned; this vehicle takes only packets signed with its key"
+    elif reason == "bad_signature":
+        why = "signed with another key than this vehicle's"
+    elif reason == "not_peer" and opts.signing_key:
+        why = f"its address is not admitted: {opts.max_gcs} ground stations are already"  # signed: over the bound
+    elif reason == "not_peer":
+        why = "its address is not admitted (add it with --gcs-peer, or sign with the vehicle's key)"
+    elif opts.learn_gcs:
+        systems = ", ".join(str(s) for s in GCS_SYSTEMS)
+        why = f"system {sysid} is not a ground station's ({systems}) and sent no MAV_TYPE_GCS HEARTBEAT first"
+    else:
+        ids = ", ".join(f"{s}:{'any' if c is ANY_COMPONENT else c}" for s, c in opts.gcs_ids)
+        why = f"not one of the accepted --gcs-id {ids}"
+    return f"GCS {sysid}:{compid} at {addr[0]}:{addr[1]} refused: {why}"
+
+
+class LinkHandlers:
+    """The one set of link handlers both schedulers share: what the autopilot does with each message from
+    the SITL and the ground stations, what it sends, housekeeping, the failsafe and envelope transitions."""
+
+    # ================================================================== inputs
+    def _on_sitl(self, msg, t_rx):
+        mid = msg.get_msgId()
+        if mid == ATTITUDE:
+            roll, p, r = msg.roll, msg.rollspeed, msg.yawspeed
+            # NaN/Inf anywhere in the message is a broken sensor frame: reject (x - x != 0 for NaN and Inf)
+            if (
+                (roll - roll)
+                or (p - p)
+                or (r - r)
+                or (msg.pitch - msg.pitch)
+                or (msg.yaw - msg.yaw)
+                or (msg.pitchspeed - msg.pitchspeed)
+            ):
+                self.sitl.reject("nonfinite_attitude")
+                return
+            if not -3.1416 <= roll <= 3.1416:
+                self.sitl.reject("roll_out_of_range")
+                return
+            self.att.yaw = msg.yaw  # heading, for the GCS's ATTITUDE only (the law flies roll)
+            ms = msg.time_boot_ms
+            if self.opts.lockstep:
+                self._on_frame(ms, t_rx, roll, p, r)
+                return
+            att = self.att
+            if att.valid and t_rx - att.t_rx < self.opts.attitude_timeout_s:
+                # Checked against the clock of the attitude held, which runs with the wall clock in real time.
+                # (After attitude_timeout without one anything goes: the clock is re-synchronised.)
+                if ms <= att.ms:
+                    if att.ms - ms < SITL_RESTART_MS:
+                        self.sitl.reject("stale_attitude")  # out of order or repeated: keep the newest
+                        return
+                    self.events["sitl_clock_restarts"] += 1  # went back by over a second: a new SITL, re-sync
+                elif ms - att.ms > (t_rx - att.t_rx) * 1e3 + ATTITUDE_AHEAD_MS:
+                    self.sitl.reject("future_attitude")  # ahead of the clock by more than a few periods
+                    return
+            att.ms, att.roll, att.p, att.r, att.t_rx, att.valid = ms, roll, p, r, t_rx, True
+        elif mid == STATUSTEXT:
+            text = self._sitl_texts.add(msg)  # a long text arrives in chunks (autopilot.shared.events)
+            if text is not None:
+                self._event(msg.severity, f"SITL: {text}")
+
+    def _on_gcs(self, msg, t_rx):
+        if msg.get_msgId() != SET_ATTITUDE_TARGET:
+            self.vehicle.handle(msg)  # commands, parameters, modes, manual input (autopilot.vehicle)
+            return
+        ev = self.events
+        if msg.target_system not in (0, self.ids[0]) or msg.target_component not in (0, self.ids[1]):
+            self.gcs.reject("wrong_target")
+            return
+        if msg.type_mask & TYPEMASK_IGNORE_ATTITUDE:
+            self.gcs.reject("no_attitude_in_setpoint")
+            return
+        roll = quaternion_to_roll(msg.q)
+        if roll - roll != 0.0 or not all(math.isfinite(v) for v in msg.q):
+            self.gcs.reject("nonfinite_setpoint")
+            return
+        ms = msg.time_boot_ms if self.opts.setpoint_time == "sim" else 0
+        now_us = self._now_sim_us()
+        t_us = (now_us or 0.0) if ms == 0 else ms * 1000.0  # 0 means now
+        if ms and (now_us is None or t_us > now_us + self.opts.setpoint_ahead_s * 1e6):
+            # scheduled further ahead of the current sim time than any schedule needs (or before there is a
+            # clock): it could only fill the queue
+            self.gcs.reject("future_setpoint")
+            self._report_future_setpoint(msg, now_us)
+            return
+        lim = self.opts.max_roll_rad
+        clamped = math.copysign(lim, roll) if (roll > lim or roll < -lim) else None
+        if not self.setpoints.push(t_us, roll if clamped is None else clamped):
+            self.gcs.reject("setpoint_queue_full")
+            return
+        # accepted: only now does it count (and reset the setpoint timeout)
+        if clamped is not None:
+            ev["setpoints_clamped"] += 1
+            if t_rx - self._last_clamp_report > 1.0:
+                self._last_clamp_report = t_rx
+                self._event(
+                    M.MAV_SEVERITY_WARNING,
+                    f"setpoint {math.degrees(roll):.1f} deg clamped to {math.degrees(clamped):.0f}",
+                )
+        ev["setpoints"] += 1
+        self.last_setpoint_wall = t_rx
+        if ms == 0:
+            ev["setpoints_now"] += 1
+        elif t_us > self.horizon_us:
+            self.horizon_us = t_us
+        if self.opts.lockstep and self.pending_frame is not None:
+            self._try_step(t_rx)
+
+    def _on_refused_gcs(self, reason: str, sysid: int, compid: int, addr) -> None:
+        """The first refused packet of a would-be ground station (``UdpLink.on_refused_gcs``): say why, once."""
+        self.events["refused_gcs"] += 1
+        self._event(M.MAV_SEVERITY_WARNING, refusal_text(reason, sysid, compid, addr, self.opts))
+
+    def _report_future_setpoint(self, msg, now_us: float | None) -> None:
+        """The first ``future_setpoint`` of the run, said once: most likely a ground station that stamps its own
+        clock, which ``--setpoint-time now`` serves."""
+        if self.events["future_setpoint_reported"]:
+            return
+        self.events["future_setpoint_reported"] = 1
+        clock = "before the vehicle has a clock" if now_us is None else f"sim time is {now_us * 1e-6:.1f} s"
+        self._event(
+            M.MAV_SEVERITY_WARNING,
+            f"setpoint from {msg.get_srcSystem()}:{msg.get_srcComponent()} stamped {msg.time_boot_ms / 1000:.1f} s "
+            f"refused ({clock}, at most {self.opts.setpoint_ahead_s:g} s ahead); a ground station stamping its own "
+            f"clock (MAVSDK) needs --setpoint-time now",
+        )
+
+    def _now_sim_us(self) -> float | None:
+        """The current sim time in us (None before the first attitude)."""
+        if self.opts.lockstep and self.pending_frame is not None:
+            return self.pending_frame * 1e6 / self.rate
+        if self.last_frame is not None and self.opts.lockstep:
+            return self.last_frame * 1e6 / self.rate
+        return self.att.ms * 1000.0 if self.att.valid else None
+
+    # ================================================================ outputs
+    def _servo_wire(self, time_usec: int, pwm: int) -> tuple:
+        """SERVO_OUTPUT_RAW fields in wire order: time_usec, servo1..8, port, servo9..16."""
+        s = self.pwm.servo_fields(pwm)
+        return (time_usec, *s[:8], 0, *s[8:])
+
+    def _send_heartbeat(self, status=None):
+        hb = self.vehicle.heartbeat(self._status_state if status is None else status)
+        for link in (self.gcs, self.sitl):
+            link.send(hb)
+
+    def _send_telemetry(self, t_ms: int, phi: float, p: float, r: float, servo_wire: tuple):
+        """ATTITUDE (heading from the SITL), ATTITUDE_TARGET and SERVO_OUTPUT_RAW to every GCS, in one datagram."""
+        g = self.gcs
+        q = roll_to_quaternion(self.setpoints.current)
+        bufs = [
+            g.pack_fast(self._pk_att, t_ms, phi, 0.0, self.att.yaw, p, 0.0, r),
+            g.pack_fast(self._pk_att_target, t_ms, q[0], q[1], q[2], q[3], 0.0, 0.0, 0.0, 0.0, SETPOINT_TYPEMASK),
+            g.pack_fast(self._pk_servo_gcs, *servo_wire),
+        ]
+        self.vehicle.stream(bufs, _TELEMETRY_IDS)
+
+    # ============================================================ housekeeping
+    def _housekeeping(self, now: float):
+        if now >= self._next_heartbeat:
+            # 1 Hz; every 0.25 s while a peer has not answered yet, so a late-starting SITL or GCS finds us soon.
+            self._next_heartbeat = now + (1.0 if (self.sitl.rx_packets and self.gcs.rx_packets) else 0.25)
+            self._send_heartbeat()
+            if not self.opts.lockstep and self.att.valid:
+                self.gcs.send(M.MAVLink_system_time_message(time.time_ns() // 1000, self.att.ms))
+        self.vehicle.housekeeping(now)
+        if self.tlog is not None and now >= self._next_flush:
+            self._next_flush = now + 0.5
+            self.tlog.flush()
+
+    def _wait(self, timeout: float):
+        """Block up to ``timeout`` s for input, then drain every ready link."""
+        ready, _, _ = select.select(self._fds, (), (), timeout)
+        for sock in ready:
+            if sock is self.sitl.sock:
+                self.sitl.poll(self._sitl_handler)
+            else:
+                self.gcs.poll(self._gcs_handler)
+
+    def _drain(self):
+        self.sitl.poll(self._sitl_handler)
+        self.gcs.poll(self._gcs_handler)
+
+    def _judge_envelope(self, res: StepResult) -> None:
+        """One step against the envelope (``autopilot.envelope``): measured roll, the law's limited command and the
+        limit in force.  Leaving it is announced once per excursion: a STATUSTEXT warning to the ground stations,
+        the status event hooks (Rerun's ``/autopilot/events``) and the log."""
+        text = self.envelope.add(res.t, res.phi, res.u_cmd, self.control.config.u_limit_rad)
+        if text is not None:
+            self.events["envelope_exits"] += 1
+            self._event(M.MAV_SEVERITY_WARNING, text)
+
+    def _enter_failsafe(self, age: float):
+        self._status_state = M.MAV_STATE_CRITICAL
+        self.events["failsafes"] += 1
+        self.failsafe_entries.append(age)
+        self._send_heartbeat()
+        self._event(M.MAV_SEVERITY_CRITICAL, f"FAILSAFE no attitude {age * 1e3:.1f} ms: rudder neutral")
+        if self.opts.verbose:
+            print(
+                f"autopilot: failsafe entered at step {self.steps}: attitude age {age * 1e3:.1f} ms "
+                f"(timeout {self.opts.attitude_timeout_s * 1e3:.0f} ms, period {self.period * 1e3:.2f} ms), "
+                f"adaptation frozen",
+                file=self.out,
+                flush=True,
+            )
+
+    def _setpoint_stream(self, lost: bool):
+        """The setpoint stream was lost (no setpoint for the timeout: fly wings level) or came back."""
+        self.setpoint_lost = lost
+        if lost:
+            self.events["setpoint_timeouts"] += 1
+            self._event(
+                M.MAV_SEVERITY_WARNING, f"no setpoint for {self.opts.setpoint_timeout_s:.1f} s: holding wings level"
+            )
+        else:
+            self._event(M.MAV_SEVERITY_INFO, "setpoints back")
+
+    def _leave_failsafe(self):
+        self.failsafe = Failsafe.NONE
+        self.control.transfer()  # from neutral back to the law without a step
+        self.recoveries += 1
+        self._status_state = M.MAV_STATE_ACTIVE
+        self._send_heartbeat()
+        self._event(M.MAV_SEVERITY_NOTICE, f"attitude back after {self.failsafe_steps} failsafe steps")
+        self.failsafe_steps = 0

@@ -1,0 +1,49 @@
+"""The autopilot's per-step series (``--series``): the keys and the step hook that records them."""
+
+from __future__ import annotations
+
+from autopilot.clsac import GAIN_FIELDS, MODEL_FIELDS, gains_of, model_of
+from autopilot.loop.common import StepRecord
+from autopilot.shared.series import SeriesRecorder
+from autopilot.step import Failsafe
+
+# The autopilot's per-step series (``--series``): keys as tools.scenario.SERIES where the autopilot knows them.
+SERIES_KEYS = (
+    "t",
+    "um",
+    "phi",
+    "p",
+    "r",
+    "u",
+    "u_cmd",
+    "pwm",
+    "failsafe",
+    *MODEL_FIELDS,
+    *GAIN_FIELDS,
+    "mode",
+    "armed",
+)
+
+
+def _series_row(rec: StepRecord) -> tuple:
+    r, c = rec.result, rec.ctrl
+    return (
+        r.t,
+        r.um,
+        r.phi,
+        rec.p,
+        rec.r,
+        r.u,
+        c.u,
+        r.pwm,
+        r.failsafe is not Failsafe.NONE,
+        *model_of(c),
+        *gains_of(c),
+        int(rec.ap.vehicle.mode),  # HEARTBEAT.custom_mode (autopilot.vehicle.Mode)
+        rec.ap.control.armed,
+    )
+
+
+def series_recorder() -> SeriesRecorder:
+    """A step hook recording every control step (t, um, phi, p, r, u sent after PWM, the law's internals)."""
+    return SeriesRecorder(SERIES_KEYS, _series_row)
