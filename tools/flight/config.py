@@ -1,0 +1,557 @@
+"""``FlightConfig``: a flight's settings, checked at construction (``FlightConfigError``), and the command lines of
+its three child processes (``child_argvs``), their telemetry and signing-key arguments."""
+
+from __future__ import annotations
+
+import argparse
+import math
+import os
+import sys
+from dataclasses import dataclass, field
+from pathlib import Path
+
+from autopilot import flags
+from autopilot.envelope import MAX_ROLL_DEG, MAX_SATURATED_SHARE, Envelope
+from autopilot.flags import CONTROLLERS, default_lv, envelope_roll_deg, envelope_saturated_pct
+from autopilot.shared import cli
+from autopilot.shared.process import (
+    rt_throttling,
+)
+from tools.profiles import Profile, ProfileError
+
+PROCESSES = ("sitl", "gcs", "autopilot")
+
+
+PROFILES = ("square", "step", "sine")
+
+
+MERGE_MAX_MB = 64.0  # default rrd_merge_max_mb: larger telemetry parts are concatenated (streamed), not merged
+
+
+DEFAULT_DURATION_S = 30.0  # a flight's length unless given (a csv profile: its last breakpoint)
+
+
+RUDDER_MAX_DEG = 30.0  # the servo calibration's full deflection (SITL and autopilot default)
+
+
+class FlightConfigError(ValueError):
+    """A bad Flight keyword value; the one-line message starts with the keyword's name and gives the value."""
+
+    def __init__(self, field_name: str, message: str):
+        super().__init__(message)
+        self.field = field_name
+
+
+def _checked(name: str, check, value):
+    """``value`` through one of the command line's argument types, a FlightConfigError naming ``name`` if bad."""
+    try:
+        return check(value)
+    except TypeError:
+        raise FlightConfigError(name, f"{name}: expected a number, got {value!r}") from None
+    except (ValueError, argparse.ArgumentTypeError) as exc:
+        raise FlightConfigError(name, f"{name}: {exc}") from None
+
+
+def _require(ok: bool, name: str, message: str) -> None:
+    if not ok:
+        raise FlightConfigError(name, message)
+
+
+@dataclass(frozen=True, kw_only=True)
+class FlightConfig:
+    """The keywords of ``Flight``, validated: the long flags of ``python -m tools.launch``."""
+
+    lockstep: bool = False  # SITL as time master, as fast as the machine allows (default: real time)
+    duration: float | None = None  # sim s; default 30, or a csv profile's last breakpoint (its end)
+    controller: str = "clsac"  # one of CONTROLLERS
+    lv: float | None = None  # default 0 for sac, 20 for clsac
+    pfc: str = "paper"  # a key of autopilot.config.PFC_PRESETS
+    sigma_xu: float = 0.0  # sigma-modification of K_Ix, K_Iu (0 = the paper)
+    dead_zone_deg: float = 0.0  # robustness options of the law (ClSacConfig), off by default = the paper
+    ki_max: float | None = None
+    freeze_when_saturated: bool = False
+    rate: float = 100.0  # control rate, Hz
+    physics_rate: float | None = None  # Hz, a whole multiple of rate; default the smallest one >= 1 kHz
+    sensor_rate: float = 200.0  # real time ATTITUDE rate, Hz
+    telemetry_rate: float | None = None  # GCS stream, Hz; default 50 in real time, 10 of sim time in lockstep
+    out: str | os.PathLike | None = None  # run folder; default a new runs/<timestamp>-... folder
+    base_port: int | None = None  # SITL on it, GCS on the next; default free ports
+    start_time: float = 0.0  # initial sim clock, s
+    profile: str = "square"  # one of PROFILES
+    csv: str | None = None  # a profile from a CSV file of "time_s, roll_deg" rows instead
+    amplitude: float = 10.0  # deg
+    period: float = 10.0  # s
+    u_limit_deg: float = 30.0  # rudder command limit (clipped to the plant's surface limit, e.g. 17.5 deg on c172x)
+    # The envelope of a controlled flight (autopilot.envelope): |roll| < envelope_roll deg and the rudder saturated
+    # in < envelope_saturated % of the steps; envelope=False (--no-envelope): not judged, only measured
+    envelope_roll: float = MAX_ROLL_DEG
+    envelope_saturated: float = 100.0 * MAX_SATURATED_SHARE
+    envelope: bool = True
+    timeout: float | None = None  # wall-clock limit of the whole flight, s; default from the duration
+    rt_priority: int = 0  # real time: SCHED_FIFO priority of the autopilot (SITL one below), 0 = normal
+    pin: bool = False  # the autopilot alone on CPU 1; the SITL and the GCS script on CPU 0
+    busy_wait: bool = False  # real time: the autopilot never sleeps between steps (one CPU at 100 %)
+    quiet: bool = False  # do not echo the children's output (it is still in DIR/<process>.log)
+    viewer: bool = False  # spawn a Rerun viewer (or reuse the one on port 9876) and stream to it live
+    connect: str | None = None  # stream live to a running Rerun viewer at this URL
+    rrd: bool = True  # Rerun telemetry of the autopilot and the SITL, joined into DIR/flight.rrd
+    # parts up to this size are merged (compacted, indexed: memory about twice their size); larger ones are
+    # concatenated (streamed into one file without an index: bounded memory whatever the flight's length)
+    rrd_merge_max_mb: float = MERGE_MAX_MB
+    series: bool = True  # per-step series in DIR/autopilot_series.npz and DIR/sitl_series.npz
+    png: bool = True  # DIR/flight.png: roll vs command and reference models, rudder, adaptive gains (from the series)
+    web: bool = False  # serve the Rerun web viewer (tools.web: HTTP web_port, gRPC web_grpc_port) and stream to it
+    web_host: str = "127.0.0.1"  # the address it binds: loopback unless asked (0.0.0.0 exposes it, unauthenticated)
+    web_port: int = 9090  # its HTTP port (the page a browser opens)
+    web_grpc_port: int = 9877  # its gRPC proxy (the processes stream to it, the browser reads it)
+    gcs_peer: tuple = ()  # more ground stations (HOST:PORT) the autopilot streams to, e.g. MAVProxy on :14550
+    name: str | None = None  # run name in summary.json; default the controller
+    signing: bool = True  # MAVLink 2 signing on every link; a new key per flight in DIR/signing.key unless signing_key
+    signing_key: str | os.PathLike | None = None  # sign with this key file (autopilot.shared.signing) instead
+    sysid: int = 1  # the vehicle's MAVLink system id (all three processes' --sysid): launches with others are others
+    # Disturbances, passed to the SITL only (sitl.disturbances.FLAGS: text as on the command line, or parsed)
+    turbulence: str | None = None  # light | moderate | severe Dryden turbulence
+    turbulence_sigma: str | tuple | None = None  # "SV,SW" m/s
+    turbulence_length: str | tuple | None = None  # "LV,LW" m
+    altitude: float | None = None  # m, for the turbulence scales (default 10)
+    gust: str | tuple | None = None  # "AMP,LEN,START" (m/s, m, s) 1-cosine side gust, or a list of them
+    crosswind: float | None = None  # m/s
+    roll_noise: float | None = None  # deg
+    roll_bias: float | None = None  # deg
+    rate_noise: float | None = None  # deg/s
+    rate_bias: float | None = None  # deg/s
+    sensor_delay: int | None = None  # samples
+    loss: float | None = None  # link loss probability, each direction
+    delay: float | None = None  # link one-way delay, s (sim s in lockstep)
+    duplicate: float | None = None  # link duplication probability
+    reorder: float | None = None  # link reordering probability
+    scale: str | tuple | None = None  # "NAME=F" or "NAME=LO:HI" plant scale factor, or a list of them
+    seed: int | None = None  # seed of every disturbance (default 0)
+    plant: str = "kh2013a"  # the SITL's plant (sitl.plant): kh2013a, FILE.toml or jsbsim:MODEL[:KEY=VALUE,...]
+    params: str | os.PathLike | None = None  # the autopilot's parameter file; default the plant's designed one
+    baseline_gains: str | tuple | None = None  # "KP,KI,KD" of the baseline; default the plant's designed ones
+    command: Profile = field(init=False, repr=False, compare=False)  # the profile the GCS flies
+
+    def __post_init__(self) -> None:
+        from autopilot.config import PFC_PRESETS
+
+        def put(name, value):
+            object.__setattr__(self, name, value)
+
+        for name, check in (  # the launcher's own argument types: values that cannot be flown are rejected here
+            ("rate", flags.rate_arg),  # the parameter table's bounds (autopilot.params.PARAMS), as the flags
+            ("sensor_rate", cli.sensor_rate_hz),
+            ("sigma_xu", flags.sigma_xu_arg),
+            ("dead_zone_deg", cli.nonneg_float),
+            ("start_time", cli.clock_s),
+            ("amplitude", cli.angle_deg),
+            ("period", cli.timeout_s),
+            ("u_limit_deg", flags.u_limit_deg_arg),
+            ("rt_priority", cli.rt_priority_arg),
+            ("rrd_merge_max_mb", cli.bounded(0.0, 1e6, "MB")),
+            ("envelope_roll", envelope_roll_deg),
+            ("envelope_saturated", envelope_saturated_pct),
+            ("sysid", cli.sysid_arg),
+        ):
+            put(name, _checked(name, check, getattr(self, name)))
+        for name, check in (
+            ("duration", cli.duration_s),
+            ("lv", flags.lv_arg),
+            ("ki_max", cli.positive_float),
+            ("physics_rate", cli.physics_rate_hz),
+            ("telemetry_rate", cli.stream_rate_or_0),
+            ("timeout", cli.timeout_s),
+            ("connect", cli.viewer_url),
+        ):
+            if getattr(self, name) is not None:
+                put(name, _checked(name, check, getattr(self, name)))
+        _require(
+            self.controller in CONTROLLERS,
+            "controller",
+            f"controller must be one of {', '.join(CONTROLLERS)}, got {self.controller!r}",
+        )
+        _require(self.pfc in PFC_PRESETS, "pfc", f"pfc must be one of {', '.join(PFC_PRESETS)}, got {self.pfc!r}")
+        _require(
+            self.profile in PROFILES, "profile", f"profile must be one of {', '.join(PROFILES)}, got {self.profile!r}"
+        )
+        if self.physics_rate is None:
+            put("physics_rate", cli.default_physics_rate(self.rate))
+        ratio = self.physics_rate / self.rate
+        _require(
+            abs(ratio - round(ratio)) <= 1e-9,
+            "physics_rate",
+            f"physics_rate ({self.physics_rate:g}) must be a whole multiple of the control rate ({self.rate:g})",
+        )
+        _require(
+            self.base_port is None or (isinstance(self.base_port, int) and 1 <= self.base_port <= 65532),
+            "base_port",
+            f"base_port must be in 1..65532 (it and the next three ports are used), got {self.base_port!r}",
+        )
+        from autopilot.loop import AutopilotOptions  # the autopilot's default attitude timeout
+
+        att_timeout = AutopilotOptions.attitude_timeout_s
+        _require(
+            self.lockstep or self.sensor_rate * att_timeout >= 2.0,
+            "sensor_rate",
+            f"sensor_rate must be at least {2.0 / att_timeout:g} Hz in real time (the autopilot holds wings level "
+            f"after {att_timeout:g} s without attitude: two ATTITUDE per timeout at least), got {self.sensor_rate:g}",
+        )
+        _require(
+            not (self.busy_wait and self.lockstep),
+            "busy_wait",
+            "busy_wait is for real time (lockstep already polls before sleeping)",
+        )
+        _require(
+            not (self.busy_wait and self.rt_priority and rt_throttling()),
+            "busy_wait",
+            f"busy_wait with a real-time priority: a SCHED_FIFO thread that never sleeps is stopped by the "
+            f"kernel's real-time throttling ({rt_throttling()}); use one or the other",
+        )
+        try:
+            command = Profile.of(self.profile, amplitude_deg=self.amplitude, period=self.period)
+        except ProfileError as exc:
+            raise FlightConfigError(exc.field, str(exc)) from None
+        if self.csv is not None:
+            _require(
+                self.profile == "square",
+                "csv",
+                f"csv: give either a profile or csv, not both (profile {self.profile!r}, csv {self.csv!r})",
+            )
+            _require(os.path.isfile(self.csv), "csv", f"csv: no such file {self.csv!r}")
+            try:
+                command = Profile.from_csv(self.csv)
+            except (OSError, ProfileError) as exc:
+                raise FlightConfigError("csv", f"csv: {exc}") from None
+        put("command", command)
+        if self.duration is None:  # a csv profile flies to its last breakpoint, any other 30 s
+            _require(
+                command.end is None or command.end > 0,
+                "csv",
+                f"csv: the last breakpoint of {self.csv!r} is at 0 s: give a duration",
+            )
+            put("duration", DEFAULT_DURATION_S if command.end is None else command.end)
+        put("gcs_peer", tuple(_checked("gcs_peer", cli.peer_endpoint, p) for p in self.gcs_peer or ()))
+        from tools import web
+
+        put("web_host", _checked("web_host", web.bind_host, self.web_host))
+        for name in ("web_port", "web_grpc_port"):
+            put(name, _checked(name, web.tcp_port, getattr(self, name)))
+        _require(
+            self.web_port != self.web_grpc_port,
+            "web_port",
+            f"web_port must differ from the gRPC port (web_grpc_port), both are {self.web_port}",
+        )
+        if self.out is not None:
+            problem = cli.output_dir_problem(self.out)
+            _require(problem is None, "out", f"out: {problem}")
+        if self.signing_key is not None:
+            from autopilot.shared.signing import KeyFileError, load_key
+
+            _require(self.signing, "signing_key", "signing_key: give a key or signing=False (--no-signing), not both")
+            try:
+                load_key(self.signing_key)
+            except KeyFileError as exc:
+                raise FlightConfigError("signing_key", f"signing_key: {exc}") from None
+        from sitl import disturbances
+
+        try:
+            values = disturbances.parse_values({k: getattr(self, k) for k in disturbances.FLAGS})
+            for k, v in values.items():
+                put(k, v)
+            disturbances.from_values(values)
+        except disturbances.DisturbanceValueError as exc:
+            raise FlightConfigError(exc.field, str(exc)) from None
+        except disturbances.ERRORS as exc:
+            raise FlightConfigError("disturbances", str(exc)) from None
+        self._check_plant()
+
+    def _check_plant(self) -> None:
+        from autopilot.params import ParamError, load_file
+        from sitl import disturbances
+        from sitl import plant as plants
+
+        try:
+            plants.check(self.plant)
+            plants.check_disturbances(self.plant, {k: getattr(self, k) for k in disturbances.FLAGS})
+        except plants.PlantError as exc:
+            raise FlightConfigError("plant", f"plant: {exc}") from None
+        if self.surface_limit_deg is not None and self.u_limit_deg > self.surface_limit_deg:
+            object.__setattr__(self, "u_limit_deg", self.surface_limit_deg)  # the command stops at the surface's stop
+        if self.baseline_gains is not None:
+            from autopilot.flags import baseline_gains
+
+            gains = self.baseline_gains
+            text = gains if isinstance(gains, str) else ",".join(repr(float(g)) for g in gains)
+            object.__setattr__(self, "baseline_gains", _checked("baseline_gains", baseline_gains, text))
+        if self.params is not None:
+            try:
+                load_file(self.params)
+            except OSError as exc:
+                raise FlightConfigError("params", f"params: cannot read {self.params}: {exc.strerror or exc}") from None
+            except ParamError as exc:
+                raise FlightConfigError("params", f"params: {exc}") from None
+
+    @property
+    def params_file(self) -> str | None:
+        """The autopilot's --params: the one given, else the PFC designed for the plant (tools.pfc design, shipped
+        beside it), for SAC/CL-SAC only (the baseline has no PFC)."""
+        if self.params is not None:
+            return str(self.params)
+        if self.controller == "baseline":
+            return None
+        from tools.plant import designed_params
+
+        path = designed_params(self.plant)
+        return None if path is None else str(path)
+
+    @property
+    def surface_limit_deg(self) -> float | None:
+        """The plant's surface stop (deg; None: unlimited, the KH2013A)."""
+        from sitl import plant as plants
+
+        limit = plants.surface_limit_rad(self.plant)
+        return None if limit is None else math.degrees(limit)
+
+    @property
+    def baseline_gains_flown(self) -> tuple | None:
+        """The baseline's gains: the ones given, else those designed for the plant; None: the built-in defaults."""
+        if self.controller != "baseline":
+            return None
+        if self.baseline_gains is not None:
+            return tuple(self.baseline_gains)
+        from tools.plant import designed_baseline
+
+        return designed_baseline(self.plant)
+
+    @property
+    def disturbed(self) -> bool:
+        """Any disturbance given (sitl.disturbances.FLAGS other than the seed): not the still-air, ideal flight."""
+        from sitl import disturbances
+
+        return any(getattr(self, k) is not None for k in disturbances.FLAGS if k != "seed")
+
+    @property
+    def disturbance_argv(self) -> list[str]:
+        """The SITL flags of the disturbances (empty for an ideal flight)."""
+        from sitl import disturbances
+
+        return disturbances.to_argv({k: getattr(self, k) for k in disturbances.FLAGS})
+
+    @property
+    def flight_envelope(self) -> Envelope:
+        """The envelope the flight is judged against (``autopilot.envelope.Envelope``)."""
+        return Envelope(self.envelope_roll, self.envelope_saturated / 100.0, check=self.envelope)
+
+    @property
+    def lv_value(self) -> float:
+        """Lv flown: the given one, else 0 for sac and 20 for clsac."""
+        return self.lv if self.lv is not None else default_lv(self.controller)
+
+    @property
+    def gcs_telemetry_rate(self) -> float:
+        """In lockstep the GCS stream only serves the ground station (the tlog has every frame's ATTITUDE and
+        SERVO_OUTPUT_RAW anyway) and 10 Hz of sim time is still hundreds of messages per wall second."""
+        if self.telemetry_rate is not None:
+            return self.telemetry_rate
+        return 10.0 if self.lockstep else 50.0
+
+    @property
+    def wall_timeout(self) -> float:
+        return self.timeout or ((60.0 + self.duration * 0.5) if self.lockstep else (self.duration + 30.0))
+
+    @property
+    def scenario(self) -> str:
+        """ "paper" for the reference scenario's set-up, else "custom"."""
+        paper = (
+            self.profile == "square"
+            and not self.csv
+            and self.amplitude == 10.0
+            and self.period == 10.0
+            and self.duration == 30.0
+            and self.rate == 100.0
+            and self.physics_rate == 1000.0
+            and self.u_limit_deg == 30.0
+            and not self.disturbed
+            and self.plant == "kh2013a"
+        )
+        return "paper" if paper else "custom"
+
+
+# ---------------------------------------------------------------------------------------- child processes
+def child_argvs(
+    cfg: FlightConfig,
+    out: Path,
+    sitl_port: int,
+    gcs_port: int,
+    telemetry: dict[str, list[str]] | None = None,
+    key_file: Path | None = None,
+    ap_ports: tuple[int, int] | None = None,
+) -> dict[str, list[str]]:
+    """The command line of each process of the flight; ``ap_ports``: the autopilot's SITL-link and GCS-link ports,
+    given to all three so that every link is pinned to its peer from the start (docs/design.md, "Trust model")."""
+    py = [sys.executable, "-u", "-m"]
+    pwm = ["--rudder-max-deg", repr(max(RUDDER_MAX_DEG, cfg.u_limit_deg))]
+    sitl = (
+        py
+        + [
+            "sitl",
+            "--listen",
+            f"127.0.0.1:{sitl_port}",
+            "--rate",
+            repr(cfg.rate),
+            "--physics-rate",
+            repr(cfg.physics_rate),
+            "--start-time",
+            repr(cfg.start_time),
+            "--stats-json",
+            str(out / "sitl.json"),
+        ]
+        + pwm
+        + cfg.disturbance_argv
+        + (["--plant", cfg.plant] if cfg.plant != "kh2013a" else [])
+    )
+    ap = (
+        py
+        + [
+            "autopilot",
+            "--sitl",
+            f"127.0.0.1:{sitl_port}",
+            "--gcs",
+            f"127.0.0.1:{gcs_port}",
+            "--rate",
+            repr(cfg.rate),
+            "--controller",
+            cfg.controller,
+            "--lv",
+            repr(cfg.lv_value),
+            "--pfc",
+            cfg.pfc,
+            "--sigma-xu",
+            repr(cfg.sigma_xu),
+            "--dead-zone-deg",
+            repr(cfg.dead_zone_deg),
+            *(["--ki-max", repr(cfg.ki_max)] if cfg.ki_max is not None else []),
+            *(["--freeze-when-saturated"] if cfg.freeze_when_saturated else []),
+            "--name",
+            cfg.name or cfg.controller,
+            "--u-limit-deg",
+            repr(cfg.u_limit_deg),
+            "--envelope-roll",
+            repr(cfg.envelope_roll),
+            "--envelope-saturated",
+            repr(cfg.envelope_saturated),
+            *([] if cfg.envelope else ["--no-envelope"]),
+            "--duration",
+            repr(cfg.duration),
+            "--telemetry-rate",
+            repr(cfg.gcs_telemetry_rate),
+            "--tlog",
+            str(out / "flight.tlog"),
+            "--stats-json",
+            str(out / "autopilot.json"),
+        ]
+        + pwm
+    )
+    if cfg.params_file is not None:
+        ap += ["--params", cfg.params_file]
+    if cfg.baseline_gains_flown is not None:
+        ap += ["--baseline-gains", ",".join(repr(g) for g in cfg.baseline_gains_flown)]
+    # Lockstep: the GCS schedules the profile up to the end; real time: it flies until the autopilot powers off.
+    gcs = py + [
+        "tools.gcs",
+        "--listen",
+        f"127.0.0.1:{gcs_port}",
+        "--duration",
+        repr(cfg.duration if cfg.lockstep else 0),
+        "--amplitude",
+        repr(cfg.amplitude),
+        "--period",
+        repr(cfg.period),
+        "--stats-json",
+        str(out / "gcs.json"),
+        "--start-time",
+        repr(cfg.start_time),
+    ]
+    gcs += ["--csv", cfg.csv] if cfg.csv else [cfg.profile]
+    if cfg.series:
+        ap += ["--series", str(out / "autopilot_series.npz")]
+        sitl += ["--series", str(out / "sitl_series.npz")]
+    if cfg.lockstep:
+        sitl += ["--lockstep", "--duration", repr(cfg.duration)]
+        ap += ["--lockstep", "--lockstep-idle-exit", "5"]
+        gcs += ["--lockstep"]
+    else:
+        sitl += ["--sensor-rate", repr(cfg.sensor_rate)]
+        if cfg.rt_priority:
+            ap += ["--rt-priority", str(cfg.rt_priority)]
+            sitl += ["--rt-priority", str(max(1, cfg.rt_priority - 1))]
+        if cfg.busy_wait:
+            ap += ["--busy-wait"]
+    if cfg.pin and (os.cpu_count() or 1) >= 2:
+        # The autopilot gets CPU 1 to itself; the SITL and the GCS share CPU 0 (a GCS woken on the autopilot's
+        # CPU preempts it mid-frame: attitude-to-servo latency p99 0.13-0.65 ms -> 0.08-0.12 ms here).
+        sitl += ["--cpu", "0"]
+        gcs += ["--cpu", "0"]
+        ap += ["--cpu", "1"]
+    if telemetry:
+        for name, argv in (("sitl", sitl), ("autopilot", ap)):
+            argv += telemetry[name]
+    if key_file is not None:
+        for argv in (sitl, ap, gcs):
+            argv += ["--signing-key", str(key_file)]
+    for argv in (sitl, ap, gcs):
+        argv += ["--sysid", str(cfg.sysid)]
+    if ap_ports is not None:
+        a_sitl, a_gcs = (f"127.0.0.1:{p}" for p in ap_ports)
+        ap += ["--sitl-bind", a_sitl, "--listen", a_gcs, "--gcs-peer", f"127.0.0.1:{gcs_port}"]
+        sitl += ["--autopilot", a_sitl]
+        gcs += ["--vehicle", a_gcs]
+    for host, port in cfg.gcs_peer:
+        ap += ["--gcs-peer", f"{host}:{port}"]
+    return {"sitl": sitl, "autopilot": ap, "gcs": gcs}
+
+
+def _flight_key(cfg: FlightConfig, out: Path) -> Path | None:
+    """The signing key file of the flight: ``signing_key``, else a new one in DIR/signing.key (mode 0600);
+    None when signing is off."""
+    if not cfg.signing:
+        return None
+    if cfg.signing_key is not None:
+        return Path(cfg.signing_key)
+    from autopilot.shared.signing import write_key
+
+    path = out / "signing.key"
+    path.unlink(missing_ok=True)
+    write_key(path)
+    return path
+
+
+def _telemetry_argvs(
+    cfg: FlightConfig, out: Path, web_url: str | None = None
+) -> tuple[dict[str, list[str]] | None, dict[str, Path], str | None]:
+    """One recording id for the flight; each process writes its own part file (joined at the end).  ``web_url``: the
+    flight's web viewer (``--web``, already started), which the processes stream to."""
+    if not (cfg.rrd or cfg.viewer or cfg.connect or cfg.web):
+        return None, {}, None
+    from autopilot.shared import telemetry as tm
+
+    rid = tm.new_recording_id()
+    parts = tm.part_paths(out) if cfg.rrd else {}
+    for p in parts.values():
+        p.parent.mkdir(parents=True, exist_ok=True)
+        p.unlink(missing_ok=True)
+    url = cfg.connect or (tm.spawn_viewer() if cfg.viewer else None)  # one viewer for both processes
+    if web_url is not None:
+        url = web_url
+    if url:  # the processes send data only; the layout that joins them comes from here
+        from tools.views import flight_blueprint
+
+        tm.send_blueprint(url, flight_blueprint(), rid)
+    argv = {}
+    for name in ("autopilot", "sitl"):
+        argv[name] = ["--recording-id", rid]
+        if name in parts:
+            argv[name] += ["--rrd", str(parts[name])]
+        if url:
+            argv[name] += ["--connect", url]
+    return argv, parts, rid

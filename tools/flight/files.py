@@ -1,0 +1,275 @@
+"""What a flight leaves in its folder: the recording joined (``flight.rrd``), ``flight.png``, ``summary.json``
+(provisional while it flies, a refusal's, the verdict's) and the per-step series read back (``load_series``)."""
+
+from __future__ import annotations
+
+import json
+import math
+import os
+from pathlib import Path
+
+from autopilot.shared.process import (
+    EXIT_OK,
+    EXIT_OUT_OF_ENVELOPE,
+    EXIT_USAGE,
+    write_json_atomic,
+)
+from tools.flight.config import PROCESSES, FlightConfig
+from tools.flight.outcome import outcome_of
+
+PNG_MAX_POINTS = 20_000  # flight.png plots every k-th step of a long flight: bounded memory whatever its length
+
+
+def write_flight_png(cfg: FlightConfig, out: Path, name: str, metrics: dict) -> Path | None:
+    """DIR/flight.png from the flight's series (``tools.plots.flight_figure``); None without series."""
+    from tools.plots import save_flight_figure
+    from tools.scenario import RunResult
+
+    series = load_series(out, max_points=PNG_MAX_POINTS)
+    if not series or series.get("t") is None or not len(series["t"]):
+        return None
+    res = RunResult(name, cfg.lv_value if cfg.controller != "sac" else 0.0, metrics, series)
+    mode = "lockstep" if cfg.lockstep else "real time"
+    title = f"Flight {out.name}: {res.name}, {mode}, {cfg.rate:g} Hz"
+    return save_flight_figure(res, out / "flight.png", math.radians(cfg.u_limit_deg), title)
+
+
+def _join_telemetry(
+    parts: dict[str, Path], out: Path, recording_id: str | None, merge_max_mb: float
+) -> tuple[Path | None, bool, str | None]:
+    """Join the processes' part files into DIR/flight.rrd (whatever ended the flight); (path, indexed, error).
+
+    ``rerun rrd merge`` compacts the chunks and writes the footer (index) the viewer uses for random access, but
+    holds the whole recording in memory (about twice the files' size).  So parts larger than ``merge_max_mb`` in
+    all (a flight of more than about 15 minutes at 100 Hz by default) are concatenated instead: their messages
+    are copied into the same one file without decoding, a buffer at a time (constant memory whatever the
+    flight's length; no footer, so ``indexed`` is False).  Either way the flight has one recording, with the
+    viewer layout."""
+    existing = [p for p in parts.values() if p.exists() and p.stat().st_size > 0]
+    if not existing:
+        return None, False, ("no telemetry was written" if parts else None)
+    from autopilot.shared import telemetry as tm
+    from tools.views import flight_blueprint
+
+    target = out / "flight.rrd"
+    indexed = sum(p.stat().st_size for p in existing) <= merge_max_mb * 1e6
+    try:
+        if indexed:
+            tm.merge_recordings(existing, target, blueprint=flight_blueprint(), remove_parts=True)
+        else:
+            tm.concatenate_recordings(
+                existing, target, blueprint=flight_blueprint(), recording_id=recording_id, remove_parts=True
+            )
+    except Exception as exc:  # noqa: BLE001  (a flight's other files stay valid; say what went wrong)
+        return None, False, f"joining telemetry into {target} failed: {exc}"
+    try:
+        (out / ".parts").rmdir()
+    except OSError:
+        pass
+    return target, indexed, None
+
+
+# ---------------------------------------------------------------------------------------- summary
+def _load(path: Path):
+    try:
+        with open(path) as f:
+            return json.load(f)
+    except (OSError, ValueError):
+        return None
+
+
+def build_summary(
+    cfg: FlightConfig,
+    out: Path,
+    stats: dict,
+    exit_codes: dict,
+    failed: str | None,
+    error: str | None,
+    exit_code: int,
+    wall: float,
+    rrd_path: Path | None,
+    rrd_indexed: bool = False,
+) -> dict:
+    """summary.json of a flight from the processes' stats files (``stats``: process name -> dict or None)."""
+    ap, sitl, gcs = stats["autopilot"], stats["sitl"], stats["gcs"]
+    runs = []
+    if ap and ap.get("metric_samples"):
+        runs.append(
+            {
+                "name": ap["name"],
+                "Lv": ap["Lv"],
+                "metrics": ap["metrics"],
+                "steps": ap["steps"],
+                "controlled": ap.get("controlled"),
+            }
+        )
+    return {
+        "scenario": cfg.scenario,
+        "runs": runs,
+        "transport": "mavlink",
+        "mode": "lockstep" if cfg.lockstep else "realtime",
+        "signing": cfg.signing,  # MAVLink 2 signing on every link (docs/design.md, "Trust model")
+        "controller": cfg.controller,
+        "Lv": cfg.lv_value,
+        "pfc": cfg.pfc,
+        "sigma_xu": cfg.sigma_xu,
+        "dead_zone_deg": cfg.dead_zone_deg,
+        "ki_max": cfg.ki_max,
+        "freeze_when_saturated": cfg.freeze_when_saturated,
+        "duration_s": cfg.duration,
+        "rate_hz": cfg.rate,
+        "physics_rate_hz": cfg.physics_rate,
+        "start_time_s": cfg.start_time,
+        "profile": {
+            "kind": "csv" if cfg.csv else cfg.profile,
+            "amplitude_deg": cfg.amplitude,
+            "period_s": cfg.period,
+            "csv": cfg.csv,
+        },
+        "ok": exit_code == 0,
+        "outcome": outcome_of(exit_code),
+        "exit_code": exit_code,
+        # flown to the end with every process clean / inside the envelope (README, "Outcomes"; autopilot.envelope)
+        "completed": exit_code in (EXIT_OK, EXIT_OUT_OF_ENVELOPE),
+        "controlled": ap.get("controlled") if ap else None,
+        "failed": failed,
+        "error": error,
+        "exit_codes": exit_codes,
+        "wall_s": wall,
+        "rtf": sitl.get("rtf") if sitl else None,
+        "sim_time_s": sitl.get("sim_time_s") if sitl else None,
+        "timing": ap.get("timing") if ap else None,
+        "events": {"autopilot": ap.get("events") if ap else None, "sitl": sitl.get("events") if sitl else None},
+        "disturbances": sitl.get("disturbances") if sitl else None,  # what the SITL injected (sitl.disturbances)
+        "counters": {
+            "autopilot": ap.get("links") if ap else None,
+            "sitl": sitl.get("link") if sitl else None,
+            "gcs": gcs.get("link") if gcs else None,
+        },
+        "files": {
+            "tlog": str(out / "flight.tlog"),
+            "rrd": str(rrd_path) if rrd_path else None,  # DIR/flight.rrd, one recording with the viewer layout
+            # merged with rerun's footer (index); False: concatenated without one (a long flight, bounded memory)
+            "rrd_indexed": bool(rrd_path) and rrd_indexed,
+            "summary": str(out / "summary.json"),
+            "logs": {n: str(out / f"{n}.log") for n in PROCESSES},
+            "stats": {n: str(out / f"{n}.json") for n in PROCESSES},
+        },
+    }
+
+
+def _npz_columns(path: Path, keys=None, stride: int = 1, start: int = 0) -> dict:
+    """Columns of an .npz, every ``stride``-th value from index ``start``, read a chunk at a time (the memory
+    held is the decimated columns, whatever the file's length)."""
+    import zipfile
+
+    import numpy as np
+
+    out = {}
+    with zipfile.ZipFile(path) as zf:
+        for member in zf.namelist():
+            key = member[:-4] if member.endswith(".npy") else member
+            if keys is not None and key not in keys:
+                continue
+            with zf.open(member) as f:
+                version = np.lib.format.read_magic(f)
+                read_header = (
+                    np.lib.format.read_array_header_1_0 if version == (1, 0) else np.lib.format.read_array_header_2_0
+                )
+                shape, _fortran, dtype = read_header(f)
+                n = shape[0] if shape else 1
+                kept, i0 = [], 0
+                while i0 < n:
+                    m = min(1 << 16, n - i0)
+                    a = np.frombuffer(f.read(m * dtype.itemsize), dtype=dtype, count=m)
+                    j = start - i0 if i0 <= start else (start - i0) % stride  # first index to keep here
+                    if j < m:
+                        kept.append(a[j::stride].copy())
+                    i0 += m
+                out[key] = np.concatenate(kept) if kept else np.empty(0, dtype)
+    return out
+
+
+def load_series(out_dir, max_points: int | None = None) -> dict:
+    """Merge DIR/autopilot_series.npz and DIR/sitl_series.npz into tools.scenario.SERIES-style arrays;
+    ``max_points``: every k-th step only, at most that many (a plot of a long flight in bounded memory)."""
+    import zipfile
+
+    import numpy as np
+
+    out_dir = Path(out_dir)
+    try:
+        with zipfile.ZipFile(out_dir / "autopilot_series.npz") as zf, zf.open("t.npy") as f:
+            version = np.lib.format.read_magic(f)
+            read_header = (
+                np.lib.format.read_array_header_1_0 if version == (1, 0) else np.lib.format.read_array_header_2_0
+            )
+            steps = read_header(f)[0][0]
+        series = _npz_columns(out_dir / "autopilot_series.npz", stride=(stride := _stride(steps, max_points)))
+    except (OSError, KeyError, zipfile.BadZipFile):
+        return {}
+    if series.get("t") is not None and len(series["t"]):
+        series["t"] = series["t"] - series["t"][0]
+    try:
+        # SITL rows are the state after frame k, i.e. at t_{k+1}; the state at t_0 is the initial zero.
+        s = _npz_columns(out_dir / "sitl_series.npz", ("v", "delta_r"), stride, start=stride - 1)
+        n = len(series.get("t", ()))
+        for key in ("v", "delta_r"):
+            col = np.concatenate([[0.0], s[key]])[:n]
+            if len(col) == n:
+                series[key] = col
+    except (OSError, KeyError, zipfile.BadZipFile):
+        pass
+    return series
+
+
+def _stride(steps: int, max_points: int | None) -> int:
+    return 1 if not max_points or steps <= max_points else -(-steps // max_points)
+
+
+# ---------------------------------------------------------------------------------------- the verdict
+# A previous flight's files in a reused folder: removed before a new flight starts, so none can pass for its own.
+STALE_FILES = (
+    "autopilot.json",
+    "sitl.json",
+    "gcs.json",
+    "autopilot_series.npz",
+    "sitl_series.npz",
+    "flight.rrd",
+    "flight.png",
+)
+
+
+def provisional_summary(pid: int) -> dict:
+    """DIR/summary.json while a flight runs: not OK until the launcher writes the verdict."""
+    return {
+        "ok": False,
+        "running": True,
+        "exit_code": None,
+        "failed": None,
+        "error": f"the flight has not ended: it is still running, or its launcher (pid {pid}) was killed",
+        "launcher_pid": pid,
+    }
+
+
+def write_refusal(out: str | os.PathLike, process: str, reason: str) -> Path | None:
+    """DIR/summary.json of a flight refused before anything was started (a value that cannot be flown):
+    ``ok: false``, exit status 2, the process the value belongs to, the reason and nothing flown.  So a caller that
+    reads summary.json finds the verdict whatever ended the launch.  None if DIR cannot be made or written (the
+    one-line error on stderr still says why)."""
+    path = Path(out) / "summary.json"
+    summary = {
+        "ok": False,
+        "refused": True,  # nothing was started
+        "exit_code": EXIT_USAGE,
+        "failed": process,
+        "error": f"{process}: {reason} (refused before the flight: nothing was started)",
+        "flown": {"steps": 0, "steps_asked": None, "fraction": 0.0, "frames": 0, "sim_time_s": 0.0, "complete": False},
+        "files": {"summary": str(path)},
+    }
+    try:
+        path.parent.mkdir(parents=True, exist_ok=True)
+        write_json_atomic(path, summary)
+    except OSError:
+        return None
+    return path

@@ -1,0 +1,389 @@
+"""``Flight``: one flight of the three processes, started, watched and ended (child supervision, the web
+server's lifetime), and ``FlightResult``, what it returns; ``run_lockstep``, the ``mavlink`` transport of
+experiments."""
+
+from __future__ import annotations
+
+import math
+import os
+import sys
+import threading
+import time
+from dataclasses import dataclass, fields
+from functools import cached_property
+from pathlib import Path
+
+from autopilot.metrics import METRIC_NAMES
+from autopilot.shared.process import (
+    EXIT_ADDRESS_IN_USE,
+    EXIT_FAILED,
+    EXIT_INTERRUPTED,
+    EXIT_OK,
+    write_json_atomic,
+)
+from tools.children import Child, free_udp_ports, new_run_dir, stop_children
+from tools.flight.config import (
+    PROCESSES,
+    PROFILES,
+    FlightConfig,
+    FlightConfigError,
+    _flight_key,
+    _telemetry_argvs,
+    child_argvs,
+)
+from tools.flight.files import (
+    STALE_FILES,
+    _join_telemetry,
+    _load,
+    build_summary,
+    load_series,
+    provisional_summary,
+    write_flight_png,
+    write_refusal,
+)
+from tools.flight.outcome import _ended_normally, envelope_verdict, flown_report, outcome_of, verdict
+
+
+@dataclass(frozen=True)
+class FlightResult:
+    """How a flight ended and what it left; ``series`` is read from the run folder on first use.
+
+    Two facts: ``completed`` (flown to the end, every process clean) and ``controlled`` (it stayed inside the
+    envelope, ``autopilot.envelope``; None when the autopilot left no verdict).  ``ok`` is both."""
+
+    ok: bool
+    exit_code: int  # 0 ok, 1 a process failed, 3 out of the envelope, 130 interrupted or stopped by the caller
+    reason: str | None  # None when ok, else one line: what failed, or why the flight was not controlled
+    metrics: dict  # the five METRIC_NAMES of what flew (None if nothing flew)
+    out: Path
+    summary: dict  # what summary.json holds
+    completed: bool = False
+    controlled: bool | None = None
+
+    @property
+    def outcome(self) -> str:
+        """ "OK", "OUT OF ENVELOPE" or "FAILED" (``summary["outcome"]``)."""
+        return outcome_of(self.exit_code)
+
+    @cached_property
+    def series(self) -> dict:
+        """The per-step series (``load_series``): arrays keyed like ``tools.scenario.SERIES``; {} if not recorded."""
+        return load_series(self.out)
+
+
+def serve_web(web) -> str:
+    """Start the flight's web viewer (a ``tools.web.WebServer``, bound to loopback unless ``web_host`` says otherwise)
+    and print where to open it; the URL the processes stream to.  It ends with the flight (``Flight._stop_web``)."""
+    url = web.start()
+    for line in web.notice():
+        print(line, flush=True)
+    return url
+
+
+def _web_server(cfg: FlightConfig, out: Path):
+    """The flight's ``tools.web.WebServer`` (not started), its output in DIR/web.log."""
+    from tools.web import WebServer
+
+    return WebServer(cfg.web_host, cfg.web_port, cfg.web_grpc_port, log_path=out / "web.log")
+
+
+# ---------------------------------------------------------------------------------------- the flight
+class Flight:
+    """One flight: ``run()`` blocks and returns its ``FlightResult``; as a context manager, entering starts the
+    processes and leaving stops whatever still runs, after which ``result`` holds the ``FlightResult``.
+
+    ``start()``, ``wait(timeout)``, ``stop()`` and ``running`` are the pieces; ``interrupt()`` (safe from a signal
+    handler or another thread) ends the flight as interrupted at the next poll of ``wait``.
+    """
+
+    def __init__(self, **options):
+        known = {f.name for f in fields(FlightConfig) if f.init}
+        unknown = sorted(set(options) - known)
+        if unknown:
+            raise TypeError(f"Flight() got unknown keyword argument(s): {', '.join(unknown)}")
+        self.config = FlightConfig(**options)
+        self.out: Path | None = None  # the run folder, once started
+        self.result: FlightResult | None = None
+        self._children: dict[str, Child] = {}
+        self._parts: dict[str, Path] = {}
+        self._recording_id: str | None = None
+        self._web = None  # the --web server (tools.web.WebServer), stopped when the flight ends
+        self._t0: float | None = None
+        self._interrupt = threading.Event()
+
+    @classmethod
+    def for_scenario(cls, scenario, run, out, **options) -> Flight:
+        """The lockstep flight of one ``tools.scenario`` RunSpec of a Scenario: quiet, with series, no flight.rrd
+        (an experiment logs its runs side by side from the series)."""
+        profile = scenario.profile
+        if profile.kind not in PROFILES or (profile.kind == "step" and profile.step_time != 1.0):
+            raise FlightConfigError(
+                "profile",
+                f"profile: {profile!r} has no launcher flags (square, step at 1 s, "
+                "sine): fly it from a CSV file with csv=FILE",
+            )
+        return cls(
+            lockstep=True,
+            duration=scenario.duration_s,
+            controller=run.controller or ("sac" if run.lv == 0 else "clsac"),
+            lv=run.lv,
+            pfc=run.pfc or "paper",
+            sigma_xu=run.sigma_xu or 0.0,
+            name=run.name,
+            rate=scenario.control_rate_hz,
+            physics_rate=scenario.physics_rate_hz,
+            profile=profile.kind,
+            amplitude=math.degrees(profile.amplitude),
+            period=profile.period,
+            u_limit_deg=math.degrees(scenario.u_limit_rad),
+            plant=scenario.plant,
+            params=scenario.params,
+            baseline_gains=scenario.baseline_gains,
+            **dict(scenario.disturbances),
+            out=out,
+            quiet=True,
+            series=True,
+            rrd=False,
+            png=False,
+            **options,
+        )
+
+    @property
+    def running(self) -> bool:
+        """Started and not yet ended."""
+        return self._t0 is not None and self.result is None
+
+    @property
+    def pids(self) -> dict[str, int]:
+        """Process id of each child started (the last attempt's, if ports had to be tried again)."""
+        return {name: c.proc.pid for name, c in self._children.items()}
+
+    def __enter__(self) -> Flight:
+        return self.start()
+
+    def __exit__(self, exc_type, exc, tb) -> bool:
+        try:
+            if self.result is None:
+                if exc_type is KeyboardInterrupt:
+                    self._end(EXIT_INTERRUPTED, None, "interrupted (Ctrl-C)")
+                else:
+                    self.stop()
+        finally:
+            self._stop_web()  # whatever happened above
+        return False
+
+    def _start_web(self) -> str:
+        """Start the --web server before anything else; a port taken (or rerun failing) refuses the flight: one
+        line, DIR/summary.json says so, nothing started (``tools.web.WebServerError`` is raised to the caller)."""
+        from tools.web import WebServerError
+
+        self._web = _web_server(self.config, self.out)
+        try:
+            return serve_web(self._web)
+        except WebServerError as exc:
+            write_refusal(self.out, "web", str(exc))
+            raise
+
+    def _stop_web(self) -> None:
+        if self._web is not None:
+            self._web.stop()
+
+    def run(self) -> FlightResult:
+        """Fly to the end (or until interrupted) and return the result."""
+        with self:
+            return self.wait()
+
+    def interrupt(self) -> None:
+        """Ask the flight to end as interrupted (exit code 130) at the next poll of ``wait``."""
+        self._interrupt.set()
+
+    def start(self) -> Flight:
+        """Start the SITL, the GCS script and the autopilot on free ports (or ``base_port``) and wait until the
+        first two listen; a process failing at start-up ends the flight (see ``result``)."""
+        if self._t0 is not None:
+            raise RuntimeError("this flight was already started; a Flight flies once")
+        cfg = self.config
+        self._t0 = time.monotonic()
+        self.out = (
+            Path(cfg.out)
+            if cfg.out
+            else new_run_dir("runs", f"-{'lockstep' if cfg.lockstep else 'rt'}-{cfg.controller}")
+        )
+        self.out.mkdir(parents=True, exist_ok=True)
+        for f in (*STALE_FILES, "summary.json"):
+            (self.out / f).unlink(missing_ok=True)
+        # Until the flight ends the verdict is "not OK": a launcher killed outright (SIGKILL) leaves this, never
+        # an earlier flight's "ok: true" in a reused folder.
+        write_json_atomic(self.out / "summary.json", provisional_summary(os.getpid()))
+        web_url = self._start_web() if cfg.web else None
+        try:
+            telemetry, self._parts, self._recording_id = _telemetry_argvs(cfg, self.out, web_url)
+            key_file = _flight_key(cfg, self.out)
+            for attempt in range(3):
+                ports = range(cfg.base_port, cfg.base_port + 4) if cfg.base_port is not None else free_udp_ports(4)
+                sitl_port, gcs_port, *ap_ports = ports
+                self._spawn(child_argvs(cfg, self.out, sitl_port, gcs_port, telemetry, key_file, tuple(ap_ports)))
+                failed = self._await_listening()
+                if failed is None:
+                    break
+                if failed.code == EXIT_ADDRESS_IN_USE and cfg.base_port is None and attempt < 2:
+                    stop_children(self._children.values())  # a free port was taken in between: try others
+                    continue
+                self._end(
+                    EXIT_FAILED,
+                    failed.name,
+                    f"{failed.name} failed at start-up (exit code {failed.code}): {failed.reason()}",
+                )
+                break
+        except BaseException as exc:
+            interrupted = isinstance(exc, KeyboardInterrupt)
+            self._end(
+                EXIT_INTERRUPTED if interrupted else EXIT_FAILED,
+                None if interrupted else "launch",
+                "interrupted (Ctrl-C)" if interrupted else f"start-up failed: {type(exc).__name__}: {exc}",
+            )
+            raise
+        return self
+
+    def _spawn(self, argvs: dict[str, list[str]]) -> None:
+        # All three start together (the autopilot announces itself until the SITL and the GCS answer).
+        echo = not self.config.quiet
+        self._children = {
+            "sitl": Child("sitl", argvs["sitl"], self.out / "sitl.log", echo, "listening on"),
+            "gcs": Child("gcs", argvs["gcs"], self.out / "gcs.log", echo, "listening on"),
+            "autopilot": Child("autopilot", argvs["autopilot"], self.out / "autopilot.log", echo),
+        }
+
+    def _await_listening(self) -> Child | None:
+        """Wait (up to 60 s each, or until interrupted) for the SITL and the GCS to listen; the one that exited
+        instead, if any."""
+        for c in (self._children["sitl"], self._children["gcs"]):
+            while not c.ready.wait(0.05) and not self._interrupt.is_set() and time.monotonic() - c.started <= 60:
+                pass
+            if c.code is not None:
+                return c
+        return None
+
+    def wait(self, timeout: float | None = None) -> FlightResult | None:
+        """Watch the flight until it ends (its result) or ``timeout`` wall seconds pass (None)."""
+        if self._t0 is None:
+            raise RuntimeError("the flight was not started: call start() or run()")
+        deadline = None if timeout is None else time.monotonic() + timeout
+        while self.result is None:
+            if self._interrupt.is_set():
+                self._end(EXIT_INTERRUPTED, None, "interrupted (Ctrl-C)")
+            elif not self._poll() and deadline is not None and time.monotonic() >= deadline:
+                return None
+        return self.result
+
+    def stop(self) -> FlightResult:
+        """End the flight now if it still runs (SIGINT to each process, killed after 5 s) and return its result:
+        not ok, exit code 130, reason "stopped by the caller after X s of Y s"."""
+        if self._t0 is None:
+            raise RuntimeError("the flight was not started: call start() or run()")
+        if self.result is None and not self._poll():  # it may have just ended by itself
+            self._end(EXIT_INTERRUPTED, None, None, stopped=True)
+        return self.result
+
+    def _poll(self) -> bool:
+        """One look at the processes (at most 50 ms); True if that ended the flight."""
+        ap = self._children["autopilot"]
+        code = ap.wait(0.05)
+        if code is not None:
+            if code != 0:
+                self._end(EXIT_FAILED, "autopilot", f"autopilot failed (exit code {code}): {ap.reason()}")
+            else:
+                self._land()
+            return True
+        for c in (self._children["sitl"], self._children["gcs"]):
+            if c.code not in (None, 0):
+                self._end(EXIT_FAILED, c.name, f"{c.name} failed (exit code {c.code}): {c.reason()}")
+                return True
+        limit = self.config.wall_timeout
+        if time.monotonic() - self._t0 > limit:
+            why = "--timeout" if self.config.timeout else "the default limit; --timeout S sets it"
+            self._end(EXIT_FAILED, "launch", f"flight did not finish within {limit:.0f} s of wall clock ({why})")
+            return True
+        return False
+
+    def _land(self) -> None:
+        """The autopilot ended the flight: the GCS sees it power off; the SITL ends by itself in lockstep, unless
+        the autopilot ended before the end of the run (then nobody answers the SITL's frames: it is stopped now)."""
+        failed = error = None
+        interrupted = set()
+        if not self.config.lockstep or not _ended_normally(_load(self.out / "autopilot.json")):
+            self._children["sitl"].interrupt()
+            interrupted.add("sitl")
+        for name in ("gcs", "sitl"):
+            c = self._children[name]
+            code = c.wait(5.0)
+            if code is None and name not in interrupted:  # (one that ignores SIGINT is killed by _end)
+                c.interrupt()
+                code = c.wait(5.0)
+            if code not in (None, 0):
+                failed, error = name, f"{name} failed (exit code {code}): {c.reason()}"
+        self._end(EXIT_FAILED if failed else EXIT_OK, failed, error)
+
+    def _end(self, exit_code: int, failed: str | None, error: str | None, stopped: bool = False) -> None:
+        """Stop what still runs, merge the telemetry, write summary.json and set ``result``."""
+        cfg = self.config
+        t_end = time.monotonic()  # exits seen after this are those of stopping the flight
+        try:
+            stop_children(self._children.values())
+        finally:
+            self._stop_web()  # nothing streams any more: the server ends with the flight
+        rrd_path, rrd_indexed, rrd_error = _join_telemetry(
+            self._parts, self.out, self._recording_id, cfg.rrd_merge_max_mb
+        )
+        if rrd_error and exit_code == EXIT_OK:
+            exit_code, failed, error = EXIT_FAILED, "telemetry", rrd_error
+        stats = {n: _load(self.out / f"{n}.json") for n in PROCESSES}
+        flown = flown_report(cfg, stats)
+        if stopped:
+            error = f"stopped by the caller after {flown['sim_time_s']:g} s of {cfg.duration:g} s (sim time)"
+        elif exit_code != EXIT_INTERRUPTED:
+            exit_code, failed, error = verdict(self._children, stats, flown, exit_code, failed, error, t_end)
+            exit_code, failed, error = envelope_verdict(
+                exit_code, failed, error, (stats["autopilot"] or {}).get("controlled")
+            )
+        summary = build_summary(
+            cfg,
+            self.out,
+            stats,
+            {n: c.code for n, c in self._children.items()},
+            failed,
+            error,
+            exit_code,
+            time.monotonic() - self._t0,
+            rrd_path,
+            rrd_indexed,
+        )
+        summary["flown"] = flown
+        runs = summary["runs"]
+        metrics = {k: runs[0]["metrics"].get(k) for k in METRIC_NAMES} if runs else dict.fromkeys(METRIC_NAMES)
+        png = None
+        if cfg.png and cfg.series:
+            try:
+                png = write_flight_png(cfg, self.out, cfg.name or cfg.controller, metrics)
+            except (OSError, ValueError, KeyError) as exc:  # a picture never fails a flight: say why it is missing
+                print(f"launch: flight.png not written: {type(exc).__name__}: {exc}", file=sys.stderr, flush=True)
+        summary["files"]["png"] = str(png) if png else None
+        write_json_atomic(self.out / "summary.json", summary)
+        controlled = (summary["controlled"] or {}).get("ok")
+        self.result = FlightResult(
+            exit_code == EXIT_OK, exit_code, error, metrics, self.out, summary, summary["completed"], controlled
+        )
+
+
+def run_lockstep(scenario, run, workdir):
+    """Fly one RunSpec of a Scenario in lockstep over real processes and UDP; metrics from what flew.
+
+    The ``mavlink`` transport of ``tools.experiment``: files go to ``workdir``; returns a
+    ``tools.scenario.RunResult`` whose series have the keys of ``tools.scenario.SERIES``, recorded by the
+    autopilot (controller side, ``u`` = the command that flew, after PWM) and the SITL (``v``, ``delta_r``)."""
+    from tools.scenario import RunResult
+
+    res = Flight.for_scenario(scenario, run, Path(workdir)).run()
+    if not res.ok or not res.summary["runs"]:
+        raise RuntimeError(f"mavlink run {run.name} failed: {res.reason} (see {res.out})")
+    return RunResult(run.name, run.lv, res.metrics, res.series)
