@@ -158,12 +158,12 @@ def build_parser() -> OneLineArgumentParser:
         help="real time: busy-wait this long before each deadline for precise timing (default 300)",
     )
     # On a VM a sleeping (halted) vCPU can take milliseconds to be run again; a loop that never sleeps
-    # keeps its timing (README, Benchmarks: p99 lateness of a bare deadline loop 1.8-3.7 ms -> 0.01 ms).
+    # keeps its timing (docs/benchmarks.md: p99 lateness of a bare deadline loop 1.8-3.7 ms -> 0.01 ms).
     p.add_argument(
         "--busy-wait",
         action="store_true",
         help="real time: never sleep between steps, poll the links until each deadline "
-        "(one CPU at 100 %%; use with --cpu; not with --rt-priority, see README)",
+        "(one CPU at 100 %%; use with --cpu; not with --rt-priority, see docs/flying.md)",
     )
     # Waking a sleeping process costs ~70 us a frame on a VM; the SITL answers within ~100 us, so polling
     # briefly first raised the lockstep real-time factor from ~45x to ~70x (100 Hz) and ~13x to ~16x (400 Hz).

@@ -9,7 +9,7 @@ import numpy as np
 
 # Parallel feedforward compensators D(s) = num/den (highest power first).  "paper": section 5's
 # D = 1/C, C = (4s + 40)/10.  "robust": the same C at a quarter of its gain, D = 10/(s + 10): no band of
-# constant K_e > 0 makes 1 + K_e (T + D) unstable (``python -m tools.pfc --pfc robust``; README, "W-ASPR").
+# constant K_e > 0 makes 1 + K_e (T + D) unstable (``python -m tools.pfc --pfc robust``; docs/experiments.md, "W-ASPR").
 PFC_PRESETS: dict[str, tuple[tuple[float, ...], tuple[float, ...]]] = {
     "paper": ((10.0,), (4.0, 40.0)),
     "robust": ((10.0,), (1.0, 10.0)),
@@ -63,7 +63,7 @@ class ClSacConfig:
     gamma_iu: float | tuple = 10.0
     sigma: float = 5.0
     # Optional sigma-modification of K_Ix and K_Iu too (not in the paper, which leaks K_Ie only: 0 = paper).
-    # Without it K_Ix, K_Iu drift over long flights (see README, "Long flights").
+    # Without it K_Ix, K_Iu drift over long flights (see docs/experiments.md, "Long flights").
     sigma_x: float = 0.0
     sigma_u: float = 0.0
     # Initial integral gains K_I(0) (paper: 0)

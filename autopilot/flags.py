@@ -103,7 +103,7 @@ def add_envelope_arguments(parser: argparse.ArgumentParser) -> None:
     """``--envelope-roll``, ``--envelope-saturated``, ``--no-envelope``: the limits of a controlled flight."""
     from autopilot.envelope import MAX_ROLL_DEG, MAX_SATURATED_SHARE
 
-    g = parser.add_argument_group("flight envelope (a flight is controlled inside it; README, Flying)")
+    g = parser.add_argument_group("flight envelope (a flight is controlled inside it; docs/flying.md, Outcomes)")
     g.add_argument(
         "--envelope-roll",
         type=envelope_roll_deg,

@@ -5,7 +5,7 @@ to the roll angle), its input and output with their units, the servo (paper eq. 
 delta'' = -wn2 delta - two_zeta_wn delta' + wn2 delta_command), the surface limits, and which airframe
 states are the roll angle and the rates.  The servo is appended as the last two states, exactly as
 ``sitl.model.augmented_matrices`` builds the KH2013A plant, so ``sitl/plants/kh2013a.toml`` flies bit for bit
-like the built-in model.  Format (every key: README, "Plants"):
+like the built-in model.  Format (every key: docs/plants.md):
 
     name = "kh2013a"
     [input]    name = "delta_r", unit = "rad", surface = "rudder", limit = 0.5 (optional), rate_limit (optional)

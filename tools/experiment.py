@@ -492,7 +492,7 @@ def build_parser() -> argparse.ArgumentParser:
         "--plant",
         default=None,
         metavar="PLANT",
-        help="the plant: kh2013a (default), FILE.toml or jsbsim:MODEL[:KEY=VALUE,...] (README, Plants)",
+        help="the plant: kh2013a (default), FILE.toml or jsbsim:MODEL[:KEY=VALUE,...] (docs/plants.md)",
     )
     return p
 

@@ -179,7 +179,7 @@ def build_parser() -> OneLineArgumentParser:
         "--busy-wait",
         action="store_true",
         help="real time: the autopilot never sleeps between steps (one CPU at 100 %%; best with --pin; "
-        "on a VM it avoids the hypervisor's wake-up delays, see README)",
+        "on a VM it avoids the hypervisor's wake-up delays, see docs/flying.md)",
     )
     p.add_argument("--quiet", action="store_true", help="do not echo the processes' output (it is still in DIR/*.log)")
     p.add_argument(
@@ -212,7 +212,7 @@ def build_parser() -> OneLineArgumentParser:
         "--web",
         action="store_true",
         help="serve the Rerun web viewer (HTTP --web-port, gRPC --web-grpc-port, on 127.0.0.1) and stream the flight "
-        "to it; a browser elsewhere watches through ssh -L (README); the server ends with the launch",
+        "to it; a browser elsewhere watches through ssh -L (docs/telemetry.md); the server ends with the launch",
     )
     g.add_argument(
         "--web-host",
@@ -261,7 +261,7 @@ def build_parser() -> OneLineArgumentParser:
         default="kh2013a",
         metavar="PLANT",
         help="the SITL's plant: kh2013a (default), FILE.toml (a linear plant of your own) or jsbsim:MODEL[:KEY=VALUE,"
-        "...] (a JSBSim aircraft, e.g. jsbsim:c172x; see README, Plants)",
+        "...] (a JSBSim aircraft, e.g. jsbsim:c172x; see docs/plants.md)",
     )
     p.add_argument(
         "--params",

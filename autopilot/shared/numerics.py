@@ -23,7 +23,7 @@ def expm(m: np.ndarray) -> np.ndarray:
 
     scipy.linalg.expm goes through BLAS, whose last bits depend on the kernel OpenBLAS picks for the CPU (29 of 66
     entries of the study's plant [Phi, Gamma] differ between its SkylakeX and Haswell kernels); a 600 s saturated
-    limit cycle grows such a difference into degrees (README, Robustness: the long flight).  Agrees with scipy's
+    limit cycle grows such a difference into degrees (docs/experiments.md, "Long flights").  Agrees with scipy's
     to ~1e-14 of ||e^M||.  For the small matrices of the law and the plant, computed once at construction."""
     m = np.atleast_2d(np.asarray(m, dtype=float))
     n = m.shape[0]

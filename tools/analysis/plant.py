@@ -25,7 +25,7 @@ if TYPE_CHECKING:
 PAPER_PFC: tuple[tuple[float, ...], tuple[float, ...]] = PFC_PRESETS["paper"]
 
 # The paper's compensator at a quarter of its gain: C(s) = (4s + 40)/40 = (s + 10)/10, D(s) = 10/(s + 10)
-# (chosen with ``robust_pfc_search``, see the README).  The paper's C is within a factor 1.019 of the gain
+# (chosen with ``robust_pfc_search``, see docs/experiments.md).  The paper's C is within a factor 1.019 of the gain
 # at which 1 + C T goes unstable, so F's zeros (= the closed-loop poles of 1 + C T) are almost undamped
 # (-0.28 +- 58.9j) and 1 + K F is unstable for K in [0.62, 20.8] and [27.3, 1014].  With this D, F is
 # W-ASPR with zeros damped at >= 0.27, 1 + K F is stable for every K > 0, the 100 Hz ZOH loop only for

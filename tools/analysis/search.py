@@ -1,7 +1,7 @@
 """The robust PFC search: first-order compensators D = k/(s + a) on a grid, each with its W-ASPR margin.
 
 The paper's D(s) = 10/(4s + 40) = 2.5/(s + 10) (sec. 5) leaves F's zeros almost undamped, so 1 + K_e F is
-unstable for two bands of K_e; the README's ``ROBUST_PFC`` (10/(s + 10)) was chosen from this table.
+unstable for two bands of K_e; the manual's ``ROBUST_PFC`` (10/(s + 10)) was chosen from this table.
 """
 
 from __future__ import annotations
@@ -35,7 +35,7 @@ def robust_pfc_search(
 ) -> list[dict]:
     """Evaluate D = k/(s + a) over a grid (the family of the paper's D = 2.5/(s + 10)): W-ASPR, the
     continuous and discrete unstable bands, the least zero damping of F and the steady-state offset.
-    Pure computation; the README's choice of ``ROBUST_PFC`` came from this table."""
+    Pure computation; the manual's choice of ``ROBUST_PFC`` came from this table."""
     t = plant_tf()
     tn, td = tf_coefficients(t)
     t_dc = dc_gain(tn, td)

@@ -129,7 +129,7 @@ def build_summary(
         "ok": exit_code == 0,
         "outcome": outcome_of(exit_code),
         "exit_code": exit_code,
-        # flown to the end with every process clean / inside the envelope (README, "Outcomes"; autopilot.envelope)
+        # flown to the end with every process clean / inside the envelope (docs/flying.md; autopilot.envelope)
         "completed": exit_code in (EXIT_OK, EXIT_OUT_OF_ENVELOPE),
         "controlled": ap.get("controlled") if ap else None,
         "failed": failed,

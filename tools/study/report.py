@@ -1,4 +1,4 @@
-"""What a person reads: the Markdown tables (README and table.md), the figure, and the worst runs in Rerun."""
+"""What a person reads: the Markdown tables (docs/experiments.md, table.md), the figure, the worst runs in Rerun."""
 
 from __future__ import annotations
 
@@ -12,7 +12,7 @@ from tools.study.simulation import replay
 
 
 def format_table(summary: dict, conditions: Sequence[str] = ("nominal", "moderate", "severe")) -> str:
-    """Markdown: bounded share and p95 of ise_ref and energy per controller and condition (README, "Robustness")."""
+    """Markdown: bounded share and p95 of ise_ref and energy per controller and condition (docs/experiments.md)."""
     conds = [c for c in conditions if any(c in v for v in summary["results"].values())]
     head = "| controller | " + " | ".join(f"{c}: bounded / p95 ise_ref / p95 energy" for c in conds) + " |"
     lines = [head, "|---|" + "---|" * len(conds)]
