@@ -11,6 +11,7 @@ PWM in us.  The true roll phi is also drawn as the aircraft in 3D (``SITL_ATTITU
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import time
 
 from autopilot.shared.telemetry.flags import attach as attach_hook
@@ -25,13 +26,13 @@ SITL_RATES = f"{SITL}/rates"  # p, r truth                               deg/s
 SITL_SIDE_VELOCITY = f"{SITL}/side_velocity"  # v truth                  m/s
 SITL_RUDDER = f"{SITL}/rudder"  # delta_r truth, servo command applied   deg
 SITL_RUDDER_RATE = f"{SITL}/rudder_rate"  # delta_r_dot truth            deg/s
-SITL_ATTITUDE = f"{SITL}/attitude"  # Transform3D at the true roll phi + the aircraft shape
+SITL_ATTITUDE = f"{SITL}/attitude"  # Transform3D at the true roll phi (and pitch on JSBSim) + the aircraft shape
 SITL_SERVO_PWM = f"{SITL}/servo_pwm"  # PWM as received                  us
 SITL_EVENTS = f"{SITL}/events"  # TextLog: status events
 # A JSBSim plant (sitl.jsbsim_plant): what the safety pilot holds, so a user sees what it did.
 SITL_ALTITUDE = f"{SITL}/held/altitude"  # altitude above sea level     m
 SITL_AIRSPEED = f"{SITL}/held/airspeed"  # calibrated airspeed            m/s
-SITL_PITCH = f"{SITL}/held/pitch"  # pitch theta                          rad
+SITL_PITCH = f"{SITL}/held/pitch"  # pitch theta                          deg
 SITL_PILOT = f"{SITL}/held/pilot"  # elevator and throttle commands       normalised
 
 SITL_EXTRA_FIELDS = ("delta_cmd", "pwm")
@@ -59,15 +60,19 @@ SITL_TABLE = TableLayout(
 
 
 HELD_FIELDS = ("altitude_m", "airspeed_m_s", "theta", "elevator", "throttle")  # sitl.jsbsim_plant.JsbsimPlant.held
+# On a JSBSim plant the 3D aircraft flies the full attitude that is not the heading: roll and pitch, from the held
+# table's rows (the truth table then draws none).
+SITL_TABLE_NO_POSE = dataclasses.replace(SITL_TABLE, poses=())
 SITL_HELD_TABLE = TableLayout(
     "sitl_held",
-    HELD_FIELDS,
+    (*HELD_FIELDS, "phi"),
     (
         Plot(SITL_ALTITUDE, ("altitude_m",), ("altitude [m]",), (PURPLE,)),
         Plot(SITL_AIRSPEED, ("airspeed_m_s",), ("airspeed [m/s]",), (PURPLE,)),
-        Plot(SITL_PITCH, ("theta",), ("pitch theta (truth)",), (PURPLE,)),
+        Plot(SITL_PITCH, ("theta",), ("pitch theta (truth)",), (PURPLE,), scale=DEG),
         Plot(SITL_PILOT, ("elevator", "throttle"), ("safety pilot: elevator", "safety pilot: throttle"), (GREEN, GREY)),
     ),
+    poses=(Pose(SITL_ATTITUDE, "phi", "aircraft (true roll phi, pitch theta)", (*PURPLE, 255), pitch="theta"),),
 )
 
 
@@ -77,9 +82,10 @@ class SitlHook(ProcessHook):
 
     def __init__(self, tel, held: bool = False):
         super().__init__(tel)
-        self.table = tel.table(SITL_TABLE)
+        self.table = tel.table(SITL_TABLE_NO_POSE if held else SITL_TABLE)
         self._push = self.table.push
         self._held = tel.table(SITL_HELD_TABLE).push if held else None
+        self._phi = STATE_NAMES.index("phi")
 
     def __call__(self, rec) -> None:
         self.last_t = t = rec.t_sim
@@ -87,7 +93,7 @@ class SitlHook(ProcessHook):
         self._push((t, wall, tuple(rec.x.tolist()) + (nan_if_none(rec.u), nan_if_none(rec.pwm))))
         if self._held is not None:
             held = rec.sitl.aircraft.held()
-            self._held((t, wall, tuple(held[k] for k in HELD_FIELDS)))
+            self._held((t, wall, (*(held[k] for k in HELD_FIELDS), float(rec.x[self._phi]))))
 
 
 def attach(args: argparse.Namespace, sitl):

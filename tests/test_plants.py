@@ -344,6 +344,18 @@ def test_the_launcher_flies_jsbsim_roll_steps_with_the_designed_pfc_and_records_
     assert np.max(np.abs(v - 90 * 1852 / 3600)) < 2.0  # the default 90 kt
     names = [str(n) for n in rrd.blueprint_components(out / "flight.rrd", "ViewBlueprint:display_name")]
     assert any("Altitude [m]" in n for n in names) and any("Safety pilot" in n for n in names)  # a tab shows them
+    # The 3D aircraft flies JSBSim's roll and pitch (issue 20, "Seeing it"): each quaternion, rotated by scipy's
+    # Euler ZYX (heading 0) from the recorded truth roll and pitch, is the same rotation (q and -q alike; the
+    # recording keeps float32).
+    from scipy.spatial.transform import Rotation
+
+    t_q, quats = rrd.load_poses(out / "flight.rrd")["/sitl/attitude"]
+    pitch_deg = held["/sitl/held/pitch"].values[:, 0]
+    truth = rrd.load(out / "flight.rrd", prefix="/sitl/roll")["/sitl/roll"].values[:, 0]
+    assert quats.shape[0] == pitch_deg.size == truth.size >= 1000 and np.ptp(pitch_deg) > 0.1
+    expect = Rotation.from_euler("ZYX", np.column_stack([0 * truth, pitch_deg, truth]), degrees=True).as_quat()
+    dots = np.abs(np.sum(expect * quats, axis=1))
+    assert np.all(dots > 1.0 - 1e-7), dots.min()  # float32 quaternions: within 0.05 deg; R_x R_y instead is 5e-6 off
 
 
 @pytest.mark.e2e

@@ -450,3 +450,20 @@ def test_nothing_imports_rerun_without_telemetry_flags():
         assert sitl.telemetry.attach(p.parse_args([]), target) is None
     """)
     assert not any(m.split(".")[0] == "rerun" for m in loaded)
+
+
+def test_attitude_quaternions_are_euler_zyx_without_the_heading():
+    """The 3D aircraft's quaternion of roll and pitch against scipy's Euler ZYX rotation with heading 0, and the nose
+    (body x) of a pitched-up aircraft pointing up in FRD (negative z)."""
+    from scipy.spatial.transform import Rotation
+
+    from autopilot.shared.telemetry.columns import attitude_quaternions, roll_quaternions
+
+    rng = np.random.default_rng(3)
+    phi, theta = rng.uniform(-3.0, 3.0, 50), rng.uniform(-1.5, 1.5, 50)
+    q = attitude_quaternions(phi, theta)
+    ref = Rotation.from_euler("ZYX", np.column_stack([0 * phi, theta, phi])).as_quat()
+    assert np.allclose(np.abs(np.sum(q * ref, axis=1)), 1.0, atol=1e-12)
+    assert np.allclose(attitude_quaternions(phi, 0 * phi), roll_quaternions(phi), atol=1e-15)
+    nose = Rotation.from_quat(attitude_quaternions(np.array([0.0]), np.array([0.3]))).apply([1.0, 0.0, 0.0])[0]
+    assert nose[2] == pytest.approx(-np.sin(0.3)) and nose[0] == pytest.approx(np.cos(0.3))

@@ -119,7 +119,7 @@ def flight_blueprint() -> rrb.Blueprint:
     held = rrb.Grid(  # a JSBSim plant only (sitl.telemetry.SITL_HELD_TABLE): what the SITL's safety pilot held
         _plot("Altitude [m]", [S.SITL_ALTITUDE]),
         _plot("Airspeed [m/s]", [S.SITL_AIRSPEED]),
-        _plot("Pitch theta [rad]", [S.SITL_PITCH]),
+        _plot("Pitch theta [deg]", [S.SITL_PITCH]),
         _plot("Safety pilot: elevator and throttle", [S.SITL_PILOT]),
         grid_columns=2,
         name="Held axes (JSBSim)",

@@ -77,9 +77,20 @@ def roll_quaternions(roll_rad: np.ndarray) -> np.ndarray:
     return q
 
 
-def pose_columns(roll_rad: np.ndarray):
-    """``Transform3D`` columns (one quaternion per row) of the aircraft at ``roll_rad``."""
-    return rr.Transform3D.columns(quaternion=roll_quaternions(roll_rad))
+def attitude_quaternions(roll_rad: np.ndarray, pitch_rad: np.ndarray) -> np.ndarray:
+    """(n, 4) unit quaternions (x, y, z, w) of R_y(theta) R_x(phi), the Euler ZYX attitude with the heading left
+    out: q = q_y(theta) q_x(phi) = (c_theta s_phi, s_theta c_phi, -s_theta s_phi, c_theta c_phi), halves of the
+    angles (FRD: positive pitch puts the nose up)."""
+    hr = 0.5 * np.asarray(roll_rad, dtype=np.float64)
+    hp = 0.5 * np.asarray(pitch_rad, dtype=np.float64)
+    sr, cr, sp, cp = np.sin(hr), np.cos(hr), np.sin(hp), np.cos(hp)
+    return np.stack([cp * sr, sp * cr, -sp * sr, cp * cr], axis=1)
+
+
+def pose_columns(roll_rad: np.ndarray, pitch_rad: np.ndarray | None = None):
+    """``Transform3D`` columns (one quaternion per row) of the aircraft at ``roll_rad`` (and ``pitch_rad``)."""
+    q = roll_quaternions(roll_rad) if pitch_rad is None else attitude_quaternions(roll_rad, pitch_rad)
+    return rr.Transform3D.columns(quaternion=q)
 
 
 def aircraft_shape(color: Rgba) -> rr.Boxes3D:

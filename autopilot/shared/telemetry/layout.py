@@ -87,12 +87,15 @@ AIRCRAFT_BOXES: tuple[tuple[str, tuple[float, float, float], tuple[float, float,
 @dataclass(frozen=True)
 class Pose:
     """The aircraft shape at ``path``, rotated by a row's roll angle ``roll`` (rad, a table field) about the body x
-    axis (a ``Transform3D`` per row); ``color`` with alpha below 255 draws it as a translucent ghost."""
+    axis and, with ``pitch`` (a table field, rad), by the pitch angle about the body y axis before it (a
+    ``Transform3D`` per row: R = R_y(theta) R_x(phi), the Euler ZYX attitude without the heading, so the aircraft
+    stays in front of the camera); ``color`` with alpha below 255 draws it as a translucent ghost."""
 
     path: str
     roll: str
     label: str
     color: Rgba
+    pitch: str | None = None
 
     def __post_init__(self) -> None:
         if not self.path.startswith("/"):

@@ -355,21 +355,23 @@ class Telemetry:
                 self._error(f"{plot.path}: {exc}")
             self._yield()
         for pose in table.layout.poses:
-            self._send_pose(pose, sim, wall, vals[:, table.layout.index(pose.roll)])
+            pitch = None if pose.pitch is None else vals[:, table.layout.index(pose.pitch)]
+            self._send_pose(pose, sim, wall, vals[:, table.layout.index(pose.roll)], pitch)
         self.rows_sent[name] = self.rows_sent.get(name, 0) + n
 
-    def _send_pose(self, pose, sim: np.ndarray, wall: np.ndarray, roll: np.ndarray) -> None:
-        """One ``Transform3D`` per row with a finite roll angle (a step without one keeps the last attitude)."""
-        ok = np.isfinite(roll)
+    def _send_pose(self, pose, sim: np.ndarray, wall: np.ndarray, roll: np.ndarray, pitch=None) -> None:
+        """One ``Transform3D`` per row with a finite attitude (a step without one keeps the last attitude)."""
+        ok = np.isfinite(roll) if pitch is None else np.isfinite(roll) & np.isfinite(pitch)
         if not ok.any():
             return
         if not ok.all():
             sim, wall, roll = sim[ok], wall[ok], roll[ok]
+            pitch = None if pitch is None else pitch[ok]
         try:
             self.rec.send_columns(
                 pose.path,
                 indexes=[sim_time_column(sim), wall_time_column(wall)],
-                columns=pose_columns(roll),
+                columns=pose_columns(roll, pitch),
                 strict=True,
             )
             self.chunks_sent += 1
