@@ -323,6 +323,9 @@ def test_the_launcher_flies_jsbsim_roll_steps_with_the_designed_pfc_and_records_
     )
     assert r.returncode == 0, r.stdout + r.stderr
     assert "--params " + str(plants.shipped("jsbsim-c172x.params")) in (out / "autopilot.log").read_text()
+    summary = __import__("json").loads((out / "summary.json").read_text())
+    shipped = str(plants.shipped("jsbsim-c172x.params"))  # what flew is named: the plant, its parameter file
+    assert (summary["plant"], summary["params"], summary["pfc"]) == ("jsbsim:c172x", shipped, f"from {shipped}")
     s = np.load(out / "autopilot_series.npz")
     phi, t = s["phi"], s["t"]
     assert np.max(np.abs(phi)) < math.radians(60.0)
@@ -401,3 +404,47 @@ def test_a_bad_plant_or_parameter_file_is_refused_by_flight(kwargs, field, needl
     with pytest.raises(FlightConfigError) as err:
         Flight(**kwargs)
     assert err.value.field == field and needle in str(err.value)
+
+
+@pytest.mark.e2e
+@pytest.mark.parametrize("spec", ["jsbsim:c172x:airspeed_kt=300", "jsbsim:ball"])
+def test_a_jsbsim_plant_that_does_not_trim_is_refused_before_the_flight(tmp_path, spec):
+    """Beyond the aircraft's envelope (or not an aircraft): one line, exit 2, nothing started (only the refusal's
+    summary.json), JSBSim's own chatter kept out of the terminal; tools.pfc design says the same in one line."""
+    import json
+
+    out = tmp_path / "f"
+    r = subprocess.run(
+        [sys.executable, "-m", "tools.launch", "--lockstep", "--duration", "3", "--plant", spec, "--out", str(out)],
+        capture_output=True,
+        text=True,
+        timeout=120,
+    )
+    assert r.returncode == 2 and r.stdout == "", r.stdout + r.stderr
+    assert r.stderr.count("\n") == 1 and "does not trim" in r.stderr and "Traceback" not in r.stderr, r.stderr
+    assert sorted(p.name for p in out.iterdir()) == ["summary.json"]
+    assert json.loads((out / "summary.json").read_text())["refused"] is True
+    d = subprocess.run(
+        [sys.executable, "-m", "tools.pfc", "design", spec, "--out", str(tmp_path / "x.params")],
+        capture_output=True,
+        text=True,
+        timeout=120,
+    )
+    last = d.stderr.strip().splitlines()[-1]
+    assert d.returncode == 2 and "does not trim" in last and "Traceback" not in d.stderr, d.stderr
+
+
+@pytest.mark.e2e
+def test_pfc_design_never_overwrites_another_plant_file(tmp_path):
+    """The linearisation goes to OUT.toml beside --out: a different file already there is refused, unchanged."""
+    mine = tmp_path / "mine.toml"
+    mine.write_bytes(plants.shipped("kh2013a.toml").read_bytes())
+    before = mine.read_bytes()
+    d = subprocess.run(
+        [sys.executable, "-m", "tools.pfc", "design", "jsbsim:c172x", "--out", str(tmp_path / "mine.params")],
+        capture_output=True,
+        text=True,
+        timeout=120,
+    )
+    assert d.returncode == 2 and "exists and is not this linearisation" in d.stderr, d.stderr
+    assert mine.read_bytes() == before and not (tmp_path / "mine.params").exists()

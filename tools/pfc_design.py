@@ -23,7 +23,13 @@ from autopilot.shared.cli import OneLineArgumentParser
 def build_parser() -> OneLineArgumentParser:
     p = OneLineArgumentParser(prog="python -m tools.pfc design", description=__doc__.split("\n\n")[0])
     p.add_argument("plant", help="FILE.toml, kh2013a or jsbsim:MODEL[:KEY=VALUE,...]")
-    p.add_argument("--out", default=None, metavar="FILE.params", help="the parameter file to write")
+    p.add_argument(
+        "--out",
+        default=None,
+        metavar="FILE.params",
+        help="the parameter file to write (a jsbsim plant is linearised to FILE.toml beside it first; an existing "
+        "FILE.toml that is another plant is refused, never overwritten)",
+    )
     p.add_argument("--airspeed", type=float, default=None, metavar="KT", help="jsbsim: linearise at this airspeed")
     p.add_argument("--rate-hz", type=float, default=100.0, metavar="HZ", help="control rate (default 100)")
     p.add_argument(
@@ -57,7 +63,10 @@ def _plant_file(args, parser) -> tuple[str, Path]:
         spec = replace(spec, airspeed_kt=args.airspeed)
     out = Path(args.out or f"jsbsim-{spec.model}.params")
     toml = out.with_suffix(".toml")
-    toml.write_text(to_toml(spec, linearise(spec)))
+    text = to_toml(spec, linearise(spec))
+    if toml.exists() and toml.read_text(encoding="utf-8", errors="replace") != text:  # never a user's file silently
+        parser.error(f"{toml} exists and is not this linearisation: remove it or give another --out")
+    toml.write_text(text)
     print(f"linearised {spec.text()} -> {toml}")
     return str(toml), out
 
@@ -117,6 +126,7 @@ def write_params(path: Path, plant_text: str, lines: list[str], values: dict) ->
 def main(argv=None) -> int:
     parser = build_parser()
     args = parser.parse_args(argv)
+    from sitl.jsbsim_plant import JsbsimPlantError
     from sitl.plant import PlantError
     from tools.analysis import AnalysisError
     from tools.analysis.design import PfcDesignError
@@ -128,7 +138,7 @@ def main(argv=None) -> int:
     try:
         plant_text, out = _plant_file(args, parser)
         lines, values = design_text(plant_text, args.rate_hz, args.margin, args.lv)
-    except (PlantError, PfcDesignError) as exc:
+    except (PlantError, PfcDesignError, JsbsimPlantError) as exc:
         parser.error(str(exc))
     except AnalysisError as exc:
         print(f"{parser.prog}: analysis failed: {exc}", file=sys.stderr)

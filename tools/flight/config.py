@@ -4,6 +4,8 @@ its three child processes (``child_argvs``), their telemetry and signing-key arg
 from __future__ import annotations
 
 import argparse
+import contextlib
+import functools
 import math
 import os
 import sys
@@ -273,6 +275,8 @@ class FlightConfig:
         try:
             plants.check(self.plant)
             plants.check_disturbances(self.plant, {k: getattr(self, k) for k in disturbances.FLAGS})
+            if plants.kind(self.plant) == "jsbsim":
+                _trims(self.plant)  # a JSBSim aircraft that does not trim there is refused before anything starts
         except plants.PlantError as exc:
             raise FlightConfigError("plant", f"plant: {exc}") from None
         if self.surface_limit_deg is not None and self.u_limit_deg > self.surface_limit_deg:
@@ -378,6 +382,34 @@ class FlightConfig:
 
 
 # ---------------------------------------------------------------------------------------- child processes
+@functools.cache
+def _trims(plant: str) -> None:
+    """Build (and so trim) a JSBSim plant once per process: ``sitl.plant.PlantError`` if it cannot trim (an airspeed
+    outside the aircraft's envelope, a model that is not an aircraft), found here instead of in the SITL mid-launch."""
+    from sitl import plant as plants
+
+    with _quiet_fds():  # JSBSim's own chatter (its C++ writes to fds 1 and 2): the refusal is one line
+        plants.build(plant, 1000.0)
+
+
+@contextlib.contextmanager
+def _quiet_fds():
+    """File descriptors 1 and 2 to /dev/null for the block (C++ output too, not only Python's)."""
+    sys.stdout.flush()
+    sys.stderr.flush()
+    saved = [os.dup(1), os.dup(2)]
+    null = os.open(os.devnull, os.O_WRONLY)
+    try:
+        os.dup2(null, 1)
+        os.dup2(null, 2)
+        yield
+    finally:
+        os.dup2(saved[0], 1)
+        os.dup2(saved[1], 2)
+        for fd in (*saved, null):
+            os.close(fd)
+
+
 def child_argvs(
     cfg: FlightConfig,
     out: Path,

@@ -111,7 +111,10 @@ def build_summary(
         "signing": cfg.signing,  # MAVLink 2 signing on every link (docs/design.md, "Trust model")
         "controller": cfg.controller,
         "Lv": cfg.lv_value,
-        "pfc": cfg.pfc,
+        # a parameter file (given, or the one designed for the plant) sets the PFC the autopilot flies
+        "pfc": cfg.pfc if cfg.params_file is None else f"from {cfg.params_file}",
+        "plant": cfg.plant,  # the SITL's plant (sitl.plant): kh2013a, FILE.toml or jsbsim:MODEL[:...]
+        "params": cfg.params_file,  # the autopilot's --params file, None if none
         "sigma_xu": cfg.sigma_xu,
         "dead_zone_deg": cfg.dead_zone_deg,
         "ki_max": cfg.ki_max,
