@@ -139,8 +139,9 @@ def judge(
         return Controlled(True, roll_deg, saturated_share, None, why, envelope, samples)
     parts, exits = [], []
     if not roll_in:
-        at = "" if roll_exit_s is None else f" at {roll_exit_s:.1f} s"
-        parts.append(f"|roll| reached {roll_deg:.1f} deg (limit {lim_roll:g}){at}")
+        # the peak and when the limit was first passed are two instants: say which is which
+        at = "" if roll_exit_s is None else f"; first past it at {roll_exit_s:.1f} s"
+        parts.append(f"|roll| reached {roll_deg:.1f} deg (limit {lim_roll:g}{at})")
         exits.append(roll_exit_s)
     if not share_in:
         parts.append(f"rudder saturated {pct:.1f} % of the flight (limit {lim_pct:g} %)")

@@ -123,13 +123,22 @@ def test_a_gcs_csv_with_an_impossible_time_is_one_line(tmp_path):
         (["--csv", "{far}"], "time must be in [0, 86400] s, got '1e308'", "gcs"),  # it crashed the GCS mid-flight
         (["--csv", "{steep}"], "roll must be in [-180, 180] deg", "gcs"),
         (["--csv", "{zero}"], "the last breakpoint", "gcs"),
+        (["--csv", "{binary}"], "not a text file (byte 0 is not UTF-8)", "gcs"),  # named neither file nor line
+        # a --params value beyond the table of bounds: refused by the launcher, not by the autopilot mid-launch
+        (["--params", "{rate}"], "CLSAC_RATE must be in (0, 1000] Hz, got 1e+09", "autopilot"),
+        (["--params", "{unknown}"], "FOO", "autopilot"),
     ],
 )
 def test_the_launcher_refuses_before_starting_anything(tmp_path, argv, needle, process):
     csvs = {"far": "0, 5\n1e308, 0\n", "steep": "0, 5\n2, 1000\n", "zero": "0, 5\n"}
     for name, text in csvs.items():
         (tmp_path / f"{name}.csv").write_text("time_s, roll_deg\n" + text)
-    argv = [a.format(**{k: str(tmp_path / f"{k}.csv") for k in csvs}) for a in argv]
+    (tmp_path / "binary.csv").write_bytes(b"\xff\xfe\x00binary")
+    (tmp_path / "rate.params").write_text("CLSAC_RATE 1e9\n")
+    (tmp_path / "unknown.params").write_text("FOO 1\n")
+    files = {k: str(tmp_path / f"{k}.csv") for k in (*csvs, "binary")}
+    files.update({k: str(tmp_path / f"{k}.params") for k in ("rate", "unknown")})
+    argv = [a.format(**files) for a in argv]
     out = tmp_path / "never"
     r = run_cli("tools.launch", "--lockstep", *argv, "--out", str(out), timeout=60)
     _one_line_refusal(r, needle)

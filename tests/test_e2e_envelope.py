@@ -66,7 +66,7 @@ def test_readme_disturbance_example_ends_out_of_envelope_with_its_numbers(tmp_pa
     assert c["ok"] is False and c["max_abs_roll_deg"] == pytest.approx(roll_deg, rel=1e-12)
     assert c["saturated_share"] == pytest.approx(share, abs=1e-12) and c["first_exit_s"] == pytest.approx(first)
     assert c["reason"] == (
-        f"|roll| reached {roll_deg:.1f} deg (limit 60) at {first:.1f} s; "
+        f"|roll| reached {roll_deg:.1f} deg (limit 60; first past it at {first:.1f} s); "
         f"rudder saturated {100 * share:.1f} % of the flight (limit 20 %)"
     )
     assert c["limits"] == {"max_abs_roll_deg": 60.0, "max_saturated_share": 0.2} and c["checked"] is True
@@ -91,7 +91,7 @@ def test_envelope_limits_and_the_check_off(tmp_path):
     roll_deg, share, _ = _independent_verdict(res.out)
     assert res.completed and res.controlled is False and not res.ok and res.exit_code == 3
     assert res.outcome == "OUT OF ENVELOPE" and 5.0 < roll_deg < 20.0
-    assert res.reason.startswith(f"out of envelope: |roll| reached {roll_deg:.1f} deg (limit 5) at ")
+    assert res.reason.startswith(f"out of envelope: |roll| reached {roll_deg:.1f} deg (limit 5; first past it at ")
     off = Flight(**base, out=tmp_path / "off", envelope_roll=5.0, envelope=False).run()
     assert off.ok and off.completed and off.controlled is True and off.exit_code == 0
     assert off.summary["controlled"]["reason"] == (

@@ -81,7 +81,7 @@ def test_sine_roll_exits_when_and_where_the_closed_form_says():
     k_first = math.ceil(t_star * RATE)
     assert not res.ok and res.max_abs_roll_deg == pytest.approx(70.0, abs=1e-9)
     assert res.first_exit_s == pytest.approx(k_first * DT, abs=1e-12) and res.saturated_share == 0.0
-    assert res.reason == f"|roll| reached 70.0 deg (limit 60) at {k_first * DT:.1f} s"
+    assert res.reason == f"|roll| reached 70.0 deg (limit 60; first past it at {k_first * DT:.1f} s)"
     assert judge_series(t, roll, np.zeros_like(t), LIM, Envelope(max_roll_deg=70.5)).ok
 
 

@@ -93,7 +93,12 @@ class Child:
         self._log.close()
 
     def reason(self) -> str:
-        """The child's last error line, for the flight's reason."""
+        """The child's last error line, for the flight's reason; for a child killed by a signal, that signal."""
+        if self.code is not None and self.code < 0:
+            try:
+                return f"killed by {signal.Signals(-self.code).name}"
+            except ValueError:
+                return f"killed by signal {-self.code}"
         for line in reversed(self.tail):
             if "error" in line.lower():
                 return line.strip()

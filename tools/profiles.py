@@ -41,28 +41,34 @@ def from_csv(path: str) -> tuple[list[float], list[float]]:
     """
     times: list[float] = []
     rolls: list[float] = []
-    with open(path, newline="") as f:
-        for lineno, line in enumerate(f, 1):
-            text = line.strip()
-            if not text or text.startswith("#"):
-                continue
-            parts = [p.strip() for p in text.replace(";", ",").split(",")]
-            try:
-                t, r = float(parts[0]), float(parts[1])
-            except (ValueError, IndexError):
-                if not times and lineno == 1:
-                    continue  # a header line
-                raise ValueError(f"{path}:{lineno}: expected 'time_s, roll_deg', got {text!r}") from None
-            if not (math.isfinite(t) and math.isfinite(r)):
-                raise ValueError(f"{path}:{lineno}: values must be finite, got {text!r}")
-            if not 0.0 <= t <= MAX_SIM_S:
-                raise ValueError(f"{path}:{lineno}: time must be in [0, {MAX_SIM_S:g}] s, got {parts[0]!r}")
-            if not -180.0 <= r <= 180.0:
-                raise ValueError(f"{path}:{lineno}: roll must be in [-180, 180] deg, got {parts[1]!r}")
-            if times and t <= times[-1]:
-                raise ValueError(f"{path}:{lineno}: times must increase, got {t} after {times[-1]}")
-            times.append(t)
-            rolls.append(math.radians(r))
+    try:
+        with open(path, "rb") as f:
+            data = f.read().decode("utf-8")
+    except UnicodeDecodeError as exc:
+        raise ValueError(f"{path}: not a text file (byte {exc.start} is not UTF-8): rows 'time_s, roll_deg'") from None
+    if "\0" in data:
+        raise ValueError(f"{path}: not a text file (a NUL byte): rows 'time_s, roll_deg'")
+    for lineno, line in enumerate(data.splitlines(), 1):
+        text = line.strip()
+        if not text or text.startswith("#"):
+            continue
+        parts = [p.strip() for p in text.replace(";", ",").split(",")]
+        try:
+            t, r = float(parts[0]), float(parts[1])
+        except (ValueError, IndexError):
+            if not times and lineno == 1:
+                continue  # a header line
+            raise ValueError(f"{path}:{lineno}: expected 'time_s, roll_deg', got {text!r}") from None
+        if not (math.isfinite(t) and math.isfinite(r)):
+            raise ValueError(f"{path}:{lineno}: values must be finite, got {text!r}")
+        if not 0.0 <= t <= MAX_SIM_S:
+            raise ValueError(f"{path}:{lineno}: time must be in [0, {MAX_SIM_S:g}] s, got {parts[0]!r}")
+        if not -180.0 <= r <= 180.0:
+            raise ValueError(f"{path}:{lineno}: roll must be in [-180, 180] deg, got {parts[1]!r}")
+        if times and t <= times[-1]:
+            raise ValueError(f"{path}:{lineno}: times must increase, got {t} after {times[-1]}")
+        times.append(t)
+        rolls.append(math.radians(r))
     if not times:
         raise ValueError(f"{path}: no data rows")
     return times, rolls

@@ -289,7 +289,7 @@ class FlightConfig:
             object.__setattr__(self, "baseline_gains", _checked("baseline_gains", baseline_gains, text))
         if self.params is not None:
             try:
-                load_file(self.params)
+                _check_params(load_file(self.params))
             except OSError as exc:
                 raise FlightConfigError("params", f"params: cannot read {self.params}: {exc.strerror or exc}") from None
             except ParamError as exc:
@@ -382,6 +382,16 @@ class FlightConfig:
 
 
 # ---------------------------------------------------------------------------------------- child processes
+def _check_params(values: dict[str, float]) -> None:
+    """A parameter file's values against the one table of bounds and the law (``autopilot.params.ParamTable``, as
+    the autopilot loads it): ``ParamError`` naming the first one refused, before anything starts."""
+    from autopilot.config import ClSacConfig
+    from autopilot.params import ParamTable
+
+    options = {"attitude_timeout_s": 0.1, "setpoint_timeout_s": 1.0, "max_roll_rad": math.radians(45.0)}
+    ParamTable(ClSacConfig(), options).update(values)
+
+
 @functools.cache
 def _trims(plant: str) -> None:
     """Build (and so trim) a JSBSim plant once per process: ``sitl.plant.PlantError`` if it cannot trim (an airspeed

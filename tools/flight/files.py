@@ -78,6 +78,12 @@ def _load(path: Path):
         return None
 
 
+def _flown_lv(cfg: FlightConfig, stats: dict):
+    """The closed-loop reference gain the autopilot flew (its stats), else the configured one (nothing flew)."""
+    lv = (stats.get("autopilot") or {}).get("Lv")
+    return cfg.lv_value if lv is None or cfg.controller == "sac" else lv
+
+
 def build_summary(
     cfg: FlightConfig,
     out: Path,
@@ -110,7 +116,8 @@ def build_summary(
         "mode": "lockstep" if cfg.lockstep else "realtime",
         "signing": cfg.signing,  # MAVLink 2 signing on every link (docs/design.md, "Trust model")
         "controller": cfg.controller,
-        "Lv": cfg.lv_value,
+        # the Lv that flew: a --params file (CLSAC_LV) may set another than the flags; SAC flies 0
+        "Lv": _flown_lv(cfg, stats),
         # a parameter file (given, or the one designed for the plant) sets the PFC the autopilot flies
         "pfc": cfg.pfc if cfg.params_file is None else f"from {cfg.params_file}",
         "plant": cfg.plant,  # the SITL's plant (sitl.plant): kh2013a, FILE.toml or jsbsim:MODEL[:...]

@@ -1,0 +1,54 @@
+"""What a new user's review of the merged product found, each pinned: the experiment over MAVLink flies SAC out of
+the envelope as a result, the Lv a parameter file sets is the Lv reported, a --timeout is quoted as given, and a
+child killed by a signal is named by that signal, not by its last log line."""
+
+from __future__ import annotations
+
+import json
+import sys
+
+import pytest
+from _mavlink_procs import run_cli
+
+from tools.children import Child
+
+pytestmark = pytest.mark.e2e  # real processes
+
+
+def test_the_paper_experiment_over_mavlink_flies_sac_out_of_the_envelope_and_exits_0(tmp_path):
+    """SAC with the paper's PFC leaves the envelope (the paper's finding): a run of the comparison, not a failure."""
+    out = tmp_path / "paper"
+    r = run_cli("tools.experiment", "paper", "--transport", "mavlink", "--runs", "sac", "--out", str(out), "--no-plot")
+    assert r.returncode == 0, r.stdout[-2000:] + r.stderr[-2000:]
+    run = json.loads((out / "summary.json").read_text())["runs"][0]
+    assert run["name"] == "sac" and run["controlled"]["ok"] is False and run["metrics"]["ise_ref"] > 1.0
+
+
+def test_the_lv_a_parameter_file_sets_is_the_lv_reported(tmp_path):
+    params = tmp_path / "lv50.params"
+    params.write_text("CLSAC_LV 50\n")
+    out = tmp_path / "f"
+    r = run_cli("tools.launch", "--lockstep", "--duration", "2", "--params", str(params), "--out", str(out), "--quiet")
+    assert r.returncode == 0, r.stderr[-2000:]
+    assert "== lockstep flight, clsac (Lv=50), " in r.stdout
+    s = json.loads((out / "summary.json").read_text())
+    assert s["Lv"] == 50.0 and s["runs"][0]["Lv"] == 50.0 and s["params"] == str(params)
+
+
+def test_a_timeout_is_quoted_as_given(tmp_path):
+    r = run_cli("tools.launch", "--lockstep", "--duration", "600", "--timeout", "0.4", "--quiet", "--no-rrd")
+    assert r.returncode == 1
+    assert (
+        r.stdout.strip()
+        .splitlines()[-1]
+        .startswith("FAILED: flight did not finish within 0.4 s of wall clock (--timeout)")
+    ), r.stdout[-500:]
+
+
+def test_a_child_killed_by_a_signal_is_named_by_the_signal(tmp_path):
+    c = Child(
+        "x", [sys.executable, "-c", "print('x: a start-up banner', flush=True); input()"], tmp_path / "x.log", False
+    )
+    c.proc.kill()
+    assert c.wait(10.0) == -9
+    assert c.reason() == "killed by SIGKILL"
