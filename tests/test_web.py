@@ -50,19 +50,20 @@ def listeners(port: int) -> set[str]:
     return found
 
 
-def serve_web_pids(port: int) -> list[int]:
-    """Processes whose command line is a ``rerun --serve-web`` with ``port``."""
-    pids = []
+def _processes():
+    """(pid, argv as bytes) of every process the kernel lists (one that ends meanwhile is passed over)."""
     for d in Path("/proc").iterdir():
         if not d.name.isdigit():
             continue
         try:
-            argv = (d / "cmdline").read_bytes().split(b"\0")
+            yield int(d.name), (d / "cmdline").read_bytes().split(b"\0")
         except OSError:
             continue
-        if b"--serve-web" in argv and str(port).encode() in argv:
-            pids.append(int(d.name))
-    return pids
+
+
+def serve_web_pids(port: int) -> list[int]:
+    """Processes whose command line is a ``rerun --serve-web`` with ``port``."""
+    return [pid for pid, argv in _processes() if b"--serve-web" in argv and str(port).encode() in argv]
 
 
 def _launch(out: Path, *flags: str, duration: float = 3.0) -> list[str]:
@@ -183,16 +184,10 @@ def test_the_server_dies_with_a_killed_launcher(tmp_path):
 
 def _stop_orphans(out: Path) -> None:
     """The flight's children outlive a SIGKILLed launcher (their own sessions): end them by their command line."""
-    for d in Path("/proc").iterdir():
-        if not d.name.isdigit():
-            continue
-        try:
-            argv = (d / "cmdline").read_bytes().split(b"\0")
-        except OSError:
-            continue
-        if any(str(out).encode() in a for a in argv) and int(d.name) != os.getpid():
+    for pid, argv in _processes():
+        if any(str(out).encode() in a for a in argv) and pid != os.getpid():
             try:
-                os.kill(int(d.name), signal.SIGKILL)
+                os.kill(pid, signal.SIGKILL)
             except ProcessLookupError:
                 pass
 

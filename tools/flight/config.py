@@ -386,9 +386,11 @@ def _check_params(values: dict[str, float]) -> None:
     """A parameter file's values against the one table of bounds and the law (``autopilot.params.ParamTable``, as
     the autopilot loads it): ``ParamError`` naming the first one refused, before anything starts."""
     from autopilot.config import ClSacConfig
+    from autopilot.loop import AutopilotOptions
     from autopilot.params import ParamTable
 
-    options = {"attitude_timeout_s": 0.1, "setpoint_timeout_s": 1.0, "max_roll_rad": math.radians(45.0)}
+    defaults = AutopilotOptions()  # the options the autopilot starts from (the file's values replace them)
+    options = {k: getattr(defaults, k) for k in ("attitude_timeout_s", "setpoint_timeout_s", "max_roll_rad")}
     ParamTable(ClSacConfig(), options).update(values)
 
 
