@@ -161,12 +161,12 @@ def test_killed_autopilot_flown_fraction_comes_from_the_sitl(tmp_path, lockstep,
     commands (lockstep: its frames; real time: its sim time from the first command, less the servo timeout),
     not 0 %."""
     duration = 3000.0 if lockstep else 20.0
+    t_launch = time.monotonic()
     with Flight(lockstep=lockstep, duration=duration, out=tmp_path, **QUIET) as flight:
         _wait_for(flight, "gcs", "gcs: vehicle ")
-        t0 = time.monotonic()
         time.sleep(1.5)
         os.kill(flight.pids["autopilot"], signal.SIGKILL)
-        t_kill = time.monotonic() - t0
+        t_kill = time.monotonic() - t_launch  # the autopilot may command before the GCS's first sight (slow start)
         res = flight.wait(timeout=60)
     s = res.summary
     assert not res.ok and s["failed"] == "autopilot" and "exit code -9" in res.reason, res.reason
@@ -174,7 +174,7 @@ def test_killed_autopilot_flown_fraction_comes_from_the_sitl(tmp_path, lockstep,
     sitl = _stats(flight, "sitl")
     if lockstep:
         assert s["flown"]["steps"] == sitl["frames"] > 0
-    else:  # flown from about the GCS's first sight of the vehicle to the kill (1.5 s of wall clock, real time)
+    else:  # at least the 1.5 s after the GCS's first sight of the vehicle, at most the wall clock since the launch
         assert 1.0 <= s["flown"]["sim_time_s"] <= t_kill + 0.5, (s["flown"], t_kill)
         from_sitl = (sitl["last_servo_sim_s"] - sitl["first_servo_sim_s"] - sitl["servo_timeout_s"]) * 100
         assert abs(s["flown"]["steps"] - from_sitl) <= 1.01  # the periods between its first and last command
