@@ -124,7 +124,11 @@ def main_run(args, prog: str) -> int:
         print(f"\nlong flight ({LONG_DURATION_S:g} s), median peak |roll| per 30 s window:")
         print(format_long(summary))
     t = summary["timing"]
-    print(f"\n{t['runs']} runs in {t['wall_s']:.1f} s ({t['runs_per_s']:,.0f} runs/s); files in {out.resolve()}")
+    kinds = ", ".join(f"{p['runs']} of {p['duration_s']:g} s" for p in t["phases"].values())
+    print(
+        f"\n{t['runs']} runs ({kinds}) in {t['wall_s']:.1f} s ({t['runs_per_s']:,.0f} runs/s), files included; "
+        f"files in {out.resolve()}"
+    )
     return 0
 
 

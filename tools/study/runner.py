@@ -9,6 +9,7 @@ import time
 from pathlib import Path
 
 from autopilot.shared.process import write_json_atomic
+from tools.study import native
 from tools.study.aggregation import (
     LONG_CONDITIONS,
     LONG_CONTROLLERS,
@@ -46,9 +47,11 @@ def run_study(opts: StudyOptions, out_dir: str | os.PathLike | None = None, *, l
     total = sum(len(t.runs) for t in tasks)
     bar = Progress(total, "30 s runs", enabled=progress)
     where = opts.scheduler or ("this process" if opts.workers == 1 else f"{opts.workers} local processes")
-    log(f"study: {len(opts.controllers)} controllers x {len(pairs)} runs = {total} runs of 30 s on {where}")
+    steps = "" if opts.scheduler else f" (steps: {native.engine()})"  # a cluster's workers load their own
+    log(f"study: {len(opts.controllers)} controllers x {len(pairs)} runs = {total} runs of 30 s on {where}{steps}")
+    t0 = time.perf_counter()
     results = execute(tasks, opts.scheduler, bar, opts.workers)
-    wall = time.perf_counter() - t_start
+    phases = {"runs_30s": _phase(total, 30.0, time.perf_counter() - t0)}
     merged = merge(tasks, results)
     summary: dict = {
         "study": "robustness",
@@ -76,11 +79,12 @@ def run_study(opts: StudyOptions, out_dir: str | os.PathLike | None = None, *, l
         },
     }
     summary["breaks"] = breaks(summary)
-    summary["timing"] = {"wall_s": wall, "runs": total, "runs_per_s": total / wall if wall > 0 else None}
+    n_long = sum(len(t.runs) for t in long_tasks)
     if long_tasks:
-        n_long = sum(len(t.runs) for t in long_tasks)
         log(f"long flight: {len(long_ctrls)} controllers x {len(long_pairs)} runs of {LONG_DURATION_S:g} s")
+        t0 = time.perf_counter()
         lres = execute(long_tasks, opts.scheduler, Progress(n_long, "600 s runs", enabled=progress), opts.workers)
+        phases["runs_600s"] = _phase(n_long, LONG_DURATION_S, time.perf_counter() - t0)
         lmerged = merge(long_tasks, lres)
         summary["long_flight"] = {
             "duration_s": LONG_DURATION_S,
@@ -91,23 +95,57 @@ def run_study(opts: StudyOptions, out_dir: str | os.PathLike | None = None, *, l
             },
         }
     summary["created"] = _dt.datetime.now(_dt.timezone.utc).isoformat(timespec="seconds")
-    if out_dir is not None:
-        out = Path(out_dir)
-        out.mkdir(parents=True, exist_ok=True)
-        write_json_atomic(out / "summary.json", summary, indent=2, allow_nan=False)
-        tables = [format_table(summary)]
-        if summary["sweep_runs"]:
-            tables.append(format_breaks(summary))
-        if "long_flight" in summary:
-            tables.append(format_long(summary))
-        (out / "table.md").write_text("\n\n".join(tables) + "\n", encoding="utf-8")
-        log(f"wrote {(out / 'summary.json').resolve()} and table.md")
-        try:
-            png = save_figure(merged, opts, out / "robustness.png")
-            log(f"wrote {png.resolve()}")
-        except ImportError as exc:
-            log(f"no figure: {exc}")
-        rrd = save_worst_rrd(summary, opts, out / "worst.rrd")
-        if rrd is not None:
-            log(f"wrote {rrd.resolve()} (open it with: rerun {rrd.resolve()})")
+
+    def timing() -> dict:
+        """What the user waits for: from the call to the last file (all the runs, 30 s and 600 s, the
+        aggregation, the tables, the figure and the worst runs' recording), and each phase's simulation."""
+        wall = time.perf_counter() - t_start
+        runs = total + n_long
+        return {"wall_s": wall, "runs": runs, "runs_per_s": runs / wall if wall > 0 else None, "phases": phases}
+
+    if out_dir is None:
+        summary["timing"] = timing()
+        return summary
+
+    out = Path(out_dir)
+    out.mkdir(parents=True, exist_ok=True)
+    tables = [format_table(summary)]
+    if summary["sweep_runs"]:
+        tables.append(format_breaks(summary))
+    if "long_flight" in summary:
+        tables.append(format_long(summary))
+    (out / "table.md").write_text("\n\n".join(tables) + "\n", encoding="utf-8")
+    try:
+        png = save_figure(merged, opts, out / "robustness.png")
+        log(f"wrote {png.resolve()}")
+    except ImportError as exc:
+        log(f"no figure: {exc}")
+    rrd = save_worst_rrd(summary, opts, out / "worst.rrd")
+    if rrd is not None:
+        log(f"wrote {rrd.resolve()} (open it with: rerun {rrd.resolve()})")
+    summary["timing"] = timing()  # summary.json last: its timing covers every other file
+    write_json_atomic(out / "summary.json", summary, indent=2, allow_nan=False)
+    log(f"wrote {(out / 'summary.json').resolve()} and table.md")
     return summary
+
+
+def _phase(runs: int, duration_s: float, wall_s: float) -> dict:
+    """One phase's simulation time and its cost per simulated second per aircraft (us)."""
+    aircraft_s = runs * duration_s
+    return {
+        "runs": runs,
+        "duration_s": duration_s,
+        "wall_s": wall_s,
+        "us_per_aircraft_s": 1e6 * wall_s / aircraft_s if aircraft_s else None,
+    }
+
+
+def _phase(runs: int, duration_s: float, wall_s: float) -> dict:
+    """One phase's simulation time and its cost per simulated second per aircraft (us)."""
+    aircraft_s = runs * duration_s
+    return {
+        "runs": runs,
+        "duration_s": duration_s,
+        "wall_s": wall_s,
+        "us_per_aircraft_s": 1e6 * wall_s / aircraft_s if aircraft_s else None,
+    }

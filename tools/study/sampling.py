@@ -4,6 +4,7 @@
 from __future__ import annotations
 
 import dataclasses
+import functools
 import math
 from collections.abc import Sequence
 from dataclasses import dataclass
@@ -153,8 +154,13 @@ def sweep_conditions() -> dict[str, Condition]:
     return out
 
 
+@functools.lru_cache(maxsize=1)
+def _sweeps() -> dict[str, Condition]:
+    return sweep_conditions()  # once per process: get_condition is called per run (a Condition is frozen)
+
+
 def get_condition(name: str) -> Condition:
-    cond = CONDITIONS.get(name) or sweep_conditions().get(name)
+    cond = CONDITIONS.get(name) or _sweeps().get(name)
     if cond is None:
         raise StudyError(f"unknown condition {name!r} (known: {', '.join([*CONDITIONS, *sweep_conditions()])})")
     return cond

@@ -4,11 +4,13 @@ random draws, the plant, the disturbances, the sensor and the link, the law and 
 from __future__ import annotations
 
 import argparse
+import functools
 import math
 
 import numpy as np
 
-from autopilot.envelope import saturated, within
+from autopilot.envelope import SAT_RTOL, saturated, within
+from tools.study import native
 from tools.study.sampling import (
     BLOCK,
     CHANNELS,
@@ -17,6 +19,7 @@ from tools.study.sampling import (
     METRICS,
     STATIC,
     WINDOW_S,
+    StudyError,
     Task,
     get_condition,
     get_controller,
@@ -28,6 +31,15 @@ def _square(t: np.ndarray, amplitude: float = 10.0 * DEG, period: float = 10.0) 
     from tools.profiles import square
 
     return np.array([square(float(x), amplitude, period) for x in t])
+
+
+@functools.lru_cache(maxsize=8)
+def _command(steps: int, dt: float) -> np.ndarray:
+    """``_square`` at t = k dt, k < steps, computed once per process and length (a 600 s flight's 60,000 calls of
+    ``square`` cost as much as its steps in C); read-only, shared by every batch of that length."""
+    um = _square(np.arange(steps) * dt)
+    um.flags.writeable = False
+    return um
 
 
 # The study's numbers must not depend on the CPU.  BLAS and LAPACK (scipy's expm, the Lyapunov solve) leave last
@@ -98,9 +110,10 @@ def _columns(values: np.ndarray):
     return np.ascontiguousarray(values)
 
 
-def simulate(task: Task) -> dict:
+def simulate(task: Task, engine: str | None = None) -> dict:
     """Fly ``task``: returns per-run arrays (``METRICS``, ``bounded``, ``pfc_paper``, the draws) in task order,
-    and with ``record`` the per-step series of every run."""
+    and with ``record`` the per-step series of every run.  ``engine``: "kernel" (the C kernel, ``native``),
+    "numpy" (the numpy loop) or None (the kernel when it loads, else numpy); the same numbers whichever."""
     from scipy.special import ndtri
 
     from autopilot.batch import BatchBaseline, BatchClSac
@@ -159,7 +172,6 @@ def simulate(task: Task) -> dict:
             [[l0[r, 0] * z[0] + l0[r, 1] * z[1] + l0[r, 2] * z[2] + l0[r, 3] * z[3] for r in range(4)] for z in turb0]
         )
         xt = [np.ascontiguousarray(x0[:, j]) for j in range(4)]
-    t_all = np.arange(steps) * dt
     gust_k = np.zeros((n, 0))
     g_first = np.zeros(n, dtype=int)
     if np.any(gust_amp != 0):
@@ -170,8 +182,160 @@ def simulate(task: Task) -> dict:
             if gust_amp[i] != 0:
                 g = Gust(float(gust_amp[i]), float(gust_len[i]), float(gust_start[i]))
                 gust_k[i] = g((g_first[i] + np.arange(width)) * dt)  # per run: independent of the batch
-    um_all = _square(t_all)
+    um_all = _command(steps, dt)
 
+    b = argparse.Namespace(kind=ctrl.kind, n=n, steps=steps, rate=rate, dt=dt, umax=umax, law=law, gens=gens)
+    b.__dict__.update(noisy=noisy, dist=dist, turb=turb, noise=noise, bias=bias, thr=thr, delay=delay)
+    b.__dict__.update(crosswind=crosswind, gust_k=gust_k, g_first=g_first, um_all=um_all, PHI=PHI, GAM=GAM)
+    b.__dict__.update(dry=dry, xt=xt, record=task.record)
+    lib = None if engine == "numpy" else native.load()
+    if engine == "kernel" and lib is None:
+        raise StudyError(f"no C kernel: {native.reason()}")
+    acc, peaks, rec = _fly_numpy(b) if lib is None else _fly_kernel(lib, b)
+    out = {
+        "ise_ref": acc["ise_ref"] * dt,
+        "ise_crm": acc["ise_crm"] * dt,
+        "energy": acc["energy"] * dt,
+        "tv": acc["tv"],
+        "max_abs_u": acc["max_abs_u"],
+        "max_abs_roll": acc["max_abs_roll"],
+        "sat_fraction": acc["sat"] / steps,
+    }
+    for key in METRICS:
+        v = out[key]
+        out[key] = np.where(np.isfinite(v), v, np.inf)  # a diverged run scores +inf, never NaN
+    out["bounded"] = within(out["max_abs_roll"], out["sat_fraction"], ENVELOPE)
+    out["pfc_paper"] = pfc_paper
+    out["window_peak_roll"] = np.where(np.isfinite(peaks), peaks, np.inf)
+    out["draws"] = {
+        "scales": scales,
+        "gust_amplitude_m_s": gust_amp,
+        "gust_length_m": gust_len,
+        "gust_start_s": gust_start,
+        "crosswind_m_s": crosswind,
+        "roll_bias_rad": bias,
+    }
+    if rec is not None:
+        out["series"] = rec
+    return out
+
+
+# The law's coefficients in kernel.c's order (its C_* and B_* names).
+_CLSAC_COEFFS = ("phi_m", "g_mu", "g_my", "phi_ol", "g_ol", "cm", "phi_d", "g_d", "cd", "gpe", "gie", "gpx", "gix")
+_CLSAC_COEFFS += ("gpu", "giu")
+_CLSAC_LEAKS = ("_decay", "_gain_ie", "_decay_x", "_gain_ix", "_decay_u", "_gain_iu")
+_SERIES = ("t", "um", "phi", "ym", "ym_ol", "ya", "y_pfc", "e", "u", "kpe", "kie", "ke", "kpx", "kix", "kx", "kpu")
+_SERIES += ("kiu", "ku", "v", "p", "r", "delta_r")  # _record's keys, in its order
+
+
+def _rows(values, n: int) -> np.ndarray:
+    """(k, n) float64, C order: each entry (a Python float the same for every run, or an (n,) array) per run."""
+    out = np.empty((len(values), n))
+    for j, v in enumerate(values):
+        out[j] = v  # a float broadcast: scalar * array and array * array are the same IEEE operation
+    return out
+
+
+def _ptr(a: np.ndarray, ctype=None):
+    import ctypes
+
+    return a.ctypes.data_as(ctypes.POINTER(ctype or ctypes.c_double))
+
+
+def _fly_kernel(lib, b) -> tuple[dict, np.ndarray, dict | None]:
+    """The steps in C (``kernel.c``, ``native``): ``_fly_numpy``'s numbers, bit for bit, without its per-step
+    overhead.  The noise is drawn here, block by block from each run's generator, exactly as ``_fly_numpy``
+    draws it."""
+    import ctypes
+
+    n, steps, law = b.n, b.steps, b.law
+    if b.kind == "clsac":  # BatchClSac
+        kind = 0
+        coef = _rows([law._c[k] for k in _CLSAC_COEFFS] + [law._leak[k] for k in _CLSAC_LEAKS], n)  # noqa: SLF001
+        state = _rows([law.xm, law.xm_ol, law.xd, law.ki_e, law.ki_x, law.ki_u], n)
+        aw, dz, kmax, freeze = law._aw, law._dz, law._kmax, law._freeze  # noqa: SLF001
+    else:  # BatchBaseline
+        kind = 1
+        coef = _rows([law._phi_ol, law._g_ol, law._cm, law._kp, law._ki_t, law._kd_t], n)  # noqa: SLF001
+        coef = np.vstack([coef, np.zeros((21 - coef.shape[0], n))])
+        state = _rows([law.xm_ol, law.xi, law.e_prev, 0.0, 0.0, 0.0], n)
+        aw, dz, kmax, freeze = law._aw, 0.0, None, False  # noqa: SLF001
+    window = int(round(WINDOW_S * b.rate))
+    npeaks = max(steps // window, 1)
+    keep = {  # every array the kernel reads or writes, kept alive (and C-contiguous) for the calls
+        "coef": coef,
+        "law": state,
+        "phi": _rows([v for row in b.PHI for v in row], n),
+        "gam": _rows([v for row in b.GAM for v in row], n),
+        "x": np.zeros((6, n)),
+        "dry": np.concatenate([np.ravel(b.dry.c[:3]), np.ravel(b.dry.ad), np.ravel(b.dry.ld)]).astype(float),
+        "xt": _rows(b.xt, n),
+        "turb": np.ascontiguousarray(b.turb, dtype=float),
+        "bias": np.ascontiguousarray(b.bias, dtype=float),
+        "noise": np.ascontiguousarray(b.noise, dtype=float),
+        "thr": np.ascontiguousarray(b.thr, dtype=float),
+        "crosswind": np.ascontiguousarray(b.crosswind, dtype=float),
+        "delay": np.ascontiguousarray(b.delay, dtype=np.int64),
+        "g_first": np.ascontiguousarray(b.g_first, dtype=np.int64),
+        "gust_k": np.ascontiguousarray(b.gust_k, dtype=float),
+        "um_all": np.ascontiguousarray(b.um_all, dtype=float),
+        "hist": np.zeros((int(b.delay.max()) + 1, n)),
+        "y_prev": np.zeros(n),
+        "u_fly": np.zeros(n),
+        "u_prev": np.zeros(n),
+        "acc": np.zeros((7, n)),
+        "wmax": np.zeros(n),
+        "peaks": np.zeros((n, npeaks)),
+        "rec": np.zeros((len(_SERIES), steps, n)) if b.record else None,
+    }
+    assert keep["dry"].shape == (44,)
+    ints = {"delay", "g_first"}
+    batch = native.Batch(
+        n=n,
+        steps=steps,
+        hist_len=keep["hist"].shape[0],
+        window=window,
+        npeaks=npeaks,
+        gust_width=keep["gust_k"].shape[1],
+        kind=kind,
+        noisy=int(b.noisy),
+        dist=int(b.dist),
+        turb_any=int(np.any(b.turb > 0)),
+        gust_any=int(keep["gust_k"].shape[1] > 0),
+        aw=int(bool(aw)),
+        freeze=int(bool(freeze)),
+        has_kmax=int(kmax is not None),
+        umax=b.umax,
+        sat_lim=(1.0 - SAT_RTOL) * b.umax,  # autopilot.envelope.saturated: not |u| < (1 - SAT_RTOL) u_limit
+        dz=float(dz),
+        kmax=float(kmax) if kmax is not None else 0.0,
+        dt=b.dt,
+        **{k: (_ptr(v, ctypes.c_int64) if k in ints else _ptr(v)) for k, v in keep.items() if v is not None},
+    )
+    ref = ctypes.byref(batch)
+    buf = None
+    for k0 in range(0, steps, BLOCK):
+        m = min(BLOCK, steps - k0)
+        z = None
+        if b.noisy:  # each run's next block of standard normals, as _fly_numpy draws it
+            buf = np.empty((n, m * CHANNELS))
+            for i, g in enumerate(b.gens):
+                g.standard_normal(out=buf[i])
+            z = _ptr(buf)
+        lib.study_steps(ref, k0, m, z)
+    names = ("ise_ref", "ise_crm", "energy", "tv", "max_abs_u", "max_abs_roll", "sat")
+    acc = {name: keep["acc"][j].copy() for j, name in enumerate(names)}
+    series = {name: keep["rec"][j] for j, name in enumerate(_SERIES)} if b.record else None
+    return acc, keep["peaks"], series
+
+
+def _fly_numpy(b) -> tuple[dict, np.ndarray, dict | None]:
+    """The steps in numpy, every run at once (the reference the C kernel equals): the sums of the metrics, the peak
+    |roll| per window and, with ``record``, the series."""
+    n, steps, rate, dt, umax, law, gens = b.n, b.steps, b.rate, b.dt, b.umax, b.law, b.gens
+    noisy, dist = b.noisy, b.dist
+    turb, noise, bias, thr, delay, crosswind = b.turb, b.noise, b.bias, b.thr, b.delay, b.crosswind
+    gust_k, g_first, um_all, PHI, GAM, dry, xt = b.gust_k, b.g_first, b.um_all, b.PHI, b.GAM, b.dry, b.xt
     x = [np.zeros(n) for _ in range(6)]
     hist = np.zeros((int(delay.max()) + 1, n))
     cols = np.arange(n)
@@ -182,7 +346,7 @@ def simulate(task: Task) -> dict:
     peaks = np.zeros((n, max(steps // window, 1)))  # peak |roll| (truth) per 30 s window
     wmax = np.zeros(n)
     u_prev = None
-    rec = {} if task.record else None
+    rec = {} if b.record else None
     block = None
     with np.errstate(all="ignore"):
         for k in range(steps):
@@ -270,32 +434,8 @@ def simulate(task: Task) -> dict:
                     + GAM[r][0] * u_fly
                     for r in range(6)
                 ]
-    out = {
-        "ise_ref": acc["ise_ref"] * dt,
-        "ise_crm": acc["ise_crm"] * dt,
-        "energy": acc["energy"] * dt,
-        "tv": acc["tv"],
-        "max_abs_u": acc["max_abs_u"],
-        "max_abs_roll": acc["max_abs_roll"],
-        "sat_fraction": acc["sat"] / steps,
-    }
-    for key in METRICS:
-        v = out[key]
-        out[key] = np.where(np.isfinite(v), v, np.inf)  # a diverged run scores +inf, never NaN
-    out["bounded"] = within(out["max_abs_roll"], out["sat_fraction"], ENVELOPE)
-    out["pfc_paper"] = pfc_paper
-    out["window_peak_roll"] = np.where(np.isfinite(peaks), peaks, np.inf)
-    out["draws"] = {
-        "scales": scales,
-        "gust_amplitude_m_s": gust_amp,
-        "gust_length_m": gust_len,
-        "gust_start_s": gust_start,
-        "crosswind_m_s": crosswind,
-        "roll_bias_rad": bias,
-    }
-    if rec is not None:
-        out["series"] = {key: np.array(v) for key, v in rec.items()}
-    return out
+    series = {key: np.array(v) for key, v in rec.items()} if rec is not None else None
+    return acc, peaks, series
 
 
 def _airspeed() -> float:
