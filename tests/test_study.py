@@ -183,11 +183,17 @@ def test_dask_cluster_of_two_workers_gives_the_local_results(tmp_path):
         with client:
             client.wait_for_workers(2, timeout=60)
             assert len(client.scheduler_info()["workers"]) == 2
-        opts = dict(SMALL, chunk=3)
+            # each worker steps the study's batches in C as this process does (tools/study/native.py)
+            from tools.study import native
+
+            engines = client.run(lambda: __import__("tools.study.native", fromlist=["engine"]).engine())
+            assert sorted(engines.values()) == [native.engine()] * 2
+        opts = dict(SMALL, chunk=3, long_runs=1)  # the 600 s flights go to the cluster too
         local = run_study(StudyOptions(**opts), None, log=lambda _m: None, progress=False)
         remote = run_study(StudyOptions(**opts, scheduler=addr), None, log=lambda _m: None, progress=False)
         assert remote["scheduler"] == addr
         assert _results(remote) == _results(local)
+        assert remote["long_flight"] == local["long_flight"] and remote["timing"]["runs"] == 6 * 2 * 3 + 2 * 2
     finally:
         for p in reversed(procs):
             p.terminate()

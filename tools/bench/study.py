@@ -13,19 +13,40 @@ Figures, all measured in this one benchmark run:
   the plain loop has no disturbances, so it is the cheaper case), and their ratio ``speedup_vs_plain_loop``;
 * ``dask_2_over_1_worker_wall`` (target <= 0.75): the wall time of the same study on a local Dask cluster of 2
   worker processes divided by that of 1 worker (1.0 = no scaling, 0.5 = perfect), best of two alternating
-  measurements each.
+  measurements each;
+* the study as a user runs it, ``python -m tools.experiment robustness --runs 50 --sweep-runs 5 --long-runs 2``
+  (2,205 runs of 30 s and 24 of 600 s, with its progress bar), ``--study-repeats`` times (default 3), medians:
+  ``study_command_wall_s`` (from the command to its exit), ``study_summary_s`` (its last line's "N runs (...) in
+  S s"), ``study_wall_over_summary`` (target <= 1.2: the line says what the user waited for, within 20 %; the rest
+  is Python's start-up and the imports before the study starts) and ``study_long_over_30s_cost`` (target <= 1.0:
+  the cost of a simulated second of one aircraft in the 600 s flights over that in the 30 s runs, from
+  summary.json's ``timing.phases``; both are the same steps in C, and a long flight has less set-up per simulated
+  second, so above 1 means a per-step overhead is back).  ``--with-numpy`` adds the same command with the numpy
+  steps (``CLSAC_STUDY_KERNEL=numpy``, the study before the C kernel; about a minute) for comparison.
 """
 
 from __future__ import annotations
 
 import argparse
+import json
 import math
+import os
+import re
+import statistics
+import subprocess
+import sys
+import tempfile
 import time
+from pathlib import Path
 
 from tools.bench import figure, load_warning, print_table
 
 TARGET_10K_S = 20.0
 TARGET_DASK_RATIO = 0.75
+TARGET_WALL_OVER_SUMMARY = 1.2  # the summary's "in S s" within 20 % of the command's wall time
+TARGET_LONG_OVER_30S = 1.0  # a long flight's simulated second per aircraft costs no more than a 30 s run's
+STUDY_ARGV = ["--runs", "50", "--sweep-runs", "5", "--long-runs", "2"]
+_SUMMARY_LINE = re.compile(r"^(\d+) runs \((.*)\) in ([0-9.]+) s ", re.M)
 QUICK_ARGV = ["--quick"]
 
 
@@ -69,12 +90,64 @@ def bench_dask(runs: int, workers: int, chunk: int) -> float:
         return time.perf_counter() - t0
 
 
+def bench_study_command(numpy: bool = False) -> dict:
+    """``python -m tools.experiment robustness STUDY_ARGV`` in a subprocess, its progress bar on this terminal:
+    the wall time from the command to its exit, its last line's N and S, and summary.json's phases."""
+    env = dict(os.environ)
+    root = str(Path(__file__).resolve().parents[2])
+    env["PYTHONPATH"] = root + (os.pathsep + env["PYTHONPATH"] if env.get("PYTHONPATH") else "")
+    if numpy:
+        env["CLSAC_STUDY_KERNEL"] = "numpy"
+    with tempfile.TemporaryDirectory(prefix="bench-study-") as tmp:
+        out = Path(tmp) / "study"
+        argv = [sys.executable, "-m", "tools.experiment", "robustness", *STUDY_ARGV, "--out", str(out)]
+        t0 = time.perf_counter()
+        r = subprocess.run(argv, env=env, cwd=root, stdout=subprocess.PIPE, text=True, timeout=900)
+        wall = time.perf_counter() - t0
+        if r.returncode != 0:
+            raise RuntimeError(f"the study exited {r.returncode}: {r.stdout.strip().splitlines()[-1:]}")
+        m = _SUMMARY_LINE.search(r.stdout)
+        if m is None:
+            raise RuntimeError("the study printed no 'N runs (...) in S s' line")
+        timing = json.loads((out / "summary.json").read_text(encoding="utf-8"))["timing"]
+    print(m.group(0).strip())
+    phases = timing["phases"]
+    return {
+        "wall": wall,
+        "runs": int(m.group(1)),
+        "summary": float(m.group(3)),
+        "us_30s": phases["runs_30s"]["us_per_aircraft_s"],
+        "us_600s": phases["runs_600s"]["us_per_aircraft_s"],
+    }
+
+
+def study_figures(repeats: int, numpy: bool = False) -> dict[str, dict]:
+    """The study command's figures, medians of ``repeats`` runs (``numpy``: with the numpy steps)."""
+    runs = [bench_study_command(numpy) for _ in range(repeats)]
+    med = {k: statistics.median(r[k] for r in runs) for k in ("wall", "summary", "us_30s", "us_600s")}
+    ratio = statistics.median(r["wall"] / r["summary"] for r in runs)
+    cost = statistics.median(r["us_600s"] / r["us_30s"] for r in runs)
+    tag = "_numpy" if numpy else ""
+    cmd = "python -m tools.experiment robustness " + " ".join(STUDY_ARGV)
+    return {
+        f"study_command_wall_s{tag}": figure(med["wall"], "s", None, command=cmd, repeats=repeats),
+        f"study_summary_s{tag}": figure(med["summary"], "s", None, runs=runs[0]["runs"]),
+        f"study_wall_over_summary{tag}": figure(ratio, "1", None if numpy else TARGET_WALL_OVER_SUMMARY),
+        f"us_per_aircraft_s_30s{tag}": figure(med["us_30s"], "us", None),
+        f"us_per_aircraft_s_600s{tag}": figure(med["us_600s"], "us", None),
+        f"study_long_over_30s_cost{tag}": figure(cost, "1", None if numpy else TARGET_LONG_OVER_30S),
+    }
+
+
 def main(argv: list[str] | None = None) -> dict:
     p = argparse.ArgumentParser(prog="python -m tools.bench study", description=__doc__.split("\n\n")[0])
     p.add_argument("--quick", action="store_true", help="2,000 runs instead of 10,000 (target scaled)")
     p.add_argument("--runs", type=int, default=None, help="runs of the batch figure (default 10000)")
     p.add_argument("--plain-runs", type=int, default=None, help="runs of the plain loop (default 20)")
     p.add_argument("--no-dask", action="store_true", help="skip the Dask figure")
+    p.add_argument("--study-repeats", type=int, default=None, help="runs of the study command (default 3)")
+    p.add_argument("--no-study", action="store_true", help="skip the study command's figures")
+    p.add_argument("--with-numpy", action="store_true", help="also the study command with the numpy steps")
     args = p.parse_args(argv)
     runs = args.runs or (2000 if args.quick else 10_000)
     plain_runs = args.plain_runs or (5 if args.quick else 20)
@@ -104,6 +177,10 @@ def main(argv: list[str] | None = None) -> dict:
             figs["dask_2_over_1_worker_wall"] = figure(two / one, "1", TARGET_DASK_RATIO)
         except ImportError as exc:
             print(f"no Dask figures: {exc}")
+    if not args.no_study:
+        figs.update(study_figures(args.study_repeats or (1 if args.quick else 3)))
+        if args.with_numpy:
+            figs.update(study_figures(1, numpy=True))
     print_table("study benchmarks (vectorised Monte Carlo, tools.study)", figs)
     warning = load_warning()
     if warning:

@@ -73,6 +73,16 @@ def _compiler() -> str | None:
     return os.environ.get("CC") or shutil.which("cc") or shutil.which("gcc") or shutil.which("clang")
 
 
+def _check_private(folder: Path) -> None:
+    """A shared temp directory's folder is loaded from only if it is this user's and no one else can write to it
+    (else another user could leave a library there for this process to load)."""
+    if not hasattr(os, "getuid") or folder == SOURCE.parent / "__pycache__":
+        return
+    st = folder.stat()
+    if st.st_uid != os.getuid() or st.st_mode & 0o022:
+        raise OSError("not this user's own folder (owner or group/other write permission)")
+
+
 def _build(cc: str) -> Path:
     """The shared library for this source and these flags: the cached one, else compiled now (written under a
     temporary name and renamed, so processes building at once never load a half-written file)."""
@@ -82,9 +92,15 @@ def _build(cc: str) -> Path:
     for folder in _cache_dirs():
         lib = folder / name
         if lib.exists():
+            try:
+                _check_private(folder)
+            except OSError as exc:
+                errors.append(f"{folder}: {exc}")
+                continue
             return lib
         try:
-            folder.mkdir(parents=True, exist_ok=True)
+            folder.mkdir(mode=0o700, parents=True, exist_ok=True)
+            _check_private(folder)
             fd, tmp = tempfile.mkstemp(prefix=name + ".", dir=folder)
             os.close(fd)
         except OSError as exc:
