@@ -211,9 +211,10 @@ _MATRICES = """
 import json, sys
 import numpy as np
 from autopilot import ClSac, ClSacConfig
-from tools.study.simulation import _dryden, _plant
+from tools.study.simulation import _dryden, _plant, _plants
 rng = np.random.default_rng(5)
 out = [m.ravel() for _ in range(20) for m in _plant(1 + 0.4 * (2 * rng.random(6) - 1), 0.01)]
+out += [m.ravel() for m in _plants(1 + 0.4 * (2 * rng.random((20, 6)) - 1), 0.01)]  # the study's: all at once
 out += [getattr(_dryden(0.01), k).ravel() for k in ("ad", "ld", "c", "l0")]
 law = ClSac(ClSacConfig())._s
 out += [np.ravel(np.asarray(law[k], dtype=float)) for k in sorted(law)]
@@ -240,6 +241,6 @@ def test_study_matrices_are_the_same_bits_under_every_blas_kernel():
         return json.loads(r.stdout)
 
     native = bits(None)
-    assert len(native) > 20 * 60  # 20 plants [Phi (6x6), Gamma (6x4)], the Dryden filter, the law
+    assert len(native) > 2 * 20 * 60  # 2 x 20 plants [Phi (6x6), Gamma (6x4)], the Dryden filter, the law
     for coretype in ("Haswell", "Sandybridge", "Prescott"):
         assert bits(coretype) == native, coretype
