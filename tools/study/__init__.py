@@ -35,8 +35,9 @@ failsafe), each SERVO_OUTPUT_RAW with probability p (the servo keeps the last co
 controlled flight the autopilot and the launcher use too): max |roll| (truth) < 60 deg and the command saturated
 (``autopilot.envelope.saturated``: at the limit) in < 20 % of the steps.
 
-Layout: ``sampling`` (controllers, conditions, tasks), ``simulation`` (one batch), ``execution`` (many
-batches, here or on Dask), ``aggregation`` (summary.json), ``report`` (tables, figure, worst runs), ``runner``
+Layout: ``sampling`` (controllers, conditions, tasks), ``simulation`` (one batch; its steps in numpy, or in C:
+``kernel.c``, built and loaded by ``native``, the same numbers bit for bit), ``execution`` (many batches, here or
+on Dask), ``aggregation`` (summary.json), ``report`` (tables, figure, worst runs), ``runner``
 (``run_study``) and ``cli`` (the command line); every name is importable from ``tools.study`` as before.
 """
 
