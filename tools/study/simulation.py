@@ -200,10 +200,35 @@ def simulate(task: Task, engine: str | None = None) -> dict:
                 gust_k[i] = g((g_first[i] + np.arange(width)) * dt)  # per run: independent of the batch
     um_all = _command(steps, dt)
 
-    b = argparse.Namespace(kind=ctrl.kind, n=n, steps=steps, rate=rate, dt=dt, umax=umax, law=law, gens=gens)
-    b.__dict__.update(noisy=noisy, dist=dist, turb=turb, noise=noise, bias=bias, thr=thr, delay=delay)
-    b.__dict__.update(crosswind=crosswind, gust_k=gust_k, g_first=g_first, um_all=um_all, PHI=PHI, GAM=GAM)
-    b.__dict__.update(dry=dry, xt=xt, record=task.record)
+    # Everything the steps read: the batch, its law, its plants and its disturbances, each run's generator.
+    b = argparse.Namespace(
+        kind=ctrl.kind,
+        n=n,
+        steps=steps,
+        rate=rate,
+        dt=dt,
+        umax=umax,
+        law=law,
+        gens=gens,
+        noisy=noisy,
+        dist=dist,
+        turb=turb,
+        noise=noise,
+        bias=bias,
+        thr=thr,
+        delay=delay,
+        crosswind=crosswind,
+        gust_k=gust_k,
+        g_first=g_first,
+        um_all=um_all,
+        PHI=PHI,
+        GAM=GAM,
+        dry=dry,
+        xt=xt,
+        record=task.record,
+    )
+    if engine not in (None, "kernel", "numpy"):
+        raise StudyError(f"engine must be 'kernel' or 'numpy', got {engine!r}")
     lib = None if engine == "numpy" else native.load()
     if engine == "kernel" and lib is None:
         raise StudyError(f"no C kernel: {native.reason()}")
@@ -284,7 +309,7 @@ def _fly_kernel(lib, b) -> tuple[dict, np.ndarray, dict | None]:
         "phi": _rows([v for row in b.PHI for v in row], n),
         "gam": _rows([v for row in b.GAM for v in row], n),
         "x": np.zeros((6, n)),
-        "dry": np.concatenate([np.ravel(b.dry.c[:3]), np.ravel(b.dry.ad), np.ravel(b.dry.ld)]).astype(float),
+        "dry": np.concatenate([np.ravel(b.dry.c), np.ravel(b.dry.ad), np.ravel(b.dry.ld)]).astype(float),
         "xt": _rows(b.xt, n),
         "turb": np.ascontiguousarray(b.turb, dtype=float),
         "bias": np.ascontiguousarray(b.bias, dtype=float),
@@ -304,7 +329,8 @@ def _fly_kernel(lib, b) -> tuple[dict, np.ndarray, dict | None]:
         "peaks": np.zeros((n, npeaks)),
         "rec": np.zeros((len(_SERIES), steps, n)) if b.record else None,
     }
-    assert keep["dry"].shape == (44,)
+    if keep["dry"].shape != (44,):  # kernel.c reads c (3 x 4), ad (4 x 4), ld (4 x 4)
+        raise ValueError(f"the Dryden filter's coefficients: {keep['dry'].shape[0]} values, kernel.c reads 44")
     ints = {"delay", "g_first"}
     batch = native.Batch(
         n=n,
