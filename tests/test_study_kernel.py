@@ -79,12 +79,15 @@ def test_a_diverging_run_diverges_the_same_way(kernel, monkeypatch):
         assert np.isfinite(ref["ise_ref"][2])
 
 
-@pytest.mark.e2e  # slow: 60,000 steps of the numpy loop (about 10 s)
+@pytest.mark.e2e  # slow: 20,000 steps of the numpy loop (about 3 s)
 def test_the_kernel_flies_a_long_flight_as_the_numpy_loop(kernel):
-    """A 600 s flight under moderate, CL-SAC (the saturated limit cycle that amplifies any last bit): the drift
-    over 60,000 steps."""
-    task = Task(LONG_CONTROLLERS[0], (("moderate", 0),), 1, 600.0)
-    assert _same(simulate(task, "numpy"), simulate(task, "kernel")) == []
+    """200 s under moderate, CL-SAC: into the drift that amplifies any last bit (the published median peak
+    |roll| passes 60 deg by 180-210 s, docs/experiments.md).  The whole 600 s table is
+    tests/test_readme_robustness.py's: the kernel's numbers against those the numpy loop published."""
+    task = Task(LONG_CONTROLLERS[0], (("moderate", 0),), 1, 200.0)
+    ref, fast = simulate(task, "numpy"), simulate(task, "kernel")
+    assert _same(ref, fast) == []
+    assert ref["window_peak_roll"].shape == (1, 6)
 
 
 _HEX = """
