@@ -9,12 +9,12 @@ import pytest
 
 from tools.study import StudyOptions, format_breaks, format_table, run_study
 
-# The whole study (11,250 runs of 30 s, about 20 s): kept out of the fast suite with the end-to-end tests.
+# The whole study (11,250 runs of 30 s, about 6 s with the steps in C): out of the fast suite with the e2e tests.
 pytestmark = pytest.mark.e2e
 
 # The study's tables live on the manual's experiments page (the front page links to it).
 README = Path(__file__).resolve().parents[1] / "docs" / "experiments.md"
-# The command the page gives, and the options it means (the long flight: its own test below, 2 minutes).
+# The command the page gives, and the options it means (the long flight: its own test below).
 COMMAND = (
     "python -m tools.experiment robustness --runs 100 --seed 1 --sweep-runs 50 --long-runs 10 --out runs/robustness"
 )
@@ -70,8 +70,8 @@ def test_readme_long_flight_rows_in_still_air_equal_a_fresh_run():
 def test_readme_long_flight_table_equals_a_fresh_run():
     """The whole long-flight table, as the README's command flies it (seed 1, 10 runs under each condition): the
     cell issue 17 found irreproducible (clsac / moderate / robust, 570-600 s: 63.1 deg with one BLAS kernel, 70.7
-    deg with another) is now the same on any CPU (tests/test_study.py: the same bits under every kernel).  About
-    two minutes: 120 runs of 600 s."""
+    deg with another) is now the same on any CPU (tests/test_study.py: the same bits under every kernel).  120 runs
+    of 600 s: about a second with the steps in C (two minutes in numpy)."""
     from tools.study import (
         LONG_CONDITIONS,
         LONG_CONTROLLERS,
