@@ -173,11 +173,13 @@ def _floor_pin(cpu: int | None) -> None:
 
 def _floor_sitl_side(conn, cpu: int | None, spin_s: float, seconds: float, runs: int, warmup_s: float) -> None:
     """The SITL side of the floor (a child process): send ATTITUDE for frame k as ``sitl.endpoint`` does
-    (``pack_fast`` + ``send_raw``), busy-poll ``spin_s`` for the SERVO_OUTPUT_RAW answering it, then ``select``;
+    (``pack_fast`` + ``send_raw``), busy-poll ``spin_s`` (one ``poll(2)`` a turn) for the SERVO_OUTPUT_RAW answering
+    it, taken by the link's hot path (``UdpLink.on_hot``) as the SITL takes it, then ``select``;
     ``runs`` windows of ``seconds`` after ``warmup_s``.  Sends {rates, frames, ...} (or {error}) on ``conn``."""
     import select
     import time
 
+    from autopilot.shared.fastmav import HOT_DECODERS
     from autopilot.shared.link import UdpLink
     from autopilot.shared.mavlink import AUTOPILOT_SITL_ID, SITL_ID, frame_ms, frame_usec, mavlink
     from autopilot.shared.pwm import PwmMap
@@ -198,12 +200,20 @@ def _floor_sitl_side(conn, cpu: int | None, spin_s: float, seconds: float, runs:
         pk_att = link.fast_packer(mavlink.MAVLink_attitude_message)
         pwm = PwmMap()
         servo_field = f"servo{pwm.channel}_raw"
-        servos: list = []
+        servo_index = HOT_DECODERS[servo_id].index(servo_field)
+        servos: list = []  # (time_usec, pwm), as sitl.endpoint keeps them
 
         def on_msg(msg, t_rx):  # noqa: ARG001  (UdpLink handler signature)
             if msg.get_msgId() == servo_id:
-                servos.append(msg)
+                servos.append((msg.time_usec, getattr(msg, servo_field)))
 
+        def on_servo(t_rx, values):  # noqa: ARG001  (the link's hot path, as the SITL takes SERVO_OUTPUT_RAW)
+            servos.append((values[0], values[servo_index]))
+
+        link.on_hot(servo_id, on_servo)
+        poller = select.poll()
+        poller.register(link.sock, select.POLLIN)
+        poll = poller.poll
         fds = [link.sock]
         perf = time.perf_counter
         t_give_up = perf() + 60.0  # the autopilot side is still importing
@@ -229,7 +239,8 @@ def _floor_sitl_side(conn, cpu: int | None, spin_s: float, seconds: float, runs:
                     if not servos:
                         t_spin = perf() + spin_s
                         while not servos and perf() < t_spin:
-                            link.poll(on_msg)
+                            if poll(0):
+                                link.poll(on_msg)
                         if servos:
                             continue
                         now = perf()
@@ -242,11 +253,11 @@ def _floor_sitl_side(conn, cpu: int | None, spin_s: float, seconds: float, runs:
                         if select.select(fds, (), (), max(0.0, t_resend - now))[0]:
                             link.poll(on_msg)
                         continue
-                    msg = servos.pop(0)
-                    if msg.time_usec != expected:
+                    usec, got = servos.pop(0)
+                    if usec != expected:
                         stats["stale"] += 1
                         continue
-                    if getattr(msg, servo_field) != pwm.neutral:
+                    if got != pwm.neutral:
                         stats["wrong_value"] += 1
                     break
                 k += 1
@@ -269,8 +280,9 @@ def _floor_sitl_side(conn, cpu: int | None, spin_s: float, seconds: float, runs:
 
 def _floor_autopilot_side(conn, cpu: int | None, spin_s: float) -> None:
     """The autopilot side of the floor (a child process): answer each ATTITUDE with the SERVO_OUTPUT_RAW of its
-    frame as ``autopilot.loop`` does (``frame_from_ms`` -> ``frame_usec``, ``pack_fast`` + ``send_raw`` from
-    the handler), busy-polling ``spin_s`` then ``select`` between frames.  Stops on the SITL side's HEARTBEAT
+    frame as ``autopilot.loop`` does (ATTITUDE by the link's hot path, ``frame_from_ms`` -> ``frame_usec``, the
+    cached payload framed by ``frame_fast`` + ``send_raw`` from the handler), busy-polling ``spin_s`` (one ``poll(2)``
+    a turn) then ``select`` between frames.  Stops on the SITL side's HEARTBEAT
     and sends its link counters (or {error}) on ``conn``."""
     import select
     import time
@@ -295,18 +307,28 @@ def _floor_autopilot_side(conn, cpu: int | None, spin_s: float) -> None:
         servo_cls = mavlink.MAVLink_servo_output_raw_message
         pk_servo = link.fast_packer(servo_cls)
         pwm = PwmMap()
-        # wire values after time_usec (struct order: servo1..8, port, servo9..16), from pymavlink's own field lists
+        # the payload after time_usec (struct order: servo1..8, port, servo9..16), from pymavlink's own field lists,
+        # packed once as the autopilot does (LinkHandlers._servo_payload)
         template = servo_cls(0, 0, *pwm.servo_fields(pwm.neutral))
         rest = tuple(getattr(template, name) for name in servo_cls.ordered_fieldnames[1:])
+        tail = servo_cls.unpacker.pack(0, *rest)[4:]
         stop = []
 
-        def on_msg(msg, t_rx):  # noqa: ARG001  (UdpLink handler signature)
+        def on_att(t_rx, values):  # noqa: ARG001  (the link's hot path, as the autopilot takes ATTITUDE)
+            usec = frame_usec(frame_from_ms(values[0], _FLOOR_RATE_HZ), _FLOOR_RATE_HZ)
+            link.send_raw(link.frame_fast(pk_servo, usec.to_bytes(4, "little") + tail), servo_id)
+
+        def on_msg(msg, t_rx):
             mid = msg.get_msgId()
             if mid == att_id:
-                usec = frame_usec(frame_from_ms(msg.time_boot_ms, _FLOOR_RATE_HZ), _FLOOR_RATE_HZ)
-                link.send_raw(link.pack_fast(pk_servo, usec, *rest), servo_id)
+                on_att(t_rx, (msg.time_boot_ms,))
             elif mid == hb_id and link.rx_by_type[att_id]:
                 stop.append(True)
+
+        link.on_hot(att_id, on_att)
+        poller = select.poll()
+        poller.register(link.sock, select.POLLIN)
+        poll = poller.poll
 
         hb = mavlink.MAVLink_heartbeat_message(
             mavlink.MAV_TYPE_FIXED_WING, mavlink.MAV_AUTOPILOT_GENERIC, 0, 0, mavlink.MAV_STATE_STANDBY, 3
@@ -322,9 +344,10 @@ def _floor_autopilot_side(conn, cpu: int | None, spin_s: float) -> None:
             n0 = link.rx_datagrams
             t_end = now + spin_s
             while perf() < t_end:
-                link.poll(on_msg)
-                if link.rx_datagrams != n0:
-                    break
+                if poll(0):
+                    link.poll(on_msg)
+                    if link.rx_datagrams != n0:
+                        break
             else:
                 if select.select(fds, (), (), 0.02)[0]:
                     link.poll(on_msg)
