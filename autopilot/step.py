@@ -246,14 +246,9 @@ class ControlStep:
         else:
             self.u_last = u_cmd
         pwm_map = self.pwm
-        if pwm_map is None:
-            pwm = None
-            u = u_cmd
-        else:
-            pwm = pwm_map.to_pwm(u_cmd)
-            u = pwm_map.to_rad(pwm)
-        self._pending = (t, um, phi, u_cmd, u, pwm, wings_level, flew)
-        return u if pwm is None else pwm
+        pwm = None if pwm_map is None else pwm_map.to_pwm(u_cmd)
+        self._pending = (t, um, phi, u_cmd, pwm, wings_level, flew)
+        return u_cmd if pwm is None else pwm
 
     def _done(self, res: StepResult):
         """A step flown whole in ``command`` (a hold): ``finish`` returns it."""
@@ -266,7 +261,8 @@ class ControlStep:
         self._pending = None
         if type(pending) is StepResult:
             return pending
-        t, um, phi, u_cmd, u, pwm, wings_level, flew = pending
+        t, um, phi, u_cmd, pwm, wings_level, flew = pending
+        u = u_cmd if pwm is None else self.pwm.to_rad(pwm)  # the command that flew, after the 1 us quantisation
         law = self.law
         if self._split:
             law.advance()

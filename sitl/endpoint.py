@@ -151,10 +151,12 @@ class Sitl:
         self._pk_att = self.link.fast_packer(M.MAVLink_attitude_message)
         self._psi = self._psi_t = self._psi_r = 0.0  # heading, the time and yaw rate it was integrated to
 
-    def _heading(self) -> float:
+    def _heading(self, r: float | None = None) -> float:
         """Heading psi (rad, wrapped to (-pi, pi]) for ATTITUDE.yaw: psi' = r (level turn, pitch 0), integrated with
-        the trapezoid rule between ATTITUDE messages.  Not a state of the lateral model (docs/design.md, "Units")."""
-        t, r = self.aircraft.time, float(self.aircraft.truth[2])
+        the trapezoid rule between ATTITUDE messages.  Not a state of the lateral model (docs/design.md, "Units").
+        ``r``: the yaw rate now, if the caller has it (else read from the truth state)."""
+        t = self.aircraft.time
+        r = float(self.aircraft.truth[2]) if r is None else r
         if t > self._psi_t:
             self._psi = wrap_pi(self._psi + 0.5 * (r + self._psi_r) * (t - self._psi_t))
         self._psi_t, self._psi_r = t, r
@@ -224,11 +226,9 @@ class Sitl:
             raw = self.link.pack_fast(self._pk_att, ms, phi, theta, psi, p, q, r)
             self.link.send_raw(raw, ATTITUDE)
             return raw
-        x = self.aircraft.truth
+        x = self.aircraft.truth.tolist()  # the float64 values as Python floats, exactly (float(x[i]) each)
         # roll wrapped to (-pi, pi] where it is measured, as a real attitude sensor reports it
-        raw = self.link.pack_fast(
-            self._pk_att, ms, wrap_pi(float(x[3])), 0.0, self._heading(), float(x[1]), 0.0, float(x[2])
-        )
+        raw = self.link.pack_fast(self._pk_att, ms, wrap_pi(x[3]), 0.0, self._heading(x[2]), x[1], 0.0, x[2])
         self.link.send_raw(raw, ATTITUDE)
         return raw
 

@@ -140,6 +140,9 @@ class Autopilot(LinkHandlers, LockstepScheduler, RealtimeScheduler):
         self.vehicle = Vehicle(self, params, mode, armed)
         # lockstep
         self._steps_to_fly = round(opts.duration_s * self.rate) if opts.duration_s > 0 else 0  # 0 = until stopped
+        # frame_from_ms and frame_usec (autopilot.shared.mavlink) inline for an integer rate: its ms and us per frame
+        self._irate = int(self.rate) if self.rate.is_integer() else 0
+        self._usec_per_frame = 1_000_000 // self._irate if self._irate and 1_000_000 % self._irate == 0 else 0
         self.first_frame = None
         self.last_frame = None  # last frame answered
         self._last_answer = b""

@@ -21,7 +21,8 @@ class LockstepScheduler:
     def _on_frame(self, ms: int, t_rx: float, roll: float, p: float, r: float):
         """One lockstep frame.  The SITL sends frames one after the other, so only the next one is taken: one
         late, repeated or forged frame index can neither skip frames nor end the run."""
-        k = frame_from_ms(ms, self.rate)
+        r = self._irate
+        k = -((-ms * r) // 1000) if r else frame_from_ms(ms, self.rate)  # frame_from_ms, integer rates inline
         last = self.last_frame
         pending = self.pending_frame
         if last is not None and k == last:
@@ -68,7 +69,8 @@ class LockstepScheduler:
         att = self.att
         control = self.control
         pwm = control.command(k / self.rate, att.roll)  # the pulse width that flies (autopilot.step)
-        usec = frame_usec(k, self.rate)
+        us = self._usec_per_frame
+        usec = (k * us) & 0xFFFFFFFF if us else frame_usec(k, self.rate)  # frame_usec, whole us per frame inline
         raw = self.sitl.frame_fast(self._pk_servo_sitl, self._servo_payload(usec, pwm))
         self.sitl.send_raw(raw, SERVO_OUTPUT_RAW)
         t_sent = time.perf_counter()

@@ -15,18 +15,18 @@ from __future__ import annotations
 
 from autopilot.shared.mavlink import mavlink
 
+
+def _x25crc(data: bytes) -> int:
+    return mavlink.x25crc(data).crc
+
+
 try:
     import fastcrc
 
-    _crc = fastcrc.crc16.mcrf4xx
+    # crc16(data) -> int: MAVLink's X.25 CRC is CRC-16/MCRF4XX (initial 0xFFFF, fastcrc's default for it)
+    crc16 = fastcrc.crc16.mcrf4xx
 except Exception:  # noqa: BLE001  (no fastcrc: use pymavlink's x25crc)
-    _crc = None
-
-
-def crc16(data: bytes) -> int:
-    if _crc is not None:
-        return _crc(data, 0xFFFF)
-    return mavlink.x25crc(data).crc
+    crc16 = _x25crc
 
 
 class FastPacker:

@@ -17,6 +17,7 @@ import struct
 import time
 
 _TS = struct.Struct(">Q")
+_time_ns = time.time_ns
 
 
 class TlogWriter:
@@ -31,9 +32,7 @@ class TlogWriter:
 
     def write(self, raw, t_us: int | None = None) -> None:
         """Queue one record stamped now (or ``t_us``): a list append, cheap enough for the critical path."""
-        if t_us is None:
-            t_us = time.time_ns() // 1000
-        self._queue.append((t_us, raw if type(raw) is bytes else bytes(raw)))
+        self._queue.append((_time_ns() // 1000 if t_us is None else t_us, raw if type(raw) is bytes else bytes(raw)))
         self.records += 1
 
     def drain(self) -> None:
