@@ -71,10 +71,12 @@ class LockstepScheduler:
         pwm = control.command(k / self.rate, att.roll)  # the pulse width that flies (autopilot.step)
         us = self._usec_per_frame
         usec = (k * us) & 0xFFFFFFFF if us else frame_usec(k, self.rate)  # frame_usec, whole us per frame inline
-        raw = self.sitl.frame_fast(self._pk_servo_sitl, self._servo_payload(usec, pwm))
-        self.sitl.send_raw(raw, SERVO_OUTPUT_RAW)
+        sitl = self.sitl
+        raw = sitl.frame_fast(self._pk_servo_sitl, self._servo_payload(usec, pwm))
+        sent = sitl.send_now(raw)
         t_sent = time.perf_counter()
         # ---- off the critical path from here
+        sitl.account_sent(raw, SERVO_OUTPUT_RAW, sent)  # the send clock, the counters, the tlog
         res = control.finish()  # the law's own step to k+1, the metrics, the StepResult
         self._last_answer = raw
         self.last_frame = k

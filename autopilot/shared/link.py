@@ -330,15 +330,36 @@ class UdpLink:
         return bool(targets) and self._sendto(targets, b"".join(bufs), msgids, bufs)
 
     def send_raw(self, buf: bytes, msgid: int | None = None) -> bool:
+        """Send one packet this link packed to the peer; counted and tlogged.  False if there is no peer yet or
+        the datagram was refused (counted in ``tx_errors``)."""
+        if self.remote is None:
+            return False
+        self.send_clock.tick(_monotonic())  # an attempt counts: the process is alive and sending
+        return self._count_sent(buf, msgid, self.send_now(buf))
+
+    def send_now(self, buf: bytes) -> bool | None:
+        """``send_raw`` in two halves, for the lockstep answer: the ``sendto`` now (None: no peer yet, False:
+        refused, counted in ``tx_errors``), ``account_sent`` right after, once the peer has it: the send clock,
+        the counters and the tlog, as ``send_raw`` keeps them."""
         remote = self.remote
         if remote is None:
-            return False
-        # _sendto for one packet to one address, spelled out: this is the lockstep answer's send
-        self.send_clock.tick(_monotonic())  # an attempt counts: the process is alive and sending
+            return None
         try:
             self.sock.sendto(buf, remote)
         except OSError as exc:
             self._send_failed(exc, remote, 1)
+            return False
+        return True
+
+    def account_sent(self, buf: bytes, msgid: int | None, sent: bool | None) -> bool:
+        """The second half of ``send_raw`` after ``send_now`` (``sent``: what it returned); whether it went."""
+        if sent is None:
+            return False
+        self.send_clock.tick(_monotonic())  # an attempt counts: the process is alive and sending
+        return self._count_sent(buf, msgid, sent)
+
+    def _count_sent(self, buf: bytes, msgid: int | None, sent: bool) -> bool:
+        if not sent:
             return False
         self.tx_packets += 1
         if msgid is not None:
