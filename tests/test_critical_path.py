@@ -319,6 +319,10 @@ def test_deferred_bookkeeping_keeps_every_step(tmp_path):
     assert final == sitl_json["final_state"]
     pwm = PwmMap()
     np.testing.assert_array_equal(sitl_series["u"], [pwm.to_rad(int(p)) for p in ap_series["pwm"]])
+    # what the autopilot recorded of each ATTITUDE is the SITL's state it was measured from, through float32
+    # (step k flies on the state after frame k-1: the SITL's row k-1)
+    for key in ("phi", "p", "r"):
+        np.testing.assert_array_equal(ap_series[key][1:], sitl_series[key][:-1].astype(np.float32).astype(float))
     # the recording: one row per step from the autopilot, one per frame from the SITL
     data = rrd.load(out / "flight.rrd")
     assert len(data[L.AP_ROLL].t) == n and len(data[S.SITL_ROLL].t) == n

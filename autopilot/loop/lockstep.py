@@ -21,8 +21,8 @@ class LockstepScheduler:
     def _on_frame(self, ms: int, t_rx: float, roll: float, p: float, r: float):
         """One lockstep frame.  The SITL sends frames one after the other, so only the next one is taken: one
         late, repeated or forged frame index can neither skip frames nor end the run."""
-        r = self._irate
-        k = -((-ms * r) // 1000) if r else frame_from_ms(ms, self.rate)  # frame_from_ms, integer rates inline
+        irate = self._irate
+        k = -((-ms * irate) // 1000) if irate else frame_from_ms(ms, self.rate)  # frame_from_ms, inline if integer
         last = self.last_frame
         pending = self.pending_frame
         if last is not None and k == last:
