@@ -341,7 +341,7 @@ class Sitl:
                         t_end = now + spin
                         while not servos and perf() < t_end:
                             if poll(0):
-                                link.poll(self._on_msg)
+                                link.poll(self._on_msg, most=1)  # the answer first; anything more on the next turn
                         if servos:
                             continue
                         now = perf()

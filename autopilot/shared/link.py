@@ -411,20 +411,21 @@ class UdpLink:
             raise ValueError(f"{self.name} link: message {msgid} has no hot path here")
         self._hot[msgid] = (dec, dec.crc_extra, callback)
 
-    def poll(self, handler, budget: int = 256) -> int:
+    def poll(self, handler, budget: int = 256, most: int | None = None) -> int:
         """Read the datagrams waiting, calling ``handler(msg, t_rx)`` for each accepted message; returns the number
         of datagrams read.
 
         A datagram from an admitted address (pinned, learned or admitted peer) is always fed.  Datagrams from any
         other address share ``budget`` per poll: that many are fed (checked, counted under their reason), the
         rest are read and counted ``over_budget``, so a flood from elsewhere can neither stall the loop nor crowd
-        out the peer.  At most ``16 * budget`` datagrams are read per poll; the rest wait in the socket for the
-        next one."""
+        out the peer.  At most ``16 * budget`` datagrams are read per poll (``most``: at most that many, e.g. 1
+        for the lockstep SITL, which goes on with the answer it waited for without first finding the socket
+        empty); the rest wait in the socket for the next one."""
         sock = self.sock
         admitted = self._admitted_set  # updated in place when an address is learned or admitted
         n = 0
         others = 0  # datagrams from non-admitted addresses fed in this poll
-        cap = 16 * budget
+        cap = 16 * budget if most is None else min(16 * budget, most)
         while n < cap:
             try:
                 data, addr = sock.recvfrom(4096)
