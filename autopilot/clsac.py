@@ -209,6 +209,7 @@ class ClSac:
         m, n_m, m_m = self._m, self._nm, self._mm
         self.steps = 0
         self.frozen = False
+        self._pending = None  # what ``advance`` needs after a ``command`` (SISO)
         if self._fast:
             self.xm = 0.0
             self.xm_ol = 0.0
@@ -248,6 +249,23 @@ class ClSac:
             return self._step_siso(y, um)
         return self._step_matrix(y, um)
 
+    def command(self, y, um):
+        """The first half of ``step``: this step's command u (eqs. (6), (21), limited), as soon as it is known.
+        ``advance()``, the second half (the integral gains, reference models and PFC to step k+1, and the step's
+        internals), must follow before anything else reads or steps the law; the two give exactly ``step``'s
+        numbers (the same operations in the same order).  The autopilot sends u between the two."""
+        if self._fast:
+            return self._command_siso(y, um)
+        self._pending = None
+        return self._step_matrix(y, um)
+
+    def advance(self) -> None:
+        """The second half of the step ``command`` began (nothing after a matrix step, done in one)."""
+        p = self._pending
+        if p is not None:
+            self._pending = None
+            self._advance_siso(*p)
+
     def hold(self, u_applied=0.0) -> None:
         """Failsafe step: someone else applies ``u_applied``; only the PFC follows it (adaptation frozen)."""
         if self._fast:
@@ -286,6 +304,14 @@ class ClSac:
         vars(self).update(kept)
 
     def _step_siso(self, y, um):
+        """One SISO step in floats (paper sections 2-3): ``_command_siso`` then ``_advance_siso``."""
+        u = self._command_siso(y, um)
+        self._advance_siso(*self._pending)
+        self._pending = None
+        return u
+
+    def _command_siso(self, y, um):
+        """``_step_siso`` up to the command; what the rest needs waits in ``_pending``."""
         y = float(y)
         um = float(um)
         if not (math.isfinite(y) and math.isfinite(um)):
@@ -307,6 +333,12 @@ class ClSac:
         umax = self._umax
         u = umax if u_raw > umax else (-umax if u_raw < -umax else u_raw)
         sat = u != u_raw
+        self._pending = (y, um, xm, ya, ym, y_pfc, e, kpe, kpx, kpu, kie, kix, kiu, ke, kx, ku, u_raw, u, sat)
+        return u
+
+    def _advance_siso(self, y, um, xm, ya, ym, y_pfc, e, kpe, kpx, kpu, kie, kix, kiu, ke, kx, ku, u_raw, u, sat):
+        """``_step_siso`` after the command: the adaptation and the models to step k+1."""
+        s = self._s
         # Integral gains, exact ZOH updates (module docstring).
         die = self._gain_ie * (e * e * s["gie"])
         dix = self._gain_ix * (e * xm * s["gix"])
@@ -341,7 +373,6 @@ class ClSac:
         self.kie, self.kix, self.kiu = kie, kix, kiu
         self.frozen = False
         self.steps += 1
-        return u
 
     def _step_matrix(self, y, um):
         m = self._m

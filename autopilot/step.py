@@ -168,6 +168,8 @@ class ControlStep:
         self._decay = math.exp(-self.config.dt / TRANSFER_TAU_S)
         self._transfer = False
         self.u_last = 0.0  # the last command flown (rad): where a transfer starts
+        self._split = callable(getattr(law, "command", None))  # ClSac.command/advance; others step whole
+        self._pending = None  # between ``command`` and ``finish``
 
     def transfer(self) -> None:
         """A mode switch (or arming): the next command starts where the last one was and joins the new source
@@ -203,12 +205,22 @@ class ControlStep:
         self.nonfinite_inputs = 0
         self.u_last = self._offset = 0.0
         self._transfer = False
+        self._pending = None
 
     def __call__(self, t: float, phi: float, *, wings_level: bool = False) -> StepResult:
         """One step on the measured roll ``phi`` (rad) at sim time ``t`` (s).
 
         ``wings_level``: the setpoint stream is lost, fly u_m = 0 (``Failsafe.NO_SETPOINT``).
         """
+        self.command(t, phi, wings_level=wings_level)
+        return self.finish()
+
+    def command(self, t: float, phi: float, *, wings_level: bool = False):
+        """The first half of a step (``__call__`` is ``command`` then ``finish``): what flies, as soon as it is
+        known, the pulse width (the command in rad without a PWM map).  ``finish()`` must follow before the next
+        step: it completes the law's step (``ClSac.advance``) and the metrics and returns the ``StepResult``, with
+        exactly the numbers of ``__call__`` (the same operations in the same order).  The lockstep autopilot sends
+        the servo command between the two (docs/design.md, "Lockstep")."""
         setpoints = self.setpoints
         um = setpoints.at(t)
         if wings_level:
@@ -218,26 +230,45 @@ class ControlStep:
             # Disarmed: rudder neutral at once.  MANUAL: the ground station's rudder; the law follows it.
             if not self.armed:
                 self.u_last = self._offset = 0.0
-            return self._hold_step(t, phi, um, self._source(self.manual) if self.armed else 0.0)
+            return self._done(self._hold_step(t, phi, um, self._source(self.manual) if self.armed else 0.0))
+        split = self._split
         try:
-            u_cmd = law(phi, um)  # paper eqs. (6), (21), limited to +-u_limit (autopilot.clsac)
+            # paper eqs. (6), (21), limited to +-u_limit (autopilot.clsac)
+            u_cmd = law.command(phi, um) if split else law(phi, um)
         except NonFiniteInputError:
             # A NaN/Inf measurement or command never reaches the states or the metrics: a hold step instead.
             self.nonfinite_inputs += 1
-            return self.hold(t, phi, Failsafe.NO_ATTITUDE if phi - phi != 0.0 else Failsafe.NO_SETPOINT)
+            return self._done(self.hold(t, phi, Failsafe.NO_ATTITUDE if phi - phi != 0.0 else Failsafe.NO_SETPOINT))
+        flew = False
         if self._transfer or self._offset:
             u_cmd = self._source(u_cmd)
-            if hasattr(law, "flew"):
-                law.flew(u_cmd)  # the PFC follows the command that flies
+            flew = hasattr(law, "flew")  # the PFC follows the command that flies (after the law's own step)
         else:
             self.u_last = u_cmd
         pwm_map = self.pwm
-        if pwm_map is None:
-            pwm = None
-            u = u_cmd
-        else:
-            pwm = pwm_map.to_pwm(u_cmd)
-            u = pwm_map.to_rad(pwm)
+        pwm = None if pwm_map is None else pwm_map.to_pwm(u_cmd)
+        self._pending = (t, um, phi, u_cmd, pwm, wings_level, flew)
+        return u_cmd if pwm is None else pwm
+
+    def _done(self, res: StepResult):
+        """A step flown whole in ``command`` (a hold): ``finish`` returns it."""
+        self._pending = res
+        return res.u if res.pwm is None else res.pwm
+
+    def finish(self) -> StepResult:
+        """The second half of the step ``command`` began: the law's step completed, the metrics, the result."""
+        pending = self._pending
+        self._pending = None
+        if type(pending) is StepResult:
+            return pending
+        t, um, phi, u_cmd, pwm, wings_level, flew = pending
+        u = u_cmd if pwm is None else self.pwm.to_rad(pwm)  # the command that flew, after the 1 us quantisation
+        law = self.law
+        if self._split:
+            law.advance()
+        if flew:
+            law.flew(u_cmd)
+        if pwm is not None:
             self.metrics_commanded.add(phi, law.ym_ol, law.e, u_cmd)
         self.metrics.add(phi, law.ym_ol, law.e, u)
         self.k += 1

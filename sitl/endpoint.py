@@ -27,6 +27,7 @@ from collections import Counter
 from dataclasses import dataclass
 
 from autopilot.shared.events import StatusEvents
+from autopilot.shared.fastmav import HOT_DECODERS
 from autopilot.shared.link import UdpLink
 from autopilot.shared.mavlink import frame_ms, frame_usec, mavlink, usec_diff, vehicle_ids
 from autopilot.shared.numerics import wrap_pi
@@ -142,15 +143,20 @@ class Sitl:
         self.servo_timeout_open_s = 0.0
         self.first_servo_sim_s = None  # real time: sim time when the first servo command was applied ...
         self.last_servo_sim_s = None  # ... and the last one
-        self._servos: list = []  # servo messages received, not yet consumed: (time_usec, msg, t_rx)
+        self._servos: list = []  # servo commands received (PWM checked), not yet consumed: (time_usec, pwm, t_rx)
+        self._servo_field = f"servo{pwm.channel}_raw"
+        self._servo_index = HOT_DECODERS[SERVO_OUTPUT_RAW].index(self._servo_field)
+        self.link.on_hot(SERVO_OUTPUT_RAW, self._on_servo)  # the usual servo datagram, without a message object
         self._fds = [self.link.sock]  # select(2): microsecond timeouts (epoll rounds up to milliseconds)
         self._pk_att = self.link.fast_packer(M.MAVLink_attitude_message)
         self._psi = self._psi_t = self._psi_r = 0.0  # heading, the time and yaw rate it was integrated to
 
-    def _heading(self) -> float:
+    def _heading(self, r: float | None = None) -> float:
         """Heading psi (rad, wrapped to (-pi, pi]) for ATTITUDE.yaw: psi' = r (level turn, pitch 0), integrated with
-        the trapezoid rule between ATTITUDE messages.  Not a state of the lateral model (docs/design.md, "Units")."""
-        t, r = self.aircraft.time, float(self.aircraft.truth[2])
+        the trapezoid rule between ATTITUDE messages.  Not a state of the lateral model (docs/design.md, "Units").
+        ``r``: the yaw rate now, if the caller has it (else read from the truth state)."""
+        t = self.aircraft.time
+        r = float(self.aircraft.truth[2]) if r is None else r
         if t > self._psi_t:
             self._psi = wrap_pi(self._psi + 0.5 * (r + self._psi_r) * (t - self._psi_t))
         self._psi_t, self._psi_r = t, r
@@ -162,21 +168,25 @@ class Sitl:
             M.MAVLink_heartbeat_message(M.MAV_TYPE_GENERIC, M.MAV_AUTOPILOT_INVALID, 0, 0, M.MAV_STATE_ACTIVE, 3)
         )
 
-    def _servo_pwm(self, msg) -> int | None:
-        pwm = getattr(msg, f"servo{self.pwm.channel}_raw")
-        if not PWM_VALID_RANGE[0] <= pwm <= PWM_VALID_RANGE[1]:
-            self.link.reject("bad_pwm")
-            return None
-        return pwm
-
     def _on_msg(self, msg, t_rx):
         if msg.get_msgId() == SERVO_OUTPUT_RAW:
-            if self._servo_pwm(msg) is None:  # rejected (bad_pwm) while the link is handling it
-                return
-            if self._rt_faults:  # real-time link faults: delivered later by _deliver
-                self.inj.downlink(t_rx, (msg.time_usec, msg, t_rx))
-                return
-            self._servos.append((msg.time_usec, msg, t_rx))
+            self._take_servo(t_rx, msg.time_usec, getattr(msg, self._servo_field))
+
+    def _on_servo(self, t_rx, values):
+        """SERVO_OUTPUT_RAW from the link's hot path: the payload in wire order (the rudder at ``_servo_index``)."""
+        self._take_servo(t_rx, values[0], values[self._servo_index])
+
+    def _take_servo(self, t_rx, usec: int, pwm: int):
+        """A servo command from the autopilot: a PWM out of range is rejected (``bad_pwm``, while the link is
+        handling the packet), the others wait in ``_servos`` (or, with real-time link faults, in the injector)."""
+        if not PWM_VALID_RANGE[0] <= pwm <= PWM_VALID_RANGE[1]:
+            self.link.reject("bad_pwm")
+            return
+        item = (usec, pwm, t_rx)
+        if self._rt_faults:  # real-time link faults: delivered later by _deliver
+            self.inj.downlink(t_rx, item)
+            return
+        self._servos.append(item)
 
     def _advance_disturbed(self, u: float, n: int):
         return self.inj.advance(self.aircraft, u, n)
@@ -185,8 +195,8 @@ class Sitl:
         """Real-time link faults: send the ATTITUDE datagrams and take the servo messages that are due."""
         for raw in self.inj.uplink_raw(now, None):
             self.link.send_raw(raw, ATTITUDE)
-        for usec, msg, _t_rx in self.inj.downlink(now):
-            self._servos.append((usec, msg, now))
+        for usec, pwm, _t_rx in self.inj.downlink(now):
+            self._servos.append((usec, pwm, now))
 
     def _send_attitude_disturbed(self, ms: int, k: int | None) -> bytes:
         """ATTITUDE with the sensor errors and the link faults of ``self.inj`` (see sitl.disturbances.Injector)."""
@@ -216,11 +226,9 @@ class Sitl:
             raw = self.link.pack_fast(self._pk_att, ms, phi, theta, psi, p, q, r)
             self.link.send_raw(raw, ATTITUDE)
             return raw
-        x = self.aircraft.truth
+        x = self.aircraft.truth.tolist()  # the float64 values as Python floats, exactly (float(x[i]) each)
         # roll wrapped to (-pi, pi] where it is measured, as a real attitude sensor reports it
-        raw = self.link.pack_fast(
-            self._pk_att, ms, wrap_pi(float(x[3])), 0.0, self._heading(), float(x[1]), 0.0, float(x[2])
-        )
+        raw = self.link.pack_fast(self._pk_att, ms, wrap_pi(x[3]), 0.0, self._heading(x[2]), x[1], 0.0, x[2])
         self.link.send_raw(raw, ATTITUDE)
         return raw
 
@@ -273,7 +281,6 @@ class Sitl:
                 file=self.out,
                 flush=True,
             )
-        ac = self.aircraft
         advance = self._advance
         inj = self.inj
         ev = self.events
@@ -282,7 +289,12 @@ class Sitl:
         spin = opts.spin_s
         K = k0
         hooks = self.hooks
-        rec = None  # the last frame's record: handed to the hooks once the next ATTITUDE is out
+        # The last frame's (sim time, command, PWM, frame): its SitlRecord is made and handed to the hooks once the
+        # next ATTITUDE is out (the state is the one that ATTITUDE was measured from), while the autopilot computes.
+        rec = None
+        poll = select.poll()
+        poll.register(link.sock, select.POLLIN)
+        poll = poll.poll  # the busy poll: one poll(2) per turn (an empty recvfrom costs twice that, and raises)
         self.wall_first_frame = perf()
         while not self.stop_requested:
             if n_frames and self.frames >= n_frames:
@@ -328,18 +340,19 @@ class Sitl:
                     if spin > 0:
                         t_end = now + spin
                         while not servos and perf() < t_end:
-                            self.link.poll(self._on_msg)
+                            if poll(0):
+                                link.poll(self._on_msg, most=1)  # the answer first; anything more on the next turn
                         if servos:
                             continue
                         now = perf()
                     self._wait(min(t_resend, t_give_up, next_hb) - now)
                     continue
-                usec, msg, _t_rx = servos.pop(0)
+                usec, got, _t_rx = servos.pop(0)
                 if usec != expected:
                     d = usec_diff(usec, expected)
                     ev["stale_servo" if d < 0 else "unexpected_servo"] += 1
                     continue
-                pwm = self._servo_pwm(msg)
+                pwm = got  # its PWM was checked on arrival (_take_servo)
             if pwm is None:  # stopped by a signal while waiting for the answer
                 break
             ev["resends_frame"] = 0
@@ -353,7 +366,7 @@ class Sitl:
             self.frames += 1
             self.wall_last_frame = perf()
             if hooks:
-                rec = SitlRecord(K / rate, ac.truth.copy(), u, pwm, K, self)
+                rec = (K / rate, u, pwm, K)
             now = self.wall_last_frame
             if now >= next_hb:
                 next_hb = now + 1.0
@@ -364,9 +377,13 @@ class Sitl:
         return 0
 
     def _run_hooks(self, rec) -> None:
+        """The hooks on the frame ``rec`` = (sim time, command, PWM, frame) (None: nothing to hand), with the state
+        the aircraft is in now (that frame's: nothing stepped it since)."""
         if rec is not None:
+            t, u, pwm, k = rec
+            r = SitlRecord(t, self.aircraft.truth.copy(), u, pwm, k, self)
             for h in self.hooks:
-                h(rec)
+                h(r)
 
     # ------------------------------------------------------------- real time
     def run_realtime(self) -> int:
@@ -401,29 +418,27 @@ class Sitl:
                 self._deliver(perf())
             servos = self._servos
             while servos:
-                usec, msg, t_rx = servos.pop(0)
+                usec, pwm, t_rx = servos.pop(0)
                 d = None if last_usec is None or timed_out else usec_diff(usec, last_usec)
                 if d is not None and d <= 0:
                     ev["stale_servo"] += 1
                 elif d is not None and d > (t_rx - last_servo_wall) * 1e6 + SERVO_AHEAD_US:
                     ev["future_servo"] += 1  # ahead of the autopilot's clock as we hold it: never "newest"
-                else:
-                    pwm = self._servo_pwm(msg)
-                    if pwm is not None:
-                        catch_up(t_rx)  # the old command held up to the moment the new one arrived
-                        if timed_out:
-                            self.servo_timeout_s += (ac.steps - timeout_from) / phys_rate
-                        if last_usec is None:
-                            self.first_servo_sim_s = ac.steps / phys_rate  # as sim_time_s: from the start
-                        self.last_servo_sim_s = ac.steps / phys_rate
-                        last_usec = usec
-                        last_servo_wall = t_rx
-                        self.pwm_applied = pwm
-                        self.u = self.pwm.to_rad(pwm)
-                        ev["servo_applied"] += 1
-                        if timed_out:
-                            timed_out = False
-                            self.say(M.MAV_SEVERITY_NOTICE, "autopilot back: servo commands applied again")
+                else:  # its PWM was checked on arrival (_take_servo)
+                    catch_up(t_rx)  # the old command held up to the moment the new one arrived
+                    if timed_out:
+                        self.servo_timeout_s += (ac.steps - timeout_from) / phys_rate
+                    if last_usec is None:
+                        self.first_servo_sim_s = ac.steps / phys_rate  # as sim_time_s: from the start
+                    self.last_servo_sim_s = ac.steps / phys_rate
+                    last_usec = usec
+                    last_servo_wall = t_rx
+                    self.pwm_applied = pwm
+                    self.u = self.pwm.to_rad(pwm)
+                    ev["servo_applied"] += 1
+                    if timed_out:
+                        timed_out = False
+                        self.say(M.MAV_SEVERITY_NOTICE, "autopilot back: servo commands applied again")
             now = perf()
             if now < next_sensor:
                 continue

@@ -5,6 +5,7 @@ its stats and its shutdown.
 from __future__ import annotations
 
 import gc
+import select
 import sys
 import time
 from collections import Counter
@@ -138,6 +139,10 @@ class Autopilot(LinkHandlers, LockstepScheduler, RealtimeScheduler):
         self.params = params
         self.vehicle = Vehicle(self, params, mode, armed)
         # lockstep
+        self._steps_to_fly = round(opts.duration_s * self.rate) if opts.duration_s > 0 else 0  # 0 = until stopped
+        # frame_from_ms and frame_usec (autopilot.shared.mavlink) inline for an integer rate: its ms and us per frame
+        self._irate = int(self.rate) if self.rate.is_integer() else 0
+        self._usec_per_frame = 1_000_000 // self._irate if self._irate and 1_000_000 % self._irate == 0 else 0
         self.first_frame = None
         self.last_frame = None  # last frame answered
         self._last_answer = b""
@@ -152,11 +157,18 @@ class Autopilot(LinkHandlers, LockstepScheduler, RealtimeScheduler):
         self._fds = [self.sitl.sock, self.gcs.sock]
         self._sitl_handler = self._on_sitl
         self._gcs_handler = self._on_gcs
+        self.sitl.on_hot(ATTITUDE, self._on_attitude)  # the usual ATTITUDE datagram, without a message object
+        # lockstep's busy poll asks the kernel about both sockets at once (one poll(2), no exception when empty)
+        self._poller = select.poll()
+        for sock in self._fds:
+            self._poller.register(sock, select.POLLIN)
         # fast, byte-identical encoders for the per-step messages (autopilot.shared.fastmav)
         self._pk_servo_sitl = self.sitl.fast_packer(M.MAVLink_servo_output_raw_message)
         self._pk_servo_gcs = self.gcs.fast_packer(M.MAVLink_servo_output_raw_message)
         self._pk_att = self.gcs.fast_packer(M.MAVLink_attitude_message)
         self._pk_att_target = self.gcs.fast_packer(M.MAVLink_attitude_target_message)
+        self._wire_rest: dict = {}  # PWM -> SERVO_OUTPUT_RAW's fields after time_usec (``_servo_wire``)
+        self._servo_tails: dict = {}  # PWM -> their packed bytes (``_servo_payload``)
 
     # ================================================================== exit
     def run(self) -> int:

@@ -57,43 +57,44 @@ class LinkHandlers:
     def _on_sitl(self, msg, t_rx):
         mid = msg.get_msgId()
         if mid == ATTITUDE:
-            roll, p, r = msg.roll, msg.rollspeed, msg.yawspeed
-            # NaN/Inf anywhere in the message is a broken sensor frame: reject (x - x != 0 for NaN and Inf)
-            if (
-                (roll - roll)
-                or (p - p)
-                or (r - r)
-                or (msg.pitch - msg.pitch)
-                or (msg.yaw - msg.yaw)
-                or (msg.pitchspeed - msg.pitchspeed)
-            ):
-                self.sitl.reject("nonfinite_attitude")
-                return
-            if not -3.1416 <= roll <= 3.1416:
-                self.sitl.reject("roll_out_of_range")
-                return
-            self.att.yaw = msg.yaw  # heading, for the GCS's ATTITUDE only (the law flies roll)
-            ms = msg.time_boot_ms
-            if self.opts.lockstep:
-                self._on_frame(ms, t_rx, roll, p, r)
-                return
-            att = self.att
-            if att.valid and t_rx - att.t_rx < self.opts.attitude_timeout_s:
-                # Checked against the clock of the attitude held, which runs with the wall clock in real time.
-                # (After attitude_timeout without one anything goes: the clock is re-synchronised.)
-                if ms <= att.ms:
-                    if att.ms - ms < SITL_RESTART_MS:
-                        self.sitl.reject("stale_attitude")  # out of order or repeated: keep the newest
-                        return
-                    self.events["sitl_clock_restarts"] += 1  # went back by over a second: a new SITL, re-sync
-                elif ms - att.ms > (t_rx - att.t_rx) * 1e3 + ATTITUDE_AHEAD_MS:
-                    self.sitl.reject("future_attitude")  # ahead of the clock by more than a few periods
-                    return
-            att.ms, att.roll, att.p, att.r, att.t_rx, att.valid = ms, roll, p, r, t_rx, True
+            # the fields in wire order, as the link's hot path hands them to _on_attitude
+            self._on_attitude(
+                t_rx,
+                (msg.time_boot_ms, msg.roll, msg.pitch, msg.yaw, msg.rollspeed, msg.pitchspeed, msg.yawspeed),
+            )
         elif mid == STATUSTEXT:
             text = self._sitl_texts.add(msg)  # a long text arrives in chunks (autopilot.shared.events)
             if text is not None:
                 self._event(msg.severity, f"SITL: {text}")
+
+    def _on_attitude(self, t_rx, values):
+        """An ATTITUDE from the SITL, ``values`` in wire order (time_boot_ms, roll, pitch, yaw, rollspeed,
+        pitchspeed, yawspeed): the SITL link's hot path (``UdpLink.on_hot``) hands them so, ``_on_sitl`` too."""
+        ms, roll, pitch, yaw, p, q, r = values
+        # NaN/Inf anywhere in the message is a broken sensor frame: reject (x - x != 0 for NaN and Inf)
+        if (roll - roll) or (p - p) or (r - r) or (pitch - pitch) or (yaw - yaw) or (q - q):
+            self.sitl.reject("nonfinite_attitude")
+            return
+        if not -3.1416 <= roll <= 3.1416:
+            self.sitl.reject("roll_out_of_range")
+            return
+        self.att.yaw = yaw  # heading, for the GCS's ATTITUDE only (the law flies roll)
+        if self.opts.lockstep:
+            self._on_frame(ms, t_rx, roll, p, r)
+            return
+        att = self.att
+        if att.valid and t_rx - att.t_rx < self.opts.attitude_timeout_s:
+            # Checked against the clock of the attitude held, which runs with the wall clock in real time.
+            # (After attitude_timeout without one anything goes: the clock is re-synchronised.)
+            if ms <= att.ms:
+                if att.ms - ms < SITL_RESTART_MS:
+                    self.sitl.reject("stale_attitude")  # out of order or repeated: keep the newest
+                    return
+                self.events["sitl_clock_restarts"] += 1  # went back by over a second: a new SITL, re-sync
+            elif ms - att.ms > (t_rx - att.t_rx) * 1e3 + ATTITUDE_AHEAD_MS:
+                self.sitl.reject("future_attitude")  # ahead of the clock by more than a few periods
+                return
+        att.ms, att.roll, att.p, att.r, att.t_rx, att.valid = ms, roll, p, r, t_rx, True
 
     def _on_gcs(self, msg, t_rx):
         if msg.get_msgId() != SET_ATTITUDE_TARGET:
@@ -171,9 +172,22 @@ class LinkHandlers:
 
     # ================================================================ outputs
     def _servo_wire(self, time_usec: int, pwm: int) -> tuple:
-        """SERVO_OUTPUT_RAW fields in wire order: time_usec, servo1..8, port, servo9..16."""
-        s = self.pwm.servo_fields(pwm)
-        return (time_usec, *s[:8], 0, *s[8:])
+        """SERVO_OUTPUT_RAW fields in wire order: time_usec, servo1..8, port, servo9..16 (those after time_usec
+        kept per PWM value: at most the map's range of them)."""
+        rest = self._wire_rest.get(pwm)
+        if rest is None:
+            s = self.pwm.servo_fields(pwm)
+            rest = self._wire_rest[pwm] = (*s[:8], 0, *s[8:])
+        return (time_usec, *rest)
+
+    def _servo_payload(self, time_usec: int, pwm: int) -> bytes:
+        """SERVO_OUTPUT_RAW's payload in its struct layout: time_usec (uint32 first, little-endian), then the
+        bytes of the fields after it, packed once per PWM value (``_servo_wire``)."""
+        tail = self._servo_tails.get(pwm)
+        if tail is None:
+            wire = self._servo_wire(0, pwm)
+            tail = self._servo_tails[pwm] = M.MAVLink_servo_output_raw_message.unpacker.pack(*wire)[4:]
+        return time_usec.to_bytes(4, "little") + tail
 
     def _send_heartbeat(self, status=None):
         hb = self.vehicle.heartbeat(self._status_state if status is None else status)

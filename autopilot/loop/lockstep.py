@@ -21,7 +21,8 @@ class LockstepScheduler:
     def _on_frame(self, ms: int, t_rx: float, roll: float, p: float, r: float):
         """One lockstep frame.  The SITL sends frames one after the other, so only the next one is taken: one
         late, repeated or forged frame index can neither skip frames nor end the run."""
-        k = frame_from_ms(ms, self.rate)
+        irate = self._irate
+        k = -((-ms * irate) // 1000) if irate else frame_from_ms(ms, self.rate)  # frame_from_ms, inline if integer
         last = self.last_frame
         pending = self.pending_frame
         if last is not None and k == last:
@@ -48,7 +49,7 @@ class LockstepScheduler:
         k = self.pending_frame
         t_us = k * 1e6 / self.rate
         opts = self.opts
-        if opts.duration_s > 0 and self.steps >= round(opts.duration_s * self.rate):
+        if self._steps_to_fly and self.steps >= self._steps_to_fly:
             # The frame after the last step is the SITL's end-of-run frame (t = t0 + duration): not a control
             # step.  The run ends by the count of frames flown, never by one frame's index.
             self.pending_frame = None
@@ -61,13 +62,22 @@ class LockstepScheduler:
             return
         self._blocked_since = None
         self.pending_frame = None
+        # The critical path, which the SITL waits for: the law, encode, sign, send.  Everything after the send
+        # (timing, telemetry, the gains stream, hooks, the envelope, the tlog's queue) is done while the SITL
+        # computes the next frame (docs/design.md, "Lockstep").
         t0 = time.perf_counter()
         att = self.att
-        res = self.control(k / self.rate, att.roll)
-        wire = self._servo_wire(frame_usec(k, self.rate), res.pwm)
-        raw = self.sitl.pack_fast(self._pk_servo_sitl, *wire)
-        self.sitl.send_raw(raw, SERVO_OUTPUT_RAW)
+        control = self.control
+        pwm = control.command(k / self.rate, att.roll)  # the pulse width that flies (autopilot.step)
+        us = self._usec_per_frame
+        usec = (k * us) & 0xFFFFFFFF if us else frame_usec(k, self.rate)  # frame_usec, whole us per frame inline
+        sitl = self.sitl
+        raw = sitl.frame_fast(self._pk_servo_sitl, self._servo_payload(usec, pwm))
+        sent = sitl.send_now(raw)
         t_sent = time.perf_counter()
+        # ---- off the critical path from here
+        sitl.account_sent(raw, SERVO_OUTPUT_RAW, sent)  # the send clock, the counters, the tlog
+        res = control.finish()  # the law's own step to k+1, the metrics, the StepResult
         self._last_answer = raw
         self.last_frame = k
         prev = self.t_last_step
@@ -78,7 +88,7 @@ class LockstepScheduler:
         self.timing.add(None, None, t_sent - t0, latency)
         self.steps += 1
         if self._telemetry_every and self.steps % self._telemetry_every == 1 % self._telemetry_every:
-            self._send_telemetry(att.ms, att.roll, att.p, att.r, wire)
+            self._send_telemetry(att.ms, att.roll, att.p, att.r, self._servo_wire(usec, res.pwm))
         self.vehicle.on_step(self.steps, att.ms)
         if self.hooks:
             rec = StepRecord(
@@ -98,6 +108,8 @@ class LockstepScheduler:
             for h in self.hooks:
                 h(rec)
         self._judge_envelope(res)
+        if self.tlog is not None:
+            self.tlog.drain()  # this frame's ATTITUDE, SERVO_OUTPUT_RAW and GCS stream, stamped when they went
 
     def run_lockstep(self) -> int:
         opts = self.opts
@@ -108,17 +120,21 @@ class LockstepScheduler:
         last_warn = now
         silent_reported = False
         lockstep_spin = opts.lockstep_spin_s
+        perf = time.perf_counter
+        poll = self._poller.poll
         prev_pass = now
         while not self.stop_requested and not self.finished:
             if lockstep_spin > 0:
                 # Busy-poll briefly before sleeping: the SITL's next frame usually comes within tens of us,
-                # and a sleep/wake-up costs more than that on a virtual machine.
+                # and a sleep/wake-up costs more than that on a virtual machine.  One poll(2) of both sockets
+                # per turn (an empty recvfrom costs twice that, and raises).
                 n0 = self.sitl.rx_datagrams + self.gcs.rx_datagrams
-                t_end = time.perf_counter() + lockstep_spin
-                while time.perf_counter() < t_end:
-                    self._drain()
-                    if self.sitl.rx_datagrams + self.gcs.rx_datagrams != n0:
-                        break
+                t_end = perf() + lockstep_spin
+                while perf() < t_end:
+                    if poll(0):
+                        self._drain()
+                        if self.sitl.rx_datagrams + self.gcs.rx_datagrams != n0:
+                            break
                 else:
                     self._wait(0.02)
             else:

@@ -5,28 +5,28 @@ receives a handful per frame.  These helpers use the same dialect data (the mess
 ``unpacker`` struct, ``crc_extra``, field ``orders``) and the same CRC (fastcrc's MCRF4XX, what
 pymavlink uses), and produce byte-identical packets (``tests/test_mavlink_units.py`` checks this
 against ``msg.pack(mav)`` and ``mav.decode``).  Anything else goes through pymavlink unchanged.
+
+``HotDecoder`` goes one step further for the two messages of a lockstep frame (``HOT_IDS``: ATTITUDE and
+SERVO_OUTPUT_RAW): the payload's values as one tuple in wire order, no message object at all, for a link's
+``on_hot`` callback (``autopilot.shared.link``; the link has framed and checked the packet before).
 """
 
 from __future__ import annotations
 
-import struct
-
 from autopilot.shared.mavlink import mavlink
+
+
+def _x25crc(data: bytes) -> int:
+    return mavlink.x25crc(data).crc
+
 
 try:
     import fastcrc
 
-    _crc = fastcrc.crc16.mcrf4xx
+    # crc16(data) -> int: MAVLink's X.25 CRC is CRC-16/MCRF4XX (initial 0xFFFF, fastcrc's default for it)
+    crc16 = fastcrc.crc16.mcrf4xx
 except Exception:  # noqa: BLE001  (no fastcrc: use pymavlink's x25crc)
-    _crc = None
-
-_HDR = struct.Struct("<BBBBBBBHB")
-
-
-def crc16(data: bytes) -> int:
-    if _crc is not None:
-        return _crc(data, 0xFFFF)
-    return mavlink.x25crc(data).crc
+    crc16 = _x25crc
 
 
 class FastPacker:
@@ -43,17 +43,22 @@ class FastPacker:
         self._crc_extra = bytes([cls.crc_extra])
         self._sys = src_system
         self._comp = src_component
+        mid = self.msgid
+        self._ids = bytes((src_system, src_component, mid & 0xFF, (mid >> 8) & 0xFF, mid >> 16))
         self._signing = signing
 
     def __call__(self, seq: int, *values) -> bytes:
-        payload = self._payload(*values)
+        return self.frame(seq, self._payload(*values))
+
+    def frame(self, seq: int, payload: bytes) -> bytes:
+        """The packet of a payload already packed in the class's struct layout (``cls.unpacker``; whole, or
+        already trimmed): trimmed, framed, CRC'd and signed as ``__call__`` does."""
         p = payload.rstrip(b"\x00") or payload[:1]  # MAVLink 2 trims trailing zero bytes (keeps one)
-        mid = self.msgid
         signing = self._signing
-        hdr = _HDR.pack(0xFD, len(p), 1 if signing else 0, 0, seq, self._sys, self._comp, mid & 0xFFFF, mid >> 16)
-        body = hdr[1:] + p
+        # header after the start byte: len, incompat flags (1 = signed), compat flags, seq, sys, comp, msgid (3)
+        body = bytes((len(p), 1 if signing else 0, 0, seq)) + self._ids + p
         c = crc16(body + self._crc_extra)
-        packet = hdr[:1] + body + bytes((c & 0xFF, c >> 8))
+        packet = b"\xfd" + body + bytes((c & 0xFF, c >> 8))
         return packet + signing.signature(packet) if signing else packet
 
 
@@ -99,5 +104,33 @@ class FastDecoder:
         return m
 
 
+class HotDecoder:
+    """The payload of one message class as a tuple in wire order (``cls.ordered_fieldnames``), from a packet the
+    link has framed and CRC-checked: MAVLink 2 trims trailing zero bytes, so a short payload is zero-padded as
+    pymavlink does, and a longer one (a newer dialect's extensions) is read up to the known fields.  No arrays or
+    strings (those go through pymavlink).  ``index(name)``: where a field sits in the tuple."""
+
+    def __init__(self, cls):
+        if sum(cls.lengths) != len(cls.lengths):
+            raise ValueError(f"{cls.msgname} has arrays: use pymavlink's decode")
+        self.cls = cls
+        self.msgid = cls.id if isinstance(getattr(cls, "id", None), int) else cls.msgid
+        self.crc_extra = bytes([cls.crc_extra])
+        self._unpack = cls.unpacker.unpack
+        self._unpack_from = cls.unpacker.unpack_from
+        self._size = cls.unpacker.size
+
+    def index(self, name: str) -> int:
+        return self.cls.ordered_fieldnames.index(name)
+
+    def __call__(self, raw: bytes, plen: int) -> tuple:
+        size = self._size
+        if plen >= size:
+            return self._unpack_from(raw, 10)
+        return self._unpack(raw[10 : 10 + plen] + bytes(size - plen))
+
+
 FAST_DECODE_IDS = (mavlink.MAVLINK_MSG_ID_ATTITUDE, mavlink.MAVLINK_MSG_ID_SERVO_OUTPUT_RAW)
 FAST_DECODERS = {mid: FastDecoder(mavlink.mavlink_map[mid]) for mid in FAST_DECODE_IDS}
+HOT_IDS = FAST_DECODE_IDS
+HOT_DECODERS = {mid: HotDecoder(mavlink.mavlink_map[mid]) for mid in HOT_IDS}

@@ -57,6 +57,14 @@ datagrams (what is left waits in the socket for the next poll), and the socket a
 (the kernel caps it at ``net.core.rmem_max``) so a flood queued ahead of the peer's datagrams does not make the
 kernel drop them before they are read.
 
+**The hot path.**  ``on_hot(msgid, callback)`` takes the accepted packets of one of ``fastmav.HOT_IDS`` (ATTITUDE,
+SERVO_OUTPUT_RAW: the two messages of a lockstep frame) as ``callback(t_rx, values)``, the payload as a tuple in
+wire order (``fastmav.HotDecoder``), without building a pymavlink message.  It serves only the usual datagram:
+one whole MAVLink 2 packet of that id with a good CRC (and, with signing on, a good and fresh signature) from an
+admitted address and a peer's IDs; it counts, tlogs and takes the owner's ``reject`` exactly as the checks below
+do.  Anything else (several packets, a bad CRC, an unsigned or forged packet, a new address or system) has
+changed nothing yet when the hot path lets go, and goes through the checks below, which count it.
+
 Sending: ``send(msg)`` packs with this link's own sequence counter and source IDs (signed when signing is on).
 Every packet sent or accepted is written to the tlog (if one is attached) with the raw bytes.  A send error
 that means the peer cannot be reached at all (no route, bad address) raises :class:`PeerUnreachable`; a
@@ -67,12 +75,13 @@ from __future__ import annotations
 
 import errno
 import socket
+import struct
 import time
 from collections import Counter
 
 from pymavlink.dialects.v20 import all as _all_dialect
 
-from autopilot.shared.fastmav import FAST_DECODERS, FastPacker, crc16
+from autopilot.shared.fastmav import FAST_DECODERS, HOT_DECODERS, FastPacker, crc16
 from autopilot.shared.mavlink import mavlink
 
 # CRC extras of every message pymavlink knows (a superset of common with the same extras), so a valid message of
@@ -96,6 +105,8 @@ REJECT_REASONS = (
 )
 # sendto errors after which nothing will ever arrive: fatal (the others are counted and the link goes on)
 _FATAL_SEND_ERRNOS = (errno.EHOSTUNREACH, errno.ENETUNREACH, errno.EADDRNOTAVAIL, errno.EAFNOSUPPORT, errno.EINVAL)
+_monotonic = time.monotonic
+_HEADER = struct.Struct("<BBBBBBBHB").unpack_from  # MAVLink 2: magic, len, incompat, compat, seq, sys, comp, msgid
 ANY_COMPONENT = None  # a peer (sysid, ANY_COMPONENT) accepts that system with any component
 _HEARTBEAT = mavlink.MAVLINK_MSG_ID_HEARTBEAT
 _MAV_TYPE_GCS = mavlink.MAV_TYPE_GCS
@@ -263,6 +274,7 @@ class UdpLink:
         self.last_rx_wall = 0.0  # perf_counter of the last accepted packet
         self.peer_addr = None  # address of the last accepted packet
         self._verdict = None  # the owner's rejection of the packet being handled
+        self._hot: dict = {}  # msgid -> (HotDecoder, CRC extra, callback(t_rx, values)): see ``on_hot``
 
     # ------------------------------------------------------------------ send
     def pack(self, msg) -> bytes:
@@ -299,6 +311,13 @@ class UdpLink:
         mav.seq = (mav.seq + 1) & 0xFF
         return buf
 
+    def frame_fast(self, packer: FastPacker, payload: bytes) -> bytes:
+        """``pack_fast`` for a payload already in the struct layout (``FastPacker.frame``)."""
+        mav = self.mav
+        buf = packer.frame(mav.seq, payload)
+        mav.seq = (mav.seq + 1) & 0xFF
+        return buf
+
     def send_batch(self, bufs: list, msgids: list) -> bool:
         """Send several packets in one datagram (a UDP MAVLink stream may carry several) to the peer (an
         admitting link: to every admitted peer and ``remote``); tlog each one."""
@@ -311,9 +330,43 @@ class UdpLink:
         return bool(targets) and self._sendto(targets, b"".join(bufs), msgids, bufs)
 
     def send_raw(self, buf: bytes, msgid: int | None = None) -> bool:
+        """Send one packet this link packed to the peer; counted and tlogged.  False if there is no peer yet or
+        the datagram was refused (counted in ``tx_errors``)."""
         if self.remote is None:
             return False
-        return self._sendto((self.remote,), buf, () if msgid is None else (msgid,), (buf,))
+        self.send_clock.tick(_monotonic())  # an attempt counts: the process is alive and sending
+        return self._count_sent(buf, msgid, self.send_now(buf))
+
+    def send_now(self, buf: bytes) -> bool | None:
+        """``send_raw`` in two halves, for the lockstep answer: the ``sendto`` now (None: no peer yet, False:
+        refused, counted in ``tx_errors``), ``account_sent`` right after, once the peer has it: the send clock,
+        the counters and the tlog, as ``send_raw`` keeps them."""
+        remote = self.remote
+        if remote is None:
+            return None
+        try:
+            self.sock.sendto(buf, remote)
+        except OSError as exc:
+            self._send_failed(exc, remote, 1)
+            return False
+        return True
+
+    def account_sent(self, buf: bytes, msgid: int | None, sent: bool | None) -> bool:
+        """The second half of ``send_raw`` after ``send_now`` (``sent``: what it returned); whether it went."""
+        if sent is None:
+            return False
+        self.send_clock.tick(_monotonic())  # an attempt counts: the process is alive and sending
+        return self._count_sent(buf, msgid, sent)
+
+    def _count_sent(self, buf: bytes, msgid: int | None, sent: bool) -> bool:
+        if not sent:
+            return False
+        self.tx_packets += 1
+        if msgid is not None:
+            self.tx_by_type[msgid] += 1
+        if self.tlog is not None:
+            self.tlog.write(buf)
+        return True
 
     def resend(self, buf: bytes, msgid: int | None = None) -> bool:
         """Send again a packet this link sent before (lockstep recovery of a lost datagram).  With signing on it is
@@ -324,17 +377,12 @@ class UdpLink:
 
     def _sendto(self, targets, data: bytes, msgids, bufs) -> bool:
         ok = False
-        self.send_clock.tick(time.monotonic())  # an attempt counts: the process is alive and sending
+        self.send_clock.tick(_monotonic())  # an attempt counts: the process is alive and sending
         for addr in targets:
             try:
                 self.sock.sendto(data, addr)
             except OSError as exc:
-                if exc.errno in _FATAL_SEND_ERRNOS:
-                    raise PeerUnreachable(
-                        f"{self.name} link: cannot send to {addr[0]}:{addr[1]}: {exc.strerror}"
-                    ) from None
-                # ECONNREFUSED from a previous ICMP port-unreachable (peer not up yet), ENOBUFS: count, go on.
-                self.tx_errors += len(bufs)
+                self._send_failed(exc, addr, len(bufs))
                 continue
             ok = True
             self.tx_packets += len(bufs)
@@ -345,21 +393,39 @@ class UdpLink:
                 self.tlog.write(b)
         return ok
 
+    def _send_failed(self, exc: OSError, addr, packets: int) -> None:
+        """A sendto that failed: :class:`PeerUnreachable` if it never will work, else ``packets`` send errors."""
+        if exc.errno in _FATAL_SEND_ERRNOS:
+            raise PeerUnreachable(f"{self.name} link: cannot send to {addr[0]}:{addr[1]}: {exc.strerror}") from None
+        # ECONNREFUSED from a previous ICMP port-unreachable (peer not up yet), ENOBUFS: count, go on.
+        self.tx_errors += packets
+
     # --------------------------------------------------------------- receive
-    def poll(self, handler, budget: int = 256) -> int:
+    def on_hot(self, msgid: int, callback) -> None:
+        """Hand the accepted packets of ``msgid`` (one of ``fastmav.HOT_IDS``, taken by this link) to
+        ``callback(t_rx, values)`` instead of the poll's handler: ``values`` is the payload in wire order
+        (``HOT_DECODERS[msgid].index(name)`` says where a field is).  Only the usual datagram goes this way (see
+        the module docstring, "The hot path"); anything else still reaches the handler as a message."""
+        dec = HOT_DECODERS.get(msgid)
+        if dec is None or msgid not in self.msgids:
+            raise ValueError(f"{self.name} link: message {msgid} has no hot path here")
+        self._hot[msgid] = (dec, dec.crc_extra, callback)
+
+    def poll(self, handler, budget: int = 256, most: int | None = None) -> int:
         """Read the datagrams waiting, calling ``handler(msg, t_rx)`` for each accepted message; returns the number
         of datagrams read.
 
         A datagram from an admitted address (pinned, learned or admitted peer) is always fed.  Datagrams from any
         other address share ``budget`` per poll: that many are fed (checked, counted under their reason), the
         rest are read and counted ``over_budget``, so a flood from elsewhere can neither stall the loop nor crowd
-        out the peer.  At most ``16 * budget`` datagrams are read per poll; the rest wait in the socket for the
-        next one."""
+        out the peer.  At most ``16 * budget`` datagrams are read per poll (``most``: at most that many, e.g. 1
+        for the lockstep SITL, which goes on with the answer it waited for without first finding the socket
+        empty); the rest wait in the socket for the next one."""
         sock = self.sock
         admitted = self._admitted_set  # updated in place when an address is learned or admitted
         n = 0
         others = 0  # datagrams from non-admitted addresses fed in this poll
-        cap = 16 * budget
+        cap = 16 * budget if most is None else min(16 * budget, most)
         while n < cap:
             try:
                 data, addr = sock.recvfrom(4096)
@@ -432,6 +498,8 @@ class UdpLink:
         """Frame, check and decode one datagram; count it once (``rx_accepted`` or one reason)."""
         t_rx = time.perf_counter()
         self.rx_datagrams += 1
+        if self._hot and self._feed_hot(data, addr, t_rx):
+            return
         end = len(data)
         reason = None if end else "empty"
         accepted = False
@@ -510,6 +578,43 @@ class UdpLink:
             self.rx_accepted += 1
         else:
             self.rejected[reason] += 1
+
+    def _feed_hot(self, data: bytes, addr, t_rx: float) -> bool:
+        """The hot path (module docstring): True if ``data`` was one packet of a hot id that passed every check
+        and was handed to its callback (and counted); False, with nothing changed, for anything else."""
+        end = len(data)
+        if end < 12:
+            return False
+        magic, plen, flags, _compat, _seq, sysid, compid, mid16, mid8 = _HEADER(data)
+        signed = flags & 1
+        if magic != 0xFD or end != 12 + plen + (13 if signed else 0):
+            return False  # not MAVLink 2, several packets, or a truncated one
+        hot = self._hot.get(mid16 | (mid8 << 16))
+        if hot is None or addr not in self._admitted_set:
+            return False
+        if (sysid, compid) not in self.peers and sysid not in self._any_comp:
+            return False
+        dec, extra, callback = hot
+        c = crc16(data[1 : 10 + plen] + extra)
+        if data[10 + plen] != (c & 0xFF) or data[11 + plen] != (c >> 8):
+            return False
+        signing = self.signing
+        if signing is not None and (not signed or signing.check(data, sysid, compid) is not None):
+            return False  # Signing.check changes nothing on a refusal: the checks below give the same verdict
+        values = dec(data, plen)
+        self.last_rx_wall = t_rx
+        self.peer_addr = addr
+        if self.tlog is not None:
+            self.tlog.write(data)
+        self._verdict = None
+        callback(t_rx, values)
+        if self._verdict is not None:
+            self.rejected[self._verdict] += 1
+            return True
+        self.rx_packets += 1
+        self.rx_by_type[dec.msgid] += 1
+        self.rx_accepted += 1
+        return True
 
     # ----------------------------------------------------------------- misc
     def fileno(self) -> int:

@@ -22,7 +22,6 @@ import hashlib
 import os
 import secrets
 import stat
-import struct
 import time
 
 KEY_BYTES = 32
@@ -33,7 +32,8 @@ SIGNING_LINK_SITL = 1  # the autopilot's SITL link
 SIGNING_LINK_GCS = 2  # the autopilot's GCS link
 SIGNING_LINK_SIM = 3  # the SITL's link
 SIGNING_LINK_GROUND = 4  # the GCS script's link
-_TS = struct.Struct("<BQ")  # link id + 8-byte timestamp (the first 7 bytes are sent)
+_STAMP_MASK = (1 << 48) - 1  # the timestamp is 6 bytes on the wire
+_sha256 = hashlib.sha256
 
 
 class KeyFileError(ValueError):
@@ -96,6 +96,7 @@ class Signing:
             raise KeyFileError(f"a signing key has {KEY_BYTES} bytes, got {len(key)}")
         self.key = key
         self.link_id = link_id & 0xFF
+        self._link_byte = bytes((self.link_id,))
         self._ts = 0
         self.streams: dict = {}  # (link_id, sysid, compid) -> newest accepted timestamp
 
@@ -108,9 +109,14 @@ class Signing:
         return ts
 
     def signature(self, signed_part: bytes) -> bytes:
-        """The 13 bytes appended to an (already flagged and CRC'd) packet."""
-        tail = _TS.pack(self.link_id, self.next_stamp())[:7]
-        return tail + hashlib.sha256(self.key + signed_part + tail).digest()[:6]
+        """The 13 bytes appended to an (already flagged and CRC'd) packet: link id, the 6-byte timestamp
+        (``next_stamp``), the first 6 bytes of SHA-256(key + packet + link id + timestamp)."""
+        ts = now_stamp()
+        if ts <= self._ts:
+            ts = self._ts + 1
+        self._ts = ts  # next_stamp, spelled out: every packet sent is signed here
+        tail = self._link_byte + (ts & _STAMP_MASK).to_bytes(6, "little")
+        return tail + _sha256(self.key + signed_part + tail).digest()[:6]
 
     def resign(self, packet: bytes) -> bytes:
         """``packet`` (one whole signed packet of ours) signed again with a fresh timestamp: a resend that the peer
@@ -120,7 +126,7 @@ class Signing:
 
     def check(self, packet: bytes, sysid: int, compid: int) -> str | None:
         """None if ``packet`` (one whole signed MAVLink 2 packet) is authentic and fresh, else the reason."""
-        if hashlib.sha256(self.key + packet[:-6]).digest()[:6] != packet[-6:]:
+        if _sha256(self.key + packet[:-6]).digest()[:6] != packet[-6:]:
             return "bad_signature"
         link_id = packet[-13]
         ts = int.from_bytes(packet[-12:-6], "little")

@@ -3,9 +3,12 @@
 Each record is an 8-byte big-endian uint64 (microseconds since the Unix epoch) followed by the raw
 MAVLink packet, exactly what ``mavutil.mavlogfile`` writes.  pymavlink's ``setup_logfile`` writes
 nothing for UDP links driven by hand, so the links call :meth:`TlogWriter.write` with the bytes they
-sent or accepted.  Writes are buffered and flushed by the owner's housekeeping (``maybe_flush``), so
-the control step never waits on the disk and a killed run leaves a file that ends at a record
-boundary or inside the last record (readers stop there).
+sent or accepted.  A write only stamps the record (the time it was sent or accepted) and queues it; the
+owner moves the queue into the file's buffer with :meth:`TlogWriter.drain` once the lockstep answer is out
+(off the critical path: docs/design.md, "Lockstep"), and ``flush``/``close`` drain first, so every record
+reaches the file in the order written with the stamp of its moment.  The buffer is flushed by the owner's
+housekeeping (``maybe_flush``), so the control step never waits on the disk and a killed run leaves a
+file that ends at a record boundary or inside the last record (readers stop there).
 """
 
 from __future__ import annotations
@@ -14,6 +17,7 @@ import struct
 import time
 
 _TS = struct.Struct(">Q")
+_time_ns = time.time_ns
 
 
 class TlogWriter:
@@ -21,27 +25,39 @@ class TlogWriter:
         self.path = path
         self._f = open(path, "wb", buffering=1 << 16)
         self._pack = _TS.pack
-        self.records = 0
+        self._queue: list = []  # (t_us, raw) written but not yet in the file's buffer (``drain``)
+        self.records = 0  # records written (queued ones included)
         self.flush_interval_s = flush_interval_s
         self._next_flush = time.monotonic() + flush_interval_s
 
     def write(self, raw, t_us: int | None = None) -> None:
-        if t_us is None:
-            t_us = time.time_ns() // 1000
-        self._f.write(self._pack(t_us) + bytes(raw))
+        """Queue one record stamped now (or ``t_us``): a list append, cheap enough for the critical path."""
+        self._queue.append((_time_ns() // 1000 if t_us is None else t_us, raw if type(raw) is bytes else bytes(raw)))
         self.records += 1
+
+    def drain(self) -> None:
+        """Move the queued records into the file's buffer, in the order written (no system call until the
+        buffer fills)."""
+        q = self._queue
+        if q:
+            pack, w = self._pack, self._f.write
+            for t_us, raw in q:
+                w(pack(t_us) + raw)
+            q.clear()
 
     def maybe_flush(self, now_monotonic: float | None = None) -> None:
         now = time.monotonic() if now_monotonic is None else now_monotonic
         if now >= self._next_flush:
-            self._f.flush()
+            self.flush()
             self._next_flush = now + self.flush_interval_s
 
     def flush(self) -> None:
+        self.drain()
         self._f.flush()
 
     def close(self) -> None:
         if not self._f.closed:
+            self.drain()
             self._f.flush()
             self._f.close()
 

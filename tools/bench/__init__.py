@@ -36,12 +36,15 @@ def load(area: str):
     return importlib.import_module(f"{__name__}.{area}")
 
 
-def figure(value: float, unit: str, target: float | None = None, **extra) -> dict:
-    """One benchmark figure; ``pass`` is set when there is a target (value <= target)."""
+def figure(value: float, unit: str, target: float | None = None, *, higher: bool = False, **extra) -> dict:
+    """One benchmark figure; ``pass`` is set when there is a target (value <= target; with ``higher``, for a
+    figure where more is better such as a fraction of a floor, value >= target, marked ``target_is="min"``)."""
     out = {"value": float(value), "unit": unit}
     if target is not None:
         out["target"] = float(target)
-        out["pass"] = bool(value <= target)
+        out["pass"] = bool(value >= target if higher else value <= target)
+        if higher:
+            out["target_is"] = "min"
     out.update(extra)
     return out
 
@@ -126,9 +129,11 @@ def print_table(title: str, figures: dict[str, dict], file=None) -> None:
     print(head, file=file)
     print("  " + "-" * (len(head) - 2), file=file)
     for name, f in figures.items():
-        target = f"<= {_fmt(f['target'])}" if "target" in f else ""
+        bound = ">=" if f.get("target_is") == "min" else "<="
+        target = f"{bound} {_fmt(f['target'])}" if "target" in f else ""
         verdict = ("PASS" if f["pass"] else "FAIL") if "pass" in f else "info"
-        extra = ", ".join(f"{k}={_fmt(v)}" for k, v in f.items() if k not in ("value", "unit", "target", "pass"))
+        shown = ("value", "unit", "target", "pass", "target_is")
+        extra = ", ".join(f"{k}={_fmt(v)}" for k, v in f.items() if k not in shown)
         print(f"  {name:<{w}} {_fmt(f['value']):>10} {f['unit']:<5} {target:>9}  {verdict:<6} {extra}", file=file)
 
 
