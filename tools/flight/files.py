@@ -20,18 +20,40 @@ from tools.flight.outcome import outcome_of
 PNG_MAX_POINTS = 20_000  # flight.png plots every k-th step of a long flight: bounded memory whatever its length
 
 
-def write_flight_png(cfg: FlightConfig, out: Path, name: str, metrics: dict) -> Path | None:
+def png_request(cfg: FlightConfig, out: Path, name: str, metrics: dict) -> dict:
+    """What ``draw_flight_png`` needs to draw a flight's picture (plain values: the png helper process gets it as
+    JSON, ``tools.flight.png``)."""
+    return {
+        "out": str(out),
+        "name": name,
+        "lv": cfg.lv_value if cfg.controller != "sac" else 0.0,
+        "lockstep": cfg.lockstep,
+        "rate": cfg.rate,
+        "u_limit_deg": cfg.u_limit_deg,
+        "metrics": metrics,
+    }
+
+
+def draw_flight_png(
+    out: str | os.PathLike, name: str, lv: float, lockstep: bool, rate: float, u_limit_deg: float, metrics: dict
+) -> Path | None:
     """DIR/flight.png from the flight's series (``tools.plots.flight_figure``); None without series."""
     from tools.plots import save_flight_figure
     from tools.scenario import RunResult
 
+    out = Path(out)
     series = load_series(out, max_points=PNG_MAX_POINTS)
     if not series or series.get("t") is None or not len(series["t"]):
         return None
-    res = RunResult(name, cfg.lv_value if cfg.controller != "sac" else 0.0, metrics, series)
-    mode = "lockstep" if cfg.lockstep else "real time"
-    title = f"Flight {out.name}: {res.name}, {mode}, {cfg.rate:g} Hz"
-    return save_flight_figure(res, out / "flight.png", math.radians(cfg.u_limit_deg), title)
+    res = RunResult(name, lv, metrics, series)
+    mode = "lockstep" if lockstep else "real time"
+    title = f"Flight {out.name}: {res.name}, {mode}, {rate:g} Hz"
+    return save_flight_figure(res, out / "flight.png", math.radians(u_limit_deg), title)
+
+
+def write_flight_png(cfg: FlightConfig, out: Path, name: str, metrics: dict) -> Path | None:
+    """DIR/flight.png from the flight's series, drawn in this process (``draw_flight_png``); None without series."""
+    return draw_flight_png(**png_request(cfg, out, name, metrics))
 
 
 def _join_telemetry(
@@ -49,14 +71,24 @@ def _join_telemetry(
     if not existing:
         return None, False, ("no telemetry was written" if parts else None)
     from autopilot.shared import telemetry as tm
-    from tools.views import flight_blueprint
 
     target = out / "flight.rrd"
     indexed = sum(p.stat().st_size for p in existing) <= merge_max_mb * 1e6
     try:
         if indexed:
-            tm.merge_recordings(existing, target, blueprint=flight_blueprint(), remove_parts=True)
+            # The layout saved once for this code (tools.layout_cache): no rerun import in the launcher.
+            from tools.layout_cache import flight_blueprint_file
+
+            layout = flight_blueprint_file()
+            if layout is not None:
+                tm.merge_recordings(existing, target, blueprint_file=layout, remove_parts=True)
+            else:
+                from tools.views import flight_blueprint
+
+                tm.merge_recordings(existing, target, blueprint=flight_blueprint(), remove_parts=True)
         else:
+            from tools.views import flight_blueprint
+
             tm.concatenate_recordings(
                 existing, target, blueprint=flight_blueprint(), recording_id=recording_id, remove_parts=True
             )

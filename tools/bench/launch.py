@@ -1,0 +1,110 @@
+"""What a user waits for: ``python -m tools.launch --lockstep --duration 30``, from the command to every file written.
+
+The flight itself takes about 0.15 s of it; the rest is the start-up of four Python processes (the launcher, the
+autopilot, the SITL, the GCS script), joining the Rerun recording and drawing flight.png.  Each run is a fresh
+``python -m tools.launch`` process (nothing cached in memory; the flight layout cached on disk by
+``tools.layout_cache`` is warm after the first run, as it is for a user) into a new folder, timed from the
+``Popen`` to its exit, by which time tlog, flight.rrd, flight.png and summary.json are written (each checked).
+
+Figures, medians of ``--runs`` interleaved runs (default 7; ``--quick`` 3):
+
+* the wall time of the command (target <= 1.2 s, issue 21);
+* the wall time of ``python -c 'import numpy, scipy'`` measured in the same run, one before each flight, and the
+  flight's ratio to it (target <= 15: 1.2 s over the 0.08 s that import takes on the quiet 2-core VM), which says
+  the same on a faster or a busier machine;
+* for comparison, the same flight with ``--no-rrd --no-png`` (the three processes' start-up and the flight only),
+  and the flight's own wall time (the SITL's ``sim / real-time factor``), from the runs' summary.json.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import shutil
+import statistics
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+from tools.bench import figure, load_warning, print_table
+
+QUICK_ARGV = ["--quick"]
+WALL_TARGET_S = 1.2  # issue 21: "a flight in about a second"
+RATIO_TARGET = 15.0  # WALL_TARGET_S over the 0.08 s of `import numpy, scipy` on the quiet 2-core VM
+FLIGHT = ["--lockstep", "--duration", "30", "--quiet"]
+FILES = ("flight.tlog", "flight.rrd", "flight.png", "summary.json")
+
+
+def _timed(argv: list[str]) -> tuple[float, int]:
+    t0 = time.perf_counter()
+    proc = subprocess.run(argv, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
+    wall = time.perf_counter() - t0
+    if proc.returncode != 0:
+        raise RuntimeError(f"{' '.join(argv[1:4])}... exited {proc.returncode}: {proc.stderr.strip()[-300:]}")
+    return wall, proc.returncode
+
+
+def _flight(out: Path, extra: list[str], files: tuple[str, ...]) -> tuple[float, float | None]:
+    """One launch into ``out``: (wall s, the flight's own wall s from summary.json); every file of ``files`` must
+    be there and not empty."""
+    wall, _ = _timed([sys.executable, "-m", "tools.launch", *FLIGHT, *extra, "--out", str(out)])
+    missing = [f for f in files if not (out / f).is_file() or (out / f).stat().st_size == 0]
+    if missing:
+        raise RuntimeError(f"the launch left no {', '.join(missing)} in {out}")
+    s = json.loads((out / "summary.json").read_text())
+    if not s.get("ok"):
+        raise RuntimeError(f"the flight was not OK: {s.get('error')}")
+    flown = s["sim_time_s"] / s["rtf"] if s.get("rtf") else None
+    return wall, flown
+
+
+def main(argv: list[str] | None = None) -> dict:
+    p = argparse.ArgumentParser(prog="python -m tools.bench launch", description=__doc__.split("\n\n")[0])
+    p.add_argument("--runs", type=int, default=7, help="interleaved runs of each command (default 7)")
+    p.add_argument("--quick", action="store_true", help="3 runs")
+    args = p.parse_args(argv)
+    runs = 3 if args.quick else max(1, args.runs)
+    imports, full, bare, flown = [], [], [], []
+    with tempfile.TemporaryDirectory(prefix="bench-launch-") as tmp:
+        _flight(Path(tmp) / "warm-up", [], FILES)  # page cache, .pyc files and the cached flight layout
+        for i in range(runs):
+            imports.append(_timed([sys.executable, "-c", "import numpy, scipy"])[0])
+            out = Path(tmp) / f"full-{i}"
+            wall, fl = _flight(out, [], FILES)
+            full.append(wall)
+            if fl is not None:
+                flown.append(fl)
+            shutil.rmtree(out, ignore_errors=True)
+            out = Path(tmp) / f"bare-{i}"
+            bare.append(_flight(out, ["--no-rrd", "--no-png"], ("flight.tlog", "summary.json"))[0])
+            shutil.rmtree(out, ignore_errors=True)
+            print(
+                f"  run {i + 1}/{runs}: launch {full[-1]:.2f} s, --no-rrd --no-png {bare[-1]:.2f} s, "
+                f"import numpy, scipy {imports[-1]:.3f} s",
+                flush=True,
+            )
+    med = statistics.median
+    ref = med(imports)
+
+    def spread(xs):
+        return {"min": min(xs), "max": max(xs), "n": len(xs)}
+
+    figs = {
+        "launch 30 s lockstep, every file (wall)": figure(med(full), "s", WALL_TARGET_S, **spread(full)),
+        "the same / import numpy, scipy": figure(med(full) / ref, "x", RATIO_TARGET),
+        "import numpy, scipy (wall)": figure(ref, "s", **spread(imports)),
+        "launch --no-rrd --no-png (wall)": figure(med(bare), "s", ratio=med(bare) / ref, **spread(bare)),
+    }
+    if flown:
+        figs["the flight itself (sim / RTF)"] = figure(med(flown), "s", **spread(flown))
+    print_table("launch: python -m tools.launch --lockstep --duration 30, command to every file", figs)
+    note = load_warning()
+    if note:
+        print(note)
+    return figs
+
+
+if __name__ == "__main__":
+    main(sys.argv[1:])
