@@ -43,7 +43,7 @@ from tools.flight.files import (
     write_refusal,
 )
 from tools.flight.outcome import _ended_normally, envelope_verdict, flown_report, outcome_of, verdict
-from tools.flight.png import PngHelper
+from tools.flight_picture import PngHelper
 
 
 def _run_metrics(ap_stats: dict | None) -> dict:
@@ -118,7 +118,7 @@ class Flight:
         self._parts: dict[str, Path] = {}
         self._recording_id: str | None = None
         self._web = None  # the --web server (tools.web.WebServer), stopped when the flight ends
-        self._png = None  # the flight.png helper process (tools.flight.png.PngHelper), from start() to _end()
+        self._png = None  # the flight.png helper process (tools.flight_picture.PngHelper), from start() to _end()
         self._t0: float | None = None
         self._interrupt = threading.Event()
 
@@ -234,11 +234,11 @@ class Flight:
         write_json_atomic(self.out / "summary.json", provisional_summary(os.getpid()))
         web_url = self._start_web() if cfg.web else None
         try:
+            if cfg.png and cfg.series:
+                # first: it imports matplotlib while the flight starts and flies (tools.flight_picture)
+                self._png = PngHelper()
             telemetry, self._parts, self._recording_id = _telemetry_argvs(cfg, self.out, web_url)
             key_file = _flight_key(cfg, self.out)
-            if cfg.png and cfg.series:
-                # matplotlib is imported there while the flight starts and flies (tools.flight.png)
-                self._png = PngHelper()
             for attempt in range(3):
                 ports = range(cfg.base_port, cfg.base_port + 4) if cfg.base_port is not None else free_udp_ports(4)
                 sitl_port, gcs_port, *ap_ports = ports

@@ -1,13 +1,14 @@
-"""``python -m tools.flight.png``: the helper process that draws a flight's ``flight.png``; ``PngHelper``, its client.
+"""A flight's ``flight.png``: ``draw_flight_png``, and ``python -m tools.flight_picture``, the helper process that
+draws it for the launcher, with ``PngHelper``, its client.
 
 Drawing the picture cost the launcher about 0.5 s after the flight, one thing after another: matplotlib's import
 (about 0.25 s on the 2-core VM) and the first draw (mathtext's parser, the text layout).  So ``Flight`` starts this
-helper together with the flight's three processes: it imports matplotlib and ``tools.plots`` while they start and
-fly, then waits.  When the flight has ended the launcher sends it one request and joins the Rerun recording while
-the helper draws: two processes, two cores.
+helper together with the flight's three processes: it imports matplotlib and ``tools.plots`` (not the launcher's
+modules) while they start and fly, then waits.  When the flight has ended the launcher sends it one request and
+joins the Rerun recording while the helper draws: two processes, two cores.
 
-The protocol, one line each way: the request on stdin is the JSON of ``tools.flight.files.png_request`` (the
-keywords of ``draw_flight_png``); the answer on stdout is ``{"png": PATH or null}`` (null: no series to draw) or
+The protocol, one line each way: the request on stdin is the JSON of the keywords of ``draw_flight_png``
+(``tools.flight.files.png_request``); the answer on stdout is ``{"png": PATH or null}`` (null: no series to draw) or
 ``{"error": "TypeName: message"}`` (an OSError, ValueError or KeyError while drawing: the picture is missing, the
 flight is not failed, as when the launcher drew it itself).  stdin closed without a request (a flight that ended
 before it could draw, or ``png=False``): the helper exits 0 without drawing.  Anything else (a crash, no answer)
@@ -17,18 +18,40 @@ is for ``PngHelper.result`` to report: the launcher then draws the picture itsel
 from __future__ import annotations
 
 import json
+import math
 import os
+import select
 import subprocess
 import sys
+from pathlib import Path
+
+from tools.series_files import load_series
 
 EXPECTED = (OSError, ValueError, KeyError)  # what a picture may fail with without failing the flight
+PNG_MAX_POINTS = 20_000  # flight.png plots every k-th step of a long flight: bounded memory whatever its length
+
+
+def draw_flight_png(
+    out: str | os.PathLike, name: str, lv: float, lockstep: bool, rate: float, u_limit_deg: float, metrics: dict
+) -> Path | None:
+    """DIR/flight.png from the flight's series (``tools.plots.flight_figure``); None without series."""
+    from tools.plots import save_flight_figure
+    from tools.scenario import RunResult
+
+    out = Path(out)
+    series = load_series(out, max_points=PNG_MAX_POINTS)
+    if not series or series.get("t") is None or not len(series["t"]):
+        return None
+    res = RunResult(name, lv, metrics, series)
+    mode = "lockstep" if lockstep else "real time"
+    title = f"Flight {out.name}: {res.name}, {mode}, {rate:g} Hz"
+    return save_flight_figure(res, out / "flight.png", math.radians(u_limit_deg), title)
 
 
 def _warm_up() -> None:
     """Import what drawing needs and build mathtext's parser (the first ``$...$`` label costs about 0.1 s)."""
     from matplotlib.mathtext import MathTextParser
 
-    import tools.flight.files  # noqa: F401  (draw_flight_png)
     import tools.plots  # noqa: F401  (matplotlib's Figure and Agg canvas, tools.scenario)
 
     MathTextParser("agg").parse(r"$K_e$", 100)
@@ -40,8 +63,6 @@ def main() -> int:
     if not line.strip():
         return 0  # no request: nothing to draw
     request = json.loads(line)
-    from tools.flight.files import draw_flight_png
-
     try:
         png = draw_flight_png(**request)
         answer = {"png": None if png is None else str(png)}
@@ -49,7 +70,9 @@ def main() -> int:
         answer = {"error": f"{type(exc).__name__}: {exc}"}
     sys.stdout.write(json.dumps(answer) + "\n")
     sys.stdout.flush()
-    return 0
+    # The launcher reads the answer line and goes on; tearing matplotlib's modules down would only keep the
+    # process (and a core) busy for another 0.1 s.
+    os._exit(0)
 
 
 class PngHelper:
@@ -57,10 +80,9 @@ class PngHelper:
 
     def __init__(self):
         self.proc = subprocess.Popen(
-            [sys.executable, "-m", "tools.flight.png"],
+            [sys.executable, "-m", "tools.flight_picture"],
             stdin=subprocess.PIPE,
-            stdout=subprocess.PIPE,
-            stderr=subprocess.PIPE,
+            stdout=subprocess.PIPE,  # the answer; its warnings and errors go to the launcher's stderr, as before
             text=True,
             start_new_session=True,  # Ctrl-C reaches the launcher only, which still asks for the picture
             env=dict(os.environ, PYTHONUNBUFFERED="1"),
@@ -74,7 +96,7 @@ class PngHelper:
         self._sent = True
         try:
             self.proc.stdin.write(json.dumps(request) + "\n")
-            self.proc.stdin.flush()  # (kept open: ``communicate`` in ``result`` closes it)
+            self.proc.stdin.close()
         except (BrokenPipeError, OSError, ValueError):
             return False
         return True
@@ -82,27 +104,30 @@ class PngHelper:
     def result(self, timeout_s: float = 120.0) -> tuple[bool, str | None, str | None]:
         """(answered, png path or None, error or None).  ``answered`` False: the helper crashed, said nothing
         readable or took longer than ``timeout_s`` (it is killed): the caller draws the picture itself."""
+        line = ""
+        if select.select([self.proc.stdout], [], [], timeout_s)[0]:
+            line = self.proc.stdout.readline()  # the answer is one line written at once (or EOF: it crashed)
         try:
-            out, _err = self.proc.communicate(timeout=timeout_s)
-        except subprocess.TimeoutExpired:
-            self.close()
-            return False, None, None
-        try:
-            answer = json.loads(out.strip().splitlines()[-1]) if out.strip() else None
+            answer = json.loads(line) if line.strip() else None
         except ValueError:
             answer = None
-        if self.proc.returncode != 0 or not isinstance(answer, dict):
+        if not isinstance(answer, dict):  # crashed (its traceback went to stderr), or silent too long
+            self.close()
             return False, None, None
         return True, answer.get("png"), answer.get("error")
 
     def close(self) -> None:
-        """End the helper: after its answer it has exited; without a request (or past the timeout) it is killed,
-        it has nothing to keep."""
+        """End the helper: after its answer it exits by itself; without a request (or silent past the timeout) it
+        is killed, it has nothing to keep."""
+        requested = self._sent
         self._sent = True
         if self.proc.poll() is None:
-            self.proc.kill()
-            self.proc.wait()
-        for f in (self.proc.stdin, self.proc.stdout, self.proc.stderr):
+            try:
+                self.proc.wait(timeout=0.5 if requested else 0.0)  # after its answer it is exiting already
+            except subprocess.TimeoutExpired:
+                self.proc.kill()
+                self.proc.wait()
+        for f in (self.proc.stdin, self.proc.stdout):
             try:
                 f.close()
             except (OSError, ValueError):
