@@ -1,0 +1,226 @@
+"""A flight in about a second (issue 21): what the launcher's start-up and end no longer wait for, each part checked
+on its own with real processes and files: no scipy at start-up, the flight layout cached on disk
+(``tools.layout_cache``), flight.png drawn by a helper process (``tools.flight_picture``) and children's exits seen
+at once (``tools.children.Child.wait``)."""
+
+from __future__ import annotations
+
+import json
+import os
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from tools import layout_cache
+from tools.children import Child
+from tools.flight_picture import PngHelper, draw_flight_png
+
+ROOT = Path(__file__).resolve().parent.parent
+
+
+def _run(code: str, **env) -> subprocess.CompletedProcess:
+    return subprocess.run(
+        [sys.executable, "-c", code],
+        capture_output=True,
+        text=True,
+        timeout=120,
+        cwd=ROOT,
+        env=dict(os.environ, **env),
+    )
+
+
+# ---------------------------------------------------------------------------------------- imports
+def test_the_launcher_and_the_sitl_start_without_scipy():
+    """scipy (about 0.2 s) is for turbulence only: importing the launcher or the SITL's main does not load it, and a
+    Dryden filter still gets it when it is built."""
+    r = _run(
+        "import sys, tools.launch, sitl.__main__, sitl.endpoint, autopilot.__main__, tools.gcs\n"
+        "print('scipy' in sys.modules)\n"
+        "from sitl.atmosphere import noise_zoh\n"
+        "import numpy as np\n"
+        "ad, qd, p = noise_zoh(np.array([[-2.0]]), np.array([[1.0]]), 0.01)\n"
+        "print('scipy' in sys.modules, round(float(p[0, 0]), 12))\n"
+    )
+    assert r.returncode == 0, r.stderr
+    assert r.stdout.split() == ["False", "True", "0.25"]  # P of x' = -2x + w: 1 / (2 * 2)
+
+
+def test_the_picture_helper_does_not_import_the_launcher():
+    """The helper process imports matplotlib and the plots, not the launcher's modules (tools.flight) nor rerun."""
+    r = _run(
+        "import sys\nfrom tools import flight_picture\nflight_picture._warm_up()\n"
+        "print(sorted(m for m in ('tools.flight', 'rerun', 'tools.launch') if m in sys.modules), "
+        "'matplotlib.figure' in sys.modules)\n"
+    )
+    assert r.returncode == 0, r.stderr
+    assert r.stdout.strip() == "[] True"
+
+
+# ---------------------------------------------------------------------------------------- the layout cache
+def test_the_flight_layout_is_built_once_then_read_from_the_cache(tmp_path):
+    """First call: built (rerun imported) and saved with the sources it came from; second call, in a fresh process:
+    the same file, without importing rerun; the saved layout is a blueprint rerun reads back."""
+    env = {"CLSAC_CACHE_DIR": str(tmp_path / "cache")}
+    code = (
+        "import sys, time\nfrom tools.layout_cache import flight_blueprint_file\n"
+        "p = flight_blueprint_file()\nprint(p, 'rerun' in sys.modules)\n"
+    )
+    first = _run(code, **env)
+    assert first.returncode == 0, first.stderr
+    path, imported = first.stdout.split()
+    assert imported == "True" and Path(path).parent == tmp_path / "cache" and Path(path).stat().st_size > 1000
+    meta = json.loads(Path(path).with_suffix(".json").read_text())
+    assert "tools/views.py" in meta["sources"] and "autopilot/telemetry/layout.py" in meta["sources"]
+    second = _run(code, **env)
+    assert second.returncode == 0, second.stderr
+    assert second.stdout.split() == [path, "False"]
+    from tools import rrd
+    from tools.views import flight_blueprint
+
+    fresh = tmp_path / "fresh.rbl"
+    flight_blueprint().save(meta["application_id"], str(fresh))
+    for component in ("ViewBlueprint:display_name", "ViewContents:query"):  # the same views of the same entities
+        cached = sorted(map(str, rrd.blueprint_components(path, component)))
+        assert cached and cached == sorted(map(str, rrd.blueprint_components(fresh, component)))
+    assert "Roll tracking [deg]" in rrd.blueprint_components(path, "ViewBlueprint:display_name")
+
+
+def test_a_changed_source_or_rerun_rebuilds_the_cached_layout(tmp_path, monkeypatch):
+    """A recorded source whose digest no longer matches, or another rerun, makes the cache invalid: rebuilt."""
+    monkeypatch.setenv("CLSAC_CACHE_DIR", str(tmp_path))
+    path = layout_cache.flight_blueprint_file()
+    meta_path = path.with_suffix(".json")
+    from autopilot.shared.telemetry.layout import APPLICATION_ID
+
+    assert layout_cache._valid(path, meta_path, APPLICATION_ID)
+    meta = json.loads(meta_path.read_text())
+    meta["sources"]["tools/views.py"] = "0" * 64  # as if tools/views.py had changed since
+    meta_path.write_text(json.dumps(meta))
+    assert not layout_cache._valid(path, meta_path, APPLICATION_ID)
+    before = path.stat().st_mtime_ns
+    time.sleep(0.01)
+    assert layout_cache.flight_blueprint_file() == path and path.stat().st_mtime_ns != before  # rebuilt
+    assert layout_cache._valid(path, meta_path, APPLICATION_ID)
+    meta = json.loads(meta_path.read_text())
+    meta["rerun"][0][1] += 1  # another rerun_bindings
+    meta_path.write_text(json.dumps(meta))
+    assert not layout_cache._valid(path, meta_path, APPLICATION_ID)
+    path.write_bytes(b"")  # a torn file is not a layout
+    assert not layout_cache._valid(path, meta_path, APPLICATION_ID)
+
+
+def test_no_cache_folder_means_no_cached_layout(tmp_path, monkeypatch):
+    monkeypatch.setenv("CLSAC_CACHE_DIR", "off")
+    assert layout_cache.flight_blueprint_file() is None
+    blocker = tmp_path / "file"
+    blocker.write_text("not a folder")
+    monkeypatch.setenv("CLSAC_CACHE_DIR", str(blocker / "cache"))  # cannot be created: built in the caller
+    assert layout_cache.flight_blueprint_file() is None
+
+
+# ---------------------------------------------------------------------------------------- the picture helper
+def _series(out: Path, n: int = 300) -> None:
+    t = np.arange(n) / 100.0
+    phi = 0.1 * np.sin(t)
+    cols = {k: np.zeros(n) for k in ("um", "ym", "ym_ol", "e", "u", "ke", "kx", "ku")}
+    cols["u"] = 0.01 * np.cos(t)
+    np.savez(out / "autopilot_series.npz", t=t, phi=phi, mode=np.full(n, 2), **cols)
+
+
+def _request(out: Path) -> dict:
+    return {
+        "out": str(out),
+        "name": "clsac",
+        "lv": 20.0,
+        "lockstep": True,
+        "rate": 100.0,
+        "u_limit_deg": 30.0,
+        "metrics": {"ise_ref": 0.01, "ise_crm": 0.0, "energy": 0.0, "tv": 0.0, "max_abs_u": 0.01},
+    }
+
+
+def test_the_helper_draws_the_same_picture_as_the_launcher(tmp_path):
+    """One request, one answer: the helper's flight.png has the bytes of the one drawn in this process."""
+    _series(tmp_path)
+    req = _request(tmp_path)
+    local = draw_flight_png(**req).read_bytes()
+    (tmp_path / "flight.png").unlink()
+    helper = PngHelper()
+    try:
+        assert helper.request(req)
+        answered, png, error = helper.result(timeout_s=120)
+    finally:
+        helper.close()
+    assert (answered, png, error) == (True, str(tmp_path / "flight.png"), None)
+    assert helper.proc.returncode == 0
+    assert local[:8] == b"\x89PNG\r\n\x1a\n" and (tmp_path / "flight.png").read_bytes() == local
+
+
+def test_the_helper_says_why_a_picture_is_missing(tmp_path):
+    """No series: no picture (null); a picture that cannot be saved: the error, one line (the flight not failed)."""
+    helper = PngHelper()
+    try:
+        assert helper.request(_request(tmp_path))
+        assert helper.result(timeout_s=120) == (True, None, None)
+    finally:
+        helper.close()
+    (tmp_path / "ro").mkdir()
+    _series(tmp_path / "ro")
+    (tmp_path / "ro" / "flight.png").mkdir()  # the picture's path is taken by a folder: an OSError while saving
+    helper = PngHelper()
+    try:
+        assert helper.request(_request(tmp_path / "ro"))
+        answered, png, error = helper.result(timeout_s=120)
+    finally:
+        helper.close()
+    assert answered and png is None and error.startswith(("IsADirectoryError: ", "OSError: ")), error
+
+
+def test_a_helper_that_is_gone_is_reported_so_the_launcher_draws_itself(tmp_path):
+    helper = PngHelper()
+    helper.proc.kill()
+    helper.proc.wait()
+    sent = helper.request(_request(tmp_path))
+    answered = helper.result(timeout_s=5)[0] if sent else False
+    helper.close()
+    assert not answered
+
+
+def test_a_helper_without_a_request_exits_quietly():
+    helper = PngHelper()
+    helper.proc.stdin.close()
+    assert helper.proc.wait(timeout=120) == 0
+    helper.close()
+
+
+# ---------------------------------------------------------------------------------------- children's exits
+def test_a_childs_exit_is_seen_when_it_happens(tmp_path):
+    """wait() returns at the exit (a pidfd), not at the next poll; None while the child runs."""
+    c = Child("x", [sys.executable, "-c", "import time; time.sleep(0.3)"], tmp_path / "x.log", False)
+    try:
+        assert c.wait(0.0) is None
+        t0 = time.monotonic()
+        assert c.wait(30.0) == 0
+        assert time.monotonic() - t0 < 20.0  # woken by the exit, not by the 30 s timeout
+        assert c.wait(0.0) == 0 and c.code == 0
+    finally:
+        c.kill()
+        c.finish()
+
+
+@pytest.mark.e2e
+def test_a_launch_leaves_every_file_with_the_picture_from_the_helper(tmp_path):
+    """The whole launcher: tlog, flight.rrd (with the cached layout), flight.png and summary.json, in one run."""
+    from tools import rrd
+    from tools.flight import Flight
+
+    res = Flight(lockstep=True, duration=2.0, out=tmp_path / "f", quiet=True).run()
+    assert res.ok, res.reason
+    f = res.summary["files"]
+    assert f["png"] == str(tmp_path / "f" / "flight.png") and Path(f["png"]).read_bytes()[:4] == b"\x89PNG"
+    assert f["rrd_indexed"] and rrd.has_blueprint(f["rrd"])
+    assert not (tmp_path / "f" / ".parts").exists()
