@@ -13,13 +13,16 @@ Figures, medians of ``--runs`` interleaved runs (default 7; ``--quick`` 3):
   flight's ratio to it (target <= 15: 1.2 s over the 0.08 s that import takes on the quiet 2-core VM), which says
   the same on a faster or a busier machine;
 * for comparison, the same flight with ``--no-rrd --no-png`` (the three processes' start-up and the flight only),
-  and the flight's own wall time (the SITL's ``sim / real-time factor``), from the runs' summary.json.
+  and the flight's own wall time (the SITL's ``sim / real-time factor``), from the runs' summary.json;
+* with ``--baseline DIR`` (another checkout, e.g. ``git worktree add /tmp/before main``), the same command run from
+  that code too, interleaved with this one's, and the ratio of the two: a before/after from one run.
 """
 
 from __future__ import annotations
 
 import argparse
 import json
+import os
 import shutil
 import statistics
 import subprocess
@@ -37,19 +40,21 @@ FLIGHT = ["--lockstep", "--duration", "30", "--quiet"]
 FILES = ("flight.tlog", "flight.rrd", "flight.png", "summary.json")
 
 
-def _timed(argv: list[str]) -> tuple[float, int]:
+def _timed(argv: list[str], code: str | None = None) -> float:
+    """Wall time of one command to its exit; ``code``: run it from that checkout (PYTHONPATH)."""
+    env = dict(os.environ, PYTHONPATH=code) if code else None  # and run there: ``-m`` looks in the cwd first
     t0 = time.perf_counter()
-    proc = subprocess.run(argv, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
+    proc = subprocess.run(argv, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True, env=env, cwd=code)
     wall = time.perf_counter() - t0
     if proc.returncode != 0:
         raise RuntimeError(f"{' '.join(argv[1:4])}... exited {proc.returncode}: {proc.stderr.strip()[-300:]}")
-    return wall, proc.returncode
+    return wall
 
 
-def _flight(out: Path, extra: list[str], files: tuple[str, ...]) -> tuple[float, float | None]:
+def _flight(out: Path, extra: list[str], files: tuple[str, ...], code: str | None = None) -> tuple[float, float | None]:
     """One launch into ``out``: (wall s, the flight's own wall s from summary.json); every file of ``files`` must
     be there and not empty."""
-    wall, _ = _timed([sys.executable, "-m", "tools.launch", *FLIGHT, *extra, "--out", str(out)])
+    wall = _timed([sys.executable, "-m", "tools.launch", *FLIGHT, *extra, "--out", str(out)], code)
     missing = [f for f in files if not (out / f).is_file() or (out / f).stat().st_size == 0]
     if missing:
         raise RuntimeError(f"the launch left no {', '.join(missing)} in {out}")
@@ -64,13 +69,23 @@ def main(argv: list[str] | None = None) -> dict:
     p = argparse.ArgumentParser(prog="python -m tools.bench launch", description=__doc__.split("\n\n")[0])
     p.add_argument("--runs", type=int, default=7, help="interleaved runs of each command (default 7)")
     p.add_argument("--quick", action="store_true", help="3 runs")
+    p.add_argument(
+        "--baseline", metavar="DIR", default=None, help="also time the launcher of this checkout, interleaved"
+    )
     args = p.parse_args(argv)
     runs = 3 if args.quick else max(1, args.runs)
-    imports, full, bare, flown = [], [], [], []
+    base = str(Path(args.baseline).resolve()) if args.baseline else None
+    imports, full, bare, flown, before = [], [], [], [], []
     with tempfile.TemporaryDirectory(prefix="bench-launch-") as tmp:
         _flight(Path(tmp) / "warm-up", [], FILES)  # page cache, .pyc files and the cached flight layout
+        if base:
+            _flight(Path(tmp) / "warm-up-baseline", [], FILES, base)
         for i in range(runs):
-            imports.append(_timed([sys.executable, "-c", "import numpy, scipy"])[0])
+            imports.append(_timed([sys.executable, "-c", "import numpy, scipy"]))
+            if base:
+                out = Path(tmp) / f"baseline-{i}"
+                before.append(_flight(out, [], FILES, base)[0])
+                shutil.rmtree(out, ignore_errors=True)
             out = Path(tmp) / f"full-{i}"
             wall, fl = _flight(out, [], FILES)
             full.append(wall)
@@ -82,7 +97,7 @@ def main(argv: list[str] | None = None) -> dict:
             shutil.rmtree(out, ignore_errors=True)
             print(
                 f"  run {i + 1}/{runs}: launch {full[-1]:.2f} s, --no-rrd --no-png {bare[-1]:.2f} s, "
-                f"import numpy, scipy {imports[-1]:.3f} s",
+                f"import numpy, scipy {imports[-1]:.3f} s" + (f", baseline launch {before[-1]:.2f} s" if base else ""),
                 flush=True,
             )
     med = statistics.median
@@ -99,6 +114,9 @@ def main(argv: list[str] | None = None) -> dict:
     }
     if flown:
         figs["the flight itself (sim / RTF)"] = figure(med(flown), "s", **spread(flown))
+    if before:
+        figs["baseline launch (wall)"] = figure(med(before), "s", ratio=med(before) / ref, code=base, **spread(before))
+        figs["launch / baseline launch"] = figure(med(full) / med(before), "x")
     print_table("launch: python -m tools.launch --lockstep --duration 30, command to every file", figs)
     note = load_warning()
     if note:

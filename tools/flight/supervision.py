@@ -236,7 +236,10 @@ class Flight:
         try:
             if cfg.png and cfg.series:
                 # first: it imports matplotlib while the flight starts and flies (tools.flight_picture)
-                self._png = PngHelper()
+                try:
+                    self._png = PngHelper()
+                except OSError:  # a picture never fails a flight: drawn here at the end instead
+                    self._png = None
             telemetry, self._parts, self._recording_id = _telemetry_argvs(cfg, self.out, web_url)
             key_file = _flight_key(cfg, self.out)
             for attempt in range(3):
