@@ -224,3 +224,20 @@ def test_a_launch_leaves_every_file_with_the_picture_from_the_helper(tmp_path):
     assert f["png"] == str(tmp_path / "f" / "flight.png") and Path(f["png"]).read_bytes()[:4] == b"\x89PNG"
     assert f["rrd_indexed"] and rrd.has_blueprint(f["rrd"])
     assert not (tmp_path / "f" / ".parts").exists()
+
+
+@pytest.mark.e2e
+def test_the_launch_bench_times_the_command_and_the_import_it_is_compared_with(tmp_path):
+    """``python -m tools.bench launch``: real launches, every file checked, the figures and their targets."""
+    from tools.bench import launch
+
+    figs = launch.main(["--runs", "1"])
+    wall = figs["launch 30 s lockstep, every file (wall)"]
+    ref = figs["import numpy, scipy (wall)"]
+    ratio = figs["the same / import numpy, scipy"]
+    assert wall["target"] == launch.WALL_TARGET_S and ratio["target"] == launch.RATIO_TARGET
+    assert 0 < ref["value"] < wall["value"] and ratio["value"] == pytest.approx(wall["value"] / ref["value"])
+    assert figs["launch --no-rrd --no-png (wall)"]["value"] > 0
+    assert 0 < figs["the flight itself (sim / RTF)"]["value"] < wall["value"]
+    with pytest.raises(RuntimeError, match="left no flight.png"):  # a missing file is an error, not a fast run
+        launch._flight(tmp_path / "no-png", ["--no-png"], launch.FILES)
