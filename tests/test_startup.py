@@ -241,3 +241,41 @@ def test_the_launch_bench_times_the_command_and_the_import_it_is_compared_with(t
     assert 0 < figs["the flight itself (sim / RTF)"]["value"] < wall["value"]
     with pytest.raises(RuntimeError, match="left no flight.png"):  # a missing file is an error, not a fast run
         launch._flight(tmp_path / "no-png", ["--no-png"], launch.FILES)
+
+
+def _picture_helpers() -> list[int]:
+    """Process ids of this process's children that run the picture helper."""
+    found = []
+    for d in os.listdir("/proc"):
+        if not d.isdigit():
+            continue
+        try:
+            with open(f"/proc/{d}/stat") as f:
+                if int(f.read().rsplit(")", 1)[1].split()[1]) != os.getpid():
+                    continue
+            with open(f"/proc/{d}/cmdline", "rb") as f:
+                if b"tools.flight_picture" in f.read():
+                    found.append(int(d))
+        except (OSError, IndexError, ValueError):
+            continue
+    return found
+
+
+@pytest.mark.e2e
+def test_only_a_lockstep_flight_has_the_picture_helper_beside_it(tmp_path):
+    """A lockstep flight's picture is prepared while it flies; a real-time one's is drawn at the end (no process
+    takes CPU from a loop on deadlines), as is a pinned one's; both still leave flight.png."""
+    from tools.flight import Flight
+
+    for kw, expect in (
+        (dict(lockstep=True), True),
+        (dict(lockstep=False), False),
+        (dict(lockstep=True, pin=True), False),
+    ):
+        out = tmp_path / f"f{len(list(tmp_path.iterdir()))}"
+        with Flight(duration=600.0, out=out, quiet=True, rrd=False, **kw) as flight:
+            assert flight.wait(timeout=0.5) is None
+            assert bool(_picture_helpers()) is expect, kw
+        assert flight.result.summary["files"]["png"] == str(out / "flight.png"), kw
+        assert (out / "flight.png").read_bytes()[:4] == b"\x89PNG"
+    assert not _picture_helpers()  # none left behind

@@ -3,7 +3,8 @@ draws it for the launcher, with ``PngHelper``, its client.
 
 Drawing the picture cost the launcher about 0.5 s after the flight, one thing after another: matplotlib's import
 (about 0.25 s on the 2-core VM) and the first draw (mathtext's parser, the text layout).  So ``Flight`` starts this
-helper together with the flight's three processes: it imports matplotlib and ``tools.plots`` (not the launcher's
+helper together with a lockstep flight's three processes (a real-time or pinned flight draws at the end instead:
+nothing is to take CPU from a loop on deadlines): it imports matplotlib and ``tools.plots`` (not the launcher's
 modules) while they start and fly, then waits.  When the flight has ended the launcher sends it one request and
 joins the Rerun recording while the helper draws: two processes, two cores.
 

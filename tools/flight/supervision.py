@@ -234,8 +234,9 @@ class Flight:
         write_json_atomic(self.out / "summary.json", provisional_summary(os.getpid()))
         web_url = self._start_web() if cfg.web else None
         try:
-            if cfg.png and cfg.series:
-                # first: it imports matplotlib while the flight starts and flies (tools.flight_picture)
+            if cfg.png and cfg.series and cfg.lockstep and not cfg.pin:
+                # First: it imports matplotlib while the flight starts and flies (tools.flight_picture).  Lockstep
+                # only: a real-time loop (or a pinned CPU) is not to share its CPU with it; those draw at the end.
                 try:
                     self._png = PngHelper()
                 except OSError:  # a picture never fails a flight: drawn here at the end instead
