@@ -273,9 +273,10 @@ def test_only_a_lockstep_flight_has_the_picture_helper_beside_it(tmp_path):
         (dict(lockstep=True, pin=True), False),
     ):
         out = tmp_path / f"f{len(list(tmp_path.iterdir()))}"
-        with Flight(duration=600.0, out=out, quiet=True, rrd=False, **kw) as flight:
-            assert flight.wait(timeout=0.5) is None
-            assert bool(_picture_helpers()) is expect, kw
-        assert flight.result.summary["files"]["png"] == str(out / "flight.png"), kw
+        with Flight(duration=2.0, out=out, quiet=True, rrd=False, **kw) as flight:
+            assert bool(_picture_helpers()) is expect, kw  # (the flight ends in wait(): the helper lives until then)
+            res = flight.wait(timeout=120)
+        assert res is not None and res.ok, (kw, res and res.reason)
+        assert res.summary["files"]["png"] == str(out / "flight.png"), kw
         assert (out / "flight.png").read_bytes()[:4] == b"\x89PNG"
     assert not _picture_helpers()  # none left behind
