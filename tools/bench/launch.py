@@ -13,7 +13,8 @@ Figures, medians of ``--runs`` interleaved runs (default 7; ``--quick`` 3):
   flight's ratio to it (target <= 15: 1.2 s over the 0.08 s that import takes on the quiet 2-core VM), which says
   the same on a faster or a busier machine;
 * for comparison, the same flight with ``--no-rrd --no-png`` (the three processes' start-up and the flight only),
-  and the flight's own wall time (the SITL's ``sim / real-time factor``), from the runs' summary.json;
+  the flight's own wall time (the SITL's ``sim / real-time factor``, from the runs' summary.json) and each run's
+  wall time minus it (what is waited for around the flight; on a busy machine the flight itself varies most);
 * with ``--baseline DIR`` (another checkout, e.g. ``git worktree add /tmp/before main``), the same command run from
   that code too, interleaved with this one's, and the ratio of the two: a before/after from one run.
 """
@@ -76,6 +77,7 @@ def main(argv: list[str] | None = None) -> dict:
     runs = 3 if args.quick else max(1, args.runs)
     base = str(Path(args.baseline).resolve()) if args.baseline else None
     imports, full, bare, flown, before = [], [], [], [], []
+    around, around_before = [], []  # each run's wall minus its flight: what the user waits for around the flight
     with tempfile.TemporaryDirectory(prefix="bench-launch-") as tmp:
         _flight(Path(tmp) / "warm-up", [], FILES)  # page cache, .pyc files and the cached flight layout
         if base:
@@ -84,13 +86,17 @@ def main(argv: list[str] | None = None) -> dict:
             imports.append(_timed([sys.executable, "-c", "import numpy, scipy"]))
             if base:
                 out = Path(tmp) / f"baseline-{i}"
-                before.append(_flight(out, [], FILES, base)[0])
+                wall, fl = _flight(out, [], FILES, base)
+                before.append(wall)
+                if fl is not None:
+                    around_before.append(wall - fl)
                 shutil.rmtree(out, ignore_errors=True)
             out = Path(tmp) / f"full-{i}"
             wall, fl = _flight(out, [], FILES)
             full.append(wall)
             if fl is not None:
                 flown.append(fl)
+                around.append(wall - fl)
             shutil.rmtree(out, ignore_errors=True)
             out = Path(tmp) / f"bare-{i}"
             bare.append(_flight(out, ["--no-rrd", "--no-png"], ("flight.tlog", "summary.json"))[0])
@@ -114,9 +120,12 @@ def main(argv: list[str] | None = None) -> dict:
     }
     if flown:
         figs["the flight itself (sim / RTF)"] = figure(med(flown), "s", **spread(flown))
+        figs["launch minus its flight (wall)"] = figure(med(around), "s", **spread(around))
     if before:
         figs["baseline launch (wall)"] = figure(med(before), "s", ratio=med(before) / ref, code=base, **spread(before))
         figs["launch / baseline launch"] = figure(med(full) / med(before), "x")
+        if around and around_before:
+            figs["baseline launch minus its flight (wall)"] = figure(med(around_before), "s", **spread(around_before))
     print_table("launch: python -m tools.launch --lockstep --duration 30, command to every file", figs)
     note = load_warning()
     if note:
