@@ -280,3 +280,55 @@ def test_only_a_lockstep_flight_has_the_picture_helper_beside_it(tmp_path):
         assert res.summary["files"]["png"] == str(out / "flight.png"), kw
         assert (out / "flight.png").read_bytes()[:4] == b"\x89PNG"
     assert not _picture_helpers()  # none left behind
+
+
+# ---------------------------------------------------------------------------------------- lockstep busy-poll
+def test_the_launcher_asks_both_lockstep_processes_for_a_short_busy_poll(tmp_path):
+    """``python -m tools.launch`` flies lockstep with a 100 us busy-poll on both sides (a 500 us spin waiting for a
+    peer with no core took that core from it while the other processes start); a Flight without it keeps the
+    processes' own default, a real-time flight gets no such flag, and an impossible value is refused in one line."""
+    from tools.flight import FlightConfig, FlightConfigError, child_argvs
+    from tools.launch import LOCKSTEP_SPIN_US, build_parser
+
+    args = build_parser().parse_args(["--lockstep"])
+    assert args.lockstep_spin_us == LOCKSTEP_SPIN_US == 100.0
+    argv = child_argvs(FlightConfig(lockstep=True, lockstep_spin_us=args.lockstep_spin_us), tmp_path, 1, 2)
+    ap, sitl = argv["autopilot"], argv["sitl"]
+    assert ap[ap.index("--lockstep-spin-us") + 1] == "100.0" and sitl[sitl.index("--spin-us") + 1] == "100.0"
+    default = child_argvs(FlightConfig(lockstep=True), tmp_path, 1, 2)
+    assert "--lockstep-spin-us" not in default["autopilot"] and "--spin-us" not in default["sitl"]
+    realtime = child_argvs(FlightConfig(lockstep=False, lockstep_spin_us=100.0), tmp_path, 1, 2)
+    assert "--lockstep-spin-us" not in realtime["autopilot"] and "--spin-us" not in realtime["sitl"]
+    with pytest.raises(FlightConfigError, match="lockstep_spin_us must be in 0..1000000 us"):
+        FlightConfig(lockstep=True, lockstep_spin_us=-1.0)
+    r = subprocess.run(
+        [sys.executable, "-m", "tools.launch", "--lockstep", "--lockstep-spin-us", "-3", "--out", str(tmp_path / "x")],
+        capture_output=True,
+        text=True,
+        timeout=60,
+        cwd=ROOT,
+    )
+    assert r.returncode == 2 and r.stderr.strip().count("\n") == 0 and "--lockstep-spin-us" in r.stderr
+
+
+@pytest.mark.e2e
+def test_the_busy_poll_changes_no_number_of_the_flight(tmp_path):
+    """The spin is how long a process waits awake, not what it computes: flights with no spin, the launcher's 100 us
+    and the processes' 500 us fly the same steps to the same metrics, bit for bit."""
+    from tools.flight import Flight
+
+    metrics = {}
+    for spin in (0.0, 100.0, None):
+        res = Flight(
+            lockstep=True,
+            duration=3.0,
+            out=tmp_path / f"s{spin}",
+            quiet=True,
+            rrd=False,
+            png=False,
+            lockstep_spin_us=spin,
+        ).run()
+        assert res.ok, (spin, res.reason)
+        run = res.summary["runs"][0]
+        metrics[spin] = (run["steps"], run["metrics"])
+    assert metrics[0.0] == metrics[100.0] == metrics[None] and metrics[None][0] == 300
