@@ -239,6 +239,10 @@ def test_the_launch_bench_times_the_command_and_the_import_it_is_compared_with(t
     assert 0 < ref["value"] < wall["value"] and ratio["value"] == pytest.approx(wall["value"] / ref["value"])
     assert figs["launch --no-rrd --no-png (wall)"]["value"] > 0
     assert 0 < figs["the flight itself (sim / RTF)"]["value"] < wall["value"]
+    cpu, cpu_ref = figs["launch, CPU of all its processes"], figs["import numpy, scipy (CPU)"]
+    assert cpu["unit"] == cpu_ref["unit"] == "CPU s" and 0 < cpu_ref["value"] < cpu["value"]
+    assert cpu["value"] > 0.5  # five interpreters (launcher, autopilot, SITL, GCS, picture helper), each counted
+    assert cpu["ratio"] == pytest.approx(cpu["value"] / cpu_ref["value"])
     with pytest.raises(RuntimeError, match="left no flight.png"):  # a missing file is an error, not a fast run
         launch._flight(tmp_path / "no-png", ["--no-png"], launch.FILES)
 

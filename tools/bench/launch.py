@@ -12,6 +12,9 @@ Figures, medians of ``--runs`` interleaved runs (default 7; ``--quick`` 3):
 * the wall time of ``python -c 'import numpy, scipy'`` measured in the same run, one before each flight, and the
   flight's ratio to it (target <= 15: 1.2 s over the 0.08 s that import takes on the quiet 2-core VM), which says
   the same on a faster or a busier machine;
+* the CPU seconds (user plus system) of all the command's processes (``RUSAGE_CHILDREN``: the launcher reaps its
+  children, they reap theirs), and the same for the import: on a machine loaded by others the wall time says more
+  about the load than about the code, the CPU seconds barely change with it;
 * for comparison, the same flight with ``--no-rrd --no-png`` (the three processes' start-up and the flight only),
   the flight's own wall time (the SITL's ``sim / real-time factor``, from the runs' summary.json) and each run's
   wall time minus it (what is waited for around the flight; on a busy machine the flight itself varies most);
@@ -24,6 +27,7 @@ from __future__ import annotations
 import argparse
 import json
 import os
+import resource
 import shutil
 import statistics
 import subprocess
@@ -41,21 +45,32 @@ FLIGHT = ["--lockstep", "--duration", "30", "--quiet"]
 FILES = ("flight.tlog", "flight.rrd", "flight.png", "summary.json")
 
 
-def _timed(argv: list[str], code: str | None = None) -> float:
-    """Wall time of one command to its exit; ``code``: run it from that checkout (PYTHONPATH)."""
+def _children_cpu() -> float:
+    """User plus system CPU seconds of every process this one has reaped, and the processes they reaped."""
+    r = resource.getrusage(resource.RUSAGE_CHILDREN)
+    return r.ru_utime + r.ru_stime
+
+
+def _timed(argv: list[str], code: str | None = None) -> tuple[float, float]:
+    """(wall s, CPU s) of one command to its exit, the CPU of all its processes (the launcher reaps each of its
+    children, they reap theirs); ``code``: run it from that checkout (PYTHONPATH)."""
     env = dict(os.environ, PYTHONPATH=code) if code else None  # and run there: ``-m`` looks in the cwd first
+    c0 = _children_cpu()
     t0 = time.perf_counter()
     proc = subprocess.run(argv, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True, env=env, cwd=code)
     wall = time.perf_counter() - t0
+    cpu = _children_cpu() - c0
     if proc.returncode != 0:
         raise RuntimeError(f"{' '.join(argv[1:4])}... exited {proc.returncode}: {proc.stderr.strip()[-300:]}")
-    return wall
+    return wall, cpu
 
 
-def _flight(out: Path, extra: list[str], files: tuple[str, ...], code: str | None = None) -> tuple[float, float | None]:
-    """One launch into ``out``: (wall s, the flight's own wall s from summary.json); every file of ``files`` must
-    be there and not empty."""
-    wall = _timed([sys.executable, "-m", "tools.launch", *FLIGHT, *extra, "--out", str(out)], code)
+def _flight(
+    out: Path, extra: list[str], files: tuple[str, ...], code: str | None = None
+) -> tuple[float, float | None, float]:
+    """One launch into ``out``: (wall s, the flight's own wall s from summary.json, CPU s of all its processes);
+    every file of ``files`` must be there and not empty."""
+    wall, cpu = _timed([sys.executable, "-m", "tools.launch", *FLIGHT, *extra, "--out", str(out)], code)
     missing = [f for f in files if not (out / f).is_file() or (out / f).stat().st_size == 0]
     if missing:
         raise RuntimeError(f"the launch left no {', '.join(missing)} in {out}")
@@ -63,7 +78,7 @@ def _flight(out: Path, extra: list[str], files: tuple[str, ...], code: str | Non
     if not s.get("ok"):
         raise RuntimeError(f"the flight was not OK: {s.get('error')}")
     flown = s["sim_time_s"] / s["rtf"] if s.get("rtf") else None
-    return wall, flown
+    return wall, flown, cpu
 
 
 def main(argv: list[str] | None = None) -> dict:
@@ -77,23 +92,28 @@ def main(argv: list[str] | None = None) -> dict:
     runs = 3 if args.quick else max(1, args.runs)
     base = str(Path(args.baseline).resolve()) if args.baseline else None
     imports, full, bare, flown, before = [], [], [], [], []
+    cpu, cpu_before, cpu_imports = [], [], []  # CPU seconds of all the command's processes: load barely changes it
     around, around_before = [], []  # each run's wall minus its flight: what the user waits for around the flight
     with tempfile.TemporaryDirectory(prefix="bench-launch-") as tmp:
         _flight(Path(tmp) / "warm-up", [], FILES)  # page cache, .pyc files and the cached flight layout
         if base:
             _flight(Path(tmp) / "warm-up-baseline", [], FILES, base)
         for i in range(runs):
-            imports.append(_timed([sys.executable, "-c", "import numpy, scipy"]))
+            wall, c = _timed([sys.executable, "-c", "import numpy, scipy"])
+            imports.append(wall)
+            cpu_imports.append(c)
             if base:
                 out = Path(tmp) / f"baseline-{i}"
-                wall, fl = _flight(out, [], FILES, base)
+                wall, fl, c = _flight(out, [], FILES, base)
                 before.append(wall)
+                cpu_before.append(c)
                 if fl is not None:
                     around_before.append(wall - fl)
                 shutil.rmtree(out, ignore_errors=True)
             out = Path(tmp) / f"full-{i}"
-            wall, fl = _flight(out, [], FILES)
+            wall, fl, c = _flight(out, [], FILES)
             full.append(wall)
+            cpu.append(c)
             if fl is not None:
                 flown.append(fl)
                 around.append(wall - fl)
@@ -101,11 +121,11 @@ def main(argv: list[str] | None = None) -> dict:
             out = Path(tmp) / f"bare-{i}"
             bare.append(_flight(out, ["--no-rrd", "--no-png"], ("flight.tlog", "summary.json"))[0])
             shutil.rmtree(out, ignore_errors=True)
-            print(
-                f"  run {i + 1}/{runs}: launch {full[-1]:.2f} s, --no-rrd --no-png {bare[-1]:.2f} s, "
-                f"import numpy, scipy {imports[-1]:.3f} s" + (f", baseline launch {before[-1]:.2f} s" if base else ""),
-                flush=True,
-            )
+            line = f"  run {i + 1}/{runs}: launch {full[-1]:.2f} s ({cpu[-1]:.2f} CPU s), "
+            line += f"--no-rrd --no-png {bare[-1]:.2f} s, import numpy, scipy {imports[-1]:.3f} s"
+            if base:
+                line += f", baseline launch {before[-1]:.2f} s ({cpu_before[-1]:.2f} CPU s)"
+            print(line, flush=True)
     med = statistics.median
     ref = med(imports)
 
@@ -116,6 +136,8 @@ def main(argv: list[str] | None = None) -> dict:
         "launch 30 s lockstep, every file (wall)": figure(med(full), "s", WALL_TARGET_S, **spread(full)),
         "the same / import numpy, scipy": figure(med(full) / ref, "x", RATIO_TARGET),
         "import numpy, scipy (wall)": figure(ref, "s", **spread(imports)),
+        "launch, CPU of all its processes": figure(med(cpu), "CPU s", ratio=med(cpu) / med(cpu_imports), **spread(cpu)),
+        "import numpy, scipy (CPU)": figure(med(cpu_imports), "CPU s", **spread(cpu_imports)),
         "launch --no-rrd --no-png (wall)": figure(med(bare), "s", ratio=med(bare) / ref, **spread(bare)),
     }
     if flown:
@@ -124,6 +146,8 @@ def main(argv: list[str] | None = None) -> dict:
     if before:
         figs["baseline launch (wall)"] = figure(med(before), "s", ratio=med(before) / ref, code=base, **spread(before))
         figs["launch / baseline launch"] = figure(med(full) / med(before), "x")
+        figs["baseline launch, CPU of all its processes"] = figure(med(cpu_before), "CPU s", **spread(cpu_before))
+        figs["launch CPU / baseline launch CPU"] = figure(med(cpu) / med(cpu_before), "x")
         if around and around_before:
             figs["baseline launch minus its flight (wall)"] = figure(med(around_before), "s", **spread(around_before))
     print_table("launch: python -m tools.launch --lockstep --duration 30, command to every file", figs)
