@@ -28,7 +28,6 @@ import math
 from dataclasses import dataclass, field
 
 import numpy as np
-from scipy.linalg import expm, solve_continuous_lyapunov
 
 from sitl import model
 
@@ -139,6 +138,8 @@ def noise_zoh(a: np.ndarray, b: np.ndarray, dt: float) -> tuple[np.ndarray, np.n
     (A P + P A^T + B B^T = 0); unlike Van Loan's block exponential this keeps its precision when dt is
     many time constants long.
     """
+    from scipy.linalg import expm, solve_continuous_lyapunov  # here: scipy costs ~0.2 s, only turbulence needs it
+
     ad = expm(a * dt)
     p = solve_continuous_lyapunov(a, -b @ b.T)
     p = (p + p.T) / 2

@@ -27,6 +27,7 @@ from autopilot.shared.cli import (
     physics_rate_hz,
     rt_priority_arg,
     sensor_rate_hz,
+    spin_us,
     stream_rate_or_0,
     sysid_arg,
     timeout_s,
@@ -112,6 +113,12 @@ def print_summary(s: dict) -> None:
         print(f"   envelope          {c['reason']}")
 
 
+# A lockstep flight's busy-poll (docs/design.md section 9, "A flight in about a second"): the peer answers within
+# tens of us when it has a core, so 100 us catches nearly every answer; while the launcher's other processes
+# start on the same two cores, each 500 us spin that waits for a peer with no core took that core from it.
+LOCKSTEP_SPIN_US = 100.0
+
+
 def build_parser() -> OneLineArgumentParser:
     p = OneLineArgumentParser(prog="python -m tools.launch", description=__doc__.split("\n\n")[0])
     p.add_argument(
@@ -180,6 +187,14 @@ def build_parser() -> OneLineArgumentParser:
         action="store_true",
         help="real time: the autopilot never sleeps between steps (one CPU at 100 %%; best with --pin; "
         "on a VM it avoids the hypervisor's wake-up delays, see docs/flying.md)",
+    )
+    p.add_argument(
+        "--lockstep-spin-us",
+        type=spin_us,
+        default=LOCKSTEP_SPIN_US,
+        metavar="US",
+        help=f"lockstep: the autopilot and the SITL busy-poll this long for each other's frame before sleeping "
+        f"(default {LOCKSTEP_SPIN_US:g}; the processes' own default is 500, see docs/design.md section 9)",
     )
     p.add_argument("--quiet", action="store_true", help="do not echo the processes' output (it is still in DIR/*.log)")
     p.add_argument(
@@ -284,8 +299,17 @@ def _flag(keyword: str) -> str:
 _OWNERS = {
     "sitl": {"physics_rate", "sensor_rate", "start_time", "plant", *disturbances.FLAGS},
     "autopilot": {"rate", "lv", "pfc", "sigma_xu", "dead_zone_deg", "ki_max", "u_limit_deg", "controller"}
-    | {"freeze_when_saturated", "rt_priority", "busy_wait", "telemetry_rate", "gcs_peer", "params", "baseline_gains"}
-    | {"envelope_roll", "envelope_saturated"},
+    | {
+        "freeze_when_saturated",
+        "rt_priority",
+        "busy_wait",
+        "lockstep_spin_us",
+        "telemetry_rate",
+        "gcs_peer",
+        "params",
+        "baseline_gains",
+    }
+    | {"envelope_roll", "envelope_saturated", "lockstep_spin_us"},
     "gcs": {"profile", "csv", "amplitude", "period"},
 }
 

@@ -93,6 +93,9 @@ class FlightConfig:
     rt_priority: int = 0  # real time: SCHED_FIFO priority of the autopilot (SITL one below), 0 = normal
     pin: bool = False  # the autopilot alone on CPU 1; the SITL and the GCS script on CPU 0
     busy_wait: bool = False  # real time: the autopilot never sleeps between steps (one CPU at 100 %)
+    # lockstep: how long the autopilot and the SITL busy-poll for the other's frame before sleeping in select, us;
+    # None = the processes' own default (500 us, autopilot --lockstep-spin-us, sitl --spin-us)
+    lockstep_spin_us: float | None = None
     quiet: bool = False  # do not echo the children's output (it is still in DIR/<process>.log)
     viewer: bool = False  # spawn a Rerun viewer (or reuse the one on port 9876) and stream to it live
     connect: str | None = None  # stream live to a running Rerun viewer at this URL
@@ -202,6 +205,11 @@ class FlightConfig:
             not (self.busy_wait and self.lockstep),
             "busy_wait",
             "busy_wait is for real time (lockstep already polls before sleeping)",
+        )
+        _require(
+            self.lockstep_spin_us is None or 0.0 <= self.lockstep_spin_us <= 1e6,
+            "lockstep_spin_us",
+            f"lockstep_spin_us must be in 0..1000000 us, got {self.lockstep_spin_us!r}",
         )
         _require(
             not (self.busy_wait and self.rt_priority and rt_throttling()),
@@ -523,6 +531,9 @@ def child_argvs(
     if cfg.lockstep:
         sitl += ["--lockstep", "--duration", repr(cfg.duration)]
         ap += ["--lockstep", "--lockstep-idle-exit", "5"]
+        if cfg.lockstep_spin_us is not None:
+            ap += ["--lockstep-spin-us", repr(float(cfg.lockstep_spin_us))]
+            sitl += ["--spin-us", repr(float(cfg.lockstep_spin_us))]
         gcs += ["--lockstep"]
     else:
         sitl += ["--sensor-rate", repr(cfg.sensor_rate)]

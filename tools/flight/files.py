@@ -4,7 +4,6 @@
 from __future__ import annotations
 
 import json
-import math
 import os
 from pathlib import Path
 
@@ -16,22 +15,27 @@ from autopilot.shared.process import (
 )
 from tools.flight.config import PROCESSES, FlightConfig
 from tools.flight.outcome import outcome_of
+from tools.flight_picture import PNG_MAX_POINTS, draw_flight_png  # noqa: F401  (PNG_MAX_POINTS: re-exported)
+from tools.series_files import load_series  # noqa: F401  (re-exported: tools.flight.load_series)
 
-PNG_MAX_POINTS = 20_000  # flight.png plots every k-th step of a long flight: bounded memory whatever its length
+
+def png_request(cfg: FlightConfig, out: Path, name: str, metrics: dict) -> dict:
+    """The keywords of ``tools.flight_picture.draw_flight_png`` for a flight's picture (plain values: the helper
+    process gets them as JSON)."""
+    return {
+        "out": str(out),
+        "name": name,
+        "lv": cfg.lv_value if cfg.controller != "sac" else 0.0,
+        "lockstep": cfg.lockstep,
+        "rate": cfg.rate,
+        "u_limit_deg": cfg.u_limit_deg,
+        "metrics": metrics,
+    }
 
 
 def write_flight_png(cfg: FlightConfig, out: Path, name: str, metrics: dict) -> Path | None:
-    """DIR/flight.png from the flight's series (``tools.plots.flight_figure``); None without series."""
-    from tools.plots import save_flight_figure
-    from tools.scenario import RunResult
-
-    series = load_series(out, max_points=PNG_MAX_POINTS)
-    if not series or series.get("t") is None or not len(series["t"]):
-        return None
-    res = RunResult(name, cfg.lv_value if cfg.controller != "sac" else 0.0, metrics, series)
-    mode = "lockstep" if cfg.lockstep else "real time"
-    title = f"Flight {out.name}: {res.name}, {mode}, {cfg.rate:g} Hz"
-    return save_flight_figure(res, out / "flight.png", math.radians(cfg.u_limit_deg), title)
+    """DIR/flight.png from the flight's series, drawn in this process (``draw_flight_png``); None without series."""
+    return draw_flight_png(**png_request(cfg, out, name, metrics))
 
 
 def _join_telemetry(
@@ -49,14 +53,24 @@ def _join_telemetry(
     if not existing:
         return None, False, ("no telemetry was written" if parts else None)
     from autopilot.shared import telemetry as tm
-    from tools.views import flight_blueprint
 
     target = out / "flight.rrd"
     indexed = sum(p.stat().st_size for p in existing) <= merge_max_mb * 1e6
     try:
         if indexed:
-            tm.merge_recordings(existing, target, blueprint=flight_blueprint(), remove_parts=True)
+            # The layout saved once for this code (tools.layout_cache): no rerun import in the launcher.
+            from tools.layout_cache import flight_blueprint_file
+
+            layout = flight_blueprint_file()
+            if layout is not None:
+                tm.merge_recordings(existing, target, blueprint_file=layout, remove_parts=True)
+            else:
+                from tools.views import flight_blueprint
+
+                tm.merge_recordings(existing, target, blueprint=flight_blueprint(), remove_parts=True)
         else:
+            from tools.views import flight_blueprint
+
             tm.concatenate_recordings(
                 existing, target, blueprint=flight_blueprint(), recording_id=recording_id, remove_parts=True
             )
@@ -166,75 +180,6 @@ def build_summary(
             "stats": {n: str(out / f"{n}.json") for n in PROCESSES},
         },
     }
-
-
-def _npz_columns(path: Path, keys=None, stride: int = 1, start: int = 0) -> dict:
-    """Columns of an .npz, every ``stride``-th value from index ``start``, read a chunk at a time (the memory
-    held is the decimated columns, whatever the file's length)."""
-    import zipfile
-
-    import numpy as np
-
-    out = {}
-    with zipfile.ZipFile(path) as zf:
-        for member in zf.namelist():
-            key = member[:-4] if member.endswith(".npy") else member
-            if keys is not None and key not in keys:
-                continue
-            with zf.open(member) as f:
-                version = np.lib.format.read_magic(f)
-                read_header = (
-                    np.lib.format.read_array_header_1_0 if version == (1, 0) else np.lib.format.read_array_header_2_0
-                )
-                shape, _fortran, dtype = read_header(f)
-                n = shape[0] if shape else 1
-                kept, i0 = [], 0
-                while i0 < n:
-                    m = min(1 << 16, n - i0)
-                    a = np.frombuffer(f.read(m * dtype.itemsize), dtype=dtype, count=m)
-                    j = start - i0 if i0 <= start else (start - i0) % stride  # first index to keep here
-                    if j < m:
-                        kept.append(a[j::stride].copy())
-                    i0 += m
-                out[key] = np.concatenate(kept) if kept else np.empty(0, dtype)
-    return out
-
-
-def load_series(out_dir, max_points: int | None = None) -> dict:
-    """Merge DIR/autopilot_series.npz and DIR/sitl_series.npz into tools.scenario.SERIES-style arrays;
-    ``max_points``: every k-th step only, at most that many (a plot of a long flight in bounded memory)."""
-    import zipfile
-
-    import numpy as np
-
-    out_dir = Path(out_dir)
-    try:
-        with zipfile.ZipFile(out_dir / "autopilot_series.npz") as zf, zf.open("t.npy") as f:
-            version = np.lib.format.read_magic(f)
-            read_header = (
-                np.lib.format.read_array_header_1_0 if version == (1, 0) else np.lib.format.read_array_header_2_0
-            )
-            steps = read_header(f)[0][0]
-        series = _npz_columns(out_dir / "autopilot_series.npz", stride=(stride := _stride(steps, max_points)))
-    except (OSError, KeyError, zipfile.BadZipFile):
-        return {}
-    if series.get("t") is not None and len(series["t"]):
-        series["t"] = series["t"] - series["t"][0]
-    try:
-        # SITL rows are the state after frame k, i.e. at t_{k+1}; the state at t_0 is the initial zero.
-        s = _npz_columns(out_dir / "sitl_series.npz", ("v", "delta_r"), stride, start=stride - 1)
-        n = len(series.get("t", ()))
-        for key in ("v", "delta_r"):
-            col = np.concatenate([[0.0], s[key]])[:n]
-            if len(col) == n:
-                series[key] = col
-    except (OSError, KeyError, zipfile.BadZipFile):
-        pass
-    return series
-
-
-def _stride(steps: int, max_points: int | None) -> int:
-    return 1 if not max_points or steps <= max_points else -(-steps // max_points)
 
 
 # ---------------------------------------------------------------------------------------- the verdict

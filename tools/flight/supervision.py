@@ -37,11 +37,21 @@ from tools.flight.files import (
     _load,
     build_summary,
     load_series,
+    png_request,
     provisional_summary,
     write_flight_png,
     write_refusal,
 )
 from tools.flight.outcome import _ended_normally, envelope_verdict, flown_report, outcome_of, verdict
+from tools.flight_picture import PngHelper
+
+
+def _run_metrics(ap_stats: dict | None) -> dict:
+    """The five METRIC_NAMES of what flew: summary.json's run (``build_summary`` takes it from the autopilot's
+    stats when it flew a step), None each when nothing flew."""
+    ap = ap_stats or {}
+    m = ap.get("metrics") if ap.get("metric_samples") else None
+    return {k: m.get(k) for k in METRIC_NAMES} if m is not None else dict.fromkeys(METRIC_NAMES)
 
 
 @dataclass(frozen=True)
@@ -108,6 +118,7 @@ class Flight:
         self._parts: dict[str, Path] = {}
         self._recording_id: str | None = None
         self._web = None  # the --web server (tools.web.WebServer), stopped when the flight ends
+        self._png = None  # the flight.png helper process (tools.flight_picture.PngHelper), from start() to _end()
         self._t0: float | None = None
         self._interrupt = threading.Event()
 
@@ -170,6 +181,7 @@ class Flight:
                     self.stop()
         finally:
             self._stop_web()  # whatever happened above
+            self._stop_png()
         return False
 
     def _start_web(self) -> str:
@@ -187,6 +199,11 @@ class Flight:
     def _stop_web(self) -> None:
         if self._web is not None:
             self._web.stop()
+
+    def _stop_png(self) -> None:
+        if self._png is not None:
+            self._png.close()
+            self._png = None
 
     def run(self) -> FlightResult:
         """Fly to the end (or until interrupted) and return the result."""
@@ -217,6 +234,13 @@ class Flight:
         write_json_atomic(self.out / "summary.json", provisional_summary(os.getpid()))
         web_url = self._start_web() if cfg.web else None
         try:
+            if cfg.png and cfg.series and cfg.lockstep and not cfg.pin:
+                # First: it imports matplotlib while the flight starts and flies (tools.flight_picture).  Lockstep
+                # only: a real-time loop (or a pinned CPU) is not to share its CPU with it; those draw at the end.
+                try:
+                    self._png = PngHelper()
+                except OSError:  # a picture never fails a flight: drawn here at the end instead
+                    self._png = None
             telemetry, self._parts, self._recording_id = _telemetry_argvs(cfg, self.out, web_url)
             key_file = _flight_key(cfg, self.out)
             for attempt in range(3):
@@ -332,12 +356,15 @@ class Flight:
             stop_children(self._children.values())
         finally:
             self._stop_web()  # nothing streams any more: the server ends with the flight
+        stats = {n: _load(self.out / f"{n}.json") for n in PROCESSES}
+        metrics = _run_metrics(stats["autopilot"])
+        # flight.png (the helper draws it from the series and the metrics) while the recording is joined here
+        drawing = self._request_png(metrics)
         rrd_path, rrd_indexed, rrd_error = _join_telemetry(
             self._parts, self.out, self._recording_id, cfg.rrd_merge_max_mb
         )
         if rrd_error and exit_code == EXIT_OK:
             exit_code, failed, error = EXIT_FAILED, "telemetry", rrd_error
-        stats = {n: _load(self.out / f"{n}.json") for n in PROCESSES}
         flown = flown_report(cfg, stats)
         if stopped:
             error = f"stopped by the caller after {flown['sim_time_s']:g} s of {cfg.duration:g} s (sim time)"
@@ -359,20 +386,42 @@ class Flight:
             rrd_indexed,
         )
         summary["flown"] = flown
-        runs = summary["runs"]
-        metrics = {k: runs[0]["metrics"].get(k) for k in METRIC_NAMES} if runs else dict.fromkeys(METRIC_NAMES)
-        png = None
-        if cfg.png and cfg.series:
-            try:
-                png = write_flight_png(cfg, self.out, cfg.name or cfg.controller, metrics)
-            except (OSError, ValueError, KeyError) as exc:  # a picture never fails a flight: say why it is missing
-                print(f"launch: flight.png not written: {type(exc).__name__}: {exc}", file=sys.stderr, flush=True)
+        png = self._png_result(drawing, metrics)
         summary["files"]["png"] = str(png) if png else None
         write_json_atomic(self.out / "summary.json", summary)
         controlled = (summary["controlled"] or {}).get("ok")
         self.result = FlightResult(
             exit_code == EXIT_OK, exit_code, error, metrics, self.out, summary, summary["completed"], controlled
         )
+
+    def _request_png(self, metrics: dict) -> bool:
+        """Ask the helper for flight.png (the processes have exited: the series are complete); False if there is
+        no helper to ask (then ``_png_result`` draws it here)."""
+        cfg = self.config
+        if not (cfg.png and cfg.series) or self._png is None:
+            return False
+        request = png_request(cfg, self.out, cfg.name or cfg.controller, metrics)
+        return self._png.request(request)
+
+    def _png_result(self, drawing: bool, metrics: dict):
+        """DIR/flight.png: the helper's answer, or drawn here when there was none to ask or it did not answer; a
+        picture never fails a flight (the reason it is missing is printed)."""
+        cfg = self.config
+        if not (cfg.png and cfg.series):
+            return None
+        png = error = None
+        answered = False
+        if drawing:
+            answered, png, error = self._png.result()
+        self._stop_png()
+        if not answered:
+            try:
+                png = write_flight_png(cfg, self.out, cfg.name or cfg.controller, metrics)
+            except (OSError, ValueError, KeyError) as exc:
+                error = f"{type(exc).__name__}: {exc}"
+        if error:
+            print(f"launch: flight.png not written: {error}", file=sys.stderr, flush=True)
+        return png
 
 
 def run_lockstep(scenario, run, workdir):

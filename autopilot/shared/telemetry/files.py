@@ -58,6 +58,7 @@ def merge_recordings(
     out_path: str | os.PathLike,
     *,
     blueprint=None,
+    blueprint_file: str | os.PathLike | None = None,
     application_id: str = APPLICATION_ID,
     remove_parts: bool = False,
     timeout_s: float = 120.0,
@@ -65,9 +66,12 @@ def merge_recordings(
     """Merge part files into ``out_path`` with ``rerun rrd merge`` (compacted, with a footer); the output path.
 
     ``blueprint``: a ``rerun.blueprint.Blueprint`` to add (saved for ``application_id``), or None to keep
-    whatever the parts carry.  Missing or empty parts are skipped (a process that never started); if no
+    whatever the parts carry; ``blueprint_file``: one already saved (a ``.rbl``, e.g. ``tools.layout_cache``'s),
+    added as it is (no rerun import here).  Missing or empty parts are skipped (a process that never started); if no
     part is left, RrdError.  ``remove_parts`` deletes the parts after a successful merge.
     """
+    if blueprint is not None and blueprint_file is not None:
+        raise ValueError("merge_recordings: give blueprint or blueprint_file, not both")
     out = Path(out_path)
     present = [Path(p) for p in parts if Path(p).is_file() and Path(p).stat().st_size > 0]
     if not present:
@@ -80,6 +84,8 @@ def merge_recordings(
             rbl = Path(tmp) / "blueprint.rbl"
             blueprint.save(application_id, str(rbl))
             inputs.append(str(rbl))
+        elif blueprint_file is not None:
+            inputs.append(str(blueprint_file))
         tmp_out = Path(tmp) / "joined.rrd"
         cmd = [rerun_cli_path(), "rrd", "merge", "--continue-on-error", "-o", str(tmp_out), *inputs]
         proc = subprocess.run(cmd, capture_output=True, text=True, timeout=timeout_s, env=_cli_env())

@@ -1,0 +1,338 @@
+"""A flight in about a second (issue 21): what the launcher's start-up and end no longer wait for, each part checked
+on its own with real processes and files: no scipy at start-up, the flight layout cached on disk
+(``tools.layout_cache``), flight.png drawn by a helper process (``tools.flight_picture``) and children's exits seen
+at once (``tools.children.Child.wait``)."""
+
+from __future__ import annotations
+
+import json
+import os
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from tools import layout_cache
+from tools.children import Child
+from tools.flight_picture import PngHelper, draw_flight_png
+
+ROOT = Path(__file__).resolve().parent.parent
+
+
+def _run(code: str, **env) -> subprocess.CompletedProcess:
+    return subprocess.run(
+        [sys.executable, "-c", code],
+        capture_output=True,
+        text=True,
+        timeout=120,
+        cwd=ROOT,
+        env=dict(os.environ, **env),
+    )
+
+
+# ---------------------------------------------------------------------------------------- imports
+def test_the_launcher_and_the_sitl_start_without_scipy():
+    """scipy (about 0.2 s) is for turbulence only: importing the launcher or the SITL's main does not load it, and a
+    Dryden filter still gets it when it is built."""
+    r = _run(
+        "import sys, tools.launch, sitl.__main__, sitl.endpoint, autopilot.__main__, tools.gcs\n"
+        "print('scipy' in sys.modules)\n"
+        "from sitl.atmosphere import noise_zoh\n"
+        "import numpy as np\n"
+        "ad, qd, p = noise_zoh(np.array([[-2.0]]), np.array([[1.0]]), 0.01)\n"
+        "print('scipy' in sys.modules, round(float(p[0, 0]), 12))\n"
+    )
+    assert r.returncode == 0, r.stderr
+    assert r.stdout.split() == ["False", "True", "0.25"]  # P of x' = -2x + w: 1 / (2 * 2)
+
+
+def test_the_picture_helper_does_not_import_the_launcher():
+    """The helper process imports matplotlib and the plots, not the launcher's modules (tools.flight) nor rerun."""
+    r = _run(
+        "import sys\nfrom tools import flight_picture\nflight_picture._warm_up()\n"
+        "print(sorted(m for m in ('tools.flight', 'rerun', 'tools.launch') if m in sys.modules), "
+        "'matplotlib.figure' in sys.modules)\n"
+    )
+    assert r.returncode == 0, r.stderr
+    assert r.stdout.strip() == "[] True"
+
+
+# ---------------------------------------------------------------------------------------- the layout cache
+def test_the_flight_layout_is_built_once_then_read_from_the_cache(tmp_path):
+    """First call: built (rerun imported) and saved with the sources it came from; second call, in a fresh process:
+    the same file, without importing rerun; the saved layout is a blueprint rerun reads back."""
+    env = {"CLSAC_CACHE_DIR": str(tmp_path / "cache")}
+    code = (
+        "import sys, time\nfrom tools.layout_cache import flight_blueprint_file\n"
+        "p = flight_blueprint_file()\nprint(p, 'rerun' in sys.modules)\n"
+    )
+    first = _run(code, **env)
+    assert first.returncode == 0, first.stderr
+    path, imported = first.stdout.split()
+    assert imported == "True" and Path(path).parent == tmp_path / "cache" and Path(path).stat().st_size > 1000
+    meta = json.loads(Path(path).with_suffix(".json").read_text())
+    assert "tools/views.py" in meta["sources"] and "autopilot/telemetry/layout.py" in meta["sources"]
+    second = _run(code, **env)
+    assert second.returncode == 0, second.stderr
+    assert second.stdout.split() == [path, "False"]
+    from tools import rrd
+    from tools.views import flight_blueprint
+
+    fresh = tmp_path / "fresh.rbl"
+    flight_blueprint().save(meta["application_id"], str(fresh))
+    for component in ("ViewBlueprint:display_name", "ViewContents:query"):  # the same views of the same entities
+        cached = sorted(map(str, rrd.blueprint_components(path, component)))
+        assert cached and cached == sorted(map(str, rrd.blueprint_components(fresh, component)))
+    assert "Roll tracking [deg]" in rrd.blueprint_components(path, "ViewBlueprint:display_name")
+
+
+def test_a_changed_source_or_rerun_rebuilds_the_cached_layout(tmp_path, monkeypatch):
+    """A recorded source whose digest no longer matches, or another rerun, makes the cache invalid: rebuilt."""
+    monkeypatch.setenv("CLSAC_CACHE_DIR", str(tmp_path))
+    path = layout_cache.flight_blueprint_file()
+    meta_path = path.with_suffix(".json")
+    from autopilot.shared.telemetry.layout import APPLICATION_ID
+
+    assert layout_cache._valid(path, meta_path, APPLICATION_ID)
+    meta = json.loads(meta_path.read_text())
+    meta["sources"]["tools/views.py"] = "0" * 64  # as if tools/views.py had changed since
+    meta_path.write_text(json.dumps(meta))
+    assert not layout_cache._valid(path, meta_path, APPLICATION_ID)
+    before = path.stat().st_mtime_ns
+    time.sleep(0.01)
+    assert layout_cache.flight_blueprint_file() == path and path.stat().st_mtime_ns != before  # rebuilt
+    assert layout_cache._valid(path, meta_path, APPLICATION_ID)
+    meta = json.loads(meta_path.read_text())
+    meta["rerun"][0][1] += 1  # another rerun_bindings
+    meta_path.write_text(json.dumps(meta))
+    assert not layout_cache._valid(path, meta_path, APPLICATION_ID)
+    path.write_bytes(b"")  # a torn file is not a layout
+    assert not layout_cache._valid(path, meta_path, APPLICATION_ID)
+
+
+def test_no_cache_folder_means_no_cached_layout(tmp_path, monkeypatch):
+    monkeypatch.setenv("CLSAC_CACHE_DIR", "off")
+    assert layout_cache.flight_blueprint_file() is None
+    blocker = tmp_path / "file"
+    blocker.write_text("not a folder")
+    monkeypatch.setenv("CLSAC_CACHE_DIR", str(blocker / "cache"))  # cannot be created: built in the caller
+    assert layout_cache.flight_blueprint_file() is None
+
+
+# ---------------------------------------------------------------------------------------- the picture helper
+def _series(out: Path, n: int = 300) -> None:
+    t = np.arange(n) / 100.0
+    phi = 0.1 * np.sin(t)
+    cols = {k: np.zeros(n) for k in ("um", "ym", "ym_ol", "e", "u", "ke", "kx", "ku")}
+    cols["u"] = 0.01 * np.cos(t)
+    np.savez(out / "autopilot_series.npz", t=t, phi=phi, mode=np.full(n, 2), **cols)
+
+
+def _request(out: Path) -> dict:
+    return {
+        "out": str(out),
+        "name": "clsac",
+        "lv": 20.0,
+        "lockstep": True,
+        "rate": 100.0,
+        "u_limit_deg": 30.0,
+        "metrics": {"ise_ref": 0.01, "ise_crm": 0.0, "energy": 0.0, "tv": 0.0, "max_abs_u": 0.01},
+    }
+
+
+def test_the_helper_draws_the_same_picture_as_the_launcher(tmp_path):
+    """One request, one answer: the helper's flight.png has the bytes of the one drawn in this process."""
+    _series(tmp_path)
+    req = _request(tmp_path)
+    local = draw_flight_png(**req).read_bytes()
+    (tmp_path / "flight.png").unlink()
+    helper = PngHelper()
+    try:
+        assert helper.request(req)
+        answered, png, error = helper.result(timeout_s=120)
+    finally:
+        helper.close()
+    assert (answered, png, error) == (True, str(tmp_path / "flight.png"), None)
+    assert helper.proc.returncode == 0
+    assert local[:8] == b"\x89PNG\r\n\x1a\n" and (tmp_path / "flight.png").read_bytes() == local
+
+
+def test_the_helper_says_why_a_picture_is_missing(tmp_path):
+    """No series: no picture (null); a picture that cannot be saved: the error, one line (the flight not failed)."""
+    helper = PngHelper()
+    try:
+        assert helper.request(_request(tmp_path))
+        assert helper.result(timeout_s=120) == (True, None, None)
+    finally:
+        helper.close()
+    (tmp_path / "ro").mkdir()
+    _series(tmp_path / "ro")
+    (tmp_path / "ro" / "flight.png").mkdir()  # the picture's path is taken by a folder: an OSError while saving
+    helper = PngHelper()
+    try:
+        assert helper.request(_request(tmp_path / "ro"))
+        answered, png, error = helper.result(timeout_s=120)
+    finally:
+        helper.close()
+    assert answered and png is None and error.startswith(("IsADirectoryError: ", "OSError: ")), error
+
+
+def test_a_helper_that_is_gone_is_reported_so_the_launcher_draws_itself(tmp_path):
+    helper = PngHelper()
+    helper.proc.kill()
+    helper.proc.wait()
+    sent = helper.request(_request(tmp_path))
+    answered = helper.result(timeout_s=5)[0] if sent else False
+    helper.close()
+    assert not answered
+
+
+def test_a_helper_without_a_request_exits_quietly():
+    helper = PngHelper()
+    helper.proc.stdin.close()
+    assert helper.proc.wait(timeout=120) == 0
+    helper.close()
+
+
+# ---------------------------------------------------------------------------------------- children's exits
+def test_a_childs_exit_is_seen_when_it_happens(tmp_path):
+    """wait() returns at the exit (a pidfd), not at the next poll; None while the child runs."""
+    c = Child("x", [sys.executable, "-c", "import time; time.sleep(0.3)"], tmp_path / "x.log", False)
+    try:
+        assert c.wait(0.0) is None
+        t0 = time.monotonic()
+        assert c.wait(30.0) == 0
+        assert time.monotonic() - t0 < 20.0  # woken by the exit, not by the 30 s timeout
+        assert c.wait(0.0) == 0 and c.code == 0
+    finally:
+        c.kill()
+        c.finish()
+
+
+@pytest.mark.e2e
+def test_a_launch_leaves_every_file_with_the_picture_from_the_helper(tmp_path):
+    """The whole launcher: tlog, flight.rrd (with the cached layout), flight.png and summary.json, in one run."""
+    from tools import rrd
+    from tools.flight import Flight
+
+    res = Flight(lockstep=True, duration=2.0, out=tmp_path / "f", quiet=True).run()
+    assert res.ok, res.reason
+    f = res.summary["files"]
+    assert f["png"] == str(tmp_path / "f" / "flight.png") and Path(f["png"]).read_bytes()[:4] == b"\x89PNG"
+    assert f["rrd_indexed"] and rrd.has_blueprint(f["rrd"])
+    assert not (tmp_path / "f" / ".parts").exists()
+
+
+@pytest.mark.e2e
+def test_the_launch_bench_times_the_command_and_the_import_it_is_compared_with(tmp_path):
+    """``python -m tools.bench launch``: real launches, every file checked, the figures and their targets."""
+    from tools.bench import launch
+
+    figs = launch.main(["--runs", "1"])
+    wall = figs["launch 30 s lockstep, every file (wall)"]
+    ref = figs["import numpy, scipy (wall)"]
+    ratio = figs["the same / import numpy, scipy"]
+    assert wall["target"] == launch.WALL_TARGET_S and ratio["target"] == launch.RATIO_TARGET
+    assert 0 < ref["value"] < wall["value"] and ratio["value"] == pytest.approx(wall["value"] / ref["value"])
+    assert figs["launch --no-rrd --no-png (wall)"]["value"] > 0
+    assert 0 < figs["the flight itself (sim / RTF)"]["value"] < wall["value"]
+    cpu, cpu_ref = figs["launch, CPU of all its processes"], figs["import numpy, scipy (CPU)"]
+    assert cpu["unit"] == cpu_ref["unit"] == "CPU s" and 0 < cpu_ref["value"] < cpu["value"]
+    assert cpu["value"] > 0.5  # five interpreters (launcher, autopilot, SITL, GCS, picture helper), each counted
+    assert cpu["ratio"] == pytest.approx(cpu["value"] / cpu_ref["value"])
+    with pytest.raises(RuntimeError, match="left no flight.png"):  # a missing file is an error, not a fast run
+        launch._flight(tmp_path / "no-png", ["--no-png"], launch.FILES)
+
+
+def _picture_helpers() -> list[int]:
+    """Process ids of this process's children that run the picture helper."""
+    found = []
+    for d in os.listdir("/proc"):
+        if not d.isdigit():
+            continue
+        try:
+            with open(f"/proc/{d}/stat") as f:
+                if int(f.read().rsplit(")", 1)[1].split()[1]) != os.getpid():
+                    continue
+            with open(f"/proc/{d}/cmdline", "rb") as f:
+                if b"tools.flight_picture" in f.read():
+                    found.append(int(d))
+        except (OSError, IndexError, ValueError):
+            continue
+    return found
+
+
+@pytest.mark.e2e
+def test_only_a_lockstep_flight_has_the_picture_helper_beside_it(tmp_path):
+    """A lockstep flight's picture is prepared while it flies; a real-time one's is drawn at the end (no process
+    takes CPU from a loop on deadlines), as is a pinned one's; both still leave flight.png."""
+    from tools.flight import Flight
+
+    for kw, expect in (
+        (dict(lockstep=True), True),
+        (dict(lockstep=False), False),
+        (dict(lockstep=True, pin=True), False),
+    ):
+        out = tmp_path / f"f{len(list(tmp_path.iterdir()))}"
+        with Flight(duration=2.0, out=out, quiet=True, rrd=False, **kw) as flight:
+            assert bool(_picture_helpers()) is expect, kw  # (the flight ends in wait(): the helper lives until then)
+            res = flight.wait(timeout=120)
+        assert res is not None and res.ok, (kw, res and res.reason)
+        assert res.summary["files"]["png"] == str(out / "flight.png"), kw
+        assert (out / "flight.png").read_bytes()[:4] == b"\x89PNG"
+    assert not _picture_helpers()  # none left behind
+
+
+# ---------------------------------------------------------------------------------------- lockstep busy-poll
+def test_the_launcher_asks_both_lockstep_processes_for_a_short_busy_poll(tmp_path):
+    """``python -m tools.launch`` flies lockstep with a 100 us busy-poll on both sides (a 500 us spin waiting for a
+    peer with no core took that core from it while the other processes start); a Flight without it keeps the
+    processes' own default, a real-time flight gets no such flag, and an impossible value is refused in one line."""
+    from tools.flight import FlightConfig, FlightConfigError, child_argvs
+    from tools.launch import LOCKSTEP_SPIN_US, build_parser
+
+    args = build_parser().parse_args(["--lockstep"])
+    assert args.lockstep_spin_us == LOCKSTEP_SPIN_US == 100.0
+    argv = child_argvs(FlightConfig(lockstep=True, lockstep_spin_us=args.lockstep_spin_us), tmp_path, 1, 2)
+    ap, sitl = argv["autopilot"], argv["sitl"]
+    assert ap[ap.index("--lockstep-spin-us") + 1] == "100.0" and sitl[sitl.index("--spin-us") + 1] == "100.0"
+    default = child_argvs(FlightConfig(lockstep=True), tmp_path, 1, 2)
+    assert "--lockstep-spin-us" not in default["autopilot"] and "--spin-us" not in default["sitl"]
+    realtime = child_argvs(FlightConfig(lockstep=False, lockstep_spin_us=100.0), tmp_path, 1, 2)
+    assert "--lockstep-spin-us" not in realtime["autopilot"] and "--spin-us" not in realtime["sitl"]
+    with pytest.raises(FlightConfigError, match="lockstep_spin_us must be in 0..1000000 us"):
+        FlightConfig(lockstep=True, lockstep_spin_us=-1.0)
+    r = subprocess.run(
+        [sys.executable, "-m", "tools.launch", "--lockstep", "--lockstep-spin-us", "-3", "--out", str(tmp_path / "x")],
+        capture_output=True,
+        text=True,
+        timeout=60,
+        cwd=ROOT,
+    )
+    assert r.returncode == 2 and r.stderr.strip().count("\n") == 0 and "--lockstep-spin-us" in r.stderr
+
+
+@pytest.mark.e2e
+def test_the_busy_poll_changes_no_number_of_the_flight(tmp_path):
+    """The spin is how long a process waits awake, not what it computes: flights with no spin, the launcher's 100 us
+    and the processes' 500 us fly the same steps to the same metrics, bit for bit."""
+    from tools.flight import Flight
+
+    metrics = {}
+    for spin in (0.0, 100.0, None):
+        res = Flight(
+            lockstep=True,
+            duration=3.0,
+            out=tmp_path / f"s{spin}",
+            quiet=True,
+            rrd=False,
+            png=False,
+            lockstep_spin_us=spin,
+        ).run()
+        assert res.ok, (spin, res.reason)
+        run = res.summary["runs"][0]
+        metrics[spin] = (run["steps"], run["metrics"])
+    assert metrics[0.0] == metrics[100.0] == metrics[None] and metrics[None][0] == 300

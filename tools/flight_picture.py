@@ -1,0 +1,139 @@
+"""A flight's ``flight.png``: ``draw_flight_png``, and ``python -m tools.flight_picture``, the helper process that
+draws it for the launcher, with ``PngHelper``, its client.
+
+Drawing the picture cost the launcher about 0.5 s after the flight, one thing after another: matplotlib's import
+(about 0.25 s on the 2-core VM) and the first draw (mathtext's parser, the text layout).  So ``Flight`` starts this
+helper together with a lockstep flight's three processes (a real-time or pinned flight draws at the end instead:
+nothing is to take CPU from a loop on deadlines): it imports matplotlib and ``tools.plots`` (not the launcher's
+modules) while they start and fly, then waits.  When the flight has ended the launcher sends it one request and
+joins the Rerun recording while the helper draws: two processes, two cores.
+
+The protocol, one line each way: the request on stdin is the JSON of the keywords of ``draw_flight_png``
+(``tools.flight.files.png_request``); the answer on stdout is ``{"png": PATH or null}`` (null: no series to draw) or
+``{"error": "TypeName: message"}`` (an OSError, ValueError or KeyError while drawing: the picture is missing, the
+flight is not failed, as when the launcher drew it itself).  stdin closed without a request (a flight that ended
+before it could draw, or ``png=False``): the helper exits 0 without drawing.  Anything else (a crash, no answer)
+is for ``PngHelper.result`` to report: the launcher then draws the picture itself.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import os
+import select
+import subprocess
+import sys
+from pathlib import Path
+
+from tools.series_files import load_series
+
+EXPECTED = (OSError, ValueError, KeyError)  # what a picture may fail with without failing the flight
+PNG_MAX_POINTS = 20_000  # flight.png plots every k-th step of a long flight: bounded memory whatever its length
+
+
+def draw_flight_png(
+    out: str | os.PathLike, name: str, lv: float, lockstep: bool, rate: float, u_limit_deg: float, metrics: dict
+) -> Path | None:
+    """DIR/flight.png from the flight's series (``tools.plots.flight_figure``); None without series."""
+    from tools.plots import save_flight_figure
+    from tools.scenario import RunResult
+
+    out = Path(out)
+    series = load_series(out, max_points=PNG_MAX_POINTS)
+    if not series or series.get("t") is None or not len(series["t"]):
+        return None
+    res = RunResult(name, lv, metrics, series)
+    mode = "lockstep" if lockstep else "real time"
+    title = f"Flight {out.name}: {res.name}, {mode}, {rate:g} Hz"
+    return save_flight_figure(res, out / "flight.png", math.radians(u_limit_deg), title)
+
+
+def _warm_up() -> None:
+    """Import what drawing needs and build mathtext's parser (the first ``$...$`` label costs about 0.1 s)."""
+    from matplotlib.mathtext import MathTextParser
+
+    import tools.plots  # noqa: F401  (matplotlib's Figure and Agg canvas, tools.scenario)
+
+    MathTextParser("agg").parse(r"$K_e$", 100)
+
+
+def main() -> int:
+    _warm_up()
+    line = sys.stdin.readline()
+    if not line.strip():
+        return 0  # no request: nothing to draw
+    request = json.loads(line)
+    try:
+        png = draw_flight_png(**request)
+        answer = {"png": None if png is None else str(png)}
+    except EXPECTED as exc:
+        answer = {"error": f"{type(exc).__name__}: {exc}"}
+    sys.stdout.write(json.dumps(answer) + "\n")
+    sys.stdout.flush()
+    # The launcher reads the answer line and goes on; tearing matplotlib's modules down would only keep the
+    # process (and a core) busy for another 0.1 s.
+    os._exit(0)
+
+
+class PngHelper:
+    """The helper process, started at once; ``request`` sends the one request, ``result`` waits for the answer."""
+
+    def __init__(self):
+        self.proc = subprocess.Popen(
+            [sys.executable, "-m", "tools.flight_picture"],
+            stdin=subprocess.PIPE,
+            stdout=subprocess.PIPE,  # the answer; its warnings and errors go to the launcher's stderr, as before
+            text=True,
+            start_new_session=True,  # Ctrl-C reaches the launcher only, which still asks for the picture
+            env=dict(os.environ, PYTHONUNBUFFERED="1"),
+        )
+        self._sent = False
+
+    def request(self, request: dict) -> bool:
+        """Send the request (once); False if the helper is gone (then draw in this process)."""
+        if self._sent:
+            raise RuntimeError("PngHelper: one request per helper")
+        self._sent = True
+        try:
+            self.proc.stdin.write(json.dumps(request) + "\n")
+            self.proc.stdin.close()
+        except (BrokenPipeError, OSError, ValueError):
+            return False
+        return True
+
+    def result(self, timeout_s: float = 120.0) -> tuple[bool, str | None, str | None]:
+        """(answered, png path or None, error or None).  ``answered`` False: the helper crashed, said nothing
+        readable or took longer than ``timeout_s`` (it is killed): the caller draws the picture itself."""
+        line = ""
+        if select.select([self.proc.stdout], [], [], timeout_s)[0]:
+            line = self.proc.stdout.readline()  # the answer is one line written at once (or EOF: it crashed)
+        try:
+            answer = json.loads(line) if line.strip() else None
+        except ValueError:
+            answer = None
+        if not isinstance(answer, dict):  # crashed (its traceback went to stderr), or silent too long
+            self.close()
+            return False, None, None
+        return True, answer.get("png"), answer.get("error")
+
+    def close(self) -> None:
+        """End the helper: after its answer it exits by itself; without a request (or silent past the timeout) it
+        is killed, it has nothing to keep."""
+        requested = self._sent
+        self._sent = True
+        if self.proc.poll() is None:
+            try:
+                self.proc.wait(timeout=0.5 if requested else 0.0)  # after its answer it is exiting already
+            except subprocess.TimeoutExpired:
+                self.proc.kill()
+                self.proc.wait()
+        for f in (self.proc.stdin, self.proc.stdout):
+            try:
+                f.close()
+            except (OSError, ValueError):
+                pass
+
+
+if __name__ == "__main__":
+    sys.exit(main())
