@@ -45,16 +45,27 @@ def test_readme_break_points_equal_a_fresh_run(fresh):
     assert _block(README.read_text(encoding="utf-8"), "robustness-breaks") == format_breaks(fresh)
 
 
-def test_readme_long_flight_rows_in_still_air_equal_a_fresh_run():
+@pytest.fixture(scope="module")
+def long_flights():
+    """The long-flight study as the README's command flies it (seed 1, 10 runs under each condition): 120 runs of
+    600 s, about a minute, flown once for both long-flight tests.  {controller: {(condition, run): record}}."""
+    from tools.study import LONG_CONDITIONS, LONG_CONTROLLERS, LONG_DURATION_S, Task, merge, simulate
+
+    pairs = tuple((c, i) for c in LONG_CONDITIONS for i in range(10))
+    tasks = [Task(c, pairs, 1, LONG_DURATION_S) for c in LONG_CONTROLLERS]
+    return merge(tasks, [simulate(t) for t in tasks])
+
+
+def test_readme_long_flight_rows_in_still_air_equal_a_fresh_run(long_flights):
     """The nominal rows of the long-flight table (every nominal run with the same PFC is the same flight, so any
-    runs give the median) and the drift the README quotes."""
-    from tools.study import LONG_DURATION_S, Task, format_long, long_flight_summary, merge, simulate
+    runs give the median) and the drift the README quotes: from nominal runs 0-3 of the fresh study, the very
+    flights a batch of just those four flies (a run's numbers do not depend on its batch: tests/test_study.py)."""
+    from tools.study import format_long, long_flight_summary
 
     text = README.read_text(encoding="utf-8")
     controllers = ("clsac", "clsac_leak", "clsac_projection")
     pairs = tuple(("nominal", i) for i in range(4))
-    tasks = [Task(c, pairs, 1, LONG_DURATION_S) for c in controllers]
-    merged = merge(tasks, [simulate(t) for t in tasks])
+    merged = {c: {p: long_flights[c][p] for p in pairs} for c in controllers}
     summary = {
         "long_flight": {"controllers": {c: {"nominal": long_flight_summary(merged[c], "nominal")} for c in controllers}}
     }
@@ -67,30 +78,18 @@ def test_readme_long_flight_rows_in_still_air_equal_a_fresh_run():
     assert f"breaks out in the next window ({paper[7]:.1f} deg)" in text
 
 
-def test_readme_long_flight_table_equals_a_fresh_run():
+def test_readme_long_flight_table_equals_a_fresh_run(long_flights):
     """The whole long-flight table, as the README's command flies it (seed 1, 10 runs under each condition): the
     cell issue 17 found irreproducible (clsac / moderate / robust, 570-600 s: 63.1 deg with one BLAS kernel, 70.7
-    deg with another) is now the same on any CPU (tests/test_study.py: the same bits under every kernel).  About
-    two minutes: 120 runs of 600 s."""
-    from tools.study import (
-        LONG_CONDITIONS,
-        LONG_CONTROLLERS,
-        LONG_DURATION_S,
-        Task,
-        format_long,
-        long_flight_summary,
-        merge,
-        simulate,
-    )
+    deg with another) is now the same on any CPU (tests/test_study.py: the same bits under every kernel)."""
+    from tools.study import LONG_CONDITIONS, LONG_CONTROLLERS, format_long, long_flight_summary
 
     text = README.read_text(encoding="utf-8")
-    pairs = tuple((c, i) for c in LONG_CONDITIONS for i in range(10))
-    tasks = [Task(c, pairs, 1, LONG_DURATION_S) for c in LONG_CONTROLLERS]
-    merged = merge(tasks, [simulate(t) for t in tasks])
     summary = {
         "long_flight": {
             "controllers": {
-                c: {cond: long_flight_summary(merged[c], cond) for cond in LONG_CONDITIONS} for c in LONG_CONTROLLERS
+                c: {cond: long_flight_summary(long_flights[c], cond) for cond in LONG_CONDITIONS}
+                for c in LONG_CONTROLLERS
             }
         }
     }
