@@ -138,14 +138,3 @@ def _phase(runs: int, duration_s: float, wall_s: float) -> dict:
         "wall_s": wall_s,
         "us_per_aircraft_s": 1e6 * wall_s / aircraft_s if aircraft_s else None,
     }
-
-
-def _phase(runs: int, duration_s: float, wall_s: float) -> dict:
-    """One phase's simulation time and its cost per simulated second per aircraft (us)."""
-    aircraft_s = runs * duration_s
-    return {
-        "runs": runs,
-        "duration_s": duration_s,
-        "wall_s": wall_s,
-        "us_per_aircraft_s": 1e6 * wall_s / aircraft_s if aircraft_s else None,
-    }
