@@ -12,6 +12,7 @@ from autopilot.shared.mavlink import (
     frame_ms,
     frame_usec,
 )
+from autopilot.shared.process import LOCKSTEP_SWITCH_INTERVAL_S, gil_switch_interval
 
 
 class LockstepScheduler:
@@ -112,6 +113,11 @@ class LockstepScheduler:
             self.tlog.drain()  # this frame's ATTITUDE, SERVO_OUTPUT_RAW and GCS stream, stamped when they went
 
     def run_lockstep(self) -> int:
+        # The Rerun writer thread lets go of the GIL within 100 us when the loop wants it, not Python's 5 ms.
+        with gil_switch_interval(LOCKSTEP_SWITCH_INTERVAL_S):
+            return self._run_lockstep()
+
+    def _run_lockstep(self) -> int:
         opts = self.opts
         self._status_state = M.MAV_STATE_STANDBY
         self._send_heartbeat()
@@ -122,17 +128,19 @@ class LockstepScheduler:
         lockstep_spin = opts.lockstep_spin_s
         perf = time.perf_counter
         poll = self._poller.poll
+        read = self._read_ready
         prev_pass = now
         while not self.stop_requested and not self.finished:
             if lockstep_spin > 0:
                 # Busy-poll briefly before sleeping: the SITL's next frame usually comes within tens of us,
                 # and a sleep/wake-up costs more than that on a virtual machine.  One poll(2) of both sockets
-                # per turn (an empty recvfrom costs twice that, and raises).
+                # per turn (an empty recvfrom costs twice that, and raises); only the links it finds ready are read.
                 n0 = self.sitl.rx_datagrams + self.gcs.rx_datagrams
                 t_end = perf() + lockstep_spin
                 while perf() < t_end:
-                    if poll(0):
-                        self._drain()
+                    ready = poll(0)
+                    if ready:
+                        read(ready)
                         if self.sitl.rx_datagrams + self.gcs.rx_datagrams != n0:
                             break
                 else:
