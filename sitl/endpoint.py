@@ -31,7 +31,6 @@ from autopilot.shared.fastmav import HOT_DECODERS
 from autopilot.shared.link import UdpLink
 from autopilot.shared.mavlink import frame_ms, frame_usec, mavlink, usec_diff, vehicle_ids
 from autopilot.shared.numerics import wrap_pi
-from autopilot.shared.process import LOCKSTEP_SWITCH_INTERVAL_S, gil_switch_interval
 from autopilot.shared.pwm import PWM_VALID_RANGE, PwmMap
 from autopilot.shared.series import SeriesRecorder
 from autopilot.shared.signing import SIGNING_LINK_SIM, Signing
@@ -252,11 +251,6 @@ class Sitl:
 
     # -------------------------------------------------------------- lockstep
     def run_lockstep(self) -> int:
-        # The Rerun writer thread lets go of the GIL within 100 us when the loop wants it, not Python's 5 ms.
-        with gil_switch_interval(LOCKSTEP_SWITCH_INTERVAL_S):
-            return self._run_lockstep()
-
-    def _run_lockstep(self) -> int:
         opts = self.opts
         rate = opts.rate_hz
         ratio = opts.physics_rate_hz / rate

@@ -1,14 +1,10 @@
 """What paces a lockstep flight besides the two processes' frames (docs/design.md, "Lockstep"): the GCS script's nap
-between two passes, which follows the sim rate it sees and keeps its schedule ahead, and the GIL switch interval
-both lockstep loops run with, restored when they end."""
+between two passes, which follows the sim rate it sees and keeps its schedule ahead."""
 
 from __future__ import annotations
 
-import sys
-
 import pytest
 
-from autopilot.shared.process import LOCKSTEP_SWITCH_INTERVAL_S, gil_switch_interval
 from tools.gcs import LOCKSTEP_NAP_MAX_S, LOCKSTEP_NAP_MIN_S, Gcs, GcsOptions
 from tools.profiles import Profile
 
@@ -47,14 +43,3 @@ def test_nap_is_the_shortest_while_sim_time_stands_still_or_is_unknown(gcs):
     naps = _naps(gcs, [(1.0, None), (1.1, 500), (1.2, 500), (1.3, 400), (1.31, 1400)])
     assert naps[:4] == [LOCKSTEP_NAP_MIN_S] * 4
     assert naps[4] == LOCKSTEP_NAP_MAX_S  # 1 s of sim time in 10 ms: 100x, half the lookahead is 25 ms
-
-
-def test_gil_switch_interval_for_the_block_then_restored():
-    before = sys.getswitchinterval()
-    with gil_switch_interval(LOCKSTEP_SWITCH_INTERVAL_S):
-        assert sys.getswitchinterval() == pytest.approx(LOCKSTEP_SWITCH_INTERVAL_S)
-    assert sys.getswitchinterval() == before
-    with pytest.raises(RuntimeError), gil_switch_interval(1e-3):
-        assert sys.getswitchinterval() == pytest.approx(1e-3)
-        raise RuntimeError("the loop failed")
-    assert sys.getswitchinterval() == before  # restored on the way out of a failing loop too

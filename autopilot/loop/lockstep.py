@@ -12,7 +12,6 @@ from autopilot.shared.mavlink import (
     frame_ms,
     frame_usec,
 )
-from autopilot.shared.process import LOCKSTEP_SWITCH_INTERVAL_S, gil_switch_interval
 
 
 class LockstepScheduler:
@@ -113,11 +112,6 @@ class LockstepScheduler:
             self.tlog.drain()  # this frame's ATTITUDE, SERVO_OUTPUT_RAW and GCS stream, stamped when they went
 
     def run_lockstep(self) -> int:
-        # The Rerun writer thread lets go of the GIL within 100 us when the loop wants it, not Python's 5 ms.
-        with gil_switch_interval(LOCKSTEP_SWITCH_INTERVAL_S):
-            return self._run_lockstep()
-
-    def _run_lockstep(self) -> int:
         opts = self.opts
         self._status_state = M.MAV_STATE_STANDBY
         self._send_heartbeat()

@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import contextlib
 import errno
 import json
 import os
@@ -17,22 +16,6 @@ EXIT_USAGE = 2  # a bad flag: one line on stderr (OneLineArgumentParser)
 EXIT_OUT_OF_ENVELOPE = 3  # the launcher: flown to the end, but not controlled (autopilot.envelope)
 EXIT_ADDRESS_IN_USE = 98  # a UDP port was taken (errno EADDRINUSE): the launcher retries with other ports
 EXIT_INTERRUPTED = 130  # the launcher was stopped with Ctrl-C / SIGTERM
-
-# Lockstep: the longest another thread of the process (the Rerun writer) keeps the GIL while the loop waits for it.
-# Python's default, 5 ms, is hundreds of frames at 100 Hz and 100x real time (docs/design.md, "Lockstep").
-LOCKSTEP_SWITCH_INTERVAL_S = 100e-6
-
-
-@contextlib.contextmanager
-def gil_switch_interval(seconds: float):
-    """``sys.setswitchinterval(seconds)`` for the block, the interval before restored after it: how long a thread
-    that wants the GIL waits before it asks the thread holding it to let go."""
-    before = sys.getswitchinterval()
-    sys.setswitchinterval(seconds)
-    try:
-        yield
-    finally:
-        sys.setswitchinterval(before)
 
 
 def exit_code_for(exc: OSError) -> int:
