@@ -58,6 +58,10 @@ M = mavlink
 SELF_STALL_S = 1.0  # one pass of the loop takes ~20 ms: a pass this long means this process did not run
 CLOCK_RESTART_MS = 1000  # the vehicle's sim time this far behind the one held: its clock restarted
 CLOCK_AHEAD_MS = 1000  # the bound on a sim time ahead of the clock held (see Gcs._sim)
+# Lockstep: the wall time between two passes (reading the telemetry in batches, then scheduling): half the lookahead
+# at the sim rate seen, within these bounds (Gcs._lockstep_nap); the shortest while sim time stands still.
+LOCKSTEP_NAP_MIN_S = 0.004
+LOCKSTEP_NAP_MAX_S = 0.02
 
 
 @dataclass(frozen=True)
@@ -69,7 +73,7 @@ class GcsOptions:
     lockstep: bool = False  # schedule the profile on sim time
     duration: float = 0.0  # profile length; 0 = until the vehicle powers off
     start_time: float | None = None  # sim time of the profile's start; None = the first sim time seen
-    lookahead: float = 1.0  # lockstep: schedule this far ahead of the newest sim time seen
+    lookahead: float = 5.0  # lockstep: schedule this far ahead of the newest sim time seen
     point_dt: float = 0.1  # lockstep: one setpoint every point_dt besides the discontinuities
     setpoint_rate: float = 20.0  # real time: setpoints per wall second
     print_rate: float = 2.0  # live lines per wall second
@@ -125,6 +129,7 @@ class Gcs:
         self.target = math.nan
         self.next_point_rel_ms = 0
         self.points_sent = 0
+        self._nap_from: tuple[float, int] | None = None  # lockstep: (wall, sim ms) at the last pass (_lockstep_nap)
         self.statustexts = []
         self._texts = StatusTextAssembler()
         self.last_vehicle_rx = None
@@ -240,6 +245,18 @@ class Gcs:
             self._send_setpoint(abs_ms, self.profile.value(rel / 1000.0))
         self.next_point_rel_ms = end_rel + 1
 
+    def _lockstep_nap(self, now: float) -> float:
+        """Lockstep: how long to sleep before the next pass (wall s): half the lookahead at the sim rate seen since
+        the last pass, within LOCKSTEP_NAP_MIN_S..LOCKSTEP_NAP_MAX_S; the shortest while sim time stands still
+        (the vehicle may be waiting for this schedule).  Each wake-up takes a core from one of the two lockstep
+        processes on a small machine, so the fewer the better, as long as the schedule stays ahead."""
+        prev, sim = self._nap_from, self.sim_ms
+        self._nap_from = None if sim is None else (now, sim)
+        if prev is None or sim is None or sim <= prev[1] or now <= prev[0]:
+            return LOCKSTEP_NAP_MIN_S
+        sim_per_wall = (sim - prev[1]) * 1e-3 / (now - prev[0])
+        return min(LOCKSTEP_NAP_MAX_S, max(LOCKSTEP_NAP_MIN_S, 0.5 * self.opts.lookahead / sim_per_wall))
+
     def run(self) -> int:
         try:
             return self._run()
@@ -292,8 +309,8 @@ class Gcs:
             if o.lockstep:
                 self._schedule()
                 # Lockstep runs many frames per millisecond: read the telemetry in batches rather than waking
-                # for every datagram (the schedule is a second of sim time ahead, so this never stalls the run).
-                time.sleep(0.004)
+                # for every datagram (the schedule is --lookahead of sim time ahead: the nap never stalls the run).
+                time.sleep(self._lockstep_nap(now))
             elif now >= next_sp and self.sim_ms is not None:
                 next_sp = max(next_sp + sp_period, now)
                 self._send_setpoint(0, self.profile.value((self.sim_ms - self.origin_ms) / 1000.0))
@@ -404,9 +421,10 @@ def build_parser() -> OneLineArgumentParser:
     p.add_argument(
         "--lookahead",
         type=timeout_s,
-        default=1.0,
+        default=GcsOptions.lookahead,
         metavar="S",
-        help="lockstep: schedule this far ahead of the newest sim time seen (default 1)",
+        help="lockstep: schedule this far ahead of the newest sim time seen (default 5; the autopilot refuses "
+        "setpoints more than 10 s ahead)",
     )
     p.add_argument(
         "--point-dt",

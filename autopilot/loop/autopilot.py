@@ -155,6 +155,7 @@ class Autopilot(LinkHandlers, LockstepScheduler, RealtimeScheduler):
         self.t_last_step = None
         # select(2) has microsecond timeouts (epoll rounds up to whole milliseconds: 1 ms of jitter)
         self._fds = [self.sitl.sock, self.gcs.sock]
+        self._sitl_fd = self.sitl.sock.fileno()
         self._sitl_handler = self._on_sitl
         self._gcs_handler = self._on_gcs
         self.sitl.on_hot(ATTITUDE, self._on_attitude)  # the usual ATTITUDE datagram, without a message object

@@ -227,9 +227,14 @@ class LinkHandlers:
             else:
                 self.gcs.poll(self._gcs_handler)
 
-    def _drain(self):
-        self.sitl.poll(self._sitl_handler)
-        self.gcs.poll(self._gcs_handler)
+    def _read_ready(self, ready) -> None:
+        """Read the links a ``poll(2)`` found ready (``ready``: its (fd, events) pairs, the SITL's first): an empty
+        link is not read (its ``recvfrom`` would only raise)."""
+        for fd, _ev in ready:
+            if fd == self._sitl_fd:
+                self.sitl.poll(self._sitl_handler)
+            else:
+                self.gcs.poll(self._gcs_handler)
 
     def _judge_envelope(self, res: StepResult) -> None:
         """One step against the envelope (``autopilot.envelope``): measured roll, the law's limited command and the

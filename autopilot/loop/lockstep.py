@@ -122,17 +122,19 @@ class LockstepScheduler:
         lockstep_spin = opts.lockstep_spin_s
         perf = time.perf_counter
         poll = self._poller.poll
+        read = self._read_ready
         prev_pass = now
         while not self.stop_requested and not self.finished:
             if lockstep_spin > 0:
                 # Busy-poll briefly before sleeping: the SITL's next frame usually comes within tens of us,
                 # and a sleep/wake-up costs more than that on a virtual machine.  One poll(2) of both sockets
-                # per turn (an empty recvfrom costs twice that, and raises).
+                # per turn (an empty recvfrom costs twice that, and raises); only the links it finds ready are read.
                 n0 = self.sitl.rx_datagrams + self.gcs.rx_datagrams
                 t_end = perf() + lockstep_spin
                 while perf() < t_end:
-                    if poll(0):
-                        self._drain()
+                    ready = poll(0)
+                    if ready:
+                        read(ready)
                         if self.sitl.rx_datagrams + self.gcs.rx_datagrams != n0:
                             break
                 else:
