@@ -216,6 +216,13 @@ def build_parser() -> OneLineArgumentParser:
     )
     g.add_argument("--no-rrd", dest="rrd", action="store_false", help="do not write DIR/flight.rrd")
     g.add_argument(
+        "--rrd-live",
+        action="store_true",
+        help="the autopilot and the SITL write their own parts of DIR/flight.rrd with rerun while they fly, as with a "
+        "viewer (by default a flight without a viewer has them spool their rows, recorded by the launcher afterwards: "
+        "the same recording, no rerun in either process)",
+    )
+    g.add_argument(
         "--rrd-merge-max-mb",
         type=bounded(0.0, 1e6, "MB"),
         default=MERGE_MAX_MB,
