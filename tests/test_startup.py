@@ -286,6 +286,53 @@ def test_only_a_lockstep_flight_has_the_picture_helper_beside_it(tmp_path):
     assert not _picture_helpers()  # none left behind
 
 
+def test_the_command_starts_the_picture_helper_before_its_own_imports():
+    """``python -m tools.launch`` tells from its words alone whether a helper will be wanted (exact spellings only:
+    anything unsure means no early helper, and the flight starts one as before)."""
+    from tools.flight_picture import helper_wanted
+
+    assert helper_wanted(["--lockstep", "--duration", "30"])
+    for argv in (
+        [],
+        ["--duration", "30"],
+        ["--lockstep", "--no-png"],
+        ["--lockstep", "--no-series"],
+        ["--lockstep", "--pin"],
+        ["--lockstep", "--help"],
+        ["--lockstep", "-h"],
+        ["--lock", "--duration", "3"],
+    ):
+        assert not helper_wanted(argv), argv
+    launcher = (ROOT / "tools" / "launch.py").read_text()
+    assert launcher.index("EARLY_PNG_HELPER = PngHelper()") < launcher.index("from tools.flight import")
+
+
+@pytest.mark.e2e
+def test_an_adopted_helper_draws_the_picture_or_is_closed_when_not_wanted(tmp_path):
+    """A helper started before the flight is the one that draws a lockstep flight's picture; a flight that does not
+    want one (real time) closes it at its start, and still leaves flight.png, drawn at the end."""
+    from tools.flight import Flight
+
+    for kw, used in ((dict(lockstep=True), True), (dict(lockstep=False), False)):
+        helper = PngHelper()
+        flight = Flight(duration=1.0, out=tmp_path / f"f{used}", quiet=True, rrd=False, **kw)
+        flight.adopt_png_helper(helper)
+        with flight:
+            assert (helper.proc.poll() is None) is used, kw
+            assert (flight._png is helper) is used  # noqa: SLF001 - which helper the flight holds
+            res = flight.wait(timeout=120)
+        assert res is not None and res.ok, (kw, res and res.reason)
+        assert (tmp_path / f"f{used}" / "flight.png").read_bytes()[:4] == b"\x89PNG"
+        assert helper.proc.poll() is not None  # ended with the flight either way
+    late = PngHelper()
+    try:
+        with pytest.raises(RuntimeError, match="started already"):
+            flight.adopt_png_helper(late)
+    finally:
+        late.close()
+    assert late.proc.poll() is not None
+
+
 # ---------------------------------------------------------------------------------------- lockstep busy-poll
 def test_the_launcher_asks_both_lockstep_processes_for_a_short_busy_poll(tmp_path):
     """``python -m tools.launch`` flies lockstep with a 100 us busy-poll on both sides (a 500 us spin waiting for a
