@@ -263,3 +263,34 @@ def test_a_file_only_flight_records_what_a_live_one_does(tmp_path):
         map(str, rrd.blueprint_components(spooled, "ViewBlueprint:display_name"))
     ) == sorted(map(str, rrd.blueprint_components(live, "ViewBlueprint:display_name")))
     assert rrd.verify(spooled)[0]  # with rerun's footer (index), as the live flight's
+
+
+def test_the_rrd_tool_records_spools_by_hand(tmp_path):
+    """``python -m tools.rrd record OUT SPOOL...``: one recording with the flight layout and rerun's footer; a file
+    that is not a spool is one line on stderr, exit 1."""
+    rid = tm.new_recording_id()
+    with tm.Telemetry("autopilot", rid, spool_path=tmp_path / "autopilot.spool") as tel:
+        _fill(tel)
+    spools = [str(tmp_path / "autopilot.spool"), str(_spool(tmp_path, rid, "sitl.spool"))]
+    r = subprocess.run(
+        [sys.executable, "-m", "tools.rrd", "record", str(tmp_path / "f.rrd"), *spools],
+        capture_output=True,
+        text=True,
+        timeout=120,
+        cwd=ROOT,
+    )
+    assert r.returncode == 0, r.stderr
+    assert rrd.recordings(tmp_path / "f.rrd") == [(tm.APPLICATION_ID, rid)]
+    assert rrd.has_blueprint(tmp_path / "f.rrd") and rrd.verify(tmp_path / "f.rrd")[0]
+    assert (
+        len(rrd.load(tmp_path / "f.rrd")[L.AP_ROLL].t) == N and len(rrd.load(tmp_path / "f.rrd")[S.SITL_ROLL].t) == 10
+    )
+    (tmp_path / "x.spool").write_text("hello")
+    r = subprocess.run(
+        [sys.executable, "-m", "tools.rrd", "record", str(tmp_path / "g.rrd"), str(tmp_path / "x.spool")],
+        capture_output=True,
+        text=True,
+        timeout=120,
+        cwd=ROOT,
+    )
+    assert r.returncode == 1 and r.stderr.strip().count("\n") == 0 and "not a telemetry spool" in r.stderr
