@@ -283,7 +283,8 @@ def test_the_rrd_tool_records_spools_by_hand(tmp_path):
     assert rrd.recordings(tmp_path / "f.rrd") == [(tm.APPLICATION_ID, rid)]
     assert rrd.has_blueprint(tmp_path / "f.rrd") and rrd.verify(tmp_path / "f.rrd")[0]
     assert (
-        len(rrd.load(tmp_path / "f.rrd")[L.AP_ROLL].t) == N and len(rrd.load(tmp_path / "f.rrd")[S.SITL_ROLL].t) == 10
+        len(rrd.load(tmp_path / "f.rrd")[L.AP_ROLL].t) == N
+        and len(rrd.load(tmp_path / "f.rrd")[S.SITL_ROLL].t) == N + 10
     )
     (tmp_path / "x.spool").write_text("hello")
     r = subprocess.run(
