@@ -295,3 +295,38 @@ def test_the_rrd_tool_records_spools_by_hand(tmp_path):
         cwd=ROOT,
     )
     assert r.returncode == 1 and r.stderr.strip().count("\n") == 0 and "not a telemetry spool" in r.stderr
+
+
+def _peak_rss_recording(tmp_path: Path, minutes: int) -> tuple[float, int]:
+    """(peak RSS MB of a fresh process that records a spool of ``minutes`` of a 100 Hz autopilot table, .rrd bytes)."""
+    code = f"""
+import resource, sys
+import numpy as np
+from autopilot.shared import telemetry as tm
+from autopilot.telemetry import layout as L
+tel = tm.Telemetry("autopilot", "r", spool_path=sys.argv[1])
+table = tel.table(L.AUTOPILOT)
+row = tuple(float(x) for x in np.arange(len(L.AUTOPILOT.fields)))
+for k in range({minutes} * 6000):
+    table.push((k * 0.01, 1.7e9 + k * 0.01, row))
+    if k % 5000 == 4999:
+        tel.flush()
+tel.close()
+base = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss
+tm.record_spools([sys.argv[1]], sys.argv[2])
+print(resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024)
+"""
+    spool, out = tmp_path / f"{minutes}.spool", tmp_path / f"{minutes}.rrd"
+    r = subprocess.run([sys.executable, "-c", code, str(spool), str(out)], capture_output=True, text=True, timeout=300)
+    assert r.returncode == 0, r.stderr
+    return float(r.stdout.split()[-1]), out.stat().st_size
+
+
+def test_recording_spools_takes_bounded_memory(tmp_path):
+    """Recording is read a record at a time and flushed to the file every FLUSH_EVERY_BYTES: six times the flight,
+    six times the file, about the same peak memory (without the flushes rerun queued the recording: measured 55 MB
+    more for the hour than for 10 minutes)."""
+    short_mb, short_size = _peak_rss_recording(tmp_path, 10)
+    long_mb, long_size = _peak_rss_recording(tmp_path, 60)
+    assert long_size > 5 * short_size and long_size - short_size > 75e6
+    assert long_mb - short_mb < 15, (short_mb, long_mb)
