@@ -1,7 +1,8 @@
 """A flight in about a second (issue 21): what the launcher's start-up and end no longer wait for, each part checked
 on its own with real processes and files: no scipy at start-up, the flight layout cached on disk
-(``tools.layout_cache``), flight.png drawn by a helper process (``tools.flight_picture``) and children's exits seen
-at once (``tools.children.Child.wait``)."""
+(``tools.layout_cache``), flight.png drawn by a helper process (``tools.flight_picture``), started before the
+command's own imports, children's exits seen at once (``tools.children.Child.wait``), and no rerun in the flying
+processes of a file-only flight (they spool their rows: ``tests/test_telemetry_spool.py``)."""
 
 from __future__ import annotations
 
@@ -224,6 +225,28 @@ def test_a_launch_leaves_every_file_with_the_picture_from_the_helper(tmp_path):
     assert f["png"] == str(tmp_path / "f" / "flight.png") and Path(f["png"]).read_bytes()[:4] == b"\x89PNG"
     assert f["rrd_indexed"] and rrd.has_blueprint(f["rrd"])
     assert not (tmp_path / "f" / ".parts").exists()
+
+
+@pytest.mark.e2e
+def test_a_file_only_flight_flies_without_rerun_in_its_processes(tmp_path, monkeypatch):
+    """The autopilot and the SITL of a default (file-only) lockstep flight import neither rerun nor pyarrow
+    (``python -X importtime`` in each child's log); with ``rrd_live`` they do, as before, and both leave flight.rrd."""
+    from tools.flight import Flight
+
+    monkeypatch.setenv("PYTHONPROFILEIMPORTTIME", "1")  # each child logs every import to its stderr (its .log)
+    for live in (False, True):
+        out = tmp_path / f"live{live}"
+        res = Flight(lockstep=True, duration=1.0, out=out, quiet=True, png=False, rrd_live=live).run()
+        assert res.ok, res.reason
+        assert res.summary["files"]["rrd_indexed"] and (out / "flight.rrd").stat().st_size > 10_000
+        for name in ("autopilot", "sitl"):
+            imported = {
+                line.rsplit("|", 1)[-1].strip()
+                for line in (out / f"{name}.log").read_text().splitlines()
+                if line.startswith("import time:")
+            }
+            assert "numpy" in imported, name  # the log does list the child's imports
+            assert ("rerun" in imported and "pyarrow" in imported) is live, (name, live)
 
 
 @pytest.mark.e2e
