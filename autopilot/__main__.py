@@ -50,6 +50,7 @@ from autopilot.shared.process import (
     write_json_atomic,
 )
 from autopilot.shared.telemetry.flags import add_arguments as add_telemetry_arguments
+from autopilot.shared.telemetry.flags import check_arguments as check_telemetry_arguments
 from autopilot.telemetry import attach as attach_telemetry
 
 
@@ -237,7 +238,8 @@ def _gcs_ids(parser, values):
 def main(argv=None) -> int:
     parser = build_parser()
     args = parser.parse_args(argv)
-    check_output_files(parser, args, "tlog", "stats_json", "series", "rrd")
+    check_output_files(parser, args, "tlog", "stats_json", "series", "rrd", "telemetry_spool")
+    check_telemetry_arguments(parser, args)
     pwm = pwm_from_args(parser, args)
     if args.busy_wait:
         if args.lockstep:

@@ -40,6 +40,7 @@ from autopilot.shared.process import (
     write_json_atomic,
 )
 from autopilot.shared.telemetry.flags import add_arguments as add_telemetry_arguments
+from autopilot.shared.telemetry.flags import check_arguments as check_telemetry_arguments
 from sitl import disturbances
 from sitl import plant as plants
 from sitl.telemetry import attach as attach_telemetry
@@ -169,7 +170,8 @@ def ending(exit_reason: str) -> str:
 def main(argv=None) -> int:
     parser = build_parser()
     args = parser.parse_args(argv)
-    check_output_files(parser, args, "stats_json", "series", "rrd")
+    check_output_files(parser, args, "stats_json", "series", "rrd", "telemetry_spool")
+    check_telemetry_arguments(parser, args)
     pwm = pwm_from_args(parser, args)
     apply_cpu(parser, args.cpu)
     if args.physics_rate is None:

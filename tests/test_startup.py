@@ -1,7 +1,8 @@
 """A flight in about a second (issue 21): what the launcher's start-up and end no longer wait for, each part checked
 on its own with real processes and files: no scipy at start-up, the flight layout cached on disk
-(``tools.layout_cache``), flight.png drawn by a helper process (``tools.flight_picture``) and children's exits seen
-at once (``tools.children.Child.wait``)."""
+(``tools.layout_cache``), flight.png drawn by a helper process (``tools.flight_picture``), started before the
+command's own imports, children's exits seen at once (``tools.children.Child.wait``), and no rerun in the flying
+processes of a file-only flight (they spool their rows: ``tests/test_telemetry_spool.py``)."""
 
 from __future__ import annotations
 
@@ -227,6 +228,28 @@ def test_a_launch_leaves_every_file_with_the_picture_from_the_helper(tmp_path):
 
 
 @pytest.mark.e2e
+def test_a_file_only_flight_flies_without_rerun_in_its_processes(tmp_path, monkeypatch):
+    """The autopilot and the SITL of a default (file-only) lockstep flight import neither rerun nor pyarrow
+    (``python -X importtime`` in each child's log); with ``rrd_live`` they do, as before, and both leave flight.rrd."""
+    from tools.flight import Flight
+
+    monkeypatch.setenv("PYTHONPROFILEIMPORTTIME", "1")  # each child logs every import to its stderr (its .log)
+    for live in (False, True):
+        out = tmp_path / f"live{live}"
+        res = Flight(lockstep=True, duration=1.0, out=out, quiet=True, png=False, rrd_live=live).run()
+        assert res.ok, res.reason
+        assert res.summary["files"]["rrd_indexed"] and (out / "flight.rrd").stat().st_size > 10_000
+        for name in ("autopilot", "sitl"):
+            imported = {
+                line.rsplit("|", 1)[-1].strip()
+                for line in (out / f"{name}.log").read_text().splitlines()
+                if line.startswith("import time:")
+            }
+            assert "numpy" in imported, name  # the log does list the child's imports
+            assert ("rerun" in imported and "pyarrow" in imported) is live, (name, live)
+
+
+@pytest.mark.e2e
 def test_the_launch_bench_times_the_command_and_the_import_it_is_compared_with(tmp_path):
     """``python -m tools.bench launch``: real launches, every file checked, the figures and their targets."""
     from tools.bench import launch
@@ -284,6 +307,53 @@ def test_only_a_lockstep_flight_has_the_picture_helper_beside_it(tmp_path):
         assert res.summary["files"]["png"] == str(out / "flight.png"), kw
         assert (out / "flight.png").read_bytes()[:4] == b"\x89PNG"
     assert not _picture_helpers()  # none left behind
+
+
+def test_the_command_starts_the_picture_helper_before_its_own_imports():
+    """``python -m tools.launch`` tells from its words alone whether a helper will be wanted (exact spellings only:
+    anything unsure means no early helper, and the flight starts one as before)."""
+    from tools.flight_picture import helper_wanted
+
+    assert helper_wanted(["--lockstep", "--duration", "30"])
+    for argv in (
+        [],
+        ["--duration", "30"],
+        ["--lockstep", "--no-png"],
+        ["--lockstep", "--no-series"],
+        ["--lockstep", "--pin"],
+        ["--lockstep", "--help"],
+        ["--lockstep", "-h"],
+        ["--lock", "--duration", "3"],
+    ):
+        assert not helper_wanted(argv), argv
+    launcher = (ROOT / "tools" / "launch.py").read_text()
+    assert launcher.index("EARLY_PNG_HELPER = PngHelper()") < launcher.index("from tools.flight import")
+
+
+@pytest.mark.e2e
+def test_an_adopted_helper_draws_the_picture_or_is_closed_when_not_wanted(tmp_path):
+    """A helper started before the flight is the one that draws a lockstep flight's picture; a flight that does not
+    want one (real time) closes it at its start, and still leaves flight.png, drawn at the end."""
+    from tools.flight import Flight
+
+    for kw, used in ((dict(lockstep=True), True), (dict(lockstep=False), False)):
+        helper = PngHelper()
+        flight = Flight(duration=1.0, out=tmp_path / f"f{used}", quiet=True, rrd=False, **kw)
+        flight.adopt_png_helper(helper)
+        with flight:
+            assert (helper.proc.poll() is None) is used, kw
+            assert (flight._png is helper) is used  # noqa: SLF001 - which helper the flight holds
+            res = flight.wait(timeout=120)
+        assert res is not None and res.ok, (kw, res and res.reason)
+        assert (tmp_path / f"f{used}" / "flight.png").read_bytes()[:4] == b"\x89PNG"
+        assert helper.proc.poll() is not None  # ended with the flight either way
+    late = PngHelper()
+    try:
+        with pytest.raises(RuntimeError, match="started already"):
+            flight.adopt_png_helper(late)
+    finally:
+        late.close()
+    assert late.proc.poll() is not None
 
 
 # ---------------------------------------------------------------------------------------- lockstep busy-poll

@@ -76,6 +76,17 @@ def main() -> int:
     os._exit(0)
 
 
+def helper_wanted(argv: list[str]) -> bool:
+    """Whether ``python -m tools.launch ARGV`` flies a flight whose picture a helper draws (lockstep, with picture
+    and series, not pinned), told from the words alone, before the launcher has imported what parses them: only the
+    exact spellings count, so an abbreviated flag just means no early helper (``Flight`` starts one as before), and a
+    helper that turns out not to be wanted is closed by ``Flight.start`` (``Flight.adopt_png_helper``)."""
+    words = set(argv)
+    if "--lockstep" not in words or words & {"-h", "--help", "--no-png", "--no-series", "--pin"}:
+        return False
+    return not any(w.startswith(("--no-png=", "--no-series=", "--pin=")) for w in words)
+
+
 class PngHelper:
     """The helper process, started at once; ``request`` sends the one request, ``result`` waits for the answer."""
 

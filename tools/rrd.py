@@ -14,6 +14,8 @@ Command line::
     python -m tools.rrd verify FILE.rrd...          rerun rrd verify (footers required; --no-footer-check for parts)
     python -m tools.rrd merge OUT.rrd PART.rrd...   merge the part files of one flight (+ flight blueprint);
                                                     --concatenate: constant memory, no footer (long flights)
+    python -m tools.rrd record OUT.rrd SPOOL...     record the processes' telemetry spools (--telemetry-spool)
+                                                    into one recording (+ flight blueprint, footer)
 """
 
 from __future__ import annotations
@@ -250,6 +252,21 @@ def merge(out: str | os.PathLike, parts: list, *, blueprint: bool = True, concat
     return concatenate_recordings(parts, out, blueprint=layout, recording_id=rid)
 
 
+def record(out: str | os.PathLike, spools: list, *, blueprint: bool = True):
+    """Record the telemetry spools of one flight (``--telemetry-spool``) into ``out``: one recording (sent through
+    the live writers' ``RerunSink``, ``autopilot.shared.telemetry.record_spools``), merged with the flight blueprint
+    and rerun's footer.  Returns the output path."""
+    import tempfile
+
+    from autopilot.shared.telemetry import record_spools
+
+    out = os.fspath(out)
+    with tempfile.TemporaryDirectory(prefix=".rrd-record-", dir=os.path.dirname(os.path.abspath(out))) as tmp:
+        part = os.path.join(tmp, "part.rrd")
+        record_spools(spools, part)
+        return merge(out, [part], blueprint=blueprint)
+
+
 def summary(path: str | os.PathLike) -> str:
     lines = [f"{path}: {os.path.getsize(path) / 1e6:.2f} MB"]
     for app, rid in recordings(path):
@@ -298,6 +315,10 @@ def main(argv: list[str] | None = None) -> int:
         action="store_true",
         help="never add the flight blueprint (by default it is added if no part has one)",
     )
+    p = sub.add_parser("record", help="record the telemetry spools of one flight into one recording")
+    p.add_argument("out")
+    p.add_argument("spools", nargs="+")
+    p.add_argument("--no-blueprint", action="store_true", help="do not add the flight blueprint")
     args = ap.parse_args(argv)
     try:
         if args.cmd == "summary":
@@ -311,6 +332,9 @@ def main(argv: list[str] | None = None) -> int:
                 print(f"{f}: {'ok' if ok else 'FAILED: ' + _first_error(msg)}")
                 bad += not ok
             return 1 if bad else 0
+        if args.cmd == "record":
+            print(record(args.out, args.spools, blueprint=not args.no_blueprint))
+            return 0
         print(merge(args.out, args.parts, blueprint=not args.no_blueprint, concatenate=args.concatenate))
         return 0
     except (OSError, ValueError, RuntimeError) as exc:

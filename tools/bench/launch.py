@@ -1,7 +1,8 @@
 """What a user waits for: ``python -m tools.launch --lockstep --duration 30``, from the command to every file written.
 
-The flight itself takes about 0.15 s of it; the rest is the start-up of four Python processes (the launcher, the
-autopilot, the SITL, the GCS script), joining the Rerun recording and drawing flight.png.  Each run is a fresh
+The flight itself takes about 0.15 s of it; the rest is the start-up of five Python processes (the launcher, the
+picture helper, the autopilot, the SITL, the GCS script), recording the processes' telemetry spools into the Rerun
+recording (the launcher, rerun imported once) and drawing flight.png (the helper), side by side.  Each run is a fresh
 ``python -m tools.launch`` process (nothing cached in memory; the flight layout cached on disk by
 ``tools.layout_cache`` is warm after the first run, as it is for a user) into a new folder, timed from the
 ``Popen`` to its exit, by which time tlog, flight.rrd, flight.png and summary.json are written (each checked).

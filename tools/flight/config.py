@@ -100,6 +100,9 @@ class FlightConfig:
     viewer: bool = False  # spawn a Rerun viewer (or reuse the one on port 9876) and stream to it live
     connect: str | None = None  # stream live to a running Rerun viewer at this URL
     rrd: bool = True  # Rerun telemetry of the autopilot and the SITL, joined into DIR/flight.rrd
+    # the processes write their parts with rerun as they fly even without a viewer (else they spool their rows and
+    # the launcher records them after the flight: the same recording, no rerun in either process)
+    rrd_live: bool = False
     # parts up to this size are merged (compacted, indexed: memory about twice their size); larger ones are
     # concatenated (streamed into one file without an index: bounded memory whatever the flight's length)
     rrd_merge_max_mb: float = MERGE_MAX_MB
@@ -584,20 +587,26 @@ def _flight_key(cfg: FlightConfig, out: Path) -> Path | None:
 def _telemetry_argvs(
     cfg: FlightConfig, out: Path, web_url: str | None = None
 ) -> tuple[dict[str, list[str]] | None, dict[str, Path], str | None]:
-    """One recording id for the flight; each process writes its own part file (joined at the end).  ``web_url``: the
-    flight's web viewer (``--web``, already started), which the processes stream to."""
+    """One recording id for the flight; each process writes its own part (joined at the end).  ``web_url``: the
+    flight's web viewer (``--web``, already started), which the processes stream to.
+
+    A flight that only writes ``flight.rrd`` (no viewer, ``--connect`` or ``--web``) has the processes spool their
+    rows (``--telemetry-spool``: no rerun in either) and the launcher records the spools into one part after the
+    flight (``tools.flight.files._join_telemetry``); a live flight's processes write their own parts with rerun, as
+    they stream."""
     if not (cfg.rrd or cfg.viewer or cfg.connect or cfg.web):
         return None, {}, None
     from autopilot.shared import telemetry as tm
 
     rid = tm.new_recording_id()
-    parts = tm.part_paths(out) if cfg.rrd else {}
-    for p in parts.values():
-        p.parent.mkdir(parents=True, exist_ok=True)
-        p.unlink(missing_ok=True)
     url = cfg.connect or (tm.spawn_viewer() if cfg.viewer else None)  # one viewer for both processes
     if web_url is not None:
         url = web_url
+    spooled = cfg.rrd and not url and not cfg.rrd_live
+    parts = (tm.spool_paths(out) if spooled else tm.part_paths(out)) if cfg.rrd else {}
+    for p in parts.values():
+        p.parent.mkdir(parents=True, exist_ok=True)
+        p.unlink(missing_ok=True)
     if url:  # the processes send data only; the layout that joins them comes from here
         from tools.views import flight_blueprint
 
@@ -606,7 +615,7 @@ def _telemetry_argvs(
     for name in ("autopilot", "sitl"):
         argv[name] = ["--recording-id", rid]
         if name in parts:
-            argv[name] += ["--rrd", str(parts[name])]
+            argv[name] += ["--telemetry-spool" if spooled else "--rrd", str(parts[name])]
         if url:
             argv[name] += ["--connect", url]
     return argv, parts, rid

@@ -55,6 +55,19 @@ def _join_telemetry(
     from autopilot.shared import telemetry as tm
 
     target = out / "flight.rrd"
+    spools = [p for p in existing if p.suffix == ".spool"]
+    if spools:
+        # The processes spooled their rows (a file-only flight): one recording from them, written here by the same
+        # code a live writer sends with (autopilot.shared.telemetry.rerun_sink), then joined like a live part.
+        part = out / ".parts" / "flight.rrd"
+        try:
+            tm.record_spools(spools, part)
+        except Exception as exc:  # noqa: BLE001  (a flight's other files stay valid; say what went wrong)
+            part.unlink(missing_ok=True)
+            return None, False, f"recording the telemetry spools into {part} failed: {exc}"
+        for p in spools:
+            p.unlink(missing_ok=True)
+        existing = [p for p in existing if p.suffix != ".spool"] + [part]
     indexed = sum(p.stat().st_size for p in existing) <= merge_max_mb * 1e6
     try:
         if indexed:

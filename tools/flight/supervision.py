@@ -119,6 +119,7 @@ class Flight:
         self._recording_id: str | None = None
         self._web = None  # the --web server (tools.web.WebServer), stopped when the flight ends
         self._png = None  # the flight.png helper process (tools.flight_picture.PngHelper), from start() to _end()
+        self._early_png = None  # one started before this Flight existed (adopt_png_helper), used or closed by start()
         self._t0: float | None = None
         self._interrupt = threading.Event()
 
@@ -201,9 +202,18 @@ class Flight:
             self._web.stop()
 
     def _stop_png(self) -> None:
-        if self._png is not None:
-            self._png.close()
-            self._png = None
+        for helper in (self._png, self._early_png):
+            if helper is not None:
+                helper.close()
+        self._png = self._early_png = None
+
+    def adopt_png_helper(self, helper) -> None:
+        """A picture helper (``tools.flight_picture.PngHelper``) started before this flight: ``python -m
+        tools.launch`` starts one before its own imports, so that the helper's imports run on the core the launcher's
+        leave idle.  ``start`` uses it if this flight draws its picture with a helper, else closes it at once."""
+        if self._t0 is not None:
+            raise RuntimeError("adopt_png_helper: the flight has started already")
+        self._early_png = helper
 
     def run(self) -> FlightResult:
         """Fly to the end (or until interrupted) and return the result."""
@@ -234,13 +244,16 @@ class Flight:
         write_json_atomic(self.out / "summary.json", provisional_summary(os.getpid()))
         web_url = self._start_web() if cfg.web else None
         try:
+            early, self._early_png = self._early_png, None
             if cfg.png and cfg.series and cfg.lockstep and not cfg.pin:
                 # First: it imports matplotlib while the flight starts and flies (tools.flight_picture).  Lockstep
                 # only: a real-time loop (or a pinned CPU) is not to share its CPU with it; those draw at the end.
                 try:
-                    self._png = PngHelper()
+                    self._png = early if early is not None else PngHelper()
                 except OSError:  # a picture never fails a flight: drawn here at the end instead
                     self._png = None
+            elif early is not None:
+                early.close()  # not wanted (the request never comes): killed before it takes more CPU
             telemetry, self._parts, self._recording_id = _telemetry_argvs(cfg, self.out, web_url)
             key_file = _flight_key(cfg, self.out)
             for attempt in range(3):

@@ -1,6 +1,7 @@
 """The telemetry command-line flags of every process, and building a writer from them.
 
-No rerun import at module level: a process started without telemetry flags never loads rerun.
+No rerun import at module level: a process started without telemetry flags, or with ``--telemetry-spool``, never
+loads rerun.
 """
 
 from __future__ import annotations
@@ -12,9 +13,16 @@ from autopilot.shared.cli import viewer_url
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
-    """``--rrd PATH``, ``--recording-id ID``, ``--connect URL``, ``--viewer`` (telemetry group)."""
+    """``--rrd PATH``, ``--telemetry-spool PATH``, ``--recording-id ID``, ``--connect URL``, ``--viewer``."""
     g = parser.add_argument_group("telemetry (Rerun)")
     g.add_argument("--rrd", metavar="PATH", default=None, help="write telemetry to this .rrd file (default: no file)")
+    g.add_argument(
+        "--telemetry-spool",
+        metavar="PATH",
+        default=None,
+        help="write the telemetry rows to this spool file, for another process to record into a .rrd "
+        "(autopilot.shared.telemetry.record_spools; rerun is not imported); not with --rrd, --connect or --viewer",
+    )
     g.add_argument(
         "--recording-id",
         metavar="ID",
@@ -34,13 +42,28 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def requested(args: argparse.Namespace) -> bool:
-    """True if any telemetry flag was given (only then is rerun imported)."""
-    return bool(getattr(args, "rrd", None) or getattr(args, "connect", None) or getattr(args, "viewer", False))
+    """True if any telemetry flag was given (only then is a writer built; rerun only without a spool)."""
+    return bool(
+        getattr(args, "rrd", None)
+        or getattr(args, "connect", None)
+        or getattr(args, "viewer", False)
+        or getattr(args, "telemetry_spool", None)
+    )
+
+
+def check_arguments(parser: argparse.ArgumentParser, args: argparse.Namespace) -> None:
+    """A usage error (``parser.error``) for flags that cannot go together: a spool is a writer's only sink."""
+    if getattr(args, "telemetry_spool", None) and (
+        getattr(args, "rrd", None) or getattr(args, "connect", None) or getattr(args, "viewer", False)
+    ):
+        parser.error(
+            "--telemetry-spool writes the rows for another process to record: not with --rrd, --connect or --viewer"
+        )
 
 
 def from_args(args: argparse.Namespace, process: str, **kwargs):
     """A ``Telemetry`` writer from the flags of ``add_arguments`` (disabled when none is given)."""
-    from autopilot.shared.telemetry.writer import Telemetry  # imports rerun (~1 s)
+    from autopilot.shared.telemetry.writer import Telemetry  # a live writer imports rerun (~0.45 CPU s), a spool not
 
     return Telemetry(
         process,
@@ -48,6 +71,7 @@ def from_args(args: argparse.Namespace, process: str, **kwargs):
         getattr(args, "rrd", None),
         connect_url=getattr(args, "connect", None),
         spawn_viewer=bool(getattr(args, "viewer", False)),
+        spool_path=getattr(args, "telemetry_spool", None),
         **kwargs,
     )
 

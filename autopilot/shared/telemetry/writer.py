@@ -2,9 +2,12 @@
 
 The control loop never calls rerun.  ``Table.append`` puts one tuple on a ``collections.deque``
 (an atomic, lock-free operation under the GIL, ~0.2 us); a daemon thread wakes every
-``flush_interval_s`` (0.5 s), drains every deque, turns the rows into numpy columns and sends them
-with ``RecordingStream.send_columns`` (which bypasses rerun's own batcher and reaches the file a few
-milliseconds later).  So a SIGKILL loses at most one flush interval of rows plus a few ms.
+``flush_interval_s`` (0.5 s), drains every deque, turns the rows into numpy columns and hands them to its
+sink: ``rerun_sink.RerunSink`` sends them with ``RecordingStream.send_columns`` (which bypasses rerun's own
+batcher and reaches the file a few milliseconds later); ``spool.SpoolSink`` (``spool_path``: a process that only
+writes a file) appends them to a spool that one process of the flight records afterwards through the same
+``RerunSink`` (``rerun_sink.record_spools``), so a spooling process never imports rerun.  So a SIGKILL loses at
+most one flush interval of rows plus a few ms.
 
 Shutdown is the process's: its stop handlers (``autopilot.shared.process.install_stop_handlers``) end
 the loop, then it calls ``close()`` (or leaves a ``with`` block), which flushes everything and closes the
@@ -35,92 +38,15 @@ from collections.abc import Iterable, Sequence
 from pathlib import Path
 
 import numpy as np
-import rerun as rr
 
 from autopilot.shared.telemetry import viewer as _viewer
-from autopilot.shared.telemetry.columns import (
-    aircraft_shape,
-    pose_columns,
-    scalar_column,
-    series_style,
-    sim_time_column,
-    wall_time_column,
-)
+from autopilot.shared.telemetry.buffers import NullTable, StateChannel, Table
 from autopilot.shared.telemetry.files import RrdError, merge_recordings, new_recording_id
 from autopilot.shared.telemetry.layout import APPLICATION_ID, PALETTE, Plot, Rgb, TableLayout
 
 log = logging.getLogger(__name__)
 
 DEFAULT_FLUSH_INTERVAL_S = 0.5
-
-
-# ------------------------------------------------------------------------------------------ buffers
-class Table:
-    """The rows of one ``TableLayout``.  ``append`` is the only method the control loop calls."""
-
-    __slots__ = ("layout", "_queue", "_push", "push", "_plots", "__weakref__")
-
-    def __init__(self, table_layout: TableLayout):
-        self.layout = table_layout
-        self._queue: deque = deque()
-        self._push = self._queue.append
-        #: Fastest form, no Python frame: ``push((sim_time_s, wall_time_s, values))`` (one tuple).
-        self.push = self._queue.append
-        self._plots = tuple((p, np.array([table_layout.index(f) for f in p.fields])) for p in table_layout.plots)
-
-    def append(self, sim_time_s: float, wall_time_s: float, values: Sequence[float]) -> None:
-        """Queue one row: sim time (s), wall clock (``time.time()``, s), values in ``layout.fields`` order.
-
-        ``values`` must not be mutated afterwards (pass a tuple).  Never blocks, never calls rerun.
-        """
-        self._push((sim_time_s, wall_time_s, values))
-
-    def __len__(self) -> int:
-        return len(self._queue)
-
-
-class NullTable:
-    """What a disabled ``Telemetry`` hands out: appends cost a function call and do nothing."""
-
-    __slots__ = ("layout",)
-
-    def __init__(self, table_layout: TableLayout):
-        self.layout = table_layout
-
-    def append(self, sim_time_s: float, wall_time_s: float, values: Sequence[float]) -> None:  # noqa: ARG002
-        return None
-
-    def push(self, row: tuple) -> None:  # noqa: ARG002 - Table's signature, nothing kept
-        return None
-
-    def __len__(self) -> int:
-        return 0
-
-
-class StateChannel:
-    """A discrete state (mode, failsafe) logged as ``StateChange`` plus a readable ``TextLog`` line.
-
-    ``colors`` colour the states in the viewer; the text line of a state in ``warn`` is logged at WARN.
-    """
-
-    __slots__ = ("path", "label", "colors", "warn", "_queue", "last", "__weakref__")
-
-    def __init__(self, path: str, label: str, colors: dict[str, Rgb] | None = None, warn: Iterable[str] = ()):
-        self.path = path
-        self.label = label
-        self.colors = dict(colors or {})
-        self.warn = frozenset(warn)
-        self._queue: deque = deque()
-        self.last: str | None = None
-
-    def set(self, sim_time_s: float, wall_time_s: float, state: str, note: str = "") -> bool:
-        """Record a transition; repeated identical states are ignored.  Returns True if it was a change."""
-        state = str(state)
-        if state == self.last:
-            return False
-        self._queue.append((sim_time_s, wall_time_s, state, self.last, note))
-        self.last = state
-        return True
 
 
 # ------------------------------------------------------------------------------------------ writer
@@ -137,12 +63,15 @@ def _close_all_at_exit() -> None:
 
 
 class Telemetry:
-    """One process's telemetry: a recording stream to a part file and/or a live viewer.
+    """One process's telemetry: a recording stream to a part file and/or a live viewer, or a spool.
 
     ``process`` names the events entity (``/<process>/events``); ``recording_id`` must be the same in
     every process of a flight.  ``rrd_path`` writes a file, ``connect_url`` streams to a viewer,
-    ``spawn_viewer`` starts one first (or reuses the one on the default port).  Without any of them the
-    writer is disabled: its tables are ``NullTable`` and its channels accept appends and drop them.
+    ``spawn_viewer`` starts one first (or reuses the one on the default port); ``spool_path`` (alone) writes the
+    rows to a spool file instead, for another process to record (``spool``, ``rerun_sink.record_spools``): rerun is
+    then never imported here.  Without any of them the writer is disabled: its tables are ``NullTable`` and its
+    channels accept appends and drop them.  Either way the queues, the thread and the drain are this class's; what
+    becomes of a flush's arrays is the sink's (``rerun_sink.RerunSink`` or ``spool.SpoolSink``).
     """
 
     def __init__(
@@ -153,6 +82,7 @@ class Telemetry:
         *,
         connect_url: str | None = None,
         spawn_viewer: bool = False,
+        spool_path: str | os.PathLike | None = None,
         application_id: str = APPLICATION_ID,
         flush_interval_s: float = DEFAULT_FLUSH_INTERVAL_S,
         switch_interval_s: float | None = None,
@@ -165,10 +95,15 @@ class Telemetry:
             raise ValueError(f"process must be a non-empty name without '/', got {process!r}")
         if not (math.isfinite(flush_interval_s) and 0 < flush_interval_s <= 1.0):
             raise ValueError(f"flush_interval_s must be in (0, 1] s, got {flush_interval_s!r}")
+        if spool_path is not None and (rrd_path is not None or connect_url is not None or spawn_viewer):
+            raise ValueError("a spool is a writer's only sink: not with a .rrd file or a viewer")
+        if spool_path is not None and (recording_name or write_footer or finalize):
+            raise ValueError("recording_name, write_footer and finalize are the recording's: not with a spool")
         self.process = process
         self.recording_id = recording_id or new_recording_id()
         self.application_id = application_id
         self.rrd_path = Path(rrd_path) if rrd_path is not None else None
+        self.spool_path = Path(spool_path) if spool_path is not None else None
         self.flush_interval_s = float(flush_interval_s)
         self._recording_name = recording_name
         self._write_footer = bool(write_footer)
@@ -176,15 +111,14 @@ class Telemetry:
         if spawn_viewer and connect_url is None:
             connect_url = _viewer.spawn_viewer(application_id=application_id)
         self.connect_url = connect_url
-        self.enabled = self.rrd_path is not None or self.connect_url is not None
+        self.enabled = self.rrd_path is not None or self.connect_url is not None or self.spool_path is not None
         self.events_path = f"/{process}/events"
         self.rows_sent: dict[str, int] = {}
-        self.chunks_sent = 0
         self.errors = 0
         self.last_error: str | None = None
         self._tables: list[Table] = []
         self._channels: list[StateChannel] = []
-        self._statics: deque = deque()
+        self._pending: deque = deque()  # tables and channels the sink has not registered yet
         self._events: deque = deque()
         self._lock = threading.RLock()  # serialises flushes (writer thread vs. explicit flush() / close())
         self._stop = threading.Event()
@@ -195,22 +129,33 @@ class Telemetry:
         self._yield_s = 5e-5
         self._segment_start = 0.0
         self.stretches: deque = deque(maxlen=8192)  # writer stretches between GIL hand-overs, s (diagnostic)
-        self.rec: rr.RecordingStream | None = None
+        self.rec = None  # the rerun.RecordingStream of a live writer
+        self._sink = None
         if switch_interval_s is not None:
             sys.setswitchinterval(float(switch_interval_s))
         if not self.enabled:
             return
-        if self.rrd_path is not None:
-            self.rrd_path.parent.mkdir(parents=True, exist_ok=True)
-        self.rec = rr.RecordingStream(self.application_id, recording_id=self.recording_id)
-        # Sinks are opened here, once (a second set_sinks would start the file again): a bad path raises
-        # now, in the caller, and a --connect URL with nothing behind it is dropped after a short probe.
-        if not self._open_sinks():
-            # Only a viewer URL was given and nobody listens: without any sink rerun would buffer
-            # everything in memory, so this writer turns itself off.
-            self.enabled = False
-            self.rec = None
-            return
+        if self.spool_path is not None:
+            from autopilot.shared.telemetry.spool import SpoolSink
+
+            self._sink = SpoolSink(self.spool_path, process, self.recording_id, application_id)  # a bad path raises
+        else:
+            import rerun as rr
+
+            from autopilot.shared.telemetry.rerun_sink import RerunSink
+
+            if self.rrd_path is not None:
+                self.rrd_path.parent.mkdir(parents=True, exist_ok=True)
+            self.rec = rr.RecordingStream(self.application_id, recording_id=self.recording_id)
+            # Sinks are opened here, once (a second set_sinks would start the file again): a bad path raises
+            # now, in the caller, and a --connect URL with nothing behind it is dropped after a short probe.
+            if not self._open_sinks(rr):
+                # Only a viewer URL was given and nobody listens: without any sink rerun would buffer
+                # everything in memory, so this writer turns itself off.
+                self.enabled = False
+                self.rec = None
+                return
+            self._sink = RerunSink(self.rec, self.events_path, self._error, self._yield)
         global _atexit_installed
         if not _atexit_installed:
             atexit.register(_close_all_at_exit)
@@ -218,6 +163,11 @@ class Telemetry:
         _LIVE.add(self)
         self._thread = threading.Thread(target=self._run, name=f"telemetry-{process}", daemon=True)
         self._thread.start()
+
+    @property
+    def chunks_sent(self) -> int:
+        """Chunks handed to the sink so far (sent to Rerun, or spooled records of rows, states and events)."""
+        return 0 if self._sink is None else self._sink.chunks_sent
 
     # -------------------------------------------------------------- registration (set-up time)
     def table(self, table_layout: TableLayout) -> Table | NullTable:
@@ -227,11 +177,8 @@ class Telemetry:
         table = Table(table_layout)
         with self._lock:
             self._tables.append(table)
+            self._pending.append(table)
             self.rows_sent.setdefault(table_layout.name, 0)
-        for plot in table_layout.plots:
-            self._statics.append((plot.path, series_style(plot.labels, plot.colors, plot.step, plot.points)))
-        for pose in table_layout.poses:
-            self._statics.append((pose.path, aircraft_shape(pose.color)))
         return table
 
     def series(
@@ -259,16 +206,7 @@ class Telemetry:
             return channel
         with self._lock:
             self._channels.append(channel)
-        if channel.colors:
-            values = list(channel.colors)
-            self._statics.append(
-                (
-                    path,
-                    rr.StateConfiguration(
-                        values=values, labels=values, colors=[list(channel.colors[v]) for v in values]
-                    ),
-                )
-            )
+            self._pending.append(channel)
         return channel
 
     def log_event(self, sim_time_s: float, wall_time_s: float, text: str, level: str = "INFO") -> None:
@@ -290,7 +228,7 @@ class Telemetry:
             if stopping:
                 return
 
-    def _open_sinks(self) -> int:
+    def _open_sinks(self, rr) -> int:
         sinks = []
         if self.rrd_path is not None:
             sinks.append(rr.FileSink(str(self.rrd_path), write_footer=self._write_footer))
@@ -312,20 +250,22 @@ class Telemetry:
         return len(sinks)
 
     def flush(self) -> None:
-        """Send everything queued so far (the writer thread does this every ``flush_interval_s``)."""
-        if not self.enabled or self.rec is None:
+        """Hand everything queued so far to the sink (the writer thread does this every ``flush_interval_s``)."""
+        if not self.enabled or self._sink is None:
             return
         with self._lock:
             self._segment_start = time.perf_counter()
-            while self._statics:
-                path, arch = self._statics.popleft()
-                try:
-                    self.rec.log(path, arch, static=True, strict=True)
-                except Exception as exc:  # noqa: BLE001 - telemetry never stops the process
-                    self._error(f"static {path}: {exc}")
+            sink = self._sink
+            while self._pending:
+                item = self._pending.popleft()
+                if isinstance(item, Table):
+                    item.handle = sink.table(item.layout)
+                else:
+                    item.handle = sink.channel(item.path, item.label, item.colors, item.warn)
             for table in self._tables:
                 self._flush_table(table)
             self._flush_channels()
+            sink.flush()
 
     def _flush_table(self, table: Table) -> None:
         q = table._queue
@@ -344,40 +284,8 @@ class Telemetry:
         except (TypeError, ValueError) as exc:
             self._error(f"table {name}: dropped {n} rows: {exc}")
             return
-        indexes = [sim_time_column(sim), wall_time_column(wall)]
-        self._yield()
-        for plot, idx in table._plots:
-            cols = vals[:, idx] if plot.scale == 1.0 else vals[:, idx] * plot.scale
-            try:
-                self.rec.send_columns(plot.path, indexes=indexes, columns=[scalar_column(cols)], strict=True)
-                self.chunks_sent += 1
-            except Exception as exc:  # noqa: BLE001 - telemetry never stops the process
-                self._error(f"{plot.path}: {exc}")
-            self._yield()
-        for pose in table.layout.poses:
-            pitch = None if pose.pitch is None else vals[:, table.layout.index(pose.pitch)]
-            self._send_pose(pose, sim, wall, vals[:, table.layout.index(pose.roll)], pitch)
+        self._sink.rows(table.handle, sim, wall, vals)
         self.rows_sent[name] = self.rows_sent.get(name, 0) + n
-
-    def _send_pose(self, pose, sim: np.ndarray, wall: np.ndarray, roll: np.ndarray, pitch=None) -> None:
-        """One ``Transform3D`` per row with a finite attitude (a step without one keeps the last attitude)."""
-        ok = np.isfinite(roll) if pitch is None else np.isfinite(roll) & np.isfinite(pitch)
-        if not ok.any():
-            return
-        if not ok.all():
-            sim, wall, roll = sim[ok], wall[ok], roll[ok]
-            pitch = None if pitch is None else pitch[ok]
-        try:
-            self.rec.send_columns(
-                pose.path,
-                indexes=[sim_time_column(sim), wall_time_column(wall)],
-                columns=pose_columns(roll, pitch),
-                strict=True,
-            )
-            self.chunks_sent += 1
-        except Exception as exc:  # noqa: BLE001 - telemetry never stops the process
-            self._error(f"{pose.path}: {exc}")
-        self._yield()
 
     def _flush_channels(self) -> None:
         lines: list[tuple[float, float, str, str]] = []
@@ -389,16 +297,7 @@ class Telemetry:
             rows = [q.popleft() for _ in range(n)]
             sim = np.array([r[0] for r in rows], dtype=np.float64)
             wall = np.array([r[1] for r in rows], dtype=np.float64)
-            try:
-                self.rec.send_columns(
-                    ch.path,
-                    indexes=[sim_time_column(sim), wall_time_column(wall)],
-                    columns=rr.StateChange.columns(state=[r[2] for r in rows]),
-                    strict=True,
-                )
-                self.chunks_sent += 1
-            except Exception as exc:  # noqa: BLE001 - telemetry never stops the process
-                self._error(f"{ch.path}: {exc}")
+            self._sink.states(ch.handle, sim, wall, [r[2] for r in rows])
             for t, w, state, prev, note in rows:
                 text = f"{ch.label}: {prev or '-'} -> {state}" + (f" ({note})" if note else "")
                 lines.append((t, w, text, "WARN" if state in ch.warn else "INFO"))
@@ -406,19 +305,12 @@ class Telemetry:
             lines.append(self._events.popleft())
         if lines:
             lines.sort(key=lambda r: r[0])
-            try:
-                self.rec.send_columns(
-                    self.events_path,
-                    indexes=[
-                        sim_time_column(np.array([r[0] for r in lines])),
-                        wall_time_column(np.array([r[1] for r in lines])),
-                    ],
-                    columns=rr.TextLog.columns(text=[r[2] for r in lines], level=[r[3] for r in lines]),
-                    strict=True,
-                )
-                self.chunks_sent += 1
-            except Exception as exc:  # noqa: BLE001 - telemetry never stops the process
-                self._error(f"{self.events_path}: {exc}")
+            self._sink.events(
+                np.array([r[0] for r in lines], dtype=np.float64),
+                np.array([r[1] for r in lines], dtype=np.float64),
+                [r[2] for r in lines],
+                [r[3] for r in lines],
+            )
 
     def _yield(self) -> None:
         """Between two sends, let go of the GIL long enough for a waiting control loop to take it.
@@ -455,6 +347,9 @@ class Telemetry:
             if self._thread.is_alive():
                 log.warning("telemetry writer thread did not stop within %.1f s", timeout_s)
         self.flush()  # whatever the writer thread had not sent yet (it flushed once more on its way out)
+        if self.rec is None:  # a spool: the file is complete once it is closed
+            self._sink.close()
+            return
         try:
             self.rec.flush(timeout_sec=timeout_s)
         except Exception as exc:  # noqa: BLE001 - e.g. a viewer that went away: the file is what matters
@@ -480,7 +375,7 @@ class Telemetry:
         self.close()
 
     def __repr__(self) -> str:
-        where = [str(self.rrd_path)] if self.rrd_path else []
+        where = [str(p) for p in (self.rrd_path, self.spool_path) if p]
         if self.connect_url:
             where.append(self.connect_url)
         return f"Telemetry({self.process!r}, recording_id={self.recording_id!r}, -> {', '.join(where) or 'disabled'})"
