@@ -22,8 +22,6 @@ import urllib.request
 from pathlib import Path
 
 CHROMIUM = "/usr/bin/chromium"
-# Chromium's nice value: below the real-time flights (nice 0), above the suite's CPU lanes (tests/conftest.py: 19)
-BROWSER_NICE = 10
 # An intercepted internet request's answer may be read by the page (cross-origin): allow it, preflights included.
 _CORS = [
     {"name": "Access-Control-Allow-Origin", "value": "*"},
@@ -196,12 +194,10 @@ class Browser:
 
     def no_higher_priority(self) -> None:
         """Chromium, run as root, raises the priority of its browser and GPU threads (nice -8): SwiftShader's software
-        rendering then took the CPU from the suite's real-time flights.  Every thread of its process group goes to
-        ``BROWSER_NICE`` (or this process's nice value, if lower: raising a nice value needs no privilege), below the
-        real-time flights (this test's own live flight and the other real-time lane's, at nice 0) and above the CPU
-        lanes (``tests/conftest.py``); threads it starts later are caught on the next call (``pump`` and
-        ``screenshot`` call this)."""
-        own = max(os.getpriority(os.PRIO_PROCESS, 0), BROWSER_NICE)
+        rendering then took the CPU from the suite's real-time flights on other workers.  Every thread of its process
+        group goes back to this process's nice value (raising a nice value needs no privilege); threads it starts
+        later are caught on the next call (``pump`` and ``screenshot`` call this)."""
+        own = os.getpriority(os.PRIO_PROCESS, 0)
         for proc in Path("/proc").iterdir():
             if not proc.name.isdigit():
                 continue

@@ -1,61 +1,49 @@
 """Shared fixtures, and how the suite runs in parallel (docs/tests.md, "Parallel").
 
 Slow tests that start real processes carry the ``e2e`` marker: ``python -m pytest -m "not e2e"`` runs the fast ones
-in seconds.  ``python -m pytest`` runs on pytest-xdist workers (``addopts`` in pyproject.toml: ``-n auto``, four on
-2 cores), in two kinds of lane side by side (``pytest_xdist_make_scheduler``):
+in seconds.  ``python -m pytest`` runs on pytest-xdist workers (``addopts`` in pyproject.toml); this file decides
+how, in two phases:
 
-* **Two real-time lanes**, at the normal priority.  The modules whose tests fly in real time and assert its timing
-  (``REAL_TIME``: deadlines, stalls, failsafe latencies, sim time against the wall clock) run on at most two
-  workers, one module after the other on each.  They use little CPU, but need it on time: two side by side keep
-  their timing.  A module that takes the whole machine (``ALONE``: two processes busy-waiting on both CPUs; floods
-  of 10,000 datagrams a second) holds a lock that keeps the other real-time lane waiting meanwhile (``_lane``).
-* **A CPU lane per CPU (at least two)**, at the lowest priority (nice 19, ``CPU_NICE``): every other module, whole
-  on one worker (a module-scoped fixture, a flight or a study several tests only read, runs once), the longest
-  first (``LONGEST_FIRST``).  They need only CPU time: a lockstep flight's numbers do not depend on how fast it
-  flies.  The kernel gives a waking real-time process the CPU before them, so they cannot make a real-time step
-  late (in two real-time lanes beside four workers at the same priority, 7 real-time tests failed on a quiet
-  machine).  The browser's software rendering runs between the two (``_browser.BROWSER_NICE``).
-
-A real-time lane with nothing left takes CPU modules (and lowers its priority); a CPU lane never takes a real-time
-module (a process cannot raise its priority back without privilege).  ``-n 0`` runs everything in one process, one
-test after the other, at the caller's priority.
+* **Everything that does not fly in real time, in parallel.**  Every such module runs whole on one worker, so a
+  module-scoped fixture (a flight, a study several tests only read) runs once; the longest modules start first
+  (``LONGEST_FIRST``), so no worker is left with a long module when the others are done.
+* **Then the real-time tests, alone, one after the other.**  The tests that fly in real time assert timing
+  (deadlines, stalls, latencies, sim time against the wall clock), and they failed whenever other tests shared the
+  two cores with them (in two lanes beside the rest, 7 of them on a quiet machine).  Their modules (``SERIAL_LAST``)
+  are one unit that starts only when every other test is done, on one worker, with the machine to itself: as the
+  serial suite ran them.  The browser module is among them: its live flight flies in real time, and its software
+  rendering takes both cores.
 """
 
 from __future__ import annotations
-
-import os
 
 import pytest
 
 from tools.scenario import PAPER, PAPER_RUNS, run_inprocess
 
-# The modules whose tests fly in real time and assert its timing: the real-time lanes' work (module docstring).
-REAL_TIME = (
-    "test_browser_viewer.py",
+# The modules whose tests fly in real time and assert its timing (or share the machine with such a flight, as the
+# browser's software rendering does): one unit, run last, alone (``_assign``).
+SERIAL_LAST = (
     "test_stalls.py",
-    "test_launch_verdict.py",
     "test_clients.py",
+    "test_hostile.py",
+    "test_mavlink_badinput.py",
+    "test_signing.py",
+    "test_web.py",
+    "test_sysid.py",
+    "test_launch_verdict.py",
     "test_e2e_envelope.py",
     "test_vehicle.py",
-    "test_mavlink_badinput.py",
-    "test_hostile.py",
-    "test_e2e_realtime.py",
     "test_telemetry_flight.py",
-    "test_signing.py",
+    "test_e2e_realtime.py",
     "test_e2e_disturbances.py",
     "test_signed_gcs.py",
-    "test_web.py",
     "test_e2e_telemetry.py",
     "test_gcs_admission.py",
-    "test_sysid.py",
     "test_user_lines.py",
-    "test_e2e_busy_wait.py",
-)  # in this order, the longest first (measured with --durations=0)
-# Of those, the modules that take the whole machine: the other real-time lane waits while one runs.  (Not the
-# browser's: its software rendering runs below the real-time flights, at ``_browser.BROWSER_NICE``.)
-ALONE = ("test_e2e_busy_wait.py", "test_mavlink_badinput.py")  # both CPUs spinning; floods of 10,000 datagrams/s
-REAL_TIME_LANES = 2
-CPU_NICE = 19  # the CPU lanes' nice value (the lowest priority)
+    "test_browser_viewer.py",
+)
+SERIAL = "real time, alone"  # the serial unit's name
 
 # Started first, in this order (modules; measured with --durations=0), in the parallel phase.
 LONGEST_FIRST = (
@@ -79,126 +67,54 @@ def _module(nodeid: str) -> str:
     return nodeid.split("::", 1)[0]
 
 
-def _basename(nodeid: str) -> str:
-    return _module(nodeid).rsplit("/", 1)[-1]
+def _serial(nodeid: str) -> bool:
+    return _module(nodeid).rsplit("/", 1)[-1] in SERIAL_LAST
 
 
-def _real_time(nodeid: str) -> bool:
-    return _basename(nodeid) in REAL_TIME
+def _unit(nodeid: str) -> str:
+    """What one worker runs, one test after the other: the serial unit, or else a whole module."""
+    return SERIAL if _serial(nodeid) else _module(nodeid)
 
 
 def _rank(nodeid: str) -> int:
-    """Where a module starts in the queue: the real-time ones in ``REAL_TIME`` order, then ``LONGEST_FIRST``, then the
-    rest in file order."""
-    name = _basename(nodeid)
-    if name in REAL_TIME:
-        return REAL_TIME.index(name)
+    if _serial(nodeid):
+        return len(LONGEST_FIRST) + 1  # last
     listed = (i for i, prefix in enumerate(LONGEST_FIRST) if nodeid.startswith(prefix))
-    return len(REAL_TIME) + next(listed, len(LONGEST_FIRST))
+    return next(listed, len(LONGEST_FIRST))
 
 
 def pytest_collection_modifyitems(config, items):
-    """The modules in ``_rank`` order (stable: file order within a module and among the rest)."""
-    items.sort(key=lambda it: _rank(it.nodeid))
-
-
-# ------------------------------------------------------------------------------------------------------ the lanes
-def _lock_path(config) -> str | None:
-    """The lock file the real-time lanes share (one per test run), None outside xdist."""
-    workerinput = getattr(config, "workerinput", None)
-    if workerinput is None:
-        return None
-    import tempfile
-
-    return os.path.join(tempfile.gettempdir(), f"clsac-tests-{workerinput['testrunuid']}.lock")
-
-
-def _lower_priority(nice: int) -> None:
-    """This worker's every thread (Linux's nice value is per thread: numpy's BLAS threads, started at import, too)
-    to at least ``nice``; processes and threads started from now on inherit it."""
-    try:
-        tids = [int(t) for t in os.listdir("/proc/self/task")]
-    except OSError:
-        tids = [0]
-    for tid in tids:
-        try:
-            if os.getpriority(os.PRIO_PROCESS, tid) < nice:
-                os.setpriority(os.PRIO_PROCESS, tid, nice)
-        except OSError:  # a thread that ended meanwhile
-            pass
-
-
-@pytest.fixture(scope="module", autouse=True)
-def _lane(request):
-    """Under xdist: a real-time module holds the lanes' lock while it runs, shared (``ALONE``: exclusive); any other
-    module lowers this worker to ``CPU_NICE`` first (its processes inherit it).  Module-scoped and autouse, so it is
-    set up before the module's own fixtures (the browser module's live flight)."""
-    path = _lock_path(request.config)
-    nodeid = request.node.nodeid
-    if path is None:
-        yield
-        return
-    if not _real_time(nodeid):
-        _lower_priority(CPU_NICE)
-        yield
-        return
-    import fcntl
-
-    with open(path, "a") as lock:
-        fcntl.flock(lock, fcntl.LOCK_EX if _basename(nodeid) in ALONE else fcntl.LOCK_SH)
-        try:
-            yield
-        finally:
-            fcntl.flock(lock, fcntl.LOCK_UN)
-
-
-@pytest.hookimpl(tryfirst=True, optionalhook=True)
-def pytest_xdist_auto_num_workers(config):
-    """``-n auto`` (addopts): a CPU lane per CPU (at least two) and the real-time lanes (four workers on 2 cores)."""
-    cpus = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else (os.cpu_count() or 2)
-    return max(2, cpus) + REAL_TIME_LANES
+    """The longest modules first, the real-time ones last; a unit starts where its best-ranked test is (stable: file
+    order)."""
+    first = {}
+    for item in items:
+        first[_unit(item.nodeid)] = min(first.get(_unit(item.nodeid), _rank(item.nodeid)), _rank(item.nodeid))
+    items.sort(key=lambda it: first[_unit(it.nodeid)])
 
 
 @pytest.hookimpl(tryfirst=True, optionalhook=True)
 def pytest_xdist_make_scheduler(config, log):
-    """xdist's scope scheduling (one module to a worker, in collection order) with two kinds of worker (module
-    docstring): the first ``REAL_TIME_LANES`` workers take the real-time modules, then the others; the rest take the
-    others only.  A worker with nothing it may take ends (after the test it holds: an xdist worker runs the last
-    test it holds only when it gets more work or is told to end).  (Not ``--dist loadgroup`` and xdist_group marks:
-    pytest 9.2 builds node ids in a way xdist 3.8's loadgroup no longer renames, so every test was its own group.)"""
+    """xdist's scope scheduling (one unit of tests to a worker, in collection order) with ``_unit`` as the scope, and
+    a barrier before the serial unit: a worker that finds only it left ends (after the test it holds), and the last
+    worker takes it once every other worker is gone, so the serial unit runs alone.  (An xdist worker runs the last
+    test it holds only when it gets more work or is told to end, so a worker cannot simply wait for the barrier.)
+    (Not ``--dist loadgroup`` and xdist_group marks: pytest 9.2 builds node ids in a way xdist 3.8's loadgroup no
+    longer renames, so every test was its own group.)"""
     from xdist.scheduler import LoadScopeScheduling
 
-    class Lanes(LoadScopeScheduling):
-        def __init__(self, config, log=None):
-            super().__init__(config, log)
-            self.real_time_lanes: list = []  # the workers that may take a real-time module
-
+    class Phases(LoadScopeScheduling):
         def _split_scope(self, nodeid: str) -> str:
-            return _module(nodeid)
-
-        def _next_scope(self, node) -> str | None:
-            if node not in self.real_time_lanes and len(self.real_time_lanes) < REAL_TIME_LANES:
-                if not self.assigned_work.get(node):  # a worker that has run nothing yet (its priority is normal)
-                    self.real_time_lanes.append(node)
-            real_time = node in self.real_time_lanes
-            lanes_alive = any(not n.shutting_down for n in self.real_time_lanes)
-            for scope in self.workqueue:
-                if _real_time(scope):
-                    if real_time or not lanes_alive:  # (no real-time lane left: any worker, rather than none)
-                        return scope
-                else:
-                    if real_time and any(_real_time(s) for s in self.workqueue):
-                        continue  # a real-time lane takes the real-time modules first
-                    return scope
-            return None
+            return _unit(nodeid)
 
         def _assign_work_unit(self, node) -> None:
-            scope = self._next_scope(node)
-            if scope is None:
-                node.shutdown()
-                return
-            if _real_time(scope) is False and node in self.real_time_lanes:
-                self.real_time_lanes.remove(node)  # it runs CPU work now (at CPU_NICE): never real time again
+            scope = next((s for s in self.workqueue if s != SERIAL), None)
+            if scope is None:  # only the serial unit is left
+                others = [n for n in self.assigned_work if n is not node]
+                if others:
+                    if not all(n.shutting_down for n in others):
+                        node.shutdown()  # another worker still runs its module: this one ends, that one goes on
+                    return  # else wait for the ending workers to be gone (remove_node)
+                scope = SERIAL
             work_unit = self.workqueue.pop(scope)
             self.assigned_work.setdefault(node, {})[scope] = work_unit
             collection = self.registered_collections[node]
@@ -215,11 +131,9 @@ def pytest_xdist_make_scheduler(config, log):
             self._assign_work_unit(node)
 
         def remove_node(self, node):
-            if node in self.real_time_lanes:
-                self.real_time_lanes.remove(node)
             crashed = super().remove_node(node)
-            for other in list(self.assigned_work):  # real-time work may now go to any worker
+            for other in list(self.assigned_work):  # a worker gone may release the barrier
                 self._reschedule(other)
             return crashed
 
-    return Lanes(config, log)
+    return Phases(config, log)
