@@ -84,7 +84,10 @@ class Flight:
 @pytest.fixture
 def flight(tmp_path):
     f = Flight(tmp_path)
-    assert f.sitl.wait_for("listening on") and f.ap.wait_for("autopilot: clsac")
+    if not (f.sitl.wait_for("listening on") and f.ap.wait_for("autopilot: clsac")):
+        f.ap.stop()  # no process outlives a failed start
+        f.sitl.stop()
+        raise AssertionError(f"the flight did not start:\n{f.sitl.output()[-1000:]}\n{f.ap.output()[-1000:]}")
     time.sleep(0.3)
     return f
 
