@@ -47,7 +47,7 @@ from autopilot.shared.process import (
     install_stop_handlers,
     move_other_threads,
     rt_throttling,
-    write_json_atomic,
+    write_stats_json,
 )
 from autopilot.shared.telemetry.flags import add_arguments as add_telemetry_arguments
 from autopilot.shared.telemetry.flags import check_arguments as check_telemetry_arguments
@@ -381,7 +381,7 @@ def main(argv=None) -> int:
         recorder.save(args.series)
     _print_summary(stats)
     if args.stats_json:
-        write_json_atomic(args.stats_json, stats)
+        write_stats_json(args.stats_json, stats)
     return code
 
 

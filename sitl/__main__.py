@@ -37,7 +37,7 @@ from autopilot.shared.process import (
     apply_rt_priority,
     exit_code_for,
     install_stop_handlers,
-    write_json_atomic,
+    write_stats_json,
 )
 from autopilot.shared.telemetry.flags import add_arguments as add_telemetry_arguments
 from autopilot.shared.telemetry.flags import check_arguments as check_telemetry_arguments
@@ -268,7 +268,7 @@ def main(argv=None) -> int:
     )
     print(format_counters("sitl link", stats["link"]), flush=True)
     if args.stats_json:
-        write_json_atomic(args.stats_json, stats)
+        write_stats_json(args.stats_json, stats)
     return code
 
 

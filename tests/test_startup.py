@@ -266,6 +266,11 @@ def test_the_launch_bench_times_the_command_and_the_import_it_is_compared_with(t
     assert cpu["unit"] == cpu_ref["unit"] == "CPU s" and 0 < cpu_ref["value"] < cpu["value"]
     assert cpu["value"] > 0.5  # five interpreters (launcher, autopilot, SITL, GCS, picture helper), each counted
     assert cpu["ratio"] == pytest.approx(cpu["value"] / cpu_ref["value"])
+    # each child's own CPU (its stats file's cpu_s, process_time) is part of the total RUSAGE_CHILDREN counted
+    per = {name: figs[f"launch, CPU of the {name}"]["value"] for name in launch.CHILDREN}
+    rest = figs["launch, CPU of the launcher and picture helper"]["value"]
+    assert all(0.02 < v < cpu["value"] for v in per.values()), per  # an interpreter's start-up is ~0.03 CPU s
+    assert rest > 0.05, (per, rest)  # two interpreters more than the children reported: their CPU is counted too
     with pytest.raises(RuntimeError, match="left no flight.png"):  # a missing file is an error, not a fast run
         launch._flight(tmp_path / "no-png", ["--no-png"], launch.FILES)
 

@@ -50,7 +50,7 @@ from autopilot.shared.mavlink import (
     roll_to_quaternion,
     vehicle_ids,
 )
-from autopilot.shared.process import apply_cpu, exit_code_for, install_stop_handlers, write_json_atomic
+from autopilot.shared.process import apply_cpu, exit_code_for, install_stop_handlers, write_stats_json
 from autopilot.shared.signing import SIGNING_LINK_GROUND, Signing
 from tools.profiles import Profile
 
@@ -500,7 +500,7 @@ def main(argv=None) -> int:
     print(f"gcs: {stats['points_sent']} setpoints sent", flush=True)
     print(format_counters("gcs link", stats["link"]), flush=True)
     if args.stats_json:
-        write_json_atomic(args.stats_json, stats)
+        write_stats_json(args.stats_json, stats)
     return code
 
 

@@ -42,6 +42,15 @@ def write_json_atomic(path: str | os.PathLike, doc: dict, *, indent: int = 1, al
     os.replace(tmp, path)
 
 
+def write_stats_json(path: str | os.PathLike, stats: dict) -> None:
+    """A process's stats file (``--stats-json``): ``stats`` and ``cpu_s``, the CPU seconds (user plus system, every
+    thread) this process has used so far, its start-up and imports included (``tools.bench launch`` reports them
+    per process: on a shared machine the CPU says where the time goes, the wall clock says how busy it was)."""
+    import time
+
+    write_json_atomic(path, {**stats, "cpu_s": round(time.process_time(), 4)})
+
+
 def apply_cpu(parser, cpu: int | None) -> None:
     """Pin this process to CPU ``cpu`` (``--cpu``); a bad CPU is a one-line parser error."""
     if cpu is None:

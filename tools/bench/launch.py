@@ -6,6 +6,8 @@ recording (the launcher, rerun imported once) and drawing flight.png (the helper
 ``python -m tools.launch`` process (nothing cached in memory; the flight layout cached on disk by
 ``tools.layout_cache`` is warm after the first run, as it is for a user) into a new folder, timed from the
 ``Popen`` to its exit, by which time tlog, flight.rrd, flight.png and summary.json are written (each checked).
+The modules' ``.pyc`` files are written and used as they are for a user (``PYTHONDONTWRITEBYTECODE`` is dropped
+from the runs' environment: with it every run would compile the product's modules again).
 
 Figures, medians of ``--runs`` interleaved runs (default 7; ``--quick`` 3):
 
@@ -16,6 +18,8 @@ Figures, medians of ``--runs`` interleaved runs (default 7; ``--quick`` 3):
 * the CPU seconds (user plus system) of all the command's processes (``RUSAGE_CHILDREN``: the launcher reaps its
   children, they reap theirs), and the same for the import: on a machine loaded by others the wall time says more
   about the load than about the code, the CPU seconds barely change with it;
+* the CPU seconds of each process: the autopilot, the SITL and the GCS script each write theirs into their stats
+  file (``cpu_s``); the launcher and its picture helper are the rest of the total;
 * for comparison, the same flight with ``--no-rrd --no-png`` (the three processes' start-up and the flight only),
   the flight's own wall time (the SITL's ``sim / real-time factor``, from the runs' summary.json) and each run's
   wall time minus it (what is waited for around the flight; on a busy machine the flight itself varies most);
@@ -44,6 +48,7 @@ WALL_TARGET_S = 1.2  # issue 21: "a flight in about a second"
 RATIO_TARGET = 15.0  # WALL_TARGET_S over the 0.08 s of `import numpy, scipy` on the quiet 2-core VM
 FLIGHT = ["--lockstep", "--duration", "30", "--quiet"]
 FILES = ("flight.tlog", "flight.rrd", "flight.png", "summary.json")
+CHILDREN = ("autopilot", "sitl", "gcs")  # the processes that write a stats file with their CPU seconds
 
 
 def _children_cpu() -> float:
@@ -52,10 +57,21 @@ def _children_cpu() -> float:
     return r.ru_utime + r.ru_stime
 
 
+def _user_env() -> dict[str, str]:
+    """This process's environment as a user's shell has it: without ``PYTHONDONTWRITEBYTECODE`` (a developer's
+    setting; with it no ``.pyc`` of the product is ever written, and each of the five processes compiles its
+    modules again on every run, about 0.1 s of the command's wall time on the 2-core VM)."""
+    env = dict(os.environ)
+    env.pop("PYTHONDONTWRITEBYTECODE", None)
+    return env
+
+
 def _timed(argv: list[str], code: str | None = None) -> tuple[float, float]:
     """(wall s, CPU s) of one command to its exit, the CPU of all its processes (the launcher reaps each of its
     children, they reap theirs); ``code``: run it from that checkout (PYTHONPATH)."""
-    env = dict(os.environ, PYTHONPATH=code) if code else None  # and run there: ``-m`` looks in the cwd first
+    env = _user_env()
+    if code:
+        env["PYTHONPATH"] = code  # and run there: ``-m`` looks in the cwd first
     c0 = _children_cpu()
     t0 = time.perf_counter()
     proc = subprocess.run(argv, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True, env=env, cwd=code)
@@ -68,9 +84,9 @@ def _timed(argv: list[str], code: str | None = None) -> tuple[float, float]:
 
 def _flight(
     out: Path, extra: list[str], files: tuple[str, ...], code: str | None = None
-) -> tuple[float, float | None, float]:
-    """One launch into ``out``: (wall s, the flight's own wall s from summary.json, CPU s of all its processes);
-    every file of ``files`` must be there and not empty."""
+) -> tuple[float, float | None, float, dict[str, float]]:
+    """One launch into ``out``: (wall s, the flight's own wall s from summary.json, CPU s of all its processes,
+    CPU s of each: ``CHILDREN`` and the rest); every file of ``files`` must be there and not empty."""
     wall, cpu = _timed([sys.executable, "-m", "tools.launch", *FLIGHT, *extra, "--out", str(out)], code)
     missing = [f for f in files if not (out / f).is_file() or (out / f).stat().st_size == 0]
     if missing:
@@ -79,7 +95,15 @@ def _flight(
     if not s.get("ok"):
         raise RuntimeError(f"the flight was not OK: {s.get('error')}")
     flown = s["sim_time_s"] / s["rtf"] if s.get("rtf") else None
-    return wall, flown, cpu
+    per = {}
+    for name in CHILDREN:  # each child's own CPU seconds, written in its stats file (absent in older code)
+        try:
+            per[name] = json.loads((out / f"{name}.json").read_text())["cpu_s"]
+        except (OSError, ValueError, KeyError):
+            pass
+    if len(per) == len(CHILDREN):
+        per["launcher and picture helper"] = cpu - sum(per.values())
+    return wall, flown, cpu, per
 
 
 def main(argv: list[str] | None = None) -> dict:
@@ -94,6 +118,7 @@ def main(argv: list[str] | None = None) -> dict:
     base = str(Path(args.baseline).resolve()) if args.baseline else None
     imports, full, bare, flown, before = [], [], [], [], []
     cpu, cpu_before, cpu_imports = [], [], []  # CPU seconds of all the command's processes: load barely changes it
+    per_process: dict[str, list[float]] = {}  # this code's runs: CPU seconds of each process
     around, around_before = [], []  # each run's wall minus its flight: what the user waits for around the flight
     with tempfile.TemporaryDirectory(prefix="bench-launch-") as tmp:
         _flight(Path(tmp) / "warm-up", [], FILES)  # page cache, .pyc files and the cached flight layout
@@ -105,16 +130,18 @@ def main(argv: list[str] | None = None) -> dict:
             cpu_imports.append(c)
             if base:
                 out = Path(tmp) / f"baseline-{i}"
-                wall, fl, c = _flight(out, [], FILES, base)
+                wall, fl, c, _ = _flight(out, [], FILES, base)
                 before.append(wall)
                 cpu_before.append(c)
                 if fl is not None:
                     around_before.append(wall - fl)
                 shutil.rmtree(out, ignore_errors=True)
             out = Path(tmp) / f"full-{i}"
-            wall, fl, c = _flight(out, [], FILES)
+            wall, fl, c, per = _flight(out, [], FILES)
             full.append(wall)
             cpu.append(c)
+            for name, v in per.items():
+                per_process.setdefault(name, []).append(v)
             if fl is not None:
                 flown.append(fl)
                 around.append(wall - fl)
@@ -141,6 +168,8 @@ def main(argv: list[str] | None = None) -> dict:
         "import numpy, scipy (CPU)": figure(med(cpu_imports), "CPU s", **spread(cpu_imports)),
         "launch --no-rrd --no-png (wall)": figure(med(bare), "s", ratio=med(bare) / ref, **spread(bare)),
     }
+    for name, xs in per_process.items():
+        figs[f"launch, CPU of the {name}"] = figure(med(xs), "CPU s", **spread(xs))
     if flown:
         figs["the flight itself (sim / RTF)"] = figure(med(flown), "s", **spread(flown))
         figs["launch minus its flight (wall)"] = figure(med(around), "s", **spread(around))
