@@ -477,6 +477,23 @@ def test_every_stream_message_reaches_the_tlog_with_its_steps_values(deferred_fl
     assert jobs["jobs"] == 2 * n // 10  # one per datagram (how many ran at once depends on the machine's load)
 
 
+@pytest.mark.e2e
+def test_a_loop_that_sleeps_instead_of_spinning_still_sends_every_stream(tmp_path):
+    """``--lockstep-spin-us 0`` on both sides: the autopilot waits in ``select`` between frames, so its jobs run in
+    the turns before it sleeps (``run_lockstep``'s no-spin branch); every stream message still reaches the tlog."""
+    from tools.flight import Flight
+
+    rate, duration = 100.0, 2.0
+    n = int(rate * duration)
+    res = Flight(out=tmp_path / "f", quiet=True, lockstep=True, rate=rate, duration=duration, lockstep_spin_us=0).run()
+    assert res.ok, res.reason
+    ids = [packet_ids(raw) for _t, raw in read_tlog(str(res.out / "flight.tlog"))]
+    assert ids.count((1, 1, NVF)) == 4 * n // 10 and ids.count((1, 1, ATT)) == n // 10
+    assert ids.count((1, 140, SERVO)) == n
+    jobs = json.loads((res.out / "autopilot.json").read_text())["after_send"]
+    assert jobs["jobs"] == 2 * n // 10
+
+
 def test_tlog_queue_keeps_order_and_stamps(tmp_path):
     from autopilot.shared.tlog import TlogWriter
 
