@@ -46,7 +46,6 @@ SERIAL = "real time, alone"  # the serial unit's name
 
 # Started first, in this order (modules; measured with --durations=0), in the parallel phase.
 LONGEST_FIRST = (
-    "tests/test_browser_attitude.py",  # SwiftShader draws for 25-60 s (no flight beside it: not real time)
     "tests/test_readme_robustness.py",
     "tests/test_study.py",
     "tests/test_plants.py",
