@@ -38,6 +38,7 @@ SERIAL_LAST = (
     "test_e2e_realtime.py",
     "test_e2e_disturbances.py",
     "test_signed_gcs.py",
+    "test_e2e_telemetry.py",
     "test_gcs_admission.py",
     "test_user_lines.py",
     "test_browser_viewer.py",

@@ -13,6 +13,7 @@ from _mavlink_procs import run_cli
 
 from autopilot.envelope import SAT_RTOL
 from autopilot.shared.process import EXIT_OUT_OF_ENVELOPE
+from tools.flight import Flight
 
 pytestmark = pytest.mark.e2e  # real processes over loopback UDP
 
@@ -83,6 +84,24 @@ def test_readme_disturbance_example_ends_out_of_envelope_with_its_numbers(tmp_pa
     assert len(events) == exits and events[0].endswith(f"at {first:.1f} s")
 
 
+def test_envelope_limits_and_the_check_off(tmp_path):
+    """The paper's square wave rolls 10 deg: outside an envelope of 5 deg, inside with the check off."""
+    base = dict(lockstep=True, duration=5.0, quiet=True, rrd=False, png=False)
+    res = Flight(**base, out=tmp_path / "tight", envelope_roll=5.0).run()
+    roll_deg, share, _ = _independent_verdict(res.out)
+    assert res.completed and res.controlled is False and not res.ok and res.exit_code == 3
+    assert res.outcome == "OUT OF ENVELOPE" and 5.0 < roll_deg < 20.0
+    assert res.reason.startswith(f"out of envelope: |roll| reached {roll_deg:.1f} deg (limit 5; first past it at ")
+    off = Flight(**base, out=tmp_path / "off", envelope_roll=5.0, envelope=False).run()
+    assert off.ok and off.completed and off.controlled is True and off.exit_code == 0
+    assert off.summary["controlled"]["reason"] == (
+        f"not checked: max |roll| {roll_deg:.1f} deg, rudder saturated {100 * share:.1f} % of the flight"
+    )
+    sat = Flight(**base, out=tmp_path / "sat", envelope_saturated=0.01).run()  # 0.01 %: any saturation at all
+    _, share, _ = _independent_verdict(sat.out)
+    assert sat.completed and (sat.exit_code == 3) is (share >= 1e-4)
+
+
 def test_default_realtime_paper_flight_is_ok_and_says_so_last(tmp_path):
     out = tmp_path / "rt"
     r = run_cli("tools.launch", "--out", str(out), "--quiet", "--no-png", "--no-rrd", timeout=180)
@@ -94,3 +113,37 @@ def test_default_realtime_paper_flight_is_ok_and_says_so_last(tmp_path):
     assert c["saturated_share"] == pytest.approx(share, abs=1e-12) and share < 0.2 and roll_deg < 60.0
     assert r.stdout.strip().splitlines()[-1] == f"OK: flown to the end; {c['reason']}"
     assert c["reason"].startswith(f"controlled: max |roll| {roll_deg:.1f} deg, rudder saturated ")
+
+
+def test_readme_flight_example_prints_why(tmp_path):
+    """The README's ``Flight`` example, run as written: the SAC flight is completed but not controlled and says
+    why; the flight left early says it was stopped (issue 17: it printed a bare ``False``)."""
+    import re
+    import subprocess
+    import sys
+
+    text = _manual()
+    code = next(b for b in re.findall(r"```python\n(.*?)```", text, re.S) if "from tools.flight import Flight" in b)
+    r = subprocess.run([sys.executable, "-c", code], cwd=tmp_path, capture_output=True, text=True, timeout=300)
+    assert r.returncode == 0, r.stderr[-2000:]
+    first, second = [ln for ln in r.stdout.splitlines() if ln.startswith(("True", "False"))]
+    assert first.startswith("False True False out of envelope: |roll| reached "), first
+    assert "False True False out of envelope" in text  # what the README says it prints
+    assert re.fullmatch(r"False stopped by the caller after [\d.]+ s of 3600 s \(sim time\)", second), r.stdout
+    s = _summary(tmp_path / "runs" / "x")
+    assert s["outcome"] == "OUT OF ENVELOPE" and f"out of envelope: {s['controlled']['reason']}" in first
+
+
+def test_baseline_flight_header_names_the_pid_not_an_lv(tmp_path):
+    """Lv means nothing for the fixed-gain PID (issue 17): neither the launcher's header nor the autopilot's start
+    line print one for it; they still do for CL-SAC."""
+    out = tmp_path / "pid"
+    r = run_cli(
+        "tools.launch", "--lockstep", "--controller", "baseline", "--duration", "2", "--out", str(out), "--no-png"
+    )
+    assert r.returncode == 0, r.stdout[-2000:] + r.stderr[-2000:]
+    header = next(ln for ln in r.stdout.splitlines() if ln.startswith("== "))
+    assert header == "== lockstep flight, baseline (fixed-gain PID), 100 Hz, 2 s: OK"
+    start = next(ln for ln in (out / "autopilot.log").read_text().splitlines() if ln.startswith("autopilot: baseline"))
+    assert "Lv" not in start and start.startswith("autopilot: baseline (fixed-gain PID) lockstep at 100 Hz")
+    assert r.stdout.strip().splitlines()[-1].startswith("OK: flown to the end; controlled: max |roll| ")

@@ -6,8 +6,11 @@ The SITL and the autopilot are the real processes over loopback UDP; the recordi
 from __future__ import annotations
 
 import math
+import os
+import signal
 import subprocess
 import sys
+import time
 from pathlib import Path
 
 import numpy as np
@@ -109,6 +112,45 @@ def test_flight_metrics_can_be_recomputed_from_the_recording(lockstep_flight):
     data = rrd.load(out / "flight.rrd")
     e = np.radians(data["/autopilot/error"].values[:, 0])  # shown in degrees; the metric is in rad^2 s
     assert summary["runs"][0]["metrics"]["ise_crm"] == pytest.approx(float(np.sum(e**2) / RATE), rel=1e-9)
+
+
+def test_realtime_flight_ended_with_sigint_leaves_a_readable_recording(tmp_path):
+    out = tmp_path / "rt"
+    env = dict(os.environ)
+    env.pop("DISPLAY", None)
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "tools.launch", "--duration", "30", "--quiet", "--out", str(out)],
+        cwd=ROOT,
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+        env=env,
+        stdin=subprocess.DEVNULL,
+    )
+    try:
+        # Wait until the autopilot is flying (its log names the links), then fly ~2.5 s more.
+        deadline = time.time() + 60
+        while time.time() < deadline:
+            log = out / "autopilot.log"
+            if log.exists() and "SITL link" in log.read_text():
+                break
+            time.sleep(0.1)
+        time.sleep(2.5)
+        proc.send_signal(signal.SIGINT)
+        stdout, stderr = proc.communicate(timeout=60)
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+    assert proc.returncode == 130, stdout + stderr
+    path = out / "flight.rrd"
+    assert path.exists(), stdout + stderr
+    ok, text = rrd.verify(path)
+    assert ok, text
+    data = rrd.load(path)
+    n = len(data[L.AP_ROLL].t)
+    assert 100 <= n <= 30 * RATE  # ~2.5 s at 100 Hz flown before Ctrl-C
+    assert len(data[S.SITL_ROLL].t) > 100
+    assert load_json(out / "summary.json")["files"]["rrd"] == str(path)
 
 
 def test_experiment_writes_every_run_side_by_side(tmp_path):

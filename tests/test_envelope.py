@@ -11,8 +11,6 @@ import sys
 
 import numpy as np
 import pytest
-from _mavlink_procs import run_cli
-from test_e2e_envelope import _independent_verdict, _manual, _summary  # the envelope flights' own helpers
 
 from autopilot.envelope import (
     ROLL_REARM_DEG,
@@ -25,7 +23,6 @@ from autopilot.envelope import (
     saturated,
     within,
 )
-from tools.flight import Flight
 
 LIM = math.radians(30.0)  # the rudder limit of the paper
 RATE = 100.0
@@ -225,62 +222,3 @@ def test_flight_keywords_are_bounded_like_the_flags():
         Flight(envelope_saturated=-1)
     cfg = Flight(envelope_roll=45, envelope_saturated=5, envelope=False).config
     assert cfg.flight_envelope == Envelope(45.0, 0.05, check=False)
-
-
-# ---------------------------------------------------------------------------------------- lockstep flights
-# Flown in lockstep (their numbers do not depend on the wall clock), so they run in the parallel phase; the real-time
-# default flight and the README's disturbance example (seeded link faults) are in test_e2e_envelope.py, which runs
-# alone (tests/conftest.py).
-@pytest.mark.e2e
-def test_envelope_limits_and_the_check_off(tmp_path):
-    """The paper's square wave rolls 10 deg: outside an envelope of 5 deg, inside with the check off."""
-    base = dict(lockstep=True, duration=5.0, quiet=True, rrd=False, png=False)
-    res = Flight(**base, out=tmp_path / "tight", envelope_roll=5.0).run()
-    roll_deg, share, _ = _independent_verdict(res.out)
-    assert res.completed and res.controlled is False and not res.ok and res.exit_code == 3
-    assert res.outcome == "OUT OF ENVELOPE" and 5.0 < roll_deg < 20.0
-    assert res.reason.startswith(f"out of envelope: |roll| reached {roll_deg:.1f} deg (limit 5; first past it at ")
-    off = Flight(**base, out=tmp_path / "off", envelope_roll=5.0, envelope=False).run()
-    assert off.ok and off.completed and off.controlled is True and off.exit_code == 0
-    assert off.summary["controlled"]["reason"] == (
-        f"not checked: max |roll| {roll_deg:.1f} deg, rudder saturated {100 * share:.1f} % of the flight"
-    )
-    sat = Flight(**base, out=tmp_path / "sat", envelope_saturated=0.01).run()  # 0.01 %: any saturation at all
-    _, share, _ = _independent_verdict(sat.out)
-    assert sat.completed and (sat.exit_code == 3) is (share >= 1e-4)
-
-
-@pytest.mark.e2e
-def test_readme_flight_example_prints_why(tmp_path):
-    """The README's ``Flight`` example, run as written: the SAC flight is completed but not controlled and says
-    why; the flight left early says it was stopped (issue 17: it printed a bare ``False``)."""
-    import re
-    import subprocess
-    import sys
-
-    text = _manual()
-    code = next(b for b in re.findall(r"```python\n(.*?)```", text, re.S) if "from tools.flight import Flight" in b)
-    r = subprocess.run([sys.executable, "-c", code], cwd=tmp_path, capture_output=True, text=True, timeout=300)
-    assert r.returncode == 0, r.stderr[-2000:]
-    first, second = [ln for ln in r.stdout.splitlines() if ln.startswith(("True", "False"))]
-    assert first.startswith("False True False out of envelope: |roll| reached "), first
-    assert "False True False out of envelope" in text  # what the README says it prints
-    assert re.fullmatch(r"False stopped by the caller after [\d.]+ s of 3600 s \(sim time\)", second), r.stdout
-    s = _summary(tmp_path / "runs" / "x")
-    assert s["outcome"] == "OUT OF ENVELOPE" and f"out of envelope: {s['controlled']['reason']}" in first
-
-
-@pytest.mark.e2e
-def test_baseline_flight_header_names_the_pid_not_an_lv(tmp_path):
-    """Lv means nothing for the fixed-gain PID (issue 17): neither the launcher's header nor the autopilot's start
-    line print one for it; they still do for CL-SAC."""
-    out = tmp_path / "pid"
-    r = run_cli(
-        "tools.launch", "--lockstep", "--controller", "baseline", "--duration", "2", "--out", str(out), "--no-png"
-    )
-    assert r.returncode == 0, r.stdout[-2000:] + r.stderr[-2000:]
-    header = next(ln for ln in r.stdout.splitlines() if ln.startswith("== "))
-    assert header == "== lockstep flight, baseline (fixed-gain PID), 100 Hz, 2 s: OK"
-    start = next(ln for ln in (out / "autopilot.log").read_text().splitlines() if ln.startswith("autopilot: baseline"))
-    assert "Lv" not in start and start.startswith("autopilot: baseline (fixed-gain PID) lockstep at 100 Hz")
-    assert r.stdout.strip().splitlines()[-1].startswith("OK: flown to the end; controlled: max |roll| ")
