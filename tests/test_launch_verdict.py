@@ -28,12 +28,17 @@ def _wait_for_steps(flight: Flight, name: str, text: str, timeout: float = 60.0)
         time.sleep(0.05)
 
 
+# The autopilot's give-up on a silent SITL (lockstep) and the GCS script's on a silent vehicle, 5 s by default: shorter
+# for the stalled flights below, which stop a process for good (still above the blame threshold, STALL_S = 2 s).
+GIVE_UP_S = 3.0
+
+
 def test_stalled_sitl_fails_the_flight_and_is_named(tmp_path):
     kw = dict(lockstep=True, duration=3000.0, out=tmp_path, quiet=True, rrd=False, series=False)
-    with Flight(**kw) as flight:
+    with Flight(lockstep_idle_exit=GIVE_UP_S, **kw) as flight:
         _wait_for_steps(flight, "sitl", "lockstep from")
         time.sleep(1.0)
-        os.kill(flight.pids["sitl"], signal.SIGSTOP)  # longer than the autopilot's 5 s lockstep idle timeout
+        os.kill(flight.pids["sitl"], signal.SIGSTOP)  # longer than the autopilot's lockstep idle timeout
         res = flight.wait(timeout=120)
     assert not res.ok and res.exit_code == 1
     assert res.summary["failed"] == "sitl" and res.reason.startswith("sitl stalled: sent nothing for "), res.reason
@@ -154,64 +159,11 @@ def test_ground_station_ended_by_a_forged_poweroff_fails_the_flight(tmp_path):
     assert s["failed"] == "gcs" and "gcs exited early (exit code 0)" in s["error"] and "of its profile" in s["error"]
 
 
-@pytest.mark.parametrize("seen_s,ok", [(7.5, True), (7.49, False), (8.0, True), (3.0, False), (None, False)])
-def test_a_ground_station_ends_the_run_only_at_its_end(seen_s, ok):
-    """The boundary of ``_reached_end`` for an 8 s flight: the GCS script's "end of run" counts only if the
-    vehicle clock it saw reached the duration, less one slack of 0.5 s (it sees the clock a telemetry period late)."""
-    from tools.flight import GCS_END_SLACK_S, _reached_end
-
-    assert GCS_END_SLACK_S == 0.5
-    st = {"exit_reason": "end of run (vehicle powered off)", "origin_ms": 2000, "sim_ms": None}
-    if seen_s is not None:
-        st["sim_ms"] = 2000 + round(seen_s * 1000)
-    assert _reached_end("gcs", st, 8.0) is ok
-    assert _reached_end("gcs", {"exit_reason": "stopped by signal", "origin_ms": 0, "sim_ms": 8000}, 8.0) is False
-    assert _reached_end("sitl", {"exit_reason": "end of run (duration reached)"}, 8.0) is True  # by frame count
-
-
-@pytest.mark.parametrize(
-    "argv,needle,process",
-    [
-        (["--physics-rate", "1e12"], "(0, 100000] Hz", "sitl"),
-        (["--sensor-rate", "1e9"], "(0, 1000] Hz", "sitl"),
-        (["--sensor-rate", "19.9"], "at least 20 Hz in real time", "sitl"),  # just below: attitude would time out
-        (["--rate", "5000"], "(0, 1000] Hz", "autopilot"),
-        (["--rate", "100", "--physics-rate", "1050"], "whole multiple of the control rate", "sitl"),
-        (["--duration", "1e308"], "(0, 86400] s", "launch"),
-        (["--start-time", "5e6"], "[0, 86400] s", "sitl"),
-        (["--lv", "1e300"], "[0, 10000]", "autopilot"),
-        (["--amplitude", "1e9"], "[-180, 180] deg", "gcs"),
-    ],
-)
-def test_impossible_values_are_refused_before_the_flight(tmp_path, argv, needle, process):
-    """Exit 2 with one line naming the flag and its range; nothing is started; summary.json says so."""
-    out = tmp_path / "never"
-    r = run_cli("tools.launch", *argv, "--out", str(out), timeout=60)
-    lines = r.stderr.strip().splitlines()
-    assert r.returncode == 2 and len(lines) == 1 and argv[-2] in lines[0] and needle in lines[0], r.stderr
-    assert sorted(p.name for p in out.iterdir()) == ["summary.json"]  # nothing was started, the verdict is written
-    s = json.loads((out / "summary.json").read_text())
-    assert s["ok"] is False and s["exit_code"] == 2 and s["refused"] is True
-    assert s["failed"] == process and needle in s["error"]
-    assert s["flown"]["fraction"] == 0.0 and s["flown"]["steps"] == 0
-
-
 def test_lowest_real_time_sensor_rate_is_flown(tmp_path):
     """Just above the bound (20 Hz: two ATTITUDE per 0.1 s attitude timeout) the real-time flight is flown whole."""
     res = Flight(duration=3.0, sensor_rate=20.0, out=tmp_path, quiet=True, rrd=False, series=False, png=False).run()
     assert res.ok, res.reason
     assert res.summary["flown"]["complete"] and res.summary["flown"]["fraction"] == 1.0
-
-
-@pytest.mark.parametrize("bad", ["file", "in_a_file"])
-def test_output_paths_are_checked_before_the_flight(tmp_path, bad):
-    f = tmp_path / "f"
-    f.write_text("x")
-    out = f if bad == "file" else f / "run"
-    r = run_cli("tools.launch", "--out", str(out), timeout=60)
-    assert r.returncode == 2 and len(r.stderr.strip().splitlines()) == 1 and "--out" in r.stderr, r.stderr
-    r = run_cli("autopilot", "--stats-json", str(tmp_path), timeout=60)
-    assert r.returncode == 2 and "--stats-json" in r.stderr and "is a folder" in r.stderr
 
 
 def test_lockstep_sitl_answers_sigint_while_waiting_and_writes_its_stats(tmp_path):
@@ -235,18 +187,12 @@ def test_lockstep_sitl_answers_sigint_while_waiting_and_writes_its_stats(tmp_pat
 
 def test_stalled_autopilot_is_blamed_not_the_gcs_that_noticed(tmp_path):
     kw = dict(duration=20.0, out=tmp_path, quiet=True, rrd=False, series=False)
-    with Flight(**kw) as flight:
+    with Flight(vehicle_timeout=GIVE_UP_S, **kw) as flight:
         _wait_for_steps(flight, "gcs", "gcs: vehicle ")
         time.sleep(1.0)
-        os.kill(flight.pids["autopilot"], signal.SIGSTOP)  # longer than the GCS script's 5 s vehicle timeout
+        os.kill(flight.pids["autopilot"], signal.SIGSTOP)  # longer than the GCS script's vehicle timeout
         res = flight.wait(timeout=60)  # the launcher then kills the stopped process
     assert not res.ok and res.exit_code == 1
     assert res.summary["failed"] == "autopilot", res.reason
     assert res.reason.startswith("autopilot stalled: sent nothing for "), res.reason
     assert "gcs reports: vehicle lost" in res.reason
-
-
-def test_unresolvable_peer_is_a_one_line_error():
-    r = run_cli("autopilot", "--sitl", "no.such.host.invalid:5", "--duration", "1", timeout=60)
-    lines = r.stderr.strip().splitlines()
-    assert r.returncode == 1 and len(lines) == 1 and "no.such.host.invalid:5" in lines[0] and "resolve" in lines[0]

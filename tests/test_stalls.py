@@ -6,17 +6,23 @@ from __future__ import annotations
 
 import json
 import os
+import re
 import signal
 import time
-from types import SimpleNamespace
 
 import pytest
-from _mavlink_procs import Proc, free_ports, run_cli
+from _mavlink_procs import Proc, free_ports
 
-from tools.flight import STALL_S, Flight, first_stall, flown_report, verdict
+from tools.flight import STALL_S, Flight
 
 REPEATS = range(3)
 QUIET = dict(quiet=True, rrd=False, series=False, png=False)
+# The lockstep stalls: the autopilot's give-up on a silent SITL and the GCS script's on a silent vehicle (5 s by
+# default) shortened for these flights, so that a stop past them takes 3.5 s, not 6-7 s.  The margins are the
+# default's: the stop outlasts the give-up by 1 s and the blame threshold STALL_S by 1.5 s.
+GIVE_UP_S = 2.5
+STOP_S = GIVE_UP_S + 1.0
+SHORT = dict(QUIET, lockstep_idle_exit=GIVE_UP_S, vehicle_timeout=GIVE_UP_S)
 
 
 def _wait_for(flight: Flight, name: str, text: str, timeout: float = 60.0) -> None:
@@ -119,37 +125,42 @@ def test_sitl_counts_the_sim_time_flown_on_its_servo_timeout(tmp_path):
 # ---------------------------------------------------------------------------------------- blame from evidence
 @pytest.mark.e2e
 @pytest.mark.parametrize("rep", REPEATS)
-def test_lockstep_sitl_stopped_6s_is_always_the_sitl(tmp_path, rep):
-    """The autopilot gives up after 5 s of SITL silence and powers off; the GCS script then ends too, and its exit
-    may be seen first.  The SITL's own send clock shows its 6 s gap: the SITL is named, every time."""
-    with Flight(lockstep=True, duration=3000.0, out=tmp_path, **QUIET) as flight:
+def test_lockstep_sitl_stopped_past_the_give_up_is_always_the_sitl(tmp_path, rep):
+    """The autopilot gives up after ``GIVE_UP_S`` of SITL silence and powers off; the GCS script then ends too, and
+    its exit may be seen first.  The SITL's own send clock shows its ``STOP_S`` gap: the SITL is named, every time."""
+    assert STOP_S >= GIVE_UP_S + 1.0 and STOP_S >= STALL_S + 1.5
+    with Flight(lockstep=True, duration=3000.0, out=tmp_path, **SHORT) as flight:
         _wait_for(flight, "sitl", "lockstep from")
         time.sleep(0.5)
-        _stop_for(flight.pids["sitl"], 6.0)
+        _stop_for(flight.pids["sitl"], STOP_S)
         res = flight.wait(timeout=60)
     s = res.summary
     assert not res.ok and res.exit_code == 1 and s["failed"] == "sitl", res.reason
     assert res.reason.startswith("sitl stalled: sent nothing for "), res.reason
     gap = _stats(flight, "sitl")["sent"]["longest_gap_s"]
-    assert 5.5 <= gap <= 7.0 and f"sent nothing for {gap:.1f} s" in res.reason
-    assert "autopilot reports: SITL silent for 5" in res.reason
+    assert STOP_S - 0.5 <= gap <= STOP_S + 1.0 and f"sent nothing for {gap:.1f} s" in res.reason
+    # it gave up on its threshold, before the SITL was back (as "SITL silent for 5" with the default 5 s)
+    silent = re.search(r"autopilot reports: SITL silent for (\d+\.\d) s", res.reason)
+    assert silent and GIVE_UP_S <= float(silent[1]) < GIVE_UP_S + 1.0, res.reason
     assert 0.0 < s["flown"]["fraction"] < 1.0 and s["flown"]["steps"] == _stats(flight, "autopilot")["steps"]
 
 
 @pytest.mark.e2e
 @pytest.mark.parametrize("rep", REPEATS)
-def test_lockstep_gcs_stopped_7s_recovers_never_blames_the_autopilot(tmp_path, rep):
-    """The GCS script stopped for 7 s: the autopilot waits for its schedule (and keeps sending), the SITL resends
-    (its give-up is 10 s).  The script sees its own stall on waking and reads on: the flight completes."""
-    with Flight(lockstep=True, duration=60.0, out=tmp_path, **QUIET) as flight:
+def test_lockstep_gcs_stopped_past_the_give_ups_recovers_never_blames_the_autopilot(tmp_path, rep):
+    """The GCS script stopped for ``STOP_S``, longer than the autopilot's give-up on a silent SITL and the script's
+    own on a silent vehicle: the autopilot waits for its schedule (and keeps sending), the SITL resends (its give-up
+    is 10 s).  The script sees its own stall on waking and reads on: the flight completes."""
+    with Flight(lockstep=True, duration=60.0, out=tmp_path, **SHORT) as flight:
         _wait_for(flight, "sitl", "lockstep from")
         time.sleep(0.3)
-        _stop_for(flight.pids["gcs"], 7.0)
+        _stop_for(flight.pids["gcs"], STOP_S)
         res = flight.wait(timeout=120)
     assert res.summary["failed"] != "autopilot", res.reason
     gcs = _stats(flight, "gcs")
     assert res.ok and res.summary["flown"]["complete"], res.reason
-    assert gcs["own_stalls"] == 1 and 6.5 <= gcs["own_stall_max_s"] <= 8.0 and gcs["sent"]["longest_gap_s"] >= 6.5
+    assert gcs["own_stalls"] == 1 and STOP_S - 0.5 <= gcs["own_stall_max_s"] <= STOP_S + 1.0
+    assert gcs["sent"]["longest_gap_s"] >= STOP_S - 0.5
     assert _stats(flight, "autopilot")["sent"]["longest_gap_s"] < STALL_S  # the autopilot kept sending
 
 
@@ -179,97 +190,3 @@ def test_killed_autopilot_flown_fraction_comes_from_the_sitl(tmp_path, lockstep,
         from_sitl = (sitl["last_servo_sim_s"] - sitl["first_servo_sim_s"] - sitl["servo_timeout_s"]) * 100
         assert abs(s["flown"]["steps"] - from_sitl) <= 1.01  # the periods between its first and last command
     assert f"flown {100 * s['flown']['fraction']:.3g} %" in res.reason
-
-
-@pytest.mark.e2e
-def test_peer_port_0_is_refused_at_parse_time(tmp_path):
-    """Port 0 is "any port" only for a bound socket; as a peer it sends nowhere (it blamed the SITL, empty reason)."""
-    r = run_cli("tools.launch", "--gcs-peer", "127.0.0.1:0", "--out", str(tmp_path / "never"), timeout=60)
-    lines = r.stderr.strip().splitlines()
-    assert r.returncode == 2 and len(lines) == 1 and "--gcs-peer" in lines[0] and "0 only binds" in lines[0], r.stderr
-    assert sorted(p.name for p in (tmp_path / "never").iterdir()) == ["summary.json"]
-    for module, flag in (("autopilot", "--gcs-peer"), ("autopilot", "--sitl"), ("sitl", "--autopilot")):
-        r = run_cli(module, flag, "127.0.0.1:0", timeout=60)
-        lines = r.stderr.strip().splitlines()
-        assert r.returncode == 2 and len(lines) == 1 and flag in lines[0] and "0 only binds" in lines[0], r.stderr
-    assert run_cli("tools.gcs", "--vehicle", "localhost:0", timeout=60).returncode == 2
-
-
-# ---------------------------------------------------------------------------------------- the rule itself
-def _child(name, code, exited_at):
-    return SimpleNamespace(name=name, code=code, exited_at=exited_at, started=0.0, reason=lambda: "(no output)")
-
-
-def _sent(last, gap=0.05, gap_from=None, ended=None):
-    return {"last_mono": last, "longest_gap_s": gap, "longest_gap_from_mono": gap_from or last - 1, "ended_mono": ended}
-
-
-def test_a_completed_profile_seen_exiting_first_is_not_blamed_for_the_autopilots_shortfall():
-    """Under load the GCS script's exit (at the autopilot's POWEROFF, its profile complete) was seen before the
-    autopilot's; the flight was 5 autopilot steps short and the reason said "gcs exited early"."""
-    from tools.flight import FlightConfig
-
-    cfg = FlightConfig(duration=30.0, quiet=True)
-    stats = {
-        "autopilot": {
-            "steps": 3000,
-            "hold_steps": 0,
-            "late_steps": 5,
-            "max_lateness_s": 0.2,
-            "attitude_timeout_s": 0.1,
-            "metric_samples": 3000,
-            "exit_reason": "end of run (duration reached)",
-            "sent": _sent(40.0),
-        },
-        "sitl": {"frames": 6000, "servo_timeout_s": 0.0, "servo_timeout_open_s": 0.0, "sent": _sent(40.5)},
-        "gcs": {"exit_reason": "end of run (vehicle powered off)", "origin_ms": 0, "sim_ms": 30000, "sent": _sent(40)},
-    }
-    flown = flown_report(cfg, stats)
-    assert flown["steps"] == 2995 and not flown["complete"]
-    children = {
-        "gcs": _child("gcs", 0, 40.01),
-        "autopilot": _child("autopilot", 0, 40.02),
-        "sitl": _child("sitl", 0, 41),
-    }
-    code, failed, why = verdict(children, stats, flown, 0, None, None, t_end=40.5)
-    assert (code, failed) == (1, "autopilot"), why
-    assert why.startswith("autopilot: 5 steps flown later than the attitude timeout (0.1 s)"), why
-    assert "gcs" not in why and "flown 99.8 % (2995 of 3000 steps" in why
-
-
-def test_the_first_to_stop_sending_is_named_not_the_first_to_exit():
-    """Evidence beats exit order: the GCS exits first (it noticed), the SITL's own clock shows it stopped earlier;
-    a process without stats is judged on its peers' receive clocks; silences under STALL_S are no stall."""
-    ok_ap = {"exit_reason": "SITL silent", "sent": _sent(20.0), "links": {"sitl": {}, "gcs": {"last_rx_mono": 19.9}}}
-    stats = {
-        "autopilot": {**ok_ap, "links": {"sitl": {"last_rx_mono": 12.0}, "gcs": {"last_rx_mono": 19.9}}},
-        "sitl": {"sent": _sent(18.0, gap=6.0, gap_from=12.0)},
-        "gcs": {"sent": _sent(19.95, gap=0.9, gap_from=15.0), "link": {"last_rx_mono": 20.0}},
-    }
-    children = {
-        "gcs": _child("gcs", 1, 19.96),
-        "autopilot": _child("autopilot", 0, 20.1),
-        "sitl": _child("sitl", 0, 25),
-    }
-    assert first_stall(children, stats, t_end=20.2)[:3] == ("sitl", 12.0, 6.0)
-    stats["sitl"] = None  # killed while stopped: the autopilot last heard it at 12.0, then nothing to the end
-    name, t_from, seconds, evidence = first_stall(children, stats, t_end=20.2)
-    assert (name, t_from) == ("sitl", 12.0) and seconds == pytest.approx(8.2) and "autopilot" in evidence
-    stats["autopilot"]["links"]["sitl"]["last_rx_mono"] = 20.2 - STALL_S + 0.01  # heard until just under STALL_S
-    assert first_stall(children, stats, t_end=20.2) is None
-
-
-def test_send_clock_keeps_the_longest_gap_and_the_tail_to_the_end():
-    """The longest interval without a send, between two sends or from the last one to the end of the run loop."""
-    from autopilot.shared.link import SendClock
-
-    clock = SendClock()
-    for t in (10.0, 10.01, 10.02, 13.52, 13.53):  # a 3.5 s gap from 10.02
-        clock.tick(t)
-    assert (clock.gap_s, clock.gap_from, clock.sends, clock.first) == (pytest.approx(3.5), 10.02, 5, 10.0)
-    clock.end(15.0)  # 1.47 s to the end: shorter, the 3.5 s gap stays
-    assert clock.gap_s == pytest.approx(3.5)
-    clock.end(20.0)  # stopped after its last send until its end: 6.47 s from 13.53
-    s = clock.summary()
-    assert s["longest_gap_s"] == pytest.approx(6.47) and s["longest_gap_from_mono"] == 13.53
-    assert s["last_mono"] == 13.53 and s["ended_mono"] == 20.0

@@ -45,7 +45,16 @@ from autopilot.shared.cli import (
 )
 from autopilot.shared.process import EXIT_USAGE, install_stop_handlers
 from sitl import disturbances
-from tools.flight import MERGE_MAX_MB, PROCESSES, PROFILES, Flight, FlightConfigError, write_refusal
+from tools.flight import (
+    LOCKSTEP_IDLE_EXIT_S,
+    MERGE_MAX_MB,
+    PROCESSES,
+    PROFILES,
+    VEHICLE_TIMEOUT_S,
+    Flight,
+    FlightConfigError,
+    write_refusal,
+)
 from tools.web import DEFAULT_GRPC_PORT, DEFAULT_HOST, DEFAULT_HTTP_PORT, WebServerError, bind_host, tcp_port
 
 
@@ -206,6 +215,21 @@ def build_parser() -> OneLineArgumentParser:
         help=f"lockstep: the autopilot and the SITL busy-poll this long for each other's frame before sleeping "
         f"(default {LOCKSTEP_SPIN_US:g}; the processes' own default is 500, see docs/design.md section 9)",
     )
+    p.add_argument(
+        "--lockstep-idle-exit",
+        type=timeout_s,
+        default=LOCKSTEP_IDLE_EXIT_S,
+        metavar="S",
+        help=f"lockstep: the autopilot gives up after S s of SITL silence after a frame "
+        f"(default {LOCKSTEP_IDLE_EXIT_S:g})",
+    )
+    p.add_argument(
+        "--vehicle-timeout",
+        type=timeout_s,
+        default=VEHICLE_TIMEOUT_S,
+        metavar="S",
+        help=f"the GCS script gives up after S s without a word from the vehicle (default {VEHICLE_TIMEOUT_S:g})",
+    )
     p.add_argument("--quiet", action="store_true", help="do not echo the processes' output (it is still in DIR/*.log)")
     p.add_argument(
         "--no-series",
@@ -321,13 +345,14 @@ _OWNERS = {
         "rt_priority",
         "busy_wait",
         "lockstep_spin_us",
+        "lockstep_idle_exit",
         "telemetry_rate",
         "gcs_peer",
         "params",
         "baseline_gains",
     }
     | {"envelope_roll", "envelope_saturated", "lockstep_spin_us"},
-    "gcs": {"profile", "csv", "amplitude", "period"},
+    "gcs": {"profile", "csv", "amplitude", "period", "vehicle_timeout"},
 }
 
 

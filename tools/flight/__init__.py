@@ -25,10 +25,12 @@ from __future__ import annotations
 
 from tools.flight.config import (
     DEFAULT_DURATION_S,
+    LOCKSTEP_IDLE_EXIT_S,
     MERGE_MAX_MB,
     PROCESSES,
     PROFILES,
     RUDDER_MAX_DEG,
+    VEHICLE_TIMEOUT_S,
     FlightConfig,
     FlightConfigError,
     child_argvs,
@@ -65,6 +67,7 @@ __all__ = [
     "FlightResult",
     "GCS_END_SLACK_S",
     "HEARD_BY",
+    "LOCKSTEP_IDLE_EXIT_S",
     "MERGE_MAX_MB",
     "PNG_MAX_POINTS",
     "PROCESSES",
@@ -72,6 +75,7 @@ __all__ = [
     "RUDDER_MAX_DEG",
     "STALE_FILES",
     "STALL_S",
+    "VEHICLE_TIMEOUT_S",
     "_reached_end",
     "build_summary",
     "child_argvs",

@@ -33,6 +33,10 @@ MERGE_MAX_MB = 64.0  # default rrd_merge_max_mb: larger telemetry parts are conc
 DEFAULT_DURATION_S = 30.0  # a flight's length unless given (a csv profile: its last breakpoint)
 
 
+# How long a peer's silence is waited out before a process gives up (each one's own flag, the launcher passes it):
+LOCKSTEP_IDLE_EXIT_S = 5.0  # the lockstep autopilot, SITL silent after a frame (autopilot --lockstep-idle-exit)
+VEHICLE_TIMEOUT_S = 5.0  # the GCS script, vehicle silent (tools.gcs --vehicle-timeout; its default too)
+
 RUDDER_MAX_DEG = 30.0  # the servo calibration's full deflection (SITL and autopilot default)
 
 
@@ -96,6 +100,12 @@ class FlightConfig:
     # lockstep: how long the autopilot and the SITL busy-poll for the other's frame before sleeping in select, us;
     # None = the processes' own default (500 us, autopilot --lockstep-spin-us, sitl --spin-us)
     lockstep_spin_us: float | None = None
+    # lockstep: the autopilot gives up (powers off, the SITL is blamed) after this many wall s of SITL silence after a
+    # frame (autopilot --lockstep-idle-exit)
+    lockstep_idle_exit: float = LOCKSTEP_IDLE_EXIT_S
+    # the GCS script ends with "vehicle lost" after this many wall s without a word from the vehicle (tools.gcs
+    # --vehicle-timeout)
+    vehicle_timeout: float = VEHICLE_TIMEOUT_S
     quiet: bool = False  # do not echo the children's output (it is still in DIR/<process>.log)
     viewer: bool = False  # spawn a Rerun viewer (or reuse the one on port 9876) and stream to it live
     connect: str | None = None  # stream live to a running Rerun viewer at this URL
@@ -160,6 +170,8 @@ class FlightConfig:
             ("envelope_roll", envelope_roll_deg),
             ("envelope_saturated", envelope_saturated_pct),
             ("sysid", cli.sysid_arg),
+            ("lockstep_idle_exit", cli.timeout_s),
+            ("vehicle_timeout", cli.timeout_s),
         ):
             put(name, _checked(name, check, getattr(self, name)))
         for name, check in (
@@ -526,6 +538,8 @@ def child_argvs(
         str(out / "gcs.json"),
         "--start-time",
         repr(cfg.start_time),
+        "--vehicle-timeout",
+        repr(cfg.vehicle_timeout),
     ]
     gcs += ["--csv", cfg.csv] if cfg.csv else [cfg.profile]
     if cfg.series:
@@ -533,7 +547,7 @@ def child_argvs(
         sitl += ["--series", str(out / "sitl_series.npz")]
     if cfg.lockstep:
         sitl += ["--lockstep", "--duration", repr(cfg.duration)]
-        ap += ["--lockstep", "--lockstep-idle-exit", "5"]
+        ap += ["--lockstep", "--lockstep-idle-exit", repr(cfg.lockstep_idle_exit)]
         if cfg.lockstep_spin_us is not None:
             ap += ["--lockstep-spin-us", repr(float(cfg.lockstep_spin_us))]
             sitl += ["--spin-us", repr(float(cfg.lockstep_spin_us))]
