@@ -112,7 +112,11 @@ class Browser:
         deadline = time.monotonic() + timeout_s
         while time.monotonic() < deadline:
             if self.proc.poll() is not None:
-                raise BrowserError(f"chromium exited with code {self.proc.returncode} at start-up")
+                self._log.flush()
+                tail = Path(self._log.name).read_text(errors="replace").strip().splitlines()[-1:]
+                raise BrowserError(
+                    f"chromium exited with code {self.proc.returncode} at start-up" + (f": {tail[0]}" if tail else "")
+                )
             try:
                 with urllib.request.urlopen(f"http://127.0.0.1:{self.port}/json/list", timeout=2) as r:
                     pages = [t for t in json.load(r) if t.get("type") == "page"]
@@ -251,6 +255,7 @@ class Browser:
                     os.killpg(self.proc.pid, 9)
                     self.proc.wait()
             self._log.close()
+            Path(self._log.name).unlink(missing_ok=True)  # Chromium's output, beside the profile: gone with it
             shutil.rmtree(self._profile, ignore_errors=True)
 
     def __enter__(self) -> Browser:
