@@ -8,6 +8,7 @@ import os
 import signal
 import sys
 import threading
+import time
 
 # Exit statuses every process and the launcher use.
 EXIT_OK = 0
@@ -46,8 +47,6 @@ def write_stats_json(path: str | os.PathLike, stats: dict) -> None:
     """A process's stats file (``--stats-json``): ``stats`` and ``cpu_s``, the CPU seconds (user plus system, every
     thread) this process has used so far, its start-up and imports included (``tools.bench launch`` reports them
     per process: on a shared machine the CPU says where the time goes, the wall clock says how busy it was)."""
-    import time
-
     write_json_atomic(path, {**stats, "cpu_s": round(time.process_time(), 4)})
 
 
