@@ -56,8 +56,6 @@ ATTITUDE_GROUP = (M.MAVLINK_MSG_ID_ATTITUDE, M.MAVLINK_MSG_ID_ATTITUDE_TARGET, M
 NAMED_VALUE_FLOAT = M.MAVLINK_MSG_ID_NAMED_VALUE_FLOAT
 SYS_STATUS = M.MAVLINK_MSG_ID_SYS_STATUS
 GAINS_RATE_HZ = 10.0  # NAMED_VALUE_FLOAT Ke, Kx, Ku, e: a rate a plain ground station graphs
-_GAIN_NAMES = (b"Ke", b"Kx", b"Ku", b"e")
-_GAIN_IDS = (NAMED_VALUE_FLOAT,) * 4
 _STREAMS = {  # MAV_DATA_STREAM -> the groups it drives
     M.MAV_DATA_STREAM_ALL: ("attitude", "gains", "status"),
     M.MAV_DATA_STREAM_EXTENDED_STATUS: ("status",),
@@ -142,25 +140,16 @@ class Vehicle:
 
     def on_step(self, steps: int, t_ms: int) -> None:
         """After each control step: NAMED_VALUE_FLOAT Ke, Kx, Ku, e every ``every['gains']`` steps."""
-        gains = self.gains_due(steps)
-        if gains is not None:
-            self.send_gains(t_ms, gains)
-
-    def gains_due(self, steps: int) -> tuple | None:
-        """The values the gains stream sends after step ``steps`` (Ke, Kx, Ku, e as floats, read now), or None if
-        that step sends none (``on_step`` is ``gains_due`` then ``send_gains``)."""
         n = self.every["gains"]
         if n and steps % n == 0 and self.selectable[1] is not Mode.BASELINE:
             law = self.control.law
-            return float(law.ke), float(law.kx), float(law.ku), float(law.e)
-        return None
-
-    def send_gains(self, t_ms: int, gains: tuple) -> None:
-        """NAMED_VALUE_FLOAT Ke, Kx, Ku, e (``gains``, from ``gains_due``) stamped ``t_ms``, one datagram."""
-        g = self.link
-        pk = self._pk_nvf
-        bufs = [g.pack_fast(pk, t_ms, v, name) for name, v in zip(_GAIN_NAMES, gains)]
-        self.stream(bufs, _GAIN_IDS)
+            g = self.link
+            pk = self._pk_nvf
+            bufs = [
+                g.pack_fast(pk, t_ms, float(v), name)
+                for name, v in ((b"Ke", law.ke), (b"Kx", law.kx), (b"Ku", law.ku), (b"e", law.e))
+            ]
+            self.stream(bufs, (NAMED_VALUE_FLOAT,) * 4)
 
     def heartbeat(self, status: int) -> "M.MAVLink_heartbeat_message":
         base = M.MAV_MODE_FLAG_CUSTOM_MODE_ENABLED

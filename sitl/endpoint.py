@@ -228,9 +228,8 @@ class Sitl:
             return raw
         x = self.aircraft.truth.tolist()  # the float64 values as Python floats, exactly (float(x[i]) each)
         # roll wrapped to (-pi, pi] where it is measured, as a real attitude sensor reports it
-        link = self.link
-        raw = link.pack_fast(self._pk_att, ms, wrap_pi(x[3]), 0.0, self._heading(x[2]), x[1], 0.0, x[2])
-        link.account_sent(raw, ATTITUDE, link.send_now(raw))  # send_raw with the send clock and counters after it
+        raw = self.link.pack_fast(self._pk_att, ms, wrap_pi(x[3]), 0.0, self._heading(x[2]), x[1], 0.0, x[2])
+        self.link.send_raw(raw, ATTITUDE)
         return raw
 
     def _servo_waiting(self) -> bool:
@@ -297,11 +296,10 @@ class Sitl:
         poll.register(link.sock, select.POLLIN)
         poll = poll.poll  # the busy poll: one poll(2) per turn (an empty recvfrom costs twice that, and raises)
         self.wall_first_frame = perf()
-        ms = frame_ms(K, rate)  # frame K's time_boot_ms (the next one's is worked out while the autopilot computes)
         while not self.stop_requested:
             if n_frames and self.frames >= n_frames:
                 # End-of-run frame: tells the autopilot the run is over (sent a few times, nobody answers).
-                raw = self._send_attitude(ms, K)
+                raw = self._send_attitude(frame_ms(K, rate), K)
                 self._run_hooks(rec)
                 rec = None
                 for _ in range(2):
@@ -309,9 +307,8 @@ class Sitl:
                     link.resend(raw, ATTITUDE)
                 self.exit_reason = "end of run (duration reached)"
                 break
-            raw = self._send_attitude(ms, K)
+            raw = self._send_attitude(frame_ms(K, rate), K)
             t_sent = perf()
-            ms = frame_ms(K + 1, rate)
             if rec is not None:
                 # Off the critical path: the autopilot is computing this frame's answer meanwhile.
                 self._run_hooks(rec)

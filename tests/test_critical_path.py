@@ -32,7 +32,6 @@ from autopilot.step import ControlStep
 
 ATT = mavlink.MAVLINK_MSG_ID_ATTITUDE
 SERVO = mavlink.MAVLINK_MSG_ID_SERVO_OUTPUT_RAW
-NVF = mavlink.MAVLINK_MSG_ID_NAMED_VALUE_FLOAT
 KEY = bytes(range(32))
 
 
@@ -200,90 +199,6 @@ def test_servo_payload_framed_from_the_cache_is_pymavlinks_packet():
         ap.close()
 
 
-# ------------------------------------------------------------------------------------ the jobs after the send
-def _recv_all(sock) -> list[bytes]:
-    out = []
-    while True:
-        try:
-            out.append(sock.recv(65536))
-        except BlockingIOError:
-            return out
-
-
-def _until_readable(sock, timeout=2.0) -> None:
-    import select
-
-    assert select.select([sock], [], [], timeout)[0], "nothing arrived"
-
-
-def test_a_frame_arriving_while_a_job_waits_is_answered_first():
-    """Real UDP sockets for the SITL and a ground station around an in-process autopilot, turned by hand one
-    ``_poll_or_job`` at a time: the GCS stream of step 1 waits as a job; the next frame, already in the socket,
-    is answered before that job runs; the job then sends the stream with step 1's values, not step 2's."""
-    from autopilot.loop import Autopilot, AutopilotOptions
-
-    sitl = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
-    gcs = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
-    for s in (sitl, gcs):
-        s.bind(("127.0.0.1", 0))
-        s.setblocking(False)
-    opts = AutopilotOptions(
-        lockstep=True, pace=False, verbose=False, sitl=sitl.getsockname(), gcs=gcs.getsockname(), telemetry_rate_hz=10
-    )
-    ap = Autopilot(opts, ClSacConfig(), PwmMap())
-    sender = _sender((1, 200))
-    turn = ap._poll_or_job
-    poll = ap._poller.poll
-    try:
-        rolls = (0.1, -0.2)
-        for k, roll in enumerate(rolls):
-            ap.setpoints.push(k * 1e4, 0.05 * (k + 1))  # a new setpoint each frame: the stream must carry step 1's
-            sitl.sendto(
-                sender.attitude_encode(frame_ms(k, 100.0), roll, 0.0, 0.3, 0.01, 0.0, 0.02).pack(sender), ap.sitl.local
-            )
-            _until_readable(ap.sitl.sock)
-            assert turn(poll) is True  # the frame is read and answered in this turn
-            (servo,) = _recv_all(sitl)
-            assert mavlink.MAVLink(None).decode(bytearray(servo)).time_usec == frame_usec(k, 100.0)
-            assert ap.steps == k + 1
-            assert len(ap.after_send) == 1  # step 1's stream (step 2 sends none at 10 Hz): not sent yet
-            assert _recv_all(gcs) == []
-        assert ap.after_send.overtaken == 1  # frame 1 was read while step 1's job waited
-        assert turn(poll) is False  # nothing to read: the job runs
-        assert len(ap.after_send) == 0
-        _until_readable(gcs)
-        (datagram,) = _recv_all(gcs)
-        m = mavlink.MAVLink(None)
-        msgs = m.parse_buffer(datagram)
-        assert [x.get_type() for x in msgs] == ["ATTITUDE", "ATTITUDE_TARGET", "SERVO_OUTPUT_RAW"]
-        att, target, servo = msgs
-        assert att.time_boot_ms == target.time_boot_ms == frame_ms(0, 100.0)
-        assert att.roll == pytest.approx(rolls[0], abs=1e-7) and att.yaw == pytest.approx(0.3, abs=1e-7)
-        assert 2 * math.atan2(target.q[1], target.q[0]) == pytest.approx(0.05, abs=1e-6)  # step 1's setpoint
-        assert servo.time_usec == frame_usec(0, 100.0)
-        assert ap.gcs.tx_by_type[ATT] == 1 and ap.after_send.summary()["jobs"] == 1
-    finally:
-        ap.close()
-        sitl.close()
-        gcs.close()
-
-
-def test_after_send_keeps_order_and_bound():
-    from autopilot.loop.deferred import AfterSend
-
-    done = []
-    q = AfterSend(bound=3)
-    for i in range(5):
-        q.add(done.append, i)  # the fourth and fifth add run the oldest first
-    assert done == [0, 1] and len(q) == 3 and q.run_at_once == 2 and q.most == 3
-    q.run_one()
-    assert done == [0, 1, 2]
-    q.drain()
-    assert done == [0, 1, 2, 3, 4] and not q and q.queued == 5
-    with pytest.raises(ValueError, match="room for a job"):
-        AfterSend(bound=0)
-
-
 # ------------------------------------------------------------------------------------- the split step
 def _script(n: int, seed: int):
     rng = random.Random(seed)
@@ -356,24 +271,16 @@ def test_clsac_command_then_advance_is_step():
 
 
 # ------------------------------------------------------------------------------------------- a flight
-@pytest.fixture(scope="module")
-def deferred_flight(tmp_path_factory):
-    """A 3 s lockstep flight at 100 Hz, signed, with the series and the ``.rrd``: (result, rate, duration)."""
-    from tools.flight import Flight
-
-    rate, duration = 100.0, 3.0
-    out = tmp_path_factory.mktemp("deferred") / "f"
-    return Flight(out=out, quiet=True, lockstep=True, rate=rate, duration=duration, pin=True).run(), rate, duration
-
-
 @pytest.mark.e2e
-def test_deferred_bookkeeping_keeps_every_step(deferred_flight):
+def test_deferred_bookkeeping_keeps_every_step(tmp_path):
     from autopilot.telemetry import layout as L
     from sitl import telemetry as S
     from tools import rrd
+    from tools.flight import Flight
 
-    res, rate, duration = deferred_flight
+    rate, duration = 100.0, 3.0
     n = int(rate * duration)
+    res = Flight(out=tmp_path / "f", quiet=True, lockstep=True, rate=rate, duration=duration, pin=True).run()
     assert res.ok, res.reason
     out = res.out
     summary = res.summary
@@ -424,74 +331,6 @@ def test_deferred_bookkeeping_keeps_every_step(deferred_flight):
 
     ref = run_inprocess(Scenario(duration_s=duration), PAPER_RUNS[1], wire=PwmMap()).metrics
     assert run["metrics"] == ref
-
-
-@pytest.mark.e2e
-def test_every_stream_message_reaches_the_tlog_with_its_steps_values(deferred_flight):
-    """The streams go out as jobs after the answers (``AfterSend``): each one still reaches the tlog, after its
-    step's answer, stamped with its step's frame and carrying that step's values, which the series recorded
-    independently: ATTITUDE, ATTITUDE_TARGET and SERVO_OUTPUT_RAW on steps 1, 11, ... (frames 0, 10, ...) and
-    NAMED_VALUE_FLOAT Ke, Kx, Ku, e on steps 10, 20, ... (frames 9, 19, ...): 4 x steps / 10 of them."""
-    from autopilot.shared.mavlink import roll_to_quaternion
-
-    res, rate, duration = deferred_flight
-    assert res.ok, res.reason
-    n = int(rate * duration)
-    out = res.out
-    records = [packet_ids(raw) + (raw,) for _t, raw in read_tlog(str(out / "flight.tlog"))]
-    dec = mavlink.MAVLink(None)
-    answered = {}  # time_usec -> position of the frame's SERVO_OUTPUT_RAW to the SITL in the tlog
-    streams = {ATT: [], mavlink.MAVLINK_MSG_ID_ATTITUDE_TARGET: [], SERVO: [], NVF: []}
-    for i, (sysid, compid, msgid, raw) in enumerate(records):
-        if (sysid, compid, msgid) == (1, 140, SERVO):
-            answered[dec.decode(bytearray(raw)).time_usec] = i
-        elif (sysid, compid) == (1, 1) and msgid in streams:
-            streams[msgid].append((i, dec.decode(bytearray(raw))))
-    s = np.load(out / "autopilot_series.npz")
-    f32 = np.float32
-    att_frames = list(range(0, n, 10))
-    gain_frames = list(range(9, n, 10))
-    assert [m.time_boot_ms for _i, m in streams[ATT]] == [frame_ms(k, rate) for k in att_frames]
-    for (i, m), k in zip(streams[ATT], att_frames):
-        assert i > answered[frame_usec(k, rate)]  # sent after the step's answer
-        assert (m.roll, m.rollspeed, m.yawspeed) == (f32(s["phi"][k]), f32(s["p"][k]), f32(s["r"][k]))
-    targets = streams[mavlink.MAVLINK_MSG_ID_ATTITUDE_TARGET]
-    assert [m.time_boot_ms for _i, m in targets] == [frame_ms(k, rate) for k in att_frames]
-    for (_i, m), k in zip(targets, att_frames):
-        assert list(m.q) == [f32(v) for v in roll_to_quaternion(float(s["um"][k]))]
-    channel = f"servo{PwmMap().channel}_raw"
-    servos = streams[SERVO]
-    assert [m.time_usec for _i, m in servos] == [frame_usec(k, rate) for k in att_frames]
-    assert [getattr(m, channel) for _i, m in servos] == [int(s["pwm"][k]) for k in att_frames]
-    gains = streams[NVF]
-    assert len(gains) == 4 * n // 10
-    expect = [
-        (frame_ms(k, rate), name, f32(s[key][k]))
-        for k in gain_frames
-        for name, key in (("Ke", "ke"), ("Kx", "kx"), ("Ku", "ku"), ("e", "e"))
-    ]
-    assert [(m.time_boot_ms, m.name, f32(m.value)) for _i, m in gains] == expect
-    for j, (i, _m) in enumerate(gains):
-        assert i > answered[frame_usec(gain_frames[j // 4], rate)]
-    jobs = json.loads((out / "autopilot.json").read_text())["after_send"]
-    assert jobs["jobs"] == 2 * n // 10  # one per datagram (how many ran at once depends on the machine's load)
-
-
-@pytest.mark.e2e
-def test_a_loop_that_sleeps_instead_of_spinning_still_sends_every_stream(tmp_path):
-    """``--lockstep-spin-us 0`` on both sides: the autopilot waits in ``select`` between frames, so its jobs run in
-    the turns before it sleeps (``run_lockstep``'s no-spin branch); every stream message still reaches the tlog."""
-    from tools.flight import Flight
-
-    rate, duration = 100.0, 2.0
-    n = int(rate * duration)
-    res = Flight(out=tmp_path / "f", quiet=True, lockstep=True, rate=rate, duration=duration, lockstep_spin_us=0).run()
-    assert res.ok, res.reason
-    ids = [packet_ids(raw) for _t, raw in read_tlog(str(res.out / "flight.tlog"))]
-    assert ids.count((1, 1, NVF)) == 4 * n // 10 and ids.count((1, 1, ATT)) == n // 10
-    assert ids.count((1, 140, SERVO)) == n
-    jobs = json.loads((res.out / "autopilot.json").read_text())["after_send"]
-    assert jobs["jobs"] == 2 * n // 10
 
 
 def test_tlog_queue_keeps_order_and_stamps(tmp_path):

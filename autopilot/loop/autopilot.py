@@ -22,7 +22,6 @@ from autopilot.loop.common import (
     TimingStats,
     _Attitude,
 )
-from autopilot.loop.deferred import AfterSend
 from autopilot.loop.handlers import LinkHandlers
 from autopilot.loop.lockstep import LockstepScheduler
 from autopilot.loop.realtime import RealtimeScheduler
@@ -144,7 +143,6 @@ class Autopilot(LinkHandlers, LockstepScheduler, RealtimeScheduler):
         # frame_from_ms and frame_usec (autopilot.shared.mavlink) inline for an integer rate: its ms and us per frame
         self._irate = int(self.rate) if self.rate.is_integer() else 0
         self._usec_per_frame = 1_000_000 // self._irate if self._irate and 1_000_000 % self._irate == 0 else 0
-        self.after_send = AfterSend()  # lockstep: the jobs after an answer that no peer waits for (the streams)
         self.first_frame = None
         self.last_frame = None  # last frame answered
         self._last_answer = b""
@@ -188,10 +186,6 @@ class Autopilot(LinkHandlers, LockstepScheduler, RealtimeScheduler):
 
     def shutdown(self):
         try:
-            self.after_send.drain()  # a run that ended early (an error, a signal) still sends the streams it owes
-        except OSError:
-            pass
-        try:
             self.gcs.send(self.vehicle.heartbeat(M.MAV_STATE_POWEROFF))
         except OSError:
             pass
@@ -217,7 +211,6 @@ class Autopilot(LinkHandlers, LockstepScheduler, RealtimeScheduler):
             "last_frame": self.last_frame,
             "wall_s": wall,
             "timing": self.timing.summary(self.period),
-            "after_send": self.after_send.summary(),  # lockstep: the stream jobs run between two looks at the sockets
             "events": ev,
             "links": {"sitl": self.sitl.counters(), "gcs": self.gcs.counters()},
             "exit_reason": self.exit_reason

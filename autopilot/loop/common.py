@@ -54,12 +54,6 @@ ATTITUDE_AHEAD_MS = 50.0  # real time: an ATTITUDE this far ahead of the held on
 SELF_STALL_S = 1.0  # lockstep: a pass of the loop this long means the autopilot itself did not run
 
 
-# lockstep: while frames come and go (none waits for the schedule), the loop's checks (the SITL's silence, the idle
-# exit, its own stall) and housekeeping (heartbeats, SYS_STATUS, the tlog's flush: timers of 0.25 s and more) run
-# at most this often, not after every frame
-LOCKSTEP_CHECKS_S = 1e-3
-
-
 TIMING_SAMPLES_MAX = 100_000  # per timing series: a uniform sample of all steps (reservoir), for the percentiles
 
 

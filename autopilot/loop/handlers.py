@@ -196,19 +196,12 @@ class LinkHandlers:
 
     def _send_telemetry(self, t_ms: int, phi: float, p: float, r: float, servo_wire: tuple):
         """ATTITUDE (heading from the SITL), ATTITUDE_TARGET and SERVO_OUTPUT_RAW to every GCS, in one datagram."""
-        servo = M.MAVLink_servo_output_raw_message.unpacker.pack(*servo_wire)
-        self._send_stream(t_ms, phi, self.att.yaw, p, r, self.setpoints.current, servo)
-
-    def _send_stream(self, t_ms: int, phi: float, yaw: float, p: float, r: float, um: float, servo: bytes):
-        """``_send_telemetry`` with every value given: the heading ``yaw``, the setpoint ``um`` (rad) and
-        SERVO_OUTPUT_RAW's payload ``servo`` (its struct layout: ``_servo_payload``).  The lockstep loop sends it
-        as a job, maybe after the next frame's answer, with the values of its own step."""
         g = self.gcs
-        q = roll_to_quaternion(um)
+        q = roll_to_quaternion(self.setpoints.current)
         bufs = [
-            g.pack_fast(self._pk_att, t_ms, phi, 0.0, yaw, p, 0.0, r),
+            g.pack_fast(self._pk_att, t_ms, phi, 0.0, self.att.yaw, p, 0.0, r),
             g.pack_fast(self._pk_att_target, t_ms, q[0], q[1], q[2], q[3], 0.0, 0.0, 0.0, 0.0, SETPOINT_TYPEMASK),
-            g.frame_fast(self._pk_servo_gcs, servo),
+            g.pack_fast(self._pk_servo_gcs, *servo_wire),
         ]
         self.vehicle.stream(bufs, _TELEMETRY_IDS)
 

@@ -6,7 +6,7 @@ from __future__ import annotations
 
 import time
 
-from autopilot.loop.common import LOCKSTEP_CHECKS_S, SELF_STALL_S, SERVO_OUTPUT_RAW, M, StepRecord
+from autopilot.loop.common import SELF_STALL_S, SERVO_OUTPUT_RAW, M, StepRecord
 from autopilot.shared.mavlink import (
     frame_from_ms,
     frame_ms,
@@ -87,15 +87,9 @@ class LockstepScheduler:
         latency = t_sent - max(t_ready, self.pending_t_rx)
         self.timing.add(None, None, t_sent - t0, latency)
         self.steps += 1
-        # The GCS stream and the gains stream: their values are taken now, their datagrams go out as jobs between
-        # two looks at the sockets (``_poll_or_job``), after the next frame's answer if that frame comes first.
-        jobs = self.after_send
-        every = self._telemetry_every
-        if every and self.steps % every == 1 % every:
-            jobs.add(self._stream_job, att.ms, att.roll, att.yaw, att.p, att.r, self.setpoints.current, usec, res.pwm)
-        gains = self.vehicle.gains_due(self.steps)
-        if gains is not None:
-            jobs.add(self.vehicle.send_gains, att.ms, gains)
+        if self._telemetry_every and self.steps % self._telemetry_every == 1 % self._telemetry_every:
+            self._send_telemetry(att.ms, att.roll, att.p, att.r, self._servo_wire(usec, res.pwm))
+        self.vehicle.on_step(self.steps, att.ms)
         if self.hooks:
             rec = StepRecord(
                 result=res,
@@ -117,24 +111,6 @@ class LockstepScheduler:
         if self.tlog is not None:
             self.tlog.drain()  # this frame's ATTITUDE, SERVO_OUTPUT_RAW and GCS stream, stamped when they went
 
-    def _stream_job(self, t_ms: int, phi: float, yaw: float, p: float, r: float, um: float, usec: int, pwm: int):
-        """The GCS stream of one step (``_send_stream``), with the values of that step."""
-        self._send_stream(t_ms, phi, yaw, p, r, um, self._servo_payload(usec, pwm))
-
-    def _poll_or_job(self, poll) -> bool:
-        """One turn of the lockstep busy poll: read the links ``poll(0)`` finds ready (a frame is answered at once,
-        before any job waiting); only if none is, run one job of ``after_send``.  True if a link was read."""
-        ready = poll(0)
-        if ready:
-            jobs = self.after_send
-            if jobs:
-                jobs.overtaken += 1
-            self._read_ready(ready)
-            return True
-        if self.after_send:
-            self.after_send.run_one()
-        return False
-
     def run_lockstep(self) -> int:
         opts = self.opts
         self._status_state = M.MAV_STATE_STANDBY
@@ -146,31 +122,26 @@ class LockstepScheduler:
         lockstep_spin = opts.lockstep_spin_s
         perf = time.perf_counter
         poll = self._poller.poll
-        turn = self._poll_or_job
-        jobs = self.after_send
+        read = self._read_ready
         prev_pass = now
-        next_checks = now
         while not self.stop_requested and not self.finished:
             if lockstep_spin > 0:
                 # Busy-poll briefly before sleeping: the SITL's next frame usually comes within tens of us,
                 # and a sleep/wake-up costs more than that on a virtual machine.  One poll(2) of both sockets
                 # per turn (an empty recvfrom costs twice that, and raises); only the links it finds ready are read.
-                # A turn that finds nothing runs one job after the last answer (the streams) instead.
                 n0 = self.sitl.rx_datagrams + self.gcs.rx_datagrams
                 t_end = perf() + lockstep_spin
                 while perf() < t_end:
-                    if turn(poll) and self.sitl.rx_datagrams + self.gcs.rx_datagrams != n0:
-                        break
+                    ready = poll(0)
+                    if ready:
+                        read(ready)
+                        if self.sitl.rx_datagrams + self.gcs.rx_datagrams != n0:
+                            break
                 else:
-                    self._wait(0.0 if jobs else 0.02)
+                    self._wait(0.02)
             else:
-                while jobs and not turn(poll):  # the jobs first, each after a look at the sockets
-                    pass
-                self._wait(0.0 if jobs else 0.02)
-            now = perf()
-            if now < next_checks and self.pending_frame is None:
-                continue  # frames come and go: the checks and the housekeeping below run at most every ms
-            next_checks = now + LOCKSTEP_CHECKS_S
+                self._wait(0.02)
+            now = time.perf_counter()
             if self.pending_frame is not None and self._blocked_since is not None:
                 # Waiting for the GCS schedule: tell it where sim time is (SYSTEM_TIME, 20 Hz wall clock).
                 if now >= self._next_systime:
@@ -209,7 +180,6 @@ class LockstepScheduler:
                     self.peer_lost = "sitl"
                     break
             self._housekeeping(now)
-        jobs.drain()  # every step's streams are out before the run ends (and before the POWEROFF HEARTBEAT)
         if self.finished:
             self.exit_reason = "end of run (duration reached)"
         elif self.stop_requested:
