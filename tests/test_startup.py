@@ -411,3 +411,55 @@ def test_the_busy_poll_changes_no_number_of_the_flight(tmp_path):
         run = res.summary["runs"][0]
         metrics[spin] = (run["steps"], run["metrics"])
     assert metrics[0.0] == metrics[100.0] == metrics[None] and metrics[None][0] == 300
+
+
+# ------------------------------------------------------------------------------------- the autopilot's announcement
+def _heartbeat_times(sock, seconds: float) -> list[float]:
+    """When each HEARTBEAT reached ``sock`` (``time.monotonic``) during ``seconds``: MAVLink 2, unsigned, parsed by
+    pymavlink; nothing is answered."""
+    from pymavlink.dialects.v20 import common as mavlink
+
+    mav = mavlink.MAVLink(None)
+    mav.robust_parsing = True
+    times, t_end = [], time.monotonic() + seconds
+    while (left := t_end - time.monotonic()) > 0:
+        sock.settimeout(left)
+        try:
+            data = sock.recv(65535)
+        except TimeoutError:
+            break
+        now = time.monotonic()
+        times += [now for m in mav.parse_buffer(data) or [] if m.get_type() == "HEARTBEAT"]
+    return times
+
+
+@pytest.mark.e2e
+@pytest.mark.parametrize("mode", ["lockstep", "realtime"])
+def test_a_sitl_that_binds_after_the_first_heartbeat_is_found_at_once(tmp_path, mode):
+    """The launcher starts the three processes together, so the autopilot's first HEARTBEAT may go out before the
+    SITL has bound its socket, and be lost.  It then announces itself 20 times a second for its first 2 s
+    (``ANNOUNCE_FAST_S``), then 4 times a second, and 1 Hz only once both peers have answered: with a 1 s period from
+    the start, 3 of 8 lockstep launches waited a whole second for the next one.  Here the SITL's port is bound 0.3 s
+    after the autopilot has started, and answers nothing."""
+    import socket
+
+    from tests._mavlink_procs import Proc, free_ports
+
+    sitl_port, gcs_port = free_ports(2)
+    args = ["--sitl", f"127.0.0.1:{sitl_port}", "--gcs", f"127.0.0.1:{gcs_port}"]  # unsigned: no key given
+    ap = Proc("autopilot", [*args, *(["--lockstep"] if mode == "lockstep" else [])], tmp_path / "autopilot.log")
+    sitl = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+    try:
+        assert ap.wait_for("autopilot: clsac"), ap.output()
+        time.sleep(0.3)
+        sitl.bind(("127.0.0.1", sitl_port))
+        t_bound = time.monotonic()
+        times = np.array(_heartbeat_times(sitl, 4.2)) - t_bound
+    finally:
+        sitl.close()
+        ap.stop()
+    assert len(times) and times[0] < 0.4, (times, ap.output())  # with a 1 s period from the start: about 0.7 s
+    first_second = np.count_nonzero(times < 1.0)  # 0.3-1.3 s after the start: about 16 (with a 1 s period: 1)
+    later = np.count_nonzero((times >= 2.2) & (times < 4.2))  # past the fast 2 s: every 0.25 s, about 8, not 40
+    assert first_second >= 8, (first_second, ap.output())
+    assert 4 <= later <= 12, (later, ap.output())

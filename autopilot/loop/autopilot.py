@@ -128,6 +128,7 @@ class Autopilot(LinkHandlers, LockstepScheduler, RealtimeScheduler):
             max(1, int(round(self.rate / opts.telemetry_rate_hz))) if opts.telemetry_rate_hz > 0 else 0
         )
         self._next_heartbeat = 0.0
+        self._announce_fast_until = 0.0  # HEARTBEAT: fast until then while a peer has not answered (_heartbeat_period)
         self._next_flush = 0.0
         self._status_state = M.MAV_STATE_STANDBY
         # The ground-station protocol (autopilot.vehicle): modes, parameters, commands, streams.

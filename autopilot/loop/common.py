@@ -54,6 +54,17 @@ ATTITUDE_AHEAD_MS = 50.0  # real time: an ATTITUDE this far ahead of the held on
 SELF_STALL_S = 1.0  # lockstep: a pass of the loop this long means the autopilot itself did not run
 
 
+# HEARTBEAT: 1 Hz once the SITL and a ground station have answered.  Until then the autopilot announces itself
+# every ANNOUNCE_FAST_S for its first ANNOUNCE_FAST_FOR_S, then every ANNOUNCE_SLOW_S.  The launcher starts the three
+# processes together, so the autopilot's first HEARTBEAT often goes out before the SITL's socket is bound and is
+# lost; a lockstep flight cannot start before the next one (with a 1 s period, 3 of 8 launches waited a whole
+# second for it).  Twenty a second for two seconds costs nothing, and a peer that never comes is not flooded.
+HEARTBEAT_PERIOD_S = 1.0
+ANNOUNCE_FAST_S = 0.05
+ANNOUNCE_FAST_FOR_S = 2.0
+ANNOUNCE_SLOW_S = 0.25
+
+
 TIMING_SAMPLES_MAX = 100_000  # per timing series: a uniform sample of all steps (reservoir), for the percentiles
 
 

@@ -10,8 +10,12 @@ import time
 
 from autopilot.loop.common import (
     _TELEMETRY_IDS,
+    ANNOUNCE_FAST_FOR_S,
+    ANNOUNCE_FAST_S,
+    ANNOUNCE_SLOW_S,
     ATTITUDE,
     ATTITUDE_AHEAD_MS,
+    HEARTBEAT_PERIOD_S,
     SET_ATTITUDE_TARGET,
     SITL_RESTART_MS,
     STATUSTEXT,
@@ -189,6 +193,20 @@ class LinkHandlers:
             tail = self._servo_tails[pwm] = M.MAVLink_servo_output_raw_message.unpacker.pack(*wire)[4:]
         return time_usec.to_bytes(4, "little") + tail
 
+    def _start_announcing(self, now: float) -> None:
+        """The run's first HEARTBEAT, now; the next ones as ``_heartbeat_period`` says."""
+        self._announce_fast_until = now + ANNOUNCE_FAST_FOR_S
+        self._send_heartbeat()
+        self._next_heartbeat = now + self._heartbeat_period(now)
+
+    def _heartbeat_period(self, now: float) -> float:
+        """1 Hz once the SITL and a ground station have answered; until then fast for the first seconds of the run,
+        so that a SITL or GCS that bound its socket just after our first HEARTBEAT finds us at once
+        (``ANNOUNCE_FAST_S``, autopilot/loop/common.py), then every ``ANNOUNCE_SLOW_S``."""
+        if self.sitl.rx_packets and self.gcs.rx_packets:
+            return HEARTBEAT_PERIOD_S
+        return ANNOUNCE_FAST_S if now < self._announce_fast_until else ANNOUNCE_SLOW_S
+
     def _send_heartbeat(self, status=None):
         hb = self.vehicle.heartbeat(self._status_state if status is None else status)
         for link in (self.gcs, self.sitl):
@@ -208,8 +226,7 @@ class LinkHandlers:
     # ============================================================ housekeeping
     def _housekeeping(self, now: float):
         if now >= self._next_heartbeat:
-            # 1 Hz; every 0.25 s while a peer has not answered yet, so a late-starting SITL or GCS finds us soon.
-            self._next_heartbeat = now + (1.0 if (self.sitl.rx_packets and self.gcs.rx_packets) else 0.25)
+            self._next_heartbeat = now + self._heartbeat_period(now)
             self._send_heartbeat()
             if not self.opts.lockstep and self.att.valid:
                 self.gcs.send(M.MAVLink_system_time_message(time.time_ns() // 1000, self.att.ms))

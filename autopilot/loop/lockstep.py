@@ -114,9 +114,8 @@ class LockstepScheduler:
     def run_lockstep(self) -> int:
         opts = self.opts
         self._status_state = M.MAV_STATE_STANDBY
-        self._send_heartbeat()
         now = time.perf_counter()
-        self._next_heartbeat = now + 1.0
+        self._start_announcing(now)
         last_warn = now
         silent_reported = False
         lockstep_spin = opts.lockstep_spin_s

@@ -22,9 +22,8 @@ class RealtimeScheduler:
         spin_tight = min(spin, _SPIN_TIGHT_S)
         perf = time.perf_counter
         n_steps = round(opts.duration_s * self.rate) if opts.duration_s > 0 else 0
-        self._send_heartbeat()
         start = perf()
-        self._next_heartbeat = start + 1.0
+        self._start_announcing(start)
         self.last_setpoint_wall = start  # the setpoint timeout counts from start-up
         deadline = start + period
         prev_wake = None
