@@ -60,6 +60,10 @@ class Param:
         return cli.in_bounds(value, self.low, self.high, lo_open=self.low_open, hi_open=self.high_open)
 
 
+# The attitude failsafe's default (CLSAC_FS_ATT_TMO, ``AutopilotOptions.attitude_timeout_s``): here, so that the
+# launcher checks a flight's sensor rate against it without importing the loop (35 ms before its children start).
+ATTITUDE_TIMEOUT_S = 0.1
+
 # The order is the index of PARAM_REQUEST_READ / PARAM_VALUE.param_index.
 PARAMS: tuple[Param, ...] = (
     Param("CLSAC_LV", "1/s", "closed-loop reference gain Lv (paper eq. (18)); mode SAC flies Lv = 0", "lv", low=0.0),

@@ -50,6 +50,25 @@ def test_the_launcher_and_the_sitl_start_without_scipy():
     assert r.stdout.split() == ["False", "True", "0.25"]  # P of x' = -2x + w: 1 / (2 * 2)
 
 
+def test_the_launcher_checks_a_flight_without_importing_the_loop():
+    """Before its children start, the launcher parses and checks the flight: that needs the autopilot's defaults
+    (the attitude timeout the sensor rate is checked against), not its loop, pymavlink's ``all`` dialect or signing
+    (35 ms on the path to the children's start); the check still refuses a rate below two ATTITUDE per timeout."""
+    r = _run(
+        "import sys\n"
+        "import tools.launch as L\n"
+        "from tools.flight import Flight, FlightConfigError\n"
+        "Flight(**vars(L.build_parser().parse_args(['--lockstep', '--out', 'unused'])))\n"
+        "print(sorted(m for m in ('autopilot.loop', 'pymavlink.dialects.v20.all', 'rerun') if m in sys.modules))\n"
+        "try:\n"
+        "    Flight(sensor_rate=19.0)\n"
+        "except FlightConfigError as exc:\n"
+        "    print(exc.field)\n"
+    )
+    assert r.returncode == 0, r.stderr
+    assert r.stdout.split("\n")[:2] == ["[]", "sensor_rate"], r.stdout
+
+
 def test_the_picture_helper_does_not_import_the_launcher():
     """The helper process imports matplotlib and the plots, not the launcher's modules (tools.flight) nor rerun."""
     r = _run(

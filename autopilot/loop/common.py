@@ -12,6 +12,7 @@ from dataclasses import dataclass, field
 
 from autopilot.clsac import ClSac
 from autopilot.envelope import Envelope
+from autopilot.params import ATTITUDE_TIMEOUT_S
 from autopilot.shared.link import ANY_COMPONENT
 from autopilot.shared.mavlink import (
     GCS_SYSTEMS,
@@ -76,7 +77,7 @@ class AutopilotOptions:
         0.0  # 0 = until stopped; lockstep: sim seconds from the first frame; real time: seconds of control
     )
     telemetry_rate_hz: float = 50.0
-    attitude_timeout_s: float = 0.1
+    attitude_timeout_s: float = ATTITUDE_TIMEOUT_S
     setpoint_timeout_s: float = 1.0
     max_roll_rad: float = math.radians(45.0)
     setpoint_ahead_s: float = 10.0  # a SET_ATTITUDE_TARGET scheduled further ahead of sim time is rejected

@@ -207,9 +207,8 @@ class FlightConfig:
             "base_port",
             f"base_port must be in 1..65532 (it and the next three ports are used), got {self.base_port!r}",
         )
-        from autopilot.loop import AutopilotOptions  # the autopilot's default attitude timeout
+        from autopilot.params import ATTITUDE_TIMEOUT_S as att_timeout  # the autopilot's default
 
-        att_timeout = AutopilotOptions.attitude_timeout_s
         _require(
             self.lockstep or self.sensor_rate * att_timeout >= 2.0,
             "sensor_rate",
