@@ -1,12 +1,12 @@
 """A flight's ``flight.png``: ``draw_flight_png``, and ``python -m tools.flight_picture``, the helper process that
 draws it for the launcher, with ``PngHelper``, its client.
 
-Drawing the picture cost the launcher about 0.5 s after the flight, one thing after another: matplotlib's import
-(about 0.25 s on the 2-core VM) and the first draw (mathtext's parser, the text layout).  So ``Flight`` starts this
-helper together with a lockstep flight's three processes (a real-time or pinned flight draws at the end instead:
-nothing is to take CPU from a loop on deadlines): it imports matplotlib and ``tools.plots`` (not the launcher's
-modules) while they start and fly, then waits.  When the flight has ended the launcher sends it one request and
-joins the Rerun recording while the helper draws: two processes, two cores.
+The picture is drawn with Pillow and numpy (``tools.flight_png``; it was matplotlib, whose import and first draw
+cost about 0.75 CPU s).  ``Flight`` starts this helper together with a lockstep flight's three processes (a
+real-time or pinned flight draws at the end instead: nothing is to take CPU from a loop on deadlines): it imports
+numpy, PIL and the renderer (not the launcher's modules) while they start and fly, then waits.  When the flight has
+ended the launcher sends it one request and joins the Rerun recording while the helper draws: two processes, two
+cores.
 
 The protocol, one line each way: the request on stdin is the JSON of the keywords of ``draw_flight_png``
 (``tools.flight.files.png_request``); the answer on stdout is ``{"png": PATH or null}`` (null: no series to draw) or
@@ -35,27 +35,36 @@ PNG_MAX_POINTS = 20_000  # flight.png plots every k-th step of a long flight: bo
 def draw_flight_png(
     out: str | os.PathLike, name: str, lv: float, lockstep: bool, rate: float, u_limit_deg: float, metrics: dict
 ) -> Path | None:
-    """DIR/flight.png from the flight's series (``tools.plots.flight_figure``); None without series."""
-    from tools.plots import save_flight_figure
-    from tools.scenario import RunResult
+    """DIR/flight.png from the flight's series (``tools.flight_png``); None without series."""
+    from tools.flight_png import save_flight_png
 
     out = Path(out)
     series = load_series(out, max_points=PNG_MAX_POINTS)
     if not series or series.get("t") is None or not len(series["t"]):
         return None
-    res = RunResult(name, lv, metrics, series)
     mode = "lockstep" if lockstep else "real time"
-    title = f"Flight {out.name}: {res.name}, {mode}, {rate:g} Hz"
-    return save_flight_figure(res, out / "flight.png", math.radians(u_limit_deg), title)
+    title = f"Flight {out.name}: {name}, {mode}, {rate:g} Hz"
+    return save_flight_png(
+        out / "flight.png",
+        series,
+        name=name,
+        lv=lv,
+        metrics=metrics,
+        u_limit_rad=math.radians(u_limit_deg),
+        title=title,
+    )
 
 
 def _warm_up() -> None:
-    """Import what drawing needs and build mathtext's parser (the first ``$...$`` label costs about 0.1 s)."""
-    from matplotlib.mathtext import MathTextParser
+    """Import what drawing needs: numpy, PIL and the renderer (no matplotlib), PIL's image formats, and zipfile (the
+    series' .npz files)."""
+    import zipfile  # noqa: F401
 
-    import tools.plots  # noqa: F401  (matplotlib's Figure and Agg canvas, tools.scenario)
+    from PIL import Image
 
-    MathTextParser("agg").parse(r"$K_e$", 100)
+    import tools.flight_png  # noqa: F401  (numpy, PIL's Image, ImageDraw and ImageFont)
+
+    Image.preinit()  # the PNG writer's module, otherwise imported by the first save
 
 
 def main() -> int:
@@ -71,8 +80,8 @@ def main() -> int:
         answer = {"error": f"{type(exc).__name__}: {exc}"}
     sys.stdout.write(json.dumps(answer) + "\n")
     sys.stdout.flush()
-    # The launcher reads the answer line and goes on; tearing matplotlib's modules down would only keep the
-    # process (and a core) busy for another 0.1 s.
+    # The launcher reads the answer line and goes on; tearing the modules down would only keep the process (and a
+    # core) busy for longer.
     os._exit(0)
 
 
@@ -97,7 +106,9 @@ class PngHelper:
             stdout=subprocess.PIPE,  # the answer; its warnings and errors go to the launcher's stderr, as before
             text=True,
             start_new_session=True,  # Ctrl-C reaches the launcher only, which still asks for the picture
-            env=dict(os.environ, PYTHONUNBUFFERED="1"),
+            # One OpenBLAS thread: the picture does no linear algebra, and numpy's import starting a thread per
+            # core costs about 0.05 CPU s, at the flight's start, when the cores are contended.
+            env=dict(os.environ, PYTHONUNBUFFERED="1", OPENBLAS_NUM_THREADS="1"),
         )
         self._sent = False
 

@@ -1,0 +1,329 @@
+"""flight.png drawn with Pillow (``tools.flight_png``), checked on the picture read back, against what is known of the
+flight drawn, not against the renderer's own numbers: the panels' frames, grid lines and tick labels are found in the
+pixels (a label is read by matching it with the digits drawn in the same font), and a series of known value must lie
+where the grid lines and their labels put that value; each series' colour is in its panel only when the flight has
+the series; a missing one is said; a mode switch is marked at its time; NaN and infinite values leave gaps, not a
+crash; no series, no picture.  In this process, no children: each picture takes a few tens of milliseconds."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+from PIL import Image, ImageColor, ImageDraw, ImageFont
+
+from tools import flight_png
+from tools.flight_picture import draw_flight_png
+from tools.flight_png import flight_image, nice_ticks
+
+N = 3001  # a 30 s flight at 100 Hz
+DEG = math.pi / 180.0
+T = np.arange(N) / 100.0
+SQUARE = np.where((T // 5) % 2 == 0, 1.0, -1.0)  # +1 for 5 s, -1 for 5 s, ...
+GRID = ImageColor.getrgb(flight_png.C_GRID)
+
+
+def _series(**over) -> dict:
+    """A flight whose every series is piecewise constant and at its own level: command +-10 deg, open-loop model
+    +-8, closed-loop model +-6, roll a constant 4 deg, rudder +-3 deg, gains 0.1, -0.05, 0.02.  ``key=None``:
+    without that series."""
+    s = {
+        "t": T,
+        "um": 10 * DEG * SQUARE,
+        "ym_ol": 8 * DEG * SQUARE,
+        "ym": 6 * DEG * SQUARE,
+        "phi": np.full(N, 4 * DEG),
+        "u": 3 * DEG * SQUARE,
+        "ke": np.full(N, 0.1),
+        "kx": np.full(N, -0.05),
+        "ku": np.full(N, 0.02),
+        "mode": np.full(N, 101.0),
+    }
+    s.update(over)
+    return {k: v for k, v in s.items() if v is not None}
+
+
+def _draw(series: dict, lv: float = 20.0) -> np.ndarray:
+    img = flight_image(
+        series, name="clsac", lv=lv, metrics={"ise_ref": 0.01}, u_limit_rad=30 * DEG, title="Flight test: clsac"
+    )
+    assert img.size == (1100, 1100) and img.mode == "RGB"
+    return np.asarray(img).astype(int)
+
+
+# ---------------------------------------------------------------------------------------- reading the picture
+def _frames(px: np.ndarray) -> list[tuple[int, int, int, int]]:
+    """(left, top, right, bottom) of each panel: its frame's rows are the only ones with 900 black pixels and more
+    (the command's line is dashed)."""
+    black = (px == 0).all(axis=2)
+    rows = np.flatnonzero(black.sum(axis=1) >= 900)
+    assert len(rows) == 6, rows
+    cols = np.flatnonzero(black[rows[0]])
+    return [(int(cols[0]), int(rows[i]), int(cols[-1]), int(rows[i + 1])) for i in (0, 2, 4)]
+
+
+def _coverage(px: np.ndarray, color: str) -> np.ndarray:
+    """How much of each pixel a line of ``color`` covers, 0..1, for a line drawn on white and anti-aliased: the
+    pixel is white mixed with that colour; 0 for a pixel of another colour (not such a mix)."""
+    c = 255 - np.array(ImageColor.getrgb(color), float)
+    ink = 255 - px
+    k = np.clip((ink * c).sum(axis=-1) / (c @ c), 0.0, 1.0)
+    other = np.linalg.norm(ink - k[..., None] * c, axis=-1) > 25
+    return np.where(other, 0.0, k)
+
+
+def _solid(px: np.ndarray, color: str, run: int = 8) -> np.ndarray:
+    """Pixels exactly of ``color`` starting a run of ``run`` along a row: a line's flat stretch, not anti-aliased
+    text."""
+    exact = (px == ImageColor.getrgb(color)).all(axis=-1)
+    starts = exact.copy()
+    for k in range(1, run):
+        starts[:, :-k] &= exact[:, k:]
+    return starts
+
+
+@pytest.fixture(scope="module")
+def digits():
+    """The labels a tick may have in these flights, drawn in DejaVu at the tick labels' size as black masks: right
+    aligned (a y axis's labels) and centred (the time axis's), as the glyphs' places in a label depend on it."""
+    font = ImageFont.truetype(flight_png.font_file(), flight_png.PT_TICK * flight_png.PX)
+    masks = {"rm": {}, "mt": {}}
+    for v in np.arange(-40, 40.5, 0.5):
+        for s in {f"{v:.1f}", f"{v:.0f}" if v == int(v) else f"{v:.1f}"}:
+            s = s.replace("-", "\u2212")
+            for anchor, masked in masks.items():
+                img = Image.new("L", (120, 40), 255)
+                ImageDraw.Draw(img).text((60, 20), s, font=font, fill=0, anchor=anchor)
+                masked[s] = _crop(np.asarray(img) < 128)
+    return masks
+
+
+def _crop(mask: np.ndarray) -> np.ndarray:
+    rows, cols = np.flatnonzero(mask.any(axis=1)), np.flatnonzero(mask.any(axis=0))
+    return mask[rows[0] : rows[-1] + 1, cols[0] : cols[-1] + 1] if len(rows) else mask[:0, :0]
+
+
+def _read(px: np.ndarray, rows: slice, cols: slice, digits: dict, alone: bool = False) -> float:
+    """The number written in a region (black text on white): the label whose drawing matches it best.  ``alone``:
+    without the columns that have text above or below the region too (a y axis's label, read upwards, beside its
+    tick labels)."""
+    dark = px[rows, cols].mean(axis=-1) < 128
+    if alone:
+        around = px[rows.start - 20 : rows.stop + 20, cols].mean(axis=-1) < 128
+        dark[:, around.sum(axis=0) > dark.sum(axis=0)] = False
+    seen = _crop(dark)
+    best, score = None, 0.0
+    for s, m in digits.items():
+        if abs(m.shape[0] - seen.shape[0]) > 1 or abs(m.shape[1] - seen.shape[1]) > 1:
+            continue
+        h, w = max(m.shape[0], seen.shape[0]), max(m.shape[1], seen.shape[1])
+        a, b = np.zeros((h, w), bool), np.zeros((h, w), bool)
+        a[: m.shape[0], : m.shape[1]], b[: seen.shape[0], : seen.shape[1]] = m, seen
+        iou = (a & b).sum() / max((a | b).sum(), 1)
+        if iou > score:
+            best, score = s, iou
+    assert best is not None and score > 0.9, (best, score)
+    return float(best.replace("\u2212", "-"))
+
+
+def _y_grid(px: np.ndarray, frame, digits) -> list[tuple[int, float]]:
+    """(row, value) of a panel's horizontal grid lines: rows a quarter of whose pixels are the grid's colour, each
+    value read from the tick label beside it."""
+    left, top, right, bottom = frame
+    inside = px[top + 1 : bottom, left + 1 : right]
+    rows = np.flatnonzero((inside == GRID).all(axis=-1).sum(axis=1) >= 0.25 * (right - left)) + top + 1
+    assert len(rows) >= 2, rows
+    return [
+        (int(r), _read(px, slice(r - 10, r + 11), slice(left - 60, left - 6), digits["rm"], alone=True)) for r in rows
+    ]
+
+
+def _x_grid(px: np.ndarray, frames, digits) -> list[tuple[int, float]]:
+    """(column, time) of the vertical grid lines, each time read from the label under the bottom panel."""
+    left, top, right, bottom = frames[2]
+    inside = px[top + 1 : bottom, left + 1 : right]
+    cols = np.flatnonzero((inside == GRID).all(axis=-1).sum(axis=0) >= 0.5 * (bottom - top)) + left + 1
+    assert len(cols) >= 2, cols
+    return [(int(c), _read(px, slice(bottom + 6, bottom + 26), slice(c - 18, c + 19), digits["mt"])) for c in cols]
+
+
+def _at(grid: list[tuple[int, float]], value: float) -> float:
+    """Where ``value`` is, interpolating linearly between the two grid lines around it (or the nearest two)."""
+    (p0, v0), (p1, v1) = sorted(grid, key=lambda g: (abs(g[1] - value), g[1]))[:2]
+    return p0 + (value - v0) / (v1 - v0) * (p1 - p0)
+
+
+# ---------------------------------------------------------------------------------------- the picture
+def test_the_picture_is_a_1100_px_square_rgb_png_drawn_the_same_every_time(tmp_path):
+    from tools.flight_png import save_flight_png
+
+    kw = dict(name="clsac", lv=20.0, metrics={"ise_ref": 0.01}, u_limit_rad=30 * DEG, title="t")
+    a = save_flight_png(tmp_path / "a.png", _series(), **kw)
+    b = save_flight_png(tmp_path / "b.png", _series(), **kw)
+    with Image.open(a) as img:
+        assert img.format == "PNG" and img.size == (1100, 1100) and img.mode == "RGB"
+    assert a.read_bytes() == b.read_bytes()
+
+
+@pytest.mark.parametrize(
+    "roll_deg, lv, color",
+    [(np.full(N, 4.0), 20.0, flight_png.C_CLSAC), (7.0 * SQUARE, 0.0, flight_png.C_SAC)],
+    ids=["constant 4 deg, CL-SAC", "square wave +-7 deg, SAC"],
+)
+def test_a_known_roll_is_drawn_where_the_grid_and_its_labels_put_it(digits, roll_deg, lv, color):
+    """The roll's line, column by column where it is flat, is within a pixel of the row that linear interpolation
+    between the two labelled grid lines around its value gives; drawn in the law's colour."""
+    px = _draw(_series(phi=roll_deg * DEG), lv=lv)
+    frame = _frames(px)[0]
+    left, top, right, bottom = frame
+    grid = _y_grid(px, frame, digits)
+    values = [v for _, v in grid]
+    assert values == sorted(values, reverse=True) and 0.0 in values and -10.0 in values  # read top to bottom
+    cover = _coverage(px[top + 1 : bottom, left + 1 : left + 600], color)  # left of the legend and the note
+    levels = sorted(set(np.round(roll_deg, 6)))
+    seen = {lev: 0 for lev in levels}
+    rows = np.arange(top + 1, bottom)[:, None]
+    for j in range(cover.shape[1]):
+        c = np.where(cover[:, j] > 0.2, cover[:, j], 0.0)  # (not the faint grid: grey is a little of any colour)
+        hit = np.flatnonzero(c > 0.2)
+        if not len(hit) or hit[-1] - hit[0] > 3:  # nothing, or a vertical stretch (a change of the square wave)
+            continue
+        centre = float((rows[:, 0] * c).sum() / c.sum()) + 0.5  # the line's middle, rows as [r, r + 1)
+        lev = min(levels, key=lambda v: abs(_at(grid, v) - centre))
+        assert abs(_at(grid, lev) + 0.5 - centre) <= 1.0, (j, lev, centre, _at(grid, lev))
+        seen[lev] += 1
+    assert all(n > 100 for n in seen.values()), seen  # every level found, along much of the panel
+
+
+def test_each_series_has_its_colour_in_its_panel_and_none_when_it_is_missing():
+    """Flat stretches of each series' colour in its own panel (left of the legend); none when the flight lacks it."""
+    panels = {
+        "um": (0, flight_png.C_CMD),
+        "ym_ol": (0, flight_png.C_OL),
+        "ym": (0, flight_png.C_CRM),
+        "phi": (0, flight_png.C_CLSAC),
+        "u": (1, flight_png.C_CLSAC),
+        **{k: (2, c) for k, c in flight_png.C_GAINS.items()},
+    }
+    full = _draw(_series())
+    frames = _frames(full)
+    for key, (i, color) in panels.items():
+        left, top, right, bottom = frames[i]
+        region = (slice(top + 2, bottom - 1), slice(left + 2, left + 600))
+        run = 3 if key == "um" else 8  # the command is dashed: shorter runs of black (nothing else is black inside)
+        assert _solid(full[region], color, run).sum() > 100, key
+        without = _draw(_series(**{key: None}))
+        assert _frames(without) == frames
+        assert _solid(without[region], color, run).sum() == 0, key
+
+
+def test_a_missing_series_is_said_in_its_panel():
+    """ "not recorded by this transport: ym": grey text at the middle right of the roll panel, absent otherwise;
+    and a flight with no gains at all says so in the middle of that panel, without y ticks."""
+
+    def note_pixels(px, frame, where):
+        left, top, right, bottom = frame
+        mid = (top + bottom) // 2
+        cols = slice(left + int(0.65 * (right - left)), right) if where == "right" else slice(left + 300, right - 300)
+        band = px[mid - 8 : mid + 9, cols]
+        grey = (band[..., 0] == band[..., 1]) & (band[..., 1] == band[..., 2])
+        return int((grey & (band[..., 0] >= 95) & (band[..., 0] <= 112)).sum())  # the note's #666 text, anti-aliased
+
+    full, no_ym = _draw(_series()), _draw(_series(ym=None))
+    frame = _frames(full)[0]
+    assert note_pixels(full, frame, "right") == 0
+    assert note_pixels(no_ym, frame, "right") > 30
+    no_gains = _draw(_series(ke=None, kx=None, ku=None))
+    frame = _frames(no_gains)[2]
+    assert note_pixels(no_gains, frame, "middle") > 30 and note_pixels(full, frame, "middle") == 0
+    left, top, right, bottom = frame
+    ticks = (no_gains[top + 5 : bottom - 5, left - 5 : left] == 0).all(axis=-1).any(axis=1)
+    assert not ticks.any()  # no y tick marks: nothing to measure
+
+
+def test_a_mode_switch_is_a_dotted_line_at_its_time_in_every_panel_with_its_name_above(digits):
+    """A switch to FAILSAFE at t = 12.0 s: a dotted line in the column the time axis's labelled grid lines give, in
+    each panel, and text above the top panel from that column; neither without the switch."""
+    mode = np.where(T >= 12.0, 102.0, 101.0)
+    px, plain = _draw(_series(mode=mode)), _draw(_series())
+    frames = _frames(px)
+    col = _at(_x_grid(px, frames, digits), 12.0)
+    for _, top, _, bottom in frames:
+        dotted = []
+        for img in (px, plain):
+            strip = _coverage(img[top + 1 : bottom, int(col) - 1 : int(col) + 3], flight_png.C_MARK)
+            dotted.append(int((strip.max(axis=1) > 0.4).sum()))  # rows with a dot (other lines cross it too)
+        assert dotted[0] - dotted[1] > 0.3 * (bottom - top), (top, dotted)
+    top = frames[0][1]
+    dark = px[top - 14 : top - 1].mean(axis=-1) < 128
+    assert dark[:, int(col) : int(col) + 60].sum() > 40  # the name, from the line on
+    assert not dark[:, int(col) - 40 : int(col) - 1].any()  # (left aligned: nothing before it)
+
+
+def test_a_spike_in_a_long_series_stays_visible():
+    """20,000 points, all zero but one: the line still reaches the spike's value (near the top of the panel)."""
+    n = 20_000
+    t = np.arange(n) * 0.01
+    ke = np.zeros(n)
+    ke[12_345] = 1.0
+    series = {k: (v if k == "ke" else v[:1].repeat(n)) for k, v in _series(ke=ke).items() if k != "t"}
+    px = _draw({**series, "t": t})
+    left, top, right, bottom = _frames(px)[2]
+    cover = _coverage(px[top + 1 : bottom, left + 1 : right], flight_png.C_GAINS["ke"])
+    hit = np.flatnonzero(cover.max(axis=1) > 0.3)
+    assert hit[0] < 0.1 * (bottom - top)  # the spike's top: 1.0 among zeros, within the top 5 % margin
+
+
+def test_nan_and_inf_leave_gaps_not_a_crash(tmp_path, digits):
+    """Non-finite values are skipped: the picture is drawn (through the helper's entry point, from the files),
+    and the roll's line has a gap where its values are NaN."""
+    phi = np.full(N, 4 * DEG)
+    phi[1200:1800] = np.nan  # 12 s to 18 s
+    u = 3 * DEG * SQUARE
+    u[100] = np.inf
+    ke = np.full(N, 0.1)
+    ke[2000] = -np.inf
+    np.savez(tmp_path / "autopilot_series.npz", **_series(phi=phi, u=u, ke=ke))
+    png = draw_flight_png(tmp_path, "clsac", 20.0, True, 100.0, 30.0, {"ise_ref": 0.01})
+    assert png == tmp_path / "flight.png"
+    px = np.asarray(Image.open(png).convert("RGB")).astype(int)
+    frames = _frames(px)
+    left, top, right, bottom = frames[0]
+    cover = _coverage(px[top + 1 : bottom], flight_png.C_CLSAC).max(axis=0) > 0.3  # columns with the roll
+    x = _x_grid(px, frames, digits)
+    col = lambda t: round(_at(x, t))  # noqa: E731
+    assert cover[col(5) : col(11)].all() and not cover[col(12.5) : col(17.5)].any()
+
+
+def test_no_series_no_picture(tmp_path):
+    """No files, or a flight with no step recorded: None, and no flight.png (as with matplotlib)."""
+    assert draw_flight_png(tmp_path, "clsac", 20.0, True, 100.0, 30.0, {}) is None
+    np.savez(tmp_path / "autopilot_series.npz", **{k: v[:0] for k, v in _series().items()})
+    assert draw_flight_png(tmp_path, "clsac", 20.0, True, 100.0, 30.0, {}) is None
+    assert not (tmp_path / "flight.png").exists()
+
+
+# ---------------------------------------------------------------------------------------- ticks
+@pytest.mark.parametrize("seed", range(5))
+def test_ticks_are_round_numbers_inside_the_range(seed):
+    """1, 2, 2.5 or 5 x 10^k apart, inside the range, at most bins + 1 of them and at least two, for ranges of
+    any size and sign."""
+    rng = np.random.default_rng(seed)
+    for _ in range(200):
+        size = 10.0 ** rng.integers(-6, 7)
+        lo = float(rng.normal() * size)
+        hi = lo + float(size * 10.0 ** rng.uniform(-2, 1))  # a range from 1 % to 10 times the values' size
+        bins = int(rng.integers(1, 10))
+        ticks = nice_ticks(lo, hi, bins)
+        assert 2 <= len(ticks) <= max(bins + 1, 3), (lo, hi, bins, ticks)
+        assert lo - 1e-9 * (hi - lo) <= ticks[0] and ticks[-1] <= hi + 1e-9 * (hi - lo)
+        step = (ticks[-1] - ticks[0]) / (len(ticks) - 1)
+        assert np.allclose(np.diff(ticks), step, rtol=1e-6)
+        mantissa = step / 10.0 ** math.floor(math.log10(step) + 1e-9)
+        assert any(math.isclose(mantissa, m, rel_tol=1e-6) for m in (1, 2, 2.5, 5)), (step, mantissa)
+        assert np.allclose(ticks / step, np.round(ticks / step), atol=1e-6)  # multiples of the step
+    assert list(nice_ticks(-14.5, 14.0, 9)) == [-10, -5, 0, 5, 10]  # a flight's roll panel
+    assert list(nice_ticks(-11.0, 11.0, 9)) == [-10, -7.5, -5, -2.5, 0, 2.5, 5, 7.5, 10]
+    assert list(nice_ticks(-11.0, 11.0, 4)) == [-10, 0, 10]
+    assert list(nice_ticks(-1.5, 31.5, 9)) == [0, 5, 10, 15, 20, 25, 30]
