@@ -242,6 +242,24 @@ def test_a_childs_exit_is_seen_when_it_happens(tmp_path):
         c.finish()
 
 
+@pytest.mark.parametrize("chosen", [None, "3"])
+def test_a_child_gets_one_openblas_thread_unless_the_caller_chose(tmp_path, monkeypatch, chosen):
+    """numpy's import starts an OpenBLAS thread per core (0.06 CPU s a process at the flight's contended start): the
+    flight's processes get one, unless the environment already says how many."""
+    if chosen is None:
+        monkeypatch.delenv("OPENBLAS_NUM_THREADS", raising=False)
+    else:
+        monkeypatch.setenv("OPENBLAS_NUM_THREADS", chosen)
+    code = "import os; print('threads', os.environ.get('OPENBLAS_NUM_THREADS'))"
+    c = Child("x", [sys.executable, "-c", code], tmp_path / "x.log", False)
+    try:
+        assert c.wait(30.0) == 0
+        c.finish()
+    finally:
+        c.kill()
+    assert f"threads {chosen or 1}" in (tmp_path / "x.log").read_text()
+
+
 @pytest.mark.e2e
 def test_a_launch_leaves_every_file_with_the_picture_from_the_helper(tmp_path):
     """The whole launcher: tlog, flight.rrd (with the cached layout), flight.png and summary.json, in one run."""

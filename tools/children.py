@@ -31,6 +31,10 @@ class Child:
         self._log = open(log_path, "w", buffering=1)
         self._log.write("$ " + " ".join(argv) + "\n")
         env = dict(os.environ, PYTHONUNBUFFERED="1", MAVLINK20="1")
+        # One OpenBLAS thread unless the caller chose otherwise: the flight's matrices are a few rows wide, and numpy's
+        # import starting a BLAS thread per core costs each process about 0.06 CPU s at the flight's start, when the
+        # three processes contend for the cores (0.13 -> 0.07 CPU s for `import numpy` on the 2-core VM).
+        env.setdefault("OPENBLAS_NUM_THREADS", "1")
         self.proc = subprocess.Popen(
             argv,
             stdin=subprocess.DEVNULL,
