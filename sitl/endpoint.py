@@ -183,8 +183,10 @@ class Sitl:
             self.link.reject("bad_pwm")
             return
         item = (usec, pwm, t_rx)
-        if self._rt_faults:  # real-time link faults: delivered later by _deliver
-            self.inj.downlink(t_rx, item)
+        if self._rt_faults:  # real-time link faults: the channel takes it; what it delivers now is taken now
+            # (with no delay, this very message; with one, those that came due), the rest later by _deliver
+            for d_usec, d_pwm, _t in self.inj.downlink(t_rx, item):
+                self._servos.append((d_usec, d_pwm, t_rx))
             return
         self._servos.append(item)
 
@@ -260,7 +262,7 @@ class Sitl:
         n_frames = int(round(opts.duration_s * rate)) if opts.duration_s > 0 else 0
         link = self.link
         perf = time.perf_counter
-        # Wait for the autopilot to announce itself (it sends HEARTBEAT at start-up and at 1 Hz).
+        # Wait for the autopilot to announce itself (HEARTBEAT at start-up, every 50 ms until its peers answer).
         t_start = perf()
         next_hb = t_start
         while not link.rx_accepted and not self.stop_requested:

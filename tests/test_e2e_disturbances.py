@@ -88,3 +88,19 @@ def test_realtime_flight_with_link_faults(tmp_path):
     sitl_tx = res.summary["counters"]["sitl"]["tx_by_type"]["ATTITUDE"]
     assert 0 < sitl_tx <= inj["uplink"]["delivered"]
     assert sum(res.summary["counters"]["autopilot"]["sitl"]["rejected"].values()) > 0  # stale or replayed
+    # Every servo command the channel delivered reached the SITL's loop: applied, or refused as stale (a duplicate,
+    # or overtaken) or ahead of the autopilot's clock.
+    ev = res.summary["events"]["sitl"]
+    taken = ev.get("servo_applied", 0) + ev.get("stale_servo", 0) + ev.get("future_servo", 0)
+    assert taken == inj["downlink"]["delivered"] and ev["servo_applied"] > 200, (ev, inj["downlink"])
+
+
+@pytest.mark.parametrize("faults", [{"loss": 0.05}, {"duplicate": 0.05}])
+def test_realtime_link_faults_without_a_delay_still_fly_every_delivered_command(tmp_path, faults):
+    """With no ``--delay`` the channel delivers a servo command the moment it arrives: it was taken from the
+    channel and dropped, so the SITL flew with the rudder at neutral, never moved, and the verdict said OK."""
+    res = Flight(duration=3.0, rrd=False, quiet=True, out=tmp_path / "rt", seed=2, **faults).run()
+    assert res.ok, res.reason
+    ev, down = res.summary["events"]["sitl"], res.summary["disturbances"]["injected"]["downlink"]
+    assert ev.get("servo_applied", 0) + ev.get("stale_servo", 0) == down["delivered"] > 250, (ev, down)
+    assert np.max(np.abs(res.series["phi"])) > np.radians(5.0)  # the +10 deg step of the square wave was flown

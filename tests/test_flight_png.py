@@ -327,3 +327,77 @@ def test_ticks_are_round_numbers_inside_the_range(seed):
     assert list(nice_ticks(-11.0, 11.0, 9)) == [-10, -7.5, -5, -2.5, 0, 2.5, 5, 7.5, 10]
     assert list(nice_ticks(-11.0, 11.0, 4)) == [-10, 0, 10]
     assert list(nice_ticks(-1.5, 31.5, 9)) == [0, 5, 10, 15, 20, 25, 30]
+
+
+# ---------------------------------------------------------------------------------------- the review's cases
+def test_the_baseline_is_drawn_as_a_fixed_gain_pid_not_as_sac():
+    """The fixed-gain PID baseline was titled "SAC (..., L_v=0)" in SAC's red, with K_x = K_u = 0 drawn as adaptive
+    gains: its roll is in its own colour, and its gains panel shows K_p alone (its telemetry's K_e), in K_e's
+    colour, without K_x's and K_u's."""
+    img = flight_image(
+        _series(), name="baseline", lv=0.0, metrics={}, u_limit_rad=30 * DEG, title="t", controller="baseline"
+    )
+    px = np.asarray(img).astype(int)
+    frames = _frames(px)
+    left, top, right, bottom = frames[0]
+    roll = (slice(top + 2, bottom - 1), slice(left + 2, left + 600))
+    assert _solid(px[roll], flight_png.C_BASE).sum() > 100 and _solid(px[roll], flight_png.C_SAC).sum() == 0
+    left, top, right, bottom = frames[2]
+    gains = (slice(top + 2, bottom - 1), slice(left + 2, left + 600))
+    assert _solid(px[gains], flight_png.C_GAINS["ke"]).sum() > 100
+    assert _solid(px[gains], flight_png.C_GAINS["kx"]).sum() == 0 == _solid(px[gains], flight_png.C_GAINS["ku"]).sum()
+
+
+def test_mode_lines_go_under_the_legend():
+    """A switch under the roll panel's legend (upper right): the legend's box stays white over it, as matplotlib
+    draws a legend over the lines."""
+    t_switch = 29.0  # right end of the time axis: inside the legend's columns
+    px = _draw(_series(mode=np.where(T >= t_switch, 102.0, 101.0)))
+    left, top, right, bottom = _frames(px)[0]
+    col = int(round(left + (t_switch - (-1.5)) / 33.0 * (right - left)))  # data range 0-30 s, padded 5 %
+    box = px[top + 14 : top + 20, col - 3 : col + 4]  # a band inside the legend box, between two entries
+    assert _coverage(box, flight_png.C_MARK).max() < 0.2
+
+
+def test_mode_names_stay_by_their_lines_and_inside_the_picture():
+    """A mode flapping every 0.1 s (300 switches): names are written only where they fit near their own line,
+    none past the picture's right edge (they used to be pushed right, one after the other, off the picture)."""
+    mode = np.where((np.arange(N) // 10) % 2 == 0, 101.0, 102.0)
+    px = _draw(_series(mode=mode))
+    top = _frames(px)[0][1]
+    dark = px[top - 14 : top - 1].mean(axis=-1) < 128
+    assert dark.any() and not dark[:, -3:].any()
+    # each name (a run of dark columns, the gaps between letters closed) starts at most 12 px right of a switch
+    inked = np.flatnonzero(dark.any(axis=0))
+    starts = inked[np.concatenate(([True], np.diff(inked) > 3))]  # a gap of 4 px or more: the next name
+    left, _, right, _ = _frames(px)[0]
+    switches = left + (T[np.flatnonzero(np.diff(mode)) + 1] + 1.5) / 33.0 * (right - left)
+    assert 2 <= len(starts) < 100  # some names, not 300
+    for x in starts:
+        assert 0 <= x - switches[switches <= x + 1].max() <= 13, x
+
+
+def test_a_long_time_axis_says_its_multiplier():
+    """Time up to 120,000 s (a 33 h flight): the labels 0.0 ... 1.2 need their "1e5" (it was dropped); dark text
+    right under the time axis's labels, at the right end."""
+    t = np.linspace(0.0, 1.2e5, N)
+    px = _draw(_series(t=t))
+    left, top, right, bottom = _frames(px)[2]
+    below = px[bottom + 20 : bottom + 36, right - 40 : right + 1].mean(axis=-1) < 128
+    plain = _draw(_series())[bottom + 20 : bottom + 36, right - 40 : right + 1].mean(axis=-1) < 128
+    assert below.sum() > 20 and plain.sum() == 0
+
+
+@pytest.mark.parametrize(("share", "said"), [(0.003, "<1%"), (0.5, "50%")])
+def test_a_rudder_that_touched_its_limit_is_never_said_to_be_there_0_percent_of_the_time(share, said):
+    """The note's share of time at the limit: "<1%" below half a percent (it said "0%"), the limit itself as given
+    (17.5 deg, not 18)."""
+    u = np.where(np.arange(N) < share * N, 17.5 * DEG, 0.0)
+    notes = []
+    original = flight_png._note_box
+    try:
+        flight_png._note_box = lambda c, ax, lines: notes.extend(lines)
+        flight_image(_series(u=u), name="x", lv=20.0, metrics={}, u_limit_rad=17.5 * DEG, title="t")
+    finally:
+        flight_png._note_box = original
+    assert f"rudder at the 17.5 deg limit {said} of the time" in notes, notes

@@ -150,10 +150,12 @@ def test_lockstep_sitl_stopped_past_the_give_up_is_always_the_sitl(tmp_path, rep
 def test_lockstep_gcs_stopped_past_the_give_ups_recovers_never_blames_the_autopilot(tmp_path, rep):
     """The GCS script stopped for ``STOP_S``, longer than the autopilot's give-up on a silent SITL and the script's
     own on a silent vehicle: the autopilot waits for its schedule (and keeps sending), the SITL resends (its give-up
-    is 10 s).  The script sees its own stall on waking and reads on: the flight completes."""
-    with Flight(lockstep=True, duration=60.0, out=tmp_path, **SHORT) as flight:
+    is 10 s).  The script sees its own stall on waking and reads on: the flight completes.  The stop must come while
+    the flight still waits for the script's schedule: 0.1 s after the start, sim time is at 20-60 s of 120 at
+    170-600x real time (a 60 s flight stopped 0.3 s in had flown to its end on a quiet machine)."""
+    with Flight(lockstep=True, duration=120.0, out=tmp_path, **SHORT) as flight:
         _wait_for(flight, "sitl", "lockstep from")
-        time.sleep(0.3)
+        time.sleep(0.1)
         _stop_for(flight.pids["gcs"], STOP_S)
         res = flight.wait(timeout=120)
     assert res.summary["failed"] != "autopilot", res.reason

@@ -57,6 +57,51 @@ def test_a_completed_profile_seen_exiting_first_is_not_blamed_for_the_autopilots
     assert "gcs" not in why and "flown 99.8 % (2995 of 3000 steps" in why
 
 
+@pytest.mark.parametrize("received", [300, 0])
+def test_a_real_time_sitl_that_applied_no_command_fails_the_flight(received):
+    """Every process ran to its end and the autopilot flew every step, but the SITL applied none of its commands
+    (a downlink that dropped them: the aircraft flew with the rudder at neutral, and the SITL's servo timeout,
+    which counts from a command applied, never started).  That flight said OK; it fails, naming the SITL if the
+    commands reached it, else the autopilot."""
+    from tools.flight import FlightConfig
+
+    cfg = FlightConfig(duration=3.0, quiet=True)
+    stats = {
+        "autopilot": {
+            "steps": 300,
+            "hold_steps": 0,
+            "late_steps": 0,
+            "attitude_timeout_s": 0.1,
+            "metric_samples": 300,
+            "exit_reason": "end of run (duration reached)",
+            "sent": _sent(13.0),
+        },
+        "sitl": {
+            "frames": 600,
+            "servo_timeout_s": 0.0,
+            "servo_timeout_open_s": 0.0,
+            "first_servo_sim_s": None,
+            "last_servo_sim_s": None,
+            "link": {"rx_by_type": {"SERVO_OUTPUT_RAW": received} if received else {}},
+            "sent": _sent(13.5),
+        },
+        "gcs": {"exit_reason": "end of run (vehicle powered off)", "origin_ms": 0, "sim_ms": 3000, "sent": _sent(13)},
+    }
+    flown = flown_report(cfg, stats)
+    assert flown["steps"] == 0 and flown["lost"]["no_command_applied"] and not flown["complete"]
+    children = {n: _child(n, 0, 13.0 + i / 100) for i, n in enumerate(("gcs", "autopilot", "sitl"))}
+    code, failed, why = verdict(children, stats, flown, 0, None, None, t_end=13.5)
+    expected = (
+        "sitl: the SITL applied none of the 300 servo commands it received"
+        if received
+        else "autopilot: no servo command reached the SITL"
+    )
+    assert (code, failed) == (1, "sitl" if received else "autopilot") and why.startswith(expected), why
+    assert "flown 0 % (0 of 300 steps" in why
+    stats["sitl"]["first_servo_sim_s"] = stats["sitl"]["last_servo_sim_s"] = 0.01  # one applied: no such verdict
+    assert not flown_report(cfg, stats)["lost"]["no_command_applied"]
+
+
 def test_the_first_to_stop_sending_is_named_not_the_first_to_exit():
     """Evidence beats exit order: the GCS exits first (it noticed), the SITL's own clock shows it stopped earlier;
     a process without stats is judged on its peers' receive clocks; silences under STALL_S are no stall."""

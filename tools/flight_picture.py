@@ -33,7 +33,14 @@ PNG_MAX_POINTS = 20_000  # flight.png plots every k-th step of a long flight: bo
 
 
 def draw_flight_png(
-    out: str | os.PathLike, name: str, lv: float, lockstep: bool, rate: float, u_limit_deg: float, metrics: dict
+    out: str | os.PathLike,
+    name: str,
+    lv: float,
+    lockstep: bool,
+    rate: float,
+    u_limit_deg: float,
+    metrics: dict,
+    controller: str | None = None,
 ) -> Path | None:
     """DIR/flight.png from the flight's series (``tools.flight_png``); None without series."""
     from tools.flight_png import save_flight_png
@@ -52,6 +59,7 @@ def draw_flight_png(
         metrics=metrics,
         u_limit_rad=math.radians(u_limit_deg),
         title=title,
+        controller=controller,
     )
 
 
@@ -106,9 +114,10 @@ class PngHelper:
             stdout=subprocess.PIPE,  # the answer; its warnings and errors go to the launcher's stderr, as before
             text=True,
             start_new_session=True,  # Ctrl-C reaches the launcher only, which still asks for the picture
-            # One OpenBLAS thread: the picture does no linear algebra, and numpy's import starting a thread per
-            # core costs about 0.05 CPU s, at the flight's start, when the cores are contended.
-            env=dict(os.environ, PYTHONUNBUFFERED="1", OPENBLAS_NUM_THREADS="1"),
+            # One OpenBLAS thread unless the environment sets it: the picture does no linear algebra, and numpy's
+            # import starting a thread per core costs about 0.05 CPU s, at the flight's start, when the cores are
+            # contended.
+            env={"OPENBLAS_NUM_THREADS": "1", **os.environ, "PYTHONUNBUFFERED": "1"},
         )
         self._sent = False
 

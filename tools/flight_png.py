@@ -38,6 +38,7 @@ RATIOS = (3, 2, 2)  # the panels' heights
 # tools.plots' colours (matplotlib's default cycle): the law, the command and the reference models, the gains
 C_CLSAC = "#1f77b4"
 C_SAC = "#d62728"
+C_BASE = "#e377c2"  # the fixed-gain PID baseline (matplotlib's tab:pink)
 C_CMD = "#000000"
 C_OL = "#737373"  # matplotlib's "0.45"
 C_CRM = "#2ca02c"
@@ -54,6 +55,7 @@ TICK_LEN = 3.5 * PX  # outward tick marks
 TICK_PAD = 3.5 * PX  # between a tick mark and its label
 LABEL_PAD = 4.0 * PX  # between the tick labels and the axis label
 TITLE_PAD = 6.0 * PX  # between a panel's frame and its title
+MODE_NAME_SLIP = 12.0  # px: how far right of its switch's line a mode's name may be pushed by the one before
 # matplotlib's dash patterns, in multiples of the line width
 DASHES = {"--": (3.7, 1.6), ":": (1.0, 1.65)}
 
@@ -392,7 +394,9 @@ def _note_box(c: _Canvas, ax: _Axes, lines: list[str]) -> None:
         c.text((x1 - pad, top + i * step), s, PT_NOTE, anchor="ra")
 
 
-def _draw_panel(c: _Canvas, ax: _Axes, panel: Panel, t: np.ndarray, xticks: np.ndarray, last: bool) -> None:
+def _draw_panel(
+    c: _Canvas, ax: _Axes, panel: Panel, t: np.ndarray, xticks: np.ndarray, modes: list, last: bool
+) -> None:
     # grid at the ticks, under everything
     yticks = nice_ticks(*ax.ylim, _bins(ax.bottom - ax.top, 2)) if panel.has_data else np.empty(0)
     for v in xticks:
@@ -411,6 +415,8 @@ def _draw_panel(c: _Canvas, ax: _Axes, panel: Panel, t: np.ndarray, xticks: np.n
             c.polyline(x, y, ln.color, ln.lw, ln.style)
     for v in panel.hlines:
         c.rule(True, ax.y(v), ax.left, ax.right, C_MARK, dotted_lw=0.8)
+    for ts, _name in modes:  # the mode switches, under the legend and the notes
+        c.rule(False, ax.x(ts), ax.top, ax.bottom, C_MARK, dotted_lw=0.8)
     # frame and ticks (outward); tick labels at the left, and at the bottom of the last panel only (shared time axis)
     for horizontal, at, a, b in (
         (True, ax.top, ax.left, ax.right + 1),
@@ -436,9 +442,11 @@ def _draw_panel(c: _Canvas, ax: _Axes, panel: Panel, t: np.ndarray, xticks: np.n
         rotate=True,
     )
     if last:
-        xlabels, _ = tick_labels(xticks)
+        xlabels, xmultiplier = tick_labels(xticks)
         for v, s in zip(xticks, xlabels):
             c.text((math.floor(ax.x(v)) + 0.5, ax.bottom + TICK_LEN + TICK_PAD), s, PT_TICK, anchor="mt")
+        if xmultiplier:  # below the labels' right end, as matplotlib writes an axis's offset
+            c.text((ax.right, ax.bottom + TICK_LEN + TICK_PAD + 1.2 * PT_TICK * PX), xmultiplier, PT_TICK, anchor="rt")
         c.text(
             ((ax.left + ax.right) / 2, ax.bottom + TICK_LEN + TICK_PAD + 1.2 * PT_TICK * PX + LABEL_PAD),
             "t [s]",
@@ -479,16 +487,20 @@ def render(t: np.ndarray, panels: list[Panel], modes: list[tuple[float, str]], t
     for i, (panel, frame) in enumerate(zip(panels, frames)):
         values = [ln.y for ln in panel.lines if ln.y is not None] + [np.asarray(panel.hlines, float)]
         ax = _Axes(*frame, xlim, data_range(values) or (0.0, 1.0))
-        _draw_panel(c, ax, panel, t, xticks, last=i == len(panels) - 1)
-        for ts, _name in modes:
-            c.rule(False, ax.x(ts), ax.top, ax.bottom, C_MARK, dotted_lw=0.8)
+        _draw_panel(c, ax, panel, t, xticks, modes, last=i == len(panels) - 1)
         title_y = ax.top - TITLE_PAD
         if i == 0 and modes:
-            end = -math.inf  # the names, each after the previous one if they would overlap
+            # The names, each after the previous one if they would overlap; one that would land more than
+            # MODE_NAME_SLIP px from its line, or past the picture's edge, is left out (its line stays): a mode
+            # that flaps every few steps would otherwise write its names far from their switches.
+            end = -math.inf
             for ts, name in modes:
                 x = max(float(ax.x(ts)), end + 4)
+                width = text_width(name, PT_MODE)
+                if x - float(ax.x(ts)) > MODE_NAME_SLIP or x + width > SIZE - 2:
+                    continue
                 c.text((x, ax.top - 0.01 * (ax.bottom - ax.top)), name, PT_MODE, anchor="ld")
-                end = x + text_width(name, PT_MODE)
+                end = x + width
             title_y -= 1.6 * PT_MODE * PX  # the title above the names
         c.text(((ax.left + ax.right) / 2, title_y), panel.title, PT_TITLE, anchor="md")
     c.text((SIZE / 2, 0.02 * SIZE), title, PT_SUPTITLE, anchor="mt")
@@ -525,15 +537,27 @@ def mode_switches(t: np.ndarray, mode: np.ndarray | None) -> list[tuple[float, s
     return [(float(t[k]), names.get(int(mode[k]), f"mode {int(mode[k])}")) for k in switches]
 
 
-def flight_image(series: dict, *, name: str, lv: float, metrics: dict, u_limit_rad: float, title: str) -> Image.Image:
+def flight_image(
+    series: dict,
+    *,
+    name: str,
+    lv: float,
+    metrics: dict,
+    u_limit_rad: float,
+    title: str,
+    controller: str | None = None,
+) -> Image.Image:
     """The picture of one flight (``series``: ``tools.series_files.load_series``; ``t`` must be there): roll
-    against the command and the reference models, the rudder command, the adaptive gains; mode switches marked."""
+    against the command and the reference models, the rudder command, the adaptive gains; mode switches marked.
+    ``controller``: "clsac", "sac" or "baseline" (the fixed-gain PID: no adaptive gains); None: CL-SAC if
+    ``lv`` > 0, else SAC."""
     t = _column(series, "t")
     if t is None:
         raise ValueError("flight_image: no time series 't'")
     col = {k: _column(series, k) for k in ("um", "phi", "ym_ol", "ym", "u", "mode", *C_GAINS)}
     col = {k: None if v is None or len(v) != len(t) else v for k, v in col.items()}  # a torn column: not drawn
-    color, law = (C_CLSAC, "CL-SAC") if lv > 0 else (C_SAC, "SAC")
+    baseline = controller == "baseline"
+    color, law = (C_BASE, "baseline PID") if baseline else (C_CLSAC, "CL-SAC") if lv > 0 else (C_SAC, "SAC")
 
     # Roll tracking.  When the roll goes far beyond the command (SAC oscillating), the references are drawn over
     # it so they stay visible; otherwise the roll goes on top.
@@ -547,7 +571,7 @@ def flight_image(series: dict, *, name: str, lv: float, metrics: dict, u_limit_r
         lines.append(Line(_deg(ym_ol), C_OL, 2.0, label="open-loop ref. model y_{m,ol}", z=zref))
     if lv > 0 and ym is not None:
         lines.append(Line(_deg(ym), C_CRM, 1.2, label=f"closed-loop ref. model y_{{m}} (L_{{v}}={lv:g})", z=zref))
-    elif lv == 0 and ym_ol is not None:
+    elif lv == 0 and ym_ol is not None and not baseline:
         lines.append(Line(None, C_CRM, 1.2, label="closed-loop ref. model = open loop (L_{v}=0)"))
     if phi is not None:
         lines.append(Line(_deg(phi), color, 1.1, label="roll φ", z=zphi))
@@ -560,9 +584,10 @@ def flight_image(series: dict, *, name: str, lv: float, metrics: dict, u_limit_r
     if u is not None:
         at_limit = float(np.mean(np.abs(u) >= u_limit_rad * (1.0 - 1e-9)))
         if at_limit:
-            note.append(f"rudder at the {u_limit_rad * DEG:.0f} deg limit {100 * at_limit:.0f}% of the time")
+            share = f"{100 * at_limit:.0f}%" if at_limit >= 0.005 else "<1%"  # never "0%" for a flight that touched it
+            note.append(f"rudder at the {u_limit_rad * DEG:.3g} deg limit {share} of the time")
     tracking = Panel(
-        f"Roll tracking, {law} ({name}, L_{{v}}={lv:g})",
+        f"Roll tracking, {law} ({name})" if baseline else f"Roll tracking, {law} ({name}, L_{{v}}={lv:g})",
         "roll [deg]",
         lines,
         missing=[k for k in ("um", "phi", "ym_ol", "ym") if col[k] is None and not (k == "ym" and lv == 0)],
@@ -578,7 +603,14 @@ def flight_image(series: dict, *, name: str, lv: float, metrics: dict, u_limit_r
         if _finite_max_abs(u) > 0.5 * u_limit_rad:
             rudder.hlines = [u_limit_rad * DEG, -u_limit_rad * DEG]
 
-    # The adaptive gains
+    # The adaptive gains; the baseline adapts nothing (its telemetry records K_p as K_e, the rest 0)
+    if baseline:
+        gains = Panel("Fixed-gain PID: no adaptive gains", "[-]")
+        if col["ke"] is None:
+            gains.missing.append("ke")
+        else:
+            gains.lines.append(Line(col["ke"], C_GAINS["ke"], 1.0, label="K_{p} (fixed)"))
+        return render(t, [tracking, rudder, gains], mode_switches(t, col["mode"]), title)
     gains = Panel("Adaptive gains K = K_{p} + K_{I}", "[-]", legend_cols=3)
     for key, label in (("ke", "K_{e}"), ("kx", "K_{x}"), ("ku", "K_{u}")):
         if col[key] is None:

@@ -26,6 +26,7 @@ def png_request(cfg: FlightConfig, out: Path, name: str, metrics: dict) -> dict:
         "out": str(out),
         "name": name,
         "lv": cfg.lv_value if cfg.controller != "sac" else 0.0,
+        "controller": cfg.controller,
         "lockstep": cfg.lockstep,
         "rate": cfg.rate,
         "u_limit_deg": cfg.u_limit_deg,

@@ -43,7 +43,7 @@ def flown_report(cfg: FlightConfig, stats: dict) -> dict:
     come from what the SITL flew (``_sitl_flown_steps``)."""
     ap, sitl = stats["autopilot"], stats["sitl"]
     asked = round(cfg.duration * cfg.rate)
-    lost = {"hold_steps": 0, "late_steps": 0, "servo_timeout_s": 0.0}
+    lost = {"hold_steps": 0, "late_steps": 0, "servo_timeout_s": 0.0, "no_command_applied": False}
     if ap:
         source = "autopilot"
         steps = ap["steps"]
@@ -54,9 +54,15 @@ def flown_report(cfg: FlightConfig, stats: dict) -> dict:
                 lost["servo_timeout_s"] = sitl.get("servo_timeout_s", 0.0) + (
                     0.0 if _ended_normally(ap) else sitl.get("servo_timeout_open_s", 0.0)
                 )
+                if "first_servo_sim_s" in sitl and sitl["first_servo_sim_s"] is None and ap["steps"]:
+                    # The SITL applied none of the autopilot's commands: it flew the whole flight with the rudder
+                    # at neutral, and its servo timeout, which starts from a command applied, never started.
+                    lost["no_command_applied"] = True
             timeout_steps = int(round(lost["servo_timeout_s"] * cfg.rate))
             lost_steps = lost["hold_steps"] + lost["late_steps"] + timeout_steps
-            steps = max(0, min(steps, asked) - lost_steps) if ap["metric_samples"] else 0
+            steps = (
+                max(0, min(steps, asked) - lost_steps) if ap["metric_samples"] and not lost["no_command_applied"] else 0
+            )
     elif sitl:
         source = "sitl"
         steps = min(_sitl_flown_steps(cfg, sitl), asked)
@@ -164,13 +170,24 @@ def shortfall(flown: dict, stats: dict, rate: float) -> tuple[str, str]:
     """(process, reason) of a flight the autopilot flew to its end with steps lost.  The steps flown late and the
     time the SITL flew without a command are the autopilot's loss; the steps flown as a hold for want of attitude,
     the SITL's (its attitude did not arrive within the attitude timeout).  The owner of the larger loss, in control
-    periods, is named (the autopilot on a tie); the reason lists every loss."""
+    periods, is named (the autopilot on a tie); the reason lists every loss.  A SITL that applied none of the
+    autopilot's commands (real time, ``lost["no_command_applied"]``) is named if they reached it, else the
+    autopilot."""
     ap = stats.get("autopilot") or {}
     lost = flown["lost"]
     tmo = ap.get("attitude_timeout_s")
     autopilot_loss = lost["late_steps"] + round(lost["servo_timeout_s"] * rate)
     name = "sitl" if lost["hold_steps"] > autopilot_loss else "autopilot"
     parts = []
+    if lost.get("no_command_applied"):
+        # None applied: the SITL's fault if the commands reached it, else they never left the autopilot's side
+        got = ((stats.get("sitl") or {}).get("link") or {}).get("rx_by_type", {}).get("SERVO_OUTPUT_RAW", 0)
+        name = "sitl" if got else "autopilot"
+        parts.append(
+            f"the SITL applied none of the {got} servo commands it received (rudder neutral all flight)"
+            if got
+            else "no servo command reached the SITL (rudder neutral all flight)"
+        )
     if lost["late_steps"]:
         parts.append(
             f"{_steps(lost['late_steps'])} flown later than the attitude timeout ({tmo:g} s) "
