@@ -104,6 +104,16 @@ def test_lockstep_sac_runs(tmp_path):
     assert run["metrics"]["ise_ref"] == pytest.approx(ref["ise_ref"], rel=0.02)
 
 
+@pytest.mark.parametrize("duration", ["0.05", "1.05"])
+def test_a_lockstep_flight_that_ends_between_two_schedule_points_flies_to_its_end(tmp_path, duration):
+    """The GCS script schedules a setpoint every 0.1 s of sim time, and the vehicle flies no frame past its
+    schedule: a flight ending between two points (0.05 s, 1.05 s) waited for a point never sent, until the SITL
+    gave up, and the verdict blamed the GCS.  The profile's last instant is now scheduled too."""
+    summary = launch_cli(tmp_path, "--duration", duration, "--no-rrd", "--no-png", "--lockstep-idle-exit", "2")
+    steps = round(float(duration) * 100)
+    assert summary["runs"][0]["steps"] == steps and summary["flown"]["complete"], summary["flown"]
+
+
 def test_lockstep_across_time_usec_wrap(tmp_path):
     """Start 3 s before SERVO_OUTPUT_RAW.time_usec wraps (2**32 us = 4294.967296 s) and fly 8 s across it.
     Sim time does not enter the dynamics, so the metrics equal those of the same flight from t = 0."""

@@ -229,14 +229,18 @@ class Gcs:
         if self.origin_ms is None or self.sim_ms is None:
             return
         end_rel = (self.sim_ms - self.origin_ms) + int(round(o.lookahead * 1000))
-        if o.duration > 0:
-            end_rel = min(end_rel, int(round(o.duration * 1000)))
+        end_ms = int(round(o.duration * 1000)) if o.duration > 0 else None
+        if end_ms is not None:
+            end_rel = min(end_rel, end_ms)
         if self.next_point_rel_ms > end_rel:
             return
         step = max(1, int(round(o.point_dt * 1000)))
         start = self.next_point_rel_ms
         grid = set(range(start - start % step + (step if start % step else 0), end_rel + 1, step))
-        pts = sorted(grid.union(self.profile.breakpoints_ms(start, end_rel), [start] if start == 0 else []))
+        # The profile's last instant too: the vehicle flies no frame past its schedule, so a profile that ended
+        # between two grid points (--duration 0.05, 30.05) left its last frames waiting for a point never sent.
+        ends = [end_ms] if end_rel == end_ms else []
+        pts = sorted(grid.union(self.profile.breakpoints_ms(start, end_rel), [start] if start == 0 else [], ends))
         for rel in pts:
             if rel < start:
                 continue
