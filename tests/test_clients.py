@@ -179,6 +179,9 @@ class MavProxy:
             stderr=subprocess.STDOUT,
             text=True,
             cwd=cwd,
+            # its console line by line, as on a terminal: on a pipe Python buffers it, and without this (an
+            # environment without PYTHONUNBUFFERED) the parameter count never reached the test in time
+            env=dict(os.environ, PYTHONUNBUFFERED="1"),
         )
         threading.Thread(target=self._read, daemon=True).start()
 

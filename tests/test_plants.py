@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import math
+import os
 import subprocess
 import sys
 from dataclasses import replace
@@ -414,11 +415,15 @@ def test_a_jsbsim_plant_that_does_not_trim_is_refused_before_the_flight(tmp_path
     import json
 
     out = tmp_path / "f"
+    # as a user's shell has it: without PYTHONUNBUFFERED, JSBSim's messages waited in Python's stdout buffer and
+    # came out after the launcher had put its stdout back
+    user_env = {k: v for k, v in os.environ.items() if k != "PYTHONUNBUFFERED"}
     r = subprocess.run(
         [sys.executable, "-m", "tools.launch", "--lockstep", "--duration", "3", "--plant", spec, "--out", str(out)],
         capture_output=True,
         text=True,
         timeout=120,
+        env=user_env,
     )
     assert r.returncode == 2 and r.stdout == "", r.stdout + r.stderr
     assert r.stderr.count("\n") == 1 and "does not trim" in r.stderr and "Traceback" not in r.stderr, r.stderr

@@ -426,6 +426,16 @@ def _trims(plant: str) -> None:
         plants.build(plant, 1000.0)
 
 
+def _libc_fflush() -> None:
+    """C's ``fflush(NULL)``: every stdio stream's buffer written out (C and C++ libraries' output)."""
+    import ctypes
+
+    try:
+        ctypes.CDLL(None).fflush(None)
+    except (OSError, AttributeError):  # no C library to ask: only Python's own buffers were flushed
+        pass
+
+
 @contextlib.contextmanager
 def _quiet_fds():
     """File descriptors 1 and 2 to /dev/null for the block (C++ output too, not only Python's)."""
@@ -438,6 +448,11 @@ def _quiet_fds():
         os.dup2(null, 2)
         yield
     finally:
+        # What was written meanwhile, to /dev/null: JSBSim's messages reach Python's buffered sys.stdout (and C's
+        # stdio), and flushed after the restore they came out on the terminal (PYTHONUNBUFFERED hid it).
+        sys.stdout.flush()
+        sys.stderr.flush()
+        _libc_fflush()
         os.dup2(saved[0], 1)
         os.dup2(saved[1], 2)
         for fd in (*saved, null):
