@@ -261,6 +261,36 @@ def test_a_child_gets_one_openblas_thread_unless_the_caller_chose(tmp_path, monk
 
 
 @pytest.mark.e2e
+def test_a_lockstep_launcher_imports_rerun_while_its_children_start_a_real_time_one_after(tmp_path):
+    """A file-only lockstep flight's recorder (rerun, 0.27 CPU s) is imported in a thread as soon as the children
+    are spawned, not after the flight, where it was the longest part of the wait; a real-time flight leaves it for
+    the end (its loop is not to share a core with it), and a flight without a recording has none to import.  In one
+    process, in that order: rerun is not loaded until the lockstep flight with a recording starts."""
+    code = (
+        "import sys\n"
+        "from tools.flight import Flight\n"
+        "for name, lockstep, rrd in (('rt', False, True), ('norrd', True, False), ('ls', True, True)):\n"
+        f"    f = Flight(lockstep=lockstep, rrd=rrd, duration=1.0, quiet=True, png=False, out=r'{tmp_path}/' + name)\n"
+        "    f.start()\n"
+        "    if f._recorder is not None:\n"
+        "        f._recorder.join(60)\n"
+        "    print(name, f._recorder is not None, 'rerun' in sys.modules)\n"
+        "    res = f.wait(60)\n"
+        "    print(name, res.ok, (f.out / 'flight.rrd').exists())\n"
+    )
+    r = _run(code)
+    assert r.returncode == 0, r.stderr
+    assert r.stdout.split("\n")[:6] == [
+        "rt False False",  # real time: nothing imported while it starts and flies
+        "rt True True",  # the recording, after the flight
+        "norrd False True",  # (rerun is loaded in this process since the first flight's end)
+        "norrd True False",
+        "ls True True",  # lockstep with a recording: the thread
+        "ls True True",
+    ], r.stdout
+
+
+@pytest.mark.e2e
 def test_a_launch_leaves_every_file_with_the_picture_from_the_helper(tmp_path):
     """The whole launcher: tlog, flight.rrd (with the cached layout), flight.png and summary.json, in one run."""
     from tools import rrd

@@ -39,6 +39,7 @@ from tools.flight.files import (
     load_series,
     png_request,
     provisional_summary,
+    start_recorder_import,
     write_flight_png,
     write_refusal,
 )
@@ -120,6 +121,7 @@ class Flight:
         self._web = None  # the --web server (tools.web.WebServer), stopped when the flight ends
         self._png = None  # the flight.png helper process (tools.flight_picture.PngHelper), from start() to _end()
         self._early_png = None  # one started before this Flight existed (adopt_png_helper), used or closed by start()
+        self._recorder = None  # the thread importing rerun while the children start (start_recorder_import)
         self._t0: float | None = None
         self._interrupt = threading.Event()
 
@@ -246,7 +248,7 @@ class Flight:
         try:
             early, self._early_png = self._early_png, None
             if cfg.png and cfg.series and cfg.lockstep and not cfg.pin:
-                # First: it imports matplotlib while the flight starts and flies (tools.flight_picture).  Lockstep
+                # First: it imports numpy and Pillow while the flight starts and flies (tools.flight_picture).  Lockstep
                 # only: a real-time loop (or a pinned CPU) is not to share its CPU with it; those draw at the end.
                 try:
                     self._png = early if early is not None else PngHelper()
@@ -260,6 +262,8 @@ class Flight:
                 ports = range(cfg.base_port, cfg.base_port + 4) if cfg.base_port is not None else free_udp_ports(4)
                 sitl_port, gcs_port, *ap_ports = ports
                 self._spawn(child_argvs(cfg, self.out, sitl_port, gcs_port, telemetry, key_file, tuple(ap_ports)))
+                if self._recorder is None and cfg.lockstep and not cfg.pin:
+                    self._recorder = start_recorder_import(self._parts)
                 failed = self._await_listening()
                 if failed is None:
                     break
