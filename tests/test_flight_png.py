@@ -401,3 +401,18 @@ def test_a_rudder_that_touched_its_limit_is_never_said_to_be_there_0_percent_of_
     finally:
         flight_png._note_box = original
     assert f"rudder at the 17.5 deg limit {said} of the time" in notes, notes
+
+
+def test_odd_values_are_drawn_and_said_not_crashed_on():
+    """Gains whose range is a denormal (5e-324: the padded range could not be divided into ticks, a math domain
+    error), a roll with no finite value ("max|φ|=n/a", not 0) and a blown-up one (1e30 rad: three digits, not 31)."""
+    _draw(_series(ke=np.array([0.0, 5e-324] * (N // 2) + [0.0])))
+    notes = []
+    original = flight_png._note_box
+    try:
+        flight_png._note_box = lambda c, ax, lines: notes.extend(lines)
+        for phi in (np.full(N, np.nan), np.full(N, 1e30)):
+            flight_image(_series(phi=phi), name="x", lv=20.0, metrics={"ise_ref": 1.0}, u_limit_rad=0.5, title="t")
+    finally:
+        flight_png._note_box = original
+    assert notes[0] == "ise_ref=1 rad²s, max|φ|=n/a" and notes[1] == "ise_ref=1 rad²s, max|φ|=5.73e+31 deg", notes

@@ -99,8 +99,8 @@ def text_width(s: str, pt: float) -> float:
 
 
 def _draw_text(draw: ImageDraw.ImageDraw, x: float, y: float, s: str, pt: float, anchor: str, color) -> None:
-    """Text at (x, y) by Pillow's ``anchor``; with subscripts, the vertical anchor is one of "a" (ascender), "m"
-    (middle), "s" (baseline), "d" (descender), those of the text's font."""
+    """Text at (x, y) by Pillow's ``anchor``; with subscripts, the vertical anchor is one of "a" or "t" (the font's
+    ascender), "m" (middle), "s" (baseline), "b" or "d" (its descender): the font's, not the text's own box."""
     runs = _runs(s)
     font = _font(pt)
     if len(runs) <= 1 and not (runs and runs[0][1]):
@@ -108,7 +108,8 @@ def _draw_text(draw: ImageDraw.ImageDraw, x: float, y: float, s: str, pt: float,
         return
     ascent, descent = font.getmetrics()
     x -= {"l": 0.0, "m": 0.5, "r": 1.0}[anchor[0]] * text_width(s, pt)
-    y += {"a": ascent, "m": (ascent - descent) / 2, "s": 0, "d": -descent}[anchor[1]]  # now the baseline
+    y += {"a": ascent, "t": ascent, "m": (ascent - descent) / 2, "s": 0, "b": -descent, "d": -descent}[anchor[1]]
+    # (y is now the baseline)
     for part, sub in runs:
         f = _font(pt * SUB_SIZE) if sub else font
         draw.text((round(x), round(y + SUB_DROP * pt * PX if sub else y)), part, font=f, fill=color, anchor="ls")
@@ -120,6 +121,8 @@ def nice_ticks(lo: float, hi: float, max_bins: int) -> np.ndarray:
     """Tick values in [lo, hi]: multiples of a step of 1, 2, 2.5 or 5 x 10^k, the smallest giving at most
     ``max_bins`` intervals, and at least two ticks (how matplotlib's default locator chooses them)."""
     raw = (hi - lo) / max_bins
+    if not (math.isfinite(raw) and raw > 0.0):  # a range too narrow (or wide) for a float to divide: its ends
+        return np.array([lo] if lo == hi else [lo, hi])
     scale = 10.0 ** math.floor(math.log10(raw))
     steps = [m * scale for m in (0.5, 1, 2, 2.5, 5, 10)]
     i = next(i for i, s in enumerate(steps) if s >= raw * (1 - 1e-9))
@@ -160,7 +163,8 @@ def data_range(values: list[np.ndarray]) -> tuple[float, float] | None:
         return None
     lo, hi = float(min(v.min() for v in finite)), float(max(v.max() for v in finite))
     if hi - lo <= 1e-12 * max(abs(lo), abs(hi), 1e-300):
-        lo, hi = (-0.05, 0.05) if lo == 0 == hi else (lo - 0.05 * abs(lo), hi + 0.05 * abs(hi))
+        tiny = max(abs(lo), abs(hi)) < 1e-290  # zero, or so near it that 5 % of it is no wider (denormals)
+        lo, hi = (-0.05, 0.05) if tiny else (lo - 0.05 * abs(lo), hi + 0.05 * abs(hi))
     pad = 0.05 * (hi - lo)
     return lo - pad, hi + pad
 
@@ -518,6 +522,15 @@ def _deg(v: np.ndarray | None) -> np.ndarray | None:
     return None if v is None else v * DEG
 
 
+def _max_roll_text(phi: np.ndarray) -> str:
+    """The note's largest roll: whole degrees, three digits beyond 10,000 deg (a blown-up flight), n/a without a
+    finite value."""
+    if not np.isfinite(phi).any():
+        return "n/a"
+    deg = _finite_max_abs(phi) * DEG
+    return f"{deg:.0f} deg" if deg < 1e4 else f"{deg:.3g} deg"
+
+
 def _finite_max_abs(v: np.ndarray) -> float:
     v = v[np.isfinite(v)]
     return float(np.max(np.abs(v))) if v.size else 0.0
@@ -578,7 +591,7 @@ def flight_image(
     ise = metrics.get("ise_ref") if isinstance(metrics, dict) else None
     note = [
         (f"ise_ref={ise:.3g} rad²s" if isinstance(ise, (int, float)) else "ise_ref=n/a")
-        + (f", max|φ|={_finite_max_abs(phi) * DEG:.0f} deg" if phi is not None else "")
+        + (f", max|φ|={_max_roll_text(phi)}" if phi is not None else "")
     ]
     u = col["u"]
     if u is not None:
