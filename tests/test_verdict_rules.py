@@ -24,6 +24,19 @@ def _sent(last, gap=0.05, gap_from=None, ended=None):
     return {"last_mono": last, "longest_gap_s": gap, "longest_gap_from_mono": gap_from or last - 1, "ended_mono": ended}
 
 
+def _flown_to_the_end(steps: int, last_sent: float) -> dict:
+    """The stats of an autopilot that flew ``steps`` steps, none late or held, and ended its run itself."""
+    return {
+        "steps": steps,
+        "hold_steps": 0,
+        "late_steps": 0,
+        "attitude_timeout_s": 0.1,
+        "metric_samples": steps,
+        "exit_reason": "end of run (duration reached)",
+        "sent": _sent(last_sent),
+    }
+
+
 def test_a_completed_profile_seen_exiting_first_is_not_blamed_for_the_autopilots_shortfall():
     """Under load the GCS script's exit (at the autopilot's POWEROFF, its profile complete) was seen before the
     autopilot's; the flight was 5 autopilot steps short and the reason said "gcs exited early"."""
@@ -31,16 +44,7 @@ def test_a_completed_profile_seen_exiting_first_is_not_blamed_for_the_autopilots
 
     cfg = FlightConfig(duration=30.0, quiet=True)
     stats = {
-        "autopilot": {
-            "steps": 3000,
-            "hold_steps": 0,
-            "late_steps": 5,
-            "max_lateness_s": 0.2,
-            "attitude_timeout_s": 0.1,
-            "metric_samples": 3000,
-            "exit_reason": "end of run (duration reached)",
-            "sent": _sent(40.0),
-        },
+        "autopilot": dict(_flown_to_the_end(3000, 40.0), late_steps=5, max_lateness_s=0.2),
         "sitl": {"frames": 6000, "servo_timeout_s": 0.0, "servo_timeout_open_s": 0.0, "sent": _sent(40.5)},
         "gcs": {"exit_reason": "end of run (vehicle powered off)", "origin_ms": 0, "sim_ms": 30000, "sent": _sent(40)},
     }
@@ -67,15 +71,7 @@ def test_a_real_time_sitl_that_applied_no_command_fails_the_flight(received):
 
     cfg = FlightConfig(duration=3.0, quiet=True)
     stats = {
-        "autopilot": {
-            "steps": 300,
-            "hold_steps": 0,
-            "late_steps": 0,
-            "attitude_timeout_s": 0.1,
-            "metric_samples": 300,
-            "exit_reason": "end of run (duration reached)",
-            "sent": _sent(13.0),
-        },
+        "autopilot": _flown_to_the_end(300, 13.0),
         "sitl": {
             "frames": 600,
             "servo_timeout_s": 0.0,
