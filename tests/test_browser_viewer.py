@@ -308,7 +308,13 @@ def test_the_browser_shows_the_aircraft_roll_the_right_way(tmp_path):
                 r = _region(img, ATTITUDE_3D)
                 solid = (r[..., 0] - r[..., 1] > 30) & (r[..., 2] - r[..., 1] > 15)  # lit PURPLE
                 ghost = (r[..., 0] - r[..., 2] > 50) & (r[..., 1] - r[..., 2] > 20)  # translucent ORANGE
-                return (solid, ghost) if solid.sum() > 300 and ghost.sum() > 300 else None
+                if solid.sum() <= 300 or ghost.sum() <= 300:
+                    return None
+                # Both drawn, and both banked: the static shapes can be drawn level a frame before their poses
+                # arrive (one .ci/run in four measured the ghost's slope at 0.006). A viewer that never banks them
+                # times out; one that banks them the wrong way fails the slopes below.
+                banked = min(abs(_wing_slope(solid)), abs(_wing_slope(ghost))) > 0.1
+                return (solid, ghost) if banked else None
 
             shapes = b.wait_until(both_drawn, LOAD_TIMEOUT_S, poll_s=3.0)
             errors = b.errors()
