@@ -16,6 +16,17 @@ from pathlib import Path
 
 STOP_GRACE_S = 5.0  # after SIGINT, how long the children get to write their files before they are killed
 
+# One OpenBLAS thread for the flight's processes unless the environment says otherwise: their matrices are a few rows
+# wide, and numpy's import starting a BLAS thread per core costs each process about 0.06 CPU s at the flight's start,
+# when the processes contend for the cores (0.13 -> 0.07 CPU s for `import numpy` on the 2-core VM).
+BLAS_THREADS = {"OPENBLAS_NUM_THREADS": "1"}
+
+
+def child_env(**overrides: str) -> dict[str, str]:
+    """This process's environment for one of the flight's processes: ``BLAS_THREADS`` where it sets none, then
+    ``overrides``."""
+    return {**BLAS_THREADS, **os.environ, **overrides}
+
 
 class Child:
     """A child process whose output goes to DIR/<name>.log (and, if echo, to the console with a prefix)."""
@@ -30,17 +41,12 @@ class Child:
         self.tail: list[str] = []
         self._log = open(log_path, "w", buffering=1)
         self._log.write("$ " + " ".join(argv) + "\n")
-        env = dict(os.environ, PYTHONUNBUFFERED="1", MAVLINK20="1")
-        # One OpenBLAS thread unless the caller chose otherwise: the flight's matrices are a few rows wide, and numpy's
-        # import starting a BLAS thread per core costs each process about 0.06 CPU s at the flight's start, when the
-        # three processes contend for the cores (0.13 -> 0.07 CPU s for `import numpy` on the 2-core VM).
-        env.setdefault("OPENBLAS_NUM_THREADS", "1")
         self.proc = subprocess.Popen(
             argv,
             stdin=subprocess.DEVNULL,
             stdout=subprocess.PIPE,
             stderr=subprocess.STDOUT,
-            env=env,
+            env=child_env(PYTHONUNBUFFERED="1", MAVLINK20="1"),
             start_new_session=True,
             text=True,
             bufsize=1,

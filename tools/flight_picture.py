@@ -26,6 +26,7 @@ import subprocess
 import sys
 from pathlib import Path
 
+from tools.children import child_env
 from tools.series_files import load_series
 
 EXPECTED = (OSError, ValueError, KeyError)  # what a picture may fail with without failing the flight
@@ -114,10 +115,7 @@ class PngHelper:
             stdout=subprocess.PIPE,  # the answer; its warnings and errors go to the launcher's stderr, as before
             text=True,
             start_new_session=True,  # Ctrl-C reaches the launcher only, which still asks for the picture
-            # One OpenBLAS thread unless the environment sets it: the picture does no linear algebra, and numpy's
-            # import starting a thread per core costs about 0.05 CPU s, at the flight's start, when the cores are
-            # contended.
-            env={"OPENBLAS_NUM_THREADS": "1", **os.environ, "PYTHONUNBUFFERED": "1"},
+            env=child_env(PYTHONUNBUFFERED="1"),  # one OpenBLAS thread: the picture does no linear algebra
         )
         self._sent = False
 

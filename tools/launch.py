@@ -18,9 +18,12 @@ import sys
 if __name__ == "__main__":
     import os
 
-    # One OpenBLAS thread for numpy in this process (unless the user set it), read when numpy loads below: the
-    # launcher does no linear algebra worth a thread, and starting one per core costs 0.06 CPU s (tools.children).
-    os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
+    from tools.children import BLAS_THREADS
+
+    # This process's numpy, loaded below, with the children's OpenBLAS threads (unless the user set them): the
+    # launcher does no linear algebra worth a thread per core.
+    for _name, _value in BLAS_THREADS.items():
+        os.environ.setdefault(_name, _value)
     # python -m tools.launch: a lockstep flight's picture helper starts before this module's imports below (0.1-0.2 s
     # on one core, the other idle), so that its own imports (numpy, Pillow) run on the idle core meanwhile.
     from tools.flight_picture import PngHelper, helper_wanted
