@@ -11,11 +11,11 @@ It shows what adaptation buys (issue 13, item 4).  The law, per control step k (
 
 Why not the C(s) = (4s + 40)/10 whose inverse is the paper's PFC (paper sec. 5.1)?  It does stabilise the
 nominal plant in negative feedback, but only just: the continuous loop C(s) T(s) has a gain margin of 0.17 dB
-and a phase margin of 1.1 deg (``tools.analysis.margins.baseline_margins(pfc_inverse=True)``), far too little
+and a phase margin of 1.1 deg (``tools.design.margins.baseline_margins(pfc_inverse=True)``), far too little
 to fly.  The default gains K_p = 0.1, K_i = 0.1 s^-1, K_d = 0.02 s give the sampled loop (100 Hz, ZOH plant,
 backward-difference derivative) a gain margin of 23.9 dB at 48.9 rad/s and a phase margin of 59.3 deg at
 a 4.7 rad/s crossover
-(``tools.analysis.margins.baseline_margins()``, python-control; checked by tests/test_baseline.py).
+(``tools.design.margins.baseline_margins()``, python-control; checked by tests/test_baseline.py).
 
 ``Baseline`` quacks like ``autopilot.clsac.ClSac`` wherever ``autopilot.step.ControlStep``, the metrics and
 the telemetry use a law: ``__call__(y, um)``, ``hold(u)``, ``reset()``, ``telemetry()`` and the attributes of

@@ -14,7 +14,7 @@ without being clipped counts too); a NaN command counts as saturated, as ``u != 
 One definition, three forms, all calling the same code:
 
 * :func:`within`: the inequalities on accumulated statistics, elementwise on numpy arrays (the robustness study's
-  ``bounded``, ``tools.study``);
+  ``bounded``, ``tools.experiment.study``);
 * :class:`EnvelopeMonitor`: one sample per control step, in constant memory (the autopilot while flying, which
   announces each excursion once: ``add`` returns its text);
 * :func:`judge_series`: a recorded flight's roll and command series fed through the monitor (``tools.experiment``).

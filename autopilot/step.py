@@ -4,7 +4,7 @@ Three users call :class:`ControlStep` once per control period and get a :class:`
 
 * the lockstep scheduler and the real-time scheduler of the autopilot process (``autopilot.loop``), which
   only add the MAVLink I/O and the timing around it;
-* the in-process runner (``tools.scenario.run_inprocess``), which adds the simulated aircraft.
+* the in-process runner (``tools.experiment.scenario.run_inprocess``), which adds the simulated aircraft.
 
 So the three can never drift apart: a lockstep flight over MAVLink and the in-process runner with the wire
 model give bit-identical metrics (``tests/test_e2e_lockstep.py``).  Example::
@@ -117,7 +117,7 @@ class SetpointQueue:
 
 
 class ProfileSetpoints:
-    """The command as a function of sim time, ``fn(t) -> rad`` (a ``tools.profiles.Profile.value``, say)."""
+    """The command as a function of sim time, ``fn(t) -> rad`` (a ``tools.flight.profiles.Profile.value``, say)."""
 
     __slots__ = ("fn", "current")
 

@@ -18,7 +18,7 @@ PY = sys.executable
 
 
 def free_ports(n: int) -> list[int]:
-    from tools.children import free_udp_ports
+    from tools.flight.children import free_udp_ports
 
     return free_udp_ports(n)
 

@@ -19,7 +19,7 @@ from __future__ import annotations
 
 import pytest
 
-from tools.scenario import PAPER, PAPER_RUNS, run_inprocess
+from tools.experiment.scenario import PAPER, PAPER_RUNS, run_inprocess
 
 # The modules whose tests fly in real time and assert its timing (or share the machine with such a flight, as the
 # browser's software rendering does): one unit, run last, alone (``_assign``).

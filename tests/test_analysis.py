@@ -1,4 +1,4 @@
-"""W-ASPR analysis (tools/analysis/) against the paper's printed numbers, hand-computable cases and
+"""W-ASPR analysis (tools/design/) against the paper's printed numbers, hand-computable cases and
 independent root computations (numpy.roots / numpy.linalg.eigvals, never the module's own band finder)."""
 
 from __future__ import annotations
@@ -11,7 +11,7 @@ import pytest
 from scipy.signal import cont2discrete, ss2tf
 
 from sitl.model import A_P, B_P, C_P
-from tools import analysis
+from tools import design as analysis
 
 # Paper section 5, printed coefficients (highest power first), kept as strings to know the last digit.
 PRINTED_NUM = ["6.444e05", "1.119e07", "9.185e08"]
@@ -26,7 +26,7 @@ def ulp(printed: str) -> float:
 
 
 def independent_f(pfc_num, pfc_den):
-    """num_F, den_F of F = T + D via scipy.signal.ss2tf, not via tools.analysis (paper sec. 5)."""
+    """num_F, den_F of F = T + D via scipy.signal.ss2tf, not via tools.design (paper sec. 5)."""
     num_t, den_t = ss2tf(A_P, B_P, C_P, np.zeros((1, 1)))
     num_t = np.trim_zeros(np.where(np.abs(num_t[0]) < 1e-6, 0.0, num_t[0]), "f")  # ss2tf round-off at s^5..s^3
     num_f = np.polyadd(np.polymul(num_t, pfc_den), np.polymul(pfc_num, den_t))
@@ -183,7 +183,7 @@ def test_robust_pfc_has_no_band(robust):
 def test_steady_state_offset_matches_the_closed_loop(paper, robust):
     """D(0) u_ss from the analysis = y_a - y_p in the in-process paper scenario at rest (t = 4.99 s)."""
     from autopilot.config import ClSacConfig
-    from tools.scenario import PAPER, PAPER_RUNS, run_inprocess
+    from tools.experiment.scenario import PAPER, PAPER_RUNS, run_inprocess
 
     assert math.degrees(paper.steady_state["offset"]) == pytest.approx(0.017257, rel=1e-4)
     assert math.degrees(robust.steady_state["offset"]) == pytest.approx(0.068673, rel=1e-4)

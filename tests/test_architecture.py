@@ -73,7 +73,7 @@ def test_the_dependency_rule_holds():
     [
         ("autopilot/loop_x.py", "from sitl.aircraft import Aircraft\n"),
         ("autopilot/loop_x.py", "def f():\n    import sitl.model\n"),
-        ("autopilot/loop_x.py", "from tools.scenario import PAPER\n"),
+        ("autopilot/loop_x.py", "from tools.experiment.scenario import PAPER\n"),
         ("autopilot/shared/x.py", "from autopilot.clsac import ClSac\n"),
         ("autopilot/shared/x.py", "from autopilot import ClSac\n"),
         ("autopilot/shared/x.py", "from ..step import ControlStep\n"),

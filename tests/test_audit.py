@@ -73,7 +73,7 @@ def test_tv_of_a_flight_whose_first_command_is_not_zero():
 def test_study_bounded_is_roll_below_60_deg_and_saturation_below_20_percent():
     """README "Robustness": a run is bounded when |roll| < 60 deg over the whole flight and the rudder is saturated
     less than 20 % of the steps; the share is the bounded runs over all."""
-    from tools.study import Task, aggregate, merge, simulate
+    from tools.experiment.study import Task, aggregate, merge, simulate
 
     task = Task("clsac", tuple(("severe", i) for i in range(16)), 5)
     runs = simulate(task)
@@ -87,7 +87,7 @@ def test_study_bounded_is_roll_below_60_deg_and_saturation_below_20_percent():
 
 
 def test_study_saturated_share_is_the_share_of_steps_at_the_limit():
-    from tools.study import Task, simulate
+    from tools.experiment.study import Task, simulate
 
     r = simulate(Task("clsac", (("severe", 9),), 5, 30.0, True))
     u = np.array(r["series"]["u"])[:, 0]

@@ -68,14 +68,14 @@ def test_a_bad_parameter_file_is_one_line_and_the_autopilot_never_starts(tmp_pat
         ("tools.gcs", ["--setpoint-rate", "1e9"], "--setpoint-rate: must be in (0, 1000] Hz"),
         ("tools.gcs", ["--print-rate", "1e9"], "--print-rate: must be in (0, 1000] Hz"),
         ("tools.gcs", ["--point-dt", "1e300"], "--point-dt: must be in (0, 86400] s"),
-        ("tools.study", ["run", "--seed", "-1"], "--seed: must be in [0, 2^63-1]"),
+        ("tools.experiment.study", ["run", "--seed", "-1"], "--seed: must be in [0, 2^63-1]"),
         (
-            "tools.study",
+            "tools.experiment.study",
             ["replay", "--controller", "clsac", "--condition", "severe", "--seed", "-1", "--run", "0"],
             "--seed",
         ),
         (
-            "tools.study",
+            "tools.experiment.study",
             [
                 "replay",
                 "--controller",
@@ -92,7 +92,7 @@ def test_a_bad_parameter_file_is_one_line_and_the_autopilot_never_starts(tmp_pat
             "--duration: must be in (0, 86400] s",
         ),  # noqa: E501
         ("tools.experiment", ["robustness", "--seed", "-1"], "--seed: must be in [0, 2^63-1]"),
-        ("tools.study", ["run", "--runs", "100000000000"], "--runs: must be in [1, 10000000]"),
+        ("tools.experiment.study", ["run", "--runs", "100000000000"], "--runs: must be in [1, 10000000]"),
         ("sitl", ["--spin-us", "1e300"], "--spin-us: must be in [0, 1e+06] us"),
         ("tools.pfc", ["--rate-hz", "1e9"], "--rate-hz: must be in (0, 1000] Hz (CLSAC_RATE)"),
         ("tools.experiment", ["paper", "--sigma-xu", "1e300"], "--sigma-xu: must be in [0, 10000] 1/s (CLSAC_SIGMA_X)"),
@@ -150,7 +150,7 @@ def test_the_launcher_refuses_before_starting_anything(tmp_path, argv, needle, p
 # ---------------------------------------------------------------------------------------------------- keygen
 @pytest.mark.parametrize("path,needle", [("/proc/x.key", "/proc/x.key"), ("/no/such/dir/k.key", "no folder")])
 def test_keygen_to_an_unwritable_path_exits_2_like_its_other_errors(path, needle):
-    _one_line_refusal(run_cli("tools.keygen", path, timeout=60), needle)
+    _one_line_refusal(run_cli("tools.flight.keygen", path, timeout=60), needle)
 
 
 # ------------------------------------------------------------------------------------------------ rrd verify

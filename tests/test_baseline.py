@@ -16,9 +16,9 @@ from autopilot.config import ConfigError
 from autopilot.shared.pwm import PwmMap
 from autopilot.step import ControlStep, ProfileSetpoints
 from sitl import model
-from tools.analysis.margins import baseline_margins
-from tools.profiles import Profile
-from tools.scenario import BASELINE_RUN, PAPER, Scenario, run_inprocess
+from tools.design.margins import baseline_margins
+from tools.experiment.scenario import BASELINE_RUN, PAPER, Scenario, run_inprocess
+from tools.flight.profiles import Profile
 
 
 def _independent_margins(cfg: BaselineConfig) -> tuple[float, float]:

@@ -9,7 +9,7 @@ from autopilot.baseline import Baseline
 from autopilot.batch import BatchClSac
 from autopilot.clsac import ClSac
 from autopilot.config import ClSacConfig, ConfigError
-from tools.study import CONTROLLERS, Task, replay, simulate
+from tools.experiment.study import CONTROLLERS, Task, replay, simulate
 
 SAMPLED = [
     ("clsac", "severe", 3),
@@ -67,7 +67,7 @@ def test_batch_of_mixed_pfcs_and_switch_check():
 def test_batch_plant_matches_the_sitl_aircraft_to_rounding():
     """The study's plant (explicit sums over the 10 ms ZOH) and sitl.Aircraft (1 ms ZOH steps collapsed with BLAS
     products) are the same linear system computed in a different order: equal to ~1e-9 relative, not bit for bit."""
-    from tools.scenario import PAPER, PAPER_RUNS, run_inprocess
+    from tools.experiment.scenario import PAPER, PAPER_RUNS, run_inprocess
 
     ref = run_inprocess(PAPER, PAPER_RUNS[1]).metrics
     pairs = tuple(("nominal", i) for i in range(8))

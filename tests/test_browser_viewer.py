@@ -7,7 +7,7 @@ How it checks that the recording is loaded and drawn, not the loading screen:
   one page over the DevTools protocol.  Real waits: the page is screenshotted every few seconds until the check
   below holds (up to ``LOAD_TIMEOUT_S``), never a virtual-time budget (that only captures the loading screen).
 * The check reads the screenshot's pixels (1600x1000, the Flight tab) in the regions of the layout
-  (``tools.views.flight_blueprint``): the roll-tracking plot must hold hundreds of pixels of the SITL's true-roll
+  (``tools.view.views.flight_blueprint``): the roll-tracking plot must hold hundreds of pixels of the SITL's true-roll
   colour (``sitl.telemetry``: PURPLE) and the gains row those of the proportional gains (SKY,
   ``autopilot.telemetry.layout``), far more than a legend's dot; the 3D view must hold the aircraft (a purple
   shape on the background); the bottom row, the mode and failsafe lanes (GREEN: CLSAC and OK), must be on screen,
@@ -43,8 +43,8 @@ from _mavlink_procs import free_ports
 from autopilot.shared.telemetry.layout import ORANGE, PURPLE, SKY
 from autopilot.telemetry import layout as L
 from sitl import telemetry as S
-from tools import rrd
-from tools.web import WebServer
+from tools.flight.web import WebServer
+from tools.view import rrd_files as rrd
 
 os.environ.setdefault("MAVLINK20", "1")
 from pymavlink import mavutil  # noqa: E402
@@ -285,7 +285,7 @@ def test_the_browser_shows_the_aircraft_roll_the_right_way(tmp_path):
     from PIL import Image
 
     from autopilot.shared import telemetry as tm
-    from tools.views import flight_blueprint
+    from tools.view.views import flight_blueprint
 
     rid = tm.new_recording_id()
     parts = [tmp_path / "ap.rrd", tmp_path / "sitl.rrd"]

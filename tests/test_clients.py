@@ -272,7 +272,7 @@ def test_mavproxy_full_session(vehicle, tmp_path, mavproxy_python):
 
 def _keygen_passphrase(path: Path, passphrase: str) -> None:
     r = subprocess.run(
-        [sys.executable, "-m", "tools.keygen", "--passphrase", str(path)],
+        [sys.executable, "-m", "tools.flight.keygen", "--passphrase", str(path)],
         input=passphrase + "\n",
         capture_output=True,
         text=True,
@@ -282,7 +282,7 @@ def _keygen_passphrase(path: Path, passphrase: str) -> None:
 
 
 def test_mavproxy_signed_launch_with_passphrase(tmp_path, mavproxy_python):
-    """A signed launch (tools.launch, real time) keyed with ``tools.keygen --passphrase``; MAVProxy joins with
+    """A signed launch (tools.launch, real time) keyed with ``tools.flight.keygen --passphrase``; MAVProxy joins with
     ``signing key PASSPHRASE`` (no key file on its side), is admitted by its signature, downloads the parameters and
     sets CLSAC_LV while the launcher's own ground station flies the profile."""
     passphrase = "correct-horse-battery-staple"

@@ -9,7 +9,7 @@ from scipy.integrate import solve_ivp
 from autopilot.clsac import ClSac
 from autopilot.metrics import MetricsAccumulator
 from sitl import model
-from tools.scenario import PAPER, PAPER_RUNS, RunSpec, Scenario, controller_config, run_inprocess
+from tools.experiment.scenario import PAPER, PAPER_RUNS, RunSpec, Scenario, controller_config, run_inprocess
 
 A, B = model.A_P, model.B_P.ravel()
 AMP = math.radians(10.0)

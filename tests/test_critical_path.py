@@ -275,8 +275,8 @@ def test_clsac_command_then_advance_is_step():
 def test_deferred_bookkeeping_keeps_every_step(tmp_path):
     from autopilot.telemetry import layout as L
     from sitl import telemetry as S
-    from tools import rrd
     from tools.flight import Flight
+    from tools.view import rrd_files as rrd
 
     rate, duration = 100.0, 3.0
     n = int(rate * duration)
@@ -327,7 +327,7 @@ def test_deferred_bookkeeping_keeps_every_step(tmp_path):
     data = rrd.load(out / "flight.rrd")
     assert len(data[L.AP_ROLL].t) == n and len(data[S.SITL_ROLL].t) == n
     # the metrics are the in-process ones with the wire model, to the last bit (the split step, as a whole step)
-    from tools.scenario import PAPER_RUNS, Scenario, run_inprocess
+    from tools.experiment.scenario import PAPER_RUNS, Scenario, run_inprocess
 
     ref = run_inprocess(Scenario(duration_s=duration), PAPER_RUNS[1], wire=PwmMap()).metrics
     assert run["metrics"] == ref

@@ -78,7 +78,7 @@ def test_readme_disturbance_example_ends_out_of_envelope_with_its_numbers(tmp_pa
     assert f"e.g. `{texts[0]}`" in " ".join(readme.split())  # the README's example of an announcement
     exits = s["events"]["autopilot"]["envelope_exits"]
     assert 1 < exits < 3000 / 10  # once per excursion, not once per step
-    from tools.rrd import load_text
+    from tools.view.rrd_files import load_text
 
     events = [txt for _, txt in load_text(out / "flight.rrd", "/autopilot/events") if txt.startswith("ENVELOPE: ")]
     assert len(events) == exits and events[0].endswith(f"at {first:.1f} s")

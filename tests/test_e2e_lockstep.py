@@ -15,7 +15,7 @@ from _mavlink_procs import PY, load_json, mavlink, run_cli
 
 from autopilot.shared.pwm import PwmMap
 from autopilot.shared.tlog import payload_streams, read_tlog
-from tools.scenario import PAPER, PAPER_RUNS, Scenario, run_inprocess
+from tools.experiment.scenario import PAPER, PAPER_RUNS, Scenario, run_inprocess
 
 pytestmark = pytest.mark.e2e  # real processes over loopback UDP
 

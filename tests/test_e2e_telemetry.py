@@ -20,7 +20,7 @@ from _mavlink_procs import load_json, run_cli
 from autopilot.shared.pwm import PwmMap
 from autopilot.telemetry import layout as L
 from sitl import telemetry as S
-from tools import rrd
+from tools.view import rrd_files as rrd
 
 pytestmark = pytest.mark.e2e  # real processes over loopback UDP
 

@@ -17,8 +17,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from tools.experiment import ExperimentError, run_experiment, write_summary
-from tools.scenario import PAPER, RunSpec, run_inprocess
+from tools.experiment.runs import ExperimentError, run_experiment, write_summary
+from tools.experiment.scenario import PAPER, RunSpec, run_inprocess
 
 pytestmark = pytest.mark.e2e  # real processes over loopback UDP
 
@@ -224,7 +224,7 @@ def test_run_experiment_api(tmp_path):
 def test_pfc_and_leakage_options_change_the_runs(tmp_path):
     """--pfc robust and --sigma-xu reach the controller: metrics equal in-process runs built with them."""
     from autopilot.config import ClSacConfig
-    from tools.scenario import PAPER
+    from tools.experiment.scenario import PAPER
 
     out = tmp_path / "rob"
     r = subprocess.run(

@@ -22,10 +22,10 @@ from _mavlink_procs import mavlink
 from autopilot.metrics import METRIC_NAMES
 from autopilot.shared.pwm import PwmMap
 from autopilot.shared.tlog import packet_ids, read_tlog
-from tools import profiles, rrd
-from tools.flight import Flight, FlightConfigError, run_lockstep
-from tools.profiles import Profile, ProfileError
-from tools.scenario import PAPER_RUNS, Scenario, run_inprocess
+from tools.experiment.scenario import PAPER_RUNS, Scenario, run_inprocess
+from tools.flight import Flight, FlightConfigError, profiles, run_lockstep
+from tools.flight.profiles import Profile, ProfileError
+from tools.view import rrd_files as rrd
 
 SERVO = mavlink.MAVLINK_MSG_ID_SERVO_OUTPUT_RAW
 ATTITUDE = mavlink.MAVLINK_MSG_ID_ATTITUDE

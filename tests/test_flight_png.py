@@ -1,4 +1,5 @@
-"""flight.png drawn with Pillow (``tools.flight_png``), checked on the picture read back, against what is known of the
+"""flight.png drawn with Pillow (``tools.view.flight_png``), checked on the picture read back, against what is known of
+the
 flight drawn, not against the renderer's own numbers: the panels' frames, grid lines and tick labels are found in the
 pixels (a label is read by matching it with the digits drawn in the same font), and a series of known value must lie
 where the grid lines and their labels put that value; each series' colour is in its panel only when the flight has
@@ -13,9 +14,9 @@ import numpy as np
 import pytest
 from PIL import Image, ImageColor, ImageDraw, ImageFont
 
-from tools import flight_png
-from tools.flight_picture import draw_flight_png
-from tools.flight_png import flight_image, nice_ticks
+from tools.view import flight_png
+from tools.view.flight_picture import draw_flight_png
+from tools.view.flight_png import flight_image, nice_ticks
 
 N = 3001  # a 30 s flight at 100 Hz
 DEG = math.pi / 180.0
@@ -156,7 +157,7 @@ def _at(grid: list[tuple[int, float]], value: float) -> float:
 
 # ---------------------------------------------------------------------------------------- the picture
 def test_the_picture_is_a_1100_px_square_rgb_png_drawn_the_same_every_time(tmp_path):
-    from tools.flight_png import save_flight_png
+    from tools.view.flight_png import save_flight_png
 
     kw = dict(name="clsac", lv=20.0, metrics={"ise_ref": 0.01}, u_limit_rad=30 * DEG, title="t")
     a = save_flight_png(tmp_path / "a.png", _series(), **kw)

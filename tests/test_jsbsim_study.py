@@ -1,4 +1,5 @@
-"""The JSBSim Monte Carlo (tools.jsbsim_study) on the study's executor: the same results whatever the workers."""
+"""The JSBSim Monte Carlo (tools.experiment.jsbsim_study) on the study's executor: the same results whatever the
+workers."""
 
 from __future__ import annotations
 
@@ -8,8 +9,8 @@ import sys
 
 import pytest
 
-from tools.jsbsim_study import make_flights, simulate, summarise
-from tools.study import execute
+from tools.experiment.jsbsim_study import make_flights, simulate, summarise
+from tools.experiment.study import execute
 
 FLIGHTS = make_flights("c172x", ["clsac"], [63.0, 117.0], ["none", "moderate"], 1)
 
@@ -42,5 +43,7 @@ def test_bad_monte_carlo_flags_are_one_line_exit_2():
         (["--model", "c999"], "no model 'c999'"),
         (["--scheduler", "localhost:1"], "--scheduler must look like tcp://HOST:PORT"),
     ):
-        r = subprocess.run([sys.executable, "-m", "tools.jsbsim_study", *args], capture_output=True, text=True)
+        r = subprocess.run(
+            [sys.executable, "-m", "tools.experiment.jsbsim_study", *args], capture_output=True, text=True
+        )
         assert r.returncode == 2 and needle in r.stderr and len(r.stderr.strip().splitlines()) == 1, args

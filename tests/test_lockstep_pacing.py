@@ -5,8 +5,8 @@ from __future__ import annotations
 
 import pytest
 
+from tools.flight.profiles import Profile
 from tools.gcs import LOCKSTEP_NAP_MAX_S, LOCKSTEP_NAP_MIN_S, Gcs, GcsOptions
-from tools.profiles import Profile
 
 
 @pytest.fixture

@@ -16,7 +16,7 @@ from autopilot.shared import mavlink as P
 from autopilot.shared.link import UdpLink
 from autopilot.shared.pwm import PwmConfigError, PwmMap
 from autopilot.shared.tlog import TlogWriter, packet_payload, payload_streams, read_tlog
-from tools.profiles import from_csv, hold, square
+from tools.flight.profiles import from_csv, hold, square
 
 
 # ------------------------------------------------------------------------------------------- frames

@@ -14,7 +14,7 @@ import scipy.linalg
 from autopilot.params import load_file
 from sitl import linear_plant
 from sitl import plant as plants
-from tools.plant import designed_baseline, designed_params
+from tools.design.linearise import designed_baseline, designed_params
 
 SHIPPED = plants.shipped("jsbsim-c172x.toml")
 

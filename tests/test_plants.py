@@ -16,7 +16,7 @@ from sitl import model
 from sitl import plant as plants
 from sitl.aircraft import Aircraft, AircraftConfig
 from sitl.disturbances import Injector, from_values
-from tools.scenario import PAPER, PAPER_RUNS, run_inprocess
+from tools.experiment.scenario import PAPER, PAPER_RUNS, run_inprocess
 
 KH_FILE = str(plants.shipped("kh2013a.toml"))
 SERVO = f"[servo]\nwn2 = {model.SERVO_WN2!r}\ntwo_zeta_wn = {model.SERVO_2ZETA_WN!r}\n"
@@ -312,7 +312,7 @@ def test_the_launcher_flies_jsbsim_roll_steps_with_the_designed_pfc_and_records_
     within the envelope, ATTITUDE carrying JSBSim's pitch and heading, the safety pilot's axes in flight.rrd."""
     from pymavlink import mavutil
 
-    from tools import rrd
+    from tools.view import rrd_files as rrd
 
     out = tmp_path / "f"
     r = subprocess.run(

@@ -5,8 +5,8 @@ from __future__ import annotations
 import re
 from pathlib import Path
 
-from tools.profiles import Profile
-from tools.scenario import RunSpec, Scenario, run_inprocess
+from tools.experiment.scenario import RunSpec, Scenario, run_inprocess
+from tools.flight.profiles import Profile
 
 API_PAGE = Path(__file__).resolve().parents[1] / "docs" / "python-api.md"
 
@@ -34,6 +34,7 @@ def test_the_manual_loop_flies_the_paper_law(capsys):
     assert "roll" in capsys.readouterr().out
     # After 3000 steps (30 s) the command has been -0.1745 rad for 5 s: the roll has settled on it.
     assert abs(ac.phi - (-0.1745)) < 0.005
-    # The same law and aircraft stepped by tools.scenario: phi at step 3000 is the roll after the manual's loop.
+    # The same law and aircraft stepped by tools.experiment.scenario: phi at step 3000 is the roll after the manual's
+    # loop.
     ref = run_inprocess(Scenario(profile=Profile("square", 0.1745, 10.0), duration_s=30.01), RunSpec("clsac", 20.0))
     assert ac.phi == ref.series["phi"][-1]

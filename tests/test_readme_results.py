@@ -9,7 +9,7 @@ from pathlib import Path
 import pytest
 
 from autopilot.shared.pwm import PwmMap
-from tools.scenario import PAPER, PAPER_RUNS, RunSpec, run_inprocess
+from tools.experiment.scenario import PAPER, PAPER_RUNS, RunSpec, run_inprocess
 
 ROOT = Path(__file__).resolve().parents[1]
 # The full tables are on the manual's experiments page; the front page repeats two rows of the first one.

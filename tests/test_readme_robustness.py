@@ -7,7 +7,7 @@ from pathlib import Path
 
 import pytest
 
-from tools.study import StudyOptions, format_breaks, format_table, run_study
+from tools.experiment.study import StudyOptions, format_breaks, format_table, run_study
 
 # The whole study (11,250 runs of 30 s, about 6 s with the steps in C): out of the fast suite with the e2e tests.
 pytestmark = pytest.mark.e2e
@@ -48,7 +48,7 @@ def test_readme_break_points_equal_a_fresh_run(fresh):
 def test_readme_long_flight_rows_in_still_air_equal_a_fresh_run():
     """The nominal rows of the long-flight table (every nominal run with the same PFC is the same flight, so any
     runs give the median) and the drift the README quotes."""
-    from tools.study import LONG_DURATION_S, Task, format_long, long_flight_summary, merge, simulate
+    from tools.experiment.study import LONG_DURATION_S, Task, format_long, long_flight_summary, merge, simulate
 
     text = README.read_text(encoding="utf-8")
     controllers = ("clsac", "clsac_leak", "clsac_projection")
@@ -72,7 +72,7 @@ def test_readme_long_flight_table_equals_a_fresh_run():
     cell issue 17 found irreproducible (clsac / moderate / robust, 570-600 s: 63.1 deg with one BLAS kernel, 70.7
     deg with another) is now the same on any CPU (tests/test_study.py: the same bits under every kernel).  120 runs
     of 600 s: about a second with the steps in C (two minutes in numpy)."""
-    from tools.study import (
+    from tools.experiment.study import (
         LONG_CONDITIONS,
         LONG_CONTROLLERS,
         LONG_DURATION_S,

@@ -10,7 +10,7 @@ import sys
 import pytest
 from _mavlink_procs import run_cli
 
-from tools.children import Child
+from tools.flight.children import Child
 
 pytestmark = pytest.mark.e2e  # real processes
 

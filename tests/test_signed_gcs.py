@@ -5,7 +5,7 @@ The autopilot's ground-station link admits every address whose packets carry a v
 ``AutopilotOptions.max_gcs`` (8) in all, the launcher's GCS script included: each admitted station receives the
 telemetry stream and answers to its own requests; an unsigned station (``unsigned``), a station with the wrong key
 (``bad_signature``) and signed stations beyond the bound (``not_peer``) are rejected, counted exactly in
-``DIR/autopilot.json`` and receive nothing.  ``python -m tools.keygen --passphrase`` makes the key MAVProxy's
+``DIR/autopilot.json`` and receive nothing.  ``python -m tools.flight.keygen --passphrase`` makes the key MAVProxy's
 ``signing setup PASSPHRASE`` makes (SHA-256 of the passphrase), and a station keyed that way flies with it.
 """
 
@@ -165,13 +165,17 @@ def test_signed_stations_are_admitted_up_to_the_bound_the_others_rejected_and_co
 
 def _keygen(path: Path, stdin: str) -> subprocess.CompletedProcess:
     return subprocess.run(
-        [PY, "-m", "tools.keygen", "--passphrase", str(path)], input=stdin, capture_output=True, text=True, timeout=60
+        [PY, "-m", "tools.flight.keygen", "--passphrase", str(path)],
+        input=stdin,
+        capture_output=True,
+        text=True,
+        timeout=60,
     )
 
 
 def test_keygen_passphrase_is_mavproxys_key(tmp_path):
     path = tmp_path / "pass.key"
-    r = _keygen(path, PASSPHRASE + "\n")  # as `echo PASSPHRASE | python -m tools.keygen --passphrase FILE`
+    r = _keygen(path, PASSPHRASE + "\n")  # as `echo PASSPHRASE | python -m tools.flight.keygen --passphrase FILE`
     assert r.returncode == 0, r.stderr
     assert PASSPHRASE not in r.stdout + r.stderr and path.read_text().strip() not in r.stdout + r.stderr
     # MAVProxy's SigningModule.passphrase_to_key, computed here independently
@@ -189,7 +193,7 @@ def test_keygen_passphrase_is_mavproxys_key(tmp_path):
     assert _keygen(path, PASSPHRASE + "\n").returncode == 2  # never overwrites a key
     # The passphrase is never an argument: given on the command line it is an unknown argument, nothing written.
     r = subprocess.run(
-        [PY, "-m", "tools.keygen", "--passphrase", PASSPHRASE, str(tmp_path / "argv.key")],
+        [PY, "-m", "tools.flight.keygen", "--passphrase", PASSPHRASE, str(tmp_path / "argv.key")],
         capture_output=True,
         text=True,
         timeout=60,

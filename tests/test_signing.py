@@ -110,9 +110,9 @@ def test_key_files(tmp_path):
 @pytest.mark.e2e
 def test_keygen_and_bad_keys_are_one_line_errors(tmp_path):
     key = tmp_path / "flight.key"
-    r = run_cli("tools.keygen", str(key))
+    r = run_cli("tools.flight.keygen", str(key))
     assert r.returncode == 0 and os.stat(key).st_mode & 0o777 == 0o600
-    assert run_cli("tools.keygen", str(key)).returncode == 2  # never overwrites a key
+    assert run_cli("tools.flight.keygen", str(key)).returncode == 2  # never overwrites a key
     open_key = tmp_path / "open.key"
     open_key.write_text(key.read_text())
     os.chmod(open_key, 0o644)

@@ -1,7 +1,7 @@
 """A flight in about a second (issue 21): what the launcher's start-up and end no longer wait for, each part checked
 on its own with real processes and files: no scipy at start-up, the flight layout cached on disk
-(``tools.layout_cache``), flight.png drawn by a helper process (``tools.flight_picture``), started before the
-command's own imports, children's exits seen at once (``tools.children.Child.wait``), and no rerun in the flying
+(``tools.view.layout_cache``), flight.png drawn by a helper process (``tools.view.flight_picture``), started before the
+command's own imports, children's exits seen at once (``tools.flight.children.Child.wait``), and no rerun in the flying
 processes of a file-only flight (they spool their rows: ``tests/test_telemetry_spool.py``)."""
 
 from __future__ import annotations
@@ -16,9 +16,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from tools import layout_cache
-from tools.children import Child
-from tools.flight_picture import PngHelper, draw_flight_png
+from tools.flight.children import Child
+from tools.view import layout_cache
+from tools.view.flight_picture import PngHelper, draw_flight_png
 
 ROOT = Path(__file__).resolve().parent.parent
 
@@ -70,17 +70,18 @@ def test_the_launcher_checks_a_flight_without_importing_the_loop():
 
 
 def test_the_picture_helper_does_not_import_the_launcher_nor_matplotlib(tmp_path):
-    """The helper process imports the Pillow renderer (tools.flight_png), not the launcher's modules (tools.flight),
-    rerun, or matplotlib (its import cost about 0.45 CPU s at the flight's start; the renderer only reads its font
-    file): after its warm-up, and after drawing a picture."""
+    """The helper process imports the Pillow renderer (tools.view.flight_png), not the launcher's modules
+    (tools.flight's config and supervision), rerun, or matplotlib (its import cost about 0.45 CPU s at the flight's
+    start; the renderer only reads its font file): after its warm-up, and after drawing a picture."""
     _series(tmp_path)
     seen = (
-        "print(sorted(m for m in ('tools.flight', 'rerun', 'tools.launch', 'tools.scenario') if m in sys.modules), "
+        "print(sorted(m for m in ('tools.flight.config', 'tools.flight.supervision', 'rerun', 'tools.launch', "
+        "'tools.experiment.scenario') if m in sys.modules), "
         "sorted({m.split('.')[0] for m in sys.modules} & {'matplotlib', 'PIL', 'numpy'}), "
-        "'tools.flight_png' in sys.modules)\n"
+        "'tools.view.flight_png' in sys.modules)\n"
     )
     r = _run(
-        "import sys\nfrom tools import flight_picture\nflight_picture._warm_up()\n"
+        "import sys\nfrom tools.view import flight_picture\nflight_picture._warm_up()\n"
         + seen
         + f"print(flight_picture.draw_flight_png(**{_request(tmp_path)!r}))\n"
         + seen
@@ -96,7 +97,7 @@ def test_the_flight_layout_is_built_once_then_read_from_the_cache(tmp_path):
     the same file, without importing rerun; the saved layout is a blueprint rerun reads back."""
     env = {"CLSAC_CACHE_DIR": str(tmp_path / "cache")}
     code = (
-        "import sys, time\nfrom tools.layout_cache import flight_blueprint_file\n"
+        "import sys, time\nfrom tools.view.layout_cache import flight_blueprint_file\n"
         "p = flight_blueprint_file()\nprint(p, 'rerun' in sys.modules)\n"
     )
     first = _run(code, **env)
@@ -104,12 +105,12 @@ def test_the_flight_layout_is_built_once_then_read_from_the_cache(tmp_path):
     path, imported = first.stdout.split()
     assert imported == "True" and Path(path).parent == tmp_path / "cache" and Path(path).stat().st_size > 1000
     meta = json.loads(Path(path).with_suffix(".json").read_text())
-    assert "tools/views.py" in meta["sources"] and "autopilot/telemetry/layout.py" in meta["sources"]
+    assert "tools/view/views.py" in meta["sources"] and "autopilot/telemetry/layout.py" in meta["sources"]
     second = _run(code, **env)
     assert second.returncode == 0, second.stderr
     assert second.stdout.split() == [path, "False"]
-    from tools import rrd
-    from tools.views import flight_blueprint
+    from tools.view import rrd_files as rrd
+    from tools.view.views import flight_blueprint
 
     fresh = tmp_path / "fresh.rbl"
     flight_blueprint().save(meta["application_id"], str(fresh))
@@ -128,7 +129,7 @@ def test_a_changed_source_or_rerun_rebuilds_the_cached_layout(tmp_path, monkeypa
 
     assert layout_cache._valid(path, meta_path, APPLICATION_ID)
     meta = json.loads(meta_path.read_text())
-    meta["sources"]["tools/views.py"] = "0" * 64  # as if tools/views.py had changed since
+    meta["sources"]["tools/view/views.py"] = "0" * 64  # as if tools/view/views.py had changed since
     meta_path.write_text(json.dumps(meta))
     assert not layout_cache._valid(path, meta_path, APPLICATION_ID)
     before = path.stat().st_mtime_ns
@@ -293,8 +294,8 @@ def test_a_lockstep_launcher_imports_rerun_while_its_children_start_a_real_time_
 @pytest.mark.e2e
 def test_a_launch_leaves_every_file_with_the_picture_from_the_helper(tmp_path):
     """The whole launcher: tlog, flight.rrd (with the cached layout), flight.png and summary.json, in one run."""
-    from tools import rrd
     from tools.flight import Flight
+    from tools.view import rrd_files as rrd
 
     res = Flight(lockstep=True, duration=2.0, out=tmp_path / "f", quiet=True).run()
     assert res.ok, res.reason
@@ -363,7 +364,7 @@ def _picture_helpers() -> list[int]:
                 if int(f.read().rsplit(")", 1)[1].split()[1]) != os.getpid():
                     continue
             with open(f"/proc/{d}/cmdline", "rb") as f:
-                if b"tools.flight_picture" in f.read():
+                if b"tools.view.flight_picture" in f.read():
                     found.append(int(d))
         except (OSError, IndexError, ValueError):
             continue
@@ -394,7 +395,7 @@ def test_only_a_lockstep_flight_has_the_picture_helper_beside_it(tmp_path):
 def test_the_command_starts_the_picture_helper_before_its_own_imports():
     """``python -m tools.launch`` tells from its words alone whether a helper will be wanted (exact spellings only:
     anything unsure means no early helper, and the flight starts one as before)."""
-    from tools.flight_picture import helper_wanted
+    from tools.view.flight_picture import helper_wanted
 
     assert helper_wanted(["--lockstep", "--duration", "30"])
     for argv in (

@@ -14,7 +14,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from tools.study import (
+from tools.experiment.study import (
     CONDITIONS,
     CONTROLLERS,
     StudyError,
@@ -52,7 +52,7 @@ def test_summary_holds_shares_percentiles_and_a_replayable_worst_run():
             assert agg["runs"] == 6 and 0.0 <= agg["bounded_share"] <= 1.0
             assert set(agg["p50"]) == set(agg["p95"]) >= {"ise_ref", "energy", "max_abs_roll", "sat_fraction"}
             w = agg["worst"]
-            assert w["seed"] == 5 and w["replay_inprocess"].startswith("python -m tools.study replay")
+            assert w["seed"] == 5 and w["replay_inprocess"].startswith("python -m tools.experiment.study replay")
             assert "--lockstep" in w["replay_mavlink"] and f"--seed {5 * 1_000_000 + w['run']}" in w["replay_mavlink"]
             if cond != "severe":
                 continue
@@ -86,7 +86,7 @@ def test_results_do_not_depend_on_the_chunk_size():
 def test_replay_command_line_prints_the_study_numbers():
     r = replay("clsac", "moderate", 2, 3, record=False)
     out = subprocess.run(
-        [sys.executable, "-m", "tools.study", "replay", "--controller", "clsac", "--condition", "moderate"]
+        [sys.executable, "-m", "tools.experiment.study", "replay", "--controller", "clsac", "--condition", "moderate"]
         + ["--seed", "2", "--run", "3"],
         cwd=ROOT,
         capture_output=True,
@@ -183,10 +183,10 @@ def test_dask_cluster_of_two_workers_gives_the_local_results(tmp_path):
         with client:
             client.wait_for_workers(2, timeout=60)
             assert len(client.scheduler_info()["workers"]) == 2
-            # each worker steps the study's batches in C as this process does (tools/study/native.py)
-            from tools.study import native
+            # each worker steps the study's batches in C as this process does (tools/experiment/study/native.py)
+            from tools.experiment.study import native
 
-            engines = client.run(lambda: __import__("tools.study.native", fromlist=["engine"]).engine())
+            engines = client.run(lambda: __import__("tools.experiment.study.native", fromlist=["engine"]).engine())
             assert sorted(engines.values()) == [native.engine()] * 2
         opts = dict(SMALL, chunk=3, long_runs=1)  # the 600 s flights go to the cluster too
         local = run_study(StudyOptions(**opts), None, log=lambda _m: None, progress=False)
@@ -211,7 +211,7 @@ _MATRICES = """
 import json, sys
 import numpy as np
 from autopilot import ClSac, ClSacConfig
-from tools.study.simulation import _dryden, _plant, _plants
+from tools.experiment.study.simulation import _dryden, _plant, _plants
 rng = np.random.default_rng(5)
 out = [m.ravel() for _ in range(20) for m in _plant(1 + 0.4 * (2 * rng.random(6) - 1), 0.01)]
 out += [m.ravel() for m in _plants(1 + 0.4 * (2 * rng.random((20, 6)) - 1), 0.01)]  # the study's: all at once

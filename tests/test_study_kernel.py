@@ -1,4 +1,5 @@
-"""The study's steps in C (tools/study/kernel.c): the numpy loop's numbers bit for bit, a numpy fallback when the
+"""The study's steps in C (tools/experiment/study/kernel.c): the numpy loop's numbers bit for bit, a numpy fallback
+when the
 kernel cannot be built, and the study's accounting of what the user waits for."""
 
 from __future__ import annotations
@@ -14,7 +15,16 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from tools.study import CONDITIONS, CONTROLLERS, LONG_CONTROLLERS, StudyOptions, Task, native, run_study, simulate
+from tools.experiment.study import (
+    CONDITIONS,
+    CONTROLLERS,
+    LONG_CONTROLLERS,
+    StudyOptions,
+    Task,
+    native,
+    run_study,
+    simulate,
+)
 
 ROOT = Path(__file__).resolve().parents[1]
 # the three conditions, and the sweeps' extremes (32 samples of delay, 90 % loss, 8 x severe turbulence)
@@ -92,7 +102,7 @@ def test_the_kernel_flies_a_long_flight_as_the_numpy_loop(kernel):
 
 _HEX = """
 import json, sys
-from tools.study import Task, native, simulate
+from tools.experiment.study import Task, native, simulate
 r = simulate(Task("clsac", (("moderate", 0), ("severe", 1)), 4, 5.0))
 print(json.dumps({"engine": native.engine(), "ise_ref": [float(v).hex() for v in r["ise_ref"]]}))
 """
@@ -135,7 +145,7 @@ def test_the_timing_counts_every_run_and_each_phase(capsys):
 def test_the_study_line_says_what_the_user_waited_for(tmp_path):
     out = tmp_path / "study"
     r = subprocess.run(
-        [sys.executable, "-m", "tools.study", "run", "--runs", "2", "--controllers", "clsac,baseline"]
+        [sys.executable, "-m", "tools.experiment.study", "run", "--runs", "2", "--controllers", "clsac,baseline"]
         + ["--sweep-runs", "0", "--long-runs", "1", "--no-progress", "--out", str(out)],
         cwd=ROOT,
         capture_output=True,
@@ -156,7 +166,7 @@ def test_the_plants_of_a_batch_are_discretised_at_once_bit_for_bit():
     """``zoh_many`` (the study's per-run plants, all at once) is ``zoh`` of each, bit for bit: repeated scale
     vectors, the nominal plant, and matrices of very different norms (each its own number of squarings)."""
     from autopilot.shared.numerics import expm, expm_many
-    from tools.study.simulation import _plant, _plants
+    from tools.experiment.study.simulation import _plant, _plants
 
     rng = np.random.default_rng(11)
     scales = 1.0 + 0.4 * (2.0 * rng.random((40, 6)) - 1.0)

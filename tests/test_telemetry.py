@@ -27,8 +27,9 @@ from autopilot.telemetry.hooks import AutopilotHook, autopilot_tables
 from autopilot.vehicle import Mode
 from sitl import telemetry as S
 from sitl.model import STATE_NAMES
-from tools import recording, rrd, views
-from tools.scenario import PAPER
+from tools.experiment.scenario import PAPER
+from tools.view import recording, views
+from tools.view import rrd_files as rrd
 
 ROOT = Path(__file__).resolve().parents[1]
 

@@ -5,7 +5,7 @@ flies the same deterministic closed loop (ClSac + Aircraft at 400 Hz, roll measu
 as over MAVLink) paced on the wall clock, and logs its side of it, as the autopilot and the SITL will:
 the autopilot its controller row, link counters, mode and failsafe; the SITL the truth state.  Like the real
 processes, a writer stops on SIGINT/SIGTERM through ``autopilot.shared.process.install_stop_handlers`` and
-closes its telemetry on the way out; the viewer layout comes from the merge (``tools.views``), not the writers.
+closes its telemetry on the way out; the viewer layout comes from the merge (``tools.view.views``), not the writers.
 """
 
 from __future__ import annotations
@@ -26,8 +26,8 @@ from autopilot.shared import telemetry as tm
 from autopilot.telemetry import layout as L
 from autopilot.telemetry.hooks import autopilot_tables
 from sitl import telemetry as S
-from tools import rrd
-from tools.views import flight_blueprint
+from tools.view import rrd_files as rrd
+from tools.view.views import flight_blueprint
 
 pytestmark = pytest.mark.e2e  # real processes over loopback UDP
 
@@ -42,7 +42,7 @@ def _writer(role: str, recording_id: str, path: str, duration_s: float, connect:
     from autopilot.config import ClSacConfig
     from autopilot.shared.process import EXIT_INTERRUPTED, install_stop_handlers
     from sitl.aircraft import Aircraft, AircraftConfig
-    from tools import profiles
+    from tools.flight import profiles
 
     ctrl = ClSac(ClSacConfig(control_rate_hz=RATE))
     ac = Aircraft(AircraftConfig(physics_rate_hz=2000.0))

@@ -23,7 +23,7 @@ from autopilot.shared.telemetry.spool import MAGIC, SpoolError, SpoolReader, lay
 from autopilot.telemetry import layout as L
 from autopilot.telemetry.hooks import autopilot_tables
 from sitl import telemetry as S
-from tools import rrd
+from tools.view import rrd_files as rrd
 
 ROOT = Path(__file__).resolve().parents[1]
 N = 250  # rows per table, sent in three flushes

@@ -10,8 +10,8 @@ import pytest
 
 from autopilot.shared.link import format_counters
 from tools.flight import Flight, FlightConfig, FlightConfigError
+from tools.flight.profiles import Profile
 from tools.gcs import Gcs, GcsOptions, build_parser, profile_duration
-from tools.profiles import Profile
 
 
 def _csv(tmp_path, rows: str):

@@ -522,8 +522,8 @@ def _lockstep_flight(d, change: bool) -> dict:
 def test_launcher_png_events_and_a_second_ground_station(tmp_path):
     """A launch (lockstep) with MAVProxy's set-up: unsigned, a ground station on a --gcs-peer port gets the
     stream and its answers; flight.png is drawn; the rrd summary lists the event log."""
-    from tools import rrd
     from tools.flight import Flight, FlightConfigError
+    from tools.view import rrd_files as rrd
 
     with pytest.raises(FlightConfigError, match="gcs_peer"):
         Flight(gcs_peer=("nowhere",))

@@ -1,4 +1,4 @@
-"""``--web``: the launcher's own ``rerun --serve-web``, on loopback, ended with the launch (tools.web).
+"""``--web``: the launcher's own ``rerun --serve-web``, on loopback, ended with the launch (tools.flight.web).
 
 Real launches (lockstep, a few seconds each) and real sockets: what listens is read from the kernel's tables
 (``/proc/net/tcp`` and ``tcp6``, what ``ss -lnt`` shows), the server's process from ``/proc/<pid>/cmdline``.
@@ -18,7 +18,7 @@ import pytest
 from _browser import free_tcp_port
 from _mavlink_procs import load_json
 
-from tools.web import WebServer, WebServerError, bind_host
+from tools.flight.web import WebServer, WebServerError, bind_host
 
 pytestmark = pytest.mark.e2e
 ROOT = Path(__file__).resolve().parents[1]

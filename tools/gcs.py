@@ -52,7 +52,7 @@ from autopilot.shared.mavlink import (
 )
 from autopilot.shared.process import apply_cpu, exit_code_for, install_stop_handlers, write_stats_json
 from autopilot.shared.signing import SIGNING_LINK_GROUND, Signing
-from tools.profiles import Profile
+from tools.flight.profiles import Profile
 
 M = mavlink
 SELF_STALL_S = 1.0  # one pass of the loop takes ~20 ms: a pass this long means this process did not run

@@ -18,7 +18,7 @@ import sys
 if __name__ == "__main__":
     import os
 
-    from tools.children import BLAS_THREADS
+    from tools.flight.children import BLAS_THREADS
 
     # This process's numpy, loaded below, with the children's OpenBLAS threads (unless the user set them): the
     # launcher does no linear algebra worth a thread per core.
@@ -26,7 +26,7 @@ if __name__ == "__main__":
         os.environ.setdefault(_name, _value)
     # python -m tools.launch: a lockstep flight's picture helper starts before this module's imports below (0.1-0.2 s
     # on one core, the other idle), so that its own imports (numpy, Pillow) run on the idle core meanwhile.
-    from tools.flight_picture import PngHelper, helper_wanted
+    from tools.view.flight_picture import PngHelper, helper_wanted
 
     EARLY_PNG_HELPER = PngHelper() if helper_wanted(sys.argv[1:]) else None
 
@@ -63,7 +63,7 @@ from tools.flight import (
     FlightConfigError,
     write_refusal,
 )
-from tools.web import DEFAULT_GRPC_PORT, DEFAULT_HOST, DEFAULT_HTTP_PORT, WebServerError, bind_host, tcp_port
+from tools.flight.web import DEFAULT_GRPC_PORT, DEFAULT_HOST, DEFAULT_HTTP_PORT, WebServerError, bind_host, tcp_port
 
 
 def outcome_line(s: dict) -> str:

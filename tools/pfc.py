@@ -1,11 +1,11 @@
 """``python -m tools.pfc``: the W-ASPR analysis of the plant with its parallel feedforward compensator.
 
-Thin command line over ``tools.analysis`` (flags and JSON keys: docs/design.md, "Command lines").  Prints
+Thin command line over ``tools.design`` (flags and JSON keys: docs/design.md, "Command lines").  Prints
 the transfer functions T(s) and F(s) = T(s) + D(s), the W-ASPR conditions of F, the bands of constant
 K_e > 0 for which 1 + K_e F is unstable (continuous time, and sampled with a zero-order hold at the control
 rate) and the steady-state error the PFC adds; ``--closed-loop`` also flies the paper scenario in-process.
 ``--json`` prints one JSON object instead.  ``python -m tools.pfc design PLANT`` designs a PFC for another plant
-(``tools.pfc_design``).
+(``tools.design.params_file``).
 """
 
 from __future__ import annotations
@@ -19,7 +19,7 @@ import numpy as np
 
 from autopilot import flags
 from autopilot.shared.cli import OneLineArgumentParser, angle_deg
-from tools import analysis
+from tools import design as analysis
 
 EPILOG = """\
 coefficients are comma-separated, highest power first: --pfc-num 10 --pfc-den 4,40 is 10/(4s + 40).
@@ -255,8 +255,8 @@ def _plant(args, parser):
 # ----------------------------------------------------------------------------- main
 def main(argv: list[str] | None = None) -> int:
     argv = list(sys.argv[1:] if argv is None else argv)
-    if argv[:1] == ["design"]:  # a PFC (and a baseline) designed for a plant: tools.pfc_design
-        from tools.pfc_design import main as design_main
+    if argv[:1] == ["design"]:  # a PFC (and a baseline) designed for a plant: tools.design.params_file
+        from tools.design.params_file import main as design_main
 
         return design_main(argv[1:])
     parser = build_parser()

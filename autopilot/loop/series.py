@@ -7,7 +7,8 @@ from autopilot.loop.common import StepRecord
 from autopilot.shared.series import SeriesRecorder
 from autopilot.step import Failsafe
 
-# The autopilot's per-step series (``--series``): keys as tools.scenario.SERIES where the autopilot knows them.
+# The autopilot's per-step series (``--series``): keys as tools.experiment.scenario.SERIES where the autopilot knows
+# them.
 SERIES_KEYS = (
     "t",
     "um",

@@ -271,7 +271,7 @@ def add_signing_argument(parser: argparse.ArgumentParser) -> None:
         default=None,
         metavar="FILE",
         help="MAVLink 2 signing: sign everything sent and accept only packets signed with this key (a file of 64 "
-        "hex digits, mode 0600: python -m tools.keygen FILE); default off",
+        "hex digits, mode 0600: python -m tools.flight.keygen FILE); default off",
     )
 
 

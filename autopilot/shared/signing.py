@@ -5,7 +5,7 @@ The signature is MAVLink 2's (incompat flag 0x01, 13 bytes after the CRC): link 
 SHA-256(secret key + header + payload + CRC + link id + timestamp).  ``tests/test_signing.py`` checks the
 bytes against pymavlink's own ``MAVLink.signing``.
 
-A key file holds the 32-byte secret as 64 hexadecimal digits (``python -m tools.keygen FILE`` writes one
+A key file holds the 32-byte secret as 64 hexadecimal digits (``python -m tools.flight.keygen FILE`` writes one
 with mode 0600).  ``load_key`` refuses a missing, unreadable, group- or world-accessible or short key
 with a one-line :class:`KeyFileError`.
 
@@ -53,7 +53,7 @@ def load_key(path: str | os.PathLike) -> bytes:
         st = os.stat(path)
     except FileNotFoundError:
         raise KeyFileError(
-            f"signing key {path}: no such file (create one with python -m tools.keygen {path})"
+            f"signing key {path}: no such file (create one with python -m tools.flight.keygen {path})"
         ) from None
     except OSError as exc:
         raise KeyFileError(f"signing key {path}: {exc.strerror}") from None

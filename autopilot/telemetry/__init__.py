@@ -10,7 +10,7 @@
             tel.close()
 
 The writer primitives are ``autopilot.shared.telemetry``; the SITL's side is ``sitl.telemetry``; the viewer
-layout that joins both is ``tools.views``.
+layout that joins both is ``tools.view.views``.
 """
 
 from __future__ import annotations

@@ -23,7 +23,7 @@ from autopilot.clsac import ClSac
 from autopilot.config import ClSacConfig
 from sitl.aircraft import Aircraft, AircraftConfig
 from tools.bench import figure, load_warning, print_table, summarise_us, timed_batches
-from tools.scenario import PAPER, PAPER_RUNS, controller_config, run_inprocess
+from tools.experiment.scenario import PAPER, PAPER_RUNS, controller_config, run_inprocess
 
 TARGET_CONTROLLER_US = 10.0
 TARGET_PHYSICS_US = 5.0
@@ -81,7 +81,7 @@ def bench_physics_advance(batches: int) -> dict:
 
 
 def bench_experiment(repeats: int) -> dict:
-    from tools.experiment import run_experiment
+    from tools.experiment.runs import run_experiment
 
     times = []
     with tempfile.TemporaryDirectory(prefix="bench-exp-") as tmp:
@@ -111,7 +111,7 @@ def bench_cli_cold() -> float:
 
 
 def bench_figure() -> float:
-    from tools.plots import save_paper_figure
+    from tools.view.plots import save_paper_figure
 
     results = [run_inprocess(PAPER, r) for r in PAPER_RUNS]
     with tempfile.TemporaryDirectory(prefix="bench-fig-") as tmp:

@@ -2,7 +2,8 @@
 
 For each length (``--hours``, default 1 and 3) one ``python -m tools.launch`` flight is flown in its own process;
 every 0.1 s the peak resident memory (VmHWM of /proc/PID/status) of each process is read: the launcher, the SITL,
-the autopilot, the GCS script, the helper that draws flight.png (``tools.flight_picture``) and the step that finishes
+the autopilot, the GCS script, the helper that draws flight.png (``tools.view.flight_picture``) and the step that
+finishes
 the recording: ``rerun rrd merge`` for a short flight, and for a long one the concatenation of the parts, which runs in
 the launcher itself (its peak includes it).
 Figures: each process's peak at each length, and its growth per hour of sim time between the shortest and the
@@ -66,7 +67,7 @@ _NAMES = (
     (b"-m\x00autopilot", "autopilot"),
     (b"-m\x00tools.gcs", "gcs"),
     (b"rrd\x00merge", "rrd_merge"),
-    (b"-m\x00tools.flight_picture", "png_helper"),  # draws flight.png (tools.flight_picture)
+    (b"-m\x00tools.view.flight_picture", "png_helper"),  # draws flight.png (tools.view.flight_picture)
 )
 
 

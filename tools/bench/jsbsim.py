@@ -6,7 +6,8 @@ Targets: the lockstep flight at 100 Hz control and 1 kHz physics, MAVLink signin
 (the launcher's defaults), at least 20x real time: <= 50 ms of wall time per simulated second (median of the
 runs).  The physics step (``JsbsimPlant.advance``: the servo, the safety pilot every 10 steps and one
 ``FGFDMExec.run``) is reported per step, without a target (JSBSim's own step is about 11 us).  The JSBSim Monte
-Carlo (``tools.jsbsim_study``: in-process 30 s flights on ``tools.study.execute``) in flights per second for 1 and
+Carlo (``tools.experiment.jsbsim_study``: in-process 30 s flights on ``tools.experiment.study.execute``) in flights per
+second for 1 and
 2 local workers, without a target.
 """
 
@@ -55,8 +56,8 @@ def bench_lockstep(runs: int, duration: float) -> list[float]:
 
 def bench_monte_carlo(workers: int, seeds: int) -> float:
     """Flights per second of the JSBSim Monte Carlo with ``workers`` local processes."""
-    from tools.jsbsim_study import make_flights, simulate
-    from tools.study import execute
+    from tools.experiment.jsbsim_study import make_flights, simulate
+    from tools.experiment.study import execute
 
     flights = make_flights("c172x", ["clsac"], [63.0, 117.0], ["none", "moderate"], seeds)
     t0 = time.perf_counter()

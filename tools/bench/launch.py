@@ -4,7 +4,7 @@ The flight itself takes about 0.15 s of it; the rest is the start-up of five Pyt
 picture helper, the autopilot, the SITL, the GCS script), recording the processes' telemetry spools into the Rerun
 recording (the launcher, rerun imported once) and drawing flight.png (the helper), side by side.  Each run is a fresh
 ``python -m tools.launch`` process (nothing cached in memory; the flight layout cached on disk by
-``tools.layout_cache`` is warm after the first run, as it is for a user) into a new folder, timed from the
+``tools.view.layout_cache`` is warm after the first run, as it is for a user) into a new folder, timed from the
 ``Popen`` to its exit, by which time tlog, flight.rrd, flight.png and summary.json are written (each checked).
 The modules' ``.pyc`` files are written and used as they are for a user (``PYTHONDONTWRITEBYTECODE`` is dropped
 from the runs' environment: with it every run would compile the product's modules again).

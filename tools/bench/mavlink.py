@@ -644,7 +644,7 @@ def main(argv: list[str] | None = None) -> dict:
 
 
 def _agreement(tmp: Path, pin: bool) -> dict:
-    from tools.scenario import PAPER, PAPER_RUNS, run_inprocess
+    from tools.experiment.scenario import PAPER, PAPER_RUNS, run_inprocess
 
     s = _fly(tmp, "agreement", lockstep=True, duration=PAPER.duration_s, pin=pin)
     flown = s["runs"][0]["metrics"]

@@ -1,4 +1,5 @@
-"""Study benchmarks: the vectorised Monte Carlo (tools.study) against the plain one-run-at-a-time loop, and Dask.
+"""Study benchmarks: the vectorised Monte Carlo (tools.experiment.study) against the plain one-run-at-a-time loop, and
+Dask.
 
     python -m tools.bench study [--quick]      (or: python -m tools.bench study -- --runs N --no-dask)
 
@@ -9,7 +10,7 @@ Figures, all measured in this one benchmark run:
   +-20 % plant), on the machine's 2 cores (``--workers 2``: two local processes, 4 chunks); and
   ``..._one_process``, the same in this process alone (chunks of 2500);
 * ``batch_runs_per_s`` (one process) and ``plain_loop_runs_per_s``: the same work per run, batched, against
-  ``tools.scenario.run_inprocess`` (ControlStep + sitl.Aircraft, one run after the other, nominal condition:
+  ``tools.experiment.scenario.run_inprocess`` (ControlStep + sitl.Aircraft, one run after the other, nominal condition:
   the plain loop has no disturbances, so it is the cheaper case), and their ratio ``speedup_vs_plain_loop``;
 * ``dask_2_over_1_worker_wall`` (target <= 0.75): the wall time of the same study on a local Dask cluster of 2
   worker processes divided by that of 1 worker (1.0 = no scaling, 0.5 = perfect), best of two alternating
@@ -55,7 +56,7 @@ def _pairs(n: int, condition: str = "moderate"):
 
 
 def bench_batch(runs: int, chunk: int = 2500, workers: int = 1) -> float:
-    from tools.study import execute, make_tasks
+    from tools.experiment.study import execute, make_tasks
 
     tasks = make_tasks(["clsac"], _pairs(runs), seed=0, chunk=chunk)
     t0 = time.perf_counter()
@@ -64,7 +65,7 @@ def bench_batch(runs: int, chunk: int = 2500, workers: int = 1) -> float:
 
 
 def bench_plain(runs: int) -> float:
-    from tools.scenario import PAPER, PAPER_RUNS, run_inprocess
+    from tools.experiment.scenario import PAPER, PAPER_RUNS, run_inprocess
 
     run_inprocess(PAPER, PAPER_RUNS[1])  # warm-up
     t0 = time.perf_counter()
@@ -76,7 +77,7 @@ def bench_plain(runs: int) -> float:
 def bench_dask(runs: int, workers: int, chunk: int) -> float:
     from distributed import Client, LocalCluster
 
-    from tools.study import execute, make_tasks
+    from tools.experiment.study import execute, make_tasks
 
     tasks = make_tasks(["clsac"], _pairs(runs), seed=0, chunk=chunk)
     with LocalCluster(
@@ -84,7 +85,7 @@ def bench_dask(runs: int, workers: int, chunk: int) -> float:
     ) as cluster:
         with Client(cluster) as client:
             # imports and the C kernel's loading outside the timed region
-            client.run(lambda: __import__("tools.study.native", fromlist=["load"]).load() and None)
+            client.run(lambda: __import__("tools.experiment.study.native", fromlist=["load"]).load() and None)
             addr = cluster.scheduler_address
         t0 = time.perf_counter()
         execute(tasks, addr)
@@ -182,7 +183,7 @@ def main(argv: list[str] | None = None) -> dict:
         figs.update(study_figures(args.study_repeats or (1 if args.quick else 3)))
         if args.with_numpy:
             figs.update(study_figures(1, numpy=True))
-    print_table("study benchmarks (vectorised Monte Carlo, tools.study)", figs)
+    print_table("study benchmarks (vectorised Monte Carlo, tools.experiment.study)", figs)
     warning = load_warning()
     if warning:
         print(warning)

@@ -59,7 +59,7 @@ def _make_plant(rate: float):
 
 
 def _command(t: float) -> float:
-    from tools import profiles
+    from tools.flight import profiles
 
     return profiles.square(t, math.radians(10.0), 10.0)
 
@@ -268,7 +268,7 @@ def bench_size(tmp: Path, rate: float, sitl_rate: float, minutes: float = 1.0) -
     from autopilot.telemetry.hooks import autopilot_tables
     from autopilot.vehicle import Mode
     from sitl.telemetry import SITL_TABLE
-    from tools.views import flight_blueprint
+    from tools.view.views import flight_blueprint
 
     rid = tm.new_recording_id()
     parts = {p: tmp / f"size-{p}.rrd" for p in ("autopilot", "sitl")}

@@ -23,41 +23,43 @@ construction, an unknown keyword TypeError.
 
 from __future__ import annotations
 
-from tools.flight.config import (
-    DEFAULT_DURATION_S,
-    LOCKSTEP_IDLE_EXIT_S,
-    MERGE_MAX_MB,
-    PROCESSES,
-    PROFILES,
-    RUDDER_MAX_DEG,
-    VEHICLE_TIMEOUT_S,
-    FlightConfig,
-    FlightConfigError,
-    child_argvs,
-)
-from tools.flight.files import (
-    PNG_MAX_POINTS,
-    STALE_FILES,
-    build_summary,
-    load_series,
-    provisional_summary,
-    write_flight_png,
-    write_refusal,
-)
-from tools.flight.outcome import (
-    GCS_END_SLACK_S,
-    HEARD_BY,
-    STALL_S,
-    _reached_end,
-    envelope_verdict,
-    first_stall,
-    flown_report,
-    outcome_of,
-    shortfall,
-    silences,
-    verdict,
-)
-from tools.flight.supervision import Flight, FlightResult, run_lockstep, serve_web
+import importlib
+
+_WHERE = {  # public name -> its module, imported on first use (PEP 562): importing a submodule such as
+    # tools.flight.children (the picture helper, the launcher's first lines) does not load the whole launcher
+    "DEFAULT_DURATION_S": "tools.flight.config",
+    "LOCKSTEP_IDLE_EXIT_S": "tools.flight.config",
+    "MERGE_MAX_MB": "tools.flight.config",
+    "PROCESSES": "tools.flight.config",
+    "PROFILES": "tools.flight.config",
+    "RUDDER_MAX_DEG": "tools.flight.config",
+    "VEHICLE_TIMEOUT_S": "tools.flight.config",
+    "FlightConfig": "tools.flight.config",
+    "FlightConfigError": "tools.flight.config",
+    "child_argvs": "tools.flight.config",
+    "PNG_MAX_POINTS": "tools.flight.files",
+    "STALE_FILES": "tools.flight.files",
+    "build_summary": "tools.flight.files",
+    "load_series": "tools.flight.files",
+    "provisional_summary": "tools.flight.files",
+    "write_flight_png": "tools.flight.files",
+    "write_refusal": "tools.flight.files",
+    "GCS_END_SLACK_S": "tools.flight.outcome",
+    "HEARD_BY": "tools.flight.outcome",
+    "STALL_S": "tools.flight.outcome",
+    "_reached_end": "tools.flight.outcome",
+    "envelope_verdict": "tools.flight.outcome",
+    "first_stall": "tools.flight.outcome",
+    "flown_report": "tools.flight.outcome",
+    "outcome_of": "tools.flight.outcome",
+    "shortfall": "tools.flight.outcome",
+    "silences": "tools.flight.outcome",
+    "verdict": "tools.flight.outcome",
+    "Flight": "tools.flight.supervision",
+    "FlightResult": "tools.flight.supervision",
+    "run_lockstep": "tools.flight.supervision",
+    "serve_web": "tools.flight.supervision",
+}
 
 __all__ = [
     "DEFAULT_DURATION_S",
@@ -93,3 +95,21 @@ __all__ = [
     "write_flight_png",
     "write_refusal",
 ]
+
+
+def __getattr__(name: str):
+    if name in _WHERE:
+        value = getattr(importlib.import_module(_WHERE[name]), name)
+    else:
+        try:
+            value = importlib.import_module(f"{__name__}.{name}")  # a submodule: tools.flight.config, ...
+        except ModuleNotFoundError as exc:
+            if exc.name != f"{__name__}.{name}":
+                raise
+            raise AttributeError(f"module {__name__!r} has no attribute {name!r}") from None
+    globals()[name] = value
+    return value
+
+
+def __dir__() -> list[str]:
+    return sorted({*globals(), *__all__})

@@ -19,7 +19,7 @@ from autopilot.shared import cli
 from autopilot.shared.process import (
     rt_throttling,
 )
-from tools.profiles import Profile, ProfileError
+from tools.flight.profiles import Profile, ProfileError
 
 PROCESSES = ("sitl", "gcs", "autopilot")
 
@@ -118,7 +118,9 @@ class FlightConfig:
     rrd_merge_max_mb: float = MERGE_MAX_MB
     series: bool = True  # per-step series in DIR/autopilot_series.npz and DIR/sitl_series.npz
     png: bool = True  # DIR/flight.png: roll vs command and reference models, rudder, adaptive gains (from the series)
-    web: bool = False  # serve the Rerun web viewer (tools.web: HTTP web_port, gRPC web_grpc_port) and stream to it
+    web: bool = (
+        False  # serve the Rerun web viewer (tools.flight.web: HTTP web_port, gRPC web_grpc_port) and stream to it
+    )
     web_host: str = "127.0.0.1"  # the address it binds: loopback unless asked (0.0.0.0 exposes it, unauthenticated)
     web_port: int = 9090  # its HTTP port (the page a browser opens)
     web_grpc_port: int = 9877  # its gRPC proxy (the processes stream to it, the browser reads it)
@@ -255,7 +257,7 @@ class FlightConfig:
             )
             put("duration", DEFAULT_DURATION_S if command.end is None else command.end)
         put("gcs_peer", tuple(_checked("gcs_peer", cli.peer_endpoint, p) for p in self.gcs_peer or ()))
-        from tools import web
+        from tools.flight import web
 
         put("web_host", _checked("web_host", web.bind_host, self.web_host))
         for name in ("web_port", "web_grpc_port"):
@@ -325,7 +327,7 @@ class FlightConfig:
             return str(self.params)
         if self.controller == "baseline":
             return None
-        from tools.plant import designed_params
+        from tools.design.linearise import designed_params
 
         path = designed_params(self.plant)
         return None if path is None else str(path)
@@ -345,7 +347,7 @@ class FlightConfig:
             return None
         if self.baseline_gains is not None:
             return tuple(self.baseline_gains)
-        from tools.plant import designed_baseline
+        from tools.design.linearise import designed_baseline
 
         return designed_baseline(self.plant)
 
@@ -636,7 +638,7 @@ def _telemetry_argvs(
         p.parent.mkdir(parents=True, exist_ok=True)
         p.unlink(missing_ok=True)
     if url:  # the processes send data only; the layout that joins them comes from here
-        from tools.views import flight_blueprint
+        from tools.view.views import flight_blueprint
 
         tm.send_blueprint(url, flight_blueprint(), rid)
     argv = {}

@@ -16,12 +16,12 @@ from autopilot.shared.process import (
 )
 from tools.flight.config import PROCESSES, FlightConfig
 from tools.flight.outcome import outcome_of
-from tools.flight_picture import PNG_MAX_POINTS, draw_flight_png  # noqa: F401  (PNG_MAX_POINTS: re-exported)
-from tools.series_files import load_series  # noqa: F401  (re-exported: tools.flight.load_series)
+from tools.view.flight_picture import PNG_MAX_POINTS, draw_flight_png  # noqa: F401  (PNG_MAX_POINTS: re-exported)
+from tools.view.series_files import load_series  # noqa: F401  (re-exported: tools.flight.load_series)
 
 
 def png_request(cfg: FlightConfig, out: Path, name: str, metrics: dict) -> dict:
-    """The keywords of ``tools.flight_picture.draw_flight_png`` for a flight's picture (plain values: the helper
+    """The keywords of ``tools.view.flight_picture.draw_flight_png`` for a flight's picture (plain values: the helper
     process gets them as JSON)."""
     return {
         "out": str(out),
@@ -95,18 +95,18 @@ def _join_telemetry(
     indexed = sum(p.stat().st_size for p in existing) <= merge_max_mb * 1e6
     try:
         if indexed:
-            # The layout saved once for this code (tools.layout_cache): no rerun import in the launcher.
-            from tools.layout_cache import flight_blueprint_file
+            # The layout saved once for this code (tools.view.layout_cache): no rerun import in the launcher.
+            from tools.view.layout_cache import flight_blueprint_file
 
             layout = flight_blueprint_file()
             if layout is not None:
                 tm.merge_recordings(existing, target, blueprint_file=layout, remove_parts=True)
             else:
-                from tools.views import flight_blueprint
+                from tools.view.views import flight_blueprint
 
                 tm.merge_recordings(existing, target, blueprint=flight_blueprint(), remove_parts=True)
         else:
-            from tools.views import flight_blueprint
+            from tools.view.views import flight_blueprint
 
             tm.concatenate_recordings(
                 existing, target, blueprint=flight_blueprint(), recording_id=recording_id, remove_parts=True

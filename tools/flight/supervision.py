@@ -21,7 +21,7 @@ from autopilot.shared.process import (
     EXIT_OK,
     write_json_atomic,
 )
-from tools.children import Child, free_udp_ports, new_run_dir, stop_children
+from tools.flight.children import Child, free_udp_ports, new_run_dir, stop_children
 from tools.flight.config import (
     PROCESSES,
     PROFILES,
@@ -44,7 +44,7 @@ from tools.flight.files import (
     write_refusal,
 )
 from tools.flight.outcome import _ended_normally, envelope_verdict, flown_report, outcome_of, verdict
-from tools.flight_picture import PngHelper
+from tools.view.flight_picture import PngHelper
 
 
 def _run_metrics(ap_stats: dict | None) -> dict:
@@ -78,12 +78,14 @@ class FlightResult:
 
     @cached_property
     def series(self) -> dict:
-        """The per-step series (``load_series``): arrays keyed like ``tools.scenario.SERIES``; {} if not recorded."""
+        """The per-step series (``load_series``): arrays keyed like ``tools.experiment.scenario.SERIES``; {} if not
+        recorded."""
         return load_series(self.out)
 
 
 def serve_web(web) -> str:
-    """Start the flight's web viewer (a ``tools.web.WebServer``, bound to loopback unless ``web_host`` says otherwise)
+    """Start the flight's web viewer (a ``tools.flight.web.WebServer``, bound to loopback unless ``web_host`` says
+    otherwise)
     and print where to open it; the URL the processes stream to.  It ends with the flight (``Flight._stop_web``)."""
     url = web.start()
     for line in web.notice():
@@ -92,8 +94,8 @@ def serve_web(web) -> str:
 
 
 def _web_server(cfg: FlightConfig, out: Path):
-    """The flight's ``tools.web.WebServer`` (not started), its output in DIR/web.log."""
-    from tools.web import WebServer
+    """The flight's ``tools.flight.web.WebServer`` (not started), its output in DIR/web.log."""
+    from tools.flight.web import WebServer
 
     return WebServer(cfg.web_host, cfg.web_port, cfg.web_grpc_port, log_path=out / "web.log")
 
@@ -118,8 +120,8 @@ class Flight:
         self._children: dict[str, Child] = {}
         self._parts: dict[str, Path] = {}
         self._recording_id: str | None = None
-        self._web = None  # the --web server (tools.web.WebServer), stopped when the flight ends
-        self._png = None  # the flight.png helper process (tools.flight_picture.PngHelper), from start() to _end()
+        self._web = None  # the --web server (tools.flight.web.WebServer), stopped when the flight ends
+        self._png = None  # the flight.png helper process (tools.view.flight_picture.PngHelper), from start() to _end()
         self._early_png = None  # one started before this Flight existed (adopt_png_helper), used or closed by start()
         self._recorder = None  # the thread importing rerun while the children start (start_recorder_import)
         self._t0: float | None = None
@@ -127,7 +129,8 @@ class Flight:
 
     @classmethod
     def for_scenario(cls, scenario, run, out, **options) -> Flight:
-        """The lockstep flight of one ``tools.scenario`` RunSpec of a Scenario: quiet, with series, no flight.rrd
+        """The lockstep flight of one ``tools.experiment.scenario`` RunSpec of a Scenario: quiet, with series, no
+        flight.rrd
         (an experiment logs its runs side by side from the series)."""
         profile = scenario.profile
         if profile.kind not in PROFILES or (profile.kind == "step" and profile.step_time != 1.0):
@@ -189,8 +192,9 @@ class Flight:
 
     def _start_web(self) -> str:
         """Start the --web server before anything else; a port taken (or rerun failing) refuses the flight: one
-        line, DIR/summary.json says so, nothing started (``tools.web.WebServerError`` is raised to the caller)."""
-        from tools.web import WebServerError
+        line, DIR/summary.json says so, nothing started (``tools.flight.web.WebServerError`` is raised to the
+        caller)."""
+        from tools.flight.web import WebServerError
 
         self._web = _web_server(self.config, self.out)
         try:
@@ -210,7 +214,7 @@ class Flight:
         self._png = self._early_png = None
 
     def adopt_png_helper(self, helper) -> None:
-        """A picture helper (``tools.flight_picture.PngHelper``) started before this flight: ``python -m
+        """A picture helper (``tools.view.flight_picture.PngHelper``) started before this flight: ``python -m
         tools.launch`` starts one before its own imports, so that the helper's imports run on the core the launcher's
         leave idle.  ``start`` uses it if this flight draws its picture with a helper, else closes it at once."""
         if self._t0 is not None:
@@ -248,7 +252,8 @@ class Flight:
         try:
             early, self._early_png = self._early_png, None
             if cfg.png and cfg.series and cfg.lockstep and not cfg.pin:
-                # First: it imports numpy and Pillow while the flight starts and flies (tools.flight_picture).  Lockstep
+                # First: it imports numpy and Pillow while the flight starts and flies (tools.view.flight_picture).
+                # Lockstep
                 # only: a real-time loop (or a pinned CPU) is not to share its CPU with it; those draw at the end.
                 try:
                     self._png = early if early is not None else PngHelper()
@@ -445,9 +450,10 @@ def run_lockstep(scenario, run, workdir):
     """Fly one RunSpec of a Scenario in lockstep over real processes and UDP; metrics from what flew.
 
     The ``mavlink`` transport of ``tools.experiment``: files go to ``workdir``; returns a
-    ``tools.scenario.RunResult`` whose series have the keys of ``tools.scenario.SERIES``, recorded by the
+    ``tools.experiment.scenario.RunResult`` whose series have the keys of ``tools.experiment.scenario.SERIES``,
+    recorded by the
     autopilot (controller side, ``u`` = the command that flew, after PWM) and the SITL (``v``, ``delta_r``)."""
-    from tools.scenario import RunResult
+    from tools.experiment.scenario import RunResult
 
     res = Flight.for_scenario(scenario, run, Path(workdir)).run()
     if not res.completed or not res.summary["runs"]:  # out of the envelope is a result (SAC's), not a failure

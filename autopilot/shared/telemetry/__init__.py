@@ -15,7 +15,7 @@
 * ``hooks``    ``ProcessHook``, the part every process's telemetry hook shares (status events).
 
 What a process logs is its own: ``autopilot.telemetry`` (controller row, links, mode, failsafe) and
-``sitl.telemetry`` (truth state); the viewer layouts that join both are in ``tools.views``.  This package
+``sitl.telemetry`` (truth state); the viewer layouts that join both are in ``tools.view.views``.  This package
 imports nothing of the project outside ``autopilot.shared``.  Names are imported on first use: ``rerun``
 costs about 0.45 CPU s and only ``rerun_sink``, ``columns``, a live ``Telemetry`` and
 ``viewer.spawn_viewer``/``send_blueprint`` load it, so processes that log nothing, or only spool, never do.

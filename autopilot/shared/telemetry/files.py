@@ -66,7 +66,7 @@ def merge_recordings(
     """Merge part files into ``out_path`` with ``rerun rrd merge`` (compacted, with a footer); the output path.
 
     ``blueprint``: a ``rerun.blueprint.Blueprint`` to add (saved for ``application_id``), or None to keep
-    whatever the parts carry; ``blueprint_file``: one already saved (a ``.rbl``, e.g. ``tools.layout_cache``'s),
+    whatever the parts carry; ``blueprint_file``: one already saved (a ``.rbl``, e.g. ``tools.view.layout_cache``'s),
     added as it is (no rerun import here).  Missing or empty parts are skipped (a process that never started); if no
     part is left, RrdError.  ``remove_parts`` deletes the parts after a successful merge.
     """

@@ -1,0 +1,195 @@
+"""``python -m tools.plant linearise jsbsim:MODEL --airspeed KT --out plant.toml``: a JSBSim aircraft's roll channel
+as a linear plant file (``sitl.linear_plant``).
+
+JSBSim's own linearisation (``jsbsim.FGLinearization``: A, B, C, D of its 13 states and 4 inputs, by central
+differences at the trim point of ``sitl.jsbsim_plant.trimmed_fdm``) reduced to the lateral states the loop flies,
+x = [beta, phi, p, r] (rad, rad, rad/s, rad/s), and the chosen surface's input, rescaled from JSBSim's normalised
+command to radians (B_rad = sign B_norm / surface_max, the SITL's mapping: a positive command rolls right).  The
+longitudinal states are left out: in the SITL the safety pilot holds them.  The servo of the file is the SITL's
+(paper eq. (65) form), so flying the file and flying the JSBSim plant differ only by what the linearisation
+leaves out.
+
+Also: :func:`designed_params`, the parameter file designed for a plant (``python -m tools.pfc design``) that the
+launcher gives the autopilot by default.
+"""
+
+from __future__ import annotations
+
+import math
+import sys
+from pathlib import Path
+
+import numpy as np
+
+from autopilot.shared.cli import OneLineArgumentParser
+
+LATERAL = ("Beta", "Phi", "P", "R")  # JSBSim's names of the states kept
+STATES = ("beta", "phi", "p", "r")
+UNITS = ("rad", "rad", "rad/s", "rad/s")
+INPUTS = {"aileron": "DaCmd", "rudder": "DrCmd"}
+
+
+class LinearisationError(RuntimeError):
+    """JSBSim's linearisation did not give the states or inputs the roll channel needs."""
+
+
+def designed_params(plant: str) -> Path | None:
+    """The parameter file shipped for ``plant``: ``sitl/plants/jsbsim-MODEL.params`` for ``jsbsim:MODEL[...]`` on the
+    aileron (``jsbsim-MODEL-rudder.params`` on the rudder), ``FILE.params`` beside a plant ``FILE.toml``; None if
+    there is none (and for kh2013a: the paper's defaults).  Any airspeed: a design is flown off its design point."""
+    from sitl import plant as plants
+
+    kind = plants.kind(plant)
+    if kind == "jsbsim":
+        from sitl.jsbsim_plant import parse_spec
+
+        spec = parse_spec(plant)
+        suffix = "" if spec.surface == "aileron" else f"-{spec.surface}"
+        path = plants.shipped(f"jsbsim-{spec.model}{suffix}.params")
+    elif kind == "file":
+        path = Path(plant).with_suffix(".params")
+    else:
+        return None
+    return path if path.is_file() else None
+
+
+BASELINE_KEY = "# baseline_gains ="  # the designed file's line the launcher reads for --controller baseline
+
+
+def designed_baseline(plant: str) -> tuple[float, float, float] | None:
+    """The baseline gains designed for ``plant`` (the ``# baseline_gains = KP,KI,KD`` line of its designed
+    parameter file, written by ``python -m tools.pfc design``), or None."""
+    path = designed_params(plant)
+    if path is None:
+        return None
+    for line in path.read_text().splitlines():
+        if line.startswith(BASELINE_KEY):
+            kp, ki, kd = (float(v) for v in line[len(BASELINE_KEY) :].split("#")[0].split(","))
+            return kp, ki, kd
+    return None
+
+
+def linearise(spec, physics_rate_hz: float = 1000.0) -> dict:
+    """The roll channel of a trimmed JSBSim model: {"A", "B", "C", "trim", ...} (SI, input in rad)."""
+    import jsbsim
+
+    from sitl.jsbsim_plant import SURFACE_SIGN, trimmed_fdm
+
+    fdm = trimmed_fdm(spec, 1.0 / physics_rate_hz)
+    lin = jsbsim.FGLinearization(fdm)
+    x_names, u_names = list(lin.x_names), list(lin.u_names)
+    missing = [n for n in (*LATERAL, INPUTS[spec.surface]) if n not in x_names + u_names]
+    if missing:
+        raise LinearisationError(f"JSBSim's linearisation of {spec.model} has no {', '.join(missing)}")
+    idx = [x_names.index(n) for n in LATERAL]
+    a_full, b_full = np.array(lin.system_matrix), np.array(lin.input_matrix)
+    a = a_full[np.ix_(idx, idx)]
+    sign = SURFACE_SIGN[spec.surface]  # as the SITL maps the command: positive rolls right
+    b = sign * b_full[idx, u_names.index(INPUTS[spec.surface])].reshape(-1, 1) / spec.surface_max_rad
+    c = np.zeros((1, 4))
+    c[0, STATES.index("phi")] = 1.0
+    return {
+        "A": a,
+        "B": b,
+        "C": c,
+        "trim": {
+            "airspeed_kt": spec.airspeed_kt,
+            "altitude_m": spec.altitude_m,
+            "phi": float(fdm["attitude/phi-rad"]),
+            "theta": float(fdm["attitude/theta-rad"]),
+        },
+    }
+
+
+def _row(v) -> str:
+    return "[" + ", ".join(repr(float(x)) for x in v) + "]"
+
+
+def to_toml(spec, lin: dict) -> str:
+    """The plant file text (``sitl.linear_plant`` format) of a linearisation."""
+    from sitl import model
+
+    a, b, c = lin["A"], lin["B"], lin["C"]
+    trim = lin["trim"]
+    lines = [
+        f"# {spec.model} roll channel, linearised by JSBSim (FGLinearization) at the trim point of {spec.text()}",
+        "# (python -m tools.plant linearise).  States [beta, phi, p, r]; the input is the surface deflection in rad.",
+        f'name = "{spec.model}-{spec.airspeed_kt:g}kt"',
+        f'source = "{spec.text()}"',
+        "",
+        "[input]",
+        f'name = "delta_{spec.surface[0]}"',
+        'unit = "rad"',
+        f'surface = "{spec.surface}"',
+        f"limit = {spec.surface_max_rad!r}  # JSBSim's normalised command saturates at +-1",
+        "",
+        "[output]",
+        'name = "phi"',
+        'unit = "rad"',
+        "",
+        "[airframe]",
+        "states = [" + ", ".join(f'"{s}"' for s in STATES) + "]",
+        "units = [" + ", ".join(f'"{u}"' for u in UNITS) + "]",
+        "A = [\n" + "".join(f"    {_row(r)},\n" for r in a) + "]",
+        "B = [" + ", ".join(f"[{float(v)!r}]" for v in b[:, 0]) + "]",
+        "C = [" + _row(c[0]) + "]",
+        'roll = "phi"',
+        'roll_rate = "p"',
+        'yaw_rate = "r"',
+        "",
+        "[servo]  # the SITL's servo (paper eq. (65) form)",
+        f"wn2 = {model.SERVO_WN2!r}",
+        f"two_zeta_wn = {model.SERVO_2ZETA_WN!r}",
+        "",
+        "[trim]  # informative",
+        f"airspeed_kt = {trim['airspeed_kt']!r}",
+        f"altitude_m = {trim['altitude_m']!r}",
+        f"phi = {trim['phi']!r}",
+        f"theta = {trim['theta']!r}",
+        "",
+    ]
+    return "\n".join(lines)
+
+
+def build_parser() -> OneLineArgumentParser:
+    p = OneLineArgumentParser(prog="python -m tools.plant", description=__doc__.split("\n\n")[0])
+    sub = p.add_subparsers(dest="command", required=True)
+    lin = sub.add_parser("linearise", help="a JSBSim aircraft's roll channel at its trim point, as a plant file")
+    lin.add_argument("plant", help="jsbsim:MODEL[:KEY=VALUE,...], e.g. jsbsim:c172x")
+    lin.add_argument("--airspeed", type=float, default=None, metavar="KT", help="trim airspeed (default: the spec's)")
+    lin.add_argument("--out", required=True, metavar="FILE.toml", help="the plant file to write")
+    return p
+
+
+def main(argv=None) -> int:
+    parser = build_parser()
+    args = parser.parse_args(argv)
+    from dataclasses import replace
+
+    from sitl.jsbsim_plant import JsbsimPlantError, parse_spec
+    from sitl.plant import PlantError, check
+
+    try:
+        check(args.plant)
+        spec = parse_spec(args.plant)
+        if args.airspeed is not None:
+            if not (math.isfinite(args.airspeed) and args.airspeed > 0):
+                parser.error(f"--airspeed must be positive and finite, got {args.airspeed!r}")
+            spec = replace(spec, airspeed_kt=args.airspeed)
+        lin = linearise(spec)
+    except (PlantError, JsbsimPlantError) as exc:
+        parser.error(str(exc))
+    except LinearisationError as exc:
+        print(f"{parser.prog}: error: {exc}", file=sys.stderr)
+        return 1
+    try:
+        Path(args.out).write_text(to_toml(spec, lin))
+    except OSError as exc:
+        parser.error(f"--out {args.out}: {exc.strerror or exc}")
+    poles = np.linalg.eigvals(lin["A"])
+    print(f"wrote {args.out}: {spec.text()} roll channel, poles " + ", ".join(f"{z:.4g}" for z in poles))
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

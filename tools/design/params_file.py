@@ -1,0 +1,152 @@
+"""``python -m tools.pfc design PLANT``: a PFC, adaptation weights and a fixed-gain baseline designed for a plant.
+
+PLANT is a linear plant file (``sitl.linear_plant``), ``kh2013a``, or ``jsbsim:MODEL[:...]`` (linearised first with
+``tools.plant``; the plant file is written beside the output as OUT.toml).  How each value is chosen:
+``tools.design.tuning``.  Writes OUT (default ./<plant name>.params), a parameter file ``python -m autopilot
+--params`` loads (the launcher gives it to the autopilot by default when it sits beside the plant), with the design
+story in its comments and the baseline's gains on its ``# baseline_gains =`` line.
+
+exit status: 0 on success, 2 on bad input or a plant no PFC of the family makes W-ASPR (one line on stderr).
+"""
+
+from __future__ import annotations
+
+import math
+import sys
+from pathlib import Path
+
+import numpy as np
+
+from autopilot.shared.cli import OneLineArgumentParser
+
+
+def build_parser() -> OneLineArgumentParser:
+    p = OneLineArgumentParser(prog="python -m tools.pfc design", description=__doc__.split("\n\n")[0])
+    p.add_argument("plant", help="FILE.toml, kh2013a or jsbsim:MODEL[:KEY=VALUE,...]")
+    p.add_argument(
+        "--out",
+        default=None,
+        metavar="FILE.params",
+        help="the parameter file to write (a jsbsim plant is linearised to FILE.toml beside it first; an existing "
+        "FILE.toml that is another plant is refused, never overwritten)",
+    )
+    p.add_argument("--airspeed", type=float, default=None, metavar="KT", help="jsbsim: linearise at this airspeed")
+    p.add_argument("--rate-hz", type=float, default=100.0, metavar="HZ", help="control rate (default 100)")
+    p.add_argument(
+        "--margin", type=float, default=3.0, metavar="G", help="gain margin of C = 1/D on the plant (default 3)"
+    )
+    p.add_argument("--lv", type=float, default=20.0, metavar="LV", help="CL-SAC Lv for the Kx-loop bands (default 20)")
+    return p
+
+
+def _plant_file(args, parser) -> tuple[str, Path]:
+    """(the plant file's path as text, the output path): a jsbsim spec is linearised to OUT.toml first."""
+    from dataclasses import replace
+
+    from sitl import plant as plants
+
+    kind = plants.kind(args.plant)
+    if kind == "kh2013a":
+        text = str(plants.shipped("kh2013a.toml"))
+        return text, Path(args.out or "kh2013a.params")
+    if kind == "file":
+        plants.check(args.plant)
+        return args.plant, Path(args.out or Path(args.plant).with_suffix(".params").name)
+    from sitl.jsbsim_plant import parse_spec
+    from tools.design.linearise import linearise, to_toml
+
+    plants.check(args.plant)
+    spec = parse_spec(args.plant)
+    if args.airspeed is not None:
+        if not (math.isfinite(args.airspeed) and args.airspeed > 0):
+            parser.error(f"--airspeed must be positive and finite, got {args.airspeed!r}")
+        spec = replace(spec, airspeed_kt=args.airspeed)
+    out = Path(args.out or f"jsbsim-{spec.model}.params")
+    toml = out.with_suffix(".toml")
+    text = to_toml(spec, linearise(spec))
+    if toml.exists() and toml.read_text(encoding="utf-8", errors="replace") != text:  # never a user's file silently
+        parser.error(f"{toml} exists and is not this linearisation: remove it or give another --out")
+    toml.write_text(text)
+    print(f"linearised {spec.text()} -> {toml}")
+    return str(toml), out
+
+
+def _bands(bands) -> str:
+    if not bands:
+        return "none"
+    return ", ".join(f"[{b.low:.4g}, {'inf' if math.isinf(b.high) else f'{b.high:.4g}'}]" for b in bands)
+
+
+def design_text(plant_text: str, rate_hz: float, margin: float, lv: float) -> tuple[list[str], dict]:
+    """The design's report lines and the parameter values (name -> value, and 'baseline' -> (kp, ki, kd))."""
+    from sitl.linear_plant import load
+    from tools import design as analysis
+    from tools.design.tuning import GAMMA_NAMES, choose_gamma, design_baseline, design_pfc
+
+    lp = load(plant_text)
+    mats = (lp.a_p, lp.b_p, lp.c_p)
+    pfc = design_pfc(mats, rate_hz=rate_hz, margin=margin)
+    rep = analysis.analyse(pfc.num, pfc.den, rate_hz=rate_hz, lv=lv, pfc_name="designed", plant=mats)
+    u_limit = lp.limit_rad if lp.limit_rad is not None else math.radians(30.0)
+    gamma, rows = choose_gamma(plant_text, pfc.num, pfc.den, u_limit)
+    base = design_baseline(mats, rate_hz=rate_hz)
+    zeros = ", ".join(f"{z:.4g}" for z in rep.zeros)
+    lines = [
+        f"plant {lp.name} ({plant_text}): poles " + ", ".join(f"{z:.4g}" for z in np.linalg.eigvals(lp.a_p)),
+        f"PFC D(s) = {pfc.k:.6g}/(s + {pfc.a:.6g}): {pfc.explain()}",
+        f"F = T + D: zeros {zeros}; relative degree {rep.relative_degree}; high-frequency gain {rep.hf_gain:.6g}; "
+        f"W-ASPR {'yes' if rep.waspr else 'NO'}",
+        f"unstable Ke bands of 1 + Ke F: continuous {_bands(rep.bands)}; sampled at {rate_hz:g} Hz "
+        f"{_bands(rep.bands_discrete)}",
+        f"CL-SAC Lv = {lv:g} Kx loop: -Kx {_bands(rep.kx_bands['minus_kx'])}, +Kx {_bands(rep.kx_bands['kx'])}",
+        f"adaptation weights Gamma = {gamma:g} (all six): CL-SAC ise_ref on the linear plant "
+        + ", ".join(f"{r['gamma']:g}: {r['ise_ref']:.4g}{' (saturated)' if r['saturated'] else ''}" for r in rows),
+        f"baseline PID K_p {base.kp:.4g}, K_i {base.ki:.4g} 1/s, K_d {base.kd:.4g} s: gain margin "
+        f"{base.margins['gain_margin_db']:.1f} dB, phase margin {base.margins['phase_margin_deg']:.1f} deg at "
+        f"{base.margins['gain_crossover_rad_s']:.3g} rad/s (python-control)",
+    ]
+    values = {"CLSAC_PFC_NUM": pfc.k, "CLSAC_PFC_DEN1": 1.0, "CLSAC_PFC_DEN0": pfc.a}
+    values.update({f"CLSAC_GAM_{n.upper()}": gamma for n in GAMMA_NAMES})
+    values["CLSAC_U_LIMIT"] = u_limit
+    values["baseline"] = (base.kp, base.ki, base.kd)
+    return lines, values
+
+
+def write_params(path: Path, plant_text: str, lines: list[str], values: dict) -> None:
+    from tools.design.linearise import BASELINE_KEY
+
+    kp, ki, kd = values["baseline"]
+    text = [f"# CL-SAC parameters designed for {plant_text} by python -m tools.pfc design"]
+    text += [f"#   {line}" for line in lines]
+    text.append(f"{BASELINE_KEY} {kp!r},{ki!r},{kd!r}  # python -m autopilot --controller baseline --baseline-gains")
+    text += [f"{name:<16s} {float(v)!r}" for name, v in values.items() if name != "baseline"]
+    path.write_text("\n".join(text) + "\n")
+
+
+def main(argv=None) -> int:
+    parser = build_parser()
+    args = parser.parse_args(argv)
+    from sitl.jsbsim_plant import JsbsimPlantError
+    from sitl.plant import PlantError
+    from tools.design import AnalysisError
+    from tools.design.tuning import PfcDesignError
+
+    for name in ("rate_hz", "margin"):
+        v = getattr(args, name)
+        if not (math.isfinite(v) and v > (1.0 if name == "margin" else 0.0)):
+            parser.error(f"--{name.replace('_', '-')} must be finite and > {1 if name == 'margin' else 0}, got {v!r}")
+    try:
+        plant_text, out = _plant_file(args, parser)
+        lines, values = design_text(plant_text, args.rate_hz, args.margin, args.lv)
+    except (PlantError, PfcDesignError, JsbsimPlantError) as exc:
+        parser.error(str(exc))
+    except AnalysisError as exc:
+        print(f"{parser.prog}: analysis failed: {exc}", file=sys.stderr)
+        return 1
+    try:
+        write_params(out, plant_text, lines, values)
+    except OSError as exc:
+        parser.error(f"--out {out}: {exc.strerror or exc}")
+    print("\n".join(lines))
+    print(f"wrote {out} (python -m autopilot --params {out})")
+    return 0

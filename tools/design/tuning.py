@@ -1,0 +1,213 @@
+"""A PFC and a fixed-gain baseline designed for any linear plant (``python -m tools.pfc design PLANT``).  No I/O.
+
+PFC (Barkana's rule, paper sec. 2: D(s) = 1/C(s), C a stabilising controller of T): C(s) = g (s + a), the
+family of the paper's C(s) = (4s + 40)/10.  For each corner a of a grid, the critical gain g* at which
+1 + g (s + a) T(s) first goes unstable (``unstable_gain_bands``); C takes g = g*/margin (a gain margin of
+``margin``), so D(s) = k/(s + a) with k = margin/g*.  The zeros of F = T + D are the closed-loop poles of
+1 + C T (F = (1 + C T)/C), so F is minimum phase by construction; its relative degree is 1 (T's is >= 2, D's
+is 1) and its high-frequency gain is k > 0: W-ASPR.  Among the corners whose F has no unstable K_e band in
+continuous time nor in the loop sampled at the control rate below ``ke_floor``, the one with the least
+steady-state offset (the PFC's D(0) = k/a) is chosen; ties go to the best-damped zeros.
+
+Adaptation weights: the paper's Gamma = 10 (all six) were tuned on the KH2013A; for another plant the designer
+flies the reference scenario in-process on the linear plant for Gamma in GAMMAS and keeps the smallest whose
+CL-SAC ise_ref is within 1.5x of the best of the grid without saturating the surface.
+
+Baseline: the PID of ``autopilot.baseline`` (C(z) = K_p + K_i T z/(z - 1) + K_d (z - 1)/(T z) on the ZOH plant),
+on a grid of K_p and K_d/K_p with K_i = K_p/10 s^-1, keeping the largest gain crossover up to the reference
+model's bandwidth (|A_m| = 5 rad/s: it follows the open-loop reference model, no need to be faster) with a phase
+margin >= 60 deg and a gain margin >= 10 dB (``tools.design.margins.baseline_margins``, python-control).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from tools.design._common import AnalysisError
+from tools.design.aspr import (
+    augmented_realisation,
+    damping_ratio,
+    dc_gain,
+    is_waspr,
+    plant_tf,
+    tf_coefficients,
+)
+from tools.design.bands import discrete_bands, unstable_gain_bands
+
+CORNERS = tuple(float(a) for a in np.round(np.logspace(-1, 2, 16), 4))  # a of C = g (s + a), 1/s
+GAMMAS = (10.0, 30.0, 100.0, 300.0, 1000.0)
+MARGIN = 3.0  # gain margin of C in feedback with T (9.5 dB)
+KE_FLOOR = 50.0  # the sampled loop may go unstable only above this K_e (the law's K_e stays far below)
+PM_MIN_DEG, GM_MIN_DB, CROSSOVER_MAX = 60.0, 10.0, 5.0
+
+
+class PfcDesignError(AnalysisError):
+    """No PFC of the family makes the plant W-ASPR with the required margin; the message says why."""
+
+
+@dataclass
+class PfcDesign:
+    k: float
+    a: float
+    critical_gain: float  # g* of C = g (s + a)
+    margin: float
+    offset_deg: float  # steady-state error the PFC adds at a 10 deg command
+    min_zero_damping: float
+    considered: int  # corners tried
+    accepted: int  # corners that passed every check
+    rejected: dict = field(default_factory=dict)  # reason -> count
+
+    @property
+    def num(self) -> tuple[float, ...]:
+        return (self.k,)
+
+    @property
+    def den(self) -> tuple[float, ...]:
+        return (1.0, self.a)
+
+    def explain(self) -> str:
+        return (
+            f"D(s) = 1/C(s), C(s) = {1 / self.k:.6g} (s + {self.a:g}) (Barkana, paper sec. 2): C stabilises the "
+            f"plant up to the gain {self.critical_gain:.6g} (s + {self.a:g}), and flies at 1/{self.margin:g} of it; "
+            f"the corner a = {self.a:g} 1/s is the one of {self.accepted} acceptable (of {self.considered} tried) "
+            f"with the least steady-state offset ({self.offset_deg:.3g} deg at 10 deg)"
+        )
+
+
+def _critical_gain(tn: np.ndarray, td: np.ndarray, a: float) -> float | None:
+    """Least g > 0 making 1 + g (s + a) T unstable (inf if none), None if unstable already for small g."""
+    bands = unstable_gain_bands(np.polymul(tn, [1.0, a]), td)
+    if not bands:
+        return math.inf
+    first = bands[0]
+    return None if first.low <= 1e-12 else first.low
+
+
+def design_pfc(
+    plant, *, rate_hz: float = 100.0, margin: float = MARGIN, corners=CORNERS, ke_floor: float = KE_FLOOR
+) -> PfcDesign:
+    """The PFC D = k/(s + a) for ``plant`` = (A_p, B_p, C_p); raises PfcDesignError if none qualifies."""
+    t = plant_tf(plant)
+    tn, td = tf_coefficients(t)
+    if td.size - tn.size < 2:
+        raise PfcDesignError(
+            f"the plant's relative degree is {td.size - tn.size}: a first-order PFC needs >= 2 for F of relative "
+            "degree 1"
+        )
+    t_dc = dc_gain(tn, td)
+    rejected: dict[str, int] = {}
+    best = None
+    for a in corners:
+        g = _critical_gain(tn, td, a)
+        if g is None:
+            rejected["C = g (s + a) destabilises the plant at any gain"] = (
+                rejected.get("C = g (s + a) destabilises the plant at any gain", 0) + 1
+            )
+            continue
+        if math.isinf(g):
+            g = 1e6  # stable for every gain: fly a high one (a small PFC)
+        k = margin / g
+        num, den = (k,), (1.0, a)
+        f = t + _tf(num, den)
+        fn, fd = tf_coefficients(f)
+        if not is_waspr(fn, fd):
+            rejected["F not W-ASPR"] = rejected.get("F not W-ASPR", 0) + 1
+            continue
+        real = augmented_realisation(num, den, plant)
+        if unstable_gain_bands(fn, fd, realisation=real):
+            rejected["1 + Ke F unstable for some Ke"] = rejected.get("1 + Ke F unstable for some Ke", 0) + 1
+            continue
+        low = [b.low for b in discrete_bands(real, rate_hz)]
+        if low and min(low) < ke_floor:
+            key = f"sampled loop unstable for Ke < {ke_floor:g}"
+            rejected[key] = rejected.get(key, 0) + 1
+            continue
+        zeros = np.roots(fn)
+        damping = float(min(damping_ratio(z) for z in zeros)) if zeros.size else 1.0
+        offset = _offset_deg(t_dc, k / a)
+        cand = PfcDesign(k, a, g, margin, offset, damping, len(corners), 0)
+        if best is None or (round(offset, 9), -damping) < (round(best.offset_deg, 9), -best.min_zero_damping):
+            best = cand
+        rejected["accepted"] = rejected.get("accepted", 0) + 1
+    if best is None:
+        why = "; ".join(f"{n} corner(s): {r}" for r, n in rejected.items())
+        raise PfcDesignError(f"no PFC k/(s + a) makes this plant W-ASPR with a gain margin of {margin:g} ({why})")
+    best.accepted = rejected.pop("accepted")
+    best.rejected = rejected
+    return best
+
+
+def _tf(num, den):
+    from tools.design._common import ct
+
+    return ct().tf(list(num), list(den))
+
+
+def _offset_deg(t_dc: float, d_dc: float, command_deg: float = 10.0) -> float:
+    """y_p = y_a - D(0) u at steady state, y_a = command: offset = command D(0)/(T(0) + D(0))."""
+    if math.isinf(t_dc):
+        return 0.0
+    return command_deg * d_dc / (t_dc + d_dc)
+
+
+@dataclass
+class BaselineDesign:
+    kp: float
+    ki: float
+    kd: float
+    margins: dict
+
+
+def design_baseline(plant, *, rate_hz: float = 100.0) -> BaselineDesign:
+    """The fixed-gain PID for ``plant``: the largest crossover <= 5 rad/s at PM >= 60 deg and GM >= 10 dB."""
+    from autopilot.baseline import BaselineConfig
+    from tools.design.margins import baseline_margins
+
+    best = None
+    for kp in np.logspace(-2, 1, 19):
+        for td_ratio in (0.0, 0.1, 0.2, 0.3):
+            cfg = BaselineConfig(control_rate_hz=rate_hz, kp=float(kp), ki=float(kp) / 10.0, kd=float(kp * td_ratio))
+            m = baseline_margins(cfg, plant=plant)
+            ok = (
+                m["closed_loop_stable"]
+                and m["phase_margin_deg"] >= PM_MIN_DEG
+                and m["gain_margin_db"] >= GM_MIN_DB
+                and m["gain_crossover_rad_s"] <= CROSSOVER_MAX
+            )
+            if ok and (best is None or m["gain_crossover_rad_s"] > best.margins["gain_crossover_rad_s"]):
+                best = BaselineDesign(cfg.kp, cfg.ki, cfg.kd, m)
+    if best is None:
+        raise PfcDesignError(
+            f"no PID of the grid gives PM >= {PM_MIN_DEG:g} deg and GM >= {GM_MIN_DB:g} dB "
+            f"below {CROSSOVER_MAX:g} rad/s"
+        )
+    return best
+
+
+def choose_gamma(plant_text: str, num, den, u_limit_rad: float, gammas=GAMMAS) -> tuple[float, list[dict]]:
+    """Gamma (all six adaptation weights) for the plant file ``plant_text``: the smallest of ``gammas`` whose CL-SAC
+    ise_ref on the reference scenario (in-process, linear plant) is within 1.5x of the grid's best, without
+    saturating; returns (gamma, the rows flown)."""
+    from dataclasses import replace
+
+    from autopilot.config import ClSacConfig
+    from tools.experiment.scenario import PAPER, PAPER_RUNS, run_inprocess
+
+    scenario = replace(PAPER, plant=plant_text, u_limit_rad=u_limit_rad)
+    rows = []
+    for g in gammas:
+        base = ClSacConfig(pfc_num=tuple(num), pfc_den=tuple(den), **{f"gamma_{n}": g for n in GAMMA_NAMES})
+        res = run_inprocess(scenario, PAPER_RUNS[1], base=base)
+        sat = bool(np.max(np.abs(res.series["u"])) >= u_limit_rad * (1 - 1e-9))
+        rows.append({"gamma": g, "ise_ref": res.metrics["ise_ref"], "energy": res.metrics["energy"], "saturated": sat})
+    ok = [r for r in rows if not r["saturated"] and math.isfinite(r["ise_ref"])]
+    if not ok:
+        raise PfcDesignError("CL-SAC saturates the surface for every adaptation weight of the grid")
+    best = min(r["ise_ref"] for r in ok)
+    return next(r["gamma"] for r in ok if r["ise_ref"] <= 1.5 * best), rows
+
+
+GAMMA_NAMES = ("pe", "ie", "px", "ix", "pu", "iu")

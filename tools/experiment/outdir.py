@@ -1,0 +1,58 @@
+"""The output folder of an experiment or a study: checked before anything runs, created, a default name.
+
+Used by ``tools.experiment`` and ``tools.experiment.study`` alike (neither imports the other for it).
+"""
+
+from __future__ import annotations
+
+import datetime as _dt
+import os
+import tempfile
+from pathlib import Path
+
+
+class OutDirError(ValueError):
+    """An output folder that cannot be created or written; the message is one line and names the path."""
+
+
+def prepare_out_dir(out_dir: str | os.PathLike) -> Path:
+    """Create ``out_dir`` if needed and check that files can be written in it."""
+    path = Path(out_dir)
+    if path.exists() and not path.is_dir():
+        raise OutDirError(f"output directory {str(path)!r} exists and is not a directory")
+    try:
+        path.mkdir(parents=True, exist_ok=True)
+        with tempfile.NamedTemporaryFile(dir=path, prefix=".write-test-"):
+            pass
+    except OSError as exc:
+        raise OutDirError(f"cannot write to output directory {str(path)!r}: {exc.strerror or exc}") from None
+    return path
+
+
+def check_out_dir(out_dir: str | os.PathLike) -> Path:
+    """Reject an output path that cannot become a folder, without creating anything."""
+    path = Path(out_dir)
+    if path.exists():
+        if not path.is_dir():
+            raise OutDirError(f"output directory {str(path)!r} exists and is not a directory")
+        probe = path
+    else:
+        probe = path.absolute().parent
+        while not probe.exists():
+            probe = probe.parent
+        if not probe.is_dir():
+            raise OutDirError(f"cannot create output directory {str(path)!r}: {str(probe)!r} is not a directory")
+    if not os.access(probe, os.W_OK | os.X_OK):
+        raise OutDirError(f"cannot write to output directory {str(path)!r}: {str(probe)!r} is not writable")
+    return path
+
+
+def default_out_dir(scenario: str = "paper", root: str | os.PathLike = "runs") -> Path:
+    """A new folder ``runs/<scenario>-YYYYmmdd-HHMMSS[-n]`` (relative to the working directory)."""
+    stamp = _dt.datetime.now().strftime("%Y%m%d-%H%M%S")
+    base = Path(root) / f"{scenario}-{stamp}"
+    path, n = base, 1
+    while path.exists():
+        path = base.with_name(f"{base.name}-{n}")
+        n += 1
+    return path

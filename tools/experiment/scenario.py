@@ -1,0 +1,215 @@
+"""The reference scenario ``paper`` (docs/design.md, "Reference scenario") and its in-process closed loop.  No I/O."""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from autopilot.baseline import BaselineConfig
+from autopilot.clsac import GAIN_FIELDS, MODEL_FIELDS, gains_of, model_of
+from autopilot.config import ClSacConfig
+from autopilot.shared.mavlink import quaternion_to_roll, roll_to_quaternion
+from autopilot.shared.pwm import PwmMap
+from autopilot.step import ControlStep, ProfileSetpoints
+from sitl import plant as plants
+from tools.flight.profiles import Profile
+
+
+@dataclass(frozen=True)
+class Scenario:
+    """A roll scenario: the command ``profile`` (any ``tools.flight.profiles.Profile``: square, step, sine or CSV
+    breakpoints) flown for ``duration_s``.  Defaults are the paper scenario (docs/design.md, "Reference
+    scenario"): a +-10 deg square wave of period 10 s, +10 deg first, for 30 s."""
+
+    name: str = "paper"
+    profile: Profile = Profile.square(amplitude_deg=10.0, period=10.0)
+    duration_s: float = 30.0
+    control_rate_hz: float = 100.0
+    physics_rate_hz: float = 1000.0
+    u_limit_rad: float = math.radians(30.0)
+    plant: str = plants.KH2013A  # sitl.plant: kh2013a, FILE.toml or jsbsim:MODEL[:KEY=VALUE,...]
+    # A parameter file (autopilot.params) on top of every SAC/CL-SAC run's configuration, and the baseline's gains;
+    # None: the ones designed for the plant (tools.plant.designed_params, designed_baseline), else the defaults.
+    params: str | None = None
+    baseline_gains: tuple | None = None
+    # The SITL's disturbances ((dest, value) pairs of sitl.disturbances.FLAGS): flown over MAVLink only.
+    disturbances: tuple = ()
+
+    def __post_init__(self) -> None:
+        if not isinstance(self.profile, Profile):
+            raise ValueError(f"profile must be a tools.flight.profiles.Profile, got {self.profile!r}")
+        for name in ("duration_s", "control_rate_hz", "physics_rate_hz", "u_limit_rad"):
+            v = getattr(self, name)
+            if not (math.isfinite(v) and v > 0):
+                raise ValueError(f"{name} must be positive and finite, got {v!r}")
+        ratio = self.physics_rate_hz / self.control_rate_hz
+        if abs(ratio - round(ratio)) > 1e-9 or round(ratio) < 1:
+            raise ValueError(
+                f"physics_rate_hz ({self.physics_rate_hz}) must be a whole multiple of control_rate_hz "
+                f"({self.control_rate_hz})"
+            )
+
+    @property
+    def steps(self) -> int:
+        """Number of control steps in the run."""
+        return int(round(self.duration_s * self.control_rate_hz))
+
+    @property
+    def physics_per_control(self) -> int:
+        return int(round(self.physics_rate_hz / self.control_rate_hz))
+
+    @property
+    def amplitude_rad(self) -> float:
+        return self.profile.amplitude
+
+    @property
+    def period_s(self) -> float:
+        return self.profile.period
+
+    def command(self, t: float) -> float:
+        """u_m(t), the roll command in rad."""
+        return self.profile.value(t)
+
+
+@dataclass(frozen=True)
+class RunSpec:
+    """One run: its name, L_v, and optionally a PFC preset and the K_Ix/K_Iu leakage (None: keep the base's)."""
+
+    name: str
+    lv: float
+    pfc: str | None = None  # a key of autopilot.config.PFC_PRESETS
+    sigma_xu: float | None = None  # sigma_x = sigma_u
+    controller: str | None = None  # "baseline": the fixed-gain PID (autopilot.baseline); None: SAC/CL-SAC by lv
+
+
+PAPER = Scenario()
+PAPER_RUNS = (
+    RunSpec("sac", 0.0),
+    RunSpec("clsac", 20.0),
+    RunSpec("clsac_lv10", 10.0),
+    RunSpec("clsac_lv50", 50.0),
+    RunSpec("clsac_lv100", 100.0),
+)
+# Runs an experiment may name (--runs baseline) that are not flown by default.
+BASELINE_RUN = RunSpec("baseline", 0.0, controller="baseline")
+OPTIONAL_RUNS = (BASELINE_RUN,)
+
+
+def params_config(path: str, cfg: ClSacConfig) -> ClSacConfig:
+    """``cfg`` with a parameter file's values (``autopilot.params``) on top, as ``python -m autopilot --params`` does:
+    the file overrides the flags."""
+    from autopilot.params import ParamTable, load_file
+
+    table = ParamTable(cfg, {"attitude_timeout_s": 0.1, "setpoint_timeout_s": 1.0, "max_roll_rad": 0.8})
+    table.update(load_file(path))
+    return table.config
+
+
+def controller_config(scenario: Scenario, run: RunSpec, base: ClSacConfig | None = None) -> ClSacConfig:
+    from tools.design.linearise import designed_baseline, designed_params
+
+    if run.controller == "baseline":
+        flown = scenario.baseline_gains or designed_baseline(scenario.plant)
+        gains = dict(zip(("kp", "ki", "kd"), flown)) if flown else {}
+        limit = min(scenario.u_limit_rad, plants.surface_limit_rad(scenario.plant) or math.inf)  # the surface's stop
+        return BaselineConfig(control_rate_hz=scenario.control_rate_hz, u_limit_rad=limit, **gains)
+    cfg = (base or ClSacConfig()).with_(
+        lv=run.lv, control_rate_hz=scenario.control_rate_hz, u_limit_rad=scenario.u_limit_rad
+    )
+    params = scenario.params or designed_params(scenario.plant)  # as tools.flight.FlightConfig.params_file
+    if base is None and params is not None:
+        cfg = params_config(str(params), cfg)
+    if run.pfc is not None:
+        cfg = cfg.with_pfc(run.pfc)
+    if run.sigma_xu is not None:
+        cfg = cfg.with_(sigma_x=run.sigma_xu, sigma_u=run.sigma_xu)
+    return cfg
+
+
+@dataclass
+class RunResult:
+    name: str
+    lv: float
+    metrics: dict[str, float]
+    series: dict[str, np.ndarray] = field(repr=False)
+
+
+SERIES = (
+    "t",
+    "um",
+    "phi",
+    *MODEL_FIELDS,
+    "u",
+    *GAIN_FIELDS,
+    "v",
+    "p",
+    "r",
+    "delta_r",
+)
+
+
+def _inprocess_disturbances(scenario: Scenario):
+    """The disturbances a plant flies by itself (a JSBSim plant's turbulence, crosswind, seed), or None; anything the
+    SITL's injector would have to apply (sensors, link, the KH2013A atmosphere) flies over MAVLink only."""
+    if not scenario.disturbances:
+        return None
+    from sitl.disturbances import from_values
+
+    dist = from_values(dict(scenario.disturbances))
+    rest = plants.injected(scenario.plant, dist)
+    if rest.atmosphere.active or rest.sensors.active or rest.faults.active or rest.scales:
+        raise ValueError("these disturbances fly over MAVLink only (tools.flight, the mavlink transport)")
+    return dist
+
+
+def run_inprocess(
+    scenario: Scenario = PAPER,
+    run: RunSpec = PAPER_RUNS[1],
+    base: ClSacConfig | None = None,
+    wire: PwmMap | None = None,
+) -> RunResult:
+    """Fly the scenario with the control step and the aircraft in one process.
+
+    Order per control step k (the same as over MAVLink in lockstep): the aircraft's roll at t_k is
+    measured, ``autopilot.step.ControlStep`` computes u[k], the aircraft advances one control period
+    with u[k] held (exact ZOH, ``sitl.Aircraft.advance``).
+
+    ``wire``: also model exactly what the MAVLink path adds, so the two compare like for like: roll and
+    the setpoint quaternion travel as float32, and the rudder command flies (and is scored) after the
+    1 us PWM quantisation of this calibration.
+    """
+    command = scenario.command
+    if wire is not None:
+
+        def command(t: float, _f=scenario.command) -> float:  # SET_ATTITUDE_TARGET.q travels as float32
+            return quaternion_to_roll(np.float32(roll_to_quaternion(_f(t))))
+
+    step = ControlStep(controller_config(scenario, run, base), wire, ProfileSetpoints(command))
+    law = step.law
+    ac = plants.build(scenario.plant, scenario.physics_rate_hz, None, _inprocess_disturbances(scenario))
+    n = scenario.steps
+    nphys = scenario.physics_per_control
+    out = np.empty((n, len(SERIES)))
+    rate = scenario.control_rate_hz
+    for k in range(n):
+        t = k / rate
+        x = ac.truth
+        phi = float(x[3]) if wire is None else float(np.float32(x[3]))  # ATTITUDE.roll travels as float32
+        r = step(t, phi)
+        out[k] = (
+            t,
+            r.um,
+            phi,
+            *model_of(law),
+            r.u,
+            *gains_of(law),
+            x[0],
+            x[1],
+            x[2],
+            x[4],
+        )
+        ac.advance(r.u, nphys)
+    series = {name: out[:, i].copy() for i, name in enumerate(SERIES)}
+    return RunResult(run.name, run.lv, step.metrics.result(), series)

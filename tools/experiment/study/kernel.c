@@ -1,0 +1,248 @@
+/* The study's control steps in C (tools/experiment/study/native.py builds and loads this file; tools/experiment/study/simulation.py
+ * is the reference it must equal bit for bit).
+ *
+ * One call flies steps k0 .. k0 + m - 1 of every run of a batch: the sensor (delay, bias, noise), the link
+ * (ATTITUDE and SERVO_OUTPUT_RAW lost with probability p), the law (CL-SAC: ClSac._step_siso, paper eqs. (6),
+ * (18)-(21), as autopilot.batch.BatchClSac; or the fixed-gain baseline: Baseline.step, as BatchBaseline), the
+ * metrics (MetricsAccumulator's sums in its order), the disturbance (Dryden filter, 1-cosine gust, crosswind)
+ * and the plant x[k+1] = Phi x[k] + Gamma [u, v_g, p_g, r_g]^T (the exact ZOH of (A_p, [B_p, E])).
+ *
+ * Why it is the same numbers as the numpy loop: every operation below is the numpy loop's IEEE-754 add,
+ * multiply, compare or select, in the same order (a + b + c is (a + b) + c as in Python), on doubles, built with
+ * -ffp-contract=off and without -ffast-math (no fused multiply-add, no reassociation).  np.maximum, np.minimum
+ * and np.clip are written with numpy's NaN rule (a NaN operand gives NaN), so a diverged run diverges the same
+ * way.  The runs of a batch are independent, so the loop is over runs, then steps.  The batch-wide switches
+ * (noisy, dist, turb_any, gust_any) are the numpy loop's, so even a zero's sign is the same. */
+
+#include <math.h>
+#include <stddef.h>
+#include <stdint.h>
+
+typedef struct {
+    /* sizes and switches of the batch */
+    int64_t n, steps, hist_len, window, npeaks, gust_width;
+    int64_t kind;     /* 0: CL-SAC, 1: baseline */
+    int64_t noisy, dist, turb_any, gust_any;
+    int64_t aw, freeze, has_kmax;
+    double umax, sat_lim, dz, kmax, dt;
+    /* the law's coefficients, (n,) each: CL-SAC (15 + 6 leaks) or baseline (6, the first ones) */
+    const double *coef; /* (21, n) */
+    /* the law's states, (n,) each: CL-SAC xm, xm_ol, xd, ki_e, ki_x, ki_u; baseline xm_ol, xi, e_prev */
+    double *law;        /* (6, n) */
+    /* the plant */
+    const double *phi;  /* (36, n): Phi[r][j] */
+    const double *gam;  /* (24, n): Gamma[r][j] */
+    double *x;          /* (6, n) */
+    /* the disturbance */
+    const double *dry;  /* c (3x4), ad (4x4), ld (4x4): 44 */
+    double *xt;         /* (4, n) */
+    const double *turb, *bias, *noise, *thr, *crosswind; /* (n,) */
+    const int64_t *delay, *g_first;                       /* (n,) */
+    const double *gust_k;                                 /* (n, gust_width) */
+    const double *um_all;                                 /* (steps,) */
+    /* the sensor and the link */
+    double *hist;       /* (hist_len, n) */
+    double *y_prev, *u_fly, *u_prev; /* (n,) */
+    /* the metrics: ise_ref, ise_crm, energy, tv, max_abs_u, max_abs_roll, sat */
+    double *acc;        /* (7, n) */
+    double *wmax;       /* (n,) */
+    double *peaks;      /* (n, npeaks) */
+    /* the series (record), or NULL: (22, steps, n) in simulation._record's order */
+    double *rec;
+} Batch;
+
+/* numpy's maximum / minimum: a NaN operand propagates */
+static inline double np_max(double a, double b) { return (a >= b || isnan(a)) ? a : b; }
+static inline double np_min(double a, double b) { return (a <= b || isnan(a)) ? a : b; }
+/* numpy's clip: min(max(x, lo), hi), a NaN x stays NaN */
+static inline double np_clip(double x, double lo, double hi) {
+    if (isnan(x)) return x;
+    double t = x > lo ? x : lo;
+    return t < hi ? t : hi;
+}
+
+enum { C_PHI_M, C_G_MU, C_G_MY, C_PHI_OL, C_G_OL, C_CM, C_PHI_D, C_G_D, C_CD, C_GPE, C_GIE, C_GPX, C_GIX, C_GPU,
+       C_GIU, C_DECAY, C_GAIN_IE, C_DECAY_X, C_GAIN_IX, C_DECAY_U, C_GAIN_IU };
+enum { B_PHI_OL, B_G_OL, B_CM, B_KP, B_KI_T, B_KD_T };
+enum { R_T, R_UM, R_PHI, R_YM, R_YM_OL, R_YA, R_Y_PFC, R_E, R_U, R_KPE, R_KIE, R_KE, R_KPX, R_KIX, R_KX, R_KPU,
+       R_KIU, R_KU, R_V, R_P, R_R, R_DELTA_R, R_COUNT };
+
+int study_series_count(void) { return R_COUNT; }
+int64_t study_batch_size(void) { return (int64_t)sizeof(Batch); }
+
+/* Steps k0 .. k0 + m - 1 of every run; z: this block's standard normals, (n, m * 7) as each run's generator
+ * drew them (step s, channel ch at s * 7 + ch: 4 Dryden, roll noise, ATTITUDE loss, SERVO_OUTPUT_RAW loss), or
+ * NULL when the batch is not noisy. */
+void study_steps(const Batch *b, int64_t k0, int64_t m, const double *z_all) {
+    const int64_t n = b->n;
+    const double *C = b->dry, *AD = b->dry + 12, *LD = b->dry + 28;
+    for (int64_t i = 0; i < n; i++) {
+        double co[21], ph[36], ga[24]; /* this run's coefficients, read once */
+        for (int j = 0; j < 21; j++) co[j] = b->coef[j * n + i];
+        for (int j = 0; j < 36; j++) ph[j] = b->phi[j * n + i];
+        for (int j = 0; j < 24; j++) ga[j] = b->gam[j * n + i];
+#define CO(j) co[j]
+#define PHI(r, j) ph[(r) * 6 + (j)]
+#define GAM(r, j) ga[(r) * 4 + (j)]
+        double x[6], xt[4];
+        for (int r = 0; r < 6; r++) x[r] = b->x[r * n + i];
+        for (int r = 0; r < 4; r++) xt[r] = b->xt[r * n + i];
+        double s0 = b->law[0 * n + i], s1 = b->law[1 * n + i], s2 = b->law[2 * n + i];
+        double s3 = b->law[3 * n + i], s4 = b->law[4 * n + i], s5 = b->law[5 * n + i];
+        double y_prev = b->y_prev[i], u_fly = b->u_fly[i], u_prev = b->u_prev[i], wmax = b->wmax[i];
+        double a_ise_ref = b->acc[0 * n + i], a_ise_crm = b->acc[1 * n + i], a_energy = b->acc[2 * n + i];
+        double a_tv = b->acc[3 * n + i], a_max_u = b->acc[4 * n + i], a_max_roll = b->acc[5 * n + i];
+        double a_sat = b->acc[6 * n + i];
+        const double turb = b->turb[i], bias = b->bias[i], noise = b->noise[i], thr = b->thr[i];
+        const double crosswind = b->crosswind[i];
+        const int64_t delay = b->delay[i], g_first = b->g_first[i];
+        for (int64_t s = 0; s < m; s++) {
+            const int64_t k = k0 + s;
+            const double *z = z_all ? z_all + (i * m + s) * 7 : NULL;
+            const double phi_true = x[3];
+            /* sensor: delay, bias, noise (sitl.sensors semantics: the first sample repeats for k < D) */
+            b->hist[(k % b->hist_len) * n + i] = phi_true;
+            double y;
+            if (b->hist_len > 1) {
+                int64_t j = k - delay;
+                y = b->hist[((j > 0 ? j : 0) % b->hist_len) * n + i];
+            } else {
+                y = phi_true;
+            }
+            y = y + bias;
+            if (b->noisy) {
+                y = y + noise * z[4];
+                if (z[5] < thr && k) y = y_prev; /* ATTITUDE lost: the last roll received */
+            }
+            y_prev = y;
+            const double um = b->um_all[k];
+            /* the law */
+            double u, u_raw, e, ym_ol, ym, ya, y_pfc = 0.0;
+            double kpe = 0.0, kie = 0.0, ke = 0.0, kpx = 0.0, kix = 0.0, kx = 0.0, kpu = 0.0, kiu = 0.0, ku = 0.0;
+            if (b->kind == 0) { /* CL-SAC, BatchClSac.__call__; states s0..s5 = xm, xm_ol, xd, ki_e, ki_x, ki_u */
+                const double xm = s0;
+                y_pfc = CO(C_CD) * s2;           /* y_d = C_d x_d */
+                ya = y + y_pfc;                  /* y_a = y_p + D(s) u_p */
+                ym = CO(C_CM) * xm;              /* y_m = C_m x_m */
+                e = ym - ya;                     /* e_my = y_m - y_a  (paper eq. (20)) */
+                kpe = e * e * CO(C_GPE);
+                kpx = e * xm * CO(C_GPX);
+                kpu = e * um * CO(C_GPU);
+                kie = s3, kix = s4, kiu = s5;
+                ke = kpe + kie;
+                kx = kpx + kix;
+                ku = kpu + kiu;
+                u_raw = ke * e + kx * xm + ku * um; /* paper eqs. (6), (21) */
+                u = np_clip(u_raw, -b->umax, b->umax);
+                const int sat = u != u_raw;
+                double die = CO(C_GAIN_IE) * (e * e * CO(C_GIE));
+                double dix = CO(C_GAIN_IX) * (e * xm * CO(C_GIX));
+                double diu = CO(C_GAIN_IU) * (e * um * CO(C_GIU));
+                int skip = 0, any_skip = 0;
+                if (b->dz > 0.0) skip = fabs(e) <= b->dz, any_skip = 1; /* dead-zone on e */
+                if (b->freeze) skip = skip | sat, any_skip = 1;
+                if (any_skip && skip) die = 0.0, dix = 0.0, diu = 0.0;
+                if (b->aw) { /* conditional integration, per channel */
+                    if (sat && die * e * u_raw > 0) die = 0.0;
+                    if (sat && dix * xm * u_raw > 0) dix = 0.0;
+                    if (sat && diu * um * u_raw > 0) diu = 0.0;
+                }
+                double ki_e = CO(C_DECAY) * kie + die;
+                double ki_x = CO(C_DECAY_X) * kix + dix;
+                double ki_u = CO(C_DECAY_U) * kiu + diu;
+                if (b->has_kmax) { /* projection onto |K_I| <= ki_max */
+                    const double km = b->kmax;
+                    ki_e = np_min(np_max(ki_e, -km), km);
+                    ki_x = np_min(np_max(ki_x, -km), km);
+                    ki_u = np_min(np_max(ki_u, -km), km);
+                }
+                s0 = CO(C_PHI_M) * xm + (CO(C_G_MU) * um + CO(C_G_MY) * ya); /* paper eq. (18), exact ZOH */
+                ym_ol = CO(C_CM) * s1;
+                s1 = CO(C_PHI_OL) * s1 + CO(C_G_OL) * um;
+                s2 = CO(C_PHI_D) * s2 + CO(C_G_D) * u;
+                s3 = ki_e, s4 = ki_x, s5 = ki_u;
+            } else { /* the baseline, BatchBaseline.__call__; states s0..s2 = xm_ol, xi, e_prev */
+                ym_ol = CO(B_CM) * s0;
+                e = ym_ol - y;
+                u_raw = CO(B_KP) * e + s1 + CO(B_KD_T) * (e - s2);
+                u = np_clip(u_raw, -b->umax, b->umax);
+                const int sat = u != u_raw;
+                const double di = CO(B_KI_T) * e;
+                const int keep = b->aw ? (sat && di * u_raw > 0) : 0;
+                s1 = keep ? s1 : s1 + di;
+                s0 = CO(B_PHI_OL) * s0 + CO(B_G_OL) * um;
+                s2 = e;
+                ym = ym_ol, ya = y;
+            }
+            if (b->noisy) {
+                u_fly = k ? (z[6] < thr ? u_fly : u) : u; /* SERVO_OUTPUT_RAW lost: the servo keeps the last */
+            } else {
+                u_fly = u;
+            }
+            /* metrics of what the law commanded (autopilot.metrics.MetricsAccumulator, same operation order) */
+            const double d = y - ym_ol;
+            a_ise_ref += d * d;
+            a_ise_crm += e * e;
+            a_energy += u * u;
+            if (k) a_tv += fabs(u - u_prev);
+            u_prev = u;
+            a_max_u = np_max(a_max_u, fabs(u));
+            a_max_roll = np_max(a_max_roll, fabs(phi_true));
+            wmax = np_max(wmax, fabs(phi_true));
+            if ((k + 1) % b->window == 0 && (k + 1) / b->window <= b->npeaks) {
+                b->peaks[i * b->npeaks + (k + 1) / b->window - 1] = wmax;
+                wmax = 0.0;
+            }
+            a_sat += !(fabs(u) < b->sat_lim) ? 1.0 : 0.0; /* autopilot.envelope.saturated */
+            if (b->rec) {
+                double row[R_COUNT] = {(double)k * b->dt, um, y, ym, ym_ol, ya, y_pfc, e, u, kpe, kie, ke, kpx,
+                                       kix, kx, kpu, kiu, ku, x[0], x[1], x[2], x[4]};
+                for (int q = 0; q < R_COUNT; q++) b->rec[(q * b->steps + k) * n + i] = row[q];
+            }
+            /* disturbance d = [v_g, p_g, r_g], held over the period, and the plant */
+            double xn[6];
+            if (b->dist) {
+                double dd[3] = {0.0, 0.0, 0.0};
+                if (b->turb_any) {
+                    for (int r = 0; r < 3; r++)
+                        dd[r] = turb * (C[r * 4 + 0] * xt[0] + C[r * 4 + 1] * xt[1] + C[r * 4 + 2] * xt[2] +
+                                        C[r * 4 + 3] * xt[3]);
+                    if (b->noisy) {
+                        double xtn[4];
+                        for (int r = 0; r < 4; r++)
+                            xtn[r] = AD[r * 4 + 0] * xt[0] + AD[r * 4 + 1] * xt[1] + AD[r * 4 + 2] * xt[2] +
+                                     AD[r * 4 + 3] * xt[3] +
+                                     (LD[r * 4 + 0] * z[0] + LD[r * 4 + 1] * z[1] + LD[r * 4 + 2] * z[2] +
+                                      LD[r * 4 + 3] * z[3]);
+                        for (int r = 0; r < 4; r++) xt[r] = xtn[r];
+                    }
+                }
+                if (b->gust_any) {
+                    const int64_t j = k - g_first;
+                    dd[0] = dd[0] + ((j >= 0 && j < b->gust_width) ? b->gust_k[i * b->gust_width + j] : 0.0);
+                }
+                dd[0] = dd[0] + crosswind;
+                for (int r = 0; r < 6; r++)
+                    xn[r] = PHI(r, 0) * x[0] + PHI(r, 1) * x[1] + PHI(r, 2) * x[2] + PHI(r, 3) * x[3] +
+                            PHI(r, 4) * x[4] + PHI(r, 5) * x[5] + GAM(r, 0) * u_fly +
+                            (GAM(r, 1) * dd[0] + GAM(r, 2) * dd[1] + GAM(r, 3) * dd[2]);
+            } else {
+                for (int r = 0; r < 6; r++)
+                    xn[r] = PHI(r, 0) * x[0] + PHI(r, 1) * x[1] + PHI(r, 2) * x[2] + PHI(r, 3) * x[3] +
+                            PHI(r, 4) * x[4] + PHI(r, 5) * x[5] + GAM(r, 0) * u_fly;
+            }
+            for (int r = 0; r < 6; r++) x[r] = xn[r];
+        }
+        for (int r = 0; r < 6; r++) b->x[r * n + i] = x[r];
+        for (int r = 0; r < 4; r++) b->xt[r * n + i] = xt[r];
+        b->law[0 * n + i] = s0, b->law[1 * n + i] = s1, b->law[2 * n + i] = s2;
+        b->law[3 * n + i] = s3, b->law[4 * n + i] = s4, b->law[5 * n + i] = s5;
+        b->y_prev[i] = y_prev, b->u_fly[i] = u_fly, b->u_prev[i] = u_prev, b->wmax[i] = wmax;
+        b->acc[0 * n + i] = a_ise_ref, b->acc[1 * n + i] = a_ise_crm, b->acc[2 * n + i] = a_energy;
+        b->acc[3 * n + i] = a_tv, b->acc[4 * n + i] = a_max_u, b->acc[5 * n + i] = a_max_roll;
+        b->acc[6 * n + i] = a_sat;
+#undef CO
+#undef PHI
+#undef GAM
+    }
+}

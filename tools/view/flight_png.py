@@ -1,0 +1,644 @@
+"""A flight's ``flight.png`` drawn with Pillow and numpy only: the roll against the command and the reference models,
+the rudder command and the adaptive gains K_e, K_x, K_u, in three panels sharing the time axis, mode switches marked.
+
+It is the figure ``tools.view.plots`` used to draw with matplotlib, in the same layout, colours and font (DejaVu Sans,
+read
+from matplotlib's package folder without importing matplotlib): matplotlib's import (about 0.45 CPU s) and draw
+(about 0.3 CPU s) were the largest cost of a launch, in the picture helper (``tools.view.flight_picture``).  Here the
+helper's imports (numpy, PIL) cost about 0.09 CPU s and its draw, PNG included, about 0.07 s.
+
+How it is drawn: every line, frame, tick and box on a canvas ``SS`` times the picture's size, which is then reduced
+(each picture pixel the mean of SS x SS canvas pixels: the lines come out anti-aliased); the text after, on the
+reduced picture (FreeType anti-aliases it, and it stays as sharp as matplotlib's).  Sizes are given in points at
+matplotlib's 100 dpi, as they were in ``tools.view.plots``, and converted here (``PX``).  Coordinates are picture
+pixels,
+floats, with pixel ``i`` covering ``[i, i + 1)``.  The same input gives the same bytes (no time stamp in the PNG)."""
+
+from __future__ import annotations
+
+import importlib.util
+import math
+import os
+import re
+from dataclasses import dataclass, field
+from functools import lru_cache
+from pathlib import Path
+
+import numpy as np
+from PIL import Image, ImageColor, ImageDraw, ImageFont
+
+DEG = 180.0 / math.pi
+SIZE = 1100  # the picture, px (matplotlib's 11 x 11 in at 100 dpi)
+SS = 2  # supersampling: shapes drawn at twice the size, then halved (Image.reduce: cheaper than a LANCZOS resize)
+PX = 100.0 / 72.0  # pixels per point at 100 dpi
+
+# The layout of the matplotlib figure (subplots_adjust(left=0.08, right=0.98, bottom=0.05, top=0.92, hspace=0.3)).
+LEFT, RIGHT, TOP, BOTTOM = round(0.08 * SIZE), round(0.98 * SIZE), round(0.08 * SIZE), round(0.95 * SIZE)
+HSPACE = 0.3  # the gap between panels, as a fraction of their mean height
+RATIOS = (3, 2, 2)  # the panels' heights
+
+# tools.view.plots' colours (matplotlib's default cycle): the law, the command and the reference models, the gains
+C_CLSAC = "#1f77b4"
+C_SAC = "#d62728"
+C_BASE = "#e377c2"  # the fixed-gain PID baseline (matplotlib's tab:pink)
+C_CMD = "#000000"
+C_OL = "#737373"  # matplotlib's "0.45"
+C_CRM = "#2ca02c"
+C_GAINS = {"ke": "#ff7f0e", "kx": "#9467bd", "ku": "#8c564b"}
+C_GRID = "#e7e7e7"  # matplotlib's grid, #b0b0b0 at alpha 0.3 on white
+C_MARK = "#4d4d4d"  # mode switches and rudder limits ("0.3")
+C_NOTE = "#666666"  # "not recorded" notes ("0.4")
+C_LEGEND_EDGE = "#cccccc"
+C_NOTE_EDGE = "#b3b3b3"
+
+# Font sizes, points
+PT_SUPTITLE, PT_TITLE, PT_LABEL, PT_TICK, PT_LEGEND, PT_NOTE, PT_MODE = 12, 10, 10, 10, 7.5, 8, 7
+TICK_LEN = 3.5 * PX  # outward tick marks
+TICK_PAD = 3.5 * PX  # between a tick mark and its label
+LABEL_PAD = 4.0 * PX  # between the tick labels and the axis label
+TITLE_PAD = 6.0 * PX  # between a panel's frame and its title
+MODE_NAME_SLIP = 12.0  # px: how far right of its switch's line a mode's name may be pushed by the one before
+# matplotlib's dash patterns, in multiples of the line width
+DASHES = {"--": (3.7, 1.6), ":": (1.0, 1.65)}
+
+
+# ---------------------------------------------------------------------------------------- fonts
+def font_file() -> str | None:
+    """DejaVu Sans, the font matplotlib draws with, from matplotlib's package folder (found, not imported)."""
+    spec = importlib.util.find_spec("matplotlib")
+    if spec is None or not spec.submodule_search_locations:
+        return None
+    path = os.path.join(spec.submodule_search_locations[0], "mpl-data", "fonts", "ttf", "DejaVuSans.ttf")
+    return path if os.path.isfile(path) else None
+
+
+@lru_cache(maxsize=None)
+def _font(pt: float) -> ImageFont.FreeTypeFont:
+    path = font_file()
+    if path is not None:
+        try:
+            return ImageFont.truetype(path, pt * PX)
+        except OSError:
+            pass
+    return ImageFont.load_default(pt * PX)  # Pillow's own font (FreeType), when matplotlib is not installed
+
+
+# Subscripts: a label writes them "K_{e}" (as in matplotlib's mathtext), drawn smaller and lowered.  DejaVu has
+# Unicode's subscript letters (ₑ, ₓ, ᵤ...), but at a legend's 7.5 pt they are too small to read.
+SUB_SIZE = 0.7  # of the text's size
+SUB_DROP = 0.2  # below the baseline, in ems of the text
+
+
+def _runs(s: str) -> list[tuple[str, bool]]:
+    """A label's pieces, (text, is a subscript): "K_{e} [-]" -> [("K", False), ("e", True), (" [-]", False)]."""
+    parts = re.split(r"_\{([^}]*)\}", s)  # the subscripts at the odd places
+    return [(p, i % 2 == 1) for i, p in enumerate(parts) if p]
+
+
+def text_width(s: str, pt: float) -> float:
+    """How wide a label is drawn, px."""
+    return sum(_font(pt * SUB_SIZE if sub else pt).getlength(p) for p, sub in _runs(s))
+
+
+def _draw_text(draw: ImageDraw.ImageDraw, x: float, y: float, s: str, pt: float, anchor: str, color) -> None:
+    """Text at (x, y) by Pillow's ``anchor``; with subscripts, the vertical anchor is one of "a" or "t" (the font's
+    ascender), "m" (middle), "s" (baseline), "b" or "d" (its descender): the font's, not the text's own box."""
+    runs = _runs(s)
+    font = _font(pt)
+    if len(runs) <= 1 and not (runs and runs[0][1]):
+        draw.text((x, y), s, font=font, fill=color, anchor=anchor)
+        return
+    ascent, descent = font.getmetrics()
+    x -= {"l": 0.0, "m": 0.5, "r": 1.0}[anchor[0]] * text_width(s, pt)
+    y += {"a": ascent, "t": ascent, "m": (ascent - descent) / 2, "s": 0, "b": -descent, "d": -descent}[anchor[1]]
+    # (y is now the baseline)
+    for part, sub in runs:
+        f = _font(pt * SUB_SIZE) if sub else font
+        draw.text((round(x), round(y + SUB_DROP * pt * PX if sub else y)), part, font=f, fill=color, anchor="ls")
+        x += f.getlength(part)
+
+
+# ---------------------------------------------------------------------------------------- axes
+def nice_ticks(lo: float, hi: float, max_bins: int) -> np.ndarray:
+    """Tick values in [lo, hi]: multiples of a step of 1, 2, 2.5 or 5 x 10^k, the smallest giving at most
+    ``max_bins`` intervals, and at least two ticks (how matplotlib's default locator chooses them)."""
+    raw = (hi - lo) / max_bins
+    if not (math.isfinite(raw) and raw > 0.0):  # a range too narrow (or wide) for a float to divide: its ends
+        return np.array([lo] if lo == hi else [lo, hi])
+    scale = 10.0 ** math.floor(math.log10(raw))
+    steps = [m * scale for m in (0.5, 1, 2, 2.5, 5, 10)]
+    i = next(i for i, s in enumerate(steps) if s >= raw * (1 - 1e-9))
+    for step in steps[i::-1]:  # the first that fits, or smaller ones until two ticks fall in the range
+        ticks = np.arange(math.ceil(lo / step - 1e-9), math.floor(hi / step + 1e-9) + 1) * step
+        if len(ticks) >= 2:
+            break
+    return ticks
+
+
+def tick_labels(ticks: np.ndarray) -> tuple[list[str], str]:
+    """The ticks' labels, all with the decimals the step needs, and the multiplier written above the axis ("1e−5";
+    "" if none).  As matplotlib does for values below 1e-4 or from 1e6 on, but from 1e-3 and 1e5 on: labels longer
+    than six characters would push the axis label out of the picture."""
+    if not len(ticks):
+        return [], ""
+    big = float(np.max(np.abs(ticks)))
+    exp = math.floor(math.log10(big)) if big > 0 else 0
+    exp = exp if exp <= -4 or exp >= 5 else 0
+    values = ticks / 10.0**exp
+    step = abs(values[1] - values[0]) if len(values) > 1 else 1.0
+    k = math.floor(math.log10(step) + 1e-9)
+    decimals = max(0, -k + (1 if round(step / 10.0**k, 6) == 2.5 else 0))
+    labels = []
+    for v in values:
+        s = f"{v:.{decimals}f}"
+        s = s.lstrip("-") if float(s) == 0 else s  # no "-0.0"
+        labels.append(s.replace("-", "\u2212"))  # a real minus sign, as matplotlib writes
+    return labels, (f"1e{exp}".replace("-", "\u2212") if exp else "")
+
+
+def data_range(values: list[np.ndarray]) -> tuple[float, float] | None:
+    """The range of the finite values, widened by 5 % on each side (matplotlib's margins); a single value gets
+    +-5 % of itself (+-0.05 if zero) first.  None without a finite value."""
+    finite = [v[np.isfinite(v)] for v in values]
+    finite = [np.clip(v, -1e300, 1e300) for v in finite if v.size]  # huge values: a range that does not overflow
+    if not finite:
+        return None
+    lo, hi = float(min(v.min() for v in finite)), float(max(v.max() for v in finite))
+    if hi - lo <= 1e-12 * max(abs(lo), abs(hi), 1e-300):
+        tiny = max(abs(lo), abs(hi)) < 1e-290  # zero, or so near it that 5 % of it is no wider (denormals)
+        lo, hi = (-0.05, 0.05) if tiny else (lo - 0.05 * abs(lo), hi + 0.05 * abs(hi))
+    pad = 0.05 * (hi - lo)
+    return lo - pad, hi + pad
+
+
+@dataclass
+class _Axes:
+    """A panel's frame (picture pixels: the frame's lines are rows ``top`` and ``bottom``, columns ``left`` and
+    ``right``) and the data ranges it shows."""
+
+    left: int
+    top: int
+    right: int
+    bottom: int
+    xlim: tuple[float, float]
+    ylim: tuple[float, float]
+
+    def x(self, v):
+        return self.left + (np.asarray(v, float) - self.xlim[0]) / (self.xlim[1] - self.xlim[0]) * (
+            self.right - self.left
+        )
+
+    def y(self, v):
+        return self.bottom - (np.asarray(v, float) - self.ylim[0]) / (self.ylim[1] - self.ylim[0]) * (
+            self.bottom - self.top
+        )
+
+
+def panel_frames() -> list[tuple[int, int, int, int]]:
+    """(left, top, right, bottom) of each panel, from the top: matplotlib's grid of RATIOS with HSPACE."""
+    total = BOTTOM - TOP
+    mean = total / (len(RATIOS) + HSPACE * (len(RATIOS) - 1))
+    frames, y = [], float(TOP)
+    for r in RATIOS:
+        h = mean * len(RATIOS) * r / sum(RATIOS)
+        frames.append((LEFT, round(y), RIGHT, round(y + h)))
+        y += h + HSPACE * mean
+    return frames
+
+
+# ---------------------------------------------------------------------------------------- what a panel shows
+@dataclass
+class Line:
+    """A series drawn against the time ``t``: values (same length as t; NaN or inf: a gap), colour, width in points,
+    style ("-", "--" dashed, ":" dotted), held until the next sample (``steps``, matplotlib's steps-post) or joined,
+    its legend label, and its z order (higher: drawn later, on top).  ``y=None``: a legend entry only."""
+
+    y: np.ndarray | None
+    color: str
+    lw: float = 1.0
+    style: str = "-"
+    steps: bool = False
+    label: str | None = None
+    z: int = 2
+
+
+@dataclass
+class Panel:
+    title: str
+    ylabel: str
+    lines: list[Line] = field(default_factory=list)  # drawn by z order; legend in this order
+    hlines: list[float] = field(default_factory=list)  # dotted horizontal lines (the rudder's limits), data units
+    legend_cols: int = 1
+    missing: list[str] = field(default_factory=list)  # the series this flight's files do not have
+    note: list[str] = field(default_factory=list)  # lines of text in a box at the bottom right
+
+    @property
+    def has_data(self) -> bool:
+        return any(ln.y is not None for ln in self.lines)
+
+
+# ---------------------------------------------------------------------------------------- the canvas
+class _Canvas:
+    """The picture being drawn: shapes at SS x the size (``self.big``), text queued and drawn by ``finish`` on the
+    reduced picture, over the shapes."""
+
+    def __init__(self) -> None:
+        self.big = Image.new("RGB", (SIZE * SS, SIZE * SS), "white")
+        self.draw = ImageDraw.Draw(self.big)
+        self.texts: list[tuple] = []
+
+    # Shapes.  A canvas pixel j covers picture coordinates [j / SS, (j + 1) / SS).
+    def rule(self, horizontal: bool, at: float, a: float, b: float, color: str, dotted_lw: float = 0.0) -> None:
+        """A crisp 1 px line covering [a, b) along picture row ``at`` (horizontal) or column ``at`` (vertical):
+        grid, frames, ticks; dotted if ``dotted_lw`` (matplotlib's ":" for a line that wide, in points)."""
+        if dotted_lw:
+            on, off = (d * dotted_lw * PX for d in DASHES[":"])
+            starts = np.arange(a, b, on + off)
+            spans = zip(starts, np.minimum(starts + on, b))
+        else:
+            spans = [(a, b)]
+        across = math.floor(at) * SS  # the whole picture pixel: SS canvas pixels
+        for s, e in spans:
+            s, e = round(s * SS), round(e * SS) - 1  # along: to the canvas pixel (dots of sub-pixel length)
+            if e < s:
+                continue
+            box = (s, across, e, across + SS - 1) if horizontal else (across, s, across + SS - 1, e)
+            self.draw.rectangle(box, fill=color)
+
+    def polyline(self, x: np.ndarray, y: np.ndarray, color: str, lw: float, style: str = "-") -> None:
+        """Picture coordinates joined by a line ``lw`` points wide, solid or with matplotlib's dashes."""
+        width = max(1, round(lw * PX * SS))
+        # a canvas pixel j is drawn around coordinate j: picture coordinate c is at canvas c * SS - 0.5
+        cx, cy = x * SS - 0.5, y * SS - 0.5
+        if style == "-":
+            pieces = [(cx, cy)]
+        else:
+            on, off = (d * lw * PX * SS for d in DASHES[style])
+            pieces = _dashes(cx, cy, on, off)
+        for px, py in pieces:
+            if len(px) >= 2:
+                self.draw.line(np.column_stack((px, py)).ravel().tolist(), fill=color, width=width)
+
+    def box(self, x0: float, y0: float, x1: float, y1: float, edge: str | None, alpha: float = 0.9) -> None:
+        """A white box, ``alpha`` opaque over what is drawn (a legend's, a note's), with a rounded 1 px edge."""
+        b = tuple(round(v * SS) for v in (x0, y0, x1, y1))
+        region = self.big.crop(b)
+        self.big.paste(Image.blend(region, Image.new("RGB", region.size, "white"), alpha), b[:2])
+        if edge:
+            self.draw.rounded_rectangle(b, radius=2 * SS, outline=edge, width=SS)
+
+    # Text, drawn after the reduction: ``anchor`` is Pillow's (e.g. "rm": right, middle); a rotated text (read
+    # upwards) is placed by its right edge and middle.
+    def text(self, xy, s: str, pt: float, anchor: str = "la", color: str = "#000000", rotate: bool = False) -> None:
+        self.texts.append((xy, s, pt, anchor, color, rotate))
+
+    def finish(self) -> Image.Image:
+        img = self.big.reduce(SS) if SS > 1 else self.big
+        draw = ImageDraw.Draw(img)
+        for (x, y), s, pt, anchor, color, rotate in self.texts:
+            x, y = round(x), round(y)  # whole pixels: each glyph drawn the same wherever it is (no sub-pixel shift)
+            font = _font(pt)
+            if not rotate:
+                _draw_text(draw, x, y, s, pt, anchor, color)
+                continue
+            # A quarter turn (an axis label): drawn on a mask, turned, pasted with its right edge at x, centred on y
+            x0, y0, x1, y1 = font.getbbox(s, anchor="ls")
+            mask = Image.new("L", (x1 - x0, y1 - y0))
+            ImageDraw.Draw(mask).text((-x0, -y0), s, font=font, fill=255, anchor="ls")
+            mask = mask.transpose(Image.Transpose.ROTATE_90)
+            img.paste(ImageColor.getrgb(color), (round(x - mask.width), round(y - mask.height / 2)), mask)
+        return img
+
+
+def _dashes(x: np.ndarray, y: np.ndarray, on: float, off: float) -> list[tuple[np.ndarray, np.ndarray]]:
+    """The pieces of a polyline a dash pattern draws: ``on`` long, then ``off`` not, along its length."""
+    seg = np.hypot(np.diff(x), np.diff(y))
+    keep = np.concatenate(([True], seg > 0))  # repeated points would stop np.interp's positions increasing
+    x, y = x[keep], y[keep]
+    s = np.concatenate(([0.0], np.cumsum(seg[seg > 0])))
+    starts = np.arange(0.0, s[-1], on + off)
+    ends = np.minimum(starts + on, s[-1])
+    # the polyline's vertices and the dashes' ends, in order along it (np.sort, not np.union1d: that imports numpy.ma)
+    at = np.sort(np.concatenate((s, starts, ends)))
+    px, py = np.interp(at, s, x), np.interp(at, s, y)
+    i0 = np.searchsorted(at, starts)
+    i1 = np.searchsorted(at, ends, side="right")
+    return [(px[i:j], py[i:j]) for i, j in zip(i0, i1)]
+
+
+def _envelope(x: np.ndarray, y: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The points to draw of a long series: in each canvas pixel column, its first and last point, its lowest and
+    highest value.  The line drawn through them covers the same pixels as through all of them (a spike stays
+    visible, however short), with at most four points a column.  Unchanged when the points are few or the x's are
+    not in order."""
+    col = np.floor(x * SS).astype(np.int64)
+    if len(x) < 4 * (col[-1] - col[0] + 1) or np.any(col[1:] < col[:-1]):
+        return x, y
+    first = np.flatnonzero(np.concatenate(([True], col[1:] != col[:-1])))
+    last = np.concatenate((first[1:], [len(x)])) - 1
+    lo, hi = np.minimum.reduceat(y, first), np.maximum.reduceat(y, first)
+    mid = (x[first] + x[last]) / 2  # the low and high points drawn at the column's middle (a vertical stroke)
+    ex = np.column_stack((x[first], mid, mid, x[last])).ravel()
+    ey = np.column_stack((y[first], lo, hi, y[last])).ravel()
+    return ex, ey
+
+
+def _finite_runs(t: np.ndarray, y: np.ndarray) -> list[tuple[np.ndarray, np.ndarray]]:
+    """The stretches of (t, y) with finite values: a NaN or an infinity is a gap in the line (as in matplotlib)."""
+    ok = np.isfinite(t) & np.isfinite(y)
+    if ok.all():
+        return [(t, y)]
+    edges = np.flatnonzero(np.diff(np.concatenate(([0], ok.astype(np.int8), [0]))))
+    return [(t[a:b], y[a:b]) for a, b in zip(edges[::2], edges[1::2])]
+
+
+def _steps_post(t: np.ndarray, y: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Each value held until the next sample: the corners of the staircase (only where the value changes)."""
+    k = np.flatnonzero(y[1:] != y[:-1]) + 1
+    xs = np.concatenate(([t[0]], np.repeat(t[k], 2), [t[-1]]))
+    ys = np.concatenate(([y[0]], np.column_stack((y[k - 1], y[k])).ravel(), [y[-1]]))
+    return xs, ys
+
+
+# ---------------------------------------------------------------------------------------- drawing
+def _legend(c: _Canvas, ax: _Axes, entries: list[Line], cols: int) -> None:
+    """A legend in the panel's upper right corner: a sample of each line and its label (matplotlib's sizes)."""
+    font = _font(PT_LEGEND)
+    em = PT_LEGEND * PX
+    pad, gap, handle, hpad, colgap, inset = 0.4 * em, 0.5 * em, 2.0 * em, 0.8 * em, 2.0 * em, 0.5 * em
+    ascent, descent = font.getmetrics()
+    row_h = ascent + descent
+    rows = math.ceil(len(entries) / cols)
+    columns = [entries[i * rows : (i + 1) * rows] for i in range(cols)]  # filled down, then across
+    widths = [max(text_width(e.label, PT_LEGEND) for e in col) for col in columns if col]
+    width = 2 * pad + sum(handle + hpad + w for w in widths) + colgap * (len(widths) - 1)
+    height = 2 * pad + rows * row_h + (rows - 1) * gap
+    x1, y0 = ax.right - inset, ax.top + inset
+    x0, y1 = x1 - width, y0 + height
+    c.box(x0, y0, x1, y1, C_LEGEND_EDGE)
+    x = x0 + pad
+    for col, w in zip(columns, widths):
+        for i, e in enumerate(col):
+            ym = y0 + pad + i * (row_h + gap) + row_h / 2
+            c.polyline(np.array([x, x + handle]), np.array([ym, ym]), e.color, e.lw, e.style)
+            c.text((x + handle + hpad, ym), e.label, PT_LEGEND, anchor="lm")
+        x += handle + hpad + w + colgap
+
+
+def _note_box(c: _Canvas, ax: _Axes, lines: list[str]) -> None:
+    """Text lines in a box, right and bottom aligned at 99 % and 2 % of the panel (the tracking panel's numbers)."""
+    font = _font(PT_NOTE)
+    ascent, descent = font.getmetrics()
+    step = 1.2 * PT_NOTE * PX  # matplotlib's line spacing
+    pad = 0.2 * PT_NOTE * PX + 2
+    width = max(font.getlength(s) for s in lines)
+    x1 = ax.left + 0.99 * (ax.right - ax.left)
+    y1 = ax.bottom - 0.02 * (ax.bottom - ax.top)
+    top = y1 - (len(lines) - 1) * step - ascent - descent
+    c.box(x1 - width - 2 * pad, top - pad, x1, y1 + pad - 2, C_NOTE_EDGE)
+    for i, s in enumerate(lines):
+        c.text((x1 - pad, top + i * step), s, PT_NOTE, anchor="ra")
+
+
+def _draw_panel(
+    c: _Canvas, ax: _Axes, panel: Panel, t: np.ndarray, xticks: np.ndarray, modes: list, last: bool
+) -> None:
+    # grid at the ticks, under everything
+    yticks = nice_ticks(*ax.ylim, _bins(ax.bottom - ax.top, 2)) if panel.has_data else np.empty(0)
+    for v in xticks:
+        c.rule(False, ax.x(v), ax.top, ax.bottom, C_GRID)
+    for v in yticks:
+        c.rule(True, ax.y(v), ax.left, ax.right, C_GRID)
+    # the series, in z order (a stable sort: then in the order given), each finite stretch on its own
+    columns = ax.x(t)
+    for ln in sorted((ln for ln in panel.lines if ln.y is not None), key=lambda ln: ln.z):
+        for x, v in _finite_runs(columns, ln.y):
+            if len(x) < 2:
+                continue
+            if ln.steps:
+                x, v = _steps_post(x, v)
+            x, y = _envelope(x, ax.y(np.clip(v, -1e300, 1e300)))
+            c.polyline(x, y, ln.color, ln.lw, ln.style)
+    for v in panel.hlines:
+        c.rule(True, ax.y(v), ax.left, ax.right, C_MARK, dotted_lw=0.8)
+    for ts, _name in modes:  # the mode switches, under the legend and the notes
+        c.rule(False, ax.x(ts), ax.top, ax.bottom, C_MARK, dotted_lw=0.8)
+    # frame and ticks (outward); tick labels at the left, and at the bottom of the last panel only (shared time axis)
+    for horizontal, at, a, b in (
+        (True, ax.top, ax.left, ax.right + 1),
+        (True, ax.bottom, ax.left, ax.right + 1),
+        (False, ax.left, ax.top, ax.bottom + 1),
+        (False, ax.right, ax.top, ax.bottom + 1),
+    ):
+        c.rule(horizontal, at, a, b, "#000000")
+    for v in xticks:
+        c.rule(False, ax.x(v), ax.bottom + 1, ax.bottom + 1 + TICK_LEN, "#000000")
+    labels, multiplier = tick_labels(yticks)
+    for v, s in zip(yticks, labels):
+        y = math.floor(ax.y(v)) + 0.5
+        c.rule(True, y, ax.left - TICK_LEN, ax.left, "#000000")
+        c.text((ax.left - TICK_LEN - TICK_PAD, y), s, PT_TICK, anchor="rm")
+    if multiplier:
+        c.text((ax.left, ax.top - 3), multiplier, PT_TICK, anchor="ld")
+    widest = max((_font(PT_TICK).getlength(s) for s in labels), default=0.0)
+    c.text(  # left of the tick labels, but inside the picture
+        (max(ax.left - TICK_LEN - TICK_PAD - widest - LABEL_PAD, 1.3 * PT_LABEL * PX), (ax.top + ax.bottom) / 2),
+        panel.ylabel,
+        PT_LABEL,
+        rotate=True,
+    )
+    if last:
+        xlabels, xmultiplier = tick_labels(xticks)
+        for v, s in zip(xticks, xlabels):
+            c.text((math.floor(ax.x(v)) + 0.5, ax.bottom + TICK_LEN + TICK_PAD), s, PT_TICK, anchor="mt")
+        if xmultiplier:  # below the labels' right end, as matplotlib writes an axis's offset
+            c.text((ax.right, ax.bottom + TICK_LEN + TICK_PAD + 1.2 * PT_TICK * PX), xmultiplier, PT_TICK, anchor="rt")
+        c.text(
+            ((ax.left + ax.right) / 2, ax.bottom + TICK_LEN + TICK_PAD + 1.2 * PT_TICK * PX + LABEL_PAD),
+            "t [s]",
+            PT_LABEL,
+            anchor="mt",
+        )
+    # what is laid over the lines: the legend, the note, the missing series
+    entries = [ln for ln in panel.lines if ln.label]
+    if entries:
+        _legend(c, ax, entries, panel.legend_cols)
+    if panel.note:
+        _note_box(c, ax, panel.note)
+    if panel.missing:
+        text = "not recorded by this transport: " + ", ".join(panel.missing)
+        ym = (ax.top + ax.bottom) / 2
+        if panel.has_data:  # at the right, on a veil over the lines
+            x1 = ax.left + 0.99 * (ax.right - ax.left)
+            half = 0.6 * PT_NOTE * PX
+            c.box(x1 - text_width(text, PT_NOTE) - 2, ym - half, x1 + 2, ym + half, edge=None, alpha=0.8)
+            c.text((x1, ym), text, PT_NOTE, anchor="rm", color=C_NOTE)
+        else:
+            c.text(((ax.left + ax.right) / 2, ym), text, PT_NOTE, anchor="mm", color=C_NOTE)
+
+
+def _bins(length_px: float, per_label: float) -> int:
+    """How many intervals between ticks an axis gets: one per ``per_label`` tick-label heights of its length (2 for
+    a vertical axis, 3 for a horizontal one), 1 to 9 (matplotlib's rule)."""
+    return int(min(9, max(1, (length_px / PX) // (per_label * PT_TICK))))
+
+
+def render(t: np.ndarray, panels: list[Panel], modes: list[tuple[float, str]], title: str) -> Image.Image:
+    """The picture: ``panels`` (from the top, len(RATIOS) of them) against the time ``t``, a dotted line at each
+    mode switch ((time, name)) in every panel with its name above the top panel, the title above all."""
+    c = _Canvas()
+    frames = panel_frames()
+    xlim = data_range([t]) or (0.0, 1.0)
+    xticks = nice_ticks(*xlim, _bins(frames[0][2] - frames[0][0], 3))  # one time axis for all the panels
+    for i, (panel, frame) in enumerate(zip(panels, frames)):
+        values = [ln.y for ln in panel.lines if ln.y is not None] + [np.asarray(panel.hlines, float)]
+        ax = _Axes(*frame, xlim, data_range(values) or (0.0, 1.0))
+        _draw_panel(c, ax, panel, t, xticks, modes, last=i == len(panels) - 1)
+        title_y = ax.top - TITLE_PAD
+        if i == 0 and modes:
+            # The names, each after the previous one if they would overlap; one that would land more than
+            # MODE_NAME_SLIP px from its line, or past the picture's edge, is left out (its line stays): a mode
+            # that flaps every few steps would otherwise write its names far from their switches.
+            end = -math.inf
+            for ts, name in modes:
+                x = max(float(ax.x(ts)), end + 4)
+                width = text_width(name, PT_MODE)
+                if x - float(ax.x(ts)) > MODE_NAME_SLIP or x + width > SIZE - 2:
+                    continue
+                c.text((x, ax.top - 0.01 * (ax.bottom - ax.top)), name, PT_MODE, anchor="ld")
+                end = x + width
+            title_y -= 1.6 * PT_MODE * PX  # the title above the names
+        c.text(((ax.left + ax.right) / 2, title_y), panel.title, PT_TITLE, anchor="md")
+    c.text((SIZE / 2, 0.02 * SIZE), title, PT_SUPTITLE, anchor="mt")
+    return c.finish()
+
+
+# ---------------------------------------------------------------------------------------- a flight's picture
+def _column(series: dict, key: str) -> np.ndarray | None:
+    """A series as floats, or None when the flight's files do not have it."""
+    v = series.get(key)
+    return None if v is None or len(v) == 0 else np.asarray(v, dtype=float)
+
+
+def _deg(v: np.ndarray | None) -> np.ndarray | None:
+    return None if v is None else v * DEG
+
+
+def _max_roll_text(phi: np.ndarray) -> str:
+    """The note's largest roll: whole degrees, three digits beyond 10,000 deg (a blown-up flight), n/a without a
+    finite value."""
+    if not np.isfinite(phi).any():
+        return "n/a"
+    deg = _finite_max_abs(phi) * DEG
+    return f"{deg:.0f} deg" if deg < 1e4 else f"{deg:.3g} deg"
+
+
+def _finite_max_abs(v: np.ndarray) -> float:
+    v = v[np.isfinite(v)]
+    return float(np.max(np.abs(v))) if v.size else 0.0
+
+
+def mode_switches(t: np.ndarray, mode: np.ndarray | None) -> list[tuple[float, str]]:
+    """(time, name) of each change of the ``mode`` series (HEARTBEAT.custom_mode: ``autopilot.vehicle.Mode``)."""
+    if mode is None or len(mode) != len(t):
+        return []
+    ok = np.isfinite(mode[1:]) & np.isfinite(mode[:-1]) & (mode[1:] != mode[:-1])
+    switches = np.flatnonzero(ok) + 1
+    if not len(switches):
+        return []
+    from autopilot.vehicle import Mode  # imported only for a flight that changed modes
+
+    names = {m.value: m.name for m in Mode}
+    return [(float(t[k]), names.get(int(mode[k]), f"mode {int(mode[k])}")) for k in switches]
+
+
+def flight_image(
+    series: dict,
+    *,
+    name: str,
+    lv: float,
+    metrics: dict,
+    u_limit_rad: float,
+    title: str,
+    controller: str | None = None,
+) -> Image.Image:
+    """The picture of one flight (``series``: ``tools.view.series_files.load_series``; ``t`` must be there): roll
+    against the command and the reference models, the rudder command, the adaptive gains; mode switches marked.
+    ``controller``: "clsac", "sac" or "baseline" (the fixed-gain PID: no adaptive gains); None: CL-SAC if
+    ``lv`` > 0, else SAC."""
+    t = _column(series, "t")
+    if t is None:
+        raise ValueError("flight_image: no time series 't'")
+    col = {k: _column(series, k) for k in ("um", "phi", "ym_ol", "ym", "u", "mode", *C_GAINS)}
+    col = {k: None if v is None or len(v) != len(t) else v for k, v in col.items()}  # a torn column: not drawn
+    baseline = controller == "baseline"
+    color, law = (C_BASE, "baseline PID") if baseline else (C_CLSAC, "CL-SAC") if lv > 0 else (C_SAC, "SAC")
+
+    # Roll tracking.  When the roll goes far beyond the command (SAC oscillating), the references are drawn over
+    # it so they stay visible; otherwise the roll goes on top.
+    um, phi, ym_ol, ym = col["um"], col["phi"], col["ym_ol"], col["ym"]
+    wild = um is not None and phi is not None and _finite_max_abs(phi) > 2.0 * max(_finite_max_abs(um), 1e-12)
+    zref, zphi = (3, 2) if wild else (2, 3)
+    lines = []
+    if um is not None:
+        lines.append(Line(_deg(um), C_CMD, 1.2, "--", steps=True, label="command u_{m}", z=zref + 1))
+    if ym_ol is not None:
+        lines.append(Line(_deg(ym_ol), C_OL, 2.0, label="open-loop ref. model y_{m,ol}", z=zref))
+    if lv > 0 and ym is not None:
+        lines.append(Line(_deg(ym), C_CRM, 1.2, label=f"closed-loop ref. model y_{{m}} (L_{{v}}={lv:g})", z=zref))
+    elif lv == 0 and ym_ol is not None and not baseline:
+        lines.append(Line(None, C_CRM, 1.2, label="closed-loop ref. model = open loop (L_{v}=0)"))
+    if phi is not None:
+        lines.append(Line(_deg(phi), color, 1.1, label="roll φ", z=zphi))
+    ise = metrics.get("ise_ref") if isinstance(metrics, dict) else None
+    note = [
+        (f"ise_ref={ise:.3g} rad²s" if isinstance(ise, (int, float)) else "ise_ref=n/a")
+        + (f", max|φ|={_max_roll_text(phi)}" if phi is not None else "")
+    ]
+    u = col["u"]
+    if u is not None:
+        at_limit = float(np.mean(np.abs(u) >= u_limit_rad * (1.0 - 1e-9)))
+        if at_limit:
+            share = f"{100 * at_limit:.0f}%" if at_limit >= 0.005 else "<1%"  # never "0%" for a flight that touched it
+            note.append(f"rudder at the {u_limit_rad * DEG:.3g} deg limit {share} of the time")
+    tracking = Panel(
+        f"Roll tracking, {law} ({name})" if baseline else f"Roll tracking, {law} ({name}, L_{{v}}={lv:g})",
+        "roll [deg]",
+        lines,
+        missing=[k for k in ("um", "phi", "ym_ol", "ym") if col[k] is None and not (k == "ym" and lv == 0)],
+        note=note,
+    )
+
+    # The rudder command, with its limits when it comes near them (else they would squash it to a line)
+    rudder = Panel("Rudder command u_{p}", "rudder [deg]")
+    if u is None:
+        rudder.missing = ["u"]
+    else:
+        rudder.lines.append(Line(u * DEG, color, 1.0, label="rudder command (flown, after PWM)"))
+        if _finite_max_abs(u) > 0.5 * u_limit_rad:
+            rudder.hlines = [u_limit_rad * DEG, -u_limit_rad * DEG]
+
+    # The adaptive gains; the baseline adapts nothing (its telemetry records K_p as K_e, the rest 0)
+    if baseline:
+        gains = Panel("Fixed-gain PID: no adaptive gains", "[-]")
+        if col["ke"] is None:
+            gains.missing.append("ke")
+        else:
+            gains.lines.append(Line(col["ke"], C_GAINS["ke"], 1.0, label="K_{p} (fixed)"))
+        return render(t, [tracking, rudder, gains], mode_switches(t, col["mode"]), title)
+    gains = Panel("Adaptive gains K = K_{p} + K_{I}", "[-]", legend_cols=3)
+    for key, label in (("ke", "K_{e}"), ("kx", "K_{x}"), ("ku", "K_{u}")):
+        if col[key] is None:
+            gains.missing.append(key)
+        else:
+            gains.lines.append(Line(col[key], C_GAINS[key], 1.0, label=label))
+
+    return render(t, [tracking, rudder, gains], mode_switches(t, col["mode"]), title)
+
+
+def save_flight_png(path: str | os.PathLike, series: dict, **kw) -> Path:
+    """:func:`flight_image` saved as a PNG at ``path``; returns the path."""
+    path = Path(path)
+    # zlib level 3: about 20 ms for a flight's picture, 80 kB; the default 6 takes 28 ms for 64 kB
+    flight_image(series, **kw).save(path, format="PNG", compress_level=3)
+    return path

@@ -1,0 +1,148 @@
+"""The flight layout (``tools.view.views.flight_blueprint``) saved once as a ``.rbl`` file and reused by every flight.
+
+Building the layout needs ``rerun`` imported (about 0.3 s of the launcher's 2 s on the 2-core VM), for a file that
+is the same for every flight of one version of the code.  So the launcher keeps the saved layout in a cache folder
+and hands the file to ``rerun rrd merge`` as it is (``autopilot.shared.telemetry.merge_recordings``'s
+``blueprint_file``); a flight's ``flight.rrd`` holds the same blueprint store (the same views, entities and
+properties) as when it was built for that flight.
+
+The file is valid while nothing it was built from changed: next to it a JSON file records the fingerprint of the
+installed rerun (its native module and package files: path, size, modification time) and the SHA-256 of every
+project source file that was loaded when the layout was built (``tools.view.views`` and what it imports, and, to be
+safe,
+every other project module the process had loaded).  Any difference, a missing or unreadable file: the layout is
+built again and the cache rewritten (atomically: a concurrent launcher reads the old or the new file, never a torn
+one).  A layout that cannot be cached (no writable folder) is built in the process, as before.
+
+The folder: ``$CLSAC_CACHE_DIR``, else ``$XDG_CACHE_HOME/clsac-autopilot``, else ``~/.cache/clsac-autopilot``; one
+slot per checkout (named by a hash of its root), so two worktrees of different code do not evict each other.
+``CLSAC_CACHE_DIR=off`` turns the cache off.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import os
+import sys
+import tempfile
+from importlib.util import find_spec
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parents[2]  # the checkout: autopilot/, sitl/, tools/
+_FORMAT = 1  # bump when the meaning of the JSON changes
+
+
+def cache_dir() -> Path | None:
+    """Where the layout is cached, or None when ``CLSAC_CACHE_DIR=off``."""
+    given = os.environ.get("CLSAC_CACHE_DIR")
+    if given:
+        return None if given.lower() == "off" else Path(given)
+    base = os.environ.get("XDG_CACHE_HOME") or os.path.join(os.path.expanduser("~"), ".cache")
+    return Path(base) / "clsac-autopilot"
+
+
+def _rerun_fingerprint() -> list:
+    """The installed rerun, without importing it: (path, size, mtime_ns) of its native module and package file."""
+    out = []
+    for name in ("rerun_bindings", "rerun"):
+        spec = find_spec(name)
+        origin = spec.origin if spec is not None else None
+        if origin and os.path.isfile(origin):
+            st = os.stat(origin)
+            out.append([origin, st.st_size, st.st_mtime_ns])
+        else:
+            out.append([name, None, None])
+    return out
+
+
+def _sha256(path: Path) -> str:
+    return hashlib.sha256(path.read_bytes()).hexdigest()
+
+
+def _project_sources() -> dict[str, str]:
+    """SHA-256 of the source file of every project module loaded in this process (relative path -> digest)."""
+    out = {}
+    for mod in list(sys.modules.values()):
+        f = getattr(mod, "__file__", None)
+        if not f or not f.endswith(".py"):
+            continue
+        p = Path(f).resolve()
+        try:
+            rel = p.relative_to(ROOT)
+        except ValueError:
+            continue
+        if rel.parts[0] in ("autopilot", "sitl", "tools"):
+            out[rel.as_posix()] = _sha256(p)
+    return dict(sorted(out.items()))
+
+
+def _paths(application_id: str) -> tuple[Path, Path] | None:
+    d = cache_dir()
+    if d is None:
+        return None
+    slot = hashlib.sha256(f"{ROOT}\0{application_id}".encode()).hexdigest()[:16]
+    return d / f"flight-blueprint-{slot}.rbl", d / f"flight-blueprint-{slot}.json"
+
+
+def _valid(rbl: Path, meta_path: Path, application_id: str) -> bool:
+    try:
+        meta = json.loads(meta_path.read_text())
+        if (
+            meta.get("format") != _FORMAT
+            or meta.get("application_id") != application_id
+            or meta.get("python") != list(sys.version_info[:2])
+            or meta.get("rerun") != _rerun_fingerprint()
+            or not rbl.is_file()
+            or rbl.stat().st_size == 0
+        ):
+            return False
+        deps = meta.get("sources")
+        return bool(deps) and all(_sha256(ROOT / rel) == digest for rel, digest in deps.items())
+    except (OSError, ValueError, TypeError, AttributeError):
+        return False
+
+
+def _write_atomic(path: Path, data: bytes) -> None:
+    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", dir=path.parent)
+    try:
+        with os.fdopen(fd, "wb") as f:
+            f.write(data)
+        os.replace(tmp, path)
+    except BaseException:
+        Path(tmp).unlink(missing_ok=True)
+        raise
+
+
+def flight_blueprint_file(application_id: str | None = None) -> Path | None:
+    """The saved flight layout (built now if the cache has none for this code and this rerun), or None if it cannot
+    be cached (then the caller builds ``tools.view.views.flight_blueprint()`` itself)."""
+    from autopilot.shared.telemetry.layout import APPLICATION_ID
+
+    application_id = application_id or APPLICATION_ID
+    paths = _paths(application_id)
+    if paths is None:
+        return None
+    rbl, meta_path = paths
+    if _valid(rbl, meta_path, application_id):
+        return rbl
+    try:
+        rbl.parent.mkdir(parents=True, exist_ok=True)
+        from tools.view.views import flight_blueprint
+
+        with tempfile.TemporaryDirectory(prefix=".flight-blueprint-", dir=rbl.parent) as tmp:
+            built = Path(tmp) / "flight.rbl"
+            flight_blueprint().save(application_id, str(built))
+            data = built.read_bytes()
+        meta = {
+            "format": _FORMAT,
+            "application_id": application_id,
+            "python": list(sys.version_info[:2]),
+            "rerun": _rerun_fingerprint(),
+            "sources": _project_sources(),
+        }
+        _write_atomic(rbl, data)
+        _write_atomic(meta_path, json.dumps(meta, indent=1).encode())
+    except OSError:
+        return None
+    return rbl

@@ -1,0 +1,346 @@
+"""Read flight and experiment recordings back (rerun-sdk 0.41 ``rerun.chunk.RrdReader``), for tests and notebooks.
+
+Values are what the viewer shows: angles in degrees and angular rates in deg/s (the layouts' ``scale``), the rest SI.
+
+    from tools.view import rrd_files as rrd
+    data = rrd.load("runs/x/flight.rrd")              # {entity_path: Signal}
+    roll = data["/autopilot/roll"]                     # roll.t (s), roll.values (n, k) in deg, roll.names
+    rrd.load_poses("runs/x/flight.rrd")["/sitl/attitude"]   # (t, quaternions x y z w) of the 3D aircraft
+    rrd.has_blueprint("runs/x/flight.rrd")
+
+Command line::
+
+    python -m tools.rrd summary FILE.rrd            entities, rows, time span, recording ids, blueprint
+    python -m tools.rrd verify FILE.rrd...          rerun rrd verify (footers required; --no-footer-check for parts)
+    python -m tools.rrd merge OUT.rrd PART.rrd...   merge the part files of one flight (+ flight blueprint);
+                                                    --concatenate: constant memory, no footer (long flights)
+    python -m tools.rrd record OUT.rrd SPOOL...     record the processes' telemetry spools (--telemetry-spool)
+                                                    into one recording (+ flight blueprint, footer)
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import sys
+import warnings
+from collections import defaultdict
+from typing import NamedTuple
+
+import numpy as np
+
+from autopilot.shared.telemetry.layout import SIM_TIME
+
+
+class Signal(NamedTuple):
+    """One scalar entity: ``values[i, j]`` is series ``names[j]`` at ``t[i]`` seconds (sorted by time)."""
+
+    t: np.ndarray  # float64 seconds on the chosen timeline
+    values: np.ndarray  # (n, k) float64
+    names: tuple[str, ...]  # SeriesLines names, if logged
+    t_ns: np.ndarray  # int64 nanoseconds (exact; compare these across processes)
+
+
+def _reader(path):
+    from rerun.chunk import RrdReader
+
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")  # footer-less parts (SIGKILL) warn that they are "legacy"
+        return RrdReader(str(path))
+
+
+def recordings(path: str | os.PathLike) -> list[tuple[str, str]]:
+    """(application_id, recording_id) of every recording store in the file."""
+    return [(e.application_id, e.recording_id) for e in _reader(path).recordings()]
+
+
+def has_blueprint(path: str | os.PathLike) -> bool:
+    """True if the file carries a blueprint store with at least one chunk (a viewport layout)."""
+    r = _reader(path)
+    for entry in r.blueprints():
+        for _ in r.stream(store=entry):
+            return True
+    return False
+
+
+def blueprint_components(path: str | os.PathLike, component: str) -> list:
+    """Every value of one blueprint component (e.g. ``"ViewBlueprint:display_name"``,
+    ``"TimePanelBlueprint:timeline"``) in the file's blueprint store(s), in file order."""
+    r = _reader(path)
+    out: list = []
+    for entry in r.blueprints():
+        for chunk in r.stream(store=entry):
+            rb = chunk.to_record_batch()
+            if component in rb.schema.names:
+                for v in _to_list(rb.column(component)):
+                    out.extend(v if isinstance(v, list) else [v])
+    return out
+
+
+def _store(r, recording_id: str | None):
+    entries = r.recordings()
+    if not entries:
+        raise ValueError(f"{r.path}: no recording in the file")
+    if recording_id is None:
+        return entries[0]
+    for e in entries:
+        if e.recording_id == recording_id:
+            return e
+    raise ValueError(f"{r.path}: no recording {recording_id!r} (has {[e.recording_id for e in entries]})")
+
+
+def _to_list(column) -> list:
+    return column.to_pylist()
+
+
+def load(
+    path: str | os.PathLike, *, timeline: str = SIM_TIME, prefix: str | None = None, recording_id: str | None = None
+) -> dict[str, Signal]:
+    """Every ``Scalars`` entity of one recording (the first, or ``recording_id``) as a ``Signal``.
+
+    Rows are ordered by ``timeline`` (stable); entities without that timeline are skipped.
+    ``prefix`` keeps only entities under it (e.g. ``"/sitl"``).
+    """
+    r = _reader(path)
+    store = _store(r, recording_id)
+    times: dict[str, list[np.ndarray]] = defaultdict(list)
+    values: dict[str, list[np.ndarray]] = defaultdict(list)
+    names: dict[str, tuple[str, ...]] = {}
+    for chunk in r.stream(store=store):
+        ep = chunk.entity_path
+        if prefix is not None and not (ep == prefix or ep.startswith(prefix.rstrip("/") + "/")):
+            continue
+        rb = chunk.to_record_batch()
+        cols = rb.schema.names
+        for style in ("SeriesLines:names", "SeriesPoints:names"):  # lines, or markers (events)
+            if style in cols:
+                for v in _to_list(rb.column(style)):
+                    if v:
+                        names[ep] = tuple(v)
+        if "Scalars:scalars" not in cols or timeline not in cols:
+            continue
+        t = rb.column(timeline).cast("int64").to_numpy(zero_copy_only=False)
+        col = rb.column("Scalars:scalars")
+        flat = col.flatten().to_numpy(zero_copy_only=False).astype(np.float64)
+        offsets = col.offsets.to_numpy()
+        k = int(offsets[1] - offsets[0]) if len(offsets) > 1 else 1
+        if not np.all(np.diff(offsets) == k):
+            raise ValueError(f"{ep}: rows with different numbers of series are not supported")
+        times[ep].append(t)
+        values[ep].append(flat.reshape(-1, k) if k else flat.reshape(len(t), 0))
+    out: dict[str, Signal] = {}
+    for ep in times:
+        t_ns = np.concatenate(times[ep])
+        vals = np.concatenate(values[ep], axis=0)
+        order = np.argsort(t_ns, kind="stable")
+        t_ns = t_ns[order]
+        out[ep] = Signal(t_ns.astype(np.float64) * 1e-9, vals[order], names.get(ep, ()), t_ns)
+    return out
+
+
+def load_poses(
+    path: str | os.PathLike, *, timeline: str = SIM_TIME, recording_id: str | None = None
+) -> dict[str, tuple[np.ndarray, np.ndarray]]:
+    """``Transform3D`` quaternions (the 3D attitudes): {path: (t seconds (n,), quaternions (n, 4) as x, y, z, w)}."""
+    r = _reader(path)
+    times: dict[str, list] = defaultdict(list)
+    quats: dict[str, list] = defaultdict(list)
+    for chunk in r.stream(store=_store(r, recording_id)):
+        rb = chunk.to_record_batch()
+        if "Transform3D:quaternion" not in rb.schema.names or timeline not in rb.schema.names:
+            continue
+        times[chunk.entity_path].append(rb.column(timeline).cast("int64").to_numpy(zero_copy_only=False))
+        q = rb.column("Transform3D:quaternion").flatten().flatten().to_numpy(zero_copy_only=False)
+        quats[chunk.entity_path].append(q.astype(np.float64).reshape(-1, 4))
+    out = {}
+    for ep in times:
+        t_ns = np.concatenate(times[ep])
+        order = np.argsort(t_ns, kind="stable")
+        out[ep] = (t_ns[order] * 1e-9, np.concatenate(quats[ep])[order])
+    return out
+
+
+def load_states(
+    path: str | os.PathLike, *, timeline: str = SIM_TIME, recording_id: str | None = None
+) -> dict[str, list[tuple[float, str]]]:
+    """``StateChange`` entities: {path: [(t seconds, state), ...]} in time order."""
+    r = _reader(path)
+    out: dict[str, list[tuple[float, str]]] = defaultdict(list)
+    for chunk in r.stream(store=_store(r, recording_id)):
+        rb = chunk.to_record_batch()
+        if "StateChange:state" not in rb.schema.names or timeline not in rb.schema.names:
+            continue
+        t = rb.column(timeline).cast("int64").to_numpy(zero_copy_only=False)
+        for ti, st in zip(t, _to_list(rb.column("StateChange:state"))):
+            out[chunk.entity_path].append((ti * 1e-9, st[0] if st else ""))
+    return {k: sorted(v, key=lambda x: x[0]) for k, v in out.items()}
+
+
+def load_texts(
+    path: str | os.PathLike, *, timeline: str = SIM_TIME, recording_id: str | None = None
+) -> dict[str, list[tuple[float, str]]]:
+    """Every ``TextLog`` entity (the event logs): {path: [(t seconds, text), ...]} in time order."""
+    r = _reader(path)
+    out: dict[str, list[tuple[float, str]]] = defaultdict(list)
+    for chunk in r.stream(store=_store(r, recording_id)):
+        rb = chunk.to_record_batch()
+        if "TextLog:text" not in rb.schema.names or timeline not in rb.schema.names:
+            continue
+        t = rb.column(timeline).cast("int64").to_numpy(zero_copy_only=False)
+        for ti, txt in zip(t, _to_list(rb.column("TextLog:text"))):
+            out[chunk.entity_path].append((ti * 1e-9, txt[0] if txt else ""))
+    return {k: sorted(v, key=lambda x: x[0]) for k, v in out.items()}
+
+
+def load_text(
+    path: str | os.PathLike, entity: str, *, timeline: str = SIM_TIME, recording_id: str | None = None
+) -> list[tuple[float, str]]:
+    """``TextLog`` lines of one entity: [(t seconds, text), ...] in time order."""
+    return load_texts(path, timeline=timeline, recording_id=recording_id).get(entity, [])
+
+
+def entity_paths(path: str | os.PathLike, recording_id: str | None = None) -> list[str]:
+    """Every entity path with data in one recording (static or temporal)."""
+    r = _reader(path)
+    return sorted({c.entity_path for c in r.stream(store=_store(r, recording_id))})
+
+
+def unreadable(path: str | os.PathLike) -> str | None:
+    """Why ``path`` is not a readable recording (one line), or None: missing, empty, cut off inside a message
+    (``RrdReader`` decodes every frame header), or holding no recording.  ``rerun rrd verify`` of rerun-sdk 0.41
+    passes an empty file and one cut after 7 or 100 bytes, so :func:`verify` asks this first."""
+    if not os.path.isfile(path):
+        return "no such file"
+    if os.path.getsize(path) == 0:
+        return "empty file"
+    try:
+        r = _reader(path)
+        if not r.recordings() and not r.blueprints():
+            return "no recording in the file"
+    except (RuntimeError, OSError, ValueError) as exc:
+        return str(exc).strip().splitlines()[0].replace(f"Failed to read RRD file at {path}: ", "")
+    return None
+
+
+def verify(path: str | os.PathLike, *, check_footers: bool = True) -> tuple[bool, str]:
+    """(ok, output): :func:`unreadable` first, then ``rerun rrd verify`` (the CLI of the installed rerun-sdk)."""
+    from autopilot.shared.telemetry.files import verify_rrd
+
+    problem = unreadable(path)
+    if problem:
+        return False, problem
+    return verify_rrd(path, check_footers=check_footers)
+
+
+def merge(out: str | os.PathLike, parts: list, *, blueprint: bool = True, concatenate: bool = False):
+    """Join the part files of one flight into ``out``; adds the flight blueprint unless a part carries one
+    (a file never holds two competing layouts) or ``blueprint`` is False.  Returns the output path.
+
+    ``concatenate``: copy the parts' messages in constant memory (no footer; for long flights) instead of
+    ``rerun rrd merge`` (compacted, with a footer; memory about twice the parts' size)."""
+    from autopilot.shared.telemetry.files import concatenate_recordings, merge_recordings
+
+    layout = None
+    if blueprint and not any(os.path.isfile(p) and has_blueprint(p) for p in parts):
+        from tools.view.views import flight_blueprint
+
+        layout = flight_blueprint()
+    if not concatenate:
+        return merge_recordings(parts, out, blueprint=layout)
+    present = [p for p in parts if os.path.isfile(p) and os.path.getsize(p) > 0]
+    rid = recordings(present[0])[0][1] if present and layout is not None else None
+    return concatenate_recordings(parts, out, blueprint=layout, recording_id=rid)
+
+
+def record(out: str | os.PathLike, spools: list, *, blueprint: bool = True):
+    """Record the telemetry spools of one flight (``--telemetry-spool``) into ``out``: one recording (sent through
+    the live writers' ``RerunSink``, ``autopilot.shared.telemetry.record_spools``), merged with the flight blueprint
+    and rerun's footer.  Returns the output path."""
+    import tempfile
+
+    from autopilot.shared.telemetry import record_spools
+
+    out = os.fspath(out)
+    with tempfile.TemporaryDirectory(prefix=".rrd-record-", dir=os.path.dirname(os.path.abspath(out))) as tmp:
+        part = os.path.join(tmp, "part.rrd")
+        record_spools(spools, part)
+        return merge(out, [part], blueprint=blueprint)
+
+
+def summary(path: str | os.PathLike) -> str:
+    lines = [f"{path}: {os.path.getsize(path) / 1e6:.2f} MB"]
+    for app, rid in recordings(path):
+        lines.append(f"recording {rid} (application {app})")
+        for ep, sig in sorted(load(path, recording_id=rid).items()):
+            span = f"{sig.t[0]:.3f}..{sig.t[-1]:.3f} s" if len(sig.t) else "-"
+            lines.append(f"  {ep:32s} {len(sig.t):8d} rows  {span:22s} {', '.join(sig.names)}")
+        for ep, states in sorted(load_states(path, recording_id=rid).items()):
+            lines.append(f"  {ep:32s} {len(states):8d} states: " + ", ".join(s for _, s in states[:8]))
+        for ep, texts in sorted(load_texts(path, recording_id=rid).items()):
+            lines.append(f"  {ep:32s} {len(texts):8d} events" + (":" if texts else ""))
+            lines += [f"      {t:9.3f} s  {text}" for t, text in texts[:10]]
+            if len(texts) > 10:
+                lines.append(f"      ... {len(texts) - 10} more")
+    lines.append(f"blueprint: {'yes' if has_blueprint(path) else 'no'}")
+    return "\n".join(lines)
+
+
+def _first_error(text: str) -> str:
+    """The one line of a verification's output that says what is wrong (rerun prints the file, then why)."""
+    lines = [ln.strip() for ln in text.strip().splitlines() if ln.strip()]
+    why = [ln for ln in lines if not ln.startswith("Error: Verification failed")]
+    return (why or lines or ["failed"])[0]
+
+
+def main(argv: list[str] | None = None) -> int:
+    ap = argparse.ArgumentParser(prog="python -m tools.rrd", description="Inspect, verify and merge .rrd files.")
+    sub = ap.add_subparsers(dest="cmd", required=True)
+    p = sub.add_parser("summary", help="entities, rows and time span of each recording")
+    p.add_argument("files", nargs="+")
+    p = sub.add_parser("verify", help="rerun rrd verify (footers required unless --no-footer-check)")
+    p.add_argument("files", nargs="+")
+    p.add_argument(
+        "--no-footer-check", action="store_true", help="accept files without footer (the per-process parts of a flight)"
+    )
+    p = sub.add_parser("merge", help="merge the part files of one flight into one recording")
+    p.add_argument("out")
+    p.add_argument("parts", nargs="+")
+    p.add_argument(
+        "--concatenate",
+        action="store_true",
+        help="copy the parts into one stream in constant memory, without rerun's footer (for long flights)",
+    )
+    p.add_argument(
+        "--no-blueprint",
+        action="store_true",
+        help="never add the flight blueprint (by default it is added if no part has one)",
+    )
+    p = sub.add_parser("record", help="record the telemetry spools of one flight into one recording")
+    p.add_argument("out")
+    p.add_argument("spools", nargs="+")
+    p.add_argument("--no-blueprint", action="store_true", help="do not add the flight blueprint")
+    args = ap.parse_args(argv)
+    try:
+        if args.cmd == "summary":
+            for f in args.files:
+                print(summary(f))
+            return 0
+        if args.cmd == "verify":
+            bad = 0
+            for f in args.files:
+                ok, msg = verify(f, check_footers=not args.no_footer_check)
+                print(f"{f}: {'ok' if ok else 'FAILED: ' + _first_error(msg)}")
+                bad += not ok
+            return 1 if bad else 0
+        if args.cmd == "record":
+            print(record(args.out, args.spools, blueprint=not args.no_blueprint))
+            return 0
+        print(merge(args.out, args.parts, blueprint=not args.no_blueprint, concatenate=args.concatenate))
+        return 0
+    except (OSError, ValueError, RuntimeError) as exc:
+        print(f"error: {exc}", file=sys.stderr)
+        return 1
+
+
+if __name__ == "__main__":
+    sys.exit(main())
