@@ -68,14 +68,14 @@ def test_a_bad_parameter_file_is_one_line_and_the_autopilot_never_starts(tmp_pat
         ("tools.gcs", ["--setpoint-rate", "1e9"], "--setpoint-rate: must be in (0, 1000] Hz"),
         ("tools.gcs", ["--print-rate", "1e9"], "--print-rate: must be in (0, 1000] Hz"),
         ("tools.gcs", ["--point-dt", "1e300"], "--point-dt: must be in (0, 86400] s"),
-        ("tools.experiment.study", ["run", "--seed", "-1"], "--seed: must be in [0, 2^63-1]"),
+        ("tools.experiment", ["robustness", "--seed", "-1"], "--seed: must be in [0, 2^63-1]"),
         (
-            "tools.experiment.study",
+            "tools.experiment",
             ["replay", "--controller", "clsac", "--condition", "severe", "--seed", "-1", "--run", "0"],
             "--seed",
         ),
         (
-            "tools.experiment.study",
+            "tools.experiment",
             [
                 "replay",
                 "--controller",
@@ -92,7 +92,7 @@ def test_a_bad_parameter_file_is_one_line_and_the_autopilot_never_starts(tmp_pat
             "--duration: must be in (0, 86400] s",
         ),  # noqa: E501
         ("tools.experiment", ["robustness", "--seed", "-1"], "--seed: must be in [0, 2^63-1]"),
-        ("tools.experiment.study", ["run", "--runs", "100000000000"], "--runs: must be in [1, 10000000]"),
+        ("tools.experiment", ["robustness", "--runs", "100000000000"], "--runs: must be in [1, 10000000]"),
         ("sitl", ["--spin-us", "1e300"], "--spin-us: must be in [0, 1e+06] us"),
         ("tools.pfc", ["--rate-hz", "1e9"], "--rate-hz: must be in (0, 1000] Hz (CLSAC_RATE)"),
         ("tools.experiment", ["paper", "--sigma-xu", "1e300"], "--sigma-xu: must be in [0, 10000] 1/s (CLSAC_SIGMA_X)"),

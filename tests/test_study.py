@@ -52,7 +52,7 @@ def test_summary_holds_shares_percentiles_and_a_replayable_worst_run():
             assert agg["runs"] == 6 and 0.0 <= agg["bounded_share"] <= 1.0
             assert set(agg["p50"]) == set(agg["p95"]) >= {"ise_ref", "energy", "max_abs_roll", "sat_fraction"}
             w = agg["worst"]
-            assert w["seed"] == 5 and w["replay_inprocess"].startswith("python -m tools.experiment.study replay")
+            assert w["seed"] == 5 and w["replay_inprocess"].startswith("python -m tools.experiment replay")
             assert "--lockstep" in w["replay_mavlink"] and f"--seed {5 * 1_000_000 + w['run']}" in w["replay_mavlink"]
             if cond != "severe":
                 continue
@@ -86,7 +86,7 @@ def test_results_do_not_depend_on_the_chunk_size():
 def test_replay_command_line_prints_the_study_numbers():
     r = replay("clsac", "moderate", 2, 3, record=False)
     out = subprocess.run(
-        [sys.executable, "-m", "tools.experiment.study", "replay", "--controller", "clsac", "--condition", "moderate"]
+        [sys.executable, "-m", "tools.experiment", "replay", "--controller", "clsac", "--condition", "moderate"]
         + ["--seed", "2", "--run", "3"],
         cwd=ROOT,
         capture_output=True,

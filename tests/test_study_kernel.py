@@ -145,7 +145,7 @@ def test_the_timing_counts_every_run_and_each_phase(capsys):
 def test_the_study_line_says_what_the_user_waited_for(tmp_path):
     out = tmp_path / "study"
     r = subprocess.run(
-        [sys.executable, "-m", "tools.experiment.study", "run", "--runs", "2", "--controllers", "clsac,baseline"]
+        [sys.executable, "-m", "tools.experiment", "robustness", "--runs", "2", "--controllers", "clsac,baseline"]
         + ["--sweep-runs", "0", "--long-runs", "1", "--no-progress", "--out", str(out)],
         cwd=ROOT,
         capture_output=True,

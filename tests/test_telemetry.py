@@ -27,6 +27,7 @@ from autopilot.telemetry.hooks import AutopilotHook, autopilot_tables
 from autopilot.vehicle import Mode
 from sitl import telemetry as S
 from sitl.model import STATE_NAMES
+from tools import rrd as rrd_cli
 from tools.experiment.scenario import PAPER
 from tools.view import recording, views
 from tools.view import rrd_files as rrd
@@ -260,23 +261,23 @@ def test_rrd_cli_summary_and_verify(tmp_path, capsys):
         st = tel.table(S.SITL_TABLE)
         for k in range(5):
             st.append(k * 0.1, time.time(), (0.0,) * len(S.SITL_FIELDS))
-    assert rrd.main(["summary", str(path)]) == 0
+    assert rrd_cli.main(["summary", str(path)]) == 0
     out = capsys.readouterr().out
     assert "/sitl/roll" in out and "5 rows" in out
-    assert rrd.main(["verify", str(path)]) == 0
-    assert rrd.main(["verify", str(tmp_path / "missing.rrd")]) == 1
+    assert rrd_cli.main(["verify", str(path)]) == 0
+    assert rrd_cli.main(["verify", str(tmp_path / "missing.rrd")]) == 1
     # merge adds the flight layout, once: not again over a file that carries one, never with --no-blueprint
-    assert rrd.main(["merge", str(tmp_path / "m.rrd"), str(path)]) == 0
-    assert rrd.main(["merge", str(tmp_path / "m2.rrd"), str(tmp_path / "m.rrd")]) == 0
+    assert rrd_cli.main(["merge", str(tmp_path / "m.rrd"), str(path)]) == 0
+    assert rrd_cli.main(["merge", str(tmp_path / "m2.rrd"), str(tmp_path / "m.rrd")]) == 0
     assert len(rrd.blueprint_components(tmp_path / "m2.rrd", "ViewportBlueprint:root_container")) == 1
-    assert rrd.main(["merge", "--no-blueprint", str(tmp_path / "bare.rrd"), str(path)]) == 0
+    assert rrd_cli.main(["merge", "--no-blueprint", str(tmp_path / "bare.rrd"), str(path)]) == 0
     assert not rrd.has_blueprint(tmp_path / "bare.rrd")
     # --concatenate (long flights): the same rows and one layout, no footer (the input's footer is not copied)
     cat = tmp_path / "cat.rrd"
-    assert rrd.main(["merge", "--concatenate", str(cat), str(path)]) == 0
+    assert rrd_cli.main(["merge", "--concatenate", str(cat), str(path)]) == 0
     assert len(rrd.load(cat)["/sitl/roll"].t) == 5
     assert len(rrd.blueprint_components(cat, "ViewportBlueprint:root_container")) == 1
-    assert rrd.main(["verify", "--no-footer-check", str(cat)]) == 0 and rrd.main(["verify", str(cat)]) == 1
+    assert rrd_cli.main(["verify", "--no-footer-check", str(cat)]) == 0 and rrd_cli.main(["verify", str(cat)]) == 1
 
 
 def test_loop_hooks_turn_step_records_into_telemetry(tmp_path):

@@ -15,13 +15,9 @@ launcher gives the autopilot by default.
 
 from __future__ import annotations
 
-import math
-import sys
 from pathlib import Path
 
 import numpy as np
-
-from autopilot.shared.cli import OneLineArgumentParser
 
 LATERAL = ("Beta", "Phi", "P", "R")  # JSBSim's names of the states kept
 STATES = ("beta", "phi", "p", "r")
@@ -149,47 +145,3 @@ def to_toml(spec, lin: dict) -> str:
         "",
     ]
     return "\n".join(lines)
-
-
-def build_parser() -> OneLineArgumentParser:
-    p = OneLineArgumentParser(prog="python -m tools.plant", description=__doc__.split("\n\n")[0])
-    sub = p.add_subparsers(dest="command", required=True)
-    lin = sub.add_parser("linearise", help="a JSBSim aircraft's roll channel at its trim point, as a plant file")
-    lin.add_argument("plant", help="jsbsim:MODEL[:KEY=VALUE,...], e.g. jsbsim:c172x")
-    lin.add_argument("--airspeed", type=float, default=None, metavar="KT", help="trim airspeed (default: the spec's)")
-    lin.add_argument("--out", required=True, metavar="FILE.toml", help="the plant file to write")
-    return p
-
-
-def main(argv=None) -> int:
-    parser = build_parser()
-    args = parser.parse_args(argv)
-    from dataclasses import replace
-
-    from sitl.jsbsim_plant import JsbsimPlantError, parse_spec
-    from sitl.plant import PlantError, check
-
-    try:
-        check(args.plant)
-        spec = parse_spec(args.plant)
-        if args.airspeed is not None:
-            if not (math.isfinite(args.airspeed) and args.airspeed > 0):
-                parser.error(f"--airspeed must be positive and finite, got {args.airspeed!r}")
-            spec = replace(spec, airspeed_kt=args.airspeed)
-        lin = linearise(spec)
-    except (PlantError, JsbsimPlantError) as exc:
-        parser.error(str(exc))
-    except LinearisationError as exc:
-        print(f"{parser.prog}: error: {exc}", file=sys.stderr)
-        return 1
-    try:
-        Path(args.out).write_text(to_toml(spec, lin))
-    except OSError as exc:
-        parser.error(f"--out {args.out}: {exc.strerror or exc}")
-    poles = np.linalg.eigvals(lin["A"])
-    print(f"wrote {args.out}: {spec.text()} roll channel, poles " + ", ".join(f"{z:.4g}" for z in poles))
-    return 0
-
-
-if __name__ == "__main__":
-    sys.exit(main())

@@ -2,6 +2,6 @@
 
 import sys
 
-from tools.experiment.runs import main
+from tools.experiment.cli import main
 
 sys.exit(main())

@@ -8,7 +8,7 @@ Values are what the viewer shows: angles in degrees and angular rates in deg/s (
     rrd.load_poses("runs/x/flight.rrd")["/sitl/attitude"]   # (t, quaternions x y z w) of the 3D aircraft
     rrd.has_blueprint("runs/x/flight.rrd")
 
-Command line::
+Command line (``tools.rrd``)::
 
     python -m tools.rrd summary FILE.rrd            entities, rows, time span, recording ids, blueprint
     python -m tools.rrd verify FILE.rrd...          rerun rrd verify (footers required; --no-footer-check for parts)
@@ -20,9 +20,7 @@ Command line::
 
 from __future__ import annotations
 
-import argparse
 import os
-import sys
 import warnings
 from collections import defaultdict
 from typing import NamedTuple
@@ -290,57 +288,3 @@ def _first_error(text: str) -> str:
     lines = [ln.strip() for ln in text.strip().splitlines() if ln.strip()]
     why = [ln for ln in lines if not ln.startswith("Error: Verification failed")]
     return (why or lines or ["failed"])[0]
-
-
-def main(argv: list[str] | None = None) -> int:
-    ap = argparse.ArgumentParser(prog="python -m tools.rrd", description="Inspect, verify and merge .rrd files.")
-    sub = ap.add_subparsers(dest="cmd", required=True)
-    p = sub.add_parser("summary", help="entities, rows and time span of each recording")
-    p.add_argument("files", nargs="+")
-    p = sub.add_parser("verify", help="rerun rrd verify (footers required unless --no-footer-check)")
-    p.add_argument("files", nargs="+")
-    p.add_argument(
-        "--no-footer-check", action="store_true", help="accept files without footer (the per-process parts of a flight)"
-    )
-    p = sub.add_parser("merge", help="merge the part files of one flight into one recording")
-    p.add_argument("out")
-    p.add_argument("parts", nargs="+")
-    p.add_argument(
-        "--concatenate",
-        action="store_true",
-        help="copy the parts into one stream in constant memory, without rerun's footer (for long flights)",
-    )
-    p.add_argument(
-        "--no-blueprint",
-        action="store_true",
-        help="never add the flight blueprint (by default it is added if no part has one)",
-    )
-    p = sub.add_parser("record", help="record the telemetry spools of one flight into one recording")
-    p.add_argument("out")
-    p.add_argument("spools", nargs="+")
-    p.add_argument("--no-blueprint", action="store_true", help="do not add the flight blueprint")
-    args = ap.parse_args(argv)
-    try:
-        if args.cmd == "summary":
-            for f in args.files:
-                print(summary(f))
-            return 0
-        if args.cmd == "verify":
-            bad = 0
-            for f in args.files:
-                ok, msg = verify(f, check_footers=not args.no_footer_check)
-                print(f"{f}: {'ok' if ok else 'FAILED: ' + _first_error(msg)}")
-                bad += not ok
-            return 1 if bad else 0
-        if args.cmd == "record":
-            print(record(args.out, args.spools, blueprint=not args.no_blueprint))
-            return 0
-        print(merge(args.out, args.parts, blueprint=not args.no_blueprint, concatenate=args.concatenate))
-        return 0
-    except (OSError, ValueError, RuntimeError) as exc:
-        print(f"error: {exc}", file=sys.stderr)
-        return 1
-
-
-if __name__ == "__main__":
-    sys.exit(main())

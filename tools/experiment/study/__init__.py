@@ -1,9 +1,9 @@
 """The Monte Carlo robustness study (issue 13): many aircraft and controllers stepped at once as numpy arrays.
 
-    python -m tools.experiment.study run --runs N --seed S --out DIR [--scheduler tcp://HOST:PORT] [--controllers a,b]
+    python -m tools.experiment robustness --runs N --seed S --out DIR [--scheduler tcp://HOST:PORT] [--controllers a,b]
                               [--conditions nominal,moderate,severe] [--sweep-runs M] [--long-runs L] [--chunk C]
-    python -m tools.experiment.study replay --controller NAME --condition NAME --seed S --run I
-    python -m tools.experiment robustness ...        (the same as ``python -m tools.experiment.study run ...``)
+    python -m tools.experiment replay --controller NAME --condition NAME --seed S --run I
+    python -m tools.experiment robustness ...        (the same as ``python -m tools.experiment robustness ...``)
 
 Per controller (``CONTROLLERS``: SAC, CL-SAC at L_v 10/20/50, the fixed-gain baseline, CL-SAC with each robustness
 modification) and condition (``CONDITIONS``: nominal, moderate, severe, plus one-factor sweeps of link loss, sensor
@@ -53,7 +53,16 @@ from tools.experiment.study.aggregation import (
     mavlink_command,
     replay_command,
 )
-from tools.experiment.study.cli import add_run_arguments, build_parser, main, main_replay, main_run, options_from_args
+from tools.experiment.study.cli import (
+    add_run_arguments,
+    build_parser,
+    build_replay_parser,
+    main,
+    main_replay,
+    main_run,
+    options_from_args,
+    replay_main,
+)
 from tools.experiment.study.execution import Progress, execute, merge
 from tools.experiment.study.report import format_breaks, format_long, format_table, save_figure, save_worst_rrd
 from tools.experiment.study.runner import run_study
@@ -114,6 +123,7 @@ __all__ = [
     "aggregate",
     "breaks",
     "build_parser",
+    "build_replay_parser",
     "canonical",
     "execute",
     "format_breaks",
@@ -129,6 +139,7 @@ __all__ = [
     "mavlink_command",
     "merge",
     "options_from_args",
+    "replay_main",
     "replay",
     "replay_command",
     "run_study",

@@ -1,6 +1,5 @@
-"""``python -m tools.experiment.study``: ``run`` (the study) and ``replay`` (one run alone); ``python -m
-tools.experiment
-robustness`` is ``run`` under another name."""
+"""The study's command lines: ``python -m tools.experiment robustness`` (the study) and ``python -m tools.experiment
+replay`` (one run alone), dispatched by ``tools.experiment.cli``."""
 
 from __future__ import annotations
 
@@ -18,20 +17,27 @@ from tools.experiment.study.runner import run_study
 from tools.experiment.study.sampling import CONTROLLERS, METRICS, StudyError, StudyOptions, get_condition
 from tools.experiment.study.simulation import replay
 
-
 # ---------------------------------------------------------------------------------------- command line
-def build_parser(prog: str = "python -m tools.experiment.study") -> argparse.ArgumentParser:
-    p = OneLineArgumentParser(prog=prog, description="Monte Carlo robustness study (issue 13); see the module doc.")
-    sub = p.add_subparsers(dest="command", required=True)
-    r = sub.add_parser("run", help="the study")
-    add_run_arguments(r)
-    q = sub.add_parser("replay", help="one run of the study, alone, with its metrics")
+ROBUSTNESS_PROG = "python -m tools.experiment robustness"
+REPLAY_PROG = "python -m tools.experiment replay"
+
+
+def build_parser(prog: str = ROBUSTNESS_PROG) -> argparse.ArgumentParser:
+    """The study's flags."""
+    p = OneLineArgumentParser(prog=prog, description="Monte Carlo robustness study; see tools.experiment.study's doc.")
+    add_run_arguments(p)
+    return p
+
+
+def build_replay_parser(prog: str = REPLAY_PROG) -> argparse.ArgumentParser:
+    """One run of the study, alone, with its metrics (the command summary.json's ``replay_inprocess`` gives)."""
+    q = OneLineArgumentParser(prog=prog, description="One run of the robustness study, alone, with its metrics.")
     q.add_argument("--controller", required=True, choices=tuple(CONTROLLERS))
     q.add_argument("--condition", required=True)
     q.add_argument("--seed", type=cli.seed, required=True)
     q.add_argument("--run", type=cli.count(0, 10**9, name="run"), required=True)
     q.add_argument("--duration", type=cli.duration_s, default=30.0)
-    return p
+    return q
 
 
 def add_run_arguments(r: argparse.ArgumentParser) -> None:
@@ -149,17 +155,11 @@ def main_replay(args, prog: str) -> int:
     return 0
 
 
-def main(
-    argv: Sequence[str] | None = None, prog: str = "python -m tools.experiment.study", run_prog: str | None = None
-) -> int:
-    """``run_prog``: the study alone under that name (``python -m tools.experiment robustness`` = ``run``)."""
-    if run_prog is not None:
-        p = OneLineArgumentParser(
-            prog=run_prog, description="Monte Carlo robustness study (tools.experiment.study run)."
-        )
-        add_run_arguments(p)
-        return main_run(p.parse_args(argv), run_prog)
-    args = build_parser(prog).parse_args(argv)
-    if args.command == "replay":
-        return main_replay(args, prog)
-    return main_run(args, prog)
+def main(argv: Sequence[str] | None = None, prog: str = ROBUSTNESS_PROG) -> int:
+    """``python -m tools.experiment robustness FLAGS``."""
+    return main_run(build_parser(prog).parse_args(argv), prog)
+
+
+def replay_main(argv: Sequence[str] | None = None, prog: str = REPLAY_PROG) -> int:
+    """``python -m tools.experiment replay FLAGS``."""
+    return main_replay(build_replay_parser(prog).parse_args(argv), prog)
