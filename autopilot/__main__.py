@@ -15,7 +15,6 @@ from autopilot.flags import (
     DEG,
     add_controller_arguments,
     add_envelope_arguments,
-    default_lv,
     envelope_from_args,
     rate_arg,
 )
@@ -251,36 +250,30 @@ def main(argv=None) -> int:
                 f"each second; use one or the other"
             )
     apply_cpu(parser, args.cpu)
-    from autopilot.config import ClSacConfig, ConfigError
+    # The controller's law and its configuration (autopilot.controllers).  The parameter table (autopilot.params)
+    # holds the configured L_v (CLSAC_LV: --lv, else the law's default), which mode SAC flies as 0.
+    from autopilot import controllers
+    from autopilot.config import ConfigError
     from autopilot.loop import Autopilot, AutopilotOptions, series_recorder
-    from autopilot.shared.tlog import TlogWriter
-
-    lv = args.lv if args.lv is not None else default_lv(args.controller)
-    try:
-        if args.controller == "baseline":
-            from autopilot.baseline import BaselineConfig
-
-            gains = dict(zip(("kp", "ki", "kd"), args.baseline_gains)) if args.baseline_gains else {}
-            cfg = BaselineConfig(control_rate_hz=args.rate, u_limit_rad=math.radians(args.u_limit_deg), **gains)
-        else:
-            cfg = ClSacConfig(
-                control_rate_hz=args.rate,
-                lv=lv,
-                u_limit_rad=math.radians(args.u_limit_deg),
-                sigma_x=args.sigma_xu,
-                sigma_u=args.sigma_xu,
-                dead_zone_rad=math.radians(args.dead_zone_deg),
-                ki_max=args.ki_max,
-                freeze_when_saturated=args.freeze_when_saturated,
-            ).with_pfc(args.pfc)
-    except ConfigError as exc:
-        parser.error(str(exc))
-    # The parameter table (autopilot.params): CLSAC_LV is the configured Lv, which mode SAC flies as 0.
     from autopilot.params import ParamError, ParamTable, load_file
+    from autopilot.shared.tlog import TlogWriter
     from autopilot.vehicle import Mode
 
-    if args.controller == "sac":
-        cfg = cfg.with_(lv=args.lv if args.lv is not None else default_lv("clsac"))
+    controller = controllers.get(args.controller)
+    try:
+        cfg = controller.config(
+            control_rate_hz=args.rate,
+            u_limit_rad=math.radians(args.u_limit_deg),
+            lv=args.lv,
+            pfc=args.pfc,
+            sigma_xu=args.sigma_xu,
+            dead_zone_rad=math.radians(args.dead_zone_deg),
+            ki_max=args.ki_max,
+            freeze_when_saturated=args.freeze_when_saturated,
+            gains=args.baseline_gains,
+        )
+    except ConfigError as exc:
+        parser.error(str(exc))
     options = {
         "attitude_timeout_s": args.attitude_timeout,
         "setpoint_timeout_s": args.setpoint_timeout,
@@ -332,7 +325,7 @@ def main(argv=None) -> int:
             pwm,
             tlog=tlog,
             params=params,
-            mode=Mode.SAC if args.controller == "sac" else Mode.CLSAC,
+            mode=Mode[controller.mode],
             armed=not args.disarmed,
         )
     except OSError as exc:
@@ -356,8 +349,8 @@ def main(argv=None) -> int:
 
     install_stop_handlers(stop)
     mode = "lockstep" if args.lockstep else "real time"
-    shown_lv = params.get("CLSAC_LV") if args.controller == "clsac" else 0.0
-    law = f" (Lv={shown_lv:g})" if args.controller != "baseline" else " (fixed-gain PID)"  # a PID has no Lv
+    shown_lv = controllers.flown_lv(args.controller, params.get("CLSAC_LV")) if controller.adaptive else 0.0
+    law = f" (Lv={shown_lv:g})" if controller.adaptive else f" ({controller.label})"  # a PID has no Lv
     print(
         f"autopilot: {opts.name}{law} {mode} at {rate:g} Hz; SITL link {fmt_endpoint(ap.sitl.local)} -> "
         f"{fmt_endpoint(args.sitl)}; GCS link {fmt_endpoint(ap.gcs.local)} -> {fmt_endpoint(args.gcs)}; system id "

@@ -5,10 +5,11 @@ from __future__ import annotations
 import argparse
 import math
 
+from autopilot import controllers
 from autopilot.params import arg_type
 from autopilot.shared.cli import bounded, nonneg_float, positive_float
 
-CONTROLLERS = ("sac", "clsac", "baseline")  # baseline: the fixed-gain PID of autopilot.baseline
+CONTROLLERS = controllers.NAMES  # the registry's (autopilot.controllers); baseline: the fixed-gain PID
 PFC_CHOICES = ("paper", "robust")  # the keys of autopilot.config.PFC_PRESETS (spelled out: --help needs no numpy)
 DEG = math.pi / 180.0
 # The flags' types come from the parameter table (autopilot.params.PARAMS): one set of bounds for a flag, a
@@ -20,8 +21,9 @@ rate_arg = arg_type("CLSAC_RATE")
 
 
 def default_lv(controller: str) -> float:
-    """L_v of a named controller: 0 for SAC (paper sec. 2), 20 for CL-SAC (paper sec. 5)."""
-    return 20.0 if controller == "clsac" else 0.0  # the baseline has no reference-model feedback
+    """L_v of a named controller: 0 for SAC (paper sec. 2), 20 for CL-SAC (paper sec. 5), 0 for the baseline (no
+    reference-model feedback): ``autopilot.controllers.CONTROLLERS``."""
+    return controllers.get(controller).lv
 
 
 def baseline_gains(text: str) -> tuple[float, float, float]:
@@ -41,15 +43,16 @@ def add_controller_arguments(parser: argparse.ArgumentParser) -> None:
     g.add_argument(
         "--controller",
         choices=CONTROLLERS,
-        default="clsac",
-        help="sac (Lv = 0), clsac (Lv = 20, the paper's; default) or baseline (fixed-gain PID; ignores --lv, "
-        "--pfc, --sigma-xu)",
+        default=controllers.DEFAULT,
+        help=", ".join(c.help for c in controllers.CONTROLLERS.values()),
     )
     g.add_argument(
         "--lv",
         type=lv_arg,
         default=None,
-        help="override the closed-loop reference gain Lv (default: 0 for sac, 20 for clsac)",
+        help="override the closed-loop reference gain Lv (default: "
+        + ", ".join(f"{c.lv:g} for {c.name}" for c in controllers.CONTROLLERS.values() if c.adaptive)
+        + ")",
     )
     g.add_argument(
         "--pfc",

@@ -164,9 +164,9 @@ class ParamTable:
     """
 
     def __init__(self, config, options: dict[str, float]):
-        from autopilot.config import ClSacConfig
+        from autopilot.controllers import law_of
 
-        clsac = isinstance(config, ClSacConfig) and config.is_siso and len(config.pfc_den) == 2
+        clsac = law_of(config).parameters and config.is_siso and len(config.pfc_den) == 2  # autopilot.controllers
         self.params = PARAMS if clsac else tuple(p for p in PARAMS if p.option)
         self._names = {p.name: p for p in self.params}
         self._config = config

@@ -29,9 +29,8 @@ from bisect import insort
 from collections.abc import Callable
 from dataclasses import dataclass
 
-from autopilot.baseline import Baseline, BaselineConfig
-from autopilot.clsac import ClSac
 from autopilot.config import ClSacConfig, NonFiniteInputError
+from autopilot.controllers import make_law
 from autopilot.metrics import MetricsAccumulator
 from autopilot.shared.pwm import PwmMap
 
@@ -151,7 +150,7 @@ class ControlStep:
         # ``law``: any object that quacks like ClSac (autopilot.baseline.Baseline); by default the config's law.
         if law is None:
             config = config or ClSacConfig()
-            law = Baseline(config) if isinstance(config, BaselineConfig) else ClSac(config)
+            law = make_law(config)  # its registered law (autopilot.controllers)
         self.config = law.config
         self.law = law
         self.pwm = pwm

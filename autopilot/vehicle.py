@@ -23,6 +23,7 @@ from types import SimpleNamespace
 # wire format is the same MAVLink 2 frame: a common-dialect link packs them with the message's own id and CRC extra.
 from pymavlink.dialects.v20 import all as _all
 
+from autopilot.controllers import law_of
 from autopilot.params import PARAM_ID_LEN, PARAMS, ParamError, ParamTable
 from autopilot.shared.mavlink import mavlink
 from autopilot.step import Failsafe
@@ -99,11 +100,11 @@ class Vehicle:
     """
 
     def __init__(self, ap, params: ParamTable, mode: Mode = Mode.CLSAC, armed: bool = True):
-        clsac = hasattr(ap.control.law, "reconfigure")
-        self.selectable = (Mode.MANUAL, Mode.SAC, Mode.CLSAC) if clsac else (Mode.MANUAL, Mode.BASELINE)
+        law = law_of(ap.control.law)  # its modes: autopilot.controllers.LAWS
+        self.selectable = (Mode.MANUAL, *(Mode[m] for m in law.modes))
         self.modes = (*self.selectable, Mode.FAILSAFE)  # what AVAILABLE_MODES lists
-        if not clsac and mode in (Mode.SAC, Mode.CLSAC):
-            mode = Mode.BASELINE
+        if mode not in self.selectable and mode is not Mode.FAILSAFE and len(law.modes) == 1:
+            mode = Mode[law.modes[0]]  # a law of one mode starts in it
         if mode not in self.selectable:
             raise ValueError(f"start mode must be one of {[m.name for m in self.selectable]}, got {mode!r}")
         self.ap = ap

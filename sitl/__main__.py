@@ -1,4 +1,5 @@
-"""``python -m sitl``: the KH2013A + rudder servo simulator behind a MAVLink endpoint on UDP.
+"""``python -m sitl``: the simulated plant (``--plant``: the KH2013A, a plant file or a JSBSim aircraft) behind a
+MAVLink endpoint on UDP.
 
 Listens for the autopilot (default 127.0.0.1:14560) and answers whoever talks to it with the
 autopilot's IDs (1:1): HEARTBEAT 1 Hz, ATTITUDE (real time: at the sensor rate; --lockstep: one per

@@ -1,4 +1,4 @@
-"""The simulated aircraft: KH2013A + rudder servo, integrated exactly with a zero-order hold.
+"""The linear aircraft (the KH2013A + rudder servo, or a plant file's), integrated exactly with a zero-order hold.
 
 One small interface (ArduPilot SITL style): ``step(delta_command) -> state`` advances one physics step,
 ``advance(delta_command, n)`` advances ``n`` steps with the command held.  No I/O here.

@@ -1,4 +1,4 @@
-"""The KH2013A simulator behind a MAVLink endpoint (transport and timing only; physics in ``sitl.aircraft``).
+"""The simulated plant behind a MAVLink endpoint (transport and timing only; physics in the plant, ``sitl.plant``).
 
 Real time (:meth:`Sitl.run_realtime`): physics follows the wall clock at the physics rate (on each
 wake-up the aircraft advances by the whole physics steps elapsed, servo command held: exact ZOH),

@@ -198,3 +198,101 @@ def test_an_import_circle_is_reported(tmp_path):
     (tmp_path / "tools" / "c.py").write_text("import tools.a\nfrom sitl import x\n")
     (tmp_path / "sitl" / "x.py").write_text("")
     assert import_cycles(tmp_path) == [["tools.a", "tools.b", "tools.c"]]
+
+
+# ---------------------------------------------------------------------------------------- the layout (docs/design.md)
+MAX_MODULE_LINES = 700
+MAX_TOOLS_ENTRIES = 10  # tools/ grouped by job: the commands and the rooms (docs/design.md, "Package map")
+MANUAL_PAGES = ("tests.md", "benchmarks.md")  # manuals, not lab notebooks: history is in git
+MAX_MANUAL_LINES = 150
+
+
+def tools_entries(root: Path = ROOT) -> list[str]:
+    """The entries at the top of tools/ (its package files and caches left out)."""
+    skip = {"__init__.py", "__main__.py", "__pycache__"}
+    return sorted(p.name for p in (root / "tools").iterdir() if p.name not in skip and not p.name.startswith("."))
+
+
+def long_modules(root: Path = ROOT, limit: int = MAX_MODULE_LINES) -> list[str]:
+    return [
+        f"{p.relative_to(root)}: {n} lines"
+        for package in PROJECT
+        for p in sorted((root / package).rglob("*.py"))
+        if (n := len(p.read_text().splitlines())) > limit
+    ]
+
+
+def test_no_module_is_longer_than_700_lines():
+    assert long_modules() == []
+
+
+def test_a_long_module_is_reported(tmp_path):
+    for pkg in PROJECT:
+        (tmp_path / pkg).mkdir()
+    (tmp_path / "sitl" / "big.py").write_text("x = 1\n" * 701)
+    (tmp_path / "tools" / "ok.py").write_text("x = 1\n" * 700)
+    assert long_modules(tmp_path) == ["sitl/big.py: 701 lines"]
+
+
+def test_tools_has_at_most_ten_entries_grouped_by_job():
+    entries = tools_entries()
+    assert len(entries) <= MAX_TOOLS_ENTRIES, entries
+    assert {"bench", "design", "experiment", "flight", "view"} <= set(entries), entries
+    assert not (ROOT / "tools" / "jsbsim_study.py").exists()  # the JSBSim Monte Carlo lives in tools/experiment/
+    # every top entry that is a file is a command: its module answers python -m (a __main__ guard)
+    for name in entries:
+        if name.endswith(".py"):
+            assert 'if __name__ == "__main__":' in (ROOT / "tools" / name).read_text(), name
+
+
+def test_no_file_name_repeats_a_plant_or_design_module():
+    """``plant.py``/``design.py`` once each in the tree, so a name says which room it is (sitl/plant.py is the plant
+    interface, tools/plant.py the linearisation command)."""
+    for name in ("plant.py", "design.py"):
+        found = sorted(str(p.relative_to(ROOT)) for pkg in PROJECT for p in (ROOT / pkg).rglob(name))
+        assert len(found) <= 2 and not any(f.startswith("tools/") and f.count("/") > 1 for f in found), found
+
+
+@pytest.mark.parametrize("page", MANUAL_PAGES)
+def test_the_manual_pages_are_short(page):
+    lines = (ROOT / "docs" / page).read_text().splitlines()
+    assert len(lines) <= MAX_MANUAL_LINES, f"docs/{page}: {len(lines)} lines"
+
+
+def _readme_commands() -> list[tuple[str, ...]]:
+    """Each ``python -m MODULE [SUBCOMMAND]`` the README shows (in its shell blocks and inline), once."""
+    import re
+    import shlex
+
+    text = (ROOT / "README.md").read_text()
+    snippets = re.findall(r"```(?:sh|bash|)\n(.*?)```", text, re.S) + re.findall(r"`(python -m [^`]+)`", text)
+    found = set()
+    for snippet in snippets:
+        for part in re.split(r"&&|\|\||[|;&\n]", snippet):
+            try:
+                words = shlex.split(part, comments=True)
+            except ValueError:
+                continue
+            if len(words) >= 3 and words[:2] == ["python", "-m"]:
+                module, rest = words[2], words[3:]
+                ours = module.split(".")[0] in PROJECT
+                found.add((module, rest[0]) if ours and rest and re.fullmatch(r"[a-z]+", rest[0]) else (module,))
+    return sorted(found)
+
+
+def test_every_readme_command_answers_help():
+    """``python -m X [SUB] --help`` exits 0 for every command of the README (the moved modules included)."""
+    from concurrent.futures import ThreadPoolExecutor
+
+    commands = _readme_commands()
+    assert {("tools.launch",), ("tools.experiment", "paper"), ("tools.experiment", "robustness")} <= set(commands)
+
+    def run(argv):
+        r = subprocess.run(
+            [sys.executable, "-m", *argv, "--help"], cwd=ROOT, capture_output=True, text=True, timeout=120
+        )
+        return argv, r.returncode, r.stderr.strip().splitlines()[-1:] if r.returncode else []
+
+    with ThreadPoolExecutor(4) as pool:
+        bad = [(a, code, err) for a, code, err in pool.map(run, commands) if code != 0]
+    assert bad == [], bad

@@ -35,6 +35,7 @@ import logging
 import os
 from pathlib import Path
 
+from autopilot import controllers
 from autopilot.flags import add_controller_arguments, add_envelope_arguments, rate_arg
 from autopilot.shared.cli import (
     OneLineArgumentParser,
@@ -79,7 +80,8 @@ def outcome_line(s: dict) -> str:
 
 def _law(s: dict) -> str:
     """The law in the header: Lv means something for SAC and CL-SAC only, not for the fixed-gain PID."""
-    return "baseline (fixed-gain PID)" if s["controller"] == "baseline" else f"{s['controller']} (Lv={s['Lv']:g})"
+    c = controllers.get(s["controller"])
+    return f"{c.name} (Lv={s['Lv']:g})" if c.adaptive else f"{c.name} ({c.label})"
 
 
 def print_summary(s: dict) -> None:

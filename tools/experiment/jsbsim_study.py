@@ -7,7 +7,8 @@
 
 Each flight is the reference scenario flown in-process (``tools.experiment.scenario.run_inprocess``) on
 ``jsbsim:MODEL:airspeed_kt=V`` with JSBSim's own turbulence seeded with the flight's seed, and the parameter file
-designed for the model (``tools.plant.designed_params``: designed at one airspeed, flown at all).  A flight is a
+designed for the model (``tools.design.linearise.designed_params``: designed at one airspeed, flown at all).  A flight
+is a
 task of ``tools.experiment.study.execute``: one after the other, ``--workers`` local processes or a Dask cluster
 (``--scheduler``), and its result depends on (controller, airspeed, turbulence, seed) only, so the summary is the
 same whatever the number of workers.  Bounded: max |roll| < 60 deg and the command saturated in < 20 % of the
@@ -28,12 +29,13 @@ from pathlib import Path
 
 import numpy as np
 
+from autopilot import controllers
 from autopilot.shared.cli import OneLineArgumentParser
 from autopilot.shared.process import write_json_atomic
 from tools.experiment.study import BOUND_ROLL_RAD, BOUND_SAT_FRACTION, StudyError, execute
 
 TURBULENCE = ("none", "light", "moderate", "severe")
-CONTROLLERS = ("sac", "clsac", "baseline")
+CONTROLLERS = controllers.NAMES  # autopilot.controllers
 
 
 @dataclass(frozen=True)
@@ -58,13 +60,13 @@ class Flight:
 def simulate(task: Flight) -> dict:
     """The flight's metrics, max |roll| and saturated fraction (picklable: runs in a worker)."""
     from sitl import plant as plants
-    from tools.experiment.scenario import BASELINE_RUN, PAPER, PAPER_RUNS, run_inprocess
+    from tools.experiment.scenario import PAPER, run_inprocess, run_of
 
     plant = f"jsbsim:{task.model}:airspeed_kt={task.airspeed_kt!r}"
     dist = (("seed", task.seed),) + ((("turbulence", task.turbulence),) if task.turbulence != "none" else ())
     limit = min(PAPER.u_limit_rad, plants.surface_limit_rad(plant))
     scenario = replace(PAPER, plant=plant, u_limit_rad=limit, disturbances=dist)
-    run = {"sac": PAPER_RUNS[0], "clsac": PAPER_RUNS[1], "baseline": BASELINE_RUN}[task.controller]
+    run = run_of(task.controller)
     res = run_inprocess(scenario, run)
     u, phi = res.series["u"], res.series["phi"]
     out = dict(res.metrics)

@@ -362,7 +362,8 @@ def run_experiment(
     ``pfc`` (a PFC preset name) and ``sigma_xu`` (K_Ix/K_Iu leakage) apply to every run; None keeps the paper's.
     ``disturbances``: the SITL's (``{dest: value}`` of ``sitl.disturbances.FLAGS``), mavlink transport only.
     ``plant``: the SITL's plant (``sitl.plant``: kh2013a, FILE.toml, jsbsim:MODEL[:...]); None keeps the scenario's.
-    On another plant the runs fly the PFC designed for it (``tools.plant.designed_params``) unless ``pfc`` is given.
+    On another plant the runs fly the PFC designed for it (``tools.design.linearise.designed_params``) unless ``pfc``
+    is given.
     Returns the RunResults (metrics and series) in run order.
     """
     from dataclasses import replace

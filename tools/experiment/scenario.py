@@ -7,7 +7,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from autopilot.baseline import BaselineConfig
+from autopilot import controllers
 from autopilot.clsac import GAIN_FIELDS, MODEL_FIELDS, gains_of, model_of
 from autopilot.config import ClSacConfig
 from autopilot.shared.mavlink import quaternion_to_roll, roll_to_quaternion
@@ -31,7 +31,8 @@ class Scenario:
     u_limit_rad: float = math.radians(30.0)
     plant: str = plants.KH2013A  # sitl.plant: kh2013a, FILE.toml or jsbsim:MODEL[:KEY=VALUE,...]
     # A parameter file (autopilot.params) on top of every SAC/CL-SAC run's configuration, and the baseline's gains;
-    # None: the ones designed for the plant (tools.plant.designed_params, designed_baseline), else the defaults.
+    # None: the ones designed for the plant (tools.design.linearise.designed_params, designed_baseline), else the
+    # defaults.
     params: str | None = None
     baseline_gains: tuple | None = None
     # The SITL's disturbances ((dest, value) pairs of sitl.disturbances.FLAGS): flown over MAVLink only.
@@ -94,6 +95,15 @@ PAPER_RUNS = (
 )
 # Runs an experiment may name (--runs baseline) that are not flown by default.
 BASELINE_RUN = RunSpec("baseline", 0.0, controller="baseline")
+
+
+def run_of(controller: str) -> RunSpec:
+    """The run of a registered controller (``autopilot.controllers``) at its default L_v: SAC and CL-SAC are told
+    apart by L_v (``controller`` None), any other law by its name."""
+    c = controllers.get(controller)
+    return RunSpec(c.name, c.lv, controller=None if c.law == "clsac" else c.name)
+
+
 OPTIONAL_RUNS = (BASELINE_RUN,)
 
 
@@ -110,11 +120,12 @@ def params_config(path: str, cfg: ClSacConfig) -> ClSacConfig:
 def controller_config(scenario: Scenario, run: RunSpec, base: ClSacConfig | None = None) -> ClSacConfig:
     from tools.design.linearise import designed_baseline, designed_params
 
-    if run.controller == "baseline":
+    if run.controller is not None and not controllers.get(run.controller).adaptive:  # the fixed-gain PID
         flown = scenario.baseline_gains or designed_baseline(scenario.plant)
-        gains = dict(zip(("kp", "ki", "kd"), flown)) if flown else {}
         limit = min(scenario.u_limit_rad, plants.surface_limit_rad(scenario.plant) or math.inf)  # the surface's stop
-        return BaselineConfig(control_rate_hz=scenario.control_rate_hz, u_limit_rad=limit, **gains)
+        return controllers.get(run.controller).config(
+            control_rate_hz=scenario.control_rate_hz, u_limit_rad=limit, gains=flown
+        )
     cfg = (base or ClSacConfig()).with_(
         lv=run.lv, control_rate_hz=scenario.control_rate_hz, u_limit_rad=scenario.u_limit_rad
     )

@@ -12,7 +12,7 @@ import sys
 from dataclasses import dataclass, field
 from pathlib import Path
 
-from autopilot import flags
+from autopilot import controllers, flags
 from autopilot.envelope import MAX_ROLL_DEG, MAX_SATURATED_SHARE, Envelope
 from autopilot.flags import CONTROLLERS, default_lv, envelope_roll_deg, envelope_saturated_pct
 from autopilot.shared import cli
@@ -325,7 +325,7 @@ class FlightConfig:
         beside it), for SAC/CL-SAC only (the baseline has no PFC)."""
         if self.params is not None:
             return str(self.params)
-        if self.controller == "baseline":
+        if not controllers.get(self.controller).adaptive:
             return None
         from tools.design.linearise import designed_params
 
@@ -343,7 +343,7 @@ class FlightConfig:
     @property
     def baseline_gains_flown(self) -> tuple | None:
         """The baseline's gains: the ones given, else those designed for the plant; None: the built-in defaults."""
-        if self.controller != "baseline":
+        if controllers.get(self.controller).law != "baseline":
             return None
         if self.baseline_gains is not None:
             return tuple(self.baseline_gains)

@@ -8,6 +8,7 @@ import os
 import threading
 from pathlib import Path
 
+from autopilot import controllers
 from autopilot.shared.process import (
     EXIT_OK,
     EXIT_OUT_OF_ENVELOPE,
@@ -26,7 +27,7 @@ def png_request(cfg: FlightConfig, out: Path, name: str, metrics: dict) -> dict:
     return {
         "out": str(out),
         "name": name,
-        "lv": cfg.lv_value if cfg.controller != "sac" else 0.0,
+        "lv": controllers.flown_lv(cfg.controller, cfg.lv_value),
         "controller": cfg.controller,
         "lockstep": cfg.lockstep,
         "rate": cfg.rate,
@@ -132,7 +133,7 @@ def _load(path: Path):
 def _flown_lv(cfg: FlightConfig, stats: dict):
     """The closed-loop reference gain the autopilot flew (its stats), else the configured one (nothing flew)."""
     lv = (stats.get("autopilot") or {}).get("Lv")
-    return cfg.lv_value if lv is None or cfg.controller == "sac" else lv
+    return cfg.lv_value if lv is None or controllers.get(cfg.controller).lv_fixed is not None else lv
 
 
 def build_summary(

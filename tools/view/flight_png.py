@@ -27,6 +27,8 @@ from pathlib import Path
 import numpy as np
 from PIL import Image, ImageColor, ImageDraw, ImageFont
 
+from autopilot import controllers
+
 DEG = 180.0 / math.pi
 SIZE = 1100  # the picture, px (matplotlib's 11 x 11 in at 100 dpi)
 SS = 2  # supersampling: shapes drawn at twice the size, then halved (Image.reduce: cheaper than a LANCZOS resize)
@@ -571,7 +573,7 @@ def flight_image(
         raise ValueError("flight_image: no time series 't'")
     col = {k: _column(series, k) for k in ("um", "phi", "ym_ol", "ym", "u", "mode", *C_GAINS)}
     col = {k: None if v is None or len(v) != len(t) else v for k, v in col.items()}  # a torn column: not drawn
-    baseline = controller == "baseline"
+    baseline = controller is not None and not controllers.get(controller).adaptive  # autopilot.controllers
     color, law = (C_BASE, "baseline PID") if baseline else (C_CLSAC, "CL-SAC") if lv > 0 else (C_SAC, "SAC")
 
     # Roll tracking.  When the roll goes far beyond the command (SAC oscillating), the references are drawn over

@@ -30,7 +30,7 @@ def aggregate(records: dict[tuple[str, int], dict], condition: str, controller: 
     }
     for pfc in ("paper", "robust"):
         sub = [r for r in rs if r["pfc"] == pfc]
-        if sub and controller != "baseline":
+        if sub and get_controller(controller).adaptive:  # the baseline has no PFC
             out["bounded_share_by_pfc"][pfc] = sum(r["bounded"] for r in sub) / len(sub)
     i, worst = min(runs, key=lambda ir: (ir[1]["bounded"], -ir[1]["max_abs_roll"], -ir[1]["ise_ref"]))
     out["worst"] = {
@@ -52,8 +52,7 @@ def _finite(x: float):
 
 def replay_command(controller: str, condition: str, seed: int, run: int) -> str:
     return (
-        f"python -m tools.experiment.study replay --controller {controller} --condition {condition} "
-        f"--seed {seed} --run {run}"
+        f"python -m tools.experiment replay --controller {controller} --condition {condition} --seed {seed} --run {run}"
     )
 
 
@@ -68,8 +67,8 @@ def mavlink_command(controller: str, condition: str, seed: int, run: int, rec: d
     cond = get_condition(condition)
     d = rec["draws"]
     argv = ["python -m tools.launch --lockstep", f"--duration {duration:g}"]
-    if ctrl.kind == "baseline":
-        argv.append("--controller baseline")
+    if not ctrl.adaptive:
+        argv.append(f"--controller {ctrl.kind}")
     else:
         argv += [f"--controller {'sac' if ctrl.lv == 0 else 'clsac'}", f"--lv {ctrl.lv:g}", f"--pfc {rec['pfc']}"]
         changes = dict(ctrl.changes)

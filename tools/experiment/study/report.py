@@ -11,6 +11,11 @@ from tools.experiment.study.sampling import CONTROLLERS, SWEEPS, StudyOptions
 from tools.experiment.study.simulation import replay
 
 
+def _adaptive(name: str) -> bool:
+    """A study controller whose law has a PFC (the baseline's has none)."""
+    return name not in CONTROLLERS or CONTROLLERS[name].adaptive
+
+
 def format_table(summary: dict, conditions: Sequence[str] = ("nominal", "moderate", "severe")) -> str:
     """Markdown: bounded share and p95 of ise_ref and energy per controller and condition (docs/experiments.md)."""
     conds = [c for c in conditions if any(c in v for v in summary["results"].values())]
@@ -36,7 +41,7 @@ def format_breaks(summary: dict) -> str:
     for ctrl, b in summary["breaks"].items():
         cells = []
         for k in SWEEPS:
-            if ctrl == "baseline":
+            if not _adaptive(ctrl):
                 v = b.get(k)
                 cells.append(f"{'-' if v is None else f'{v:.3g}'} (no PFC)")
                 continue
@@ -59,11 +64,11 @@ def format_long(summary: dict) -> str:
     for ctrl, by_cond in lf["controllers"].items():
         for cond, by_pfc in by_cond.items():
             for pfc, d in by_pfc.items():
-                if ctrl == "baseline" and pfc == "robust":
+                if not _adaptive(ctrl) and pfc == "robust":
                     continue
                 cells = [d["peak_first_window_deg"], d["peak_180_210_s_deg"], d["peak_last_window_deg"]]
                 lines.append(
-                    f"| {ctrl} | {cond} | {'-' if ctrl == 'baseline' else pfc} | "
+                    f"| {ctrl} | {cond} | {pfc if _adaptive(ctrl) else '-'} | "
                     + " | ".join("diverged" if v is None else f"{v:.1f} deg" for v in cells)
                     + f" | {100 * d['bounded_share']:.0f} % |"
                 )

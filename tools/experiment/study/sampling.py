@@ -9,6 +9,7 @@ import math
 from collections.abc import Sequence
 from dataclasses import dataclass
 
+from autopilot.controllers import LAWS
 from autopilot.envelope import Envelope
 from autopilot.shared import cli
 
@@ -46,7 +47,8 @@ class StudyError(ValueError):
 # ---------------------------------------------------------------------------------------- controllers
 @dataclass(frozen=True)
 class Controller:
-    """A controller of the study: ``kind`` "clsac" (SAC is L_v = 0) or "baseline", and ClSacConfig changes."""
+    """A controller of the study: ``kind``, its law (a key of ``autopilot.controllers.LAWS``: "clsac", SAC being
+    L_v = 0, or "baseline"), and changes to the law's configuration."""
 
     name: str
     kind: str = "clsac"
@@ -55,17 +57,13 @@ class Controller:
     label: str = ""
 
     def config(self, pfc: str, control_rate_hz: float, u_limit_rad: float):
-        if self.kind == "baseline":
-            from autopilot.baseline import BaselineConfig
+        cfg = LAWS[self.kind].configure(control_rate_hz=control_rate_hz, u_limit_rad=u_limit_rad, lv=self.lv, pfc=pfc)
+        return cfg.with_(**dict(self.changes)) if self.changes else cfg
 
-            return BaselineConfig(control_rate_hz=control_rate_hz, u_limit_rad=u_limit_rad)
-        from autopilot.config import ClSacConfig
-
-        return (
-            ClSacConfig(control_rate_hz=control_rate_hz, u_limit_rad=u_limit_rad, lv=self.lv)
-            .with_pfc(pfc)
-            .with_(**dict(self.changes))
-        )
+    @property
+    def adaptive(self) -> bool:
+        """Its law has adaptive gains and a PFC (the baseline: neither)."""
+        return LAWS[self.kind].adaptive
 
 
 DEAD_ZONE_RAD = 0.25 * DEG  # about the roll noise of "moderate"
