@@ -1,9 +1,9 @@
 """The Monte Carlo robustness study (issue 13): many aircraft and controllers stepped at once as numpy arrays.
 
-    python -m tools.experiment robustness --runs N --seed S --out DIR [--scheduler tcp://HOST:PORT] [--controllers a,b]
-                              [--conditions nominal,moderate,severe] [--sweep-runs M] [--long-runs L] [--chunk C]
+    python -m tools.experiment robustness --runs N --seed S --out DIR [--scheduler tcp://HOST:PORT]
+                                          [--controllers a,b] [--conditions nominal,moderate,severe]
+                                          [--sweep-runs M] [--long-runs L] [--chunk C]
     python -m tools.experiment replay --controller NAME --condition NAME --seed S --run I
-    python -m tools.experiment robustness ...        (the same as ``python -m tools.experiment robustness ...``)
 
 Per controller (``CONTROLLERS``: SAC, CL-SAC at L_v 10/20/50, the fixed-gain baseline, CL-SAC with each robustness
 modification) and condition (``CONDITIONS``: nominal, moderate, severe, plus one-factor sweeps of link loss, sensor
@@ -38,7 +38,7 @@ controlled flight the autopilot and the launcher use too): max |roll| (truth) < 
 Layout: ``sampling`` (controllers, conditions, tasks), ``simulation`` (one batch; its steps in numpy, or in C:
 ``kernel.c``, built and loaded by ``native``, the same numbers bit for bit), ``execution`` (many batches, here or
 on Dask), ``aggregation`` (summary.json), ``report`` (tables, figure, worst runs), ``runner``
-(``run_study``) and ``cli`` (the command line); every name is importable from ``tools.experiment.study`` as before.
+(``run_study``) and ``cli`` (the command lines); every name is importable from ``tools.experiment.study`` as before.
 """
 
 from __future__ import annotations
