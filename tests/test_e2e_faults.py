@@ -60,7 +60,7 @@ def test_the_tlog_the_rrd_and_the_picture_show_the_fault(flights):
     from pymavlink import mavutil
 
     from autopilot.shared.telemetry.layout import fault_mark_path
-    from tools import rrd
+    from tools.view import rrd_files as rrd
 
     (free, _sf, _af), (eff, _s, _a) = flights
     texts = []
