@@ -3,11 +3,11 @@
 :class:`FailureRelay` is a part of the vehicle (``autopilot.vehicle``).  A ground station's COMMAND_LONG is refused
 with MAV_RESULT_DENIED unless failure injection is on (``--failure-injection``, or the parameter SYS_FAILURE_EN = 1);
 on a signed GCS link only a station with the vehicle's key gets this far (the link drops every other packet before it
-is decoded).  The failure is checked against the table both processes share (``autopilot.shared.failure``): what is not
-implemented is answered MAV_RESULT_UNSUPPORTED, a value out of range MAV_RESULT_DENIED.  An implemented one is relayed
-to the SITL over the autopilot's own (signed) SITL link as the same COMMAND_LONG from N:140, and the ground station
-gets the SITL's answer (COMMAND_ACK ACCEPTED, UNSUPPORTED or DENIED), or MAV_RESULT_FAILED if the SITL answered none
-of ``TRIES`` sends ``RESEND_S`` apart.
+is decoded).  The failure is checked against the table both processes share (``autopilot.shared.servo_failures``):
+what is not implemented is answered MAV_RESULT_UNSUPPORTED, a value out of range MAV_RESULT_DENIED.  An implemented
+one is relayed to the SITL over the autopilot's own (signed) SITL link as the same COMMAND_LONG from N:140, and the
+ground station gets the SITL's answer (COMMAND_ACK ACCEPTED, UNSUPPORTED or DENIED), or MAV_RESULT_FAILED if the
+SITL answered none of ``TRIES`` sends ``RESEND_S`` apart.
 
 Nothing here waits: the command in flight is state, resent and timed out by the loop's housekeeping
 (:meth:`FailureRelay.housekeeping`), so the control loop never blocks on it.  A command sent again by the same
@@ -20,7 +20,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
-from autopilot.shared import failure
+from autopilot.shared import servo_failures as sf
 from autopilot.shared.mavlink import mavlink as M
 from autopilot.shared.mavlink import vehicle_ids
 
@@ -28,6 +28,7 @@ RESEND_S = 0.2  # wall seconds between relays of one command to the SITL
 TRIES = 3  # relays before the ground station is answered MAV_RESULT_FAILED
 DUPLICATE_S = 2.0  # the same command from the same station this soon after its answer is a resend (MAVSDK: 1.5 s)
 _RESULTS = M.enums["MAV_RESULT"]
+_UNITS = {"stuck": "deg", "rate": "deg/s", "delay": "s"}  # of a --fault spec's value (sitl.damage)
 
 
 def result_name(result: int) -> str:
@@ -36,13 +37,22 @@ def result_name(result: int) -> str:
     return e.name.removeprefix("MAV_RESULT_") if e is not None else str(result)
 
 
+def describe(spec: str | None) -> str:
+    """A fault spec of the table in a user's words: ``stuck``, ``stuck=5 deg``, ``rate=20 deg/s``, ``cleared``."""
+    if spec is None:
+        return "cleared"
+    kind, _, value = spec.partition("=")
+    return f"{kind}={float(value):g} {_UNITS.get(kind, '')}".rstrip() if value else kind
+
+
 @dataclass
 class _Command:
-    """A ground station's INJECT_FAILURE: who sent it (sysid, compid), its seven params, the failure it names."""
+    """A ground station's INJECT_FAILURE: who sent it (sysid, compid), its seven params, the fault it names (a
+    ``--fault`` spec without its time, None: clear the ground station's faults)."""
 
     src: tuple[int, int]
     params: tuple[float, ...]
-    injection: failure.Injection | None
+    spec: str | None
     t_sim: float | None  # sim time when it came (s), None before the first attitude
     tries: int = 0
     next_try: float = 0.0
@@ -92,8 +102,8 @@ class FailureRelay:
             )
             return M.MAV_RESULT_DENIED
         try:
-            cmd.injection = failure.decode(msg.param1, msg.param2, msg.param3, msg.param5, ap.pwm.channel)
-        except failure.Refused as exc:
+            cmd.spec = sf.servo_failure(msg.param1, msg.param2, msg.param3, msg.param5, ap.pwm.channel)
+        except (sf.FailureUnsupported, sf.FailureDenied) as exc:
             ap.events["failure_refused"] += 1
             ap._event(M.MAV_SEVERITY_WARNING, f"INJECT_FAILURE from {who} refused: {exc}")
             return exc.result
@@ -108,14 +118,14 @@ class FailureRelay:
     def _relay(self, now: float) -> None:
         cmd = self.pending
         p = cmd.params
-        self.ap.sitl.send(M.MAVLink_command_long_message(*self.target, failure.INJECT_FAILURE, cmd.tries, *p))
+        self.ap.sitl.send(M.MAVLink_command_long_message(*self.target, sf.MAV_CMD_INJECT_FAILURE, cmd.tries, *p))
         cmd.tries += 1
         cmd.next_try = now + RESEND_S
         self.ap.events["failure_relays"] += 1
 
     def on_ack(self, msg, now: float) -> None:
         """A COMMAND_ACK on the SITL link: the answer to the command in flight, if it is one."""
-        if msg.command != failure.INJECT_FAILURE or self.pending is None or msg.result == M.MAV_RESULT_IN_PROGRESS:
+        if msg.command != sf.MAV_CMD_INJECT_FAILURE or self.pending is None or msg.result == M.MAV_RESULT_IN_PROGRESS:
             self.ap.events["sitl_acks_unmatched"] += 1  # e.g. the answer to a resend, after the first one's
             return
         self._answer(msg.result, now)
@@ -135,14 +145,14 @@ class FailureRelay:
         cmd.result, cmd.answered = result, now
         self.last = cmd
         src = cmd.src
-        ap.vehicle.reply(M.MAVLink_command_ack_message(failure.INJECT_FAILURE, result, 0, 0, *src))
-        what = f"servo {cmd.injection.describe()}"
+        ap.vehicle.reply(M.MAVLink_command_ack_message(sf.MAV_CMD_INJECT_FAILURE, result, 0, 0, *src))
+        what = f"servo {describe(cmd.spec)}"
         who = f"GCS {src[0]}:{src[1]}"
         when = "" if cmd.t_sim is None else f" at {cmd.t_sim:.2f} s"
         if result == M.MAV_RESULT_ACCEPTED:
             ap.events["failures_injected"] += 1
-            text = f"failure injected by {who}{when}: {what}" if cmd.injection.kind != "clear" else None
-            ap._event(M.MAV_SEVERITY_NOTICE, text or f"failures cleared by {who}{when}")
+            text = f"failure injected by {who}{when}: {what}" if cmd.spec is not None else None
+            ap._event(M.MAV_SEVERITY_NOTICE, text or f"servo faults cleared by {who}{when}")
         elif result == M.MAV_RESULT_FAILED:
             ap.events["failure_unanswered"] += 1
             ap._event(M.MAV_SEVERITY_WARNING, f"INJECT_FAILURE from {who} ({what}): the SITL did not answer")
@@ -151,13 +161,11 @@ class FailureRelay:
             ap._event(
                 M.MAV_SEVERITY_WARNING, f"INJECT_FAILURE from {who} ({what}) refused by the SITL: {result_name(result)}"
             )
-        inj = cmd.injection
         self.records.append(
             {
-                "t_s": cmd.t_sim,
+                "t_s": cmd.t_sim,  # sim time when the command came (the SITL's fault says when it started)
                 "from": f"{src[0]}:{src[1]}",
-                "kind": inj.kind,
-                "value": inj.value,
+                "fault": cmd.spec or "clear",
                 "result": result_name(result),
                 "relays": cmd.tries,
             }

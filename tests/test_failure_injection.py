@@ -212,13 +212,13 @@ def test_a_relayed_failure_carries_the_ground_stations_params_and_the_sitls_answ
     assert "failure injection on" in v.ap.output()
     gcs = v.gcs
     assert gcs.inject(M.FAILURE_TYPE_STUCK, 4, 5.0) == M.MAV_RESULT_ACCEPTED
-    assert "servo stuck at 5 deg" in gcs.text("failure injected by GCS 255:230")
+    assert "servo stuck=5 deg" in gcs.text("failure injected by GCS 255:230")
     assert gcs.inject(M.FAILURE_TYPE_SLOW) == M.MAV_RESULT_ACCEPTED
-    assert gcs.text("servo rate 20 deg/s") is not None  # the default of SLOW without a value
-    assert gcs.inject(M.FAILURE_TYPE_DELAYED, 0, 0.06) == M.MAV_RESULT_ACCEPTED
+    assert gcs.text("servo rate=20 deg/s") is not None  # the default of SLOW without a value
+    assert gcs.inject(M.FAILURE_TYPE_DELAYED, 0, 0.0625) == M.MAV_RESULT_ACCEPTED
     assert gcs.inject(M.FAILURE_TYPE_OFF) == M.MAV_RESULT_ACCEPTED
     assert gcs.inject(M.FAILURE_TYPE_OK) == M.MAV_RESULT_ACCEPTED
-    assert gcs.text("failures cleared by GCS 255:230") is not None
+    assert gcs.text("servo faults cleared by GCS 255:230") is not None
     v.sitl.answer = M.MAV_RESULT_UNSUPPORTED  # the SITL's own refusal (e.g. a plant that cannot) is passed on
     assert gcs.inject(M.FAILURE_TYPE_STUCK, 4, 7.0) == M.MAV_RESULT_UNSUPPORTED
     assert gcs.text("refused by the SITL: UNSUPPORTED") is not None
@@ -231,11 +231,10 @@ def test_a_relayed_failure_carries_the_ground_stations_params_and_the_sitls_answ
     assert (first.param1, first.param2, first.param3, first.param5) == (SERVO, M.FAILURE_TYPE_STUCK, 4, 5.0)
     assert math.isnan(first.param4) and math.isnan(first.param6) and math.isnan(first.param7)  # as the GCS sent them
     assert [m.param2 for m in relays] == [2, 5, 6, 1, 0, 2]
-    assert relays[2].param5 == pytest.approx(0.06)
+    assert relays[2].param5 == 0.0625  # float32 on the wire: exact
     recs = stats["failure_injections"]
-    assert [r["kind"] for r in recs] == ["stuck", "rate", "delay", "off", "clear", "stuck"]
-    assert recs[0]["value"] == pytest.approx(math.radians(5.0)) and recs[0]["from"] == "255:230"
-    assert recs[1]["value"] == pytest.approx(math.radians(20.0)) and recs[2]["value"] == pytest.approx(0.06)
+    assert [r["fault"] for r in recs] == ["stuck=5.0", "rate=20.0", "delay=0.0625", "off", "clear", "stuck=7.0"]
+    assert recs[0]["from"] == "255:230" and recs[0]["relays"] == 1
     assert [r["result"] for r in recs] == ["ACCEPTED"] * 5 + ["UNSUPPORTED"]
 
 
@@ -243,13 +242,16 @@ def test_what_the_table_does_not_implement_is_answered_without_a_relay(vehicle_f
     v = vehicle_factory("--failure-injection")
     gcs = v.gcs
     for args, result, why in (
-        ((M.FAILURE_TYPE_STUCK, 0, NAN, M.FAILURE_UNIT_SENSOR_GYRO), M.MAV_RESULT_UNSUPPORTED, "failure unit 0"),
-        ((M.FAILURE_TYPE_GARBAGE,), M.MAV_RESULT_UNSUPPORTED, "servo failure type 3 not implemented"),
-        ((M.FAILURE_TYPE_STUCK, 2), M.MAV_RESULT_UNSUPPORTED, "servo instance 2"),
-        ((M.FAILURE_TYPE_SLOW, 0, -5.0), M.MAV_RESULT_DENIED, "servo rate must be > 0"),
-        ((M.FAILURE_TYPE_DELAYED, 0, 5.0), M.MAV_RESULT_DENIED, "servo delay must be in (0, 1] s"),
-        ((M.FAILURE_TYPE_STUCK, 0, math.inf), M.MAV_RESULT_DENIED, "stuck position must be within"),
-        ((M.FAILURE_TYPE_STUCK, 4.5), M.MAV_RESULT_DENIED, "param3 (instance) must be a whole number"),
+        ((M.FAILURE_TYPE_STUCK, 0, NAN, M.FAILURE_UNIT_SENSOR_GYRO), M.MAV_RESULT_UNSUPPORTED, "failure unit 0 is"),
+        ((M.FAILURE_TYPE_STUCK, 0, NAN, 11), M.MAV_RESULT_UNSUPPORTED, "failure unit 11 is"),  # MAVSDK 3's enum number
+        ((M.FAILURE_TYPE_GARBAGE,), M.MAV_RESULT_UNSUPPORTED, "failure type 3 is not implemented for the servo"),
+        ((M.FAILURE_TYPE_INTERMITTENT,), M.MAV_RESULT_UNSUPPORTED, "failure type 7 is not implemented"),
+        ((M.FAILURE_TYPE_STUCK, 2), M.MAV_RESULT_UNSUPPORTED, "servo instance 2:"),
+        ((M.FAILURE_TYPE_STUCK, 4.5), M.MAV_RESULT_UNSUPPORTED, "servo instance 4.5:"),
+        ((M.FAILURE_TYPE_SLOW, 0, -5.0), M.MAV_RESULT_DENIED, "SLOW: the rate (param5) must be > 0 deg/s"),
+        ((M.FAILURE_TYPE_SLOW, 0, math.inf), M.MAV_RESULT_DENIED, "SLOW: the rate"),
+        ((M.FAILURE_TYPE_DELAYED, 0, -0.1), M.MAV_RESULT_DENIED, "DELAYED: the delay (param5) must be in (0,"),
+        ((M.FAILURE_TYPE_DELAYED, 0, 1e9), M.MAV_RESULT_DENIED, "DELAYED: the delay"),
     ):
         assert gcs.inject(*args) == result, why
         assert gcs.text(why) is not None, (why, gcs.texts)

@@ -1,0 +1,104 @@
+"""A ground station's servo failure (MAV_CMD_INJECT_FAILURE, PX4's failure injection) as a fault spec: one table.
+
+MAVLink common.xml, MAV_CMD_INJECT_FAILURE (420): param1 the unit (``FAILURE_UNIT``), param2 the type
+(``FAILURE_TYPE``), param3 the instance (0 = all).  For the servo unit (FAILURE_UNIT_SYSTEM_SERVO, 102) the product
+takes these types, each mapped to a fault of the SITL's ``--fault`` syntax (``sitl.damage``; docs/faults.md):
+
+| FAILURE_TYPE | fault | param5 |
+|---|---|---|
+| OK (0) | every ground-station fault cleared | - |
+| OFF (1) | ``off`` | - |
+| STUCK (2) | ``stuck`` (where it is), or ``stuck=DEG`` | a position in deg, if finite and not 0 |
+| SLOW (5) | ``rate=DEG_PER_S`` | deg/s, > 0; 0 or NaN: ``DEFAULT_RATE_DEG_S`` |
+| DELAYED (6) | ``delay=S`` | s, > 0; 0 or NaN: ``DEFAULT_DELAY_S`` |
+
+Instance 0 (all servos) or the surface's SERVO_OUTPUT_RAW channel (4 by default, ``--rudder-channel``) is the one
+surface the vehicle has; any other instance, any other unit or type is MAV_RESULT_UNSUPPORTED
+(:class:`FailureUnsupported`); a param5 that is not a usable value (a negative rate, an infinite delay) is
+MAV_RESULT_DENIED (:class:`FailureDenied`).  Pure: the autopilot validates with this table before it relays the
+command, the SITL maps with it when it applies it, neither imports the other.
+"""
+
+from __future__ import annotations
+
+import math
+
+from autopilot.shared.mavlink import mavlink as M
+
+MAV_CMD_INJECT_FAILURE = M.MAV_CMD_INJECT_FAILURE  # 420
+FAILURE_UNIT_SYSTEM_SERVO = M.FAILURE_UNIT_SYSTEM_SERVO  # 102
+FAILURE_TYPE_OK = M.FAILURE_TYPE_OK  # 0
+FAILURE_TYPE_OFF = M.FAILURE_TYPE_OFF  # 1
+FAILURE_TYPE_STUCK = M.FAILURE_TYPE_STUCK  # 2
+FAILURE_TYPE_SLOW = M.FAILURE_TYPE_SLOW  # 5
+FAILURE_TYPE_DELAYED = M.FAILURE_TYPE_DELAYED  # 6
+SERVO_TYPES = (FAILURE_TYPE_OK, FAILURE_TYPE_OFF, FAILURE_TYPE_STUCK, FAILURE_TYPE_SLOW, FAILURE_TYPE_DELAYED)
+DEFAULT_RATE_DEG_S = 20.0  # SLOW without a rate (param5 0 or NaN)
+DEFAULT_DELAY_S = 0.1  # DELAYED without a delay (param5 0 or NaN)
+MAX_DELAY_S = 10.0  # a longer extra actuator delay is refused (DENIED)
+# The SITL's STATUSTEXT when a fault starts or ends begins with this (``FAULT_PREFIX + "start: ..."``): the
+# autopilot's telemetry marks its plots when it relays one (``SITL: fault ...``).
+FAULT_PREFIX = "fault "
+# The same COMMAND_LONG again within this many wall seconds is a resend (its ACK was lost), not a new fault.
+DUPLICATE_WINDOW_S = 1.0
+
+
+class FailureUnsupported(ValueError):
+    """Not a failure this vehicle implements (unit, type or instance): MAV_RESULT_UNSUPPORTED."""
+
+    result = M.MAV_RESULT_UNSUPPORTED
+
+
+class FailureDenied(ValueError):
+    """A servo failure this vehicle implements, with a value it cannot fly (param5): MAV_RESULT_DENIED."""
+
+    result = M.MAV_RESULT_DENIED
+
+
+def _given(v: float) -> bool:
+    """param5 carries a value: not 0 and not NaN (MAVLink's "not used" spellings)."""
+    return not (v == 0.0 or math.isnan(v))
+
+
+def servo_failure(unit: float, failure_type: float, instance: float, param5: float, channel: int = 4) -> str | None:
+    """The ``--fault`` spec (``KIND[=VALUE]``, without ``@START``: the fault starts when it is applied) of a
+    MAV_CMD_INJECT_FAILURE's params, or None for FAILURE_TYPE_OK (clear the ground-station faults).
+
+    ``channel``: the surface's SERVO_OUTPUT_RAW channel (instance 0 or this one is the surface).  Raises
+    FailureUnsupported (unit, type, instance) or FailureDenied (param5)."""
+    if unit != FAILURE_UNIT_SYSTEM_SERVO:
+        raise FailureUnsupported(f"failure unit {unit:g} is not implemented (only FAILURE_UNIT_SYSTEM_SERVO, 102)")
+    if failure_type not in SERVO_TYPES:
+        raise FailureUnsupported(
+            f"failure type {failure_type:g} is not implemented for the servo (OK 0, OFF 1, STUCK 2, SLOW 5, DELAYED 6)"
+        )
+    if instance not in (0, channel):
+        raise FailureUnsupported(f"servo instance {instance:g}: the vehicle has one surface, instance 0 or {channel}")
+    if failure_type == FAILURE_TYPE_OK:
+        return None
+    if failure_type == FAILURE_TYPE_OFF:
+        return "off"
+    if failure_type == FAILURE_TYPE_STUCK:
+        return f"stuck={param5!r}" if math.isfinite(param5) and param5 != 0.0 else "stuck"
+    if failure_type == FAILURE_TYPE_SLOW:
+        rate = param5 if _given(param5) else DEFAULT_RATE_DEG_S
+        if not (math.isfinite(rate) and rate > 0):
+            raise FailureDenied(f"SLOW: the rate (param5) must be > 0 deg/s and finite, got {param5!r}")
+        return f"rate={rate!r}"
+    delay = param5 if _given(param5) else DEFAULT_DELAY_S
+    if not (math.isfinite(delay) and 0 < delay <= MAX_DELAY_S):
+        raise FailureDenied(f"DELAYED: the delay (param5) must be in (0, {MAX_DELAY_S:g}] s, got {param5!r}")
+    return f"delay={delay!r}"
+
+
+__all__ = [
+    "DEFAULT_DELAY_S",
+    "DEFAULT_RATE_DEG_S",
+    "DUPLICATE_WINDOW_S",
+    "FAILURE_UNIT_SYSTEM_SERVO",
+    "FAULT_PREFIX",
+    "FailureDenied",
+    "FailureUnsupported",
+    "MAV_CMD_INJECT_FAILURE",
+    "servo_failure",
+]
