@@ -41,7 +41,7 @@ from autopilot.shared.process import (
 )
 from autopilot.shared.telemetry.flags import add_arguments as add_telemetry_arguments
 from autopilot.shared.telemetry.flags import check_arguments as check_telemetry_arguments
-from sitl import disturbances
+from sitl import damage, disturbances
 from sitl import plant as plants
 from sitl.telemetry import attach as attach_telemetry
 
@@ -150,6 +150,7 @@ def build_parser() -> OneLineArgumentParser:
     )
     p.add_argument("--quiet", action="store_true", help="only the start line and the counters")
     add_plant_argument(p)
+    damage.add_argument(p)
     disturbances.add_arguments(p)
     add_telemetry_arguments(p)
     add_pwm_arguments(p)
@@ -186,6 +187,7 @@ def main(argv=None) -> int:
     given = {k: v for k, v in vars(args).items() if k in disturbances.FLAGS and v is not None}
     try:
         plants.check_disturbances(args.plant, given)
+        plants.check_faults(args.plant, args.fault or ())
     except plants.PlantError as exc:
         parser.error(str(exc))
     if set(given) - {"seed"}:
@@ -214,6 +216,7 @@ def main(argv=None) -> int:
         disturbances=dist,
         sysid=args.sysid,
         plant=args.plant,
+        faults=tuple(args.fault or ()),
     )
     try:
         sitl = Sitl(opts, pwm)

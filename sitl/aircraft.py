@@ -16,7 +16,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from autopilot.shared.numerics import zoh
-from sitl import model
+from sitl import damage, model
 
 
 class AircraftConfigError(ValueError):
@@ -82,6 +82,10 @@ class Aircraft:
                 f"x0 must have {n} elements (KH2013A: [v, p, r, phi, delta_r, delta_r_dot]), got shape {self._x0.shape}"
             )
         self._limited = self.config.rudder_limit_rad is not None or self.config.rudder_rate_limit_rad_s is not None
+        self._effect = damage.NOMINAL  # the faults' effect flown (sitl.damage, set_effect)
+        self._act: damage.Actuator | None = None  # the servo's path under a servo fault
+        self._u_last = 0.0  # the command of the last advance (a delay line starts full of it)
+        self._dynamics: dict = {}  # (effectiveness, damping) -> the matrices and caches flown under them
         self.reset()
 
     def reset(self, x0: np.ndarray | None = None) -> None:
@@ -182,10 +186,13 @@ class Aircraft:
         if n < 0:
             raise ValueError(f"n must be >= 0, got {n}")
         u = self._check(delta_command)
+        self._u_last = u
         if d is not None:
             d = np.asarray(d, dtype=float)
             if d.shape != (n, 3):
                 raise ValueError(f"d must have shape ({n}, 3) [v_g, p_g, r_g] per step, got {d.shape}")
+        if self._act is not None:
+            return self._advance_servo_fault(u, n, d)
         if self._limited:
             for i in range(n):
                 self.step(u, None if d is None else d[i])
@@ -217,3 +224,77 @@ class Aircraft:
             m = np.hstack(blocks[::-1])
             self._multi_d[n] = m
         return m
+
+    # ------------------------------------------------------------------ faults (sitl.damage)
+    @property
+    def roll_rate_state(self) -> int | None:
+        """The state whose own term is the roll damping L_p (p itself), None when p is not one state (a transfer
+        function's roll rate is a combination of them)."""
+        return damage.roll_rate_index(self._truth_map)
+
+    def set_effect(self, effect: damage.Effect) -> None:
+        """Fly under ``effect`` (``sitl.damage.Effect``) from the next step; ``damage.NOMINAL`` is the plant as built.
+
+        Effectiveness and damping change the airframe's rows of A_p (``damage.airframe_matrix``), discretised
+        exactly again; the servo faults put ``damage.Actuator`` on the servo's path (``_advance_servo_fault``)."""
+        old, self._effect = self._effect, effect
+        key = (effect.effectiveness, effect.damping)
+        if key != (old.effectiveness, old.damping):
+            self._dynamics[(old.effectiveness, old.damping)] = (
+                self._a,
+                self._ad,
+                self._bd,
+                self._multi,
+                self._ed,
+                self._multi_d,
+            )
+            if key not in self._dynamics:
+                a0 = self._dynamics[(1.0, 1.0)][0]
+                a = damage.airframe_matrix(a0, effect, self.roll_rate_state)
+                ad, bd = zoh(a, self._b, self.config.dt)
+                self._dynamics[key] = (a, ad, bd.ravel(), {}, None, {})
+            self._a, self._ad, self._bd, self._multi, self._ed, self._multi_d = self._dynamics[key]
+        if not effect.servo:
+            self._act = None
+            return
+        servo = ("stuck", "stuck_at", "off", "rate", "delay")
+        if self._act is None or any(getattr(effect, k) != getattr(self._act.effect, k) for k in servo):
+            self._act = damage.Actuator(effect, self.config.dt, self._u_last)
+        self._act.effect = effect
+        self._adc = zoh(damage.coasting_matrix(self._a), np.zeros((self.n, 1)), self.config.dt)[0]
+        x, i, j = self.x, self._i_delta, self._i_delta_dot
+        jump = damage.jammed(old, effect, float(x[i]))
+        if jump is not None:
+            x[i], x[j] = jump, 0.0
+        if effect.rate is not None:
+            x[j] = min(effect.rate, max(-effect.rate, x[j]))
+        if self._limited:
+            self._apply_limits()
+
+    def _advance_servo_fault(self, u: float, n: int, d: np.ndarray | None) -> np.ndarray:
+        """``n`` steps with a servo fault, one at a time: the servo driven with ``Actuator.command(u)``; a stuck or
+        rate-limited surface coasts at its rate over the step (the exact ZOH of ``damage.coasting_matrix``: the
+        airframe sees the ramp), else the free step with its rate clipped to the limit."""
+        act, ad, bd, adc = self._act, self._ad, self._bd, self._adc
+        i, j = self._i_delta, self._i_delta_dot
+        ed = None if d is None else self.disturbance_zoh
+        x = self.x
+        for k in range(n):
+            ue = act.command(u)
+            xf = ad.dot(x)
+            xf += bd * ue
+            coast, rate = act.surface(x[i], xf[i], xf[j])
+            if coast:
+                xc = x.copy()
+                xc[j] = rate
+                xf = adc.dot(xc)
+            else:
+                xf[j] = rate
+            if ed is not None:
+                xf += ed @ d[k]
+            self.x = x = xf
+            if self._limited:
+                self._apply_limits()
+                x = self.x
+        self.steps += n
+        return self.x

@@ -35,9 +35,11 @@ from autopilot.shared.pwm import PWM_VALID_RANGE, PwmMap
 from autopilot.shared.series import SeriesRecorder
 from autopilot.shared.signing import SIGNING_LINK_SIM, Signing
 from sitl import plant as plants
+from sitl.fault_injection import FaultInjection
 
 M = mavlink
 ATTITUDE = M.MAVLINK_MSG_ID_ATTITUDE
+COMMAND_LONG = M.MAVLINK_MSG_ID_COMMAND_LONG
 HEARTBEAT = M.MAVLINK_MSG_ID_HEARTBEAT
 SERVO_OUTPUT_RAW = M.MAVLINK_MSG_ID_SERVO_OUTPUT_RAW
 
@@ -69,6 +71,7 @@ class SitlOptions:
     peer: tuple | None = None  # the autopilot's (host, port); None = the first that talks with its IDs
     sysid: int = 1  # the vehicle's system id (--sysid): the SITL is N:200, the autopilot's SITL link N:140
     plant: str = plants.KH2013A  # sitl.plant: kh2013a, FILE.toml or jsbsim:MODEL[:KEY=VALUE,...]
+    faults: tuple = ()  # sitl.damage.Fault, scheduled (--fault); a ground station's come while flying
 
 
 class SitlRecord:
@@ -109,9 +112,10 @@ class Sitl:
             rate = opts.rate_hz if opts.lockstep else opts.sensor_rate_hz
             self.inj = Injector(dist, 1.0 / opts.physics_rate_hz, rate, opts.lockstep, opts.start_time_s)
             params = self.inj.params()
-        self.aircraft = plants.build(opts.plant, opts.physics_rate_hz, params, opts.disturbances)
+        damaged = plants.needs_damaged_model(opts.faults)
+        self.aircraft = plants.build(opts.plant, opts.physics_rate_hz, params, opts.disturbances, damaged)
         self._euler = plants.kind(opts.plant) == "jsbsim"  # ATTITUDE carries the plant's own pitch, yaw and q
-        self._advance = self.aircraft.advance if self.inj is None else self._advance_disturbed
+        self._advance_plant = self.aircraft.advance if self.inj is None else self._advance_disturbed
         self._rt_faults = self.inj is not None and not opts.lockstep and self.inj.up is not None
         _, autopilot_id, sitl_id = vehicle_ids(opts.sysid)
         self.link = UdpLink(
@@ -120,7 +124,7 @@ class Sitl:
             opts.listen,
             opts.peer,  # the autopilot's address when given (--autopilot), else learned from its first packet
             peers=[autopilot_id],
-            msgids=[SERVO_OUTPUT_RAW, HEARTBEAT],
+            msgids=[SERVO_OUTPUT_RAW, HEARTBEAT, COMMAND_LONG],
             learn_remote=opts.peer is None,
             signing=Signing(opts.signing_key, SIGNING_LINK_SIM) if opts.signing_key else None,
         )
@@ -149,6 +153,10 @@ class Sitl:
         self.link.on_hot(SERVO_OUTPUT_RAW, self._on_servo)  # the usual servo datagram, without a message object
         self._fds = [self.link.sock]  # select(2): microsecond timeouts (epoll rounds up to milliseconds)
         self._pk_att = self.link.fast_packer(M.MAVLink_attitude_message)
+        self._wall0 = None  # real time: the wall clock of physics step 0
+        # The faults (sitl.damage): scheduled, and a ground station's; self._advance flies them (fault_injection)
+        self.faulting = FaultInjection(self, opts.faults)
+        self._advance = self.faulting.advance
         self._psi = self._psi_t = self._psi_r = 0.0  # heading, the time and yaw rate it was integrated to
 
     def _heading(self, r: float | None = None) -> float:
@@ -169,8 +177,11 @@ class Sitl:
         )
 
     def _on_msg(self, msg, t_rx):
-        if msg.get_msgId() == SERVO_OUTPUT_RAW:
+        mid = msg.get_msgId()
+        if mid == SERVO_OUTPUT_RAW:
             self._take_servo(t_rx, msg.time_usec, getattr(msg, self._servo_field))
+        elif mid == COMMAND_LONG:
+            self.faulting.command(msg, t_rx)
 
     def _on_servo(self, t_rx, values):
         """SERVO_OUTPUT_RAW from the link's hot path: the payload in wire order (the rudder at ``_servo_index``)."""
@@ -396,7 +407,7 @@ class Sitl:
         phys_rate = opts.physics_rate_hz
         sensor_period = 1.0 / opts.sensor_rate_hz
         self.sim_t0 = opts.start_time_s
-        t0 = perf()
+        self._wall0 = t0 = perf()  # physics step k is due at wall time t0 + k / physics rate
         next_sensor = t0
         next_hb = t0
         last_usec = None
@@ -520,6 +531,7 @@ class Sitl:
             "first_servo_sim_s": self.first_servo_sim_s,
             "last_servo_sim_s": self.last_servo_sim_s,
             "sent": self.link.send_clock.summary(),  # monotonic clock of its sends (the verdict's evidence)
+            "faults": self.faulting.records(),  # sitl.damage: each fault, its source and whether it started
             **({"disturbances": self.inj.stats()} if self.inj is not None else {}),
         }
 

@@ -30,7 +30,7 @@ from pathlib import Path
 import numpy as np
 
 from autopilot.shared.numerics import wrap_pi, zoh
-from sitl import model
+from sitl import damage, model
 
 FT = 0.3048  # m per ft
 KT = 1852.0 / 3600.0  # m/s per kt
@@ -49,6 +49,7 @@ SURFACE_MAX_DEG = {"aileron": 17.5, "rudder": 16.0}
 # JSBSim's signs: a positive aileron command rolls right, a positive rudder command yaws and then rolls left.  The
 # command is mapped with this sign so that a positive command rolls right, as the law assumes (hf gain > 0).
 SURFACE_SIGN = {"aileron": 1.0, "rudder": -1.0}
+SLUG_LB = 32.174049  # lb per slug (JSBSim's slugtolb)
 
 
 class JsbsimPlantError(ValueError):
@@ -130,14 +131,28 @@ def _new_fdm():
     return fdm
 
 
-def trimmed_fdm(spec: JsbsimSpec, dt: float, seed: int = 0):
-    """A JSBSim executive with ``spec.model`` loaded and trimmed in wings-level flight; raises JsbsimPlantError."""
+def _load_damaged(fdm, spec: JsbsimSpec):
+    """Load the model's copy with the fault properties (``sitl.jsbsim_damage``) from a temporary folder, deleted
+    once loaded; False if JSBSim could not load it."""
+    import tempfile
+
+    from sitl import jsbsim_damage
+
+    root = _root()
+    with tempfile.TemporaryDirectory(prefix="clsac-jsbsim-") as tmp:
+        jsbsim_damage.write_model(root / "aircraft" / spec.model, tmp, spec.model, spec.surface)
+        return fdm.load_model_with_paths(spec.model, tmp, str(root / "engine"), str(root / "systems"))
+
+
+def trimmed_fdm(spec: JsbsimSpec, dt: float, seed: int = 0, damaged: bool = False):
+    """A JSBSim executive with ``spec.model`` loaded and trimmed in wings-level flight; raises JsbsimPlantError.
+    ``damaged``: the model's copy with the fault properties and ballast (``sitl.jsbsim_damage``)."""
     import jsbsim
 
     if spec.model not in available_models():
         raise JsbsimPlantError(f"jsbsim plant: no model {spec.model!r}; available: {', '.join(available_models())}")
     fdm = _new_fdm()
-    if not fdm.load_model(spec.model):
+    if not (_load_damaged(fdm, spec) if damaged else fdm.load_model(spec.model)):
         raise JsbsimPlantError(f"jsbsim plant: JSBSim could not load model {spec.model!r}")
     # The model's own <output> (c172x: JSBout172B.csv in the working folder, opened by run_ic even when disabled):
     # pointed at the null device, and off.
@@ -213,11 +228,14 @@ class JsbsimPlant:
         seed: int = 0,
         crosswind: float = 0.0,
         servo: tuple[float, float] = (model.SERVO_WN2, model.SERVO_2ZETA_WN),
+        damaged: bool = False,
     ):
+        """``damaged``: fly the model's copy with the fault properties and ballast (``sitl.jsbsim_damage``), which
+        the faults effectiveness, damping, inertia and cg need (the servo faults and airspeed do not)."""
         self.spec = spec
         self.config = JsbsimConfig(physics_rate_hz)
         dt = self.config.dt
-        self.fdm = fdm = trimmed_fdm(spec, dt, seed)
+        self.fdm = fdm = trimmed_fdm(spec, dt, seed, damaged)
         self.surface_trim = fdm[SURFACES[spec.surface]]
         self._cmd = fdm.get_property_manager().get_node(SURFACES[spec.surface])
         self._per_norm = SURFACE_SIGN[spec.surface] / spec.surface_max_rad
@@ -235,6 +253,19 @@ class JsbsimPlant:
         self.delta = self.delta_dot = 0.0
         self.steps = 0
         self.n = 6
+        self._effect = damage.NOMINAL  # the faults' effect flown (set_effect)
+        self._act: damage.Actuator | None = None  # the servo's path under a servo fault
+        self._u_last = 0.0
+        self._damaged = damaged
+        self._v0 = self.pilot.v0
+        if damaged:  # the trimmed aircraft's mass properties: the ballast is sized from them
+            from sitl.jsbsim_damage import anatomy
+
+            a = anatomy(_root() / "aircraft" / spec.model / f"{spec.model}.xml", spec.surface)
+            self._ballast0 = a.pointmasses  # index of the first ballast point mass
+            self._semispan_in = 6.0 * a.span_ft if a.span_ft else None
+            self._mass0 = {k: fdm[f"inertia/{k}"] for k in ("weight-lbs", "cg-x-in", "cg-y-in", "cg-z-in")}
+            self._mass0["ixx"] = fdm["inertia/ixx-slugs_ft2"]
         self._read()
 
     @property
@@ -295,12 +326,88 @@ class JsbsimPlant:
             from sitl.aircraft import NonFiniteCommandError
 
             raise NonFiniteCommandError(f"servo command must be finite, got {delta_command!r}")
+        self._u_last = u
+        if self._act is not None:
+            return self._advance_servo_fault(u, n)
         a00, a01, a10, a11, b0, b1 = self._servo
         d_, dd = self.delta, self.delta_dot
         run, cmd, trim, k = self.fdm.run, self._cmd.set_double_value, self.surface_trim, self._per_norm
         steps = self.steps
         for _ in range(n):
             d_, dd = a00 * d_ + a01 * dd + b0 * u, a10 * d_ + a11 * dd + b1 * u  # exact ZOH of eq. (65)
+            cmd(min(1.0, max(-1.0, trim + d_ * k)))
+            if steps % PILOT_EVERY == 0:
+                self.pilot()
+            run()
+            steps += 1
+        self.delta, self.delta_dot, self.steps = d_, dd, steps
+        self._read()
+        return self.x
+
+    # ------------------------------------------------------------------ faults (sitl.damage)
+    def set_effect(self, effect: damage.Effect) -> None:
+        """Fly under ``effect`` (``sitl.damage.Effect``) from the next step; ``damage.NOMINAL``: the aircraft as built.
+
+        Effectiveness and damping set the multipliers in the model's coefficient functions, inertia and cg the
+        ballast's weights (``sitl.jsbsim_damage``; both need ``damaged=True``), airspeed the safety pilot's target;
+        the servo faults put ``damage.Actuator`` on the servo's path."""
+        old, self._effect = self._effect, effect
+        f = self.fdm
+        if self._damaged:
+            from sitl.jsbsim_damage import DAMPING, EFFECTIVENESS
+
+            f[EFFECTIVENESS] = effect.effectiveness
+            f[DAMPING] = effect.damping
+            self._set_ballast(effect)
+        elif effect.airframe or effect.inertia != 1.0 or effect.cg != 0.0:
+            raise JsbsimPlantError("jsbsim plant: a fault on the airframe needs the plant built with damaged=True")
+        self.pilot.v0 = self._v0 if effect.airspeed is None else effect.airspeed
+        if not effect.servo:
+            self._act = None
+            return
+        servo = ("stuck", "stuck_at", "off", "rate", "delay")
+        if self._act is None or any(getattr(effect, k) != getattr(self._act.effect, k) for k in servo):
+            self._act = damage.Actuator(effect, self.config.dt, self._u_last)
+        self._act.effect = effect
+        jump = damage.jammed(old, effect, self.delta)
+        if jump is not None:
+            self.delta, self.delta_dot = jump, 0.0
+        if effect.rate is not None:
+            self.delta_dot = min(effect.rate, max(-effect.rate, self.delta_dot))
+        self._read()
+
+    def _set_ballast(self, effect: damage.Effect) -> None:
+        """The wing-tip ballast of the inertia and cg faults, sized from the trimmed aircraft's mass properties.
+
+        inertia=F: two equal masses at the CG +-b/2 (the CG stays, Ixx grows by 2 m (b/2)^2 = (F - 1) Ixx, Izz by
+        the same, the weight by 2 m); cg=M: one mass at the tip on M's side, w = W M / (b/2 - |M|), which moves the
+        CG by M (parallel to the lateral axis; the weight grows by w)."""
+        m0, i0, y = self._mass0, self._ballast0, self._semispan_in
+        pair = (effect.inertia - 1.0) * m0["ixx"] * SLUG_LB / (2.0 * (y / 12.0) ** 2)
+        shift = effect.cg / 0.0254  # in
+        tip = math.copysign(y, shift)
+        cg_w = (m0["weight-lbs"] + 2.0 * pair) * abs(shift) / (y - abs(shift)) if shift else 0.0
+        f = self.fdm
+        for i, (w, dy) in enumerate(((pair, -y), (pair, y), (cg_w, tip))):
+            f[f"inertia/pointmass-location-X-inches[{i0 + i}]"] = m0["cg-x-in"]
+            f[f"inertia/pointmass-location-Y-inches[{i0 + i}]"] = m0["cg-y-in"] + dy
+            f[f"inertia/pointmass-location-Z-inches[{i0 + i}]"] = m0["cg-z-in"]
+            f[f"inertia/pointmass-weight-lbs[{i0 + i}]"] = w
+
+    def _advance_servo_fault(self, u: float, n: int) -> np.ndarray:
+        """``n`` steps with a servo fault: the servo driven with ``Actuator.command(u)``, the surface coasting when
+        stuck or at its rate limit (``Actuator.surface``), else the free step with its rate clipped."""
+        act = self._act
+        a00, a01, a10, a11, b0, b1 = self._servo
+        d_, dd = self.delta, self.delta_dot
+        run, cmd, trim, k = self.fdm.run, self._cmd.set_double_value, self.surface_trim, self._per_norm
+        dt = self.config.dt
+        steps = self.steps
+        for _ in range(n):
+            ue = act.command(u)
+            df, ddf = a00 * d_ + a01 * dd + b0 * ue, a10 * d_ + a11 * dd + b1 * ue  # exact ZOH of eq. (65)
+            coast, rate = act.surface(d_, df, ddf)
+            d_, dd = (d_ + rate * dt, rate) if coast else (df, rate)
             cmd(min(1.0, max(-1.0, trim + d_ * k)))
             if steps % PILOT_EVERY == 0:
                 self.pilot()

@@ -113,9 +113,58 @@ def _turbulence_name(dist) -> str | None:
     raise PlantError("JSBSim's MIL-F-8785C turbulence takes an intensity only (--turbulence)")
 
 
-def build(text: str, physics_rate_hz: float, params: dict | None = None, dist=None):
+def fault_refusals(text: str) -> dict[str, str]:
+    """The fault kinds (``sitl.damage.KINDS``) this plant cannot fly, each with the reason."""
+    from sitl import damage
+
+    k = kind(text)
+    if k == "jsbsim":
+        from sitl.jsbsim_damage import refusals
+        from sitl.jsbsim_plant import _root, parse_spec
+
+        spec = parse_spec(text)
+        return refusals(_root() / "aircraft" / spec.model / f"{spec.model}.xml", spec.surface)
+    why = {kd: "a JSBSim aircraft's mass properties and safety pilot only" for kd in damage.JSBSIM_KINDS}
+    for kd in damage.LINEAR_KINDS:
+        why.pop(kd)
+    if k == "file" and damage.roll_rate_index(load_file(text).truth) is None:
+        why["damping"] = "the plant file's roll rate is not one of its states (a transfer function)"
+    return why
+
+
+def check_faults(text: str, faults) -> None:
+    """PlantError if a fault (``sitl.damage.Fault``) cannot fly on this plant: its kind, or (cg) its size."""
+    from sitl import damage
+
+    why = fault_refusals(text)
+    try:
+        damage.check_kinds(faults, frozenset(damage.KINDS) - set(why), text, why)
+    except damage.FaultSpecError as exc:
+        raise PlantError(str(exc)) from None
+    if kind(text) == "jsbsim":
+        from sitl.jsbsim_damage import anatomy
+        from sitl.jsbsim_plant import _root, parse_spec
+
+        spec = parse_spec(text)
+        span = anatomy(_root() / "aircraft" / spec.model / f"{spec.model}.xml", spec.surface).span_ft
+        most = 0.25 * span * 0.3048 if span else None  # half the half span: a tip ballast as heavy as the aircraft
+        for f in faults:
+            if f.kind == "cg" and most and abs(f.value) > most:
+                raise PlantError(
+                    f"--fault {f.spec} cannot fly on --plant {text}: beyond {most:.2f} m (half the half span) the "
+                    "wing-tip ballast would weigh more than the aircraft"
+                )
+
+
+def needs_damaged_model(faults) -> bool:
+    """Whether a JSBSim plant must fly the model's copy with the fault properties (``sitl.jsbsim_damage``)."""
+    return any(f.kind in ("effectiveness", "damping", "inertia", "cg") for f in faults)
+
+
+def build(text: str, physics_rate_hz: float, params: dict | None = None, dist=None, damaged: bool = False):
     """The plant ``text`` names, at the physics rate; ``params``: KH2013A's perturbed matrices (``--scale``);
-    ``dist``: the flight's ``sitl.disturbances.Disturbances`` (JSBSim takes its turbulence, crosswind and seed)."""
+    ``dist``: the flight's ``sitl.disturbances.Disturbances`` (JSBSim takes its turbulence, crosswind and seed);
+    ``damaged``: a JSBSim plant flies the model's copy with the fault properties (``needs_damaged_model``)."""
     k = kind(text)
     if k == "kh2013a":
         return Aircraft(AircraftConfig(physics_rate_hz=physics_rate_hz), params=params)
@@ -137,6 +186,7 @@ def build(text: str, physics_rate_hz: float, params: dict | None = None, dist=No
             turbulence=_turbulence_name(dist),
             seed=0 if dist is None else dist.seed,
             crosswind=0.0 if dist is None else dist.atmosphere.crosswind,
+            damaged=damaged,
         )
     except JsbsimPlantError as exc:
         raise PlantError(str(exc)) from None

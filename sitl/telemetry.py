@@ -14,10 +14,11 @@ import argparse
 import dataclasses
 import time
 
+from autopilot.shared.servo_failures import FAULT_PREFIX
 from autopilot.shared.telemetry.flags import attach as attach_hook
 from autopilot.shared.telemetry.hooks import ProcessHook, nan_if_none
 from autopilot.shared.telemetry.layout import DEG_PER_RAD as DEG
-from autopilot.shared.telemetry.layout import GREEN, GREY, PURPLE, Plot, Pose, TableLayout
+from autopilot.shared.telemetry.layout import GREEN, GREY, PURPLE, Plot, Pose, TableLayout, fault_marks_layout
 from sitl.model import STATE_NAMES
 
 SITL = "/sitl"
@@ -86,14 +87,28 @@ class SitlHook(ProcessHook):
         self._push = self.table.push
         self._held = tel.table(SITL_HELD_TABLE).push if held else None
         self._phi = STATE_NAMES.index("phi")
+        self._rows: dict = {}  # the last row of each table: where a fault's markers sit
+        self._marks: dict = {}  # the fault-marker tables, made at the first fault (a flight without none)
 
     def __call__(self, rec) -> None:
         self.last_t = t = rec.t_sim
         wall = time.time()
-        self._push((t, wall, tuple(rec.x.tolist()) + (nan_if_none(rec.u), nan_if_none(rec.pwm))))
+        self._rows[SITL_TABLE] = row = tuple(rec.x.tolist()) + (nan_if_none(rec.u), nan_if_none(rec.pwm))
+        self._push((t, wall, row))
         if self._held is not None:
             held = rec.sitl.aircraft.held()
-            self._held((t, wall, (*(held[k] for k in HELD_FIELDS), float(rec.x[self._phi]))))
+            self._rows[SITL_HELD_TABLE] = row = (*(held[k] for k in HELD_FIELDS), float(rec.x[self._phi]))
+            self._held((t, wall, row))
+
+    def event(self, severity, text: str) -> None:
+        """A status event in ``/sitl/events``; a fault's start or end also as a marker on every plot."""
+        super().event(severity, text)
+        if str(text).startswith(FAULT_PREFIX):
+            wall = time.time()
+            for layout, row in self._rows.items():
+                if layout not in self._marks:
+                    self._marks[layout] = self.tel.table(fault_marks_layout(layout))
+                self._marks[layout].push((self.last_t, wall, row))
 
 
 def attach(args: argparse.Namespace, sitl):

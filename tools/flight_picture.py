@@ -52,6 +52,7 @@ def draw_flight_png(
         return None
     mode = "lockstep" if lockstep else "real time"
     title = f"Flight {out.name}: {name}, {mode}, {rate:g} Hz"
+    faults = _fault_marks(out)
     return save_flight_png(
         out / "flight.png",
         series,
@@ -61,7 +62,19 @@ def draw_flight_png(
         u_limit_rad=math.radians(u_limit_deg),
         title=title,
         controller=controller,
+        faults=faults,
     )
+
+
+def _fault_marks(out: Path) -> list[tuple[float, str]]:
+    """The faults of the flight (the SITL's stats, DIR/sitl.json) as flight.png marks; none without the file."""
+    from tools.flight_png import fault_marks
+
+    try:
+        with open(out / "sitl.json") as f:
+            return fault_marks(json.load(f).get("faults"))
+    except (OSError, ValueError, AttributeError):
+        return []
 
 
 def _warm_up() -> None:

@@ -45,6 +45,7 @@ C_CRM = "#2ca02c"
 C_GAINS = {"ke": "#ff7f0e", "kx": "#9467bd", "ku": "#8c564b"}
 C_GRID = "#e7e7e7"  # matplotlib's grid, #b0b0b0 at alpha 0.3 on white
 C_MARK = "#4d4d4d"  # mode switches and rudder limits ("0.3")
+C_FAULT = "#d55e00"  # a fault's start and end (sitl.damage), dashed, its name in the top panel
 C_NOTE = "#666666"  # "not recorded" notes ("0.4")
 C_LEGEND_EDGE = "#cccccc"
 C_NOTE_EDGE = "#b3b3b3"
@@ -399,7 +400,7 @@ def _note_box(c: _Canvas, ax: _Axes, lines: list[str]) -> None:
 
 
 def _draw_panel(
-    c: _Canvas, ax: _Axes, panel: Panel, t: np.ndarray, xticks: np.ndarray, modes: list, last: bool
+    c: _Canvas, ax: _Axes, panel: Panel, t: np.ndarray, xticks: np.ndarray, modes: list, last: bool, faults=()
 ) -> None:
     # grid at the ticks, under everything
     yticks = nice_ticks(*ax.ylim, _bins(ax.bottom - ax.top, 2)) if panel.has_data else np.empty(0)
@@ -421,6 +422,9 @@ def _draw_panel(
         c.rule(True, ax.y(v), ax.left, ax.right, C_MARK, dotted_lw=0.8)
     for ts, _name in modes:  # the mode switches, under the legend and the notes
         c.rule(False, ax.x(ts), ax.top, ax.bottom, C_MARK, dotted_lw=0.8)
+    for ts, _name in faults:  # a fault's start or end, where it lies on the time axis
+        if ax.xlim[0] <= ts <= ax.xlim[1]:
+            c.rule(False, ax.x(ts), ax.top, ax.bottom, C_FAULT, dotted_lw=1.6)
     # frame and ticks (outward); tick labels at the left, and at the bottom of the last panel only (shared time axis)
     for horizontal, at, a, b in (
         (True, ax.top, ax.left, ax.right + 1),
@@ -481,9 +485,12 @@ def _bins(length_px: float, per_label: float) -> int:
     return int(min(9, max(1, (length_px / PX) // (per_label * PT_TICK))))
 
 
-def render(t: np.ndarray, panels: list[Panel], modes: list[tuple[float, str]], title: str) -> Image.Image:
+def render(
+    t: np.ndarray, panels: list[Panel], modes: list[tuple[float, str]], title: str, faults: list[tuple[float, str]] = ()
+) -> Image.Image:
     """The picture: ``panels`` (from the top, len(RATIOS) of them) against the time ``t``, a dotted line at each
-    mode switch ((time, name)) in every panel with its name above the top panel, the title above all."""
+    mode switch ((time, name)) in every panel with its name above the top panel, an orange one at each fault's
+    start and end ((time, text)) with its text in the top panel, the title above all."""
     c = _Canvas()
     frames = panel_frames()
     xlim = data_range([t]) or (0.0, 1.0)
@@ -491,7 +498,11 @@ def render(t: np.ndarray, panels: list[Panel], modes: list[tuple[float, str]], t
     for i, (panel, frame) in enumerate(zip(panels, frames)):
         values = [ln.y for ln in panel.lines if ln.y is not None] + [np.asarray(panel.hlines, float)]
         ax = _Axes(*frame, xlim, data_range(values) or (0.0, 1.0))
-        _draw_panel(c, ax, panel, t, xticks, modes, last=i == len(panels) - 1)
+        _draw_panel(c, ax, panel, t, xticks, modes, last=i == len(panels) - 1, faults=faults)
+        if i == 0:  # the faults' texts along their lines in the top panel, reading upwards, left of the line
+            for ts, s in faults:
+                if xlim[0] <= ts <= xlim[1]:
+                    c.text((ax.x(ts) - 1, (ax.top + ax.bottom) / 2), s, PT_MODE, color=C_FAULT, rotate=True)
         title_y = ax.top - TITLE_PAD
         if i == 0 and modes:
             # The names, each after the previous one if they would overlap; one that would land more than
@@ -559,11 +570,12 @@ def flight_image(
     u_limit_rad: float,
     title: str,
     controller: str | None = None,
+    faults: list[tuple[float, str]] = (),
 ) -> Image.Image:
     """The picture of one flight (``series``: ``tools.series_files.load_series``; ``t`` must be there): roll
     against the command and the reference models, the rudder command, the adaptive gains; mode switches marked.
     ``controller``: "clsac", "sac" or "baseline" (the fixed-gain PID: no adaptive gains); None: CL-SAC if
-    ``lv`` > 0, else SAC."""
+    ``lv`` > 0, else SAC.  ``faults``: (time, text) of each fault's start and end (``fault_marks``), marked."""
     t = _column(series, "t")
     if t is None:
         raise ValueError("flight_image: no time series 't'")
@@ -623,7 +635,7 @@ def flight_image(
             gains.missing.append("ke")
         else:
             gains.lines.append(Line(col["ke"], C_GAINS["ke"], 1.0, label="K_{p} (fixed)"))
-        return render(t, [tracking, rudder, gains], mode_switches(t, col["mode"]), title)
+        return render(t, [tracking, rudder, gains], mode_switches(t, col["mode"]), title, faults)
     gains = Panel("Adaptive gains K = K_{p} + K_{I}", "[-]", legend_cols=3)
     for key, label in (("ke", "K_{e}"), ("kx", "K_{x}"), ("ku", "K_{u}")):
         if col[key] is None:
@@ -631,7 +643,20 @@ def flight_image(
         else:
             gains.lines.append(Line(col[key], C_GAINS[key], 1.0, label=label))
 
-    return render(t, [tracking, rudder, gains], mode_switches(t, col["mode"]), title)
+    return render(t, [tracking, rudder, gains], mode_switches(t, col["mode"]), title, faults)
+
+
+def fault_marks(records) -> list[tuple[float, str]]:
+    """(time, text) of the start and end of each fault that started (``summary.json`` / sitl.json ``faults``)."""
+    out = []
+    for f in records or ():
+        if not isinstance(f, dict) or not f.get("started"):
+            continue
+        label = str(f.get("spec", f.get("kind", "fault"))).split("@")[0]
+        out.append((float(f["start"]), f"fault {label}"))
+        if f.get("end") is not None:
+            out.append((float(f["end"]), f"end {label}"))
+    return sorted(out)
 
 
 def save_flight_png(path: str | os.PathLike, series: dict, **kw) -> Path:

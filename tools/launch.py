@@ -52,7 +52,7 @@ from autopilot.shared.cli import (
     viewer_url,
 )
 from autopilot.shared.process import EXIT_USAGE, install_stop_handlers
-from sitl import disturbances
+from sitl import damage, disturbances
 from tools.flight import (
     LOCKSTEP_IDLE_EXIT_S,
     MERGE_MAX_MB,
@@ -342,6 +342,7 @@ def build_parser() -> OneLineArgumentParser:
     add_controller_arguments(p)
     add_envelope_arguments(p)
     disturbances.add_arguments(p)
+    damage.add_argument(p)
     return p
 
 
@@ -352,7 +353,7 @@ def _flag(keyword: str) -> str:
 
 # The process each flag configures: a value refused before the flight is reported as that process's failure.
 _OWNERS = {
-    "sitl": {"physics_rate", "sensor_rate", "start_time", "plant", *disturbances.FLAGS},
+    "sitl": {"physics_rate", "sensor_rate", "start_time", "plant", "fault", *disturbances.FLAGS},
     "autopilot": {"rate", "lv", "pfc", "sigma_xu", "dead_zone_deg", "ki_max", "u_limit_deg", "controller"}
     | {
         "freeze_when_saturated",

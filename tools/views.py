@@ -13,7 +13,7 @@ from collections.abc import Sequence
 
 import rerun.blueprint as rrb
 
-from autopilot.shared.telemetry.layout import SIM_TIME
+from autopilot.shared.telemetry.layout import SIM_TIME, fault_mark_path
 from autopilot.telemetry import layout as A
 from sitl import telemetry as S
 
@@ -33,11 +33,22 @@ def _axis() -> rrb.TimeAxis:
     return rrb.TimeAxis(link="LinkToGlobal")
 
 
+# The plots a fault's start and end are marked on (autopilot.shared.telemetry.layout.fault_marks_layout).
+FAULT_MARKED = frozenset(p.path for t in (A.AUTOPILOT, S.SITL_TABLE, S.SITL_HELD_TABLE) for p in t.plots) | {
+    f"{A.AP_LINK}/**"
+}
+
+
+def _with_fault_marks(contents: Sequence[str]) -> list[str]:
+    """``contents`` and the fault markers of each of its plots."""
+    return list(contents) + [fault_mark_path(c) for c in contents if c in FAULT_MARKED]
+
+
 def _plot(name: str, contents: Sequence[str], *, legend: bool = True) -> rrb.TimeSeriesView:
     return rrb.TimeSeriesView(
         name=name,
         origin="/",
-        contents=list(contents),
+        contents=_with_fault_marks(contents),
         axis_x=_axis(),
         plot_legend=rrb.PlotLegend(visible=legend),
     )

@@ -11,7 +11,9 @@ import math
 import time
 from collections.abc import Sequence
 
+from autopilot.shared.servo_failures import FAULT_PREFIX
 from autopilot.shared.telemetry.hooks import ProcessHook, nan_if_none
+from autopilot.shared.telemetry.layout import fault_marks_layout
 from autopilot.telemetry import layout as L
 
 _GAIN_INDEX = tuple(L.AUTOPILOT.index(k) for k in ("ke", "kx", "ku"))  # in the autopilot's row
@@ -47,6 +49,8 @@ class AutopilotHook(ProcessHook):
         self._failsafe = None  # the last Failsafe member seen
         self.param_sets = tel.table(L.PARAM_SETS)
         self._row: tuple | None = None  # the last step's row: its Ke, Kx, Ku are where a PARAM_SET's markers sit
+        self._link_rows: dict = {}  # the last counters of each link: where a fault's markers sit on their plot
+        self._marks: dict = {}  # the fault-marker tables, made at the first fault the SITL reports
 
     def __call__(self, rec) -> None:
         wall = time.time()
@@ -77,9 +81,23 @@ class AutopilotHook(ProcessHook):
             for name, table in self.links.items():
                 link = getattr(ap, name)
                 # Straight from the link's attributes: counters() builds whole dicts for the same numbers.
-                table.push(
-                    (t, wall, (float(link.rx_packets), float(link.tx_packets), float(sum(link.rejected.values()))))
-                )
+                counts = (float(link.rx_packets), float(link.tx_packets), float(sum(link.rejected.values())))
+                self._link_rows[name] = counts
+                table.push((t, wall, counts))
+
+    def event(self, severity, text: str) -> None:
+        """A status event in ``/autopilot/events``; a fault's start or end the SITL reports (``SITL: fault ...``)
+        also as a marker on every plot, at the last step's values."""
+        super().event(severity, text)
+        if not str(text).startswith("SITL: " + FAULT_PREFIX) or self._row is None:
+            return
+        wall = time.time()
+        layouts = [(L.AUTOPILOT, self._row)]
+        layouts += [(L.link_layout(n, i), self._link_rows[n]) for i, n in enumerate(self.links) if n in self._link_rows]
+        for layout, row in layouts:
+            if layout.name not in self._marks:
+                self._marks[layout.name] = self.tel.table(fault_marks_layout(layout))
+            self._marks[layout.name].push((self.last_t, wall, row))
 
     def param_set(self, name: str, value: float, accepted: bool) -> None:
         """A ``Vehicle.param_hooks`` callable: the PARAM_SET as a line in the event log (refused at WARN; the reason

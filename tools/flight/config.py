@@ -147,6 +147,8 @@ class FlightConfig:
     reorder: float | None = None  # link reordering probability
     scale: str | tuple | None = None  # "NAME=F" or "NAME=LO:HI" plant scale factor, or a list of them
     seed: int | None = None  # seed of every disturbance (default 0)
+    # mid-flight faults, passed to the SITL (sitl.damage): "KIND[=VALUE]@START[:END]" specs (or Fault), a list of them
+    fault: str | tuple | list | None = None
     plant: str = "kh2013a"  # the SITL's plant (sitl.plant): kh2013a, FILE.toml or jsbsim:MODEL[:KEY=VALUE,...]
     params: str | os.PathLike | None = None  # the autopilot's parameter file; default the plant's designed one
     baseline_gains: str | tuple | None = None  # "KP,KI,KD" of the baseline; default the plant's designed ones
@@ -289,6 +291,7 @@ class FlightConfig:
             raise FlightConfigError(exc.field, str(exc)) from None
         except disturbances.ERRORS as exc:
             raise FlightConfigError("disturbances", str(exc)) from None
+        put("fault", _faults(self.fault))
         self._check_plant()
 
     def _check_plant(self) -> None:
@@ -299,6 +302,7 @@ class FlightConfig:
         try:
             plants.check(self.plant)
             plants.check_disturbances(self.plant, {k: getattr(self, k) for k in disturbances.FLAGS})
+            plants.check_faults(self.plant, self.fault)
             if plants.kind(self.plant) == "jsbsim":
                 _trims(self.plant)  # a JSBSim aircraft that does not trim there is refused before anything starts
         except plants.PlantError as exc:
@@ -400,9 +404,21 @@ class FlightConfig:
             and self.physics_rate == 1000.0
             and self.u_limit_deg == 30.0
             and not self.disturbed
+            and not self.fault
             and self.plant == "kh2013a"
         )
         return "paper" if paper else "custom"
+
+
+def _faults(value) -> tuple:
+    """``fault``: None, one spec (text or ``sitl.damage.Fault``) or a list of them -> a tuple of Fault."""
+    from sitl import damage
+
+    items = [] if value is None else [value] if isinstance(value, (str, damage.Fault)) else list(value)
+    try:
+        return tuple(v if isinstance(v, damage.Fault) else damage.parse(v) for v in items)
+    except damage.FaultSpecError as exc:
+        raise FlightConfigError("fault", f"fault: {exc}") from None
 
 
 # ---------------------------------------------------------------------------------------- child processes
@@ -492,6 +508,7 @@ def child_argvs(
         + pwm
         + cfg.disturbance_argv
         + (["--plant", cfg.plant] if cfg.plant != "kh2013a" else [])
+        + _fault_argv(cfg.fault)
     )
     ap = (
         py
@@ -599,6 +616,12 @@ def child_argvs(
     for host, port in cfg.gcs_peer:
         ap += ["--gcs-peer", f"{host}:{port}"]
     return {"sitl": sitl, "autopilot": ap, "gcs": gcs}
+
+
+def _fault_argv(faults) -> list[str]:
+    from sitl import damage
+
+    return damage.to_argv(faults)
 
 
 def _flight_key(cfg: FlightConfig, out: Path) -> Path | None:

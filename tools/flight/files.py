@@ -203,6 +203,8 @@ def build_summary(
         "timing": ap.get("timing") if ap else None,
         "events": {"autopilot": ap.get("events") if ap else None, "sitl": sitl.get("events") if sitl else None},
         "disturbances": sitl.get("disturbances") if sitl else None,  # what the SITL injected (sitl.disturbances)
+        # mid-flight faults (sitl.damage): the SITL's record (command line and ground station), else those asked
+        "faults": sitl.get("faults", []) if sitl else [f.record(None) for f in cfg.fault],
         "counters": {
             "autopilot": ap.get("links") if ap else None,
             "sitl": sitl.get("link") if sitl else None,

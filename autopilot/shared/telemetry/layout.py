@@ -128,3 +128,33 @@ class TableLayout:
     @property
     def paths(self) -> tuple[str, ...]:
         return tuple(p.path for p in self.plots)
+
+
+# A fault's start or end (the SITL's status text ``fault ...``, autopilot.shared.servo_failures.FAULT_PREFIX): a
+# marker on each plot of a process at the plotted values then, under /<process>/fault_marks/<the plot's path>.
+FAULT_MARKS = "fault_marks"
+
+
+def fault_mark_path(path: str) -> str:
+    """The entity of the fault markers on the plot ``path`` (``/sitl/roll`` -> ``/sitl/fault_marks/roll``)."""
+    head, _, rest = path[1:].partition("/")
+    return f"/{head}/{FAULT_MARKS}/{rest}"
+
+
+def fault_marks_layout(table: TableLayout, color: Rgb = VERMILLION) -> TableLayout:
+    """The fault markers of ``table``'s plots: a row of the same fields where a fault starts or ends, as points."""
+    return TableLayout(
+        f"{table.name}_fault_marks",
+        table.fields,
+        tuple(
+            Plot(
+                fault_mark_path(p.path),
+                p.fields,
+                tuple(f"fault: {label}" for label in p.labels),
+                (color,) * len(p.fields),
+                scale=p.scale,
+                points=True,
+            )
+            for p in table.plots
+        ),
+    )
