@@ -118,7 +118,7 @@ class Fault:
         return {
             "kind": self.kind,
             "value": self.value,
-            "unit": KINDS[self.kind].si_unit or None,
+            "unit": (KINDS[self.kind].si_unit or None) if self.value is not None else None,
             "start": self.start,
             "end": self.end,
             "source": self.source,
