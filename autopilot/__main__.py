@@ -204,6 +204,12 @@ def build_parser() -> OneLineArgumentParser:
         help="load a parameter file at start (MAVProxy 'param save' or QGroundControl format; overrides the flags)",
     )
     p.add_argument(
+        "--failure-injection",
+        action="store_true",
+        help="take MAV_CMD_INJECT_FAILURE from the ground stations and relay it to the SITL (parameter "
+        "SYS_FAILURE_EN = 1; default: refused with MAV_RESULT_DENIED, as PX4 does)",
+    )
+    p.add_argument(
         "--disarmed",
         action="store_true",
         help="start disarmed (rudder neutral until a ground station arms: COMPONENT_ARM_DISARM)",
@@ -278,6 +284,7 @@ def main(argv=None) -> int:
         "attitude_timeout_s": args.attitude_timeout,
         "setpoint_timeout_s": args.setpoint_timeout,
         "max_roll_rad": math.radians(args.max_roll_deg),
+        "failure_injection": float(args.failure_injection),  # SYS_FAILURE_EN (a --params file may set it too)
     }
     params = ParamTable(cfg, options)
     if args.params:
@@ -354,7 +361,7 @@ def main(argv=None) -> int:
     print(
         f"autopilot: {opts.name}{law} {mode} at {rate:g} Hz; SITL link {fmt_endpoint(ap.sitl.local)} -> "
         f"{fmt_endpoint(args.sitl)}; GCS link {fmt_endpoint(ap.gcs.local)} -> {fmt_endpoint(args.gcs)}; system id "
-        f"{args.sysid}{rt_note}",
+        f"{args.sysid}{rt_note}" + ("; failure injection on (SYS_FAILURE_EN 1)" if opts.failure_injection else ""),
         flush=True,
     )
     code = 0

@@ -1,10 +1,11 @@
 """The autopilot's parameter table: every controller value as a named MAVLink parameter (docs/design.md, "MAVLink").
 
-Names are at most 16 characters (PARAM_VALUE.param_id), all ``CLSAC_*``, values SI (rad, s, Hz) and sent as
-REAL32.  :class:`ParamTable` holds the values, validates a set (a rejected set leaves the value unchanged and
-raises :class:`ParamError` with a one-line reason) and builds the :class:`~autopilot.config.ClSacConfig` the
-law flies.  :func:`load_file` / :func:`save_file` read and write the two parameter-file formats of the ground
-stations: MAVProxy's ``NAME VALUE`` lines and QGroundControl's tab-separated ``SYS COMP NAME VALUE TYPE``.
+Names are at most 16 characters (PARAM_VALUE.param_id), all ``CLSAC_*`` but PX4's ``SYS_FAILURE_EN``, values SI
+(rad, s, Hz) and sent as REAL32.  :class:`ParamTable` holds the values, validates a set (a rejected set leaves the
+value unchanged and raises :class:`ParamError` with a one-line reason) and builds the
+:class:`~autopilot.config.ClSacConfig` the law flies.  :func:`load_file` / :func:`save_file` read and write the two
+parameter-file formats of the ground stations: MAVProxy's ``NAME VALUE`` lines and QGroundControl's tab-separated
+``SYS COMP NAME VALUE TYPE``.
 """
 
 from __future__ import annotations
@@ -120,8 +121,20 @@ PARAMS: tuple[Param, ...] = (
     Param(
         "CLSAC_MAX_ROLL", "rad", "roll setpoint clamp", option="max_roll_rad", low=0.0, high=math.pi / 2, low_open=True
     ),
+    # PX4's name and meaning: MAV_CMD_INJECT_FAILURE is refused (MAV_RESULT_DENIED) unless it is 1
+    Param(
+        "SYS_FAILURE_EN",
+        "",
+        "failure injection from a ground station (MAV_CMD_INJECT_FAILURE), 1 on / 0 off",
+        option="failure_injection",
+        low=0,
+        high=1,
+    ),
 )
 BY_NAME = {p.name: p for p in PARAMS}
+BINARY = ("CLSAC_ANTIWINDUP", "SYS_FAILURE_EN")  # 0 or 1, nothing between
+# The options a caller of ParamTable may leave out (every other option has no default: the caller's flags give it)
+OPTION_DEFAULTS = {"failure_injection": 0.0}
 
 
 def arg_type(name: str, per: float = 1.0, unit: str | None = None):
@@ -159,8 +172,9 @@ class ParamTable:
 
     ``config``: the configured law (its ``lv`` is the configured L_v, whatever the mode flies).  ``options``:
     the non-law values, keyed by ``Param.option`` (``attitude_timeout_s``, ``setpoint_timeout_s``,
-    ``max_roll_rad``).  The law's parameters describe the SISO CL-SAC law with a first-order PFC; for any other
-    law (the fixed-gain baseline) the table has the options only.  ``params``: the parameters, in index order.
+    ``max_roll_rad``; ``failure_injection``, SYS_FAILURE_EN, 0 unless given).  The law's parameters describe the
+    SISO CL-SAC law with a first-order PFC; for any other law (the fixed-gain baseline) the table has the options
+    only.  ``params``: the parameters, in index order.
     """
 
     def __init__(self, config, options: dict[str, float]):
@@ -170,7 +184,11 @@ class ParamTable:
         self.params = PARAMS if clsac else tuple(p for p in PARAMS if p.option)
         self._names = {p.name: p for p in self.params}
         self._config = config
-        self._options = {p.option: float(options[p.option]) for p in PARAMS if p.option}
+        self._options = {
+            p.option: float(options[p.option] if p.option in options else OPTION_DEFAULTS[p.option])
+            for p in PARAMS
+            if p.option
+        }
         self.flying = False  # set by the loop once it runs: CLSAC_RATE is then read-only
 
     def __len__(self) -> int:
@@ -211,6 +229,8 @@ class ParamTable:
             raise ParamError(f"{name} is read-only while flying")
         if not p.admits(value):
             raise ParamError(f"{name} must be in {p.bounds()}, got {value:g}")
+        if name in BINARY and value not in (0.0, 1.0):
+            raise ParamError(f"{name} must be 0 or 1, got {value:g}")
         if p.option:
             self._options[p.option] = value
             return value
@@ -224,8 +244,6 @@ class ParamTable:
         elif name == "CLSAC_PFC_DEN0":
             change = {"pfc_den": (cfg.pfc_den[0], value)}
         elif name == "CLSAC_ANTIWINDUP":
-            if value not in (0.0, 1.0):
-                raise ParamError(f"{name} must be 0 or 1, got {value:g}")
             change = {"anti_windup": bool(value)}
         else:
             change = {p.field: value}

@@ -5,8 +5,9 @@ the autopilot's GCS link and keeps its streams: identity (HEARTBEAT, AUTOPILOT_V
 modes (:class:`Mode`; DO_SET_MODE and SET_MODE; the standard-modes messages AVAILABLE_MODES and CURRENT_MODE),
 arming, the parameter protocol over :class:`autopilot.params.ParamTable`, TIMESYNC, PING, MISSION_REQUEST_LIST
 (MISSION_COUNT 0), the file-transfer protocol (NAK: no files), stream rates (SET_MESSAGE_INTERVAL,
-REQUEST_DATA_STREAM), SYS_STATUS at 1 Hz and NAMED_VALUE_FLOAT for the adaptive gains.  Every COMMAND_LONG and
-COMMAND_INT gets a COMMAND_ACK; what is not supported gets MAV_RESULT_UNSUPPORTED.
+REQUEST_DATA_STREAM), SYS_STATUS at 1 Hz and NAMED_VALUE_FLOAT for the adaptive gains, and failure injection
+(MAV_CMD_INJECT_FAILURE, relayed to the SITL: ``autopilot.injection``).  Every COMMAND_LONG and COMMAND_INT gets a
+COMMAND_ACK (a relayed one when the SITL has answered); what is not supported gets MAV_RESULT_UNSUPPORTED.
 
 The scheduler (``autopilot.loop.Autopilot``) owns the links and the control step; this module only decides
 what to answer and what the step flies (``ControlStep.manual``, ``.armed``, ``.reconfigure``, ``.transfer``).
@@ -24,6 +25,7 @@ from types import SimpleNamespace
 from pymavlink.dialects.v20 import all as _all
 
 from autopilot.controllers import law_of
+from autopilot.injection import FailureRelay
 from autopilot.params import PARAM_ID_LEN, PARAMS, ParamError, ParamTable
 from autopilot.shared.mavlink import mavlink
 from autopilot.step import Failsafe
@@ -122,6 +124,7 @@ class Vehicle:
         self._next_status = 0.0
         self._pk_nvf = self.link.fast_packer(M.MAVLink_named_value_float_message)
         self._pk_pv = self.link.fast_packer(_PROTOCOL_VERSION_MSG)
+        self.failures = FailureRelay(ap)  # MAV_CMD_INJECT_FAILURE, relayed to the SITL
         if mode in (Mode.SAC, Mode.CLSAC):
             control.reconfigure(self._law_config(mode))
 
@@ -164,7 +167,9 @@ class Vehicle:
         return M.MAVLink_heartbeat_message(M.MAV_TYPE_FIXED_WING, M.MAV_AUTOPILOT_GENERIC, base, mode, status, 3)
 
     def housekeeping(self, now: float) -> None:
-        """Automatic FAILSAFE in and out; SYS_STATUS and CURRENT_MODE at 1 Hz (wall clock)."""
+        """Automatic FAILSAFE in and out; SYS_STATUS and CURRENT_MODE at 1 Hz (wall clock); the failure injection in
+        flight to the SITL (resent, or answered MAV_RESULT_FAILED)."""
+        self.failures.housekeeping(now)
         mode = Mode.FAILSAFE if self.ap.failsafe is not Failsafe.NONE else self.selected
         if mode is not self.mode:
             self.mode = mode
@@ -197,6 +202,8 @@ class Vehicle:
         after = None
         if isinstance(result, tuple):
             result, after = result
+        if result is None:
+            return  # relayed: answered when the SITL has answered (autopilot.injection)
         self.reply(M.MAVLink_command_ack_message(cmd, result, 0, 0, msg.get_srcSystem(), msg.get_srcComponent()))
         if after is not None:
             after()
@@ -378,6 +385,11 @@ class Vehicle:
         self._set_rate(group, hz)
         return M.MAV_RESULT_ACCEPTED
 
+    def _cmd_inject_failure(self, msg):
+        if msg.get_msgId() != M.MAVLINK_MSG_ID_COMMAND_LONG:
+            return M.MAV_RESULT_COMMAND_LONG_ONLY  # param5 is our value: COMMAND_INT would make it an integer
+        return self.failures.command(msg, time.perf_counter())
+
     _commands = {
         M.MAV_CMD_DO_SET_MODE: _cmd_set_mode,
         M.MAV_CMD_COMPONENT_ARM_DISARM: _cmd_arm,
@@ -385,6 +397,7 @@ class Vehicle:
         M.MAV_CMD_REQUEST_AUTOPILOT_CAPABILITIES: _cmd_autopilot_capabilities,
         M.MAV_CMD_REQUEST_PROTOCOL_VERSION: _cmd_protocol_version,
         M.MAV_CMD_SET_MESSAGE_INTERVAL: _cmd_set_message_interval,
+        M.MAV_CMD_INJECT_FAILURE: _cmd_inject_failure,
     }
 
     # ----------------------------------------------------------------- modes

@@ -1,4 +1,4 @@
-"""Each of the 22 parameters lands on its own field, and both bounds of each hold (issue 17, part 5).
+"""Each of the 23 parameters lands on its own field, and both bounds of each hold (issue 17, part 5).
 
 The expected field and bounds of every parameter are written out here, from the parameter table of
 docs/design.md ("Parameters"), not read from ``autopilot.params``: a parameter wired to the wrong field or a
@@ -18,7 +18,7 @@ from autopilot.params import PARAMS, ParamError, ParamTable
 from tools.flight import FlightConfig, FlightConfigError
 from tools.launch import build_parser as launch_parser
 
-OPTIONS = {"attitude_timeout_s": 0.1, "setpoint_timeout_s": 1.0, "max_roll_rad": 0.7}
+OPTIONS = {"attitude_timeout_s": 0.1, "setpoint_timeout_s": 1.0, "max_roll_rad": 0.7, "failure_injection": 0.0}
 G = 10_000.0
 DEG = math.pi / 180.0
 
@@ -46,6 +46,7 @@ SPEC = {
     "CLSAC_FS_ATT_TMO": ("attitude_timeout_s", None, 1e-3, 86_400.0, False, False),
     "CLSAC_FS_SP_TMO": ("setpoint_timeout_s", None, 0.01, 86_400.0, False, False),
     "CLSAC_MAX_ROLL": ("max_roll_rad", None, 0.0, math.pi / 2, True, False),
+    "SYS_FAILURE_EN": ("failure_injection", None, 0.0, 1.0, False, False),
 }
 
 
@@ -79,7 +80,7 @@ def _landed(name: str, state: dict) -> float:
 
 
 def test_the_spec_covers_every_parameter_once():
-    assert [p.name for p in PARAMS] == list(SPEC) and len(SPEC) == 22
+    assert [p.name for p in PARAMS] == list(SPEC) and len(SPEC) == 23
 
 
 @pytest.mark.parametrize("name", list(SPEC))
@@ -121,6 +122,15 @@ def test_antiwindup_takes_zero_or_one_only():
     with pytest.raises(ParamError, match="0 or 1"):
         t.set("CLSAC_ANTIWINDUP", 0.5)
     assert t.set("CLSAC_ANTIWINDUP", 0.0) == 0.0 and t.config.anti_windup is False
+
+
+def test_failure_injection_takes_zero_or_one_only_and_is_off_unless_given():
+    t = ParamTable(ClSacConfig(), {k: v for k, v in OPTIONS.items() if k != "failure_injection"})
+    assert t.get("SYS_FAILURE_EN") == 0.0  # PX4's default: MAV_CMD_INJECT_FAILURE refused
+    with pytest.raises(ParamError, match="SYS_FAILURE_EN must be 0 or 1, got 0.5"):
+        t.set("SYS_FAILURE_EN", 0.5)
+    assert t.get("SYS_FAILURE_EN") == 0.0
+    assert t.set("SYS_FAILURE_EN", 1.0) == 1.0 and t.option("failure_injection") == 1.0
 
 
 # flag -> (parameter, flag units per SI unit); the autopilot's and the launcher's flags

@@ -17,7 +17,7 @@ OPTIONS = {"attitude_timeout_s": 0.1, "setpoint_timeout_s": 1.0, "max_roll_rad":
 
 def test_names_and_values_of_the_paper_law():
     t = ParamTable(ClSacConfig(), OPTIONS)
-    assert len(t) == len(PARAMS) == 22 and all(len(p.name) <= PARAM_ID_LEN == 16 for p in PARAMS)
+    assert len(t) == len(PARAMS) == 23 and all(len(p.name) <= PARAM_ID_LEN == 16 for p in PARAMS)
     assert {"CLSAC_LV", "CLSAC_SIGMA"} <= {p.name for p in PARAMS}
     v = dict(t.items())
     assert v["CLSAC_LV"] == 20 and v["CLSAC_SIGMA"] == 5 and v["CLSAC_AM"] == -5 and v["CLSAC_PFC_DEN1"] == 4

@@ -310,6 +310,12 @@ def build_parser() -> OneLineArgumentParser:
         "127.0.0.1:14550 (with --no-signing, or a ground station that signs)",
     )
     p.add_argument(
+        "--failure-injection",
+        action="store_true",
+        help="the autopilot takes MAV_CMD_INJECT_FAILURE from a ground station and relays it to the SITL "
+        "(SYS_FAILURE_EN 1; default: refused with MAV_RESULT_DENIED, as PX4 does; docs/ground-stations.md)",
+    )
+    p.add_argument(
         "--sysid",
         type=sysid_arg,
         default=1,
@@ -359,6 +365,7 @@ _OWNERS = {
         "lockstep_idle_exit",
         "telemetry_rate",
         "gcs_peer",
+        "failure_injection",
         "params",
         "baseline_gains",
     }

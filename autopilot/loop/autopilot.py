@@ -14,6 +14,7 @@ from autopilot.config import ClSacConfig
 from autopilot.envelope import EnvelopeMonitor
 from autopilot.loop.common import (
     ATTITUDE,
+    COMMAND_ACK,
     HEARTBEAT,
     SET_ATTITUDE_TARGET,
     STATUSTEXT,
@@ -75,7 +76,7 @@ class Autopilot(LinkHandlers, LockstepScheduler, RealtimeScheduler):
             opts.sitl_bind,
             opts.sitl,
             peers=[sitl_id],
-            msgids=[ATTITUDE, HEARTBEAT, STATUSTEXT],
+            msgids=[ATTITUDE, HEARTBEAT, STATUSTEXT, COMMAND_ACK],
             signing=Signing(opts.signing_key, SIGNING_LINK_SITL) if opts.signing_key else None,
             tlog=tlog,
             send_clock=self.send_clock,
@@ -135,7 +136,8 @@ class Autopilot(LinkHandlers, LockstepScheduler, RealtimeScheduler):
         if params is None:
             params = ParamTable(
                 ctrl_config,
-                {k: getattr(opts, k) for k in ("attitude_timeout_s", "setpoint_timeout_s", "max_roll_rad")},
+                {k: getattr(opts, k) for k in ("attitude_timeout_s", "setpoint_timeout_s", "max_roll_rad")}
+                | {"failure_injection": float(opts.failure_injection)},
             )
         self.params = params
         self.vehicle = Vehicle(self, params, mode, armed)
@@ -221,6 +223,8 @@ class Autopilot(LinkHandlers, LockstepScheduler, RealtimeScheduler):
             or ("gcs" if self._blocked_since is not None else None)
             or ("sitl" if self.hold_steps or not self.control.metrics.n else None),
             "controlled": self.envelope.result().to_dict(),  # the envelope verdict (autopilot.envelope)
+            # MAV_CMD_INJECT_FAILURE relayed to the SITL, each with its answer (autopilot.injection)
+            "failure_injections": self.vehicle.failures.records,
             "hold_steps": self.hold_steps,
             "late_steps": self.late_steps,  # real time: started more than the attitude timeout after the deadline
             "max_lateness_s": self.max_lateness_s,

@@ -38,6 +38,9 @@ SET_ATTITUDE_TARGET = M.MAVLINK_MSG_ID_SET_ATTITUDE_TARGET
 SERVO_OUTPUT_RAW = M.MAVLINK_MSG_ID_SERVO_OUTPUT_RAW
 
 
+COMMAND_ACK = M.MAVLINK_MSG_ID_COMMAND_ACK  # from the SITL: its answer to a relayed MAV_CMD_INJECT_FAILURE
+
+
 _TELEMETRY_IDS = (ATTITUDE, M.MAVLINK_MSG_ID_ATTITUDE_TARGET, SERVO_OUTPUT_RAW)
 
 
@@ -97,6 +100,8 @@ class AutopilotOptions:
     gcs_peers: tuple = ()  # ground-station addresses admitted from the start (--gcs-peer)
     max_gcs: int = 8  # admitted ground-station addresses at most (docs/design.md, "Trust model")
     signing_key: bytes | None = None  # MAVLink 2 signing on both links (autopilot.shared.signing); None = off
+    # SYS_FAILURE_EN: 1 = MAV_CMD_INJECT_FAILURE from a ground station is relayed to the SITL (autopilot.injection)
+    failure_injection: float = 0.0
     lockstep_spin_s: float = 0.0  # lockstep: busy-poll this long for the next frame before sleeping in select
     lockstep_idle_exit_s: float = (
         0.0  # lockstep: exit after the last frame if the SITL stays silent this long (0 = never)

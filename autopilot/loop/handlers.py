@@ -15,6 +15,7 @@ from autopilot.loop.common import (
     ANNOUNCE_SLOW_S,
     ATTITUDE,
     ATTITUDE_AHEAD_MS,
+    COMMAND_ACK,
     HEARTBEAT_PERIOD_S,
     SET_ATTITUDE_TARGET,
     SITL_RESTART_MS,
@@ -70,6 +71,8 @@ class LinkHandlers:
             text = self._sitl_texts.add(msg)  # a long text arrives in chunks (autopilot.shared.events)
             if text is not None:
                 self._event(msg.severity, f"SITL: {text}")
+        elif mid == COMMAND_ACK:
+            self.vehicle.failures.on_ack(msg, t_rx)  # the answer to a relayed MAV_CMD_INJECT_FAILURE
 
     def _on_attitude(self, t_rx, values):
         """An ATTITUDE from the SITL, ``values`` in wire order (time_boot_ms, roll, pitch, yaw, rollspeed,

@@ -125,6 +125,8 @@ class FlightConfig:
     web_port: int = 9090  # its HTTP port (the page a browser opens)
     web_grpc_port: int = 9877  # its gRPC proxy (the processes stream to it, the browser reads it)
     gcs_peer: tuple = ()  # more ground stations (HOST:PORT) the autopilot streams to, e.g. MAVProxy on :14550
+    # the autopilot takes MAV_CMD_INJECT_FAILURE from a ground station and relays it to the SITL (SYS_FAILURE_EN 1)
+    failure_injection: bool = False
     name: str | None = None  # run name in summary.json; default the controller
     signing: bool = True  # MAVLink 2 signing on every link; a new key per flight in DIR/signing.key unless signing_key
     signing_key: str | os.PathLike | None = None  # sign with this key file (autopilot.shared.signing) instead
@@ -556,6 +558,8 @@ def child_argvs(
         ap += ["--params", cfg.params_file]
     if cfg.baseline_gains_flown is not None:
         ap += ["--baseline-gains", ",".join(repr(g) for g in cfg.baseline_gains_flown)]
+    if cfg.failure_injection:
+        ap += ["--failure-injection"]
     # Lockstep: the GCS schedules the profile up to the end; real time: it flies until the autopilot powers off.
     gcs = py + [
         "tools.gcs",

@@ -167,6 +167,7 @@ def build_summary(
         "transport": "mavlink",
         "mode": "lockstep" if cfg.lockstep else "realtime",
         "signing": cfg.signing,  # MAVLink 2 signing on every link (docs/design.md, "Trust model")
+        "failure_injection": cfg.failure_injection,  # MAV_CMD_INJECT_FAILURE taken from a ground station
         "controller": cfg.controller,
         # the Lv that flew: a --params file (CLSAC_LV) may set another than the flags; SAC flies 0
         "Lv": _flown_lv(cfg, stats),
