@@ -17,6 +17,22 @@ backward-difference derivative) a gain margin of 23.9 dB at 48.9 rad/s and a pha
 a 4.7 rad/s crossover
 (``tools.design.margins.baseline_margins()``, python-control; checked by tests/test_baseline.py).
 
+**Feed-forward and derivative on the measurement** (``--controller pid-ff``, ``kff > 0``, ``derivative =
+"measurement"``; both off by default, so the baseline above is unchanged).  The adaptive laws feed the command
+forward (K_u u_m, K_x x_m, paper eq. (21)); this option gives the PID a feed-forward of the reference model's roll
+rate, as ArduPilot's roll controller's FF term (the surface for a roll rate), and takes the derivative of the
+measurement instead of the error, as simple-pid does (``differential_on_measurement``), so a command step no
+longer kicks the surface:
+
+    ydot_m  = C_m (A_m x_m,ol[k] + B_m u_m[k])   the reference model's roll rate (paper eq. (3), differentiated)
+    u_raw   = K_ff ydot_m + K_p e + x_i[k] - K_d (y[k] - y[k-1]) / T       (0 for the derivative at step 0)
+
+K_ff is the roll-mode inverse -L_p / L_delta of the plant's roll-rate row (``tools.design.tuning.feedforward_gain``;
+the KH2013A's :data:`KFF_KH2013A`).  The integrator, its anti-windup and the limit are the baseline's.
+
+``set_gains`` changes K_p, K_i, K_d in flight, from the next step, with the integrator's state kept (a gain
+schedule: the damage study's PID retuned for the faulted plant, ``tools.experiment.damage``).
+
 ``Baseline`` quacks like ``autopilot.clsac.ClSac`` wherever ``autopilot.step.ControlStep``, the metrics and
 the telemetry use a law: ``__call__(y, um)``, ``hold(u)``, ``reset()``, ``telemetry()`` and the attributes of
 ``TELEMETRY_FIELDS`` (``ym`` = ``ym_ol``, ``ya`` = y, ``y_pfc`` = 0, the gain fields constant: ``kpe`` = ``ke``
@@ -34,6 +50,11 @@ from autopilot.clsac import telemetry_of
 from autopilot.config import ConfigError, NonFiniteInputError
 from autopilot.shared.numerics import zoh
 
+# The KH2013A's roll-mode feed-forward -L_p / L_delta (paper sec. 5.1: A_lp[1, 1] = -2.22 1/s, B_lp[1] = 59.7
+# 1/s^2 per rad): s of rudder per rad/s of roll rate; tests/test_baseline.py checks it against sitl.model.
+KFF_KH2013A = 2.22 / 59.7
+DERIVATIVES = ("error", "measurement")
+
 
 @dataclass(frozen=True)
 class BaselineConfig:
@@ -48,6 +69,8 @@ class BaselineConfig:
     cm: float = 1.0
     u_limit_rad: float = math.radians(30.0)
     anti_windup: bool = True  # conditional integration, as ClSac's
+    kff: float = 0.0  # s: feed-forward of the reference model's roll rate (0: none, the baseline)
+    derivative: str = "error"  # "error" (the baseline) or "measurement" (simple-pid's, pid-ff)
 
     def __post_init__(self) -> None:
         for name in ("control_rate_hz", "u_limit_rad"):
@@ -58,7 +81,11 @@ class BaselineConfig:
             v = getattr(self, name)
             if not (isinstance(v, (int, float)) and math.isfinite(v)):
                 raise ConfigError(f"{name} must be a finite number, got {v!r}")
-        for name in ("kp", "ki", "kd"):
+        if not (isinstance(self.kff, (int, float)) and math.isfinite(self.kff)):
+            raise ConfigError(f"kff must be a finite number, got {self.kff!r}")
+        if self.derivative not in DERIVATIVES:
+            raise ConfigError(f"derivative must be one of {', '.join(DERIVATIVES)}, got {self.derivative!r}")
+        for name in ("kp", "ki", "kd", "kff"):
             if getattr(self, name) < 0:
                 raise ConfigError(f"{name} must be >= 0, got {getattr(self, name)!r}")
         if not (isinstance(self.am, (int, float)) and math.isfinite(self.am) and self.am < 0):
@@ -86,15 +113,32 @@ class Baseline:
         phi, gam = zoh(np.array([[float(cfg.am)]]), np.array([[float(cfg.bm)]]), T)
         # The same coefficient names as ClSac's SISO path, read by autopilot.batch.
         self._s = dict(phi_ol=float(phi[0, 0]), g_ol=float(gam[0, 0]), cm=float(cfg.cm))
-        self._kp, self._ki_t, self._kd_t = float(cfg.kp), float(cfg.ki) * T, float(cfg.kd) / T
+        self._set(cfg.kp, cfg.ki, cfg.kd)
+        self._kff = float(cfg.kff)
+        self._am, self._bm = float(cfg.am), float(cfg.bm)
+        self._on_y = cfg.derivative == "measurement"
         self._umax = float(cfg.u_limit_rad)
         self._aw = bool(cfg.anti_windup)
         self.reset()
+
+    def _set(self, kp, ki, kd) -> None:
+        T = self.dt
+        self._kp, self._ki_t, self._kd_t = float(kp), float(ki) * T, float(kd) / T
+
+    def set_gains(self, kp: float, ki: float, kd: float) -> None:
+        """New PID gains from the next step (a gain schedule); the integrator's state, the model and the limit
+        stay.  ConfigError for a gain that is negative or not finite."""
+        gains = (float(kp), float(ki), float(kd))
+        if not all(math.isfinite(g) and g >= 0 for g in gains):
+            raise ConfigError(f"PID gains must be finite and >= 0, got {gains!r}")
+        self._set(*gains)
+        self.kpe = self.ke = self._kp
 
     def reset(self) -> None:
         self.steps = 0
         self.frozen = False
         self.xm_ol = self.xi = self.e_prev = 0.0
+        self.y_prev = None
         self.um = self.y = self.ym = self.ym_ol = self.ya = self.y_pfc = self.e = 0.0
         self.u_raw = self.u = 0.0
         self.saturated = False
@@ -116,7 +160,15 @@ class Baseline:
         s = self._s
         ym_ol = s["cm"] * self.xm_ol  # y_m,ol = C_m x_m,ol (paper eq. (3))
         e = ym_ol - y
-        u_raw = self._kp * e + self.xi + self._kd_t * (e - self.e_prev)  # PID, backward-difference derivative
+        if self._on_y or self._kff:  # pid-ff: rate feed-forward, derivative on the measurement (module docstring)
+            if self._on_y:
+                d = 0.0 if self.y_prev is None else -self._kd_t * (y - self.y_prev)
+            else:
+                d = self._kd_t * (e - self.e_prev)
+            ff = self._kff * s["cm"] * (self._am * self.xm_ol + self._bm * um)
+            u_raw = ff + self._kp * e + self.xi + d
+        else:
+            u_raw = self._kp * e + self.xi + self._kd_t * (e - self.e_prev)  # PID, backward-difference derivative
         umax = self._umax
         u = umax if u_raw > umax else (-umax if u_raw < -umax else u_raw)
         sat = u != u_raw
@@ -125,6 +177,7 @@ class Baseline:
             self.xi = self.xi + di
         self.xm_ol = s["phi_ol"] * self.xm_ol + s["g_ol"] * um
         self.e_prev = e
+        self.y_prev = y
         self.um, self.y, self.ym, self.ym_ol, self.ya, self.e = um, y, ym_ol, ym_ol, y, e
         self.u_raw, self.u, self.saturated = u_raw, u, sat
         self.frozen = False

@@ -158,6 +158,8 @@ class BatchBaseline:
 
     def __init__(self, config: BaselineConfig | None, n: int):
         law = Baseline(config)
+        if law.config.kff or law.config.derivative != "error":
+            raise ValueError("BatchBaseline flies the plain baseline only (no feed-forward, derivative on the error)")
         self.config = law.config
         self.n = int(n)
         s = law._s  # noqa: SLF001

@@ -60,6 +60,7 @@ class Controller:
     label: str  # how headers name it ("fixed-gain PID")
     help: str  # its words in --controller's help
     lv_fixed: float | None = None  # the L_v it flies whatever --lv says (SAC: 0); None: the configured one
+    options: tuple = ()  # (name, value) pairs its law's build takes on top of the command line's (pid-ff's)
 
     @property
     def kind(self) -> Law:
@@ -73,7 +74,7 @@ class Controller:
         """Its law's configuration from the command line's options (SI): ``control_rate_hz``, ``u_limit_rad``,
         ``lv`` (None: the law's default), ``pfc``, ``sigma_xu``, ``dead_zone_rad``, ``ki_max``,
         ``freeze_when_saturated``, ``gains`` (the baseline's KP,KI,KD or None); a law reads those it has."""
-        return LAWS[self.law].configure(**options)
+        return LAWS[self.law].configure(**{**options, **dict(self.options)})
 
 
 def clsac_config(
@@ -103,11 +104,19 @@ def clsac_config(
     ).with_pfc(pfc)
 
 
-def baseline_config(*, control_rate_hz: float, u_limit_rad: float, gains=None, **_ignored):
-    """The fixed-gain PID (``autopilot.baseline.BaselineConfig``); ``gains``: (KP, KI, KD), None: its defaults."""
-    from autopilot.baseline import BaselineConfig
+def baseline_config(*, control_rate_hz: float, u_limit_rad: float, gains=None, feedforward: bool = False, **_ignored):
+    """The fixed-gain PID (``autopilot.baseline.BaselineConfig``); ``gains``: (KP, KI, KD), None: its defaults.
+    ``feedforward`` (pid-ff): the reference model's rate fed forward with K_FF (a fourth gain, default the
+    KH2013A's ``KFF_KH2013A``) and the derivative on the measurement.  ConfigError for a K_FF without it."""
+    from autopilot.baseline import KFF_KH2013A, BaselineConfig
+    from autopilot.config import ConfigError
 
-    kw = dict(zip(("kp", "ki", "kd"), gains)) if gains else {}
+    gains = tuple(gains) if gains else ()
+    kw = dict(zip(("kp", "ki", "kd"), gains[:3]))
+    if feedforward:
+        kw.update(kff=gains[3] if len(gains) > 3 else KFF_KH2013A, derivative="measurement")
+    elif len(gains) > 3:
+        raise ConfigError("a fourth gain (KFF) is pid-ff's feed-forward: the baseline takes KP,KI,KD")
     return BaselineConfig(control_rate_hz=control_rate_hz, u_limit_rad=u_limit_rad, **kw)
 
 
@@ -150,6 +159,15 @@ CONTROLLERS: dict[str, Controller] = {
             mode="BASELINE",
             label="fixed-gain PID",
             help="baseline (fixed-gain PID; ignores --lv, --pfc, --sigma-xu)",
+        ),
+        Controller(
+            "pid-ff",
+            "baseline",
+            lv=0.0,
+            mode="BASELINE",
+            label="PID, feed-forward",
+            help="pid-ff (the PID with the reference model's rate fed forward and the derivative on the roll)",
+            options=(("feedforward", True),),
         ),
     )
 }

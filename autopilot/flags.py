@@ -26,14 +26,15 @@ def default_lv(controller: str) -> float:
     return controllers.get(controller).lv
 
 
-def baseline_gains(text: str) -> tuple[float, float, float]:
-    """``KP,KI,KD``: three finite numbers (rad/rad, 1/s, s), the fixed-gain baseline's PID gains."""
+def baseline_gains(text: str) -> tuple[float, ...]:
+    """``KP,KI,KD[,KFF]``: three finite numbers (rad/rad, 1/s, s), the fixed-gain baseline's PID gains, and for
+    pid-ff optionally a fourth, its feed-forward K_FF (s)."""
     try:
         values = tuple(float(v) for v in str(text).split(","))
     except ValueError:
         raise argparse.ArgumentTypeError(f"expected KP,KI,KD (three numbers), got {text!r}") from None
-    if len(values) != 3 or not all(v == v and abs(v) != float("inf") for v in values):
-        raise argparse.ArgumentTypeError(f"expected KP,KI,KD (three finite numbers), got {text!r}")
+    if len(values) not in (3, 4) or not all(v == v and abs(v) != float("inf") for v in values):
+        raise argparse.ArgumentTypeError(f"expected KP,KI,KD[,KFF] (three or four finite numbers), got {text!r}")
     return values
 
 
@@ -91,9 +92,10 @@ def add_controller_arguments(parser: argparse.ArgumentParser) -> None:
         "--baseline-gains",
         type=baseline_gains,
         default=None,
-        metavar="KP,KI,KD",
+        metavar="KP,KI,KD[,KFF]",
         help="the baseline's PID gains (default 0.1,0.1,0.02, tuned on the KH2013A; python -m tools.pfc design "
-        "tunes them for another plant)",
+        "tunes them for another plant); pid-ff also takes its feed-forward KFF (s, default the plant's "
+        "roll-mode -L_p/L_delta)",
     )
 
 

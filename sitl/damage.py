@@ -343,6 +343,42 @@ class Schedule:
         return [f.record(s < step) for f, s, _e in self.entries]
 
 
+def advance_scheduled(schedule: Schedule, plant, advance, u: float, n: int, change) -> object:
+    """Fly ``n`` physics steps of ``plant`` with the command ``u`` held, through ``schedule``: the steps are cut where
+    a fault starts or ends (``Schedule.segments``), ``change(step, changes)`` is called at each cut (the caller hands
+    the plant the new ``Schedule.effect`` there), ``advance(u, m)`` flies each piece.  Returns the truth state
+    after the last piece.  The SITL's endpoint (``sitl.fault_injection``) and the in-process runner
+    (``tools.experiment.scenario.run_inprocess``) both fly faults through this one function."""
+    k = plant.steps
+    x = None
+    for m, changes in schedule.segments(k, n):
+        if changes:
+            change(k, changes)
+        x = advance(u, m)
+        k += m
+    return plant.truth if x is None else x
+
+
+class ScheduledEffects:
+    """A plant flown through a :class:`Schedule` with nothing said (the in-process runner's form of the SITL's
+    ``sitl.fault_injection.FaultInjection``): ``advance(u, n)`` as the plant's, the plant's ``set_effect`` called
+    where the active faults' :class:`Effect` changes."""
+
+    def __init__(self, plant, schedule: Schedule, advance=None):
+        self.plant, self.schedule = plant, schedule
+        self._advance = advance or plant.advance
+        self.effect = NOMINAL
+
+    def _change(self, step: int, _changes) -> None:
+        effect = self.schedule.effect(step)
+        if effect != self.effect:
+            self.plant.set_effect(effect)
+            self.effect = effect
+
+    def advance(self, u: float, n: int):
+        return advance_scheduled(self.schedule, self.plant, self._advance, u, n, self._change)
+
+
 def status_text(fault: Fault, started: bool, t: float) -> str:
     """The SITL's STATUSTEXT when a fault starts or ends (``FAULT_PREFIX``: the autopilot's telemetry marks it)."""
     if started:
@@ -472,6 +508,8 @@ __all__ = [
     "FaultSpecError",
     "InjectionFilter",
     "Schedule",
+    "ScheduledEffects",
+    "advance_scheduled",
     "add_argument",
     "airframe_matrix",
     "check_kinds",

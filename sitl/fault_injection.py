@@ -50,15 +50,7 @@ class FaultInjection:
         sched = self.schedule
         if sched is None:
             return self.sitl._advance_plant(u, n)
-        plant = self.sitl.aircraft
-        k = plant.steps
-        x = None
-        for m, changes in sched.segments(k, n):
-            if changes:
-                self._change(k, changes)
-            x = self.sitl._advance_plant(u, m)
-            k += m
-        return plant.truth if x is None else x
+        return damage.advance_scheduled(sched, self.sitl.aircraft, self.sitl._advance_plant, u, n, self._change)
 
     def _change(self, step: int, changes) -> None:
         effect = self.schedule.effect(step)

@@ -24,7 +24,7 @@ def test_the_command_lines_offer_the_registered_controllers():
     from autopilot.__main__ import build_parser as autopilot_parser
     from tools.launch import build_parser as launch_parser
 
-    assert tuple(_choices(autopilot_parser())) == controllers.NAMES == ("sac", "clsac", "baseline")
+    assert tuple(_choices(autopilot_parser())) == controllers.NAMES == ("sac", "clsac", "baseline", "pid-ff")
     assert tuple(_choices(launch_parser())) == controllers.NAMES
     assert launch_parser().parse_args([]).controller == controllers.DEFAULT == "clsac"
 
@@ -49,12 +49,16 @@ def test_the_registry_says_what_each_law_is():
     base = controllers.get("baseline").config(**OPTIONS, gains=(1.0, 0.5, 0.25))
     assert (base.kp, base.ki, base.kd) == (1.0, 0.5, 0.25) and isinstance(base, BaselineConfig)
     assert isinstance(controllers.make_law(base), Baseline) and isinstance(controllers.make_law(clsac), ClSac)
-    assert [c.adaptive for c in controllers.CONTROLLERS.values()] == [True, True, False]
+    assert [c.adaptive for c in controllers.CONTROLLERS.values()] == [True, True, False, False]
+    ff = controllers.get("pid-ff").config(**OPTIONS, gains=(1.0, 0.5, 0.25, 0.125))
+    assert (ff.kp, ff.ki, ff.kd, ff.kff, ff.derivative) == (1.0, 0.5, 0.25, 0.125, "measurement")
+    assert controllers.get("pid-ff").law == "baseline" and isinstance(controllers.make_law(ff), Baseline)
+    assert base.kff == 0.0 and base.derivative == "error"  # the baseline is unchanged
     assert controllers.LAWS["clsac"].modes == ("SAC", "CLSAC") and controllers.LAWS["baseline"].modes == ("BASELINE",)
 
 
 def test_an_unknown_controller_or_law_is_refused_by_name():
-    with pytest.raises(ValueError, match="unknown controller 'lqr' \\(known: sac, clsac, baseline\\)"):
+    with pytest.raises(ValueError, match="unknown controller 'lqr' \\(known: sac, clsac, baseline, pid-ff\\)"):
         controllers.get("lqr")
     with pytest.raises(ValueError, match="not a registered law"):
         controllers.law_of(object())

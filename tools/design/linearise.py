@@ -65,6 +65,52 @@ def designed_baseline(plant: str) -> tuple[float, float, float] | None:
     return None
 
 
+def flown_baseline_gains(controller: str, plant: str, given=None) -> tuple | None:
+    """The gains a fixed-gain controller (``autopilot.controllers``, law ``baseline``) flies on ``plant``: ``given``
+    (KP, KI, KD[, KFF]), else the ones designed for the plant (``designed_baseline``); None: the built-in defaults.
+    pid-ff also feeds forward: unless given a fourth, the plant's roll-mode K_ff
+    (``tools.design.tuning.feedforward_gain`` on ``linear_model``; without a linear model, the built-in
+    KH2013A's)."""
+    from autopilot import controllers
+
+    gains = tuple(given) if given is not None else designed_baseline(plant)
+    if not dict(controllers.get(controller).options).get("feedforward") or (gains is not None and len(gains) > 3):
+        return gains
+    model = linear_model(plant)
+    if model is None or model[3] is None:
+        return gains
+    from tools.design.tuning import feedforward_gain
+
+    if gains is None:
+        from autopilot.baseline import BaselineConfig
+
+        d = BaselineConfig()
+        gains = (d.kp, d.ki, d.kd)
+    return (*gains, feedforward_gain(model[:3], model[3]))
+
+
+def linear_model(plant: str):
+    """The linear model a plant is designed on: (A_p, B_p, C_p) with the servo last and the index of its roll-rate
+    state (None when the roll rate is not one state).  kh2013a: the paper's matrices (``sitl.model``); a plant
+    file: itself; ``jsbsim:MODEL[...]``: its linearised file shipped beside its designed parameter file
+    (``sitl/plants/jsbsim-MODEL.toml``, at its design point, whatever the airspeed flown), None if none."""
+    from sitl import damage, model
+    from sitl import plant as plants
+    from sitl.linear_plant import load
+
+    kind = plants.kind(plant)
+    if kind == "kh2013a":
+        return model.A_P, model.B_P, model.C_P, model.P
+    if kind == "jsbsim":
+        params = designed_params(plant)
+        path = None if params is None else params.with_suffix(".toml")
+        if path is None or not path.is_file():
+            return None
+        plant = str(path)
+    lp = load(plant)
+    return lp.a_p, lp.b_p, lp.c_p, damage.roll_rate_index(lp.truth)
+
+
 def linearise(spec, physics_rate_hz: float = 1000.0) -> dict:
     """The roll channel of a trimmed JSBSim model: {"A", "B", "C", "trim", ...} (SI, input in rad)."""
     import jsbsim

@@ -11,13 +11,15 @@ from tools.design.aspr import plant_tf
 
 
 def baseline_margins(
-    config: BaselineConfig | None = None, *, pfc_inverse: bool = False, plant=None
+    config: BaselineConfig | None = None, *, pfc_inverse: bool = False, plant=None, delay_steps: int = 0
 ) -> dict[str, float]:
     """Gain margin (dB), phase margin (deg) and the crossover frequencies (rad/s) of the loop on the nominal plant.
 
     Default: the baseline PID sampled at its control rate, C(z) = K_p + K_i T z/(z - 1) + K_d (z - 1)/(T z),
     times the ZOH-sampled plant.  ``pfc_inverse``: the continuous loop C(s) T(s) with the C(s) = (4s + 40)/10
     whose inverse is the paper's PFC (sec. 5.1).  ``plant``: another plant's (A_p, B_p, C_p); default the KH2013A's.
+    ``delay_steps``: a delay of that many control periods in front of the plant (z^-d in the sampled loop: a command
+    held over a period and applied d periods late), for the sampled loop only.
     """
     control = ct()
     cfg = config or BaselineConfig()
@@ -28,6 +30,8 @@ def baseline_margins(
         T = cfg.dt
         num = [cfg.kd + cfg.kp * T + cfg.ki * T * T, -(cfg.kp * T + 2 * cfg.kd), cfg.kd]
         loop = control.tf(num, [T, -T, 0.0], T) * control.c2d(plant, T, "zoh")
+        if delay_steps:
+            loop = loop * control.tf([1.0], [1.0] + [0.0] * int(delay_steps), T)
     with warnings.catch_warnings():  # python-control notes it falls back to its frequency-response method
         warnings.simplefilter("ignore", UserWarning)
         gm, pm, wcg, wcp = control.margin(loop)

@@ -161,8 +161,9 @@ class BaselineDesign:
     margins: dict
 
 
-def design_baseline(plant, *, rate_hz: float = 100.0) -> BaselineDesign:
-    """The fixed-gain PID for ``plant``: the largest crossover <= 5 rad/s at PM >= 60 deg and GM >= 10 dB."""
+def design_baseline(plant, *, rate_hz: float = 100.0, delay_steps: int = 0) -> BaselineDesign:
+    """The fixed-gain PID for ``plant``: the largest crossover <= 5 rad/s at PM >= 60 deg and GM >= 10 dB;
+    ``delay_steps``: with that many control periods of delay in front of the plant (``baseline_margins``)."""
     from autopilot.baseline import BaselineConfig
     from tools.design.margins import baseline_margins
 
@@ -170,7 +171,7 @@ def design_baseline(plant, *, rate_hz: float = 100.0) -> BaselineDesign:
     for kp in np.logspace(-2, 1, 19):
         for td_ratio in (0.0, 0.1, 0.2, 0.3):
             cfg = BaselineConfig(control_rate_hz=rate_hz, kp=float(kp), ki=float(kp) / 10.0, kd=float(kp * td_ratio))
-            m = baseline_margins(cfg, plant=plant)
+            m = baseline_margins(cfg, plant=plant, delay_steps=delay_steps)
             ok = (
                 m["closed_loop_stable"]
                 and m["phase_margin_deg"] >= PM_MIN_DEG
@@ -211,3 +212,29 @@ def choose_gamma(plant_text: str, num, den, u_limit_rad: float, gammas=GAMMAS) -
 
 
 GAMMA_NAMES = ("pe", "ie", "px", "ix", "pu", "iu")
+
+
+# ---------------------------------------------------------------------------------------------- faulted plants
+def faulted_plant(plant, roll_rate: int | None, effect):
+    """The linear plant ``plant`` = (A_p, B_p, C_p), servo last, under a ``sitl.damage.Effect``'s airframe change, as
+    the SITL flies it (docs/faults.md): effectiveness scales the deflection's column of the airframe rows and
+    damping the roll rate's own term (``sitl.damage.airframe_matrix``).  A delay is not a change of (A, B, C): give
+    it to ``design_baseline`` as ``delay_steps``.  Stuck, off and a rate limit are no linear plant (ValueError)."""
+    from sitl import damage
+
+    if effect.stuck or effect.off or effect.rate is not None:
+        raise ValueError("stuck, off and rate faults are not a linear plant: nothing to design on")
+    a_p, b_p, c_p = (np.asarray(m, dtype=float) for m in plant)
+    return damage.airframe_matrix(a_p, effect, roll_rate), b_p, c_p
+
+
+def feedforward_gain(plant, roll_rate: int) -> float:
+    """pid-ff's feed-forward K_ff (s): the roll-mode inverse -L_p / L_delta of the plant's roll-rate row, the
+    surface a steady roll rate p needs in p' = L_p p + L_delta delta (``autopilot.baseline``): L_p = A_p[p, p],
+    L_delta = A_p[p, delta] (the deflection's column, the servo's first state).  ValueError unless both are
+    nonzero and K_ff > 0."""
+    a = np.asarray(plant[0], dtype=float)
+    lp, ld = float(a[roll_rate, roll_rate]), float(a[roll_rate, a.shape[0] - 2])
+    if lp == 0.0 or ld == 0.0 or -lp / ld <= 0:
+        raise ValueError(f"no roll-mode feed-forward: L_p = {lp:g}, L_delta = {ld:g}")
+    return -lp / ld

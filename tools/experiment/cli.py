@@ -1,6 +1,7 @@
 """``python -m tools.experiment SCENARIO`` (a reference scenario, ``tools.experiment.runs``), ``python -m
-tools.experiment robustness`` (the Monte Carlo study) and ``python -m tools.experiment replay`` (one of its runs):
-flags in, the runs out; the work is in ``runs`` and ``study``."""
+tools.experiment robustness`` (the Monte Carlo study), ``python -m tools.experiment replay`` (one of its runs) and
+``python -m tools.experiment damage`` (the damage study): flags in, the runs out; the work is in ``runs``, ``study``
+and ``damage``."""
 
 from __future__ import annotations
 
@@ -37,7 +38,8 @@ def build_parser() -> argparse.ArgumentParser:
         "scenario",
         help=f"scenario name ({', '.join(SCENARIOS)}); or 'robustness': the Monte Carlo study, "
         "'python -m tools.experiment robustness --help'; or 'replay': one run of the study alone, "
-        "'python -m tools.experiment replay --help'",
+        "'python -m tools.experiment replay --help'; or 'damage': the damage study, faults in mid-flight, "
+        "'python -m tools.experiment damage --help'",
     )
     p.add_argument("--out", metavar="DIR", help="output folder (default: a new runs/<scenario>-<timestamp>/)")
     p.add_argument(
@@ -91,6 +93,10 @@ def main(argv: Sequence[str] | None = None) -> int:
         from tools.experiment.study.cli import main as study_main
 
         return study_main(argv[1:])
+    if argv[:1] == ["damage"]:  # the damage study (tools.experiment.damage), its own flags
+        from tools.experiment.damage.cli import main as damage_main
+
+        return damage_main(argv[1:])
     if argv[:1] == ["replay"]:  # one run of the study, alone
         from tools.experiment.study.cli import replay_main
 

@@ -35,12 +35,24 @@ class Scenario:
     # defaults.
     params: str | None = None
     baseline_gains: tuple | None = None
-    # The SITL's disturbances ((dest, value) pairs of sitl.disturbances.FLAGS): flown over MAVLink only.
+    # The SITL's disturbances ((dest, value) pairs of sitl.disturbances.FLAGS): in-process, a JSBSim plant's own
+    # turbulence and the KH2013A's atmosphere (the SITL's injector, sitl.disturbances.Injector); the rest (sensors,
+    # link faults, --scale) over MAVLink only.
     disturbances: tuple = ()
+    # Mid-flight faults (sitl.damage.Fault or KIND[=VALUE]@START[:END] specs), flown as the SITL flies --fault.
+    faults: tuple = ()
+    # A gain schedule of the fixed-gain PID: ((t_s, (KP, KI, KD)), ...), each from the first control step at or
+    # after t_s (autopilot.baseline.Baseline.set_gains); () for none.
+    gain_schedule: tuple = ()
 
     def __post_init__(self) -> None:
         if not isinstance(self.profile, Profile):
             raise ValueError(f"profile must be a tools.flight.profiles.Profile, got {self.profile!r}")
+        if self.faults:
+            from sitl import damage
+
+            faults = tuple(f if isinstance(f, damage.Fault) else damage.parse(str(f)) for f in self.faults)
+            object.__setattr__(self, "faults", faults)
         for name in ("duration_s", "control_rate_hz", "physics_rate_hz", "u_limit_rad"):
             v = getattr(self, name)
             if not (math.isfinite(v) and v > 0):
@@ -118,10 +130,10 @@ def params_config(path: str, cfg: ClSacConfig) -> ClSacConfig:
 
 
 def controller_config(scenario: Scenario, run: RunSpec, base: ClSacConfig | None = None) -> ClSacConfig:
-    from tools.design.linearise import designed_baseline, designed_params
+    from tools.design.linearise import designed_params, flown_baseline_gains
 
     if run.controller is not None and not controllers.get(run.controller).adaptive:  # the fixed-gain PID
-        flown = scenario.baseline_gains or designed_baseline(scenario.plant)
+        flown = flown_baseline_gains(run.controller, scenario.plant, scenario.baseline_gains)
         limit = min(scenario.u_limit_rad, plants.surface_limit_rad(scenario.plant) or math.inf)  # the surface's stop
         return controllers.get(run.controller).config(
             control_rate_hz=scenario.control_rate_hz, u_limit_rad=limit, gains=flown
@@ -162,17 +174,23 @@ SERIES = (
 
 
 def _inprocess_disturbances(scenario: Scenario):
-    """The disturbances a plant flies by itself (a JSBSim plant's turbulence, crosswind, seed), or None; anything the
-    SITL's injector would have to apply (sensors, link, the KH2013A atmosphere) flies over MAVLink only."""
+    """(the flight's Disturbances or None, the SITL's injector for the rest or None): a JSBSim plant flies its own
+    turbulence, crosswind and seed; the KH2013A's (or a plant file's) atmosphere is sampled by the SITL's
+    ``sitl.disturbances.Injector`` at the physics step, as the SITL does in lockstep.  Sensors, link faults and
+    ``--scale`` fly over MAVLink only (ValueError)."""
     if not scenario.disturbances:
-        return None
-    from sitl.disturbances import from_values
+        return None, None
+    from sitl.disturbances import Injector, from_values
 
     dist = from_values(dict(scenario.disturbances))
     rest = plants.injected(scenario.plant, dist)
-    if rest.atmosphere.active or rest.sensors.active or rest.faults.active or rest.scales:
+    if rest is None:
+        return dist, None
+    if rest.sensors.active or rest.faults.active or rest.scales:
         raise ValueError("these disturbances fly over MAVLink only (tools.flight, the mavlink transport)")
-    return dist
+    if not rest.atmosphere.active:
+        return dist, None
+    return dist, Injector(rest, 1.0 / scenario.physics_rate_hz, scenario.control_rate_hz, True, 0.0)
 
 
 def run_inprocess(
@@ -187,6 +205,9 @@ def run_inprocess(
     measured, ``autopilot.step.ControlStep`` computes u[k], the aircraft advances one control period
     with u[k] held (exact ZOH, ``sitl.Aircraft.advance``).
 
+    The scenario's faults fly as the SITL flies ``--fault`` (``sitl.damage.advance_scheduled``, the one schedule
+    on the physics-step grid from t = 0) and its gain schedule retunes the fixed-gain PID at its times.
+
     ``wire``: also model exactly what the MAVLink path adds, so the two compare like for like: roll and
     the setpoint quaternion travel as float32, and the rudder command flies (and is scored) after the
     1 us PWM quantisation of this calibration.
@@ -199,13 +220,25 @@ def run_inprocess(
 
     step = ControlStep(controller_config(scenario, run, base), wire, ProfileSetpoints(command))
     law = step.law
-    ac = plants.build(scenario.plant, scenario.physics_rate_hz, None, _inprocess_disturbances(scenario))
+    if scenario.faults:
+        plants.check_faults(scenario.plant, scenario.faults)  # PlantError: a kind the plant cannot fly
+    dist, inj = _inprocess_disturbances(scenario)
+    ac = plants.build(scenario.plant, scenario.physics_rate_hz, None, dist, plants.needs_damaged_model(scenario.faults))
+    advance = ac.advance if inj is None else (lambda u, m: inj.advance(ac, u, m))
+    if scenario.faults:  # as the SITL flies --fault (sitl.fault_injection): one schedule on the physics-step grid
+        from sitl import damage
+
+        schedule = damage.Schedule(scenario.faults, 0.0, 1.0 / scenario.physics_rate_hz)
+        advance = damage.ScheduledEffects(ac, schedule, advance).advance
     n = scenario.steps
     nphys = scenario.physics_per_control
     out = np.empty((n, len(SERIES)))
     rate = scenario.control_rate_hz
+    retunes = {max(0, math.ceil(round(ts * rate, 6))): g for ts, g in scenario.gain_schedule}
     for k in range(n):
         t = k / rate
+        if k in retunes:
+            law.set_gains(*retunes[k])
         x = ac.truth
         phi = float(x[3]) if wire is None else float(np.float32(x[3]))  # ATTITUDE.roll travels as float32
         r = step(t, phi)
@@ -221,6 +254,6 @@ def run_inprocess(
             x[2],
             x[4],
         )
-        ac.advance(r.u, nphys)
+        advance(r.u, nphys)
     series = {name: out[:, i].copy() for i, name in enumerate(SERIES)}
     return RunResult(run.name, run.lv, step.metrics.result(), series)

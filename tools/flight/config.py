@@ -317,6 +317,12 @@ class FlightConfig:
             gains = self.baseline_gains
             text = gains if isinstance(gains, str) else ",".join(repr(float(g)) for g in gains)
             object.__setattr__(self, "baseline_gains", _checked("baseline_gains", baseline_gains, text))
+            if len(self.baseline_gains) > 3 and not dict(controllers.get(self.controller).options).get("feedforward"):
+                raise FlightConfigError(
+                    "baseline_gains",
+                    f"baseline_gains: a fourth gain (KFF) is pid-ff's feed-forward, not {self.controller}'s: "
+                    "give KP,KI,KD",
+                )
         if self.params is not None:
             try:
                 _check_params(load_file(self.params))
@@ -348,14 +354,14 @@ class FlightConfig:
 
     @property
     def baseline_gains_flown(self) -> tuple | None:
-        """The baseline's gains: the ones given, else those designed for the plant; None: the built-in defaults."""
+        """The baseline's gains: the ones given, else those designed for the plant; None: the built-in defaults.
+        pid-ff: a fourth, its feed-forward, the plant's roll-mode K_ff (``tools.design.tuning.feedforward_gain``)
+        unless given (on the KH2013A the built-in default is that)."""
         if controllers.get(self.controller).law != "baseline":
             return None
-        if self.baseline_gains is not None:
-            return tuple(self.baseline_gains)
-        from tools.design.linearise import designed_baseline
+        from tools.design.linearise import flown_baseline_gains
 
-        return designed_baseline(self.plant)
+        return flown_baseline_gains(self.controller, self.plant, self.baseline_gains)
 
     @property
     def disturbed(self) -> bool:

@@ -1,0 +1,120 @@
+"""The damage study's numbers per cell (plant x controller x fault kind x severity x onset, over the seeds), its
+``summary.json`` and its printed tables.  No I/O.
+
+Per cell: the flights, the share still controlled (``autopilot.envelope``) with its 95 % Wilson score interval, the
+median tracking error after the onset (ise_ref over t >= onset, rad^2 s) and of the energy after it, the share
+recovered and the median recovery time of those that did, the median error per period of the square wave, and the
+median over the whole flight of the five metrics of ``autopilot.metrics``.
+"""
+
+from __future__ import annotations
+
+import math
+import statistics
+from collections.abc import Sequence
+
+from tools.experiment.damage.grid import LABELS, NONE
+
+Z95 = 1.959963984540054  # the standard normal's 97.5 % quantile
+
+
+def wilson(k: int, n: int, z: float = Z95) -> tuple[float, float]:
+    """The Wilson score interval of a share k/n (Wilson 1927): (p + z^2/2n -+ z sqrt(p(1-p)/n + z^2/4n^2)) /
+    (1 + z^2/n); (0, 1) for n = 0."""
+    if n <= 0:
+        return 0.0, 1.0
+    p = k / n
+    d = 1.0 + z * z / n
+    centre = (p + z * z / (2 * n)) / d
+    half = z * math.sqrt(p * (1 - p) / n + z * z / (4 * n * n)) / d
+    return max(0.0, centre - half), min(1.0, centre + half)
+
+
+def _median(values) -> float | None:
+    vals = [v for v in values if v is not None and math.isfinite(v)]
+    return statistics.median(vals) if vals else None
+
+
+def cell_of(records: Sequence[dict]) -> dict:
+    """The cell's numbers from its flights' records (``tools.experiment.damage.flight.record``)."""
+    n = len(records)
+    k = sum(r["controlled"] for r in records)
+    lo, hi = wilson(k, n)
+    measured = [r for r in records if r["recovered"] is not None]
+    rec = [r for r in measured if r["recovered"]]
+    n_periods = max(len(r["ise_ref_periods"]) for r in records)
+    return {
+        "flights": n,
+        "controlled": k,
+        "share_controlled": k / n if n else None,
+        "wilson95": [lo, hi],
+        "ise_ref_after_p50": _median(r["ise_ref_after"] for r in records),
+        "energy_after_p50": _median(r["energy_after"] for r in records),
+        "ise_ref_p50": _median(r["ise_ref"] for r in records),
+        "energy_p50": _median(r["energy"] for r in records),
+        "max_abs_roll_deg_p50": _median(r["max_abs_roll_deg"] for r in records),
+        "recovered_share": len(rec) / len(measured) if measured else None,
+        "recovery_s_p50": _median(r["recovery_s"] for r in rec),
+        "ise_ref_periods_p50": [
+            _median(r["ise_ref_periods"][i] for r in records if i < len(r["ise_ref_periods"])) for i in range(n_periods)
+        ],
+    }
+
+
+def summarise(flights, results) -> list[dict]:
+    """One entry per cell, in the flights' order: plant, controller, kind, severity, onset, fault spec, the seeds,
+    the cell's numbers and every flight's record."""
+    cells: dict[tuple, dict] = {}
+    for f, r in zip(flights, results):
+        c = cells.setdefault(
+            f.cell,
+            {
+                "plant": f.plant,
+                "controller": f.controller,
+                "kind": f.kind,
+                "severity": f.value,
+                "onset_s": f.onset if f.kind != NONE else None,
+                "fault": f.spec,
+                "seeds": [],
+                "records": [],
+            },
+        )
+        c["seeds"].append(f.seed)
+        c["records"].append({"seed": f.seed, **r})
+    out = []
+    for c in cells.values():
+        records = c.pop("records")
+        out.append({**c, **cell_of(records), "runs": records})
+    return out
+
+
+def _fmt(v, spec: str = ".3g") -> str:
+    return "-" if v is None else format(v, spec)
+
+
+def table(cells: Sequence[dict], plant: str, controllers: Sequence[str], onset: float | None = None) -> str:
+    """The printed table of one plant: a row per fault (kind and severity, at ``onset``: the first one by default),
+    per controller the share controlled (%) and the median ise_ref after the onset."""
+    mine = [c for c in cells if c["plant"] == plant]
+    onsets = sorted({c["onset_s"] for c in mine if c["onset_s"] is not None})
+    onset = onsets[0] if onset is None and onsets else onset
+    rows: dict[tuple, dict] = {}
+    for c in mine:
+        if c["kind"] != NONE and c["onset_s"] != onset:
+            continue
+        rows.setdefault((c["kind"], c["severity"]), {})[c["controller"]] = c
+    width = 22
+    head = f"{'fault':<22}" + "".join(f"{LABELS.get(n, n)[: width - 1]:>{width}}" for n in controllers)
+    lines = [f"{plant}: % controlled / median ise_ref after the onset (rad^2 s), onset {_fmt(onset, 'g')} s", head]
+    for (kind, sev), per in rows.items():
+        name = kind if kind == NONE else f"{kind}={'here' if sev is None else format(sev, 'g')}"
+        row = f"{name:<22}"
+        for n in controllers:
+            c = per.get(n)
+            row += (
+                f"{'-':>{width}}"
+                if c is None
+                else f"{100 * c['share_controlled']:>9.0f} % {_fmt(c['ise_ref_after_p50']):>10}"
+            )
+        lines.append(row)
+    return "\n".join(lines)

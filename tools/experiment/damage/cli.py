@@ -1,0 +1,182 @@
+"""``python -m tools.experiment damage``: flags in, the damage study out (``runner``; docs/damage.md)."""
+
+from __future__ import annotations
+
+import argparse
+import math
+import os
+import sys
+import time
+from collections.abc import Sequence
+from pathlib import Path
+
+from autopilot.shared import cli
+from autopilot.shared.cli import OneLineArgumentParser
+from tools.experiment.damage import grid
+
+PROG = "python -m tools.experiment damage"
+
+
+def build_parser() -> argparse.ArgumentParser:
+    p = OneLineArgumentParser(
+        prog=PROG,
+        description="The damage study: faults in mid-flight (fault kind x severity x onset x seed x controller) "
+        "on each plant, flown in-process; writes OUT/summary.json and OUT/damage.png (docs/damage.md).",
+    )
+    p.add_argument(
+        "--plant",
+        default=",".join(grid.DEFAULT_PLANTS),
+        metavar="P1,P2",
+        help="plants: kh2013a, FILE.toml, jsbsim:MODEL[:KEY=VALUE,...] (default kh2013a,jsbsim:c172x)",
+    )
+    p.add_argument("--runs", type=cli.count(1, 10**6, name="runs"), default=2, help="seeds per cell (default 2)")
+    p.add_argument("--seed", type=cli.seed, default=1, help="flight j of a cell flies with seed SEED + j (default 1)")
+    p.add_argument("--out", metavar="DIR", help="output folder (default: a new runs/damage-<timestamp>/)")
+    p.add_argument(
+        "--workers",
+        type=cli.count(1, 1024, name="workers"),
+        default=None,
+        help="local processes when no --scheduler (default: the machine's cores; results do not change)",
+    )
+    p.add_argument("--scheduler", metavar="tcp://HOST:PORT", help="a Dask scheduler (default: run here)")
+    p.add_argument(
+        "--duration",
+        type=cli.duration_s,
+        default=grid.DEFAULT_DURATION_S,
+        help=f"seconds per flight (default {grid.DEFAULT_DURATION_S:g}; 120-600 for the long flights)",
+    )
+    p.add_argument(
+        "--kinds",
+        default=",".join(grid.DEFAULT_KINDS),
+        metavar="K1,K2",
+        help=f"fault kinds (default {','.join(grid.DEFAULT_KINDS)}; also damping, off and on JSBSim inertia, cg, "
+        "airspeed)",
+    )
+    p.add_argument(
+        "--severity",
+        action="append",
+        default=[],
+        metavar="KIND=V1,V2",
+        help="a kind's severities in --fault's units (repeatable; defaults: "
+        + "; ".join(
+            f"{k} {','.join('here' if v is None else f'{v:g}' for v in vs)}" for k, vs in grid.SEVERITIES.items()
+        )
+        + ")",
+    )
+    p.add_argument("--onsets", default="10", metavar="T1,T2", help="fault onsets in s of flight time (default 10)")
+    p.add_argument(
+        "--controllers",
+        default=",".join(grid.CONTROLLERS),
+        metavar="C1,C2",
+        help=f"subset of {','.join(grid.CONTROLLERS)} (default all)",
+    )
+    p.add_argument(
+        "--turbulence",
+        choices=grid.TURBULENCE,
+        default=grid.DEFAULT_TURBULENCE,
+        help=f"the turbulence each seed draws (default {grid.DEFAULT_TURBULENCE})",
+    )
+    p.add_argument("--no-plot", action="store_true", help="do not write damage.png")
+    p.add_argument("--quiet", action="store_true", help="no progress bars")
+    return p
+
+
+def study_of(args) -> object:
+    """The Study of the parsed flags (DamageError, sitl.plant.PlantError with one line)."""
+    from sitl import plant as plants
+    from tools.experiment.damage.runner import Study
+
+    plant_list = grid.parse_list(args.plant, "plants")
+    for p in plant_list:
+        plants.check(p)
+    kinds = grid.parse_list(args.kinds, "fault kinds")
+    from sitl import damage
+
+    bad = [k for k in kinds if k not in damage.KINDS]
+    if bad:
+        raise grid.DamageError(f"--kinds: unknown kind {bad[0]!r} (kinds: {', '.join(damage.KINDS)})")
+    severities = dict(grid.SEVERITIES)
+    for text in args.severity:
+        k, vals = grid.parse_severity(text)
+        severities[k] = vals
+    ctrls = grid.parse_list(args.controllers, "controllers")
+    bad = [c for c in ctrls if c not in grid.CONTROLLERS]
+    if bad:
+        raise grid.DamageError(f"--controllers: unknown controller {bad[0]!r} (known: {', '.join(grid.CONTROLLERS)})")
+    onsets = grid.parse_list(args.onsets, "onsets in s", float)
+    grid.check_onsets(onsets, args.duration)
+    if args.scheduler is not None and not args.scheduler.startswith(("tcp://", "tls://", "inproc://")):
+        raise grid.DamageError(f"--scheduler must look like tcp://HOST:PORT, got {args.scheduler!r}")
+    if args.seed + args.runs - 1 > cli.MAX_SEED:
+        raise grid.DamageError(f"--seed {args.seed} with --runs {args.runs}: the last seed passes 2^63-1")
+    study = Study(
+        plants=tuple(plant_list),
+        controllers=tuple(dict.fromkeys(ctrls)),
+        kinds=tuple(dict.fromkeys(kinds)),
+        severities=severities,
+        onsets=tuple(dict.fromkeys(onsets)),
+        seed=args.seed,
+        runs=args.runs,
+        duration=args.duration,
+        turbulence=args.turbulence,
+    )
+    cells, _ = study.cells()
+    if not any(cells.values()):
+        raise grid.DamageError("no plant flies any of the fault kinds asked for")
+    if grid.RETUNED in study.controllers:
+        from tools.design.linearise import linear_model
+
+        for p in plant_list:
+            if linear_model(p) is None:
+                raise grid.DamageError(f"{grid.RETUNED} needs a linear model of {p} (tools.design.linearise)")
+    return study
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    from sitl import plant as plants
+    from tools.experiment.damage.aggregate import table
+    from tools.experiment.damage.runner import run, write
+    from tools.experiment.outdir import OutDirError, check_out_dir, default_out_dir, prepare_out_dir
+    from tools.experiment.study import StudyError
+
+    parser = build_parser()
+    args = parser.parse_args(argv)
+    try:
+        study = study_of(args)
+        out = Path(args.out) if args.out else default_out_dir("damage")
+        check_out_dir(out)
+    except (grid.DamageError, plants.PlantError, OutDirError) as exc:
+        parser.error(str(exc))
+    if not math.isfinite(args.duration):
+        parser.error("--duration must be finite")
+    workers = args.workers or os.cpu_count() or 1
+    t0 = time.perf_counter()
+    try:
+        out = prepare_out_dir(out)
+        _, skipped = study.cells()
+        for p, why in skipped.items():
+            for k, reason in why.items():
+                print(f"not flown on {p}: {k} ({reason})")
+        doc = run(study, workers=workers, scheduler=args.scheduler, progress=not args.quiet)
+        written = write(doc, out, plot=not args.no_plot)
+    except (StudyError, OutDirError) as exc:
+        print(f"{PROG}: error: {exc}", file=sys.stderr)
+        return 2
+    except KeyboardInterrupt:
+        print(f"{PROG}: interrupted", file=sys.stderr)
+        return 130
+    for p in study.plants:
+        print()
+        print(table(doc["cells"], p, study.controllers))
+    print()
+    print(
+        f"{doc['flights']} flights and {len(doc['designs'])} design(s) in {doc['wall_s']:.1f} s "
+        f"({doc['flights_per_s']:.2f} flights/s with the designs), {time.perf_counter() - t0:.1f} s in all on "
+        f"{doc['executor']}"
+    )
+    print("wrote " + ", ".join(str(w) for w in written))
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,181 @@
+"""One task of the damage study, flown or designed in a worker (``simulate``: picklable, a function of the task only).
+
+A :class:`~tools.experiment.damage.grid.Flight` is the reference scenario's square wave (``PAPER``: +-10 deg,
+period 10 s) flown in-process (``tools.experiment.scenario.run_inprocess``: the control step and the plant in one
+process, faults flown as the SITL flies ``--fault``) for ``duration`` s on the plant, with the fault from its
+onset, in turbulence seeded by the flight's seed.  Its record: the verdict (``autopilot.envelope.judge_series``,
+the one definition of a controlled flight), the tracking error after the onset, per period of the square wave, the
+effort, and the recovery after the onset.
+
+A :class:`~tools.experiment.damage.grid.Design` is ``tools.design.tuning.design_baseline`` on the plant's linear
+model (``tools.design.linearise.linear_model``) changed as the fault changes it (``tools.design.tuning.
+faulted_plant``).  A :class:`~tools.experiment.damage.grid.Calibration` finds the factor s on the plant's PID gains
+whose energy (``autopilot.metrics``: sum u^2 dt) on the fault-free reference scenario (30 s, still air) equals
+CL-SAC's there: Brent's method on log E(s) - log E_CL-SAC over s in [1/30, 30].
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import replace
+
+import numpy as np
+
+from tools.experiment.damage.grid import (
+    ENERGY,
+    NONE,
+    RETUNED,
+    Calibration,
+    Design,
+    Flight,
+    effect_of,
+    fault_of,
+)
+
+PAPER_RATE_HZ = 100.0  # the reference scenario's control rate (tools.experiment.scenario.PAPER)
+SCALE_RANGE = (1.0 / 30.0, 30.0)
+SCALE_XTOL = 1e-4  # on log s: the energy is matched to about 0.01 %
+
+
+def _scenario(plant: str, duration: float = 30.0, dist: tuple = (), **kw):
+    from sitl import plant as plants
+    from tools.experiment.scenario import PAPER
+
+    limit = min(PAPER.u_limit_rad, plants.surface_limit_rad(plant) or math.inf)  # the surface's stop
+    return replace(PAPER, plant=plant, duration_s=duration, u_limit_rad=limit, disturbances=dist, **kw)
+
+
+def _run(controller: str):
+    from tools.experiment.scenario import run_of
+
+    return run_of("baseline" if controller in (RETUNED, ENERGY) else controller)
+
+
+def disturbances(turbulence: str, seed: int) -> tuple:
+    """The flight's disturbances: the seed, and the turbulence unless "none" (JSBSim flies its own MIL-F-8785C
+    turbulence, the KH2013A the SITL's Dryden model, ``sitl.atmosphere``)."""
+    return (("seed", int(seed)),) + ((("turbulence", turbulence),) if turbulence != "none" else ())
+
+
+def fly(task: Flight):
+    """The flight's ``RunResult`` and its scenario."""
+    from tools.experiment.scenario import run_inprocess
+
+    faults = () if task.kind == NONE else (fault_of(task.kind, task.value, task.onset),)
+    scen = _scenario(
+        task.plant,
+        task.duration,
+        disturbances(task.turbulence, task.seed),
+        faults=faults,
+        baseline_gains=task.gains,
+        gain_schedule=task.schedule,
+    )
+    return run_inprocess(scen, _run(task.controller)), scen
+
+
+def record(series: dict, metrics: dict, onset: float, period: float, u_limit: float, dt: float) -> dict:
+    """A flight's record from its series (``t``, ``phi``, ``u``, ``ym_ol``; rad, one sample per control step)."""
+    from autopilot.envelope import judge_series
+
+    t, phi, u, ym = (np.asarray(series[k], dtype=float) for k in ("t", "phi", "u", "ym_ol"))
+    d2 = (phi - ym) ** 2  # the tracking error of autopilot.metrics' ise_ref, per sample
+    after = t >= onset - 1e-9
+    verdict = judge_series(t, phi, u, u_limit)
+    n_periods = int(math.ceil(round(len(t) * dt / period, 9)))
+    periods = [
+        float(np.sum(d2[(t >= i * period - 1e-9) & (t < (i + 1) * period - 1e-9)]) * dt) for i in range(n_periods)
+    ]
+    sat = np.abs(u) >= u_limit * (1.0 - 1e-9)
+    return {
+        "controlled": bool(verdict.ok),
+        "reason": verdict.reason,
+        "first_exit_s": verdict.first_exit_s,
+        "max_abs_roll_deg": float(np.degrees(np.max(np.abs(phi)))),
+        "saturated_share": float(np.mean(sat)),
+        "ise_ref": float(metrics["ise_ref"]),
+        "energy": float(metrics["energy"]),
+        "ise_ref_after": float(np.sum(d2[after]) * dt),
+        "ise_ref_before": float(np.sum(d2[~after]) * dt),
+        "energy_after": float(np.sum(u[after] ** 2) * dt),
+        "ise_ref_periods": periods,
+        **recovery_of(t, phi, ym, onset),
+    }
+
+
+def recovery_of(_t, _phi, _ym, _onset: float) -> dict:
+    """The recovery after the onset (``recovered``: True, False or None when not measured; ``recovery_s``)."""
+    return {"recovered": None, "recovery_s": None}
+
+
+def fly_record(task: Flight) -> dict:
+    res, scen = fly(task)
+    return record(res.series, res.metrics, task.onset, scen.period_s, scen.u_limit_rad, 1.0 / scen.control_rate_hz)
+
+
+def design(task: Design) -> dict:
+    """The retuned PID's gains and margins on the plant's linear model under the fault."""
+    from tools.design.linearise import linear_model
+    from tools.design.tuning import design_baseline, faulted_plant
+
+    model = linear_model(task.plant)
+    if model is None:
+        raise ValueError(f"{task.plant}: no linear model to retune the PID on (tools.design.linearise.linear_model)")
+    effect = effect_of(task.kind, task.value)
+    plant = faulted_plant(model[:3], model[3], effect)
+    rate = PAPER_RATE_HZ
+    d = design_baseline(plant, rate_hz=rate, delay_steps=int(round(effect.delay * rate)))
+    return {"gains": (float(d.kp), float(d.ki), float(d.kd)), "margins": d.margins}
+
+
+def _energy(plant: str, controller: str, gains=None) -> float:
+    from tools.experiment.scenario import run_inprocess
+
+    return float(run_inprocess(_scenario(plant, baseline_gains=gains), _run(controller)).metrics["energy"])
+
+
+def calibrate(task: Calibration) -> dict:
+    """The factor on the plant's PID gains that matches CL-SAC's energy on the fault-free reference scenario."""
+    from scipy.optimize import brentq
+
+    from autopilot.baseline import BaselineConfig
+    from tools.design.linearise import flown_baseline_gains
+
+    base = flown_baseline_gains("baseline", task.plant)
+    if base is None:
+        d = BaselineConfig()
+        base = (d.kp, d.ki, d.kd)
+    target = _energy(task.plant, "clsac")
+
+    def f(log_s: float) -> float:
+        s = math.exp(log_s)
+        return math.log(_energy(task.plant, "baseline", tuple(s * g for g in base)) / target)
+
+    lo, hi = (math.log(x) for x in SCALE_RANGE)
+    flo, fhi = f(lo), f(hi)
+    if not (flo < 0 < fhi):
+        raise ValueError(
+            f"{task.plant}: no PID gain factor in [{SCALE_RANGE[0]:.3g}, {SCALE_RANGE[1]:g}] matches CL-SAC's energy "
+            f"{target:.4g} (log ratio {flo:.3g} .. {fhi:.3g})"
+        )
+    log_s = brentq(f, lo, hi, xtol=SCALE_XTOL)
+    s = math.exp(log_s)
+    gains = tuple(s * g for g in base)
+    return {
+        "scale": s,
+        "gains": gains,
+        "base_gains": tuple(base),
+        "energy_clsac": target,
+        "energy": _energy(task.plant, "baseline", gains),
+        "energy_base": _energy(task.plant, "baseline", tuple(base)),
+    }
+
+
+def simulate(task) -> dict:
+    """The task function of ``tools.experiment.study.execute``: a flight's record, a design or a calibration."""
+    if isinstance(task, Flight):
+        return fly_record(task)
+    if isinstance(task, Design):
+        return design(task)
+    if isinstance(task, Calibration):
+        return calibrate(task)
+    raise TypeError(f"not a damage study task: {task!r}")
