@@ -147,6 +147,19 @@ def stop_hit(sat, u, u_limit_rad, armed):
     return hit, (hit ^ True) & (armed | (abs(u) <= HIT_REARM * u_limit_rad))
 
 
+def tracking_limits() -> dict:
+    """The tracking definition's constants, as ``summary.json`` gives them."""
+    return {
+        "window_s": TRACK_WINDOW_S,
+        "step_s": TRACK_BLOCK_S,
+        "deviation_ratio": DEVIATION_RATIO,
+        "ref_floor_deg": REF_FLOOR_DEG,
+        "stop_hits_min": STOP_HITS_MIN,
+        "hit_rearm": HIT_REARM,
+        "follow_gain_min": FOLLOW_GAIN_MIN,
+    }
+
+
 # A block's sums, in this order: samples, y_r^2, phi y_r, d^2, d, (d')^2, derivative samples, stop hits, saturated,
 # and the flight time of its first and last sample.
 _N, _RR, _PR, _DD, _D, _DOT2, _NDOT, _HITS, _SAT, _T0, _T1 = range(11)
@@ -235,15 +248,7 @@ class Tracking:
         for k, v in self.__dict__.items():
             out[k] = v.to_dict() if isinstance(v, TrackWindow) else (_finite_or_none(v) if isinstance(v, float) else v)
         out["ok"] = self.ok
-        out["limits"] = {
-            "window_s": TRACK_WINDOW_S,
-            "step_s": TRACK_BLOCK_S,
-            "deviation_ratio": DEVIATION_RATIO,
-            "ref_floor_deg": REF_FLOOR_DEG,
-            "stop_hits_min": STOP_HITS_MIN,
-            "hit_rearm": HIT_REARM,
-            "follow_gain_min": FOLLOW_GAIN_MIN,
-        }
+        out["limits"] = tracking_limits()
         return out
 
     def parts(self) -> list[str]:
@@ -534,7 +539,8 @@ class EnvelopeMonitor:
             if not self._track_out:
                 self._track_out = True
                 if w.oscillating:
-                    return f"ENVELOPE: oscillation {w.oscillation_text()} at {w.end_s:.0f} s"
+                    f = f" {w.frequency_hz:.1f} Hz" if math.isfinite(w.frequency_hz) else ""
+                    return f"ENVELOPE: oscillation +-{w.amplitude_deg:.0f} deg{f} at {w.end_s:.0f} s"  # <= 50
                 return f"ENVELOPE: roll not following ({w.gain:.2f}) at {w.end_s:.0f} s"
         else:
             self._track_out = False

@@ -9,8 +9,9 @@ Each flight is the reference scenario flown in-process (``tools.scenario.run_inp
 designed for the model (``tools.plant.designed_params``: designed at one airspeed, flown at all).  A flight is a
 task of ``tools.study.execute``: one after the other, ``--workers`` local processes or a Dask cluster
 (``--scheduler``), and its result depends on (controller, airspeed, turbulence, seed) only, so the summary is the
-same whatever the number of workers.  Bounded: max |roll| < 60 deg and the command saturated in < 20 % of the
-steps (as ``tools.study``).  Writes DIR/summary.json and prints, per controller and condition, the median
+same whatever the number of workers.  Bounded: inside the default envelope (``autopilot.envelope``, as
+``tools.study`` and the launcher): max |roll| < 60 deg, the command saturated in < 20 % of the steps, and tracking
+in every 20 s window.  Writes DIR/summary.json and prints, per controller and condition, the median
 ise_ref and energy and the share of bounded flights.
 """
 
@@ -27,9 +28,10 @@ from pathlib import Path
 
 import numpy as np
 
+from autopilot.envelope import judge_series
 from autopilot.shared.cli import OneLineArgumentParser
 from autopilot.shared.process import write_json_atomic
-from tools.study import BOUND_ROLL_RAD, BOUND_SAT_FRACTION, StudyError, execute
+from tools.study import StudyError, execute
 
 TURBULENCE = ("none", "light", "moderate", "severe")
 CONTROLLERS = ("sac", "clsac", "baseline")
@@ -69,7 +71,11 @@ def simulate(task: Flight) -> dict:
     out = dict(res.metrics)
     out["max_abs_roll"] = float(np.max(np.abs(phi)))
     out["sat_fraction"] = float(np.mean(np.abs(u) >= limit * (1 - 1e-9)))
-    out["bounded"] = bool(out["max_abs_roll"] < BOUND_ROLL_RAD and out["sat_fraction"] < BOUND_SAT_FRACTION)
+    # inside the envelope (autopilot.envelope, the launcher's "controlled"): |roll|, saturation and tracking
+    c = judge_series(res.series["t"], phi, u, limit, ref=res.series["ym_ol"])
+    out["bounded"] = bool(c.ok)
+    out["oscillating"] = bool(c.tracking is not None and c.tracking.oscillating_windows)
+    out["not_following"] = bool(c.tracking is not None and c.tracking.not_following_windows)
     return out
 
 
