@@ -271,8 +271,9 @@ class Tracking:
             )
         w = self.first_not_following
         if w is not None:
+            gain = round(w.gain, 2) + 0.0  # no "-0.00"
             out.append(
-                f"the roll did not follow the command: in-phase response {w.gain:.2f} of the commanded (limit "
+                f"the roll did not follow the command: in-phase response {gain:.2f} of the commanded (limit "
                 f"{FOLLOW_GAIN_MIN:g}) in the {TRACK_WINDOW_S:g} s window {w.start_s:.0f}-{w.end_s:.0f} s, "
                 f"{self.not_following_windows} of {self.windows} windows"
             )
@@ -339,10 +340,10 @@ def ground_station_time(disarmed_steps: int, manual_steps: int, samples: int, pe
     }
     parts = []
     if disarmed_steps:
-        parts.append(f"disarmed {out['disarmed_s']:.1f} s, {100 * out['disarmed_share']:.0f} % of the flight")
+        parts.append(f"disarmed {out['disarmed_s']:.1f} s = {100 * out['disarmed_share']:.0f} %")
     if manual_steps:
-        parts.append(f"in MANUAL {out['manual_s']:.1f} s, {100 * out['manual_share']:.0f} % of the flight")
-    out["note"] = "; ".join(parts) + " (by a ground station)" if parts else None
+        parts.append(f"in MANUAL {out['manual_s']:.1f} s = {100 * out['manual_share']:.0f} %")
+    out["note"] = " and ".join(parts) + " of the flight, by a ground station" if parts else None
     return out
 
 
@@ -541,7 +542,7 @@ class EnvelopeMonitor:
                 if w.oscillating:
                     f = f" {w.frequency_hz:.1f} Hz" if math.isfinite(w.frequency_hz) else ""
                     return f"ENVELOPE: oscillation +-{w.amplitude_deg:.0f} deg{f} at {w.end_s:.0f} s"  # <= 50
-                return f"ENVELOPE: roll not following ({w.gain:.2f}) at {w.end_s:.0f} s"
+                return f"ENVELOPE: roll not following ({round(w.gain, 2) + 0.0:.2f}) at {w.end_s:.0f} s"
         else:
             self._track_out = False
         return None

@@ -147,4 +147,7 @@ def test_a_flight_disarmed_by_a_ground_station_says_so_on_its_last_line(tmp_path
     gs = res.summary["ground_station"]
     assert 200 <= disarmed <= 450 and gs["disarmed_s"] == pytest.approx(disarmed / 100.0, abs=0.011)
     line = outcome_line(res.summary)
-    assert line.startswith(f"{res.outcome} (disarmed {gs['disarmed_s']:.1f} s, ") and "(by a ground station)" in line
+    assert (
+        line.startswith(f"{res.outcome} (disarmed {gs['disarmed_s']:.1f} s = ") and ", by a ground station): " in line
+    )
+    print(line)

@@ -193,7 +193,7 @@ def test_time_disarmed_and_in_manual_is_counted_and_named():
     gs = mon.result().ground_station
     assert gs["disarmed_s"] == pytest.approx(3.0) and gs["manual_s"] == pytest.approx(1.0)
     assert gs["disarmed_share"] == 0.3 and gs["manual_share"] == 0.1
-    assert gs["note"] == "disarmed 3.0 s, 30 % of the flight; in MANUAL 1.0 s, 10 % of the flight (by a ground station)"
+    assert gs["note"] == "disarmed 3.0 s = 30 % and in MANUAL 1.0 s = 10 % of the flight, by a ground station"
     assert ground_station_time(0, 0, 100, 0.01)["note"] is None
 
 
@@ -203,11 +203,11 @@ def test_the_verdict_line_never_calls_a_disarmed_flight_plain_ok():
     c = {"reason": "controlled: max |roll| 3.0 deg"}
     gs = ground_station_time(1440, 0, 3000, 0.01)
     line = outcome_line({"outcome": "OK", "controlled": c, "ground_station": gs})
-    assert line == "OK (disarmed 14.4 s, 48 % of the flight (by a ground station)): flown to the end; " + c["reason"]
+    assert line == "OK (disarmed 14.4 s = 48 % of the flight, by a ground station): flown to the end; " + c["reason"]
     assert outcome_line({"outcome": "OK", "controlled": c, "ground_station": ground_station_time(0, 0, 3000, 0.01)})
     assert outcome_line({"outcome": "OK", "controlled": c}) == "OK: flown to the end; " + c["reason"]
     out = outcome_line({"outcome": "OUT OF ENVELOPE", "controlled": c, "ground_station": gs})
-    assert out.startswith("OUT OF ENVELOPE (disarmed 14.4 s, 48 % of the flight (by a ground station)): ")
+    assert out.startswith("OUT OF ENVELOPE (disarmed 14.4 s = 48 % of the flight, by a ground station): ")
 
 
 # ------------------------------------------------------------------------------------------- recovery
