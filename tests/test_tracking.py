@@ -286,3 +286,32 @@ def test_the_study_and_the_monitor_judge_the_same_runs_alike():
         assert bool(out["oscillating"][i]) is bool(c.tracking.oscillating_windows), i
         assert bool(out["not_following"][i]) is bool(c.tracking.not_following_windows), i
         assert bool(out["bounded"][i]) is c.ok, i
+
+
+def test_the_launcher_reads_recovery_from_the_flights_series_and_says_it_last(tmp_path):
+    """``tools.flight.files.flight_recovery`` on a real DIR/autopilot_series.npz (a real-time flight's stand-by
+    steps, t < 0, dropped), and the verdict line's clause per fault."""
+    from tools.flight.files import flight_recovery
+    from tools.launch import outcome_line
+
+    t, roll, ref = _faulted()
+    standby = np.full(5, -0.001)
+    np.savez(
+        tmp_path / "autopilot_series.npz",
+        t=np.concatenate([standby, t]),
+        phi=np.concatenate([np.full(5, 1.0), roll]),  # 57 deg at stand-by: would spoil the band if kept
+        ym_ol=np.concatenate([np.zeros(5), ref]),
+    )
+    faults = [{"kind": "effectiveness", "value": 0.3, "start": 10.0, "end": None, "source": "command line"}]
+    rec = flight_recovery(tmp_path, faults)
+    assert (
+        rec[0]["recovered"]
+        and rec[0]["time_s"] == pytest.approx(4.0)
+        and rec[0]["band_deg"] == pytest.approx(1.414, abs=1e-3)
+    )
+    assert flight_recovery(tmp_path, []) == [] and flight_recovery(tmp_path / "none", faults)[0]["recovered"] is None
+    line = outcome_line({"outcome": "OK", "controlled": {"reason": "controlled: x"}, "recovery": rec})
+    assert (
+        line
+        == "OK: flown to the end; controlled: x; after effectiveness 0.3 at 10 s: recovered in 4.0 s (band 1.4 deg)"
+    )
