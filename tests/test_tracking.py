@@ -171,6 +171,17 @@ def test_the_oscillation_is_announced_once_when_its_window_ends():
     assert said[0][1] == "ENVELOPE: oscillation +-11 deg 2.0 Hz at 34 s"  # a STATUSTEXT: <= 50 characters
 
 
+def test_a_stall_leaves_empty_blocks_and_the_windows_stay_on_flight_time():
+    """No sample from 10 to 13 s (a real-time stall): those blocks are empty, the windows still end every second
+    of flight time, and the ones over the gap hold 300 samples fewer."""
+    t, roll, u, ref = _flight(30.0, gain=0.9)
+    keep = (t < 10.0 - 1e-9) | (t >= 13.0 - 1e-9)
+    c = judge_series(t[keep], roll[keep], u[keep], LIM, ref=ref[keep])
+    tr = c.tracking
+    assert c.ok and tr.windows == 11 and tr.last_window.samples == 1700 and tr.last_window.end_s == 30.0
+    assert tr.min_gain == pytest.approx(0.9, rel=1e-9)
+
+
 def test_a_flight_shorter_than_a_window_is_not_judged_on_tracking_and_says_so():
     c = _judge(*_flight(15.0, gain=0.0))
     assert c.ok and not c.tracking.judged and c.tracking.windows == 0
