@@ -266,6 +266,26 @@ def test_recovery_up_to_the_next_fault_and_when_it_cannot_be_measured():
     assert recovery(t, roll, ref, 29.5).recovered is None  # no whole second after the onset
 
 
+def test_recovery_on_a_square_wave_judges_only_settled_seconds():
+    """Given the raw command, the seconds within RECOVERY_SETTLE_S of a step (and of the start) are the designed
+    transient: a 6 deg deviation in each step's first second sets neither the band nor a loss; a 3 deg offset
+    held from 22 s on the settled seconds is one (band max(2 x 0.5, 1) = 1 deg)."""
+    from autopilot.recovery import RECOVERY_SETTLE_S
+
+    assert RECOVERY_SETTLE_S == 2.0
+    t = np.arange(0, 30.0, 0.01)
+    um = np.where(np.floor(t / 5.0) % 2 == 0, 1.0, -1.0) * math.radians(10.0)
+    since = t - 5.0 * np.floor(t / 5.0)  # seconds since the last step (and since the start)
+    roll = um + np.where(since < 1.0, math.radians(6.0), math.radians(0.5))
+    kept = recovery(t, roll, um, 10.0, raw_command=um)
+    assert kept.recovered and kept.time_s == pytest.approx(2.0) and kept.band_deg == pytest.approx(1.0)
+    assert "settled 1 s RMS" in kept.reason
+    lost = recovery(t, roll + np.where(t >= 22.0, math.radians(3.0), 0.0), um, 10.0, raw_command=um)
+    assert lost.recovered is False and lost.worst_deg == pytest.approx(3.5)
+    # without the raw command every second counts: the transients set a 12 deg band and hide the loss
+    assert recovery(t, roll + np.where(t >= 22.0, math.radians(3.0), 0.0), um, 10.0).recovered is True
+
+
 def test_fault_recoveries_of_summary_faults():
     from tools.flight import fault_recoveries, recovery_text
 

@@ -238,15 +238,17 @@ def flight_recovery(out: Path, faults: list | None) -> list[dict]:
 
     from tools.flight.outcome import fault_recoveries
 
-    t = roll = ref = None
+    t = roll = ref = um = None
     try:
         with np.load(out / "autopilot_series.npz") as s:
             t, roll, ref = (np.asarray(s[k], dtype=float) for k in ("t", "phi", "ym_ol"))
+            um = np.asarray(s["um"], dtype=float) if "um" in s else None  # every block judged without it
         flying = t >= 0.0
         t, roll, ref = t[flying], roll[flying], ref[flying]
+        um = None if um is None else um[flying]
     except (OSError, KeyError, ValueError, zipfile.BadZipFile):
-        t = roll = ref = None
-    return fault_recoveries(faults, t, roll, ref)
+        t = roll = ref = um = None
+    return fault_recoveries(faults, t, roll, ref, um)
 
 
 # ---------------------------------------------------------------------------------------- the verdict
