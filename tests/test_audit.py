@@ -71,17 +71,20 @@ def test_tv_of_a_flight_whose_first_command_is_not_zero():
 
 # ------------------------------------------------------------------------------------ the study's bounded share
 def test_study_bounded_is_roll_below_60_deg_and_saturation_below_20_percent():
-    """README "Robustness": a run is bounded when |roll| < 60 deg over the whole flight and the rudder is saturated
-    less than 20 % of the steps; the share is the bounded runs over all."""
+    """README "Robustness": a run is bounded when |roll| < 60 deg over the whole flight, the rudder is saturated
+    less than 20 % of the steps and no 20 s window oscillates or fails to follow (autopilot.envelope; the flags
+    themselves against the monitor in tests/test_tracking.py); the share is the bounded runs over all."""
     from tools.experiment.study import Task, aggregate, merge, simulate
 
     task = Task("clsac", tuple(("severe", i) for i in range(16)), 5)
     runs = simulate(task)
     roll, sat = runs["max_abs_roll"], runs["sat_fraction"]
-    bounded = (roll < math.radians(60.0)) & (sat < 0.2)
+    inside = (roll < math.radians(60.0)) & (sat < 0.2)
+    bounded = inside & ~runs["oscillating"] & ~runs["not_following"]
     assert runs["bounded"].tolist() == bounded.tolist()
     assert 0 < bounded.sum() < 16  # both kinds among these runs
     assert np.any((roll >= math.radians(60.0)) & (sat < 0.2))  # one fails on the roll alone
+    assert np.any(inside & runs["oscillating"])  # and one on its limit cycle alone
     share = aggregate(merge([task], [runs])["clsac"], "severe", "clsac", 5)["bounded_share"]
     assert share == pytest.approx(bounded.sum() / 16, abs=1e-15)
 

@@ -65,10 +65,13 @@ def test_readme_disturbance_example_ends_out_of_envelope_with_its_numbers(tmp_pa
     assert roll_deg > 90.0 and share > 0.4
     assert c["ok"] is False and c["max_abs_roll_deg"] == pytest.approx(roll_deg, rel=1e-12)
     assert c["saturated_share"] == pytest.approx(share, abs=1e-12) and c["first_exit_s"] == pytest.approx(first)
-    assert c["reason"] == (
+    assert c["reason"].startswith(
         f"|roll| reached {roll_deg:.1f} deg (limit 60; first past it at {first:.1f} s); "
-        f"rudder saturated {100 * share:.1f} % of the flight (limit 20 %)"
+        f"rudder saturated {100 * share:.1f} % of the flight (limit 20 %); sustained oscillation +-"
     )
+    # it oscillates from its first 20 s window to its last (autopilot.envelope, tracking)
+    tr = c["tracking"]
+    assert tr["first_oscillation"]["end_s"] == 20.0 and tr["oscillating_windows"] == tr["windows"] == 11
     assert c["limits"] == {"max_abs_roll_deg": 60.0, "max_saturated_share": 0.2} and c["checked"] is True
     # announced while flying, once per excursion: STATUSTEXT to the ground station, an event in flight.rrd
     gcs = json.loads((out / "gcs.json").read_text())

@@ -125,3 +125,23 @@ def test_a_fault_the_plant_cannot_fly_is_refused_by_both(tmp_path):
     with pytest.raises(FlightConfigError) as exc:
         Flight(lockstep=True, fault=["off@1", "bogus@1"])
     assert exc.value.field == "fault" and "bogus" in str(exc.value)
+
+
+def test_recovery_after_the_fault_against_the_settled_deviation_computed_here(flights, tmp_path):
+    """summary.json ``recovery`` for the effectiveness flight, against the settled 1 s blocks' RMS deviation of the
+    roll from y_m,ol computed here from the series (blocks starting >= 2 s after a step of the 5 s square wave);
+    a surface stuck at 10 s never comes back: "not recovered"."""
+    _free, (eff, _s, a) = flights
+    rec = eff.summary["recovery"]
+    assert len(rec) == 1 and rec[0]["kind"] == "effectiveness"
+    t, d = a["t"], np.degrees(a["phi"] - a["ym_ol"])
+    settled = [k for k in range(20) if k % 5 >= 2]  # the blocks [k, k+1) 2 s or more after a step at 0, 5, 10, 15
+    rms = {k: float(np.sqrt(np.mean(d[(t >= k - 1e-9) & (t < k + 1 - 1e-9)] ** 2))) for k in settled}
+    band = max(2 * max(rms[k] for k in settled if k < 10), 1.0)
+    assert rec[0]["band_deg"] == pytest.approx(band, rel=1e-6)
+    after = [k for k in settled if k >= 10]
+    first = next(k for k in after if all(rms[j] <= band for j in after if j >= k))
+    assert rec[0]["recovered"] is True and rec[0]["time_s"] == pytest.approx(first - 10.0)
+    stuck = Flight(lockstep=True, duration=20.0, quiet=True, out=tmp_path / "stuck", fault=["stuck@10"]).run()
+    r = stuck.summary["recovery"]
+    assert len(r) == 1 and r[0]["recovered"] is False and "not recovered" in r[0]["reason"]

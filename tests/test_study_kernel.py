@@ -67,6 +67,18 @@ def test_the_kernel_flies_every_controller_bit_for_bit_as_the_numpy_loop(kernel,
     assert set(ref["pfc_paper"].tolist()) == {True, False}  # a batch of both PFCs (per-run coefficients)
 
 
+@pytest.mark.parametrize("controller", ["sac", "clsac", "baseline"])
+def test_the_kernel_judges_tracking_bit_for_bit_as_the_numpy_loop(kernel, controller):
+    """30 s: the 20 s windows of autopilot.envelope.window_flags are judged (11 of them), under the three
+    conditions and the sweeps' extremes; both flags come out True in some runs and False in others (the batch
+    holds both, so the comparison can fail)."""
+    task = Task(controller, tuple((c, i) for c in MIX for i in range(2)), 1, 30.0)
+    ref, fast = simulate(task, "numpy"), simulate(task, "kernel")
+    assert _same(ref, fast) == []
+    for key in ("oscillating", "not_following", "bounded"):
+        assert ref[key].dtype == bool and 0 < ref[key].sum() < len(task.runs), (key, ref[key])
+
+
 def test_the_kernel_keeps_the_peak_of_every_30_s_window(kernel):
     """61 s: two full windows and a partial one (not reported), under nominal and moderate (the long flight's)."""
     task = Task("clsac_projection", (("nominal", 0), ("moderate", 1)), 3, 61.0)

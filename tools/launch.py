@@ -62,6 +62,7 @@ from tools.flight import (
     VEHICLE_TIMEOUT_S,
     Flight,
     FlightConfigError,
+    recovery_text,
     write_refusal,
 )
 from tools.flight.web import DEFAULT_GRPC_PORT, DEFAULT_HOST, DEFAULT_HTTP_PORT, WebServerError, bind_host, tcp_port
@@ -71,11 +72,15 @@ def outcome_line(s: dict) -> str:
     """The last line the launcher prints: OK (flown to the end and controlled), OUT OF ENVELOPE (flown to the end,
     not controlled: the reason and numbers) or FAILED (what failed)."""
     outcome = s.get("outcome") or ("OK" if s.get("ok") else "FAILED")
+    # a ground station took the loop (disarmed, MANUAL): said next to the outcome, never a plain OK
+    note = (s.get("ground_station") or {}).get("note")
+    head = f"{outcome} ({note})" if note else outcome
+    after = "".join(f"; after {recovery_text(r)}" for r in s.get("recovery") or [])  # each fault's recovery
     if outcome == "OK":
-        return f"OK: flown to the end; {(s.get('controlled') or {}).get('reason', 'controlled')}"
+        return f"{head}: flown to the end; {(s.get('controlled') or {}).get('reason', 'controlled')}{after}"
     if outcome == "OUT OF ENVELOPE":
-        return f"OUT OF ENVELOPE: {s['controlled']['reason']}"
-    return f"FAILED: {s.get('error')}"
+        return f"{head}: {s['controlled']['reason']}{after}"
+    return f"{head}: {s.get('error')}"
 
 
 def _law(s: dict) -> str:
@@ -140,6 +145,11 @@ def print_summary(s: dict) -> None:
     c = s.get("controlled")
     if c:
         print(f"   envelope          {c['reason']}")
+    note = (s.get("ground_station") or {}).get("note")
+    if note:
+        print(f"   ground station    {note}")
+    for r in s.get("recovery") or []:
+        print(f"   recovery          {recovery_text(r)}")
 
 
 # A lockstep flight's busy-poll (docs/design.md section 9, "A flight in about a second"): the peer answers within

@@ -257,10 +257,16 @@ class LinkHandlers:
                 self.gcs.poll(self._gcs_handler)
 
     def _judge_envelope(self, res: StepResult) -> None:
-        """One step against the envelope (``autopilot.envelope``): measured roll, the law's limited command and the
-        limit in force.  Leaving it is announced once per excursion: a STATUSTEXT warning to the ground stations,
-        the status event hooks (Rerun's ``/autopilot/events``) and the log."""
-        text = self.envelope.add(res.t, res.phi, res.u_cmd, self.control.config.u_limit_rad)
+        """One step against the envelope (``autopilot.envelope``): measured roll, the law's limited command, the
+        limit in force, the commanded response y_m,ol when the law flew the step on an attitude (a hold, disarmed
+        or in MANUAL, is not the loop's tracking: its reference model stands still), and whether a ground station
+        had disarmed the vehicle or selected MANUAL.  Leaving it is announced once per excursion: a STATUSTEXT
+        warning to the ground stations, the status event hooks (Rerun's ``/autopilot/events``) and the log."""
+        control = self.control
+        armed, manual = control.armed, control.manual is not None
+        law_flew = armed and not manual and res.failsafe is not Failsafe.NO_ATTITUDE
+        ref = control.law.ym_ol if law_flew else None
+        text = self.envelope.add(res.t, res.phi, res.u_cmd, control.config.u_limit_rad, ref, armed=armed, manual=manual)
         if text is not None:
             self.events["envelope_exits"] += 1
             self._event(M.MAV_SEVERITY_WARNING, text)

@@ -11,8 +11,9 @@ designed for the model (``tools.design.linearise.designed_params``: designed at 
 is a
 task of ``tools.experiment.study.execute``: one after the other, ``--workers`` local processes or a Dask cluster
 (``--scheduler``), and its result depends on (controller, airspeed, turbulence, seed) only, so the summary is the
-same whatever the number of workers.  Bounded: max |roll| < 60 deg and the command saturated in < 20 % of the
-steps (as ``tools.experiment.study``).  Writes DIR/summary.json and prints, per controller and condition, the median
+same whatever the number of workers.  Bounded: inside the default envelope (``autopilot.envelope``, as
+``tools.experiment.study`` and the launcher): max |roll| < 60 deg, the command saturated in < 20 % of the steps,
+and tracking in every 20 s window.  Writes DIR/summary.json and prints, per controller and condition, the median
 ise_ref and energy and the share of bounded flights.
 """
 
@@ -30,9 +31,10 @@ from pathlib import Path
 import numpy as np
 
 from autopilot import controllers
+from autopilot.envelope import judge_series
 from autopilot.shared.cli import OneLineArgumentParser
 from autopilot.shared.process import write_json_atomic
-from tools.experiment.study import BOUND_ROLL_RAD, BOUND_SAT_FRACTION, StudyError, execute
+from tools.experiment.study import StudyError, execute
 
 TURBULENCE = ("none", "light", "moderate", "severe")
 CONTROLLERS = controllers.NAMES  # autopilot.controllers
@@ -72,7 +74,11 @@ def simulate(task: Flight) -> dict:
     out = dict(res.metrics)
     out["max_abs_roll"] = float(np.max(np.abs(phi)))
     out["sat_fraction"] = float(np.mean(np.abs(u) >= limit * (1 - 1e-9)))
-    out["bounded"] = bool(out["max_abs_roll"] < BOUND_ROLL_RAD and out["sat_fraction"] < BOUND_SAT_FRACTION)
+    # inside the envelope (autopilot.envelope, the launcher's "controlled"): |roll|, saturation and tracking
+    c = judge_series(res.series["t"], phi, u, limit, ref=res.series["ym_ol"])
+    out["bounded"] = bool(c.ok)
+    out["oscillating"] = bool(c.tracking is not None and c.tracking.oscillating_windows)
+    out["not_following"] = bool(c.tracking is not None and c.tracking.not_following_windows)
     return out
 
 

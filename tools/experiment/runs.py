@@ -137,15 +137,16 @@ def saturation(result: RunResult, u_limit_rad: float) -> dict:
 
 def controlled(result: RunResult, u_limit_rad: float) -> dict | None:
     """Whether the run stayed inside the default envelope (``autopilot.envelope``, the launcher's "controlled"), from
-    its series: roll and the law's limited command (``u_cmd`` over MAVLink, where ``u`` is after the PWM map).
-    None without series."""
+    its series: roll, the law's limited command (``u_cmd`` over MAVLink, where ``u`` is after the PWM map) and the
+    commanded response ``ym_ol`` (tracking: no sustained oscillation, the roll following the command).  None
+    without series."""
     s = result.series or {}
     if s.get("t") is None or not len(s["t"]):
         return None
     from autopilot.envelope import judge_series
 
     u = s["u_cmd"] if s.get("u_cmd") is not None else s["u"]
-    return judge_series(s["t"], s["phi"], u, u_limit_rad).to_dict()
+    return judge_series(s["t"], s["phi"], u, u_limit_rad, ref=s.get("ym_ol")).to_dict()
 
 
 def paper_checks(results: Sequence[RunResult]) -> dict[str, dict]:
@@ -291,7 +292,7 @@ def format_table(results: Sequence[RunResult], scenario: Scenario | None = None)
     lines.append(f"rudder saturated (|u| at the {scenario.u_limit_rad * DEG:g} deg limit): " + "; ".join(parts))
     verdicts = [(r.name, controlled(r, scenario.u_limit_rad)) for r in results]
     lines.append(
-        "controlled (|roll| < 60 deg, rudder saturated < 20 % of the flight): "
+        "controlled (|roll| < 60 deg, rudder saturated < 20 % of the flight, tracking in every 20 s window): "
         + "; ".join(f"{n} {'yes' if c['ok'] else 'NO: ' + c['reason']}" for n, c in verdicts if c is not None)
     )
     checks = _check_lines(paper_checks(results))

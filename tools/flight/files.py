@@ -195,6 +195,9 @@ def build_summary(
         # flown to the end with every process clean / inside the envelope (docs/flying.md; autopilot.envelope)
         "completed": exit_code in (EXIT_OK, EXIT_OUT_OF_ENVELOPE),
         "controlled": ap.get("controlled") if ap else None,
+        # the time a ground station disarmed the vehicle or flew it in MANUAL (autopilot.envelope), and the words
+        # the verdict line adds for it
+        "ground_station": (ap.get("controlled") or {}).get("ground_station") if ap else None,
         "failed": failed,
         "error": error,
         "exit_codes": exit_codes,
@@ -221,6 +224,31 @@ def build_summary(
             "stats": {n: str(out / f"{n}.json") for n in PROCESSES},
         },
     }
+
+
+def flight_recovery(out: Path, faults: list | None) -> list[dict]:
+    """``summary.json`` ``recovery``: per fault that started, the roll's recovery after its onset
+    (``tools.flight.outcome.fault_recoveries``) from DIR/autopilot_series.npz (the steps flown, sim time >= 0: a
+    real-time autopilot's stand-by steps before the first attitude are not flight); [] without faults."""
+    if not faults:
+        return []
+    import zipfile
+
+    import numpy as np
+
+    from tools.flight.outcome import fault_recoveries
+
+    t = roll = ref = um = None
+    try:
+        with np.load(out / "autopilot_series.npz") as s:
+            t, roll, ref = (np.asarray(s[k], dtype=float) for k in ("t", "phi", "ym_ol"))
+            um = np.asarray(s["um"], dtype=float) if "um" in s else None  # every block judged without it
+        flying = t >= 0.0
+        t, roll, ref = t[flying], roll[flying], ref[flying]
+        um = None if um is None else um[flying]
+    except (OSError, KeyError, ValueError, zipfile.BadZipFile):
+        t = roll = ref = um = None
+    return fault_recoveries(faults, t, roll, ref, um)
 
 
 # ---------------------------------------------------------------------------------------- the verdict

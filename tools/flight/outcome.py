@@ -301,3 +301,42 @@ def envelope_verdict(
     if not controlled["ok"]:
         return EXIT_OUT_OF_ENVELOPE, None, f"out of envelope: {controlled['reason']}"
     return exit_code, failed, error
+
+
+def fault_recoveries(faults: list | None, t, roll, ref, um=None) -> list[dict]:
+    """Per fault that started (``summary.json`` ``faults``: kind, value, start, end, source), the recovery of the
+    roll after its onset (``autopilot.recovery.recovery``: its deviation from the commanded response ``ref``, the
+    law's y_m,ol, back inside the band from the fault-free flight before, and staying there), judged up to the next
+    fault's onset.  ``t``, ``roll``, ``ref``, ``um`` (the raw command: only settled seconds are judged): the
+    autopilot's series (sim s, rad) of the steps it flew; None
+    (no series): each fault "not measured".  No I/O."""
+    from autopilot.recovery import recovery
+
+    started = [f for f in faults or [] if f.get("started", True) and f.get("start") is not None]
+    onsets = sorted(float(f["start"]) for f in started)
+    out = []
+    for f in started:
+        onset = float(f["start"])
+        later = [s for s in onsets if s > onset + 1e-9]
+        entry = {k: f.get(k) for k in ("kind", "value", "start", "end", "source", "spec")}
+        if t is None or not len(t):
+            entry.update(recovered=None, time_s=None, reason="not measured: no series (--no-series)")
+        else:
+            until = later[0] if later else None
+            entry.update(recovery(t, roll, ref, onset, until_s=until, raw_command=um).to_dict())
+        out.append(entry)
+    return out
+
+
+def recovery_text(entry: dict) -> str:
+    """One fault's recovery for the verdict line: ``effectiveness 0.3 at 10 s: recovered in 2.0 s``."""
+    if entry.get("spec"):  # as the user wrote it (deg, deg/s, s): the value is SI
+        head = f"{entry['spec'].split('@')[0].replace('=', ' ')} at {entry.get('start'):g} s"
+    else:
+        value = "" if entry.get("value") is None else f" {entry['value']:g}"
+        head = f"{entry.get('kind')}{value} at {entry.get('start'):g} s"
+    if entry.get("recovered"):
+        return f"{head}: recovered in {entry['time_s']:.1f} s (band {entry['band_deg']:.1f} deg)"
+    if entry.get("recovered") is False:
+        return f"{head}: not recovered (band {entry['band_deg']:.1f} deg)"
+    return f"{head}: recovery {entry.get('reason')}"

@@ -36,6 +36,7 @@ from tools.flight.files import (
     _join_telemetry,
     _load,
     build_summary,
+    flight_recovery,
     load_series,
     png_request,
     provisional_summary,
@@ -408,6 +409,7 @@ class Flight:
             rrd_indexed,
         )
         summary["flown"] = flown
+        summary["recovery"] = flight_recovery(self.out, summary.get("faults"))  # per fault: back to tracking?
         png = self._png_result(drawing, metrics)
         summary["files"]["png"] = str(png) if png else None
         write_json_atomic(self.out / "summary.json", summary)

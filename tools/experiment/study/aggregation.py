@@ -25,6 +25,9 @@ def aggregate(records: dict[tuple[str, int], dict], condition: str, controller: 
         "runs": len(rs),
         "bounded_share": sum(r["bounded"] for r in rs) / len(rs),
         "bounded_share_by_pfc": {},
+        # the runs out of the envelope by tracking (autopilot.envelope.window_flags), in any 20 s window
+        "oscillating_share": sum(r.get("oscillating", False) for r in rs) / len(rs),
+        "not_following_share": sum(r.get("not_following", False) for r in rs) / len(rs),
         "p50": {m: _finite(_pct([r[m] for r in rs], 50)) for m in METRICS},
         "p95": {m: _finite(_pct([r[m] for r in rs], 95)) for m in METRICS},
     }

@@ -149,6 +149,7 @@ def main_replay(args, prog: str) -> int:
     print(
         f"{args.controller} under {args.condition}, seed {args.seed}, run {args.run} (PFC "
         f"{'paper' if r['pfc_paper'][0] else 'robust'}): bounded {bool(r['bounded'][0])}"
+        f" (oscillating {bool(r['oscillating'][0])}, not following {bool(r['not_following'][0])})"
     )
     for m in METRICS:
         print(f"  {m:<13} {float(r[m][0]):.10g}")

@@ -97,6 +97,8 @@ def merge(tasks: Sequence[Task], results: Sequence[dict]) -> dict[str, dict[tupl
         for j, pair in enumerate(t.runs):
             rec = {m: float(r[m][j]) for m in METRICS}
             rec["bounded"] = bool(r["bounded"][j])
+            rec["oscillating"] = bool(r["oscillating"][j])  # a sustained oscillation (autopilot.envelope)
+            rec["not_following"] = bool(r["not_following"][j])
             rec["pfc"] = "paper" if r["pfc_paper"][j] else "robust"
             rec["window_peak_roll"] = r["window_peak_roll"][j]
             rec["draws"] = {k: (v[j].tolist() if np.ndim(v[j]) else float(v[j])) for k, v in r["draws"].items()}

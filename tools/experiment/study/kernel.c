@@ -4,7 +4,8 @@
  * One call flies steps k0 .. k0 + m - 1 of every run of a batch: the sensor (delay, bias, noise), the link
  * (ATTITUDE and SERVO_OUTPUT_RAW lost with probability p), the law (CL-SAC: ClSac._step_siso, paper eqs. (6),
  * (18)-(21), as autopilot.batch.BatchClSac; or the fixed-gain baseline: Baseline.step, as BatchBaseline), the
- * metrics (MetricsAccumulator's sums in its order), the disturbance (Dryden filter, 1-cosine gust, crosswind)
+ * metrics (MetricsAccumulator's sums in its order), the tracking windows (autopilot.envelope.window_flags), the
+ * disturbance (Dryden filter, 1-cosine gust, crosswind)
  * and the plant x[k+1] = Phi x[k] + Gamma [u, v_g, p_g, r_g]^T (the exact ZOH of (A_p, [B_p, E])).
  *
  * Why it is the same numbers as the numpy loop: every operation below is the numpy loop's IEEE-754 add,
@@ -49,6 +50,13 @@ typedef struct {
     double *peaks;      /* (n, npeaks) */
     /* the series (record), or NULL: (22, steps, n) in simulation._record's order */
     double *rec;
+    /* tracking (autopilot.envelope.window_flags): blocks of tblock steps, windows of tblocks blocks; the open
+     * block's sums of y_r^2, phi y_r, (phi - y_r)^2 and stop hits (4, n), the ring of the last blocks' (tblocks *
+     * 4, n: slot * 4 + sum), the flags oscillating / not following in any window (2, n: 0.0 or 1.0), whether a
+     * stop hit counts (autopilot.envelope.stop_hit; n: 0.0 or 1.0) */
+    int64_t tblock, tblocks;
+    double dev_ratio2, dev_floor2, ref_floor2, follow_min, hits_min, rearm_lim, nw;
+    double *tblk, *tring, *track, *hit_armed;
 } Batch;
 
 /* numpy's maximum / minimum: a NaN operand propagates */
@@ -93,6 +101,10 @@ void study_steps(const Batch *b, int64_t k0, int64_t m, const double *z_all) {
         double a_ise_ref = b->acc[0 * n + i], a_ise_crm = b->acc[1 * n + i], a_energy = b->acc[2 * n + i];
         double a_tv = b->acc[3 * n + i], a_max_u = b->acc[4 * n + i], a_max_roll = b->acc[5 * n + i];
         double a_sat = b->acc[6 * n + i];
+        double t_rr = b->tblk[0 * n + i], t_pr = b->tblk[1 * n + i], t_dd = b->tblk[2 * n + i];
+        double t_hits = b->tblk[3 * n + i];
+        double f_osc = b->track[0 * n + i], f_lag = b->track[1 * n + i];
+        int armed = b->hit_armed[i] != 0.0;
         const double turb = b->turb[i], bias = b->bias[i], noise = b->noise[i], thr = b->thr[i];
         const double crosswind = b->crosswind[i];
         const int64_t delay = b->delay[i], g_first = b->g_first[i];
@@ -193,7 +205,37 @@ void study_steps(const Batch *b, int64_t k0, int64_t m, const double *z_all) {
                 b->peaks[i * b->npeaks + (k + 1) / b->window - 1] = wmax;
                 wmax = 0.0;
             }
-            a_sat += !(fabs(u) < b->sat_lim) ? 1.0 : 0.0; /* autopilot.envelope.saturated */
+            const int sat_k = !(fabs(u) < b->sat_lim); /* autopilot.envelope.saturated */
+            a_sat += sat_k ? 1.0 : 0.0;
+            { /* tracking: simulation._close_block, autopilot.envelope.stop_hit and window_flags */
+                const int hit = sat_k && armed;
+                armed = !hit && (armed || fabs(u) <= b->rearm_lim);
+                t_hits = t_hits + (hit ? 1.0 : 0.0);
+                const double dv = phi_true - ym_ol;
+                t_rr = t_rr + ym_ol * ym_ol;
+                t_pr = t_pr + phi_true * ym_ol;
+                t_dd = t_dd + dv * dv;
+                if ((k + 1) % b->tblock == 0) {
+                    const int64_t closed = (k + 1) / b->tblock, slot = (closed - 1) % b->tblocks;
+                    double *rg = b->tring;
+                    rg[(slot * 4 + 0) * n + i] = t_rr, rg[(slot * 4 + 1) * n + i] = t_pr;
+                    rg[(slot * 4 + 2) * n + i] = t_dd, rg[(slot * 4 + 3) * n + i] = t_hits;
+                    if (closed >= b->tblocks) {
+                        double s_rr = rg[0 * n + i], s_pr = rg[1 * n + i], s_dd = rg[2 * n + i];
+                        double s_hits = rg[3 * n + i];
+                        for (int64_t j = 1; j < b->tblocks; j++) {
+                            s_rr = s_rr + rg[(j * 4 + 0) * n + i], s_pr = s_pr + rg[(j * 4 + 1) * n + i];
+                            s_dd = s_dd + rg[(j * 4 + 2) * n + i], s_hits = s_hits + rg[(j * 4 + 3) * n + i];
+                        }
+                        const int osc = (s_dd >= b->dev_ratio2 * s_rr) & (s_dd >= b->dev_floor2 * b->nw) &
+                                        (s_hits >= b->hits_min);
+                        const int lag = (s_rr >= b->ref_floor2 * b->nw) & (s_pr < b->follow_min * s_rr);
+                        if (osc) f_osc = 1.0;
+                        if (lag) f_lag = 1.0;
+                    }
+                    t_rr = 0.0, t_pr = 0.0, t_dd = 0.0, t_hits = 0.0;
+                }
+            }
             if (b->rec) {
                 double row[R_COUNT] = {(double)k * b->dt, um, y, ym, ym_ol, ya, y_pfc, e, u, kpe, kie, ke, kpx,
                                        kix, kx, kpu, kiu, ku, x[0], x[1], x[2], x[4]};
@@ -241,6 +283,8 @@ void study_steps(const Batch *b, int64_t k0, int64_t m, const double *z_all) {
         b->acc[0 * n + i] = a_ise_ref, b->acc[1 * n + i] = a_ise_crm, b->acc[2 * n + i] = a_energy;
         b->acc[3 * n + i] = a_tv, b->acc[4 * n + i] = a_max_u, b->acc[5 * n + i] = a_max_roll;
         b->acc[6 * n + i] = a_sat;
+        b->tblk[0 * n + i] = t_rr, b->tblk[1 * n + i] = t_pr, b->tblk[2 * n + i] = t_dd, b->tblk[3 * n + i] = t_hits;
+        b->track[0 * n + i] = f_osc, b->track[1 * n + i] = f_lag, b->hit_armed[i] = armed ? 1.0 : 0.0;
 #undef CO
 #undef PHI
 #undef GAM

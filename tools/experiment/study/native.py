@@ -60,6 +60,10 @@ class Batch(ctypes.Structure):
         ("wmax", _p),
         ("peaks", _p),
         ("rec", _p),
+        *((name, _i) for name in ("tblock", "tblocks")),
+        *((name, _d) for name in ("dev_ratio2", "dev_floor2", "ref_floor2", "follow_min", "hits_min", "rearm_lim")),
+        ("nw", _d),
+        *((name, _p) for name in ("tblk", "tring", "track", "hit_armed")),
     ]
 
 

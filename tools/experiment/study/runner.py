@@ -8,6 +8,7 @@ import os
 import time
 from pathlib import Path
 
+from autopilot.envelope import tracking_limits
 from autopilot.shared.process import write_json_atomic
 from tools.experiment.study import native
 from tools.experiment.study.aggregation import (
@@ -59,7 +60,11 @@ def run_study(opts: StudyOptions, out_dir: str | os.PathLike | None = None, *, l
         "runs_per_condition": opts.runs,
         "sweep_runs": opts.sweep_runs,
         "scheduler": opts.scheduler or "local",
-        "bounds": {"max_abs_roll_deg": BOUND_ROLL_RAD / DEG, "sat_fraction": BOUND_SAT_FRACTION},
+        "bounds": {
+            "max_abs_roll_deg": BOUND_ROLL_RAD / DEG,
+            "sat_fraction": BOUND_SAT_FRACTION,
+            "tracking": tracking_limits(),  # and no window that oscillates or does not follow (autopilot.envelope)
+        },
         "units": {
             "ise_ref": "rad^2 s",
             "ise_crm": "rad^2 s",

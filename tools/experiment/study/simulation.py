@@ -9,7 +9,21 @@ import math
 
 import numpy as np
 
-from autopilot.envelope import SAT_RTOL, saturated, within
+from autopilot.envelope import (
+    DEV_FLOOR2,
+    DEV_RATIO2,
+    FOLLOW_GAIN_MIN,
+    HIT_REARM,
+    REF_FLOOR2,
+    SAT_RTOL,
+    STOP_HITS_MIN,
+    TRACK_BLOCK_S,
+    TRACK_BLOCKS,
+    saturated,
+    stop_hit,
+    window_flags,
+    within,
+)
 from tools.experiment.study import native
 from tools.experiment.study.sampling import (
     BLOCK,
@@ -232,7 +246,7 @@ def simulate(task: Task, engine: str | None = None) -> dict:
     lib = None if engine == "numpy" else native.load()
     if engine == "kernel" and lib is None:
         raise StudyError(f"no C kernel: {native.reason()}")
-    acc, peaks, rec = _fly_numpy(b) if lib is None else _fly_kernel(lib, b)
+    acc, peaks, track, rec = _fly_numpy(b) if lib is None else _fly_kernel(lib, b)
     out = {
         "ise_ref": acc["ise_ref"] * dt,
         "ise_crm": acc["ise_crm"] * dt,
@@ -245,7 +259,9 @@ def simulate(task: Task, engine: str | None = None) -> dict:
     for key in METRICS:
         v = out[key]
         out[key] = np.where(np.isfinite(v), v, np.inf)  # a diverged run scores +inf, never NaN
-    out["bounded"] = within(out["max_abs_roll"], out["sat_fraction"], ENVELOPE)
+    # inside the envelope (autopilot.envelope): |roll| and saturation, and tracking in every 20 s window
+    out["oscillating"], out["not_following"] = track[0].copy(), track[1].copy()
+    out["bounded"] = within(out["max_abs_roll"], out["sat_fraction"], ENVELOPE) & ~track[0] & ~track[1]
     out["pfc_paper"] = pfc_paper
     out["window_peak_roll"] = np.where(np.isfinite(peaks), peaks, np.inf)
     out["draws"] = {
@@ -283,7 +299,7 @@ def _ptr(a: np.ndarray, ctype=None):
     return a.ctypes.data_as(ctypes.POINTER(ctype or ctypes.c_double))
 
 
-def _fly_kernel(lib, b) -> tuple[dict, np.ndarray, dict | None]:
+def _fly_kernel(lib, b) -> tuple[dict, np.ndarray, np.ndarray, dict | None]:
     """The steps in C (``kernel.c``, ``native``): ``_fly_numpy``'s numbers, bit for bit, without its per-step
     overhead.  The noise is drawn here, block by block from each run's generator, exactly as ``_fly_numpy``
     draws it."""
@@ -328,7 +344,12 @@ def _fly_kernel(lib, b) -> tuple[dict, np.ndarray, dict | None]:
         "wmax": np.zeros(n),
         "peaks": np.zeros((n, npeaks)),
         "rec": np.zeros((len(_SERIES), steps, n)) if b.record else None,
+        "tblk": np.zeros((4, n)),
+        "tring": np.zeros((TRACK_BLOCKS * 4, n)),
+        "track": np.zeros((2, n)),
+        "hit_armed": np.ones(n),
     }
+    tblock = int(round(TRACK_BLOCK_S * b.rate))
     if keep["dry"].shape != (44,):  # kernel.c reads c (3 x 4), ad (4 x 4), ld (4 x 4)
         raise ValueError(f"the Dryden filter's coefficients: {keep['dry'].shape[0]} values, kernel.c reads 44")
     ints = {"delay", "g_first"}
@@ -352,6 +373,15 @@ def _fly_kernel(lib, b) -> tuple[dict, np.ndarray, dict | None]:
         dz=float(dz),
         kmax=float(kmax) if kmax is not None else 0.0,
         dt=b.dt,
+        tblock=tblock,
+        tblocks=TRACK_BLOCKS,
+        dev_ratio2=DEV_RATIO2,  # autopilot.envelope.window_flags' constants
+        dev_floor2=DEV_FLOOR2,
+        ref_floor2=REF_FLOOR2,
+        follow_min=FOLLOW_GAIN_MIN,
+        hits_min=float(STOP_HITS_MIN),
+        rearm_lim=HIT_REARM * b.umax,
+        nw=float(TRACK_BLOCKS * tblock),
         **{k: (_ptr(v, ctypes.c_int64) if k in ints else _ptr(v)) for k, v in keep.items() if v is not None},
     )
     ref = ctypes.byref(batch)
@@ -368,12 +398,12 @@ def _fly_kernel(lib, b) -> tuple[dict, np.ndarray, dict | None]:
     names = ("ise_ref", "ise_crm", "energy", "tv", "max_abs_u", "max_abs_roll", "sat")
     acc = {name: keep["acc"][j].copy() for j, name in enumerate(names)}
     series = {name: keep["rec"][j] for j, name in enumerate(_SERIES)} if b.record else None
-    return acc, keep["peaks"], series
+    return acc, keep["peaks"], keep["track"] != 0.0, series
 
 
-def _fly_numpy(b) -> tuple[dict, np.ndarray, dict | None]:
+def _fly_numpy(b) -> tuple[dict, np.ndarray, np.ndarray, dict | None]:
     """The steps in numpy, every run at once (the reference the C kernel equals): the sums of the metrics, the peak
-    |roll| per window and, with ``record``, the series."""
+    |roll| per window, the tracking flags (oscillating, not following: (2, n)) and, with ``record``, the series."""
     n, steps, rate, dt, umax, law, gens = b.n, b.steps, b.rate, b.dt, b.umax, b.law, b.gens
     noisy, dist = b.noisy, b.dist
     turb, noise, bias, thr, delay, crosswind = b.turb, b.noise, b.bias, b.thr, b.delay, b.crosswind
@@ -387,6 +417,14 @@ def _fly_numpy(b) -> tuple[dict, np.ndarray, dict | None]:
     window = int(round(WINDOW_S * rate))
     peaks = np.zeros((n, max(steps // window, 1)))  # peak |roll| (truth) per 30 s window
     wmax = np.zeros(n)
+    # tracking (autopilot.envelope.window_flags) over windows of TRACK_BLOCKS blocks: the open block's sums of
+    # y_r^2, phi y_r, (phi - y_r)^2 and the stop hits (phi the truth, y_r the law's y_m,ol), the last blocks'
+    tblock = int(round(TRACK_BLOCK_S * rate))
+    blk = [np.zeros(n) for _ in range(4)]
+    ring = np.zeros((TRACK_BLOCKS, 4, n))
+    track = np.zeros((2, n), dtype=bool)  # oscillating, not following (in any window)
+    hit_armed = np.ones(n, dtype=bool)
+    nw = float(TRACK_BLOCKS * tblock)
     u_prev = None
     rec = {} if b.record else None
     block = None
@@ -428,7 +466,18 @@ def _fly_numpy(b) -> tuple[dict, np.ndarray, dict | None]:
             if (k + 1) % window == 0 and (k + 1) // window <= peaks.shape[1]:
                 peaks[:, (k + 1) // window - 1] = wmax
                 wmax = np.zeros(n)
-            acc["sat"] += saturated(u, umax)  # the command at its limit (autopilot.envelope)
+            sat = saturated(u, umax)
+            acc["sat"] += sat  # the command at its limit (autopilot.envelope)
+            hit, hit_armed = stop_hit(sat, u, umax, hit_armed)
+            blk[3] = blk[3] + hit
+            ref = law.ym_ol
+            dv = phi_true - ref
+            blk[0] = blk[0] + ref * ref
+            blk[1] = blk[1] + phi_true * ref
+            blk[2] = blk[2] + dv * dv
+            if (k + 1) % tblock == 0:
+                _close_block(blk, ring, track, (k + 1) // tblock, nw)
+                blk = [np.zeros(n) for _ in range(4)]
             if rec is not None:
                 _record(rec, k * dt, um, y, law, u, x)
             # disturbance d = [v_g, p_g, r_g], held over the period
@@ -477,7 +526,25 @@ def _fly_numpy(b) -> tuple[dict, np.ndarray, dict | None]:
                     for r in range(6)
                 ]
     series = {key: np.array(v) for key, v in rec.items()} if rec is not None else None
-    return acc, peaks, series
+    return acc, peaks, track, series
+
+
+def _close_block(blk: list, ring: np.ndarray, track: np.ndarray, closed: int, nw: float) -> None:
+    """Block ``closed`` (counted from 1) ends: its sums go to the ring (slot (closed - 1) % TRACK_BLOCKS) and, from
+    the TRACK_BLOCKS-th block on, the window of the last TRACK_BLOCKS blocks is judged (``window_flags``; the
+    ring summed slot by slot from slot 0, as kernel.c sums it)."""
+    slot = (closed - 1) % TRACK_BLOCKS
+    for q in range(4):
+        ring[slot, q] = blk[q]
+    if closed < TRACK_BLOCKS:
+        return
+    tot = [ring[0, q].copy() for q in range(4)]
+    for j in range(1, TRACK_BLOCKS):
+        for q in range(4):
+            tot[q] = tot[q] + ring[j, q]
+    osc, lag = window_flags(nw, tot[0], tot[1], tot[2], tot[3])
+    track[0] |= osc
+    track[1] |= lag
 
 
 def _airspeed() -> float:
