@@ -53,6 +53,7 @@ def cell_of(records: Sequence[dict]) -> dict:
         "ise_ref_p50": _median(r["ise_ref"] for r in records),
         "energy_p50": _median(r["energy"] for r in records),
         "max_abs_roll_deg_p50": _median(r["max_abs_roll_deg"] for r in records),
+        "oscillating_share": sum(r.get("oscillating", False) for r in records) / n if n else None,
         "recovered_share": len(rec) / len(measured) if measured else None,
         "recovery_s_p50": _median(r["recovery_s"] for r in rec),
         "ise_ref_periods_p50": [

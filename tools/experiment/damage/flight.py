@@ -3,9 +3,10 @@
 A :class:`~tools.experiment.damage.grid.Flight` is the reference scenario's square wave (``PAPER``: +-10 deg,
 period 10 s) flown in-process (``tools.experiment.scenario.run_inprocess``: the control step and the plant in one
 process, faults flown as the SITL flies ``--fault``) for ``duration`` s on the plant, with the fault from its
-onset, in turbulence seeded by the flight's seed.  Its record: the verdict (``autopilot.envelope.judge_series``,
-the one definition of a controlled flight), the tracking error after the onset, per period of the square wave, the
-effort, and the recovery after the onset.
+onset, in turbulence seeded by the flight's seed.  Its record: the verdict (``autopilot.envelope.judge_series``
+with the commanded response y_m,ol: the one definition of a controlled flight, |roll|, saturation and tracking, so
+a limit cycle is out), the tracking error after the onset, per period of the square wave, the effort, and the
+recovery after the onset (``autopilot.recovery``, as the launcher reports it).
 
 A :class:`~tools.experiment.damage.grid.Design` is ``tools.design.tuning.design_baseline`` on the plant's linear
 model (``tools.design.linearise.linear_model``) changed as the fault changes it (``tools.design.tuning.
@@ -77,10 +78,11 @@ def record(series: dict, metrics: dict, onset: float, period: float, u_limit: fl
     """A flight's record from its series (``t``, ``phi``, ``u``, ``ym_ol``; rad, one sample per control step)."""
     from autopilot.envelope import judge_series
 
-    t, phi, u, ym = (np.asarray(series[k], dtype=float) for k in ("t", "phi", "u", "ym_ol"))
+    t, phi, u, ym, um = (np.asarray(series[k], dtype=float) for k in ("t", "phi", "u", "ym_ol", "um"))
     d2 = (phi - ym) ** 2  # the tracking error of autopilot.metrics' ise_ref, per sample
     after = t >= onset - 1e-9
-    verdict = judge_series(t, phi, u, u_limit)
+    verdict = judge_series(t, phi, u, u_limit, ref=ym)  # |roll|, saturation and tracking (limit cycles)
+    tracking = verdict.tracking
     n_periods = int(math.ceil(round(len(t) * dt / period, 9)))
     periods = [
         float(np.sum(d2[(t >= i * period - 1e-9) & (t < (i + 1) * period - 1e-9)]) * dt) for i in range(n_periods)
@@ -90,6 +92,8 @@ def record(series: dict, metrics: dict, onset: float, period: float, u_limit: fl
         "controlled": bool(verdict.ok),
         "reason": verdict.reason,
         "first_exit_s": verdict.first_exit_s,
+        "oscillating": bool(tracking is not None and tracking.oscillating_windows),
+        "not_following": bool(tracking is not None and tracking.not_following_windows),
         "max_abs_roll_deg": float(np.degrees(np.max(np.abs(phi)))),
         "saturated_share": float(np.mean(sat)),
         "ise_ref": float(metrics["ise_ref"]),
@@ -98,13 +102,18 @@ def record(series: dict, metrics: dict, onset: float, period: float, u_limit: fl
         "ise_ref_before": float(np.sum(d2[~after]) * dt),
         "energy_after": float(np.sum(u[after] ** 2) * dt),
         "ise_ref_periods": periods,
-        **recovery_of(t, phi, ym, onset),
+        **recovery_of(t, phi, ym, um, onset),
     }
 
 
-def recovery_of(_t, _phi, _ym, _onset: float) -> dict:
-    """The recovery after the onset (``recovered``: True, False or None when not measured; ``recovery_s``)."""
-    return {"recovered": None, "recovery_s": None}
+def recovery_of(t, phi, ym, um, onset: float) -> dict:
+    """The recovery after the onset (``autopilot.recovery.recovery``, as the launcher reports it: the roll's
+    settled 1 s RMS deviation from y_m,ol back within twice the flight's own before the onset, and staying there):
+    ``recovered`` (True, False, None when not measured), ``recovery_s``, ``recovery_reason``."""
+    from autopilot.recovery import recovery
+
+    r = recovery(t, phi, ym, onset, raw_command=um)
+    return {"recovered": r.recovered, "recovery_s": r.time_s, "recovery_reason": r.reason}
 
 
 def fly_record(task: Flight) -> dict:

@@ -1,0 +1,102 @@
+"""The damage study end to end (issue 29, item 3): the must-show command as a user runs it, its numbers the same on
+one process, two and a real Dask cluster, and an in-process faulted flight equal to the lockstep MAVLink flight with
+``--fault`` (three real processes over UDP)."""
+
+from __future__ import annotations
+
+import json
+import math
+import subprocess
+import sys
+import time
+from dataclasses import replace
+
+import numpy as np
+import pytest
+from _mavlink_procs import run_cli
+
+pytestmark = pytest.mark.e2e
+
+PNG_SIGNATURE = b"\x89PNG\r\n\x1a\n"
+
+
+def test_the_must_show_damage_study(tmp_path):
+    out = tmp_path / "damage"
+    t0 = time.perf_counter()
+    r = subprocess.run(
+        [sys.executable, "-m", "tools.experiment", "damage", "--plant", "kh2013a,jsbsim:c172x", "--runs", "2",
+         "--seed", "1", "--out", str(out), "--quiet"],
+        capture_output=True,
+        text=True,
+        timeout=1800,
+    )  # fmt: skip
+    wall = time.perf_counter() - t0
+    assert r.returncode == 0, r.stderr[-2000:]
+    doc = json.loads((out / "summary.json").read_text())
+    assert {"baseline", "sac", "clsac"} <= set(doc["controllers"])
+    assert {"effectiveness", "stuck", "rate", "delay"} <= set(doc["kinds"])
+    assert doc["plants"] == ["kh2013a", "jsbsim:c172x"] and doc["seeds"] == [1, 2]
+    png = (out / "damage.png").read_bytes()
+    assert png[:8] == PNG_SIGNATURE and png[12:16] == b"IHDR"
+    cells = doc["cells"]
+    kinds = {(c["plant"], c["kind"]) for c in cells}
+    assert {(p, k) for p in doc["plants"] for k in ("none", "effectiveness", "stuck", "rate", "delay")} <= kinds
+    for c in cells:
+        assert c["flights"] == 2 and 0.0 <= c["share_controlled"] <= 1.0
+        lo, hi = c["wilson95"]
+        assert lo <= c["share_controlled"] <= hi
+    # what must hold whatever the controllers: a surface jammed 5 deg off keeps rolling the aircraft away
+    jammed = [c for c in cells if c["kind"] == "stuck" and c["severity"] == 5.0]
+    assert jammed and all(c["share_controlled"] == 0.0 for c in jammed)
+    # the fault-free flights of the two PIDs on the c172x are the same flights (its designed PID is the rule's)
+    c172 = {c["controller"]: c for c in cells if c["plant"] == "jsbsim:c172x" and c["kind"] == "none"}
+    assert c172["baseline"]["ise_ref_after_p50"] == c172["pid-retuned"]["ise_ref_after_p50"]
+    assert "flights" in r.stdout and "wrote" in r.stdout
+    print(f"must-show damage study: {doc['flights']} flights, {wall:.0f} s wall")
+
+
+def test_the_study_is_the_same_on_one_two_workers_and_a_dask_cluster():
+    from tools.experiment.damage.runner import Study, run
+
+    study = Study(
+        plants=("kh2013a",),
+        controllers=("clsac", "pid-retuned", "pid-energy"),
+        kinds=("effectiveness", "rate"),
+        severities={"effectiveness": (0.3,), "rate": (5.0,)},
+        runs=1,
+        duration=20.0,
+    )
+    quiet = dict(progress=False, log=lambda *_: None)
+    one = run(study, workers=1, **quiet)
+    two = run(study, workers=2, **quiet)
+    distributed = pytest.importorskip("distributed")
+    with distributed.LocalCluster(n_workers=2, threads_per_worker=1, processes=True, dashboard_address=None) as c:
+        dask = run(study, scheduler=c.scheduler_address, **quiet)
+    for key in ("cells", "designs"):
+        assert one[key] == two[key] == dask[key], key
+    energy = next(d for d in one["designs"] if d["task"] == "calibration")
+    assert energy["energy"] == pytest.approx(energy["energy_clsac"], rel=1e-3)  # matched to CL-SAC's effort
+    sched = {c["controller"]: c for c in one["cells"] if c["kind"] == "effectiveness"}
+    assert sched["pid-retuned"]["share_controlled"] == 1.0
+
+
+def test_an_in_process_faulted_flight_is_the_lockstep_flight_with_the_fault(tmp_path):
+    from autopilot.shared.pwm import PwmMap
+    from tools.experiment.scenario import PAPER, PAPER_RUNS, run_inprocess
+
+    r = run_cli(
+        "tools.launch", "--lockstep", "--quiet", "--duration", "20", "--fault", "effectiveness=0.3@10",
+        "--out", str(tmp_path), timeout=300,
+    )  # fmt: skip
+    assert r.returncode == 0, r.stdout + r.stderr
+    with np.load(tmp_path / "autopilot_series.npz") as a:
+        t, phi = a["t"], a["phi"]
+    summary = json.loads((tmp_path / "summary.json").read_text())
+    res = run_inprocess(replace(PAPER, duration_s=20.0, faults=("effectiveness=0.3@10",)), PAPER_RUNS[1], wire=PwmMap())
+    assert np.array_equal(t, res.series["t"])
+    # as tests/test_e2e_lockstep.py: the same ControlStep on both sides, float32 on the wire, 1 us PWM: the roll
+    # series and the metrics are equal to the last bit, before and after the fault
+    assert np.array_equal(phi, res.series["phi"])
+    assert summary["runs"][0]["metrics"] == res.metrics
+    free = run_inprocess(replace(PAPER, duration_s=20.0), PAPER_RUNS[1], wire=PwmMap()).series["phi"]
+    assert np.abs(free - phi)[t > 10.5].max() > math.radians(0.5)  # and the fault did change the flight
