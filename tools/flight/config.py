@@ -295,7 +295,7 @@ class FlightConfig:
         from sitl import plant as plants
 
         try:
-            plants.check(self.plant)
+            plants.check(self.plant, self.physics_rate)
             plants.check_disturbances(self.plant, {k: getattr(self, k) for k in disturbances.FLAGS})
             if plants.kind(self.plant) == "jsbsim":
                 _trims(self.plant)  # a JSBSim aircraft that does not trim there is refused before anything starts
