@@ -16,6 +16,7 @@ launcher gives the autopilot by default.
 from __future__ import annotations
 
 import math
+import os
 import sys
 from pathlib import Path
 
@@ -101,6 +102,78 @@ def linearise(spec, physics_rate_hz: float = 1000.0) -> dict:
     }
 
 
+LINEARISE_TIMEOUT_S = 60.0  # JSBSim's FGLinearization of one model: c172x takes 1.3 s, pa28 3.7 s, Boeing314 340 s
+
+
+def linearise_bounded(spec, timeout_s: float = LINEARISE_TIMEOUT_S, physics_rate_hz: float = 1000.0) -> dict:
+    """:func:`linearise` in a child process, within ``timeout_s`` of wall clock (FGLinearization is one C++ call that
+    holds the interpreter: in this process neither a timeout nor Ctrl-C could stop it).  LinearisationError if it
+    takes longer; Ctrl-C (KeyboardInterrupt here) kills the child at once; JsbsimPlantError as the child had it."""
+    import json
+    import subprocess
+    import tempfile
+    import time
+
+    from sitl.jsbsim_plant import JsbsimPlantError
+
+    root = str(Path(__file__).resolve().parents[1])  # the folder holding tools/ and sitl/
+    env = {**os.environ, "PYTHONPATH": os.pathsep.join(p for p in (root, os.environ.get("PYTHONPATH")) if p)}
+    with tempfile.TemporaryDirectory(prefix="linearise-") as tmp:
+        out = Path(tmp) / "lin.json"
+        argv = [sys.executable, "-m", "tools.plant", "_linearise", spec.text(), str(physics_rate_hz), str(out)]
+        proc = subprocess.Popen(
+            argv,
+            stdin=subprocess.DEVNULL,
+            stdout=subprocess.DEVNULL,  # JSBSim's own chatter
+            stderr=subprocess.PIPE,
+            env=env,
+            start_new_session=True,  # the terminal's Ctrl-C reaches this process, which kills the child
+            text=True,
+        )
+        try:
+            t_end = time.monotonic() + timeout_s
+            while proc.poll() is None:
+                if time.monotonic() >= t_end:
+                    raise LinearisationError(
+                        f"JSBSim's linearisation (FGLinearization) of {spec.model} did not finish within "
+                        f"{timeout_s:g} s; stopped"
+                    )
+                time.sleep(0.05)
+            err = proc.stderr.read().strip().splitlines()
+        finally:
+            if proc.poll() is None:
+                proc.kill()
+                proc.wait()
+            proc.stderr.close()
+        why = err[-1] if err else f"exit status {proc.returncode}"
+        if proc.returncode == 3:
+            raise JsbsimPlantError(why)
+        if proc.returncode != 0 or not out.is_file():
+            raise LinearisationError(f"JSBSim's linearisation of {spec.model} failed: {why}")
+        lin = json.loads(out.read_text())
+    return {k: (np.array(v) if k in ("A", "B", "C") else v) for k, v in lin.items()}
+
+
+def _linearise_child(argv: list[str]) -> int:
+    """The child of :func:`linearise_bounded`: SPEC RATE_HZ OUT.json; exit 3 on a JsbsimPlantError, 4 on a
+    LinearisationError (the reason the last stderr line)."""
+    import json
+
+    from sitl.jsbsim_plant import JsbsimPlantError, parse_spec
+
+    text, rate, out = argv
+    try:
+        lin = linearise(parse_spec(text), float(rate))
+    except JsbsimPlantError as exc:
+        print(exc, file=sys.stderr)
+        return 3
+    except LinearisationError as exc:
+        print(exc, file=sys.stderr)
+        return 4
+    Path(out).write_text(json.dumps({k: (v.tolist() if isinstance(v, np.ndarray) else v) for k, v in lin.items()}))
+    return 0
+
+
 def _row(v) -> str:
     return "[" + ", ".join(repr(float(x)) for x in v) + "]"
 
@@ -151,6 +224,19 @@ def to_toml(spec, lin: dict) -> str:
     return "\n".join(lines)
 
 
+def add_timeout_argument(p) -> None:
+    from autopilot.shared.cli import timeout_s
+
+    p.add_argument(
+        "--linearise-timeout",
+        dest="timeout",
+        type=timeout_s,
+        default=LINEARISE_TIMEOUT_S,
+        metavar="S",
+        help=f"give up JSBSim's linearisation after S s of wall clock (default {LINEARISE_TIMEOUT_S:g})",
+    )
+
+
 def build_parser() -> OneLineArgumentParser:
     p = OneLineArgumentParser(prog="python -m tools.plant", description=__doc__.split("\n\n")[0])
     sub = p.add_subparsers(dest="command", required=True)
@@ -158,10 +244,14 @@ def build_parser() -> OneLineArgumentParser:
     lin.add_argument("plant", help="jsbsim:MODEL[:KEY=VALUE,...], e.g. jsbsim:c172x")
     lin.add_argument("--airspeed", type=float, default=None, metavar="KT", help="trim airspeed (default: the spec's)")
     lin.add_argument("--out", required=True, metavar="FILE.toml", help="the plant file to write")
+    add_timeout_argument(lin)
     return p
 
 
 def main(argv=None) -> int:
+    argv = sys.argv[1:] if argv is None else list(argv)
+    if argv[:1] == ["_linearise"]:  # the child of linearise_bounded
+        return _linearise_child(argv[1:])
     parser = build_parser()
     args = parser.parse_args(argv)
     from dataclasses import replace
@@ -176,12 +266,12 @@ def main(argv=None) -> int:
             if not (math.isfinite(args.airspeed) and args.airspeed > 0):
                 parser.error(f"--airspeed must be positive and finite, got {args.airspeed!r}")
             spec = replace(spec, airspeed_kt=args.airspeed)
-        lin = linearise(spec)
-    except (PlantError, JsbsimPlantError) as exc:
+        lin = linearise_bounded(spec, args.timeout)
+    except (PlantError, JsbsimPlantError, LinearisationError) as exc:
         parser.error(str(exc))
-    except LinearisationError as exc:
-        print(f"{parser.prog}: error: {exc}", file=sys.stderr)
-        return 1
+    except KeyboardInterrupt:
+        print(f"{parser.prog}: interrupted", file=sys.stderr)
+        return 130
     try:
         Path(args.out).write_text(to_toml(spec, lin))
     except OSError as exc:
