@@ -72,6 +72,8 @@ def outcome_line(s: dict) -> str:
     outcome = s.get("outcome") or ("OK" if s.get("ok") else "FAILED")
     if outcome == "OK":
         return f"OK: flown to the end; {(s.get('controlled') or {}).get('reason', 'controlled')}"
+    if outcome == "OUT OF ENVELOPE" and s.get("diverged"):  # the SITL stopped it: its reason, with the flown share
+        return f"OUT OF ENVELOPE: {s['error'].removeprefix('out of envelope: ')}"
     if outcome == "OUT OF ENVELOPE":
         return f"OUT OF ENVELOPE: {s['controlled']['reason']}"
     return f"FAILED: {s.get('error')}"
@@ -418,7 +420,7 @@ def main(argv=None, png_helper=None) -> int:
         print(f"launch: error: {exc}", file=sys.stderr)
         return EXIT_USAGE
     print_summary(res.summary)
-    if not res.completed:
+    if not res.completed and not res.summary.get("diverged"):  # a plant that diverged is a result, not an error
         print(f"launch: error: {res.reason} (logs in {res.out})", file=sys.stderr, flush=True)
     print(outcome_line(res.summary), flush=True)  # the last line: OK, OUT OF ENVELOPE or FAILED
     return res.exit_code
