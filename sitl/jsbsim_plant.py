@@ -103,7 +103,7 @@ def parse_spec(text: str) -> JsbsimSpec:
     spec = JsbsimSpec(model=parts[1])
     if len(parts) == 3:
         if not parts[2]:
-            raise JsbsimPlantError(f"jsbsim plant: nothing after the last ':' in {text!r} (give KEY=VALUE,... or no ':')")
+            raise JsbsimPlantError(f"jsbsim plant: nothing after the last ':' in {text!r} (give KEY=VALUE or no ':')")
         changes = {}
         for item in parts[2].split(","):
             key, sep, value = item.partition("=")

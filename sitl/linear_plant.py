@@ -14,6 +14,12 @@ like the built-in model.  Format (every key: docs/plants.md):
                roll = "phi", roll_rate = "p", yaw_rate = "r", side_velocity = "v"   (rates optional)
        or      num = [...], den = [...]   (highest power first; roll rate = phi' when the relative degree >= 2)
     [servo]    wn2 = 2367.0, two_zeta_wn = 72.22
+
+Refused, each in one line naming the file and the key (``PlantFileError``; reading and keys: ``sitl.plant_file``):
+values of the wrong type or shape, more than ``MAX_STATES`` airframe states, a surface that moves nothing or an
+output that shows nothing (B = 0, C = 0, C (sI - A)^-1 B = 0), a pole beyond ``MAX_POLE_RAD_S``, an output gain
+beyond ``MAX_OUTPUT_GAIN``, and a plant whose exact ZOH over one physics step is not finite or has an entry beyond
+``MAX_STEP_GAIN`` (``check_step``).
 """
 
 from __future__ import annotations
