@@ -48,9 +48,10 @@ from sitl.telemetry import attach as attach_telemetry
 
 
 def plant_arg(text: str) -> str:
-    """A --plant value, checked (sitl.plant.check): one-line error on a bad file, spec or model."""
+    """A --plant value, checked (sitl.plant.check): one-line error on a bad file, spec or model (a file's physics step
+    is checked when the plant is built, at --physics-rate)."""
     try:
-        return plants.check(text)
+        return plants.check(text, None)
     except plants.PlantError as exc:
         raise argparse.ArgumentTypeError(str(exc)) from None
 
@@ -247,6 +248,8 @@ def main(argv=None) -> int:
     code = 0
     try:
         code = sitl.run()
+        if sitl.diverged is not None:  # the flight stopped: out of the envelope, the plant's own doing
+            print(f"sitl: OUT OF ENVELOPE: {args.plant}: {sitl.exit_reason}", file=sys.stderr, flush=True)
     except LockstepGiveUp as exc:
         print(f"sitl: error: {exc}", file=sys.stderr, flush=True)
         code = 1

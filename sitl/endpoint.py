@@ -31,6 +31,7 @@ from autopilot.shared.fastmav import HOT_DECODERS
 from autopilot.shared.link import UdpLink
 from autopilot.shared.mavlink import frame_ms, frame_usec, mavlink, usec_diff, vehicle_ids
 from autopilot.shared.numerics import wrap_pi
+from autopilot.shared.process import EXIT_OUT_OF_ENVELOPE
 from autopilot.shared.pwm import PWM_VALID_RANGE, PwmMap
 from autopilot.shared.series import SeriesRecorder
 from autopilot.shared.signing import SIGNING_LINK_SIM, Signing
@@ -49,6 +50,11 @@ SERVO_AHEAD_US = 50_000  # real time: a servo stamp this far ahead of the clock 
 
 class LockstepGiveUp(RuntimeError):
     """The autopilot did not answer a lockstep frame within the give-up time."""
+
+
+class PlantDiverged(RuntimeError):
+    """The plant's state left what the SITL flies (``sitl.plant.divergence``): the flight is stopped, out of the
+    envelope (``Sitl.diverged`` says when and why)."""
 
 
 @dataclass
@@ -141,6 +147,7 @@ class Sitl:
         self.sim_t0 = 0.0
         self.exit_reason = ""
         self.peer_lost = None  # the peer whose silence ended the run ("autopilot"), for the launcher's verdict
+        self.diverged = None  # the plant diverged: {"t_s", "reason", "plant", "mono"} (``_check_plant``)
         # real time: sim time flown on the servo timeout (rudder neutral, no command from the autopilot), in the
         # episodes that ended (the autopilot came back) and in the one still on when the run ended
         self.servo_timeout_s = 0.0
@@ -375,6 +382,7 @@ class Sitl:
             self.pwm_applied = pwm
             self.u = u = self.pwm.to_rad(pwm)
             advance(u, nphys)
+            self._check_plant()
             K += 1
             self.frames += 1
             self.wall_last_frame = perf()
@@ -421,6 +429,7 @@ class Sitl:
             n = int((now - t0) * phys_rate) - ac.steps
             if n > 0:
                 self._advance(self.u, n)
+                self._check_plant()
 
         while not self.stop_requested:
             now = perf()
@@ -494,11 +503,24 @@ class Sitl:
             self.exit_reason = self.exit_reason or "stopped by signal"
         return 0
 
+    def _check_plant(self) -> None:
+        """Stop the flight (``PlantDiverged``) once the plant has diverged: an unstable plant is flown until its
+        state is no longer finite or leaves ``sitl.plant.STATE_LIMIT``."""
+        why = plants.divergence(self.aircraft.truth)
+        if why is None:
+            return
+        t = self.aircraft.time  # flight time: physics steps since the start
+        self.diverged = {"t_s": t, "reason": why, "plant": self.opts.plant, "mono": time.monotonic()}
+        self.exit_reason = f"the plant diverged at {t:.3f} s of flight: {why}"
+        raise PlantDiverged(self.exit_reason)
+
     def run(self) -> int:
         gc.collect()
         gc.freeze()  # the long-lived heap (numpy, scipy) stays out of the cyclic collector's full passes
         try:
             return self.run_lockstep() if self.opts.lockstep else self.run_realtime()
+        except PlantDiverged:  # the frame (or the catch-up) that diverged is not flown: no ATTITUDE could carry it
+            return EXIT_OUT_OF_ENVELOPE
         finally:
             self.link.send_clock.end(time.monotonic())
 
@@ -524,6 +546,7 @@ class Sitl:
             "link": self.link.counters(),
             "exit_reason": self.exit_reason,
             "peer_lost": self.peer_lost,
+            "diverged": self.diverged,  # the plant diverged: when (flight time), why, which plant
             # real time: sim s flown on the servo timeout (rudder neutral), ended episodes and the one open at the end
             "servo_timeout_s": self.servo_timeout_s,
             "servo_timeout_open_s": self.servo_timeout_open_s,

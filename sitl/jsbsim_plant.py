@@ -24,6 +24,7 @@ from __future__ import annotations
 
 import math
 import os
+import re
 from dataclasses import dataclass, replace
 from pathlib import Path
 
@@ -73,6 +74,9 @@ class JsbsimSpec:
             v = getattr(self, name)
             if v is not None and not (math.isfinite(v) and v > 0):
                 raise JsbsimPlantError(f"jsbsim plant: {name} must be positive and finite, got {v!r}")
+            lo, hi = SPEC_RANGES[name]
+            if v is not None and not lo <= v <= hi:
+                raise JsbsimPlantError(f"jsbsim plant: {name} must be in [{lo:g}, {hi:g}], got {v!r}")
 
     @property
     def surface_max_rad(self) -> float:
@@ -84,28 +88,38 @@ class JsbsimSpec:
         return f"jsbsim:{self.model}:" + ",".join(f"{k}={getattr(self, k)}" for k in keys)
 
 
+# What a spec's numbers may be: a trim the aircraft can fly, and a surface stop an aircraft has (deg per unit
+# normalised command; c172x's aileron 17.5).  Outside, refused by name before JSBSim is asked.
+SPEC_RANGES = {"airspeed_kt": (1.0, 5000.0), "altitude_m": (1.0, 100_000.0), "surface_max_deg": (1.0, 90.0)}
+SPEC_KEYS = ("airspeed_kt", "altitude_m", "surface", "surface_max_deg")
+_NUMBER = re.compile(r"[+-]?(\d+(\.\d*)?|\.\d+)([eE][+-]?\d+)?")  # a decimal number; no '1_0_0', 'inf' or spaces
+
+
 def parse_spec(text: str) -> JsbsimSpec:
-    """``jsbsim:MODEL[:KEY=VALUE,...]`` -> JsbsimSpec; raises JsbsimPlantError naming the bad part."""
+    """``jsbsim:MODEL[:KEY=VALUE,...]`` -> JsbsimSpec; raises JsbsimPlantError naming the bad part.  Strict: each key
+    once, plain decimal numbers within ``SPEC_RANGES``, nothing empty (no trailing ':' or ',')."""
     parts = text.split(":", 2)
     if len(parts) < 2 or parts[0] != "jsbsim" or not parts[1]:
         raise JsbsimPlantError(f"expected jsbsim:MODEL[:KEY=VALUE,...], got {text!r}")
     spec = JsbsimSpec(model=parts[1])
-    if len(parts) == 3 and parts[2]:
+    if len(parts) == 3:
+        if not parts[2]:
+            raise JsbsimPlantError(f"jsbsim plant: nothing after the last ':' in {text!r} (give KEY=VALUE or no ':')")
         changes = {}
         for item in parts[2].split(","):
             key, sep, value = item.partition("=")
-            if not sep or key not in ("airspeed_kt", "altitude_m", "surface", "surface_max_deg"):
+            if not sep or key not in SPEC_KEYS:
                 raise JsbsimPlantError(
-                    f"jsbsim plant: expected KEY=VALUE with KEY one of airspeed_kt, altitude_m, surface, "
-                    f"surface_max_deg, got {item!r}"
+                    f"jsbsim plant: expected KEY=VALUE with KEY one of {', '.join(SPEC_KEYS)}, got {item!r}"
                 )
+            if key in changes:
+                raise JsbsimPlantError(f"jsbsim plant: {key} given twice in {text!r}")
             if key == "surface":
                 changes[key] = value
                 continue
-            try:
-                changes[key] = float(value)
-            except ValueError:
-                raise JsbsimPlantError(f"jsbsim plant: {key} must be a number, got {value!r}") from None
+            if not _NUMBER.fullmatch(value):
+                raise JsbsimPlantError(f"jsbsim plant: {key} must be a decimal number, got {value!r}")
+            changes[key] = float(value)
         spec = replace(spec, **changes)
     return spec
 
@@ -152,6 +166,16 @@ def trimmed_fdm(spec: JsbsimSpec, dt: float, seed: int = 0, damaged: bool = Fals
     if spec.model not in available_models():
         raise JsbsimPlantError(f"jsbsim plant: no model {spec.model!r}; available: {', '.join(available_models())}")
     fdm = _new_fdm()
+    try:
+        return _trim(fdm, spec, dt, seed, damaged)
+    except jsbsim.BaseError as exc:  # e.g. a property the model reads and nothing defines (L17, f104, fokker50, ...)
+        why = " ".join(str(exc).split()) or type(exc).__name__
+        raise JsbsimPlantError(f"jsbsim plant: JSBSim cannot initialise model {spec.model!r}: {why}") from None
+
+
+def _trim(fdm, spec: JsbsimSpec, dt: float, seed: int, damaged: bool):
+    import jsbsim
+
     if not (_load_damaged(fdm, spec) if damaged else fdm.load_model(spec.model)):
         raise JsbsimPlantError(f"jsbsim plant: JSBSim could not load model {spec.model!r}")
     # The model's own <output> (c172x: JSBout172B.csv in the working folder, opened by run_ic even when disabled):

@@ -11,12 +11,13 @@ disturbance d, if any, per step), ``truth`` ([v, p, r, phi, delta, delta_dot], `
 
 from __future__ import annotations
 
+import math
 from dataclasses import replace
 from importlib import resources
 from pathlib import Path
 
 from sitl.aircraft import Aircraft, AircraftConfig
-from sitl.linear_plant import PlantFileError
+from sitl.linear_plant import PHYSICS_RATE_HZ, PlantFileError
 from sitl.linear_plant import load as load_file
 
 KH2013A = "kh2013a"
@@ -50,13 +51,22 @@ def shipped(name: str) -> Path:
     return Path(str(resources.files("sitl") / "plants" / name))
 
 
-def check(text: str) -> str:
-    """Validate a --plant value (file parsed, JSBSim spec parsed and its model found); returns it.  Raises
-    PlantError with a one-line reason."""
+def _load(text: str, physics_rate_hz: float | None = None):
+    """The plant file ``text`` (``sitl.linear_plant.load``), its physics step checked at ``physics_rate_hz`` (None: not
+    checked); PlantError with the one-line reason."""
+    try:
+        return load_file(text, physics_rate_hz)
+    except PlantFileError as exc:
+        raise PlantError(str(exc)) from None
+
+
+def check(text: str, physics_rate_hz: float | None = PHYSICS_RATE_HZ) -> str:
+    """Validate a --plant value (file parsed and checked, its physics step at ``physics_rate_hz`` unless None;
+    JSBSim spec parsed and its model found); returns it.  Raises PlantError with a one-line reason."""
     k = kind(text)
     try:
         if k == "file":
-            load_file(text)
+            _load(text, physics_rate_hz)
         elif k == "jsbsim":
             from sitl.jsbsim_plant import JsbsimPlantError, available_models, parse_spec
 
@@ -82,7 +92,7 @@ def check_disturbances(text: str, given: dict) -> None:
         if given.get(dest) is not None:
             raise PlantError(f"--{dest.replace('_', '-')} cannot fly on --plant {text}: {why}")
     air = [d for d in ATMOSPHERE if given.get(d) is not None]
-    if air and kind(text) == "file" and load_file(text).truth is not None:
+    if air and kind(text) == "file" and _load(text).truth is not None:
         # the gusts enter through the aerodynamic columns of v, p, r (sitl.atmosphere.disturbance_matrix)
         raise PlantError(
             f"--{air[0].replace('_', '-')} cannot fly on --plant {text}: the atmosphere needs the airframe states "
@@ -169,10 +179,7 @@ def build(text: str, physics_rate_hz: float, params: dict | None = None, dist=No
     if k == "kh2013a":
         return Aircraft(AircraftConfig(physics_rate_hz=physics_rate_hz), params=params)
     if k == "file":
-        try:
-            lp = load_file(text)
-        except PlantFileError as exc:
-            raise PlantError(str(exc)) from None
+        lp = _load(text, physics_rate_hz)  # its physics step checked at the rate it flies
         cfg = AircraftConfig(
             physics_rate_hz=physics_rate_hz, rudder_limit_rad=lp.limit_rad, rudder_rate_limit_rad_s=lp.rate_limit_rad_s
         )
@@ -192,11 +199,32 @@ def build(text: str, physics_rate_hz: float, params: dict | None = None, dist=No
         raise PlantError(str(exc)) from None
 
 
+# The SITL stops the flight once its plant has diverged: a truth state [v, p, r, phi, delta, delta_dot] (m/s, rad/s,
+# rad/s, rad, rad, rad/s) not finite or beyond STATE_LIMIT.  An unstable plant is flown (it is a legitimate thing to
+# fly) until then; far inside what ATTITUDE's float32 carries, far outside any aircraft.
+STATE_LIMIT = 1e6
+STATE_NAMES = ("v", "p", "r", "phi", "delta", "delta_dot")
+STATE_UNITS = ("m/s", "rad/s", "rad/s", "rad", "rad", "rad/s")
+
+
+def divergence(truth) -> str | None:
+    """None while every entry of the truth state is finite and within ``STATE_LIMIT``, else which one is not."""
+    total = float(truth.dot(truth))  # NaN or inf if an entry is
+    if total < STATE_LIMIT * STATE_LIMIT:
+        return None
+    for name, unit, x in zip(STATE_NAMES, STATE_UNITS, truth.tolist()):
+        if not math.isfinite(x):
+            return f"{name} became {x} (not a finite number)"
+        if abs(x) > STATE_LIMIT:
+            return f"|{name}| reached {abs(x):.3g} {unit}, beyond the {STATE_LIMIT:g} the SITL flies"
+    return None
+
+
 def surface_limit_rad(text: str) -> float | None:
     """The surface's deflection limit (rad) of a plant, None if unlimited (KH2013A, a file without ``limit``)."""
     k = kind(text)
     if k == "file":
-        return load_file(text).limit_rad
+        return _load(text).limit_rad
     if k == "jsbsim":
         from sitl.jsbsim_plant import parse_spec
 
@@ -204,4 +232,15 @@ def surface_limit_rad(text: str) -> float | None:
     return None
 
 
-__all__ = ["PlantError", "build", "check", "check_disturbances", "injected", "kind", "shipped", "surface_limit_rad"]
+__all__ = [
+    "STATE_LIMIT",
+    "PlantError",
+    "build",
+    "check",
+    "check_disturbances",
+    "divergence",
+    "injected",
+    "kind",
+    "shipped",
+    "surface_limit_rad",
+]

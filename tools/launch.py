@@ -78,6 +78,8 @@ def outcome_line(s: dict) -> str:
     after = "".join(f"; after {recovery_text(r)}" for r in s.get("recovery") or [])  # each fault's recovery
     if outcome == "OK":
         return f"{head}: flown to the end; {(s.get('controlled') or {}).get('reason', 'controlled')}{after}"
+    if outcome == "OUT OF ENVELOPE" and s.get("diverged"):  # the SITL stopped it: its reason, with the flown share
+        return f"{head}: {s['error'].removeprefix('out of envelope: ')}"
     if outcome == "OUT OF ENVELOPE":
         return f"{head}: {s['controlled']['reason']}{after}"
     return f"{head}: {s.get('error')}"
@@ -438,7 +440,7 @@ def main(argv=None, png_helper=None) -> int:
         print(f"launch: error: {exc}", file=sys.stderr)
         return EXIT_USAGE
     print_summary(res.summary)
-    if not res.completed:
+    if not res.completed and not res.summary.get("diverged"):  # a plant that diverged is a result, not an error
         print(f"launch: error: {res.reason} (logs in {res.out})", file=sys.stderr, flush=True)
     print(outcome_line(res.summary), flush=True)  # the last line: OK, OUT OF ENVELOPE or FAILED
     return res.exit_code

@@ -11,7 +11,13 @@ from pathlib import Path
 import numpy as np
 
 from autopilot.shared.cli import OneLineArgumentParser
-from tools.design.linearise import LinearisationError, linearise, to_toml
+from tools.design.linearise import (
+    LinearisationError,
+    _linearise_child,
+    add_timeout_argument,
+    linearise_bounded,
+    to_toml,
+)
 
 
 def build_parser() -> OneLineArgumentParser:
@@ -21,10 +27,14 @@ def build_parser() -> OneLineArgumentParser:
     lin.add_argument("plant", help="jsbsim:MODEL[:KEY=VALUE,...], e.g. jsbsim:c172x")
     lin.add_argument("--airspeed", type=float, default=None, metavar="KT", help="trim airspeed (default: the spec's)")
     lin.add_argument("--out", required=True, metavar="FILE.toml", help="the plant file to write")
+    add_timeout_argument(lin)
     return p
 
 
 def main(argv=None) -> int:
+    argv = sys.argv[1:] if argv is None else list(argv)
+    if argv[:1] == ["_linearise"]:  # the child of linearise_bounded
+        return _linearise_child(argv[1:])
     parser = build_parser()
     args = parser.parse_args(argv)
     from dataclasses import replace
@@ -39,12 +49,12 @@ def main(argv=None) -> int:
             if not (math.isfinite(args.airspeed) and args.airspeed > 0):
                 parser.error(f"--airspeed must be positive and finite, got {args.airspeed!r}")
             spec = replace(spec, airspeed_kt=args.airspeed)
-        lin = linearise(spec)
-    except (PlantError, JsbsimPlantError) as exc:
+        lin = linearise_bounded(spec, args.timeout)
+    except (PlantError, JsbsimPlantError, LinearisationError) as exc:
         parser.error(str(exc))
-    except LinearisationError as exc:
-        print(f"{parser.prog}: error: {exc}", file=sys.stderr)
-        return 1
+    except KeyboardInterrupt:
+        print(f"{parser.prog}: interrupted", file=sys.stderr)
+        return 130
     try:
         Path(args.out).write_text(to_toml(spec, lin))
     except OSError as exc:

@@ -14,8 +14,8 @@ from typing import TYPE_CHECKING, Sequence
 import numpy as np
 
 from autopilot.config import PFC_PRESETS
-from sitl import model
-from tools.design._common import CoefficientError, PfcError, ct, fmt_complex, poly
+from sitl import linear_plant, model
+from tools.design._common import AnalysisError, CoefficientError, PfcError, ct, fmt_complex, poly
 
 if TYPE_CHECKING:
     from control import TransferFunction
@@ -96,13 +96,21 @@ def tf_coefficients(sys: TransferFunction) -> tuple[np.ndarray, np.ndarray]:
     return poly(sys.num[0][0], "num"), poly(sys.den[0][0], "den")
 
 
+def markov_relative_degree(a, b, c) -> int | None:
+    """``sitl.linear_plant.markov_relative_degree`` (scale-free), its overflow an ``AnalysisError``."""
+    try:
+        return linear_plant.markov_relative_degree(a, b, c)
+    except OverflowError as exc:
+        raise AnalysisError(str(exc)) from None
+
+
 def ss_to_tf(a, b, c, d=0.0, dt=0) -> TransferFunction:
     """SISO C (sI - A)^-1 B + D with the numerator's degree fixed by the Markov parameters.
 
     ss2tf leaves round-off of order 1e-13 on numerator coefficients that are exactly zero (for the
-    paper's plant C_p B_p = C_p A_p B_p = C_p A_p^2 B_p = 0 structurally).  The relative degree r is the
-    index of the first Markov parameter C A^(r-1) B that is not negligible against |C| |A|^(r-1) |B|;
-    the coefficients above degree n - r are set to zero and the leading one to C A^(r-1) B exactly.
+    paper's plant C_p B_p = C_p A_p B_p = C_p A_p^2 B_p = 0 structurally).  The relative degree r comes from the
+    first Markov parameter C A^(r-1) B that is not negligible (``markov_relative_degree``); the coefficients above
+    degree n - r are set to zero and the leading one to C A^(r-1) B exactly.
     """
     a = np.atleast_2d(np.asarray(a, dtype=float))
     b = np.asarray(b, dtype=float).reshape(-1, 1)
@@ -114,18 +122,15 @@ def ss_to_tf(a, b, c, d=0.0, dt=0) -> TransferFunction:
     n = a.shape[0]
     num = np.concatenate([np.zeros(n + 1 - num.size), num]) if num.size < n + 1 else num[-(n + 1) :]
     if d == 0.0:
-        num[0] = 0.0
-        na, nb, nc = np.linalg.norm(a, 2), np.linalg.norm(b), np.linalg.norm(c)
-        ak_b = b.copy()
-        for k in range(n):  # Markov parameters h_k = C A^k B
-            h = (c @ ak_b).item()
-            if abs(h) > 1e-10 * nc * nb * max(na, 1.0) ** k:
-                num[: k + 1] = 0.0
-                num[k + 1] = h * den[0]
-                break
-            ak_b = a @ ak_b
-        else:
+        r = markov_relative_degree(a, b, c)
+        if r is None:
             num[:] = 0.0
+        else:
+            ak_b = b.copy()
+            for _ in range(r - 1):  # h_(r-1) = C A^(r-1) B, the powers applied to B one by one
+                ak_b = a @ ak_b
+            num[:r] = 0.0
+            num[r] = (c @ ak_b).item() * den[0]
     return ct().tf(poly(num) if np.any(num) else [0.0], den, dt)
 
 

@@ -28,6 +28,7 @@ from tools.design._common import AnalysisError, brentq, ct, poly
 from tools.design.aspr import ss_to_tf, tf_coefficients
 
 _STEP_REL = 1e-6  # the relative step used to confirm that an edge is a stability boundary
+W_ZERO_RTOL = 1e-9  # a crossing frequency below this fraction of the fastest open-loop pole is w = 0
 
 
 class GainBand(NamedTuple):
@@ -69,9 +70,15 @@ def _crossing_candidates(num: np.ndarray, den: np.ndarray) -> list[float]:
     h = np.trim_zeros(np.polysub(np.polymul(di, nr), np.polymul(dr, ni)), "f")
     dh = np.polyder(h) if h.size > 1 else np.array([0.0])
     ws = np.roots(h) if h.size > 1 else np.array([])
-    omegas = [0.0]
+    # w = 0 is a root of h (it is odd) and is taken exactly: a root this close to it is that one, computed with
+    # round-off.  With an open-loop pole at s = 0 (a roll integrator; z = 1 sampled, w = 0 after the bilinear map),
+    # computed as a pole within W_ZERO_RTOL of the fastest, K = -D(0)/N(0) ~ 1e-17 is round-off too, where no
+    # closed-loop root's side of the axis can be resolved: not a candidate (the band finder probes from K > 0 on).
+    poles = np.abs(np.roots(den)) if den.size > 1 else np.zeros(0)
+    w_zero = W_ZERO_RTOL * max(1.0, float(np.max(poles))) if poles.size else 0.0
+    omegas = [0.0] if not (poles.size and float(np.min(poles)) <= w_zero) else []
     for w in ws:
-        if abs(w.imag) <= 1e-3 * max(1.0, abs(w.real)) and w.real > 0:
+        if abs(w.imag) <= 1e-3 * max(1.0, abs(w.real)) and w.real > w_zero:
             wr = float(w.real)
             for _ in range(4):  # Newton polish on the crossing polynomial
                 d = np.polyval(dh, wr)

@@ -15,6 +15,8 @@ launcher gives the autopilot by default.
 
 from __future__ import annotations
 
+import os
+import sys
 from pathlib import Path
 
 import numpy as np
@@ -141,6 +143,91 @@ def linearise(spec, physics_rate_hz: float = 1000.0) -> dict:
             "theta": float(fdm["attitude/theta-rad"]),
         },
     }
+
+
+LINEARISE_TIMEOUT_S = 60.0  # JSBSim's FGLinearization of one model: c172x takes 1.3 s, pa28 3.7 s, Boeing314 340 s
+
+
+def linearise_bounded(spec, timeout_s: float = LINEARISE_TIMEOUT_S, physics_rate_hz: float = 1000.0) -> dict:
+    """:func:`linearise` in a child process, within ``timeout_s`` of wall clock (FGLinearization is one C++ call that
+    holds the interpreter: in this process neither a timeout nor Ctrl-C could stop it).  LinearisationError if it
+    takes longer; Ctrl-C (KeyboardInterrupt here) kills the child at once; JsbsimPlantError as the child had it."""
+    import json
+    import subprocess
+    import tempfile
+    import time
+
+    from sitl.jsbsim_plant import JsbsimPlantError
+
+    root = str(Path(__file__).resolve().parents[2])  # the folder holding tools/ and sitl/
+    env = {**os.environ, "PYTHONPATH": os.pathsep.join(p for p in (root, os.environ.get("PYTHONPATH")) if p)}
+    with tempfile.TemporaryDirectory(prefix="linearise-") as tmp:
+        out = Path(tmp) / "lin.json"
+        argv = [sys.executable, "-m", "tools.plant", "_linearise", spec.text(), str(physics_rate_hz), str(out)]
+        proc = subprocess.Popen(
+            argv,
+            stdin=subprocess.DEVNULL,
+            stdout=subprocess.DEVNULL,  # JSBSim's own chatter
+            stderr=subprocess.PIPE,
+            env=env,
+            start_new_session=True,  # the terminal's Ctrl-C reaches this process, which kills the child
+            text=True,
+        )
+        try:
+            t_end = time.monotonic() + timeout_s
+            while proc.poll() is None:
+                if time.monotonic() >= t_end:
+                    raise LinearisationError(
+                        f"JSBSim's linearisation (FGLinearization) of {spec.model} did not finish within "
+                        f"{timeout_s:g} s; stopped"
+                    )
+                time.sleep(0.05)
+            err = proc.stderr.read().strip().splitlines()
+        finally:
+            if proc.poll() is None:
+                proc.kill()
+                proc.wait()
+            proc.stderr.close()
+        why = err[-1] if err else f"exit status {proc.returncode}"
+        if proc.returncode == 3:
+            raise JsbsimPlantError(why)
+        if proc.returncode != 0 or not out.is_file():
+            raise LinearisationError(f"JSBSim's linearisation of {spec.model} failed: {why}")
+        lin = json.loads(out.read_text())
+    return {k: (np.array(v) if k in ("A", "B", "C") else v) for k, v in lin.items()}
+
+
+def _linearise_child(argv: list[str]) -> int:
+    """The child of :func:`linearise_bounded`: SPEC RATE_HZ OUT.json; exit 3 on a JsbsimPlantError, 4 on a
+    LinearisationError (the reason the last stderr line)."""
+    import json
+
+    from sitl.jsbsim_plant import JsbsimPlantError, parse_spec
+
+    text, rate, out = argv
+    try:
+        lin = linearise(parse_spec(text), float(rate))
+    except JsbsimPlantError as exc:
+        print(exc, file=sys.stderr)
+        return 3
+    except LinearisationError as exc:
+        print(exc, file=sys.stderr)
+        return 4
+    Path(out).write_text(json.dumps({k: (v.tolist() if isinstance(v, np.ndarray) else v) for k, v in lin.items()}))
+    return 0
+
+
+def add_timeout_argument(p) -> None:
+    from autopilot.shared.cli import timeout_s
+
+    p.add_argument(
+        "--linearise-timeout",
+        dest="timeout",
+        type=timeout_s,
+        default=LINEARISE_TIMEOUT_S,
+        metavar="S",
+        help=f"give up JSBSim's linearisation after S s of wall clock (default {LINEARISE_TIMEOUT_S:g})",
+    )
 
 
 def _row(v) -> str:

@@ -6,13 +6,15 @@ PLANT is a linear plant file (``sitl.linear_plant``), ``kh2013a``, or ``jsbsim:M
 --params`` loads (the launcher gives it to the autopilot by default when it sits beside the plant), with the design
 story in its comments and the baseline's gains on its ``# baseline_gains =`` line.
 
-exit status: 0 on success, 2 on bad input or a plant no PFC of the family makes W-ASPR (one line on stderr).
+exit status: 0 on success, 2 on bad input, a plant no PFC of the family makes W-ASPR, one the surface cannot move
+enough or one whose numbers defeat the analysis (one line on stderr naming the reason), 130 on Ctrl-C.
 """
 
 from __future__ import annotations
 
 import math
 import sys
+import warnings
 from pathlib import Path
 
 import numpy as np
@@ -31,6 +33,9 @@ def build_parser() -> OneLineArgumentParser:
         "FILE.toml that is another plant is refused, never overwritten)",
     )
     p.add_argument("--airspeed", type=float, default=None, metavar="KT", help="jsbsim: linearise at this airspeed")
+    from tools.design.linearise import add_timeout_argument
+
+    add_timeout_argument(p)
     p.add_argument("--rate-hz", type=float, default=100.0, metavar="HZ", help="control rate (default 100)")
     p.add_argument(
         "--margin", type=float, default=3.0, metavar="G", help="gain margin of C = 1/D on the plant (default 3)"
@@ -53,7 +58,7 @@ def _plant_file(args, parser) -> tuple[str, Path]:
         plants.check(args.plant)
         return args.plant, Path(args.out or Path(args.plant).with_suffix(".params").name)
     from sitl.jsbsim_plant import parse_spec
-    from tools.design.linearise import linearise, to_toml
+    from tools.design.linearise import linearise_bounded, to_toml
 
     plants.check(args.plant)
     spec = parse_spec(args.plant)
@@ -63,7 +68,7 @@ def _plant_file(args, parser) -> tuple[str, Path]:
         spec = replace(spec, airspeed_kt=args.airspeed)
     out = Path(args.out or f"jsbsim-{spec.model}.params")
     toml = out.with_suffix(".toml")
-    text = to_toml(spec, linearise(spec))
+    text = to_toml(spec, linearise_bounded(spec, args.timeout))
     if toml.exists() and toml.read_text(encoding="utf-8", errors="replace") != text:  # never a user's file silently
         parser.error(f"{toml} exists and is not this linearisation: remove it or give another --out")
     toml.write_text(text)
@@ -81,13 +86,16 @@ def design_text(plant_text: str, rate_hz: float, margin: float, lv: float) -> tu
     """The design's report lines and the parameter values (name -> value, and 'baseline' -> (kp, ki, kd))."""
     from sitl.linear_plant import load
     from tools import design as analysis
-    from tools.design.tuning import GAMMA_NAMES, choose_gamma, design_baseline, design_pfc
+    from tools.design.tuning import GAMMA_NAMES, check_authority, choose_gamma, design_baseline, design_pfc
+    from tools.experiment.scenario import PAPER
 
     lp = load(plant_text)
     mats = (lp.a_p, lp.b_p, lp.c_p)
+    u_limit = lp.limit_rad if lp.limit_rad is not None else math.radians(30.0)
+    tn, td = analysis.tf_coefficients(analysis.plant_tf(mats))
+    check_authority(tn, td, u_limit, PAPER.profile.amplitude, PAPER.profile.period)
     pfc = design_pfc(mats, rate_hz=rate_hz, margin=margin)
     rep = analysis.analyse(pfc.num, pfc.den, rate_hz=rate_hz, lv=lv, pfc_name="designed", plant=mats)
-    u_limit = lp.limit_rad if lp.limit_rad is not None else math.radians(30.0)
     gamma, rows = choose_gamma(plant_text, pfc.num, pfc.den, u_limit)
     base = design_baseline(mats, rate_hz=rate_hz)
     zeros = ", ".join(f"{z:.4g}" for z in rep.zeros)
@@ -129,6 +137,7 @@ def main(argv=None) -> int:
     from sitl.jsbsim_plant import JsbsimPlantError
     from sitl.plant import PlantError
     from tools.design import AnalysisError
+    from tools.design.linearise import LinearisationError
     from tools.design.tuning import PfcDesignError
 
     for name in ("rate_hz", "margin"):
@@ -136,13 +145,17 @@ def main(argv=None) -> int:
         if not (math.isfinite(v) and v > (1.0 if name == "margin" else 0.0)):
             parser.error(f"--{name.replace('_', '-')} must be finite and > {1 if name == 'margin' else 0}, got {v!r}")
     try:
-        plant_text, out = _plant_file(args, parser)
-        lines, values = design_text(plant_text, args.rate_hz, args.margin, args.lv)
-    except (PlantError, PfcDesignError, JsbsimPlantError) as exc:
+        with warnings.catch_warnings(), np.errstate(all="ignore"):  # the reasons are the one line below, not these
+            warnings.simplefilter("ignore")
+            plant_text, out = _plant_file(args, parser)
+            lines, values = design_text(plant_text, args.rate_hz, args.margin, args.lv)
+    except (PlantError, PfcDesignError, JsbsimPlantError, LinearisationError) as exc:
         parser.error(str(exc))
-    except AnalysisError as exc:
-        print(f"{parser.prog}: analysis failed: {exc}", file=sys.stderr)
-        return 1
+    except AnalysisError as exc:  # the plant's numbers defeat the analysis: a property of the plant given
+        parser.error(f"this plant cannot be analysed: {exc}")
+    except KeyboardInterrupt:
+        print(f"{parser.prog}: interrupted", file=sys.stderr)
+        return 130
     try:
         write_params(out, plant_text, lines, values)
     except OSError as exc:

@@ -26,7 +26,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from tools.design._common import AnalysisError
+from tools.design._common import AnalysisError, fmt_complex
 from tools.design.aspr import (
     augmented_realisation,
     damping_ratio,
@@ -77,13 +77,45 @@ class PfcDesign:
         )
 
 
-def _critical_gain(tn: np.ndarray, td: np.ndarray, a: float) -> float | None:
-    """Least g > 0 making 1 + g (s + a) T unstable (inf if none), None if unstable already for small g."""
+def _critical_gain(tn: np.ndarray, td: np.ndarray, a: float) -> float | str:
+    """Least g > 0 making 1 + g (s + a) T unstable (inf if none); if it is unstable already for small g, why not (no
+    gain stabilises it, or only a window of gains above 0 does: the method needs C stabilising from g -> 0 up)."""
     bands = unstable_gain_bands(np.polymul(tn, [1.0, a]), td)
     if not bands:
         return math.inf
     first = bands[0]
-    return None if first.low <= 1e-12 else first.low
+    if first.low > 1e-12:
+        return first.low
+    unstable = _open_loop_unstable(td)
+    if math.isinf(first.high):
+        return "no gain g > 0 of C = g (s + a) stabilises the plant" + unstable
+    return "C = g (s + a) stabilises the plant only in a window of gains above 0, not from 0 up" + unstable
+
+
+def check_authority(tn: np.ndarray, td: np.ndarray, u_limit_rad: float, amplitude_rad: float, period_s: float) -> None:
+    """Refuse a plant the surface cannot move enough to follow the reference scenario (the scenario the adaptation
+    weights are chosen on): a command of amplitude A at the square wave's fundamental w0 = 2 pi / period needs
+    |T(j w0)| u_limit >= A, whatever the controller (a necessary condition: the command's fundamental alone is
+    4/pi A).  A surface gain of 1e-300, or a plant far slower than the command, is told here in numbers."""
+    w0 = 2.0 * math.pi / period_s
+    with np.errstate(all="ignore"):
+        gain = abs(np.polyval(tn, 1j * w0) / np.polyval(td, 1j * w0))
+    reach = gain * u_limit_rad
+    if not reach >= amplitude_rad:  # NaN too
+        raise PfcDesignError(
+            f"the surface cannot move this plant enough: at its {math.degrees(u_limit_rad):.3g} deg limit it rolls it "
+            f"by at most {math.degrees(reach):.3g} deg at {w0:.3g} rad/s (|T(j w)| = {gain:.3g}; the reference "
+            f"scenario's {period_s:g} s square wave of {math.degrees(amplitude_rad):g} deg needs "
+            f"{math.degrees(amplitude_rad):g} deg there)"
+        )
+
+
+def _open_loop_unstable(td: np.ndarray) -> str:
+    poles = np.roots(td)
+    bad = poles[poles.real >= 0]
+    if not bad.size:
+        return ""
+    return f" (the plant is open-loop unstable: pole at {fmt_complex(bad[np.argmax(bad.real)])})"
 
 
 def design_pfc(
@@ -92,6 +124,13 @@ def design_pfc(
     """The PFC D = k/(s + a) for ``plant`` = (A_p, B_p, C_p); raises PfcDesignError if none qualifies."""
     t = plant_tf(plant)
     tn, td = tf_coefficients(t)
+    return _design_pfc(t, tn, td, plant, rate_hz, margin, corners, ke_floor)
+
+
+ILL_CONDITIONED = "its root locus is numerically too ill-conditioned to analyse"
+
+
+def _design_pfc(t, tn, td, plant, rate_hz: float, margin: float, corners, ke_floor: float) -> PfcDesign:
     if td.size - tn.size < 2:
         raise PfcDesignError(
             f"the plant's relative degree is {td.size - tn.size}: a first-order PFC needs >= 2 for F of relative "
@@ -101,34 +140,14 @@ def design_pfc(
     rejected: dict[str, int] = {}
     best = None
     for a in corners:
-        g = _critical_gain(tn, td, a)
-        if g is None:
-            rejected["C = g (s + a) destabilises the plant at any gain"] = (
-                rejected.get("C = g (s + a) destabilises the plant at any gain", 0) + 1
-            )
+        try:
+            cand = _corner(t, tn, td, t_dc, plant, a, rate_hz, margin, len(corners), ke_floor)
+        except AnalysisError:
+            cand = ILL_CONDITIONED
+        if isinstance(cand, str):
+            rejected[cand] = rejected.get(cand, 0) + 1
             continue
-        if math.isinf(g):
-            g = 1e6  # stable for every gain: fly a high one (a small PFC)
-        k = margin / g
-        num, den = (k,), (1.0, a)
-        f = t + _tf(num, den)
-        fn, fd = tf_coefficients(f)
-        if not is_waspr(fn, fd):
-            rejected["F not W-ASPR"] = rejected.get("F not W-ASPR", 0) + 1
-            continue
-        real = augmented_realisation(num, den, plant)
-        if unstable_gain_bands(fn, fd, realisation=real):
-            rejected["1 + Ke F unstable for some Ke"] = rejected.get("1 + Ke F unstable for some Ke", 0) + 1
-            continue
-        low = [b.low for b in discrete_bands(real, rate_hz)]
-        if low and min(low) < ke_floor:
-            key = f"sampled loop unstable for Ke < {ke_floor:g}"
-            rejected[key] = rejected.get(key, 0) + 1
-            continue
-        zeros = np.roots(fn)
-        damping = float(min(damping_ratio(z) for z in zeros)) if zeros.size else 1.0
-        offset = _offset_deg(t_dc, k / a)
-        cand = PfcDesign(k, a, g, margin, offset, damping, len(corners), 0)
+        offset, damping = cand.offset_deg, cand.min_zero_damping
         if best is None or (round(offset, 9), -damping) < (round(best.offset_deg, 9), -best.min_zero_damping):
             best = cand
         rejected["accepted"] = rejected.get("accepted", 0) + 1
@@ -138,6 +157,31 @@ def design_pfc(
     best.accepted = rejected.pop("accepted")
     best.rejected = rejected
     return best
+
+
+def _corner(t, tn, td, t_dc, plant, a, rate_hz, margin, considered, ke_floor) -> PfcDesign | str:
+    """The candidate PFC of the corner ``a``, or why the corner is rejected."""
+    g = _critical_gain(tn, td, a)
+    if isinstance(g, str):
+        return g
+    if math.isinf(g):
+        g = 1e6  # stable for every gain: fly a high one (a small PFC)
+    k = margin / g
+    num, den = (k,), (1.0, a)
+    f = t + _tf(num, den)
+    fn, fd = tf_coefficients(f)
+    if not is_waspr(fn, fd):
+        return "F not W-ASPR"
+    real = augmented_realisation(num, den, plant)
+    if unstable_gain_bands(fn, fd, realisation=real):
+        return "1 + Ke F unstable for some Ke"
+    low = [b.low for b in discrete_bands(real, rate_hz)]
+    if low and min(low) < ke_floor:
+        return f"sampled loop unstable for Ke < {ke_floor:g}"
+    zeros = np.roots(fn)
+    damping = float(min(damping_ratio(z) for z in zeros)) if zeros.size else 1.0
+    offset = _offset_deg(t_dc, k / a)
+    return PfcDesign(k, a, g, margin, offset, damping, considered, 0)
 
 
 def _tf(num, den):

@@ -302,7 +302,7 @@ class FlightConfig:
         from sitl import plant as plants
 
         try:
-            plants.check(self.plant)
+            plants.check(self.plant, self.physics_rate)
             plants.check_disturbances(self.plant, {k: getattr(self, k) for k in disturbances.FLAGS})
             plants.check_faults(self.plant, self.fault)
             if plants.kind(self.plant) == "jsbsim":

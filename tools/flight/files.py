@@ -193,7 +193,11 @@ def build_summary(
         "outcome": outcome_of(exit_code),
         "exit_code": exit_code,
         # flown to the end with every process clean / inside the envelope (docs/flying.md; autopilot.envelope)
-        "completed": exit_code in (EXIT_OK, EXIT_OUT_OF_ENVELOPE),
+        "completed": exit_code in (EXIT_OK, EXIT_OUT_OF_ENVELOPE) and not (sitl or {}).get("diverged"),
+        # the SITL stopped the flight because its plant diverged: flight time, why, the plant (sitl.plant.divergence)
+        "diverged": {k: v for k, v in sitl["diverged"].items() if k != "mono"}
+        if (sitl or {}).get("diverged")
+        else None,
         "controlled": ap.get("controlled") if ap else None,
         # the time a ground station disarmed the vehicle or flew it in MANUAL (autopilot.envelope), and the words
         # the verdict line adds for it

@@ -284,6 +284,31 @@ def verdict(
     return EXIT_FAILED, name, why + tail
 
 
+def diverged_verdict(children: dict, stats: dict, flown: dict, t_end: float) -> tuple[int, None, str] | None:
+    """The SITL stopped the flight because its plant diverged (its stats' ``diverged``, its exit status 3): OUT OF
+    ENVELOPE (exit 3) with the plant, the flight time and the state that left the bound, not a failure of the SITL.
+    None (``verdict`` decides) if another process failed, or one stalled, before the plant diverged."""
+    div = (stats.get("sitl") or {}).get("diverged")
+    if not div or children["sitl"].code != EXIT_OUT_OF_ENVELOPE:
+        return None
+    before = [
+        c
+        for n, c in children.items()
+        if n != "sitl" and c.exited_at is not None and c.exited_at < div["mono"] and c.code not in (None, 0)
+    ]
+    stall = first_stall(children, stats, t_end)
+    if before or (stall is not None and stall[1] < div["mono"]):
+        return None
+    pct = 100.0 * flown["fraction"]
+    tail = (
+        f"; flown {pct:.3g} % ({flown['steps']} of {flown['steps_asked']} steps, "
+        f"{flown['sim_time_s']:g} of {flown['duration_s']:g} s)"
+    )
+    why = f"the plant {div['plant']} diverged at {div['t_s']:.3f} s of flight: {div['reason']}"
+    why += "; the SITL stopped the flight"
+    return EXIT_OUT_OF_ENVELOPE, None, f"out of envelope: {why}{tail}"
+
+
 def outcome_of(exit_code: int) -> str:
     """The launcher's last line for an exit status: OK (0), OUT OF ENVELOPE (3) or FAILED (anything else)."""
     return {EXIT_OK: "OK", EXIT_OUT_OF_ENVELOPE: "OUT OF ENVELOPE"}.get(exit_code, "FAILED")

@@ -44,7 +44,14 @@ from tools.flight.files import (
     write_flight_png,
     write_refusal,
 )
-from tools.flight.outcome import _ended_normally, envelope_verdict, flown_report, outcome_of, verdict
+from tools.flight.outcome import (
+    _ended_normally,
+    diverged_verdict,
+    envelope_verdict,
+    flown_report,
+    outcome_of,
+    verdict,
+)
 from tools.view.flight_picture import PngHelper
 
 
@@ -391,6 +398,8 @@ class Flight:
         flown = flown_report(cfg, stats)
         if stopped:
             error = f"stopped by the caller after {flown['sim_time_s']:g} s of {cfg.duration:g} s (sim time)"
+        elif exit_code != EXIT_INTERRUPTED and (div := diverged_verdict(self._children, stats, flown, t_end)):
+            exit_code, failed, error = div  # the plant diverged: the SITL stopped the flight, out of the envelope
         elif exit_code != EXIT_INTERRUPTED:
             exit_code, failed, error = verdict(self._children, stats, flown, exit_code, failed, error, t_end)
             exit_code, failed, error = envelope_verdict(

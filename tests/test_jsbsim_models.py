@@ -1,0 +1,104 @@
+"""Every shipped JSBSim model flies or is refused in one line; specs are strict; JSBSim's linearisation is bounded and
+answers Ctrl-C."""
+
+from __future__ import annotations
+
+import signal
+import subprocess
+import sys
+import time
+
+import pytest
+
+from sitl.jsbsim_plant import SPEC_RANGES, JsbsimPlantError, parse_spec
+
+# The models JSBSim 1.3.3 cannot initialise on its own: each reads a property nothing in it defines.
+UNINITIALISABLE = ("L17", "Pterosaur", "dr1", "f104", "fokker100", "fokker50")
+
+
+@pytest.mark.parametrize(
+    "text, needle",
+    [
+        ("jsbsim:c172x:", "nothing after the last ':'"),
+        ("jsbsim:c172x:airspeed_kt=1_0_0", "airspeed_kt must be a decimal number, got '1_0_0'"),
+        ("jsbsim:c172x:airspeed_kt=90,airspeed_kt=100", "airspeed_kt given twice"),
+        ("jsbsim:c172x:airspeed_kt=90,", "expected KEY=VALUE"),
+        ("jsbsim:c172x:airspeed_kt=inf", "decimal number"),
+        ("jsbsim:c172x:airspeed_kt= 90", "decimal number"),
+        ("jsbsim:c172x:surface_max_deg=1e308", "surface_max_deg must be in [1, 90], got 1e+308"),
+        ("jsbsim:c172x:surface_max_deg=1e-300", "surface_max_deg must be in [1, 90], got 1e-300"),
+        ("jsbsim:c172x:surface_max_deg=0.999", "surface_max_deg must be in [1, 90]"),
+        ("jsbsim:c172x:surface_max_deg=90.001", "surface_max_deg must be in [1, 90]"),
+        ("jsbsim:c172x:altitude_m=100001", "altitude_m must be in [1, 100000]"),
+    ],
+)
+def test_a_loose_spec_is_refused_by_name(text, needle):
+    with pytest.raises(JsbsimPlantError) as exc:
+        parse_spec(text)
+    assert needle in str(exc.value)
+
+
+def test_the_spec_ranges_hold_at_their_edges():
+    assert SPEC_RANGES["surface_max_deg"] == (1.0, 90.0)
+    for v in ("1", "90", "17.5", "2.5e1"):
+        assert parse_spec(f"jsbsim:c172x:surface_max_deg={v}").surface_max_deg == float(v)
+    spec = parse_spec("jsbsim:c172x:airspeed_kt=100,altitude_m=1500,surface=rudder")
+    assert (spec.airspeed_kt, spec.altitude_m, spec.surface) == (100.0, 1500.0, "rudder")
+    assert parse_spec(spec.text()) == spec  # the text it writes reads back
+
+
+def _run(argv, timeout=120):
+    t0 = time.monotonic()
+    r = subprocess.run([sys.executable, *argv], capture_output=True, text=True, timeout=timeout)
+    return r, time.monotonic() - t0
+
+
+@pytest.mark.parametrize("model", UNINITIALISABLE)
+def test_a_model_jsbsim_cannot_initialise_is_one_line_from_the_launcher_and_the_design(tmp_path, model):
+    plant = f"jsbsim:{model}"
+    fly = ["-m", "tools.launch", "--lockstep", "--duration", "2", "--plant", plant, "--out", str(tmp_path / "run")]
+    design = ["-m", "tools.pfc", "design", plant, "--out", str(tmp_path / f"{model}.params")]
+    for argv in (fly, design):
+        r, took = _run(argv)
+        assert r.returncode in (0, 2, 3), (r.returncode, r.stderr[-2000:])
+        assert "Traceback" not in r.stderr and took < 60
+        if r.returncode == 2:
+            lines = r.stderr.strip().splitlines()
+            assert len(lines) == 1 and f"JSBSim cannot initialise model '{model}'" in lines[0], r.stderr
+            assert "does not exist" in lines[0]  # the property it reads, named
+
+
+def test_the_linearisation_is_bounded_by_its_timeout(tmp_path):
+    """Boeing314's FGLinearization takes about 340 s: with --linearise-timeout 3 the design stops it and says so."""
+    r, took = _run(
+        [
+            "-m",
+            "tools.pfc",
+            "design",
+            "jsbsim:Boeing314",
+            "--out",
+            str(tmp_path / "b.params"),
+            "--linearise-timeout",
+            "3",
+        ]
+    )
+    assert r.returncode == 2 and took < 30, (r.returncode, took, r.stderr)
+    assert "did not finish within 3 s" in r.stderr and len(r.stderr.strip().splitlines()) == 1
+
+
+def test_the_design_answers_ctrl_c_during_the_linearisation_and_leaves_no_child(tmp_path):
+    p = subprocess.Popen(
+        [sys.executable, "-m", "tools.pfc", "design", "jsbsim:Boeing314", "--out", str(tmp_path / "b.params")],
+        stdout=subprocess.DEVNULL,
+        stderr=subprocess.PIPE,
+        text=True,
+    )
+    time.sleep(3.0)  # in FGLinearization by now (the trim takes 0.02 s)
+    t0 = time.monotonic()
+    p.send_signal(signal.SIGINT)
+    err = p.communicate(timeout=30)[1]
+    assert p.returncode == 130 and time.monotonic() - t0 < 2.0, (p.returncode, err)
+    assert "interrupted" in err and "Traceback" not in err
+    time.sleep(0.2)
+    left = subprocess.run(["pgrep", "-f", "tools.plant _linearise jsbsim:Boeing314"], capture_output=True)
+    assert left.returncode == 1  # no linearising child left
