@@ -27,7 +27,7 @@ longer kicks the surface:
     ydot_m  = C_m (A_m x_m,ol[k] + B_m u_m[k])   the reference model's roll rate (paper eq. (3), differentiated)
     u_raw   = K_ff ydot_m + K_p e + x_i[k] - K_d (y[k] - y[k-1]) / T       (0 for the derivative at step 0)
 
-K_ff is the roll-mode inverse -L_p / L_delta of the plant's roll-rate row (``tools.design.tuning.feedforward_gain``;
+K_ff is the roll-mode inverse -L_p / L_delta of the plant's roll-rate row (``tools.design.linearise.feedforward_gain``;
 the KH2013A's :data:`KFF_KH2013A`).  The integrator, its anti-windup and the limit are the baseline's.
 
 ``set_gains`` changes K_p, K_i, K_d in flight, from the next step, with the integrator's state kept (a gain

@@ -66,8 +66,7 @@ def test_a_command_step_does_not_kick_the_surface_with_the_derivative_on_the_mea
 
 def test_the_baseline_is_unchanged_and_the_feed_forward_is_the_kh2013a_roll_mode():
     assert KFF_KH2013A == -model.A_LP[1, 1] / model.B_LP[1, 0]  # -L_p / L_delta, paper sec. 5.1
-    from tools.design.linearise import linear_model
-    from tools.design.tuning import feedforward_gain
+    from tools.design.linearise import feedforward_gain, linear_model
 
     a, b, c, rr = linear_model("kh2013a")
     assert feedforward_gain((a, b, c), rr) == KFF_KH2013A

@@ -71,7 +71,7 @@ def flown_baseline_gains(controller: str, plant: str, given=None) -> tuple | Non
     """The gains a fixed-gain controller (``autopilot.controllers``, law ``baseline``) flies on ``plant``: ``given``
     (KP, KI, KD[, KFF]), else the ones designed for the plant (``designed_baseline``); None: the built-in defaults.
     pid-ff also feeds forward: unless given a fourth, the plant's roll-mode K_ff
-    (``tools.design.tuning.feedforward_gain`` on ``linear_model``; without a linear model, the built-in
+    (``feedforward_gain`` on ``linear_model``; without a linear model, the built-in
     KH2013A's)."""
     from autopilot import controllers
 
@@ -81,14 +81,24 @@ def flown_baseline_gains(controller: str, plant: str, given=None) -> tuple | Non
     model = linear_model(plant)
     if model is None or model[3] is None:
         return gains
-    from tools.design.tuning import feedforward_gain
-
     if gains is None:
         from autopilot.baseline import BaselineConfig
 
         d = BaselineConfig()
         gains = (d.kp, d.ki, d.kd)
     return (*gains, feedforward_gain(model[:3], model[3]))
+
+
+def feedforward_gain(plant, roll_rate: int) -> float:
+    """pid-ff's feed-forward K_ff (s): the roll-mode inverse -L_p / L_delta of the plant's roll-rate row, the
+    surface a steady roll rate p needs in p' = L_p p + L_delta delta (``autopilot.baseline``): L_p = A_p[p, p],
+    L_delta = A_p[p, delta] (the deflection's column, the servo's first state).  ValueError unless both are
+    nonzero and K_ff > 0."""
+    a = np.asarray(plant[0], dtype=float)
+    lp, ld = float(a[roll_rate, roll_rate]), float(a[roll_rate, a.shape[0] - 2])
+    if lp == 0.0 or ld == 0.0 or -lp / ld <= 0:
+        raise ValueError(f"no roll-mode feed-forward: L_p = {lp:g}, L_delta = {ld:g}")
+    return -lp / ld
 
 
 def linear_model(plant: str):

@@ -270,15 +270,3 @@ def faulted_plant(plant, roll_rate: int | None, effect):
         raise ValueError("stuck, off and rate faults are not a linear plant: nothing to design on")
     a_p, b_p, c_p = (np.asarray(m, dtype=float) for m in plant)
     return damage.airframe_matrix(a_p, effect, roll_rate), b_p, c_p
-
-
-def feedforward_gain(plant, roll_rate: int) -> float:
-    """pid-ff's feed-forward K_ff (s): the roll-mode inverse -L_p / L_delta of the plant's roll-rate row, the
-    surface a steady roll rate p needs in p' = L_p p + L_delta delta (``autopilot.baseline``): L_p = A_p[p, p],
-    L_delta = A_p[p, delta] (the deflection's column, the servo's first state).  ValueError unless both are
-    nonzero and K_ff > 0."""
-    a = np.asarray(plant[0], dtype=float)
-    lp, ld = float(a[roll_rate, roll_rate]), float(a[roll_rate, a.shape[0] - 2])
-    if lp == 0.0 or ld == 0.0 or -lp / ld <= 0:
-        raise ValueError(f"no roll-mode feed-forward: L_p = {lp:g}, L_delta = {ld:g}")
-    return -lp / ld

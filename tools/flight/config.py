@@ -355,7 +355,7 @@ class FlightConfig:
     @property
     def baseline_gains_flown(self) -> tuple | None:
         """The baseline's gains: the ones given, else those designed for the plant; None: the built-in defaults.
-        pid-ff: a fourth, its feed-forward, the plant's roll-mode K_ff (``tools.design.tuning.feedforward_gain``)
+        pid-ff: a fourth, its feed-forward, the plant's roll-mode K_ff (``tools.design.linearise.feedforward_gain``)
         unless given (on the KH2013A the built-in default is that)."""
         if controllers.get(self.controller).law != "baseline":
             return None
