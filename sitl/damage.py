@@ -368,6 +368,10 @@ class ScheduledEffects:
         self.plant, self.schedule = plant, schedule
         self._advance = advance or plant.advance
         self.effect = NOMINAL
+        # the steps where a fault starts or ends: between them the plant's own advance is called directly (the
+        # same call advance_scheduled makes for a piece without changes; the schedule is fixed, no ground station)
+        self._marks = sorted({b for _f, s, e in schedule.entries for b in (s, e) if b is not None})
+        self._next = self._marks[0] if self._marks else None
 
     def _change(self, step: int, _changes) -> None:
         effect = self.schedule.effect(step)
@@ -376,7 +380,13 @@ class ScheduledEffects:
             self.effect = effect
 
     def advance(self, u: float, n: int):
-        return advance_scheduled(self.schedule, self.plant, self._advance, u, n, self._change)
+        nxt = self._next
+        if nxt is None or nxt >= self.plant.steps + n:
+            return self._advance(u, n)
+        x = advance_scheduled(self.schedule, self.plant, self._advance, u, n, self._change)
+        later = [b for b in self._marks if b >= self.plant.steps]
+        self._next = later[0] if later else None
+        return x
 
 
 def status_text(fault: Fault, started: bool, t: float) -> str:

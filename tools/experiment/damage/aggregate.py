@@ -119,3 +119,40 @@ def table(cells: Sequence[dict], plant: str, controllers: Sequence[str], onset: 
             )
         lines.append(row)
     return "\n".join(lines)
+
+
+def period_table(cells: Sequence[dict], plant: str, controllers: Sequence[str], period: float = 10.0) -> str:
+    """The long flights' table of one plant: per fault (at its first onset) and controller, the median ise_ref of
+    the first whole period after the onset and of the last period, and the controllers ranked by each (1: the
+    least error); the ranking can change with the time flown."""
+    mine = [c for c in cells if c["plant"] == plant]
+    onsets = sorted({c["onset_s"] for c in mine if c["onset_s"] is not None})
+    onset = onsets[0] if onsets else 0.0
+    rows: dict[tuple, dict] = {}
+    for c in mine:
+        if c["kind"] == NONE or c["onset_s"] == onset:
+            rows.setdefault((c["kind"], c["severity"]), {})[c["controller"]] = c
+    first = int(math.ceil(round(onset / period, 9)))
+    lines = [
+        f"{plant}: median ise_ref per {period:g} s period (rad^2 s): first period from {first * period:g} s / last "
+        "period, and the rank of each (1: least error)"
+    ]
+    width = 22
+    lines.append(f"{'fault':<22}" + "".join(f"{LABELS.get(n, n)[: width - 1]:>{width}}" for n in controllers))
+    for (kind, sev), per in rows.items():
+        vals = {}
+        for n in controllers:
+            p = per.get(n, {}).get("ise_ref_periods_p50") or []
+            vals[n] = (p[first] if first < len(p) else None, p[-1] if p else None)
+        rank = {}
+        for i in (0, 1):
+            ok = sorted((v[i], n) for n, v in vals.items() if v[i] is not None)
+            for r, (_v, n) in enumerate(ok, 1):
+                rank[(n, i)] = r
+        name = kind if kind == NONE else f"{kind}={'here' if sev is None else format(sev, 'g')}"
+        row = f"{name:<22}"
+        for n in controllers:
+            a, b = vals[n]
+            row += f"{_fmt(a, '.2g')}({rank.get((n, 0), '-')})/{_fmt(b, '.2g')}({rank.get((n, 1), '-')})".rjust(width)
+        lines.append(row)
+    return "\n".join(lines)

@@ -15,6 +15,7 @@ from autopilot.shared.cli import OneLineArgumentParser
 from tools.experiment.damage import grid
 
 PROG = "python -m tools.experiment damage"
+LONG_S = 60.0  # from this duration on, the per-period table is printed too
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -134,7 +135,7 @@ def study_of(args) -> object:
 
 def main(argv: Sequence[str] | None = None) -> int:
     from sitl import plant as plants
-    from tools.experiment.damage.aggregate import table
+    from tools.experiment.damage.aggregate import period_table, table
     from tools.experiment.damage.runner import run, write
     from tools.experiment.outdir import OutDirError, check_out_dir, default_out_dir, prepare_out_dir
     from tools.experiment.study import StudyError
@@ -168,6 +169,9 @@ def main(argv: Sequence[str] | None = None) -> int:
     for p in study.plants:
         print()
         print(table(doc["cells"], p, study.controllers))
+        if study.duration >= LONG_S:
+            print()
+            print(period_table(doc["cells"], p, study.controllers))
     print()
     print(
         f"{doc['flights']} flights and {len(doc['designs'])} design(s) in {doc['wall_s']:.1f} s "
