@@ -192,3 +192,38 @@ def test_bad_damage_flags_are_one_line_exit_2(tmp_path):
         assert r.returncode == 2, (args, r.stderr)
         assert needle in r.stderr and len(r.stderr.strip().splitlines()) == 1, (args, r.stderr)
         assert "Traceback" not in r.stderr
+
+
+def test_the_printed_tables_rank_and_show_each_cell():
+    from tools.experiment.damage.aggregate import markdown_table, period_table, table
+
+    def cell(ctrl, kind, sev, share, after, periods):
+        return {
+            "plant": "kh2013a",
+            "controller": ctrl,
+            "kind": kind,
+            "severity": sev,
+            "onset_s": None if kind == grid.NONE else 10.0,
+            "share_controlled": share,
+            "ise_ref_after_p50": after,
+            "energy_after_p50": 0.5,
+            "ise_ref_periods_p50": periods,
+        }
+
+    cells = [
+        cell("clsac", grid.NONE, None, 1.0, 0.1, [0.05, 0.04, 0.03]),
+        cell("baseline", grid.NONE, None, 1.0, 0.2, [0.05, 0.06, 0.07]),
+        cell("clsac", "rate", 5.0, 0.5, 3.0, [0.05, 2.0, 0.01]),
+        cell("baseline", "rate", 5.0, 1.0, 0.3, [0.05, 0.1, 0.2]),
+    ]
+    text = table(cells, "kh2013a", ["clsac", "baseline"])
+    assert "rate=5" in text and "50 %" in text and "onset 10 s" in text
+    # the first period after the onset (10-20 s): baseline first; the last: CL-SAC first
+    rows = period_table(cells, "kh2013a", ["clsac", "baseline"]).splitlines()
+    rate = next(r for r in rows if r.startswith("rate=5"))
+    assert "2(2)/0.01(1)" in rate and "0.1(1)/0.2(2)" in rate
+    md = markdown_table(cells, "kh2013a", ["clsac", "baseline"], energy=True).splitlines()
+    assert (
+        md[0] == "| fault | CL-SAC | PID (as designed) |"
+        and md[3] == "| `rate=5` | 50 % / 3 / 0.5 | 100 % / 0.3 / 0.5 |"
+    )

@@ -156,3 +156,31 @@ def period_table(cells: Sequence[dict], plant: str, controllers: Sequence[str], 
             row += f"{_fmt(a, '.2g')}({rank.get((n, 0), '-')})/{_fmt(b, '.2g')}({rank.get((n, 1), '-')})".rjust(width)
         lines.append(row)
     return "\n".join(lines)
+
+
+def markdown_table(cells: Sequence[dict], plant: str, controllers: Sequence[str], energy: bool = False) -> str:
+    """A docs table of one plant (docs/damage.md): a row per fault at the first onset, per controller "share
+    controlled (%) / median ise_ref after the onset"; ``energy``: also the median energy after the onset."""
+    mine = [c for c in cells if c["plant"] == plant]
+    onsets = sorted({c["onset_s"] for c in mine if c["onset_s"] is not None})
+    onset = onsets[0] if onsets else None
+    rows: dict[tuple, dict] = {}
+    for c in mine:
+        if c["kind"] == NONE or c["onset_s"] == onset:
+            rows.setdefault((c["kind"], c["severity"]), {})[c["controller"]] = c
+    head = "| fault | " + " | ".join(LABELS.get(n, n) for n in controllers) + " |"
+    lines = [head, "|---|" + "---:|" * len(controllers)]
+    for (kind, sev), per in rows.items():
+        name = "none" if kind == NONE else f"`{kind}={'here' if sev is None else format(sev, 'g')}`"
+        out = []
+        for n in controllers:
+            c = per.get(n)
+            if c is None:
+                out.append("-")
+                continue
+            text = f"{100 * c['share_controlled']:.0f} % / {_fmt(c['ise_ref_after_p50'])}"
+            if energy:
+                text += f" / {_fmt(c['energy_after_p50'])}"
+            out.append(text)
+        lines.append(f"| {name} | " + " | ".join(out) + " |")
+    return "\n".join(lines)
