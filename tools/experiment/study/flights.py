@@ -16,6 +16,7 @@ same whatever the execution (``tools.experiment.study.execution.stream``).  Boun
 
 from __future__ import annotations
 
+import os
 import statistics
 import threading
 import time
@@ -33,6 +34,7 @@ TURBULENCE = ("none", "light", "moderate", "severe")
 CONTROLLERS = controllers.NAMES  # every --controller of autopilot.controllers
 SEED_STRIDE = 1_000_000
 MAX_SEEDS = 10_000  # flights per controller and condition
+RECORD_BYTES = 2000  # a flight's record in summary.json's table, about
 
 
 @dataclass(frozen=True)
@@ -203,17 +205,18 @@ def fly(opts: FlightOptions, *, log=print, progress: bool = True, stop: threadin
         done.append((f, r))
         bar.add(1)
     if done:
-        import os
-
         first = time.perf_counter() - t0
         parallel = min(opts.workers, os.cpu_count() or 1)
         if client is not None:
             from tools.experiment.study.scheduler import threads
 
             parallel = threads(client)
+        from tools.experiment.study.runner import _mb, _rss_bytes
+
         log(
             f"estimate: {len(flights):,} flights, about {first * len(flights) / parallel:,.0f} s on {where} "
-            f"({first:.2f} s for the first flight); Ctrl-C stops and keeps what is done"
+            f"({first:.2f} s for the first flight); memory about {_mb(_rss_bytes() + RECORD_BYTES * len(flights))} "
+            "here; Ctrl-C stops and keeps what is done"
         )
         for f, r in stream(flights[1:], opts.scheduler, opts.workers, simulate, stop=stop, client=client):
             done.append((f, r))

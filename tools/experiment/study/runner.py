@@ -79,6 +79,7 @@ def _pilot(controller: str, plan: Plan, seed: int, stop) -> float | None:
 
 
 def _rss_bytes() -> int:
+    """This process's resident memory now."""
     try:
         with open("/proc/self/statm") as f:
             return int(f.read().split()[1]) * os.sysconf("SC_PAGE_SIZE")
