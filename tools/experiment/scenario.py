@@ -161,18 +161,30 @@ SERIES = (
 )
 
 
-def _inprocess_disturbances(scenario: Scenario):
+def _inprocess_disturbances(scenario: Scenario, atmosphere: bool = False):
     """The disturbances a plant flies by itself (a JSBSim plant's turbulence, crosswind, seed), or None; anything the
-    SITL's injector would have to apply (sensors, link, the KH2013A atmosphere) flies over MAVLink only."""
+    SITL's injector would have to apply (sensors, link, the KH2013A atmosphere unless ``atmosphere``) flies over
+    MAVLink only."""
     if not scenario.disturbances:
         return None
     from sitl.disturbances import from_values
 
     dist = from_values(dict(scenario.disturbances))
     rest = plants.injected(scenario.plant, dist)
-    if rest.atmosphere.active or rest.sensors.active or rest.faults.active or rest.scales:
+    if (rest.atmosphere.active and not atmosphere) or rest.sensors.active or rest.faults.active or rest.scales:
         raise ValueError("these disturbances fly over MAVLink only (tools.flight, the mavlink transport)")
     return dist
+
+
+def _atmosphere(scenario: Scenario, dist):
+    """The SITL's injector of the atmosphere a plant does not fly by itself (``sitl.disturbances.Injector``, as a
+    lockstep SITL builds it: the same seed streams), or None."""
+    rest = None if dist is None else plants.injected(scenario.plant, dist)
+    if rest is None or not rest.atmosphere.active:
+        return None
+    from sitl.disturbances import Injector
+
+    return Injector(rest, 1.0 / scenario.physics_rate_hz, scenario.control_rate_hz, lockstep=True)
 
 
 def run_inprocess(
@@ -180,6 +192,8 @@ def run_inprocess(
     run: RunSpec = PAPER_RUNS[1],
     base: ClSacConfig | None = None,
     wire: PwmMap | None = None,
+    *,
+    atmosphere: bool = False,
 ) -> RunResult:
     """Fly the scenario with the control step and the aircraft in one process.
 
@@ -190,6 +204,10 @@ def run_inprocess(
     ``wire``: also model exactly what the MAVLink path adds, so the two compare like for like: roll and
     the setpoint quaternion travel as float32, and the rudder command flies (and is scored) after the
     1 us PWM quantisation of this calibration.
+
+    ``atmosphere``: fly the scenario's turbulence, gusts and crosswind on a plant that does not fly its own (the
+    KH2013A, a plant file) too, sampled per physics step by the SITL's own ``sitl.disturbances.Injector`` (the
+    robustness study's plant files); without it they fly over MAVLink only.
     """
     command = scenario.command
     if wire is not None:
@@ -199,7 +217,9 @@ def run_inprocess(
 
     step = ControlStep(controller_config(scenario, run, base), wire, ProfileSetpoints(command))
     law = step.law
-    ac = plants.build(scenario.plant, scenario.physics_rate_hz, None, _inprocess_disturbances(scenario))
+    dist = _inprocess_disturbances(scenario, atmosphere)
+    ac = plants.build(scenario.plant, scenario.physics_rate_hz, None, dist)
+    air = _atmosphere(scenario, dist) if atmosphere else None
     n = scenario.steps
     nphys = scenario.physics_per_control
     out = np.empty((n, len(SERIES)))
@@ -221,6 +241,9 @@ def run_inprocess(
             x[2],
             x[4],
         )
-        ac.advance(r.u, nphys)
+        if air is None:
+            ac.advance(r.u, nphys)
+        else:
+            air.advance(ac, r.u, nphys)
     series = {name: out[:, i].copy() for i, name in enumerate(SERIES)}
     return RunResult(run.name, run.lv, step.metrics.result(), series)
