@@ -50,7 +50,14 @@ from autopilot.shared.mavlink import (
     roll_to_quaternion,
     vehicle_ids,
 )
-from autopilot.shared.process import apply_cpu, exit_code_for, install_stop_handlers, write_stats_json
+from autopilot.shared.process import (
+    apply_cpu,
+    exit_code_for,
+    install_stop_handlers,
+    report_write_failures,
+    write_failure,
+    write_stats_json,
+)
 from autopilot.shared.signing import SIGNING_LINK_GROUND, Signing
 from tools.flight.profiles import Profile
 
@@ -504,7 +511,8 @@ def main(argv=None) -> int:
     print(f"gcs: {stats['points_sent']} setpoints sent", flush=True)
     print(format_counters("gcs link", stats["link"]), flush=True)
     if args.stats_json:
-        write_stats_json(args.stats_json, stats)
+        failure = write_failure(args.stats_json, lambda: write_stats_json(args.stats_json, stats))
+        return report_write_failures("gcs", [failure] if failure else [], code)
     return code
 
 
