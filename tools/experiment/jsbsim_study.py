@@ -72,8 +72,14 @@ def simulate(task: Flight) -> dict:
     out = dict(res.metrics)
     out["max_abs_roll"] = float(np.max(np.abs(phi)))
     out["sat_fraction"] = float(np.mean(np.abs(u) >= limit * (1 - 1e-9)))
-    out["bounded"] = bool(out["max_abs_roll"] < BOUND_ROLL_RAD and out["sat_fraction"] < BOUND_SAT_FRACTION)
+    out["bounded"] = bounded(out["max_abs_roll"], out["sat_fraction"])
     return out
+
+
+def bounded(max_abs_roll_rad: float, sat_fraction: float) -> bool:
+    """Whether one flight stayed bounded: max |roll| < 60 deg and the command saturated in < 20 % of the steps,
+    both strict, both required (the study's envelope, ``tools.experiment.study.sampling``)."""
+    return bool(max_abs_roll_rad < BOUND_ROLL_RAD and sat_fraction < BOUND_SAT_FRACTION)
 
 
 def make_flights(model: str, controllers, airspeeds, turbulence, seeds: int) -> list[Flight]:
