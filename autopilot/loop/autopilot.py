@@ -207,6 +207,7 @@ class Autopilot(LinkHandlers, LockstepScheduler, RealtimeScheduler):
             self.send_clock.end(time.monotonic())
 
     def shutdown(self):
+        self._event.tick(flush=True)  # the events held back for a summary are said before the end
         try:
             self.gcs.send(self.vehicle.heartbeat(M.MAV_STATE_POWEROFF))
         except OSError:

@@ -150,11 +150,12 @@ class StatusEvents:
         self.tick(now, kind)
         return False
 
-    def tick(self, now: float | None = None, only: str | None = None) -> None:
-        """Say the summary of every kind (or of ``only``) whose held-back events are ``EVENT_SUMMARY_S`` old."""
+    def tick(self, now: float | None = None, only: str | None = None, *, flush: bool = False) -> None:
+        """Say the summary of every kind (or of ``only``) whose held-back events are ``EVENT_SUMMARY_S`` old
+        (``flush``: whatever their age, at the end of the run)."""
         now = time.monotonic() if now is None else now
         for kind, k in self._kinds.items():
-            if k[2] and now - k[3] >= EVENT_SUMMARY_S and (only is None or kind == only):
+            if k[2] and (flush or now - k[3] >= EVENT_SUMMARY_S) and (only is None or kind == only):
                 n, severity, text = k[2], k[4], k[5]
                 k[2] = 0
                 self._say(severity, f"{n} more {kind} events in the last {now - k[3]:.0f} s (the last: {text})")

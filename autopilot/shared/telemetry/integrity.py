@@ -8,8 +8,8 @@ bytes flipped in the middle of a Scalars column decode to other numbers.  Two ch
 * :func:`stream_problem` walks the framing of rerun 0.41's stream (``re_log_encoding``): a 12-byte stream header
   (``b"RRF2"``, version, options), then messages, each a little-endian (kind u64, length u64) header and
   ``length`` bytes; kind 0 ends the stream, its payload is the footer (the index, rerun's ``RrdFooter``), and a
-  32-byte trailer follows it: the footer's offset (u64) and length (u64), its checksum (u32), ``b"RRF2FOOT"`` and
-  a version (u32).  A file cut anywhere, the trailer included, has fewer bytes than its framing says.  Several
+  32-byte trailer follows it: the footer's offset in its stream (u64) and length (u64), its checksum (u32),
+  ``b"RRF2FOOT"`` and a version (u32).  A file cut anywhere, the trailer included, has fewer bytes than its framing says.  Several
   streams may follow each other (``cat a.rrd b.rrd`` is a valid recording).
 * :func:`write_digest` writes ``FILE.rrd.sha256`` beside every recording the product writes (the launcher's
   ``flight.rrd``, ``tools.rrd merge|record``, an experiment's ``paper.rrd``), in ``sha256sum``'s format
@@ -52,6 +52,7 @@ def stream_problem(path: str | os.PathLike, *, footers: bool = True) -> str | No
             if len(head) < STREAM_HEADER or not head.startswith(STREAM_MAGIC):
                 where = "the file" if pos == 0 else f"the data after the stream that ended at byte {pos}"
                 return f"{where} does not start with an RRD stream header (RRF2): {head[:4]!r}"
+            start = pos  # the trailer's offsets count from the stream's start
             pos += STREAM_HEADER
             footer = None  # (offset, length) of the footer of this stream, once its end marker is read
             while pos < size:
@@ -86,10 +87,10 @@ def stream_problem(path: str | os.PathLike, *, footers: bool = True) -> str | No
                 )
             f.seek(pos)
             t_offset, t_length, _checksum, magic, _version = FOOTER_TRAILER.unpack(f.read(FOOTER_TRAILER.size))
-            if magic != FOOTER_MAGIC or (t_offset, t_length) != (offset, length):
+            if magic != FOOTER_MAGIC or (t_offset, t_length) != (offset - start, length):
                 return (
                     f"the footer's trailer at byte {pos} does not match its footer (magic {magic!r}, footer at "
-                    f"{t_offset} of {t_length} bytes; the stream's is at {offset} of {length})"
+                    f"{t_offset} of {t_length} bytes; the stream's is at {offset - start} of {length})"
                 )
             pos += FOOTER_TRAILER.size
             if pos >= size:
