@@ -45,7 +45,9 @@ from autopilot.shared.process import (
     exit_code_for,
     install_stop_handlers,
     move_other_threads,
+    report_write_failures,
     rt_throttling,
+    write_failure,
     write_stats_json,
 )
 from autopilot.shared.telemetry.flags import add_arguments as add_telemetry_arguments
@@ -377,12 +379,15 @@ def main(argv=None) -> int:
         ap.close()
         if tel is not None:
             tel.close()
+    # a full disk mid-flight: the flight went on; each output that failed is named, what it holds is kept
+    failed = [e for e in (tlog.error if tlog else None, tel.write_error if tel else None) if e]
     if recorder is not None:
-        recorder.save(args.series)
+        failed += filter(None, [write_failure(args.series, lambda: recorder.save(args.series))])
+    stats["output_errors"] = list(failed)
     _print_summary(stats)
     if args.stats_json:
-        write_stats_json(args.stats_json, stats)
-    return code
+        failed += filter(None, [write_failure(args.stats_json, lambda: write_stats_json(args.stats_json, stats))])
+    return report_write_failures("autopilot", failed, code)
 
 
 def _print_summary(stats: dict) -> None:

@@ -84,6 +84,12 @@ MSGIDS = (
     M.MAVLINK_MSG_ID_RC_CHANNELS_OVERRIDE,
     M.MAVLINK_MSG_ID_FILE_TRANSFER_PROTOCOL,
 )
+# Answers to one ground station (its address): at most REPLY_RATE packets per wall second, REPLY_BURST at once (two
+# whole parameter lists); a request beyond that is read and counted (``replies_limited``) but not answered, as a
+# lossy link would, and MAVLink's request protocols ask again.  A key holder flooding PARAM_REQUEST_LIST (about 26
+# PARAM_VALUE to every ground station per request) costs the link at most REPLY_RATE answers a second.
+REPLY_RATE = 50.0
+REPLY_BURST = 60.0
 _FTP_NAK = 129
 _FTP_ERR_FILE_NOT_FOUND = 10
 
@@ -125,6 +131,7 @@ class Vehicle:
         self._pk_nvf = self.link.fast_packer(M.MAVLink_named_value_float_message)
         self._pk_pv = self.link.fast_packer(_PROTOCOL_VERSION_MSG)
         self.failures = FailureRelay(ap)  # MAV_CMD_INJECT_FAILURE, relayed to the SITL
+        self._reply_tokens: dict = {}  # station address -> (tokens, perf_counter): the answers' budget (REPLY_RATE)
         if mode in (Mode.SAC, Mode.CLSAC):
             control.reconfigure(self._law_config(mode))
 
@@ -140,7 +147,28 @@ class Vehicle:
     def send_all(self, msg) -> None:
         self.link.send(msg)  # an admitting link sends to every admitted peer and the default port
 
-    reply = send_all  # answers go to every ground station too: each checks the target fields it needs
+    def reply(self, msg) -> bool:
+        """An answer to the station whose message is being handled, sent to every ground station (each checks the
+        target fields it needs), within that station's budget (REPLY_RATE); whether it went."""
+        if not self._answerable():
+            return False
+        self.send_all(msg)
+        return True
+
+    def _answerable(self, cost: float = 1.0) -> bool:
+        """Take ``cost`` answers from the budget of the station being handled (``UdpLink.peer_addr``)."""
+        addr = self.link.peer_addr
+        now = time.perf_counter()
+        left, then = self._reply_tokens.get(addr, (REPLY_BURST, now))
+        left = min(REPLY_BURST, left + (now - then) * REPLY_RATE)
+        if left < cost:
+            self._reply_tokens[addr] = (left, now)
+            self.ap.events["replies_limited"] += 1
+            return False
+        self._reply_tokens[addr] = (left - cost, now)
+        if len(self._reply_tokens) > 64:  # addresses come and go: keep the latest
+            del self._reply_tokens[next(iter(self._reply_tokens))]
+        return True
 
     def on_step(self, steps: int, t_ms: int) -> None:
         """After each control step: NAMED_VALUE_FLOAT Ke, Kx, Ku, e every ``every['gains']`` steps."""
@@ -173,7 +201,7 @@ class Vehicle:
         mode = Mode.FAILSAFE if self.ap.failsafe is not Failsafe.NONE else self.selected
         if mode is not self.mode:
             self.mode = mode
-            self._announce()
+            self._announce(station=False)
         if self.status_period_s > 0 and now >= self._next_status:
             self._next_status = now + self.status_period_s
             self.send_all(self._sys_status())
@@ -247,7 +275,7 @@ class Vehicle:
             self.params.set(name, msg.param_value)
         except ParamError as exc:
             self.ap.events["param_rejected"] += 1
-            self.ap._event(M.MAV_SEVERITY_WARNING, refusal_text(name, msg.param_value, exc))
+            self.ap._event(M.MAV_SEVERITY_WARNING, refusal_text(name, msg.param_value, exc), kind="refused PARAM_SET")
             for hook in self.param_hooks:
                 hook(name, float(msg.param_value), False)
             if name not in self.params:
@@ -255,8 +283,8 @@ class Vehicle:
                 return
             read_only = "read-only" in str(exc)
             code = M.MAV_PARAM_ERROR_READ_ONLY if read_only else M.MAV_PARAM_ERROR_VALUE_OUT_OF_RANGE
-            self.send_all(self._param_value(name, self.params.get(name)))  # the unchanged value
-            self.reply(self._param_error(msg, name, self.params.index(name), code))
+            if self.reply(self._param_value(name, self.params.get(name))):  # the unchanged value, then why
+                self.reply(self._param_error(msg, name, self.params.index(name), code))
             return
         self._apply_params(name)
         self.ap.events["param_sets"] += 1
@@ -347,7 +375,7 @@ class Vehicle:
             self.control.armed = arm
             if arm:
                 self.control.transfer()  # from neutral to the mode's command without a step
-            self._event(M.MAV_SEVERITY_NOTICE, "ARMED" if arm else "DISARMED: rudder neutral")
+            self.ap._event(M.MAV_SEVERITY_NOTICE, "ARMED" if arm else "DISARMED: rudder neutral", kind="arm or disarm")
         return M.MAV_RESULT_ACCEPTED
 
     def _cmd_request_message(self, msg):
@@ -434,10 +462,14 @@ class Vehicle:
         cfg = self.params.config
         return cfg.with_(lv=0.0) if mode is Mode.SAC else cfg
 
-    def _announce(self) -> None:
-        self._event(M.MAV_SEVERITY_NOTICE, f"mode {self.mode.name}")
-        self.ap._send_heartbeat()
-        self.send_all(self._current_mode())
+    def _announce(self, station: bool = True) -> None:
+        """Say the mode in force; ``station``: a ground station's request changed it (so a station switching modes
+        in a flood is said as a summary, and its HEARTBEAT and CURRENT_MODE come within its answers' budget: the
+        1 Hz HEARTBEAT tells the mode anyway)."""
+        self.ap._event(M.MAV_SEVERITY_NOTICE, f"mode {self.mode.name}", kind="mode change" if station else None)
+        if not station or self._answerable(2.0):
+            self.ap._send_heartbeat()
+            self.send_all(self._current_mode())
 
     def _event(self, severity: int, text: str) -> None:
         self.ap._event(severity, text)

@@ -38,6 +38,8 @@ from autopilot.shared.process import (
     apply_rt_priority,
     exit_code_for,
     install_stop_handlers,
+    report_write_failures,
+    write_failure,
     write_stats_json,
 )
 from autopilot.shared.telemetry.flags import add_arguments as add_telemetry_arguments
@@ -263,8 +265,10 @@ def main(argv=None) -> int:
             tel.close()
     from autopilot.shared.link import format_counters
 
+    failed = [tel.write_error] if tel is not None and tel.write_error else []  # a full disk mid-flight: say which
     if recorder is not None:
-        recorder.save(args.series)
+        failed += filter(None, [write_failure(args.series, lambda: recorder.save(args.series))])
+    stats["output_errors"] = list(failed)
 
     rtf = f"{stats['rtf']:.1f}x" if stats["rtf"] else "-"
     print(
@@ -275,8 +279,8 @@ def main(argv=None) -> int:
     )
     print(format_counters("sitl link", stats["link"]), flush=True)
     if args.stats_json:
-        write_stats_json(args.stats_json, stats)
-    return code
+        failed += filter(None, [write_failure(args.stats_json, lambda: write_stats_json(args.stats_json, stats))])
+    return report_write_failures("sitl", failed, code)
 
 
 if __name__ == "__main__":

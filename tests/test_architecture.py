@@ -238,7 +238,9 @@ def test_tools_has_at_most_ten_entries_grouped_by_job():
     entries = tools_entries()
     assert len(entries) <= MAX_TOOLS_ENTRIES, entries
     assert {"bench", "design", "experiment", "flight", "view"} <= set(entries), entries
-    assert not (ROOT / "tools" / "jsbsim_study.py").exists()  # the JSBSim Monte Carlo lives in tools/experiment/
+    # one Monte Carlo for every plant: python -m tools.experiment robustness --plant (tools/experiment/study/)
+    assert not (ROOT / "tools" / "jsbsim_study.py").exists()
+    assert not (ROOT / "tools" / "experiment" / "jsbsim_study.py").exists()
     # every top entry that is a file is a command: its module answers python -m (a __main__ guard)
     for name in entries:
         if name.endswith(".py"):

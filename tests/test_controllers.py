@@ -65,11 +65,11 @@ def test_an_unknown_controller_or_law_is_refused_by_name():
 
 
 def test_the_experiments_and_studies_read_the_registry():
-    from tools.experiment import jsbsim_study
     from tools.experiment.scenario import BASELINE_RUN, PAPER_RUNS, run_of
     from tools.experiment.study import CONTROLLERS as STUDIED
+    from tools.experiment.study import flights
 
-    assert jsbsim_study.CONTROLLERS == controllers.NAMES
+    assert flights.CONTROLLERS == controllers.NAMES  # the flights of a JSBSim aircraft or plant file
     assert (run_of("sac"), run_of("clsac"), run_of("baseline")) == (PAPER_RUNS[0], PAPER_RUNS[1], BASELINE_RUN)
     assert {c.kind for c in STUDIED.values()} <= set(controllers.LAWS)
     assert [n for n, c in STUDIED.items() if not c.adaptive] == ["baseline"]

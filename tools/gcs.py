@@ -14,6 +14,9 @@ Profile time 0 is the first sim time seen from the vehicle (ATTITUDE or SYSTEM_T
   exactly at each discontinuity (square-wave switch, step, CSV row), each carrying time_boot_ms = the
   sim time it applies at, kept --lookahead s ahead of the newest sim time seen.  The autopilot does not
   step past the newest scheduled time, so the GCS paces the run and the result does not depend on speed.
+  The points go out in linked datagrams (each begins with the last point of the one before) and are sent
+  again when the vehicle says it waits for a frame they covered, so no lost datagram changes the run
+  (``autopilot.schedule``).
 """
 
 from __future__ import annotations
@@ -50,11 +53,19 @@ from autopilot.shared.mavlink import (
     roll_to_quaternion,
     vehicle_ids,
 )
-from autopilot.shared.process import apply_cpu, exit_code_for, install_stop_handlers, write_stats_json
+from autopilot.shared.process import (
+    apply_cpu,
+    exit_code_for,
+    install_stop_handlers,
+    report_write_failures,
+    write_failure,
+    write_stats_json,
+)
 from autopilot.shared.signing import SIGNING_LINK_GROUND, Signing
 from tools.flight.profiles import Profile
 
 M = mavlink
+_SET_ATTITUDE_TARGET = M.MAVLINK_MSG_ID_SET_ATTITUDE_TARGET
 SELF_STALL_S = 1.0  # one pass of the loop takes ~20 ms: a pass this long means this process did not run
 CLOCK_RESTART_MS = 1000  # the vehicle's sim time this far behind the one held: its clock restarted
 CLOCK_AHEAD_MS = 1000  # the bound on a sim time ahead of the clock held (see Gcs._sim)
@@ -62,6 +73,14 @@ CLOCK_AHEAD_MS = 1000  # the bound on a sim time ahead of the clock held (see Gc
 # at the sim rate seen, within these bounds (Gcs._lockstep_nap); the shortest while sim time stands still.
 LOCKSTEP_NAP_MIN_S = 0.004
 LOCKSTEP_NAP_MAX_S = 0.02
+# Lockstep schedule (autopilot.schedule): at most this many setpoints per datagram (40 signed SET_ATTITUDE_TARGET,
+# 2.6 kB, within the 4 kB a link reads at once), each datagram beginning with the last point of the one before.
+SCHEDULE_CHUNK = 40
+# The vehicle's SYSTEM_TIME says it waits for frame t and read its link at time_unix_usec: a point covering t sent
+# more than RESEND_GRACE_US before that read was lost (the same host's clock); on another host's clock, after
+# RESEND_AFTER_S of our own the schedule is sent again anyway.
+RESEND_GRACE_US = 2000
+RESEND_AFTER_S = 1.0
 
 
 @dataclass(frozen=True)
@@ -129,6 +148,10 @@ class Gcs:
         self.target = math.nan
         self.next_point_rel_ms = 0
         self.points_sent = 0
+        self.sent_schedule: list = []  # lockstep: [abs ms, roll, Unix us sent] of each point not passed yet, in order
+        self.flown_ms = None  # lockstep: the newest sim time the vehicle is known to have flown
+        self.resends = 0  # lockstep: times the schedule was sent again ...
+        self.points_resent = 0  # ... and the points in them
         self._nap_from: tuple[float, int] | None = None  # lockstep: (wall, sim ms) at the last pass (_lockstep_nap)
         self.statustexts = []
         self._texts = StatusTextAssembler()
@@ -159,10 +182,12 @@ class Gcs:
         elif mid == M.MAVLINK_MSG_ID_ATTITUDE:
             if self._sim(msg.time_boot_ms, t_rx):
                 self.roll = msg.roll
+                self.flown_ms = max(self.flown_ms or 0, msg.time_boot_ms)  # the stream follows a step flown
         elif mid == M.MAVLINK_MSG_ID_ATTITUDE_TARGET:
             self.target = quaternion_to_roll(msg.q)
         elif mid == M.MAVLINK_MSG_ID_SYSTEM_TIME:
-            self._sim(msg.time_boot_ms, t_rx)
+            if self._sim(msg.time_boot_ms, t_rx) and self.opts.lockstep:
+                self._resend_if_lost(msg.time_boot_ms, msg.time_unix_usec)
         elif mid == M.MAVLINK_MSG_ID_STATUSTEXT:
             # whole texts, reassembled from their chunks and made printable (no escape codes reach the terminal)
             text = self._texts.add(msg)
@@ -198,6 +223,8 @@ class Gcs:
             elif ms - held > (t_rx - self._sim_rx) * 1e3 + CLOCK_AHEAD_MS / 2:
                 self.link.reject("future_time")
                 return False
+        if held is not None and ms > held:
+            self.flown_ms = max(self.flown_ms or 0, held)  # the vehicle moved past it: that frame was flown
         self.sim_ms = ms
         self._sim_rx = t_rx
         return True
@@ -207,21 +234,55 @@ class Gcs:
             M.MAVLink_heartbeat_message(M.MAV_TYPE_GCS, M.MAV_AUTOPILOT_INVALID, 0, 0, M.MAV_STATE_ACTIVE, 3)
         )
 
-    def _send_setpoint(self, time_boot_ms: int, roll: float):
-        self.link.send(
-            M.MAVLink_set_attitude_target_message(
-                time_boot_ms,
-                self.vehicle_id[0],
-                self.vehicle_id[1],
-                SETPOINT_TYPEMASK,
-                roll_to_quaternion(roll),
-                0.0,
-                0.0,
-                0.0,
-                0.0,
-            )
+    def _setpoint(self, time_boot_ms: int, roll: float):
+        return M.MAVLink_set_attitude_target_message(
+            time_boot_ms,
+            self.vehicle_id[0],
+            self.vehicle_id[1],
+            SETPOINT_TYPEMASK,
+            roll_to_quaternion(roll),
+            0.0,
+            0.0,
+            0.0,
+            0.0,
         )
+
+    def _send_setpoint(self, time_boot_ms: int, roll: float):
+        self.link.send(self._setpoint(time_boot_ms, roll))
         self.points_sent += 1
+
+    def _send_linked(self, points: list) -> None:
+        """Lockstep: ``points`` ([abs ms, roll, ...] in order) as linked datagrams of at most SCHEDULE_CHUNK, each
+        beginning with the last point of the one before (``autopilot.schedule``)."""
+        link, i = self.link, 0
+        while i < len(points):
+            chunk = points[i : i + SCHEDULE_CHUNK]
+            link.send_batch([link.pack(self._setpoint(p[0], p[1])) for p in chunk], [_SET_ATTITUDE_TARGET] * len(chunk))
+            i += max(1, len(chunk) - 1)
+            if i == len(points) - 1:
+                break  # the last point closed this datagram: nothing new for another
+
+    def _resend_if_lost(self, frame_ms: int, read_us: int) -> None:
+        """Lockstep: the vehicle waits for ``frame_ms`` and read its link at ``read_us`` (its SYSTEM_TIME).  If a
+        point covering that frame went out before that read (by RESEND_GRACE_US, or RESEND_AFTER_S of our own
+        clock), it was lost: the schedule goes again from the point in force at the last frame known flown, which
+        the vehicle holds, so the datagrams link (``autopilot.schedule``)."""
+        sched = self.sent_schedule
+        cover = next((p for p in sched if p[0] >= frame_ms), None)
+        if cover is None:
+            return  # not scheduled that far yet: the vehicle waits for us, rightly
+        now_us = time.time_ns() // 1000
+        if read_us <= cover[2] + RESEND_GRACE_US and now_us - cover[2] < RESEND_AFTER_S * 1e6:
+            return
+        start = 0
+        if self.flown_ms is not None:
+            start = max(0, next((i for i, p in enumerate(sched) if p[0] > self.flown_ms), len(sched)) - 1)
+        again = sched[start:]
+        for p in again:
+            p[2] = now_us
+        self._send_linked(again)
+        self.resends += 1
+        self.points_resent += len(again)
 
     def _schedule(self):
         """Lockstep: send every scheduled point up to newest sim time + lookahead (and not past the end)."""
@@ -241,12 +302,17 @@ class Gcs:
         # between two grid points (--duration 0.05, 30.05) left its last frames waiting for a point never sent.
         ends = [end_ms] if end_rel == end_ms else []
         pts = sorted(grid.union(self.profile.breakpoints_ms(start, end_rel), [start] if start == 0 else [], ends))
-        for rel in pts:
-            if rel < start:
-                continue
-            abs_ms = self.origin_ms + rel
-            # time_boot_ms 0 means "now" to the autopilot; a schedule starting at sim time 0 uses that.
-            self._send_setpoint(abs_ms, self.profile.value(rel / 1000.0))
+        now_us = time.time_ns() // 1000
+        # time_boot_ms 0 means "now" to the autopilot; a schedule starting at sim time 0 uses that.
+        new = [[self.origin_ms + rel, self.profile.value(rel / 1000.0), now_us] for rel in pts if rel >= start]
+        sched = self.sent_schedule
+        if self.flown_ms is not None:  # what the vehicle flew past is not sent again: keep the point in force
+            keep = next((i for i, p in enumerate(sched) if p[0] > self.flown_ms), len(sched)) - 1
+            del sched[: max(0, keep)]
+        if new:
+            self._send_linked(sched[-1:] + new)
+            sched.extend(new)
+            self.points_sent += len(new)
         self.next_point_rel_ms = end_rel + 1
 
     def _lockstep_nap(self, now: float) -> float:
@@ -357,6 +423,8 @@ class Gcs:
     def stats(self) -> dict:
         return {
             "points_sent": self.points_sent,
+            "schedule_resends": self.resends,  # lockstep: the schedule sent again after a loss (autopilot.schedule)
+            "points_resent": self.points_resent,
             "origin_ms": self.origin_ms,
             "sim_ms": self.sim_ms,
             "clock_restarts": self.clock_restarts,
@@ -504,7 +572,8 @@ def main(argv=None) -> int:
     print(f"gcs: {stats['points_sent']} setpoints sent", flush=True)
     print(format_counters("gcs link", stats["link"]), flush=True)
     if args.stats_json:
-        write_stats_json(args.stats_json, stats)
+        failure = write_failure(args.stats_json, lambda: write_stats_json(args.stats_json, stats))
+        return report_write_failures("gcs", [failure] if failure else [], code)
     return code
 
 

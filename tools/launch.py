@@ -454,8 +454,9 @@ def exit_without_teardown(code: int) -> None:
     sys.stdout.flush()
     sys.stderr.flush()
     rerun = sys.modules.get("rerun")
-    if rerun is not None:
-        rerun.rerun_shutdown()
+    shutdown = getattr(rerun, "rerun_shutdown", None)  # None while a background import is still half done
+    if shutdown is not None:
+        shutdown()
     logging.shutdown()
     os._exit(code)
 

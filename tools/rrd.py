@@ -3,18 +3,23 @@
 
 from __future__ import annotations
 
-import argparse
 import sys
 
-from tools.view.rrd_files import _first_error, merge, record, summary, verify
+from autopilot.shared.cli import OneLineArgumentParser, output_file_problem
+from tools.view.rrd_files import _first_error, checked, merge, record, summary, verify
 
 
 def main(argv: list[str] | None = None) -> int:
-    ap = argparse.ArgumentParser(prog="python -m tools.rrd", description="Inspect, verify and merge .rrd files.")
+    ap = OneLineArgumentParser(prog="python -m tools.rrd", description="Inspect, verify and merge .rrd files.")
     sub = ap.add_subparsers(dest="cmd", required=True)
     p = sub.add_parser("summary", help="entities, rows and time span of each recording")
     p.add_argument("files", nargs="+")
-    p = sub.add_parser("verify", help="rerun rrd verify (footers required unless --no-footer-check)")
+    p = sub.add_parser(
+        "verify",
+        help="the file whole: its framing to the last byte (footers required unless --no-footer-check), its content "
+        "against FILE.sha256 when there is one (written beside every recording the product makes), then rerun rrd "
+        "verify (every message decoded)",
+    )
     p.add_argument("files", nargs="+")
     p.add_argument(
         "--no-footer-check", action="store_true", help="accept files without footer (the per-process parts of a flight)"
@@ -37,6 +42,11 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("spools", nargs="+")
     p.add_argument("--no-blueprint", action="store_true", help="do not add the flight blueprint")
     args = ap.parse_args(argv)
+    if args.cmd in ("merge", "record"):
+        # before anything is read: a target that is not a regular file (/dev/null) is never replaced by one
+        problem = output_file_problem(args.out)
+        if problem:
+            ap.error(problem)
     try:
         if args.cmd == "summary":
             for f in args.files:
@@ -46,7 +56,7 @@ def main(argv: list[str] | None = None) -> int:
             bad = 0
             for f in args.files:
                 ok, msg = verify(f, check_footers=not args.no_footer_check)
-                print(f"{f}: {'ok' if ok else 'FAILED: ' + _first_error(msg)}")
+                print(f"{f}: {'ok' + checked(msg) if ok else 'FAILED: ' + _first_error(msg)}")
                 bad += not ok
             return 1 if bad else 0
         if args.cmd == "record":

@@ -15,8 +15,13 @@ from autopilot.envelope import EnvelopeMonitor
 from autopilot.loop.common import (
     ATTITUDE,
     COMMAND_ACK,
+    GCS_SLOT_EXPIRE_S,
     HEARTBEAT,
+    OTHERS_BUDGET,
+    PEER_BUDGET,
+    PEER_BURST,
     SET_ATTITUDE_TARGET,
+    SITL_PEER_RATE,
     STATUSTEXT,
     AutopilotOptions,
     M,
@@ -27,6 +32,7 @@ from autopilot.loop.handlers import LinkHandlers
 from autopilot.loop.lockstep import LockstepScheduler
 from autopilot.loop.realtime import RealtimeScheduler
 from autopilot.params import ParamTable
+from autopilot.schedule import ScheduleChain
 from autopilot.shared.events import StatusEvents, StatusTextAssembler
 from autopilot.shared.link import SendClock, UdpLink
 from autopilot.shared.mavlink import (
@@ -80,6 +86,10 @@ class Autopilot(LinkHandlers, LockstepScheduler, RealtimeScheduler):
             signing=Signing(opts.signing_key, SIGNING_LINK_SITL) if opts.signing_key else None,
             tlog=tlog,
             send_clock=self.send_clock,
+            peer_rate=None if opts.lockstep else max(SITL_PEER_RATE, PEER_BUDGET * self.rate),
+            peer_burst=PEER_BURST,
+            others_rate=OTHERS_BUDGET * self.rate,
+            others_burst=OTHERS_BUDGET,
         )
         self.gcs = UdpLink(
             "gcs",
@@ -95,12 +105,18 @@ class Autopilot(LinkHandlers, LockstepScheduler, RealtimeScheduler):
             signing=Signing(opts.signing_key, SIGNING_LINK_GCS) if opts.signing_key else None,
             tlog=tlog,
             send_clock=self.send_clock,
+            peer_rate=PEER_BUDGET * self.rate,
+            peer_burst=PEER_BURST,
+            others_rate=OTHERS_BUDGET * self.rate,
+            others_burst=OTHERS_BUDGET,
+            expire_s=GCS_SLOT_EXPIRE_S,
         )
         self.hooks: list = []  # callables(StepRecord), after each step
         self.events = Counter()  # autopilot-level counters (failsafes, setpoints, frames)
         self._event = StatusEvents("autopilot", self.gcs, self.events, verbose=opts.verbose, out=self.out)
         self.event_hooks = self._event.hooks  # callables(severity, text), for each status event
         self.gcs.on_refused_gcs = self._on_refused_gcs
+        self.gcs.on_expired = self._on_expired_gcs
         self._sitl_texts = StatusTextAssembler()
         self.timing = TimingStats()
         # "Controlled": every step flown on an attitude against the envelope; each excursion announced once.
@@ -116,6 +132,8 @@ class Autopilot(LinkHandlers, LockstepScheduler, RealtimeScheduler):
         # attitude
         self.att = _Attitude()
         self.horizon_us = -1.0  # newest scheduled setpoint time received
+        self._chain = ScheduleChain()  # lockstep: which scheduled setpoints continue a station's schedule
+        self._read_unix_us = 0  # lockstep: wall time (Unix us) of the last read of the links (SYSTEM_TIME says it)
         self.last_setpoint_wall = None
         self.setpoint_lost = False
         self._last_clamp_report = -1e9
@@ -131,6 +149,7 @@ class Autopilot(LinkHandlers, LockstepScheduler, RealtimeScheduler):
         self._next_heartbeat = 0.0
         self._announce_fast_until = 0.0  # HEARTBEAT: fast until then while a peer has not answered (_heartbeat_period)
         self._next_flush = 0.0
+        self._next_expiry = 0.0
         self._status_state = M.MAV_STATE_STANDBY
         # The ground-station protocol (autopilot.vehicle): modes, parameters, commands, streams.
         if params is None:
@@ -188,6 +207,7 @@ class Autopilot(LinkHandlers, LockstepScheduler, RealtimeScheduler):
             self.send_clock.end(time.monotonic())
 
     def shutdown(self):
+        self._event.tick(flush=True)  # the events held back for a summary are said before the end
         try:
             self.gcs.send(self.vehicle.heartbeat(M.MAV_STATE_POWEROFF))
         except OSError:

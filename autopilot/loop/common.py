@@ -69,6 +69,20 @@ ANNOUNCE_FAST_FOR_S = 2.0
 ANNOUNCE_SLOW_S = 0.25
 
 
+# The control loop first (docs/security.md, "A ground station that holds the key"): every peer's datagrams are
+# checked within a budget per control period of wall time, the rest read and dropped (``over_budget``): each
+# admitted ground station PEER_BUDGET (PEER_BURST at once), all other addresses together OTHERS_BUDGET (as many at
+# once); the real-time SITL link at least SITL_PEER_RATE a second (five times the highest sensor rate).  The lockstep
+# SITL is not limited: its frames are the run.
+PEER_BUDGET = 16
+PEER_BURST = 64
+OTHERS_BUDGET = 256
+SITL_PEER_RATE = 5000.0
+# A ground station admitted by its signature that sent no HEARTBEAT for this long loses its slot (MAVLink's heartbeat
+# protocol: disconnected after four or five missed 1 Hz heartbeats); its next signed packet takes a free one again.
+GCS_SLOT_EXPIRE_S = 5.0
+
+
 TIMING_SAMPLES_MAX = 100_000  # per timing series: a uniform sample of all steps (reservoir), for the percentiles
 
 

@@ -16,6 +16,7 @@ from autopilot.loop.common import (
     ATTITUDE,
     ATTITUDE_AHEAD_MS,
     COMMAND_ACK,
+    GCS_SLOT_EXPIRE_S,
     HEARTBEAT_PERIOD_S,
     SET_ATTITUDE_TARGET,
     SITL_RESTART_MS,
@@ -23,6 +24,7 @@ from autopilot.loop.common import (
     AutopilotOptions,
     M,
 )
+from autopilot.schedule import NEW, UNLINKED
 from autopilot.shared.link import ANY_COMPONENT
 from autopilot.shared.mavlink import (
     GCS_SYSTEMS,
@@ -41,8 +43,11 @@ def refusal_text(reason: str, sysid: int, compid: int, addr, opts: AutopilotOpti
         why = "unsigned; this vehicle takes only packets signed with its key"
     elif reason == "bad_signature":
         why = "signed with another key than this vehicle's"
-    elif reason == "not_peer" and opts.signing_key:
-        why = f"its address is not admitted: {opts.max_gcs} ground stations are already"  # signed: over the bound
+    elif reason == "not_peer" and opts.signing_key:  # signed: over the bound
+        why = (
+            f"its address is not admitted: {opts.max_gcs} ground stations are already, each sending HEARTBEAT "
+            f"(a slot is freed after {GCS_SLOT_EXPIRE_S:g} s without one)"
+        )
     elif reason == "not_peer":
         why = "its address is not admitted (add it with --gcs-peer, or sign with the vehicle's key)"
     elif opts.learn_gcs:
@@ -127,6 +132,8 @@ class LinkHandlers:
             self.gcs.reject("future_setpoint")
             self._report_future_setpoint(msg, now_us)
             return
+        if self._schedule_lost(msg, now_us):
+            return
         lim = self.opts.max_roll_rad
         clamped = math.copysign(lim, roll) if (roll > lim or roll < -lim) else None
         if not self.setpoints.push(t_us, roll if clamped is None else clamped):
@@ -150,10 +157,42 @@ class LinkHandlers:
         if self.opts.lockstep and self.pending_frame is not None:
             self._try_step(t_rx)
 
+    def _schedule_lost(self, msg, now_us: float | None) -> bool:
+        """Lockstep: whether this setpoint is a copy of one held or follows a lost datagram (``autopilot.schedule``:
+        it is dropped, counted, and the ground station sends it again), by the wire time it carries."""
+        if not self.opts.lockstep:
+            return False
+        g = self.gcs
+        verdict = self._chain.take(
+            (msg.get_srcSystem(), msg.get_srcComponent()),
+            g.rx_datagrams,
+            g.rx_packet_index,
+            g.rx_more,
+            msg.time_boot_ms * 1000.0,
+            now_us,
+        )
+        if verdict == NEW:
+            return False
+        if verdict == UNLINKED:
+            self.events["setpoints_unlinked"] += 1
+        elif g.rx_packet_index:  # a datagram's first point is the one it links to: expected, not counted
+            self.events["setpoints_resent"] += 1
+        return True
+
     def _on_refused_gcs(self, reason: str, sysid: int, compid: int, addr) -> None:
         """The first refused packet of a would-be ground station (``UdpLink.on_refused_gcs``): say why, once."""
         self.events["refused_gcs"] += 1
         self._event(M.MAV_SEVERITY_WARNING, refusal_text(reason, sysid, compid, addr, self.opts))
+
+    def _on_expired_gcs(self, addr, silent_s: float) -> None:
+        """A ground station admitted by its signature went silent (no HEARTBEAT for ``GCS_SLOT_EXPIRE_S``): its slot
+        is free again (``UdpLink.expire``)."""
+        self.events["gcs_slots_expired"] += 1
+        self._event(
+            M.MAV_SEVERITY_NOTICE,
+            f"GCS at {addr[0]}:{addr[1]} dropped: no HEARTBEAT for {silent_s:.1f} s (its slot is free)",
+            kind="ground station dropped",
+        )
 
     def _report_future_setpoint(self, msg, now_us: float | None) -> None:
         """The first ``future_setpoint`` of the run, said once: most likely a ground station that stamps its own
@@ -234,6 +273,10 @@ class LinkHandlers:
             if not self.opts.lockstep and self.att.valid:
                 self.gcs.send(M.MAVLink_system_time_message(time.time_ns() // 1000, self.att.ms))
         self.vehicle.housekeeping(now)
+        if now >= self._next_expiry:  # silent ground stations' slots, and the events held back for a summary
+            self._next_expiry = now + 0.5
+            self.gcs.expire(now)
+            self._event.tick()
         if self.tlog is not None and now >= self._next_flush:
             self._next_flush = now + 0.5
             self.tlog.flush()

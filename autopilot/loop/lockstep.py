@@ -124,6 +124,7 @@ class LockstepScheduler:
         read = self._read_ready
         prev_pass = now
         while not self.stop_requested and not self.finished:
+            self._read_unix_us = time.time_ns() // 1000  # what was in the sockets now is read in this pass
             if lockstep_spin > 0:
                 # Busy-poll briefly before sleeping: the SITL's next frame usually comes within tens of us,
                 # and a sleep/wake-up costs more than that on a virtual machine.  One poll(2) of both sockets
@@ -145,8 +146,10 @@ class LockstepScheduler:
                 # Waiting for the GCS schedule: tell it where sim time is (SYSTEM_TIME, 20 Hz wall clock).
                 if now >= self._next_systime:
                     self._next_systime = now + 0.05
+                    # time_unix_usec: when the links were last read, so a ground station that had sent the frame's
+                    # setpoint before then knows it was lost and sends it again (autopilot.schedule)
                     self.gcs.send(
-                        M.MAVLink_system_time_message(time.time_ns() // 1000, frame_ms(self.pending_frame, self.rate))
+                        M.MAVLink_system_time_message(self._read_unix_us, frame_ms(self.pending_frame, self.rate))
                     )
                 if now - self._blocked_since > 5.0 and now - last_warn > 5.0:
                     last_warn = now

@@ -11,8 +11,10 @@ import argparse
 import math
 import os
 import sys
+import tempfile
 from pathlib import Path
 
+from autopilot.shared.process import not_regular
 from autopilot.shared.pwm import PwmConfigError, PwmMap
 
 
@@ -225,26 +227,49 @@ def default_physics_rate(control_rate: float, minimum: float = 1000.0) -> float:
     return control_rate * max(1, math.ceil(minimum / control_rate - 1e-9))
 
 
+def _probe_folder(folder: Path) -> str | None:
+    """Whether a file can really be created in ``folder`` (``os.access`` says yes to root on /proc or a read-only
+    mount): a temporary folder made and removed at once; None, or the system's reason."""
+    try:
+        os.rmdir(tempfile.mkdtemp(prefix=".write-test-", dir=folder))
+    except OSError as exc:
+        return exc.strerror or str(exc)
+    return None
+
+
 def output_dir_problem(path) -> str | None:
-    """None if ``path`` is a writable folder or can be created as one, else why not (one line)."""
+    """None if ``path`` is a writable folder or can be created as one, else why not (one line).  Nothing is
+    created: the folder (or the nearest one above it that exists) is probed with a temporary folder."""
     p = Path(path)
     if p.exists():
         if not p.is_dir():
             return f"{path} exists and is not a folder"
-        return None if os.access(p, os.W_OK | os.X_OK) else f"{path}: the folder is not writable"
+        if not os.access(p, os.W_OK | os.X_OK):
+            return f"{path}: the folder is not writable"
+        why = _probe_folder(p)
+        return None if why is None else f"{path}: cannot write in the folder ({why})"
     parent = p.absolute().parent
     while not parent.exists():
         parent = parent.parent
     if not parent.is_dir():
         return f"{path}: {parent} is not a folder"
-    return None if os.access(parent, os.W_OK | os.X_OK) else f"{path}: cannot create it ({parent} is not writable)"
+    if not os.access(parent, os.W_OK | os.X_OK):
+        return f"{path}: cannot create it ({parent} is not writable)"
+    why = _probe_folder(parent)
+    return None if why is None else f"{path}: cannot create it in {parent} ({why})"
 
 
 def output_file_problem(path) -> str | None:
-    """None if the file ``path`` can be written (its folder exists and is writable, it is not a folder)."""
+    """None if the file ``path`` can be written (its folder exists and is writable, it is not a folder), else why
+    not (one line).  A path that exists must be a regular file: a character device (``/dev/null``, ``/dev/full``),
+    a FIFO or a socket is refused, never replaced by a regular file (the stats are written by a rename) nor
+    written into (``/dev/full`` would fail the first flush)."""
     p = Path(path)
     if p.is_dir():
         return f"{path} is a folder"
+    what = not_regular(p)
+    if what:
+        return f"{path} is {what}, not a regular file: give the path of a file (it is never written over)"
     folder = p.absolute().parent
     if not folder.is_dir():
         return f"{path}: no folder {folder}"
@@ -252,7 +277,15 @@ def output_file_problem(path) -> str | None:
         return f"{path}: the folder {folder} is not writable"
     if p.exists() and not os.access(p, os.W_OK):
         return f"{path}: the file is not writable"
-    return None
+    if p.exists():
+        try:
+            with open(p, "ab"):
+                pass
+        except OSError as exc:
+            return f"{path}: cannot write the file ({exc.strerror})"
+        return None
+    why = _probe_folder(folder)
+    return None if why is None else f"{path}: cannot create a file in {folder} ({why})"
 
 
 def check_output_files(parser: argparse.ArgumentParser, args: argparse.Namespace, *names: str) -> None:

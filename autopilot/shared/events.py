@@ -10,12 +10,18 @@ QGroundControl expect; :class:`StatusTextAssembler` reassembles on the receiving
 from __future__ import annotations
 
 import sys
+import time
 from collections import Counter
 
 from autopilot.shared.mavlink import mavlink
 
 STATUSTEXT_LEN = 50  # STATUSTEXT.text is char[50]
 STATUSTEXT_MAX_CHUNKS = 8  # a text is sent as at most this many chunks (400 bytes; printable() caps at 200 chars)
+# Events of one kind that a peer can cause at will (a refused PARAM_SET, a mode change): the first EVENT_BURST are
+# said one by one, the rest counted and said as one summary line per EVENT_SUMMARY_S; a kind quiet for a whole
+# EVENT_SUMMARY_S is said one by one again.
+EVENT_BURST = 5
+EVENT_SUMMARY_S = 10.0
 _ID_WRAP = 1 << 16  # STATUSTEXT.id is uint16; 0 means "the only chunk"
 
 
@@ -91,6 +97,12 @@ class StatusEvents:
     ``who: text`` when ``verbose``, sent through ``link`` (an ``autopilot.shared.link.UdpLink``) as STATUSTEXT
     (chunked when longer than 50 bytes: ``statustext_chunks``) unless ``send=False``, and handed to every ``hooks``
     callable as ``(severity, text)``.
+
+    ``kind`` names events a peer can cause as often as it likes (``"param_rejected"``): of those, the first
+    ``EVENT_BURST`` go out one by one, the rest are counted (``counter["events_summarised"]``) and said as one line
+    per ``EVENT_SUMMARY_S``, ``N more <kind> events in the last 10 s (the last: ...)``, by the next event of the kind
+    or by ``tick(now)`` (the owner's housekeeping), so a ground station flooding refused requests costs a line
+    every ten seconds, not one per request.  A kind quiet for ``EVENT_SUMMARY_S`` starts again one by one.
     """
 
     def __init__(self, who: str, link, counter: Counter, *, verbose: bool = True, out=None):
@@ -101,10 +113,16 @@ class StatusEvents:
         self.out = out or sys.stdout
         self.hooks: list = []
         self._last_id = 0  # the id of the last chunked text (1..65535, then round again)
+        self._kinds: dict = {}  # kind -> [shown, last event time, held back, first held back time, severity, text]
 
-    def __call__(self, severity: int, text: str, send: bool = True) -> None:
+    def __call__(self, severity: int, text: str, send: bool = True, kind: str | None = None) -> None:
         # Texts may quote a peer (a parameter name, a relayed STATUSTEXT): made printable here, once, for every path.
         text = printable(text)
+        if kind is not None and not self._one_by_one(kind, severity, text, time.monotonic()):
+            return
+        self._say(severity, text, send)
+
+    def _say(self, severity: int, text: str, send: bool = True) -> None:
         self.counter["statustext"] += 1
         if self.verbose:
             print(f"{self.who}: {text}", file=self.out, flush=True)
@@ -112,6 +130,35 @@ class StatusEvents:
             self._send(severity, text)
         for h in self.hooks:
             h(severity, text)
+
+    def _one_by_one(self, kind: str, severity: int, text: str, now: float) -> bool:
+        """Whether this event of ``kind`` is said by itself (else it is held back for the kind's summary)."""
+        k = self._kinds.get(kind)
+        if k is None:
+            k = self._kinds[kind] = [0, now, 0, now, severity, text]
+        elif now - k[1] >= EVENT_SUMMARY_S and not k[2]:
+            k[0] = 0  # quiet for a whole interval: one by one again
+        k[1] = now
+        if k[0] < EVENT_BURST:
+            k[0] += 1
+            return True
+        if not k[2]:
+            k[3] = now
+        k[2] += 1
+        k[4], k[5] = severity, text
+        self.counter["events_summarised"] += 1
+        self.tick(now, kind)
+        return False
+
+    def tick(self, now: float | None = None, only: str | None = None, *, flush: bool = False) -> None:
+        """Say the summary of every kind (or of ``only``) whose held-back events are ``EVENT_SUMMARY_S`` old
+        (``flush``: whatever their age, at the end of the run)."""
+        now = time.monotonic() if now is None else now
+        for kind, k in self._kinds.items():
+            if k[2] and (flush or now - k[3] >= EVENT_SUMMARY_S) and (only is None or kind == only):
+                n, severity, text = k[2], k[4], k[5]
+                k[2] = 0
+                self._say(severity, f"{n} more {kind} events in the last {now - k[3]:.0f} s (the last: {text})")
 
     def _send(self, severity: int, text: str) -> None:
         candidate = self._last_id % (_ID_WRAP - 1) + 1  # 1..65535, never 0; taken only by a chunked text

@@ -30,32 +30,8 @@ packets was accepted, otherwise in ``rejected`` under the reason of its first pa
 
 so ``rx_datagrams == rx_accepted + sum(rejected.values())`` always holds.
 
-**Peers.**  A link talks to fixed addresses, never to whoever sent last:
-
-* pinned to ``remote`` (``remote`` given, ``learn_remote`` False): only that address is heard;
-* learned once (``learn_remote``): the first address whose packet passes every check up to the IDs becomes
-  the one peer and ``remote``; any other address is ``not_peer`` from then on;
-* admitting (``admit=N``, the autopilot's ground-station link): ``remote`` is the default destination
-  (e.g. 127.0.0.1:14550) and stays so; the addresses in ``peer_addrs`` are admitted from the start; without
-  signing and without ``peer_addrs`` the first address that talks with a peer's IDs is admitted (with
-  ``peer_addrs``, nobody else); with signing every address whose packet carries a valid signature is
-  admitted, up to N in all (more are ``not_peer``).
-  ``broadcast``/``send`` reach every admitted peer and ``remote``, each once.
-
-**Ground-station systems.**  ``peers`` lists the source (sysid, compid) pairs taken.  With ``learn_gcs=N`` a packet
-from another system is still taken if it is a HEARTBEAT of type MAV_TYPE_GCS that passes every other check (from
-an admitted or admissible address): its system joins the peers with any component, up to N systems.  A refused
-packet (``wrong_id``, ``not_peer``, ``unsigned`` or ``bad_signature``) whose IDs look like a ground station's
-(``looks_like_gcs``) is counted per source in ``refused_gcs`` (at most ``REFUSED_GCS_KEYS`` sources, the rest
-together as system and component -1) and handed once per (reason, system) to ``on_refused_gcs(reason, sysid,
-compid, addr)`` (at most ``REFUSED_GCS_REPORTS`` calls), so the owner can say why.
-
-**Floods.**  ``poll(handler, budget)`` always feeds a datagram from an admitted address; those from every other
-address share ``budget`` per poll and the rest of them are ``over_budget``, so a flood from elsewhere costs a
-bounded amount of CPU and never makes the link drop a peer's datagram.  A poll reads at most ``16 * budget``
-datagrams (what is left waits in the socket for the next poll), and the socket asks for a 4 MiB receive buffer
-(the kernel caps it at ``net.core.rmem_max``) so a flood queued ahead of the peer's datagrams does not make the
-kernel drop them before they are read.
+**Peers, ground-station systems, floods, slots, datagram boundaries**: ``autopilot.shared.admission``, whose
+``Admission`` this class inherits.
 
 **The hot path.**  ``on_hot(msgid, callback)`` takes the accepted packets of one of ``fastmav.HOT_IDS`` (ATTITUDE,
 SERVO_OUTPUT_RAW: the two messages of a lockstep frame) as ``callback(t_rx, values)``, the payload as a tuple in
@@ -81,6 +57,15 @@ from collections import Counter
 
 from pymavlink.dialects.v20 import all as _all_dialect
 
+from autopilot.shared.admission import (  # noqa: F401  (re-exported: part of this module's API)
+    _HEARTBEAT,
+    GCS_COMPONENT,
+    REFUSED_GCS_KEYS,
+    REFUSED_GCS_REPORTS,
+    Admission,
+    heartbeat_type,
+    looks_like_gcs,
+)
 from autopilot.shared.fastmav import FAST_DECODERS, HOT_DECODERS, FastPacker, crc16
 from autopilot.shared.mavlink import mavlink
 
@@ -108,26 +93,6 @@ _FATAL_SEND_ERRNOS = (errno.EHOSTUNREACH, errno.ENETUNREACH, errno.EADDRNOTAVAIL
 _monotonic = time.monotonic
 _HEADER = struct.Struct("<BBBBBBBHB").unpack_from  # MAVLink 2: magic, len, incompat, compat, seq, sys, comp, msgid
 ANY_COMPONENT = None  # a peer (sysid, ANY_COMPONENT) accepts that system with any component
-_HEARTBEAT = mavlink.MAVLINK_MSG_ID_HEARTBEAT
-_MAV_TYPE_GCS = mavlink.MAV_TYPE_GCS
-GCS_COMPONENT = mavlink.MAV_COMP_ID_MISSIONPLANNER  # 190: the component QGroundControl, MAVSDK, the GCS script use
-REFUSED_GCS_REPORTS = 8  # on_refused_gcs calls at most, per link (the packets are counted whatever their number)
-REFUSED_GCS_KEYS = 64  # distinct (reason, sysid, compid) counted in refused_gcs; more share (reason, -1, -1)
-
-
-def heartbeat_type(raw: bytes) -> int:
-    """HEARTBEAT.type of a framed, CRC-checked MAVLink 2 HEARTBEAT packet: payload byte 4 (after the uint32
-    custom_mode); MAVLink 2 trims trailing zero bytes, so a payload of 4 bytes or less has type 0."""
-    return raw[10 + 4] if raw[1] > 4 else 0
-
-
-def looks_like_gcs(raw: bytes, sysid: int, compid: int, gcs_systems=()) -> bool:
-    """Whether a packet's IDs look like a ground station's: a MAV_TYPE_GCS HEARTBEAT, a system of ``gcs_systems``
-    (255, 245) or component 190 (MAV_COMP_ID_MISSIONPLANNER, the ground stations' usual one)."""
-    msgid = raw[7] | (raw[8] << 8) | (raw[9] << 16)
-    if msgid == _HEARTBEAT and heartbeat_type(raw) == _MAV_TYPE_GCS:
-        return True
-    return sysid in gcs_systems or compid == GCS_COMPONENT
 
 
 class LinkError(OSError):
@@ -194,7 +159,7 @@ class SendClock:
         }
 
 
-class UdpLink:
+class UdpLink(Admission):
     """A MAVLink endpoint on one UDP socket.
 
     ``bind``: local (host, port), port 0 for an ephemeral one.  ``remote``: where to send (None until a peer
@@ -225,6 +190,11 @@ class UdpLink:
         send_clock: SendClock | None = None,
         learn_gcs: int = 0,
         gcs_systems=(),
+        peer_rate: float | None = None,
+        peer_burst: float = 64.0,
+        others_rate: float | None = None,
+        others_burst: float = 256.0,
+        expire_s: float | None = None,
     ):
         self.name = name
         self.send_clock = send_clock if send_clock is not None else SendClock()
@@ -273,6 +243,22 @@ class UdpLink:
         self.on_refused_gcs = None  # callable(reason, sysid, compid, addr), once per (reason, system)
         self.last_rx_wall = 0.0  # perf_counter of the last accepted packet
         self.peer_addr = None  # address of the last accepted packet
+        self.rx_packet_index = 0  # while the handler runs: the packet's place in its datagram (0: the first) ...
+        self.rx_more = False  # ... and whether more bytes follow it there (see "Datagram boundaries")
+        # budgets per wall time (None: per poll, the peers' unlimited); see "Floods"
+        self.peer_rate = peer_rate
+        self.peer_burst = float(peer_burst)
+        self.others_rate = others_rate
+        self.others_burst = float(others_burst)
+        self._peer_tokens: dict = {}  # admitted address -> tokens left
+        self._others_tokens = float(others_burst)
+        self._refilled = time.perf_counter()
+        self.over_budget_peers: Counter = Counter()  # admitted address -> its datagrams dropped over its budget
+        # slots of the addresses admitted by signature: address -> perf_counter of its admission or last HEARTBEAT
+        self.expire_s = expire_s
+        self._signed_slots: dict = {}
+        self.expired: list = []  # (address, silent s) of each slot that expired
+        self.on_expired = None  # callable(addr, silent_s)
         self._verdict = None  # the owner's rejection of the packet being handled
         self._hot: dict = {}  # msgid -> (HotDecoder, CRC extra, callback(t_rx, values)): see ``on_hot``
 
@@ -415,22 +401,30 @@ class UdpLink:
         """Read the datagrams waiting, calling ``handler(msg, t_rx)`` for each accepted message; returns the number
         of datagrams read.
 
-        A datagram from an admitted address (pinned, learned or admitted peer) is always fed.  Datagrams from any
-        other address share ``budget`` per poll: that many are fed (checked, counted under their reason), the
-        rest are read and counted ``over_budget``, so a flood from elsewhere can neither stall the loop nor crowd
-        out the peer.  At most ``16 * budget`` datagrams are read per poll (``most``: at most that many, e.g. 1
-        for the lockstep SITL, which goes on with the answer it waited for without first finding the socket
-        empty); the rest wait in the socket for the next one."""
+        A datagram from an admitted address (pinned, learned or admitted peer) is fed, within its own budget
+        when ``peer_rate`` is set.  Datagrams from any other address share ``budget`` per poll (or the
+        ``others_rate`` bucket): that many are fed (checked, counted under their reason), the rest are read and
+        counted ``over_budget``, so a flood can neither stall the loop nor crowd out the peer.  At most ``16 *
+        budget`` datagrams are read per poll (``most``: at most that many, e.g. 1 for the lockstep SITL, which goes
+        on with the answer it waited for without first finding the socket empty); the rest wait in the socket for
+        the next one."""
         sock = self.sock
         admitted = self._admitted_set  # updated in place when an address is learned or admitted
         n = 0
         others = 0  # datagrams from non-admitted addresses fed in this poll
         cap = 16 * budget if most is None else min(16 * budget, most)
+        timed = self.peer_rate is not None or self.others_rate is not None
+        if timed:
+            self._refill()
+            tokens = self._peer_tokens
+            limit_peers = self.peer_rate is not None
+            if self.others_rate is not None:
+                budget = min(budget, int(self._others_tokens))
         while n < cap:
             try:
                 data, addr = sock.recvfrom(4096)
             except BlockingIOError:
-                return n
+                break
             except OSError as exc:  # ECONNREFUSED after an ICMP error on a sendto: not data, keep going
                 if exc.errno in (errno.ECONNREFUSED, errno.ECONNRESET, errno.EHOSTUNREACH, errno.ENETUNREACH):
                     continue
@@ -442,57 +436,23 @@ class UdpLink:
                     self.rejected["over_budget"] += 1
                     continue
                 others += 1
+            elif timed and limit_peers:
+                left = tokens.get(addr, self.peer_burst)
+                if left < 1.0:
+                    self.rx_datagrams += 1
+                    self.rejected["over_budget"] += 1
+                    self.over_budget_peers[addr] += 1
+                    continue
+                tokens[addr] = left - 1.0
             self.feed(data, addr, handler)
+        if timed and self.others_rate is not None:
+            self._others_tokens -= others
         return n
 
     def reject(self, reason: str) -> None:
         """Called by the owner's handler: the packet being handled is rejected for ``reason``."""
         if self._verdict is None:
             self._verdict = reason
-
-    def _admit(self, addr, signed: bool) -> bool:
-        """Whether a packet with a peer's IDs from the new address ``addr`` may make it a peer."""
-        if self.admit:
-            # signed: any address, up to the bound; unsigned: the first one, unless the peers were listed
-            if len(self.admitted) >= self.admit or not (signed or not (self._learned or self._listed)):
-                return False
-        elif not self.learn_remote or self._learned:
-            return False
-        self._learned = True
-        self.admitted.append(addr)
-        self._admitted_set.add(addr)
-        if not self.admit:
-            self.remote = addr
-        return True
-
-    def _learnable(self, raw: bytes, msgid: int, sysid: int) -> bool:
-        """A new system's MAV_TYPE_GCS HEARTBEAT, while ``learn_gcs`` has room (never the vehicle's own system or
-        the broadcast id 0)."""
-        return (
-            msgid == _HEARTBEAT
-            and len(self.learned_systems) < self.learn_gcs
-            and sysid not in (0, self.mav.srcSystem)
-            and heartbeat_type(raw) == _MAV_TYPE_GCS
-        )
-
-    def _learn_system(self, sysid: int) -> None:
-        self.learned_systems.append(sysid)
-        self._any_comp = self._any_comp | {sysid}
-
-    def _refused(self, reason: str, raw: bytes, sysid: int, compid: int, addr) -> None:
-        """Count a refused packet that looks like a ground station's; report the first of each (reason, system)."""
-        if not looks_like_gcs(raw, sysid, compid, self.gcs_systems):
-            return
-        key = (reason, sysid, compid)
-        if key not in self.refused_gcs and len(self.refused_gcs) >= REFUSED_GCS_KEYS:
-            key = (reason, -1, -1)  # a spoofer cycling through ids cannot grow the counter without bound
-        self.refused_gcs[key] += 1
-        report = (reason, sysid)
-        if report in self._refusals_reported or len(self._refusals_reported) >= REFUSED_GCS_REPORTS:
-            return
-        self._refusals_reported.add(report)
-        if self.on_refused_gcs is not None:
-            self.on_refused_gcs(reason, sysid, compid, addr)
 
     def feed(self, data: bytes, addr, handler) -> None:
         """Frame, check and decode one datagram; count it once (``rx_accepted`` or one reason)."""
@@ -504,8 +464,11 @@ class UdpLink:
         reason = None if end else "empty"
         accepted = False
         signing = self.signing
+        slots = self._signed_slots
         i = 0
+        index = -1
         while i < end:
+            index += 1
             magic = data[i]
             if magic != 0xFD:
                 reason = reason or ("mavlink1" if magic == 0xFE else "bad_magic")
@@ -564,9 +527,13 @@ class UdpLink:
                 continue
             self.last_rx_wall = t_rx
             self.peer_addr = addr
+            if slots and msgid == _HEARTBEAT and addr in slots:
+                slots[addr] = t_rx  # a signed station's slot lives on its heartbeats
             if self.tlog is not None:
                 self.tlog.write(raw)
             self._verdict = None
+            self.rx_packet_index = index
+            self.rx_more = i < end
             handler(msg, t_rx)
             if self._verdict is not None:
                 reason = reason or self._verdict
@@ -634,6 +601,12 @@ class UdpLink:
             "last_rx_mono": self.last_rx_wall if self.rx_accepted else None,
             "admitted": [f"{a[0]}:{a[1]}" for a in self.admitted],
             **({"learned_gcs_systems": list(self.learned_systems)} if self.learn_gcs else {}),
+            **({"expired": list(self.expired)} if self.expired else {}),
+            **(
+                {"over_budget_peers": {f"{a[0]}:{a[1]}": v for a, v in self.over_budget_peers.items()}}
+                if self.over_budget_peers
+                else {}
+            ),
             **(
                 {"refused_gcs": {f"{r} {s}:{c}": n for (r, s, c), n in sorted(self.refused_gcs.items())}}
                 if self.refused_gcs

@@ -6,6 +6,7 @@ import errno
 import json
 import os
 import signal
+import stat
 import sys
 import threading
 import time
@@ -34,13 +35,62 @@ def install_stop_handlers(callback) -> None:
     signal.signal(signal.SIGTERM, _handler)
 
 
+def not_regular(path: str | os.PathLike) -> str | None:
+    """What ``path`` is if it exists and is not a regular file ("a character device", "a folder", "a FIFO", ...),
+    else None (also for a path that does not exist).  Symbolic links are followed: a link to a regular file is one."""
+    try:
+        mode = os.stat(path).st_mode
+    except FileNotFoundError:
+        return None
+    except OSError as exc:
+        return f"not readable ({exc.strerror})"
+    if stat.S_ISREG(mode):
+        return None
+    kinds = (
+        (stat.S_ISDIR, "a folder"),
+        (stat.S_ISCHR, "a character device"),
+        (stat.S_ISBLK, "a block device"),
+        (stat.S_ISFIFO, "a FIFO"),
+        (stat.S_ISSOCK, "a socket"),
+    )
+    return next((what for test, what in kinds if test(mode)), "not a regular file")
+
+
+class NotRegularFileError(OSError):
+    """An output path that exists and is not a regular file: never replaced, never written into."""
+
+
 def write_json_atomic(path: str | os.PathLike, doc: dict, *, indent: int = 1, allow_nan: bool = True) -> None:
-    """Write ``doc`` as JSON to ``path`` via a temporary file and a rename, so readers never see half a file."""
+    """Write ``doc`` as JSON to ``path`` via a temporary file and a rename, so readers never see half a file.
+
+    A ``path`` that exists and is not a regular file (``/dev/null``, a FIFO) raises :class:`NotRegularFileError`:
+    the rename would replace a device with a regular file (the command lines refuse such a path before anything
+    runs, ``autopilot.shared.cli.output_file_problem``)."""
     path = os.fspath(path)
+    what = not_regular(path)
+    if what:
+        raise NotRegularFileError(f"{path} is {what}, not a regular file: not replaced")
     tmp = path + ".tmp"
     with open(tmp, "w") as f:
         json.dump(doc, f, indent=indent, allow_nan=allow_nan)
     os.replace(tmp, path)
+
+
+def write_failure(path: str | os.PathLike, write) -> str | None:
+    """Call ``write()``; an OSError (a full disk, a vanished folder) becomes one line naming ``path``, else None."""
+    try:
+        write()
+    except OSError as exc:
+        return f"{os.fspath(path)}: {exc.strerror or exc}"
+    return None
+
+
+def report_write_failures(who: str, failures: list[str], code: int) -> int:
+    """Say each output that could not be written (``who: error: could not write PATH: reason``) and return the exit
+    status: ``code``, or 1 if it was 0 and something failed (what was written is kept)."""
+    for failure in failures:
+        print(f"{who}: error: could not write {failure} (what was written before is kept)", file=sys.stderr, flush=True)
+    return code or (EXIT_FAILED if failures else EXIT_OK)
 
 
 def write_stats_json(path: str | os.PathLike, stats: dict) -> None:

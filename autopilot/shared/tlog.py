@@ -8,7 +8,9 @@ owner moves the queue into the file's buffer with :meth:`TlogWriter.drain` once 
 (off the critical path: docs/design.md, "Lockstep"), and ``flush``/``close`` drain first, so every record
 reaches the file in the order written with the stamp of its moment.  The buffer is flushed by the owner's
 housekeeping (``maybe_flush``), so the control step never waits on the disk and a killed run leaves a
-file that ends at a record boundary or inside the last record (readers stop there).
+file that ends at a record boundary or inside the last record (readers stop there).  A write that fails (a full
+disk) never stops the flight: the writer keeps what reached the file, drops the rest (``lost`` records) and says
+why in ``error`` (one line naming the path), which the autopilot reports at its exit.
 """
 
 from __future__ import annotations
@@ -29,6 +31,8 @@ class TlogWriter:
         self.records = 0  # records written (queued ones included)
         self.flush_interval_s = flush_interval_s
         self._next_flush = time.monotonic() + flush_interval_s
+        self.error: str | None = None  # why the file stopped growing (a failed write), once it did
+        self.lost = 0  # records not written because of it
 
     def write(self, raw, t_us: int | None = None) -> None:
         """Queue one record stamped now (or ``t_us``): a list append, cheap enough for the critical path."""
@@ -40,10 +44,25 @@ class TlogWriter:
         buffer fills)."""
         q = self._queue
         if q:
-            pack, w = self._pack, self._f.write
-            for t_us, raw in q:
-                w(pack(t_us) + raw)
+            if self.error is None:
+                pack, w = self._pack, self._f.write
+                try:
+                    for t_us, raw in q:
+                        w(pack(t_us) + raw)
+                except OSError as exc:
+                    self._failed(exc, len(q))
+            else:
+                self.lost += len(q)
             q.clear()
+
+    def _failed(self, exc: OSError, pending: int) -> None:
+        """A write failed: keep what is in the file, write nothing more (a buffer the disk refused is dropped)."""
+        self.error = f"{self.path}: {exc.strerror or exc}"
+        self.lost += pending
+        try:
+            self._f.close()
+        except OSError:  # the buffer it could not write: dropped
+            pass
 
     def maybe_flush(self, now_monotonic: float | None = None) -> None:
         now = time.monotonic() if now_monotonic is None else now_monotonic
@@ -53,13 +72,20 @@ class TlogWriter:
 
     def flush(self) -> None:
         self.drain()
-        self._f.flush()
+        if self.error is None:
+            try:
+                self._f.flush()
+            except OSError as exc:
+                self._failed(exc, 0)
 
     def close(self) -> None:
         if not self._f.closed:
-            self.drain()
-            self._f.flush()
-            self._f.close()
+            self.flush()
+            if self.error is None:
+                try:
+                    self._f.close()
+                except OSError as exc:
+                    self._failed(exc, 0)
 
 
 def packet_length(buf, i: int = 0) -> int:

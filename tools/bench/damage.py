@@ -30,13 +30,14 @@ def floor_s(plant: str, kind: str, value, reps: int) -> float:
     from sitl import plant as plants
     from tools.experiment.damage.flight import disturbances
     from tools.experiment.damage.grid import NONE, fault_of
-    from tools.experiment.scenario import Scenario, _inprocess_disturbances
+    from tools.experiment.scenario import Scenario, _atmosphere, _inprocess_disturbances
 
     faults = () if kind == NONE else (fault_of(kind, value, 10.0),)
     scen = Scenario(plant=plant, disturbances=disturbances("light", 1), faults=faults)
     times = []
     for _ in range(reps):
-        dist, inj = _inprocess_disturbances(scen)
+        dist = _inprocess_disturbances(scen, atmosphere=True)
+        inj = _atmosphere(scen, dist)
         ac = plants.build(plant, 1000.0, None, dist, plants.needs_damaged_model(faults))
         adv = ac.advance if inj is None else (lambda u, m, _ac=ac, _inj=inj: _inj.advance(_ac, u, m))
         if faults:

@@ -6,9 +6,9 @@ Targets: the lockstep flight at 100 Hz control and 1 kHz physics, MAVLink signin
 (the launcher's defaults), at least 20x real time: <= 50 ms of wall time per simulated second (median of the
 runs).  The physics step (``JsbsimPlant.advance``: the servo, the safety pilot every 10 steps and one
 ``FGFDMExec.run``) is reported per step, without a target (JSBSim's own step is about 11 us).  The JSBSim Monte
-Carlo (``tools.experiment.jsbsim_study``: in-process 30 s flights on ``tools.experiment.study.execute``) in flights per
-second for 1 and
-2 local workers, without a target.
+Carlo (``python -m tools.experiment robustness --plant jsbsim:c172x``'s flights, ``tools.experiment.study.flights``:
+in-process 30 s flights on ``tools.experiment.study.execute``) in flights per second for 1 and 2 local workers,
+without a target.
 """
 
 from __future__ import annotations
@@ -56,8 +56,8 @@ def bench_lockstep(runs: int, duration: float) -> list[float]:
 
 def bench_monte_carlo(workers: int, seeds: int) -> float:
     """Flights per second of the JSBSim Monte Carlo with ``workers`` local processes."""
-    from tools.experiment.jsbsim_study import make_flights, simulate
     from tools.experiment.study import execute
+    from tools.experiment.study.flights import make_flights, simulate
 
     flights = make_flights("c172x", ["clsac"], [63.0, 117.0], ["none", "moderate"], seeds)
     t0 = time.perf_counter()

@@ -36,8 +36,8 @@ class Scenario:
     params: str | None = None
     baseline_gains: tuple | None = None
     # The SITL's disturbances ((dest, value) pairs of sitl.disturbances.FLAGS): in-process, a JSBSim plant's own
-    # turbulence and the KH2013A's atmosphere (the SITL's injector, sitl.disturbances.Injector); the rest (sensors,
-    # link faults, --scale) over MAVLink only.
+    # turbulence, and with run_inprocess(atmosphere=True) the KH2013A's atmosphere (the SITL's injector); the rest
+    # (sensors, link faults, --scale) over MAVLink only.
     disturbances: tuple = ()
     # Mid-flight faults (sitl.damage.Fault or KIND[=VALUE]@START[:END] specs), flown as the SITL flies --fault.
     faults: tuple = ()
@@ -173,24 +173,30 @@ SERIES = (
 )
 
 
-def _inprocess_disturbances(scenario: Scenario):
-    """(the flight's Disturbances or None, the SITL's injector for the rest or None): a JSBSim plant flies its own
-    turbulence, crosswind and seed; the KH2013A's (or a plant file's) atmosphere is sampled by the SITL's
-    ``sitl.disturbances.Injector`` at the physics step, as the SITL does in lockstep.  Sensors, link faults and
-    ``--scale`` fly over MAVLink only (ValueError)."""
+def _inprocess_disturbances(scenario: Scenario, atmosphere: bool = False):
+    """The disturbances a plant flies by itself (a JSBSim plant's turbulence, crosswind, seed), or None; anything the
+    SITL's injector would have to apply (sensors, link, the KH2013A atmosphere unless ``atmosphere``) flies over
+    MAVLink only."""
     if not scenario.disturbances:
-        return None, None
-    from sitl.disturbances import Injector, from_values
+        return None
+    from sitl.disturbances import from_values
 
     dist = from_values(dict(scenario.disturbances))
     rest = plants.injected(scenario.plant, dist)
-    if rest is None:
-        return dist, None
-    if rest.sensors.active or rest.faults.active or rest.scales:
+    if (rest.atmosphere.active and not atmosphere) or rest.sensors.active or rest.faults.active or rest.scales:
         raise ValueError("these disturbances fly over MAVLink only (tools.flight, the mavlink transport)")
-    if not rest.atmosphere.active:
-        return dist, None
-    return dist, Injector(rest, 1.0 / scenario.physics_rate_hz, scenario.control_rate_hz, True, 0.0)
+    return dist
+
+
+def _atmosphere(scenario: Scenario, dist):
+    """The SITL's injector of the atmosphere a plant does not fly by itself (``sitl.disturbances.Injector``, as a
+    lockstep SITL builds it: the same seed streams), or None."""
+    rest = None if dist is None else plants.injected(scenario.plant, dist)
+    if rest is None or not rest.atmosphere.active:
+        return None
+    from sitl.disturbances import Injector
+
+    return Injector(rest, 1.0 / scenario.physics_rate_hz, scenario.control_rate_hz, lockstep=True)
 
 
 def run_inprocess(
@@ -198,6 +204,8 @@ def run_inprocess(
     run: RunSpec = PAPER_RUNS[1],
     base: ClSacConfig | None = None,
     wire: PwmMap | None = None,
+    *,
+    atmosphere: bool = False,
 ) -> RunResult:
     """Fly the scenario with the control step and the aircraft in one process.
 
@@ -211,6 +219,10 @@ def run_inprocess(
     ``wire``: also model exactly what the MAVLink path adds, so the two compare like for like: roll and
     the setpoint quaternion travel as float32, and the rudder command flies (and is scored) after the
     1 us PWM quantisation of this calibration.
+
+    ``atmosphere``: fly the scenario's turbulence, gusts and crosswind on a plant that does not fly its own (the
+    KH2013A, a plant file) too, sampled per physics step by the SITL's own ``sitl.disturbances.Injector`` (the
+    robustness study's plant files); without it they fly over MAVLink only.
     """
     command = scenario.command
     if wire is not None:
@@ -222,9 +234,10 @@ def run_inprocess(
     law = step.law
     if scenario.faults:
         plants.check_faults(scenario.plant, scenario.faults)  # PlantError: a kind the plant cannot fly
-    dist, inj = _inprocess_disturbances(scenario)
+    dist = _inprocess_disturbances(scenario, atmosphere)
     ac = plants.build(scenario.plant, scenario.physics_rate_hz, None, dist, plants.needs_damaged_model(scenario.faults))
-    advance = ac.advance if inj is None else (lambda u, m: inj.advance(ac, u, m))
+    air = _atmosphere(scenario, dist) if atmosphere else None
+    advance = ac.advance if air is None else (lambda u, m: air.advance(ac, u, m))
     if scenario.faults:  # as the SITL flies --fault (sitl.fault_injection): one schedule on the physics-step grid
         from sitl import damage
 

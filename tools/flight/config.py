@@ -208,6 +208,13 @@ class FlightConfig:
             "physics_rate",
             f"physics_rate ({self.physics_rate:g}) must be a whole multiple of the control rate ({self.rate:g})",
         )
+        k0 = self.start_time * self.rate  # lockstep frame K0 = start_time x rate (the SITL's own rule, sitl.__main__)
+        _require(
+            not self.lockstep or abs(k0 - round(k0)) <= 1e-6,
+            "start_time",
+            f"start_time ({self.start_time:g}) must be a whole number of frames at the control rate ({self.rate:g} Hz) "
+            f"in lockstep: a multiple of {1.0 / self.rate:g} s",
+        )
         _require(
             self.base_port is None or (isinstance(self.base_port, int) and 1 <= self.base_port <= 65532),
             "base_port",

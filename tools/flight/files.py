@@ -264,6 +264,7 @@ STALE_FILES = (
     "autopilot_series.npz",
     "sitl_series.npz",
     "flight.rrd",
+    "flight.rrd.sha256",
     "flight.png",
 )
 

@@ -28,6 +28,7 @@ import rerun as rr
 
 from autopilot.shared.telemetry.columns import scalar_column, series_style, sim_time_column
 from autopilot.shared.telemetry.files import new_recording_id
+from autopilot.shared.telemetry.integrity import write_digest
 from autopilot.shared.telemetry.layout import (
     BLUE,
     GREEN,
@@ -86,7 +87,8 @@ def log_experiment(
 
     ``results`` are ``tools.experiment.scenario.RunResult``-like objects: ``name``, ``lv``, ``metrics`` and
     ``series`` (numpy arrays ``t, um, phi, ym, ym_ol, e, u, ke, kx, ku, kpe, kie, ...``).  The blueprint
-    overlays all runs; each run also gets its own tab.  Returns the path.
+    overlays all runs; each run also gets its own tab.  Its SHA-256 goes beside it (``path.sha256``,
+    ``autopilot.shared.telemetry.integrity``).  Returns the path.
     """
     results = list(results)
     if not results:
@@ -148,4 +150,5 @@ def log_experiment(
         rec.flush()
     finally:
         rec.disconnect()
+    write_digest(out)  # out.sha256: what `python -m tools.rrd verify` checks the content against
     return out

@@ -11,7 +11,8 @@ Values are what the viewer shows: angles in degrees and angular rates in deg/s (
 Command line (``tools.rrd``)::
 
     python -m tools.rrd summary FILE.rrd            entities, rows, time span, recording ids, blueprint
-    python -m tools.rrd verify FILE.rrd...          rerun rrd verify (footers required; --no-footer-check for parts)
+    python -m tools.rrd verify FILE.rrd...          the framing to the last byte, FILE.rrd.sha256 if present, then
+                                                    rerun rrd verify (footers required; --no-footer-check for parts)
     python -m tools.rrd merge OUT.rrd PART.rrd...   merge the part files of one flight (+ flight blueprint);
                                                     --concatenate: constant memory, no footer (long flights)
     python -m tools.rrd record OUT.rrd SPOOL...     record the processes' telemetry spools (--telemetry-spool)
@@ -221,13 +222,34 @@ def unreadable(path: str | os.PathLike) -> str | None:
 
 
 def verify(path: str | os.PathLike, *, check_footers: bool = True) -> tuple[bool, str]:
-    """(ok, output): :func:`unreadable` first, then ``rerun rrd verify`` (the CLI of the installed rerun-sdk)."""
+    """(ok, output): :func:`unreadable` first, then the framing walked to the last byte (a file cut inside its
+    footer's trailer, which ``rerun rrd verify`` of rerun-sdk 0.41 passes, fails here), then the content against
+    ``FILE.sha256`` if there is one (the product writes it beside every recording it makes; rerun checksums only
+    its footer, so a change inside a message that still decodes is seen only so), then ``rerun rrd verify`` (the
+    CLI of the installed rerun-sdk: every message decoded).  ``check_footers``: rerun's footer (index) required.
+    The output of a pass says whether a digest was checked."""
     from autopilot.shared.telemetry.files import verify_rrd
+    from autopilot.shared.telemetry.integrity import digest_path, digest_problem, stream_problem
 
     problem = unreadable(path)
     if problem:
         return False, problem
-    return verify_rrd(path, check_footers=check_footers)
+    problem = stream_problem(path, footers=check_footers)
+    if problem:
+        return False, problem
+    has_digest, problem = digest_problem(path)
+    if problem:
+        return False, problem
+    ok, text = verify_rrd(path, check_footers=check_footers)
+    if ok and has_digest:
+        text = f"sha256 matches {digest_path(path).name}\n{text}"
+    return ok, text
+
+
+def checked(text: str) -> str:
+    """What a passed :func:`verify` checked, for its one line: ``" (sha256 matches FILE.sha256)"`` or ``""``."""
+    first = text.strip().splitlines()[0] if text.strip() else ""
+    return f" ({first})" if first.startswith("sha256 matches") else ""
 
 
 def merge(out: str | os.PathLike, parts: list, *, blueprint: bool = True, concatenate: bool = False):

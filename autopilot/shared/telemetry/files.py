@@ -21,6 +21,7 @@ dropped.  rerun itself is imported only to write the layout for a concatenation;
 
 from __future__ import annotations
 
+import hashlib
 import os
 import struct
 import subprocess
@@ -28,6 +29,7 @@ import tempfile
 from collections.abc import Sequence
 from pathlib import Path
 
+from autopilot.shared.telemetry.integrity import not_regular, remove_digest, sha256_file, write_digest
 from autopilot.shared.telemetry.layout import APPLICATION_ID, new_recording_id  # noqa: F401  (part of this module's API)
 from autopilot.shared.telemetry.viewer import rerun_cli_path
 
@@ -68,11 +70,14 @@ def merge_recordings(
     ``blueprint``: a ``rerun.blueprint.Blueprint`` to add (saved for ``application_id``), or None to keep
     whatever the parts carry; ``blueprint_file``: one already saved (a ``.rbl``, e.g. ``tools.view.layout_cache``'s),
     added as it is (no rerun import here).  Missing or empty parts are skipped (a process that never started); if no
-    part is left, RrdError.  ``remove_parts`` deletes the parts after a successful merge.
+    part is left, RrdError.  ``remove_parts`` deletes the parts after a successful merge.  ``out_path`` gets its
+    digest beside it (``OUT.sha256``, ``autopilot.shared.telemetry.integrity``); an ``out_path`` that exists and is
+    not a regular file (``/dev/null``) is an RrdError: a rename would replace it.
     """
     if blueprint is not None and blueprint_file is not None:
         raise ValueError("merge_recordings: give blueprint or blueprint_file, not both")
     out = Path(out_path)
+    _check_target(out)
     present = [Path(p) for p in parts if Path(p).is_file() and Path(p).stat().st_size > 0]
     if not present:
         raise RrdError(f"no recording to merge: none of {[str(p) for p in parts]} exists or has data")
@@ -91,7 +96,10 @@ def merge_recordings(
         proc = subprocess.run(cmd, capture_output=True, text=True, timeout=timeout_s, env=_cli_env())
         if proc.returncode != 0 or not tmp_out.is_file():
             raise RrdError(f"rerun rrd merge failed (exit {proc.returncode}): {_tail(proc.stderr)}")
+        digest = sha256_file(tmp_out)
+        remove_digest(out)
         os.replace(tmp_out, out)
+        write_digest(out, digest)
     if remove_parts:
         for p in present:
             p.unlink(missing_ok=True)
@@ -121,9 +129,11 @@ def concatenate_recordings(
     ``blueprint``, with the parts' ``recording_id``, is written first (footerless) so the viewer shows the
     layout.  Every part must carry the same stream header (rerun version and encoding options) as the first,
     else RrdError.  A torn last message (a part cut by SIGKILL) is dropped; an unknown message kind is an
-    RrdError (a rerun format this code does not know).  Missing or empty parts are skipped.
+    RrdError (a rerun format this code does not know).  Missing or empty parts are skipped.  The digest and the
+    rule on a target that is not a regular file are those of :func:`merge_recordings`.
     """
     out = Path(out_path)
+    _check_target(out)
     present = [Path(p) for p in parts if Path(p).is_file() and Path(p).stat().st_size > _RRD_HEADER]
     if not present:
         raise RrdError(f"no recording to join: none of {[str(p) for p in parts]} exists or has data")
@@ -138,7 +148,8 @@ def concatenate_recordings(
             inputs.insert(0, rbl)
         tmp_out = Path(tmp) / "joined.rrd"
         header = None
-        with open(tmp_out, "wb") as dst:
+        with open(tmp_out, "wb") as raw:
+            dst = _Hashing(raw)
             for path in inputs:
                 with open(path, "rb") as src:
                     head = src.read(_RRD_HEADER)
@@ -150,11 +161,31 @@ def concatenate_recordings(
                     elif head != header:
                         raise RrdError(f"{path}: stream header {head.hex()} is not the first part's {header.hex()}")
                     _copy_messages(src, dst, path)
+        remove_digest(out)
         os.replace(tmp_out, out)  # same folder: a rename
+        write_digest(out, dst.sha.hexdigest())
     if remove_parts:
         for p in present:
             p.unlink(missing_ok=True)
     return out
+
+
+def _check_target(out: Path) -> None:
+    what = not_regular(out)
+    if what:
+        raise RrdError(f"{out} is {what}, not a regular file: a recording is never written over it")
+
+
+class _Hashing:
+    """A file's ``write`` that also feeds SHA-256 (the digest of what was written, without reading it back)."""
+
+    def __init__(self, f):
+        self.f = f
+        self.sha = hashlib.sha256()
+
+    def write(self, buf) -> None:
+        self.sha.update(buf)
+        self.f.write(buf)
 
 
 def _copy_messages(src, dst, path) -> None:

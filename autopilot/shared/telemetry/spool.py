@@ -84,12 +84,26 @@ class SpoolSink:
         self._f.write(MAGIC)
         self._ids = 0
         self.chunks_sent = 0
+        self.failed: str | None = None  # a write that failed (a full disk): one line naming the path; then no more
         self._record({"k": "start", "process": process, "recording_id": recording_id, "application_id": application_id})
 
     def _record(self, header: dict, *arrays: np.ndarray) -> None:
+        if self.failed is not None:
+            return
         head = json.dumps(header, separators=(",", ":")).encode()
         payload = b"".join(np.ascontiguousarray(a, dtype=_F8).tobytes() for a in arrays)
-        self._f.write(_HEAD.pack(len(head), len(payload)) + head + payload)
+        try:
+            self._f.write(_HEAD.pack(len(head), len(payload)) + head + payload)
+        except OSError as exc:
+            self._fail(exc)
+
+    def _fail(self, exc: OSError) -> None:
+        """Keep what reached the file (a reader stops at a torn last record), write nothing more."""
+        self.failed = f"{self.path}: {exc.strerror or exc}"
+        try:
+            self._f.close()
+        except OSError:
+            pass
 
     def _new_id(self) -> int:
         self._ids += 1
@@ -120,10 +134,18 @@ class SpoolSink:
 
     def flush(self) -> None:
         """After each of the writer's flushes: in the file, so a process killed later loses nothing of it."""
-        self._f.flush()
+        if self.failed is None:
+            try:
+                self._f.flush()
+            except OSError as exc:
+                self._fail(exc)
 
     def close(self) -> None:
-        self._f.close()
+        if self.failed is None:
+            try:
+                self._f.close()
+            except OSError as exc:
+                self._fail(exc)
 
 
 class SpoolReader:

@@ -209,6 +209,12 @@ class Telemetry:
             self._pending.append(channel)
         return channel
 
+    @property
+    def write_error(self) -> str | None:
+        """Why the spool stopped growing (a write that failed, e.g. a full disk: one line naming the path), or
+        None.  What reached the file stays readable; the process reports this at its exit."""
+        return getattr(self._sink, "failed", None)
+
     def log_event(self, sim_time_s: float, wall_time_s: float, text: str, level: str = "INFO") -> None:
         """A free-text line in ``/<process>/events`` (TextLog; level INFO, WARN, ERROR...).  Any thread."""
         if self.enabled:

@@ -71,7 +71,7 @@ def fly(task: Flight):
         baseline_gains=task.gains,
         gain_schedule=task.schedule,
     )
-    return run_inprocess(scen, _run(task.controller)), scen
+    return run_inprocess(scen, _run(task.controller), atmosphere=True), scen
 
 
 def record(series: dict, metrics: dict, onset: float, period: float, u_limit: float, dt: float) -> dict:

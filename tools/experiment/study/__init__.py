@@ -1,10 +1,14 @@
-"""The Monte Carlo robustness study (issue 13): many aircraft and controllers stepped at once as numpy arrays.
+"""The Monte Carlo robustness study of every plant (issues 13, 28): on the KH2013A many aircraft and controllers
+stepped at once as numpy arrays (or in C); on a JSBSim aircraft or a plant file, one in-process flight at a time.
 
-    python -m tools.experiment robustness --runs N --seed S --out DIR [--scheduler tcp://HOST:PORT]
-                                          [--controllers a,b] [--conditions nominal,moderate,severe]
-                                          [--sweep-runs M] [--long-runs L] [--chunk C]
+    python -m tools.experiment robustness [--plant kh2013a|FILE.toml|jsbsim:MODEL[,...]] [--seed S] [--out DIR]
+                                          [--controllers a,b] [--workers N | --scheduler tcp://HOST:PORT]
+        kh2013a:                          [--runs N] [--conditions nominal,moderate,severe] [--sweep-runs M]
+                                          [--long-runs L] [--chunk C]
+        a JSBSim aircraft or plant file:  [--airspeeds KT,...] [--turbulence none,light,...] [--seeds N]
     python -m tools.experiment replay --controller NAME --condition NAME --seed S --run I
 
+The KH2013A's study follows; the scalar plants' is ``flights``' doc, the list of plants ``robustness``'.
 Per controller (``CONTROLLERS``: SAC, CL-SAC at L_v 10/20/50, the fixed-gain baseline, CL-SAC with each robustness
 modification) and condition (``CONDITIONS``: nominal, moderate, severe, plus one-factor sweeps of link loss, sensor
 delay and turbulence from nominal), N runs of the paper's 30 s square wave; a separate 600 s long-flight scenario
@@ -35,14 +39,23 @@ failsafe), each SERVO_OUTPUT_RAW with probability p (the servo keeps the last co
 controlled flight the autopilot and the launcher use too): max |roll| (truth) < 60 deg and the command saturated
 (``autopilot.envelope.saturated``: at the limit) in < 20 % of the steps.
 
+**Never hangs.**  The batches stream (``execution.stream``: in task order, a few in flight, the tasks generated as
+they go), into a ``Tally`` whose memory follows the cells, not the runs (``accumulate``); the study prints its
+estimate of time and memory first, and SIGINT stops it within 0.1 s, keeping what is done (a summary marked
+``partial``).  A Dask scheduler is probed before use, every wait bounded (``scheduler``).
+
 Layout: ``sampling`` (controllers, conditions, tasks), ``simulation`` (one batch; its steps in numpy, or in C:
 ``kernel.c``, built and loaded by ``native``, the same numbers bit for bit), ``execution`` (many batches, here or
-on Dask), ``aggregation`` (summary.json), ``report`` (tables, figure, worst runs), ``runner``
-(``run_study``) and ``cli`` (the command lines); every name is importable from ``tools.experiment.study`` as before.
+on Dask), ``scheduler`` (Dask, bounded), ``accumulate`` (the runs folded as they come; Wilson intervals),
+``aggregation`` (summary.json), ``report`` (tables, figure, worst runs), ``runner``
+(``run_study``: the KH2013A's), ``flights`` (a JSBSim aircraft's or a plant file's), ``robustness`` (a list of
+plants, one summary.json) and ``cli`` (the command lines); every name is importable from ``tools.experiment.study``
+as before.
 """
 
 from __future__ import annotations
 
+from tools.experiment.study.accumulate import wilson
 from tools.experiment.study.aggregation import (
     LONG_CONDITIONS,
     LONG_CONTROLLERS,
@@ -63,7 +76,7 @@ from tools.experiment.study.cli import (
     options_from_args,
     replay_main,
 )
-from tools.experiment.study.execution import Progress, execute, merge
+from tools.experiment.study.execution import Progress, execute, interruptible, merge, stream
 from tools.experiment.study.report import format_breaks, format_long, format_table, save_figure, save_worst_rrd
 from tools.experiment.study.runner import run_study
 from tools.experiment.study.sampling import (
@@ -124,6 +137,7 @@ __all__ = [
     "breaks",
     "build_parser",
     "build_replay_parser",
+    "interruptible",
     "canonical",
     "execute",
     "format_breaks",
@@ -146,5 +160,7 @@ __all__ = [
     "save_figure",
     "save_worst_rrd",
     "simulate",
+    "stream",
     "sweep_conditions",
+    "wilson",
 ]

@@ -7,35 +7,43 @@ import math
 
 import numpy as np
 
+from tools.experiment.study.accumulate import Cell, LongCell, records_batch, wilson
 from tools.experiment.study.sampling import DEG, METRICS, SWEEPS, WINDOW_S, get_condition, get_controller
 
 
-def _pct(values: list[float], q: float) -> float:
-    """Nearest-rank percentile (a diverged run's +inf stays +inf instead of making the interpolation NaN)."""
-    return float(np.percentile(np.asarray(values, dtype=float), q, method="inverted_cdf"))
-
-
 def aggregate(records: dict[tuple[str, int], dict], condition: str, controller: str, seed: int) -> dict:
-    """summary.json's entry of one controller under one condition."""
+    """summary.json's entry of one controller under one condition, from per-run records (``merge``)."""
     runs = sorted((i, r) for (c, i), r in records.items() if c == condition)
     if not runs:
         return {}
-    rs = [r for _, r in runs]
+    cell = Cell(exact=True)
+    cell.add(np.array([i for i, _ in runs]), records_batch([r for _, r in runs]), np.arange(len(runs)))
+    return cell_summary(cell, condition, controller, seed)
+
+
+def cell_summary(cell: Cell, condition: str, controller: str, seed: int) -> dict:
+    """summary.json's entry of one controller under one condition: the bounded share with its Wilson 95 %
+    interval (also per PFC), nearest-rank percentiles (a diverged run's +inf stays +inf: null in JSON), the worst
+    run and the commands that replay it."""
+    if cell is None or not cell.runs:
+        return {}
     out: dict = {
-        "runs": len(rs),
-        "bounded_share": sum(r["bounded"] for r in rs) / len(rs),
+        "runs": cell.runs,
+        "bounded_share": cell.bounded / cell.runs,
+        "bounded_ci95": wilson(cell.bounded, cell.runs),
         "bounded_share_by_pfc": {},
         # the runs out of the envelope by tracking (autopilot.envelope.window_flags), in any 20 s window
-        "oscillating_share": sum(r.get("oscillating", False) for r in rs) / len(rs),
-        "not_following_share": sum(r.get("not_following", False) for r in rs) / len(rs),
-        "p50": {m: _finite(_pct([r[m] for r in rs], 50)) for m in METRICS},
-        "p95": {m: _finite(_pct([r[m] for r in rs], 95)) for m in METRICS},
+        "oscillating_share": cell.oscillating / cell.runs,
+        "not_following_share": cell.not_following / cell.runs,
+        "bounded_ci95_by_pfc": {},
+        "p50": {m: _finite(cell.samples[m].percentile(50)) for m in METRICS},
+        "p95": {m: _finite(cell.samples[m].percentile(95)) for m in METRICS},
     }
-    for pfc in ("paper", "robust"):
-        sub = [r for r in rs if r["pfc"] == pfc]
-        if sub and get_controller(controller).adaptive:  # the baseline has no PFC
-            out["bounded_share_by_pfc"][pfc] = sum(r["bounded"] for r in sub) / len(sub)
-    i, worst = min(runs, key=lambda ir: (ir[1]["bounded"], -ir[1]["max_abs_roll"], -ir[1]["ise_ref"]))
+    for pfc, (n, k) in cell.by_pfc.items():
+        if n and get_controller(controller).adaptive:  # the baseline has no PFC
+            out["bounded_share_by_pfc"][pfc] = k / n
+            out["bounded_ci95_by_pfc"][pfc] = wilson(k, n)
+    _key, i, worst = cell.worst
     out["worst"] = {
         "run": i,
         "seed": seed,
@@ -115,17 +123,27 @@ LONG_CONDITIONS = ("nominal", "moderate")
 
 
 def long_flight_summary(records: dict[tuple[str, int], dict], condition: str) -> dict:
+    """The drift of a 600 s flight from per-run records (``merge``): see ``long_cell_summary``."""
+    rs = [r for (c, _), r in records.items() if c == condition]
+    if not rs:
+        return {}
+    cell = LongCell(exact=True, windows=len(rs[0]["window_peak_roll"]))
+    cell.add(records_batch(rs), np.arange(len(rs)))
+    return long_cell_summary(cell)
+
+
+def long_cell_summary(cell: LongCell | None) -> dict:
     """The drift of a 600 s flight: median peak |roll| (deg) of each 30 s window, per PFC."""
     out = {}
     for pfc in ("paper", "robust"):
-        rs = [r for (c, _), r in records.items() if r["pfc"] == pfc and c == condition]
-        if not rs:
+        d = None if cell is None else cell.by_pfc.get(pfc)
+        if not d:
             continue
-        peaks = np.array([r["window_peak_roll"] for r in rs]) / DEG
-        med = np.median(peaks, axis=0)
+        med = cell.medians(pfc)
         out[pfc] = {
-            "runs": len(rs),
-            "bounded_share": sum(r["bounded"] for r in rs) / len(rs),
+            "runs": d["runs"],
+            "bounded_share": d["bounded"] / d["runs"],
+            "bounded_ci95": wilson(d["bounded"], d["runs"]),
             "median_window_peak_roll_deg": [_finite(round(float(v), 3)) for v in med],
             "peak_first_window_deg": _finite(float(med[0])),
             "peak_180_210_s_deg": _finite(float(med[6])) if len(med) > 6 else None,

@@ -4,6 +4,8 @@ replay`` (one run alone), dispatched by ``tools.experiment.cli``."""
 from __future__ import annotations
 
 import argparse
+import math
+import re
 import sys
 from collections.abc import Sequence
 from pathlib import Path
@@ -11,9 +13,9 @@ from pathlib import Path
 from autopilot.shared import cli
 from autopilot.shared.cli import OneLineArgumentParser
 from tools.experiment.outdir import check_out_dir, default_out_dir, prepare_out_dir
-from tools.experiment.study.aggregation import LONG_DURATION_S
-from tools.experiment.study.report import format_breaks, format_long, format_table
-from tools.experiment.study.runner import run_study
+from tools.experiment.study import flights
+from tools.experiment.study.execution import interruptible
+from tools.experiment.study.robustness import final_line, notes, report, run_plants, sections_of
 from tools.experiment.study.sampling import CONTROLLERS, METRICS, StudyError, StudyOptions, get_condition
 from tools.experiment.study.simulation import replay
 
@@ -24,7 +26,11 @@ REPLAY_PROG = "python -m tools.experiment replay"
 
 def build_parser(prog: str = ROBUSTNESS_PROG) -> argparse.ArgumentParser:
     """The study's flags."""
-    p = OneLineArgumentParser(prog=prog, description="Monte Carlo robustness study; see tools.experiment.study's doc.")
+    p = OneLineArgumentParser(
+        prog=prog,
+        description="The Monte Carlo robustness study of one plant or several: the KH2013A's batched study "
+        "(docs/experiments.md), a JSBSim aircraft's or a plant file's in-process flights (docs/jsbsim.md).",
+    )
     add_run_arguments(p)
     return p
 
@@ -42,33 +48,25 @@ def build_replay_parser(prog: str = REPLAY_PROG) -> argparse.ArgumentParser:
 
 def add_run_arguments(r: argparse.ArgumentParser) -> None:
     r.add_argument(
-        "--runs",
-        type=cli.count(1, 10**7, name="runs"),
-        default=1000,
-        help="runs per controller and condition (default 1000)",
+        "--plant",
+        metavar="PLANT[,PLANT...]",
+        help="the plants studied: kh2013a (the batched study below; default), FILE.toml (a plant file) or "
+        "jsbsim:MODEL[:KEY=VALUE,...] (a JSBSim aircraft; docs/plants.md), or a comma-separated list of them: one "
+        "summary.json with a section per plant",
     )
-    r.add_argument("--seed", type=cli.seed, default=0, help="run i draws from numpy default_rng([seed, i]) (default 0)")
+    r.add_argument(
+        "--controllers",
+        metavar="A,B",
+        help=f"kh2013a: a subset of {','.join(CONTROLLERS)}; a JSBSim aircraft or plant file: of "
+        f"{','.join(flights.CONTROLLERS)} (default: all of each)",
+    )
+    r.add_argument(
+        "--seed",
+        type=cli.seed,
+        help="kh2013a: run i draws from numpy default_rng([seed, i]); a JSBSim aircraft or plant file: flight i flies "
+        f"with the seed seed*{flights.SEED_STRIDE} + i (default 0)",
+    )
     r.add_argument("--out", metavar="DIR", help="output folder (default: a new runs/robustness-<timestamp>/)")
-    r.add_argument("--controllers", metavar="A,B", help=f"subset of: {','.join(CONTROLLERS)} (default all)")
-    r.add_argument("--conditions", metavar="A,B", help="subset of: nominal,moderate,severe (default all)")
-    r.add_argument(
-        "--sweep-runs",
-        type=cli.count(0, 10**6, name="sweep_runs"),
-        default=100,
-        help="runs per sweep point (loss, delay, turbulence; 0: none)",
-    )
-    r.add_argument(
-        "--long-runs",
-        type=cli.count(0, 10**6, name="long_runs"),
-        default=10,
-        help="runs of the 600 s long flight (0: none; default 10)",
-    )
-    r.add_argument(
-        "--chunk",
-        type=cli.count(1, 10**6, name="chunk"),
-        default=2500,
-        help="runs per batch (results do not depend on it)",
-    )
     r.add_argument("--scheduler", metavar="tcp://HOST:PORT", help="a Dask scheduler (default: run here)")
     r.add_argument(
         "--workers",
@@ -77,65 +75,202 @@ def add_run_arguments(r: argparse.ArgumentParser) -> None:
         help="local processes when no --scheduler (default 1; results do not change)",
     )
     r.add_argument("--no-progress", action="store_true", help="no progress bar")
+    k = r.add_argument_group("kh2013a (many aircraft at once, as numpy arrays or in C)")
+    k.add_argument(
+        "--runs",
+        type=cli.count(1, 10**7, name="runs"),
+        help="runs per controller and condition (default 1000; up to 10^7: the estimate is printed first and a "
+        "study beyond 256 MB of values bins its percentiles)",
+    )
+    k.add_argument("--conditions", metavar="A,B", help="a subset of nominal,moderate,severe (default all)")
+    k.add_argument(
+        "--sweep-runs",
+        type=cli.count(0, 10**6, name="sweep_runs"),
+        help="runs per sweep point (loss, delay, turbulence; 0: none; default 100)",
+    )
+    k.add_argument(
+        "--long-runs",
+        type=cli.count(0, 10**6, name="long_runs"),
+        help="runs of the 600 s long flight (0: none; default 10)",
+    )
+    k.add_argument(
+        "--chunk",
+        type=cli.count(1, 10**6, name="chunk"),
+        help="runs per batch (default 2500; results do not depend on it)",
+    )
+    f = r.add_argument_group("a JSBSim aircraft or plant file (one in-process flight at a time)")
+    f.add_argument(
+        "--airspeeds",
+        metavar="KT,...",
+        help="a JSBSim aircraft's airspeeds (kt), each a condition (default: the spec's airspeed_kt, 90)",
+    )
+    f.add_argument(
+        "--turbulence",
+        metavar="A,B",
+        help=f"the turbulence levels flown, of {','.join(flights.TURBULENCE)} (default none,moderate; none on a "
+        "plant file whose states cannot carry the atmosphere)",
+    )
+    f.add_argument(
+        "--seeds",
+        type=cli.count(1, flights.MAX_SEEDS, name="seeds"),
+        help="flights per controller and condition (default 3)",
+    )
+
+
+KH2013A_FLAGS = ("runs", "conditions", "sweep_runs", "long_runs", "chunk")
+FLIGHT_FLAGS = ("airspeeds", "turbulence", "seeds")
+
+
+def _names(text: str | None, flag: str) -> tuple[str, ...] | None:
+    """A comma-separated list given to ``flag`` (None: not given); refuses an empty one or an empty name."""
+    if text is None:
+        return None
+    items = tuple(s.strip() for s in text.split(","))
+    if not text.strip():
+        raise StudyError(f"--{flag} is empty")
+    if not all(items):
+        raise StudyError(f"--{flag} has an empty name in {text!r}")
+    return items
+
+
+def split_plants(text: str | None) -> list[str]:
+    """The --plant list: comma-separated, a JSBSim spec keeping its own KEY=VALUE pairs (``jsbsim:c172x:
+    airspeed_kt=60,surface=rudder,kh2013a`` is two plants)."""
+    if text is None:
+        return ["kh2013a"]
+    out: list[str] = []
+    for piece in _names(text, "plant"):
+        if out and out[-1].startswith("jsbsim:") and re.fullmatch(r"[a-z_]+=[^:]*", piece):
+            out[-1] += "," + piece
+        else:
+            out.append(piece)
+    dup = next((p for i, p in enumerate(out) if p in out[:i]), None)
+    if dup is not None:
+        raise StudyError(f"--plant names {dup} twice")
+    return out
+
+
+def _airspeeds(text: str | None) -> tuple[float, ...] | None:
+    names = _names(text, "airspeeds")
+    if names is None:
+        return None
+    try:
+        values = tuple(float(v) for v in names)
+    except ValueError:
+        raise StudyError(f"--airspeeds expects airspeeds in kt, got {text!r}") from None
+    if not all(math.isfinite(v) and v > 0 for v in values):
+        raise StudyError(f"--airspeeds must be positive and finite, got {text!r}")
+    return values
+
+
+def plan_from_args(args) -> list[tuple[str, object]]:
+    """(plant, its study's options) for each --plant, every flag checked against the plants it applies to."""
+    from sitl import plant as plants
+
+    texts = split_plants(args.plant)
+    for text in texts:
+        if text != "kh2013a":
+            try:
+                plants.check(text)
+            except plants.PlantError as exc:
+                raise StudyError(str(exc)) from None
+    scalar = [t for t in texts if t != "kh2013a"]
+    given = {k for k in (*KH2013A_FLAGS, *FLIGHT_FLAGS) if getattr(args, k) is not None}
+    for k in KH2013A_FLAGS:
+        if k in given and "kh2013a" not in texts:
+            raise StudyError(
+                f"--{k.replace('_', '-')} applies to --plant kh2013a only (a JSBSim aircraft or plant file flies "
+                "--seeds flights per --turbulence level and airspeed)"
+            )
+    for k in FLIGHT_FLAGS:
+        if k in given and not scalar:
+            raise StudyError(
+                f"--{k} applies to a JSBSim aircraft or plant file only (--plant kh2013a flies --runs runs per "
+                "--conditions condition)"
+            )
+    if "airspeeds" in given and not any(t.startswith("jsbsim:") for t in texts):
+        raise StudyError("--airspeeds applies to a JSBSim aircraft (--plant jsbsim:MODEL) only")
+    controllers = _names(args.controllers, "controllers")
+    seed = 0 if args.seed is None else args.seed
+    plan: list[tuple[str, object]] = []
+    for text in texts:
+        if text == "kh2013a":
+            kw = {k: getattr(args, k) for k in ("runs", "sweep_runs", "long_runs", "chunk") if k in given}
+            if controllers is not None:
+                kw["controllers"] = controllers
+            if "conditions" in given:
+                kw["conditions"] = _names(args.conditions, "conditions")
+            plan.append((text, StudyOptions(seed=seed, scheduler=args.scheduler, workers=args.workers, **kw)))
+            continue
+        airspeeds = _airspeeds(args.airspeeds) if text.startswith("jsbsim:") else None
+        turbulence = _names(args.turbulence, "turbulence")
+        if turbulence is None:
+            turbulence = ("none", "moderate")
+            try:
+                plants.check_disturbances(text, {"turbulence": "moderate"})
+            except plants.PlantError:
+                turbulence = ("none",)  # a plant file whose states cannot carry the atmosphere
+        seeds = 3 if args.seeds is None else args.seeds
+        if seed > (cli.MAX_SEED - seeds) // flights.SEED_STRIDE:
+            raise StudyError(
+                f"--seed {seed}: its flights' seeds (seed*{flights.SEED_STRIDE} + i) pass 2^63-1 on --plant {text}"
+            )
+        opts = flights.FlightOptions(
+            text,
+            controllers or flights.CONTROLLERS,
+            turbulence,
+            seeds,
+            seed,
+            airspeeds,
+            args.workers,
+            args.scheduler,
+        )
+        flights.check(opts)
+        plan.append((text, opts))
+    return plan
 
 
 def options_from_args(args) -> StudyOptions:
-    def names(text):
-        if text is None:
-            return None
-        items = tuple(s.strip() for s in text.split(","))
-        if not all(items):
-            raise StudyError(f"empty name in {text!r}")
-        return items
-
-    kw = dict(
-        runs=args.runs,
-        seed=args.seed,
-        sweep_runs=args.sweep_runs,
-        long_runs=args.long_runs,
-        chunk=args.chunk,
-        scheduler=args.scheduler,
-        workers=args.workers,
-    )
-    if args.controllers:
-        kw["controllers"] = names(args.controllers)
-    if args.conditions:
-        kw["conditions"] = names(args.conditions)
-    return StudyOptions(**kw)
+    """The KH2013A study's options (``--plant kh2013a``)."""
+    for text, opts in plan_from_args(args):
+        if text == "kh2013a":
+            return opts
+    raise StudyError("--plant does not name kh2013a")
 
 
 def main_run(args, prog: str) -> int:
     try:
-        opts = options_from_args(args)
+        plan = plan_from_args(args)
         out = Path(args.out) if args.out else default_out_dir("robustness")
         check_out_dir(out)
+        if args.scheduler is not None:
+            from tools.experiment.study.scheduler import probe
+
+            probe(args.scheduler)  # bounded: one line if it is not a Dask scheduler, before any folder
         out = prepare_out_dir(out)
-        summary = run_study(opts, out, progress=not args.no_progress)
+        with interruptible() as stop:
+            summary = run_plants(plan, out, progress=not args.no_progress, stop=stop, scheduler=args.scheduler)
     except (StudyError, ValueError) as exc:
-        print(f"{prog}: error: {exc}", file=sys.stderr)
+        print(
+            f"{prog}: error: {str(exc).strip().splitlines()[0] if str(exc).strip() else type(exc).__name__}",
+            file=sys.stderr,
+        )
         return 2
     except KeyboardInterrupt:
         print(f"{prog}: interrupted", file=sys.stderr)
         return 130
     print()
-    print(format_table(summary))
-    print()
-    if summary["sweep_runs"]:
-        print("where each controller stops being bounded (< 90 % of runs), one factor at a time from nominal:")
-        print(format_breaks(summary))
-    for ctrl, by_cond in summary["results"].items():
-        w = by_cond.get(opts.conditions[-1], {}).get("worst")
-        if w:
-            print(f"worst {ctrl} run under {opts.conditions[-1]}: {w['replay_inprocess']}")
-    if "long_flight" in summary:
-        print(f"\nlong flight ({LONG_DURATION_S:g} s), median peak |roll| per 30 s window:")
-        print(format_long(summary))
-    t = summary["timing"]
-    kinds = ", ".join(f"{p['runs']} of {p['duration_s']:g} s" for p in t["phases"].values())
-    print(
-        f"\n{t['runs']} runs ({kinds}) in {t['wall_s']:.1f} s ({t['runs_per_s']:,.0f} runs/s), files included; "
-        f"files in {out.resolve()}"
-    )
+    print(report(sections_of(summary), headings="plants" in summary, full=False))
+    lines = notes(summary)
+    if lines:
+        print()
+        print("\n".join(lines))
+    print(f"\n{final_line(summary, out)}")
+    if summary.get("partial"):
+        print(
+            f"{prog}: interrupted: kept what was done in {(out / 'summary.json').resolve()} (partial)", file=sys.stderr
+        )
+        return 130
     return 0
 
 

@@ -2,10 +2,9 @@
 
 from __future__ import annotations
 
+import math
 from collections.abc import Sequence
 from pathlib import Path
-
-import numpy as np
 
 from tools.experiment.study.sampling import CONTROLLERS, SWEEPS, StudyOptions
 from tools.experiment.study.simulation import replay
@@ -17,9 +16,10 @@ def _adaptive(name: str) -> bool:
 
 
 def format_table(summary: dict, conditions: Sequence[str] = ("nominal", "moderate", "severe")) -> str:
-    """Markdown: bounded share and p95 of ise_ref and energy per controller and condition (docs/experiments.md)."""
+    """Markdown: bounded share (and its Wilson 95 % interval) and p95 of ise_ref and energy per controller and
+    condition (docs/experiments.md)."""
     conds = [c for c in conditions if any(c in v for v in summary["results"].values())]
-    head = "| controller | " + " | ".join(f"{c}: bounded / p95 ise_ref / p95 energy" for c in conds) + " |"
+    head = "| controller | " + " | ".join(f"{c}: bounded (95 % CI) / p95 ise_ref / p95 energy" for c in conds) + " |"
     lines = [head, "|---|" + "---|" * len(conds)]
     for ctrl, by_cond in summary["results"].items():
         cells = []
@@ -28,7 +28,9 @@ def format_table(summary: dict, conditions: Sequence[str] = ("nominal", "moderat
             if not a:
                 cells.append("")
                 continue
-            cells.append(f"{100 * a['bounded_share']:.1f} % / {_fmt(a['p95']['ise_ref'])} / {_fmt(a['p95']['energy'])}")
+            ci = a.get("bounded_ci95")
+            share = f"{100 * a['bounded_share']:.1f} %" + (f" ({100 * ci[0]:.1f}-{100 * ci[1]:.1f})" if ci else "")
+            cells.append(f"{share} / {_fmt(a['p95']['ise_ref'])} / {_fmt(a['p95']['energy'])}")
         lines.append(f"| {ctrl} | " + " | ".join(cells) + " |")
     return "\n".join(lines)
 
@@ -41,6 +43,9 @@ def format_breaks(summary: dict) -> str:
     for ctrl, b in summary["breaks"].items():
         cells = []
         for k in SWEEPS:
+            if k not in b:  # a study stopped before this sweep
+                cells.append("not flown")
+                continue
             if not _adaptive(ctrl):
                 v = b.get(k)
                 cells.append(f"{'-' if v is None else f'{v:.3g}'} (no PFC)")
@@ -79,8 +84,9 @@ def _fmt(v) -> str:
     return "diverged" if v is None else f"{v:.3g}"
 
 
-def save_figure(merged: dict, opts: StudyOptions, path: Path) -> Path:
-    """Box plots of ise_ref and energy per controller, one column per condition (log scale)."""
+def save_figure(tally, opts: StudyOptions, path: Path) -> Path:
+    """Box plots of ise_ref and energy per controller, one column per condition (log scale): the quartiles and the
+    p5-p95 whiskers of each cell's finite positive values (``tools.experiment.study.accumulate.Sample``)."""
     import matplotlib
 
     matplotlib.use("Agg")
@@ -91,12 +97,13 @@ def save_figure(merged: dict, opts: StudyOptions, path: Path) -> Path:
     for j, cond in enumerate(conds):
         for i, metric in enumerate(("ise_ref", "energy")):
             ax = axes[i][j]
-            data = []
+            stats = []
             for ctrl in opts.controllers:
-                v = np.array([r[metric] for (c, _), r in merged[ctrl].items() if c == cond])
-                v = v[np.isfinite(v) & (v > 0)]
-                data.append(v if v.size else np.array([np.nan]))
-            ax.boxplot(data, whis=(5, 95), showfliers=False)
+                cell = tally.cells.get(ctrl, {}).get(cond)
+                q = cell.samples[metric].quantiles((5, 25, 50, 75, 95)) if cell else None
+                q = q or [math.nan] * 5
+                stats.append({"whislo": q[0], "q1": q[1], "med": q[2], "q3": q[3], "whishi": q[4], "fliers": []})
+            ax.bxp(stats, showfliers=False)
             ax.set_xticks(range(1, len(opts.controllers) + 1), opts.controllers, rotation=60, fontsize=7)
             ax.set_yscale("log")
             ax.grid(True, alpha=0.3)

@@ -1,25 +1,31 @@
-"""The whole study (``StudyOptions``, ``run_study``): sample, simulate, aggregate, report, write the files."""
+"""The KH2013A's whole study (``StudyOptions``, ``run_study``): plan the runs (never listed whole), fly a pilot batch
+and print the estimate of time and memory, stream the batches into a ``Tally``, aggregate, report, write the files.
+Stopped (``stop``, on SIGINT), it keeps what is done: a summary marked ``partial``."""
 
 from __future__ import annotations
 
 import dataclasses
 import datetime as _dt
+import math
 import os
+import threading
 import time
+from collections.abc import Iterator
 from pathlib import Path
 
 from autopilot.envelope import tracking_limits
 from autopilot.shared.process import write_json_atomic
 from tools.experiment.study import native
+from tools.experiment.study.accumulate import BIN_WIDTH, EXACT_BYTES, Tally, value_bytes
 from tools.experiment.study.aggregation import (
     LONG_CONDITIONS,
     LONG_CONTROLLERS,
     LONG_DURATION_S,
-    aggregate,
     breaks,
-    long_flight_summary,
+    cell_summary,
+    long_cell_summary,
 )
-from tools.experiment.study.execution import Progress, execute, merge
+from tools.experiment.study.execution import Progress, stream
 from tools.experiment.study.report import format_breaks, format_long, format_table, save_figure, save_worst_rrd
 from tools.experiment.study.sampling import (
     BOUND_ROLL_RAD,
@@ -28,34 +34,191 @@ from tools.experiment.study.sampling import (
     DEG,
     WINDOW_S,
     StudyOptions,
+    Task,
     get_condition,
-    make_tasks,
     sweep_conditions,
 )
 
+PILOT_RUNS = 200  # runs flown and timed for the estimate, before the study
 
-def run_study(opts: StudyOptions, out_dir: str | os.PathLike | None = None, *, log=print, progress: bool = True):
+
+class Plan:
+    """The (condition, run index) pairs of one phase in order, condition after condition, without listing them."""
+
+    def __init__(self, segments):
+        self.segments = [(c, n) for c, n in segments if n]
+        self.total = sum(n for _, n in self.segments)
+
+    def pairs(self, start: int, stop: int) -> tuple[tuple[str, int], ...]:
+        out, base = [], 0
+        for cond, n in self.segments:
+            lo, hi = max(start - base, 0), min(stop - base, n)
+            out += [(cond, i) for i in range(lo, hi)]
+            base += n
+        return tuple(out)
+
+
+def _tasks(controllers, plan: Plan, seed: int, chunk: int, duration_s: float) -> Iterator[Task]:
+    """Every controller's runs in chunks of ``chunk`` (``make_tasks``'s tasks, one at a time)."""
+    for c in controllers:
+        for i in range(0, plan.total, chunk):
+            yield Task(c, plan.pairs(i, min(i + chunk, plan.total)), seed, duration_s)
+
+
+def _pilot(controller: str, plan: Plan, seed: int, stop) -> float | None:
+    """30 s runs per second in this process: a warm-up run (the imports, the C kernel's loading), then up to
+    ``PILOT_RUNS`` runs spread over the plan's conditions, timed and thrown away (a few tenths of a second in C)."""
+    if not plan.total:
+        return None
+    per = max(1, PILOT_RUNS // len(plan.segments))
+    pairs = tuple((c, i) for c, n in plan.segments for i in range(min(per, n)))
+    for _ in stream([Task(controller, pairs[:1], seed, 1.0)], stop=stop):
+        pass
+    t0 = time.perf_counter()
+    flown = list(stream([Task(controller, pairs, seed)], stop=stop))
+    return len(pairs) / max(time.perf_counter() - t0, 1e-9) if flown else None
+
+
+def _rss_bytes() -> int:
+    """This process's resident memory now."""
+    try:
+        with open("/proc/self/statm") as f:
+            return int(f.read().split()[1]) * os.sysconf("SC_PAGE_SIZE")
+    except (OSError, ValueError, IndexError):
+        import resource
+
+        return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss * 1024
+
+
+def _mb(b: float) -> str:
+    if b < 1e6:
+        return f"{b / 1e3:,.0f} kB"
+    return f"{b / 1e6:,.0f} MB" if b < 1e9 else f"{b / 1e9:,.1f} GB"
+
+
+def _hms(s: float) -> str:
+    if s < 120:
+        return f"{s:.0f} s"
+    return f"{s / 60:.0f} min" if s < 7200 else f"{s / 3600:.1f} h"
+
+
+def estimate(n30: int, nlong: int, runs_per_s: float, parallel: int, exact: bool, cells: int) -> dict:
+    """Time and memory of a study from a pilot's rate (30 s runs per second in one process): a 600 s run costs 20
+    of them (the same cost per simulated second, docs/design.md); ``parallel`` processes or cluster threads."""
+    wall = (n30 + nlong * LONG_DURATION_S / 30.0) / max(runs_per_s * parallel, 1e-9)
+    windows = int(LONG_DURATION_S / WINDOW_S)
+    kept = value_bytes(n30, nlong, windows)
+    held = kept if exact else cells * 7 * 8 * int(4 * math.log(10) / math.log1p(BIN_WIDTH))  # bins of 4 decades
+    return {
+        "runs": n30 + nlong,
+        "wall_s": wall,
+        "runs_per_s_per_process": runs_per_s,
+        "parallel": parallel,
+        "memory_bytes": _rss_bytes() + held,
+        "values_bytes": kept,
+        "percentiles": "exact" if exact else f"binned (relative bin width {BIN_WIDTH:g})",
+    }
+
+
+def estimate_line(e: dict, where: str) -> str:
+    kept = (
+        f"percentiles exact: {_mb(e['values_bytes'])} of values kept"
+        if e["percentiles"] == "exact"
+        else f"percentiles binned to {100 * BIN_WIDTH:g} %: the values would take {_mb(e['values_bytes'])}"
+    )
+    return (
+        f"estimate: {e['runs']:,} runs, about {_hms(e['wall_s'])} on {where} "
+        f"({e['runs_per_s_per_process']:,.0f} runs of 30 s per second and process, timed on a pilot batch); "
+        f"memory about {_mb(e['memory_bytes'])} here ({kept}); Ctrl-C stops and keeps what is done"
+    )
+
+
+def run_study(
+    opts: StudyOptions,
+    out_dir: str | os.PathLike | None = None,
+    *,
+    log=print,
+    progress: bool = True,
+    stop: threading.Event | None = None,
+):
     """The whole study; returns the summary dict (also written to ``out_dir/summary.json`` with the table,
-    the figure and the worst runs' ``.rrd`` when ``out_dir`` is given)."""
+    the figure and the worst runs' ``.rrd`` when ``out_dir`` is given).  ``stop`` set (``execution.interruptible``):
+    the runs done so far, ``summary["partial"]`` True, no figure and no recording."""
     t_start = time.perf_counter()
-    pairs = [(c, i) for c in opts.conditions for i in range(opts.runs)]
+    summary, tally, phases = fly_study(opts, log=log, progress=progress, stop=stop)
+    if out_dir is not None:
+        write_study_files(summary, tally, opts, Path(out_dir), log=log)
+    summary["timing"] = timing(phases, t_start)
+    if out_dir is not None:  # summary.json last: its timing covers every other file
+        write_json_atomic(Path(out_dir) / "summary.json", summary, indent=2, allow_nan=False)
+        log(f"wrote {(Path(out_dir) / 'summary.json').resolve()} and table.md")
+    return summary
+
+
+def fly_study(
+    opts: StudyOptions, *, log=print, progress: bool = True, stop: threading.Event | None = None, client=None
+):
+    """Fly the study: (summary without ``timing``, the ``Tally`` of every run, each phase's ``_phase``)."""
     sweeps = list(sweep_conditions()) if opts.sweep_runs else []
-    pairs += [(c, i) for c in sweeps for i in range(opts.sweep_runs)]
-    tasks = make_tasks(opts.controllers, pairs, opts.seed, opts.chunk)
+    plan = Plan([(c, opts.runs) for c in opts.conditions] + [(c, opts.sweep_runs) for c in sweeps])
     long_ctrls = [c for c in LONG_CONTROLLERS if c in opts.controllers] if opts.long_runs else []
-    long_pairs = [(c, i) for c in LONG_CONDITIONS for i in range(opts.long_runs)]
-    long_tasks = make_tasks(long_ctrls, long_pairs, opts.seed, opts.chunk, LONG_DURATION_S)
-    total = sum(len(t.runs) for t in tasks)
-    bar = Progress(total, "30 s runs", enabled=progress)
+    long_plan = Plan([(c, opts.long_runs) for c in LONG_CONDITIONS])
+    total, n_long = len(opts.controllers) * plan.total, len(long_ctrls) * long_plan.total
+    windows = int(LONG_DURATION_S / WINDOW_S)
+    exact = value_bytes(total, n_long, windows) <= EXACT_BYTES
+    tally = Tally(exact, windows)
     where = opts.scheduler or ("this process" if opts.workers == 1 else f"{opts.workers} local processes")
     steps = "" if opts.scheduler else f" (steps: {native.engine()})"  # a cluster's workers load their own
-    log(f"study: {len(opts.controllers)} controllers x {len(pairs)} runs = {total} runs of 30 s on {where}{steps}")
-    t0 = time.perf_counter()
-    results = execute(tasks, opts.scheduler, bar, opts.workers)
-    phases = {"runs_30s": _phase(total, 30.0, time.perf_counter() - t0)}
-    merged = merge(tasks, results)
+    log(f"study: {len(opts.controllers)} controllers x {plan.total} runs = {total} runs of 30 s on {where}{steps}")
+    own = client is None and opts.scheduler is not None
+    if own:
+        from tools.experiment.study.scheduler import connect
+
+        client = connect(opts.scheduler)  # bounded: one line if it is not a Dask scheduler
+    phases: dict = {}
+    try:
+        rate = _pilot(opts.controllers[0], plan, opts.seed, stop)
+        if rate is not None:
+            from tools.experiment.study.scheduler import threads
+
+            parallel = threads(client) if client is not None else min(opts.workers, os.cpu_count() or 1)
+            cells = len(opts.controllers) * len(plan.segments) + 2 * len(long_ctrls) * len(long_plan.segments)
+            est = estimate(total, n_long, rate, parallel, exact, cells)
+            log(estimate_line(est, where if client is None else f"{where} ({parallel} worker threads)"))
+        t0 = time.perf_counter()
+        bar = Progress(total, "30 s runs", enabled=progress)
+        rest = _tasks(opts.controllers, plan, opts.seed, opts.chunk, 30.0)
+        for t, r in stream(rest, opts.scheduler, opts.workers, stop=stop, client=client):
+            tally.add(t, r)
+            bar.add(len(t.runs))
+        bar.close()
+        phases["runs_30s"] = _phase(tally.runs, 30.0, time.perf_counter() - t0)
+        if long_ctrls and not (stop is not None and stop.is_set()):
+            log(f"long flight: {len(long_ctrls)} controllers x {long_plan.total} runs of {LONG_DURATION_S:g} s")
+            t0, before = time.perf_counter(), tally.runs
+            bar = Progress(n_long, "600 s runs", enabled=progress)
+            long_tasks = _tasks(long_ctrls, long_plan, opts.seed, opts.chunk, LONG_DURATION_S)
+            for t, r in stream(long_tasks, opts.scheduler, opts.workers, stop=stop, client=client):
+                tally.add(t, r)
+                bar.add(len(t.runs))
+            bar.close()
+            phases["runs_600s"] = _phase(tally.runs - before, LONG_DURATION_S, time.perf_counter() - t0)
+    finally:
+        if own:
+            client.close(timeout=10)
+    partial = tally.runs < total + n_long
+    summary = study_summary(opts, tally, sweeps, long_ctrls, "runs_600s" in phases)
+    summary["partial"] = partial
+    if partial:
+        summary["done"] = {"runs": tally.runs, "of": total + n_long}
+    return summary, tally, phases
+
+
+def study_summary(opts: StudyOptions, tally: Tally, sweeps, long_ctrls, long_flown: bool) -> dict:
+    conds = (*opts.conditions, *sweeps)
     summary: dict = {
         "study": "robustness",
+        "plant": "kh2013a",
         "seed": opts.seed,
         "runs_per_condition": opts.runs,
         "sweep_runs": opts.sweep_runs,
@@ -74,64 +237,63 @@ def run_study(opts: StudyOptions, out_dir: str | os.PathLike | None = None, *, l
             "max_abs_roll": "rad",
             "sat_fraction": "1",
         },
-        "conditions": {c: dataclasses.asdict(get_condition(c)) for c in (*opts.conditions, *sweeps)},
+        "percentiles": "exact" if tally.exact else f"binned (relative bin width {BIN_WIDTH:g})",
+        "conditions": {c: dataclasses.asdict(get_condition(c)) for c in conds},
         "controllers": {
             c: {"label": CONTROLLERS[c].label, "changes": dict(CONTROLLERS[c].changes)} for c in opts.controllers
         },
         "results": {
-            c: {cond: aggregate(merged[c], cond, c, opts.seed) for cond in (*opts.conditions, *sweeps)}
+            c: {cond: cell_summary(tally.cells.get(c, {}).get(cond), cond, c, opts.seed) for cond in conds}
             for c in opts.controllers
         },
     }
     summary["breaks"] = breaks(summary)
-    n_long = sum(len(t.runs) for t in long_tasks)
-    if long_tasks:
-        log(f"long flight: {len(long_ctrls)} controllers x {len(long_pairs)} runs of {LONG_DURATION_S:g} s")
-        t0 = time.perf_counter()
-        lres = execute(long_tasks, opts.scheduler, Progress(n_long, "600 s runs", enabled=progress), opts.workers)
-        phases["runs_600s"] = _phase(n_long, LONG_DURATION_S, time.perf_counter() - t0)
-        lmerged = merge(long_tasks, lres)
+    if long_ctrls and long_flown:
         summary["long_flight"] = {
             "duration_s": LONG_DURATION_S,
             "window_s": WINDOW_S,
             "runs_per_condition": opts.long_runs,
             "controllers": {
-                c: {cond: long_flight_summary(lmerged[c], cond) for cond in LONG_CONDITIONS} for c in long_ctrls
+                c: {cond: long_cell_summary(tally.long.get(c, {}).get(cond)) for cond in LONG_CONDITIONS}
+                for c in long_ctrls
             },
         }
     summary["created"] = _dt.datetime.now(_dt.timezone.utc).isoformat(timespec="seconds")
+    return summary
 
-    def timing() -> dict:
-        """What the user waits for: from the call to the last file (all the runs, 30 s and 600 s, the
-        aggregation, the tables, the figure and the worst runs' recording), and each phase's simulation."""
-        wall = time.perf_counter() - t_start
-        runs = total + n_long
-        return {"wall_s": wall, "runs": runs, "runs_per_s": runs / wall if wall > 0 else None, "phases": phases}
 
-    if out_dir is None:
-        summary["timing"] = timing()
-        return summary
+def timing(phases: dict, t_start: float) -> dict:
+    """What the user waits for: from the call to the last file (all the runs, 30 s and 600 s, the aggregation,
+    the tables, the figure and the worst runs' recording), and each phase's simulation."""
+    wall = time.perf_counter() - t_start
+    runs = sum(p["runs"] for p in phases.values())
+    return {"wall_s": wall, "runs": runs, "runs_per_s": runs / wall if wall > 0 else None, "phases": phases}
 
-    out = Path(out_dir)
-    out.mkdir(parents=True, exist_ok=True)
+
+def study_tables(summary: dict) -> list[str]:
     tables = [format_table(summary)]
     if summary["sweep_runs"]:
         tables.append(format_breaks(summary))
     if "long_flight" in summary:
         tables.append(format_long(summary))
-    (out / "table.md").write_text("\n\n".join(tables) + "\n", encoding="utf-8")
+    return tables
+
+
+def write_study_files(summary: dict, tally: Tally, opts: StudyOptions, out: Path, *, log=print, table=True) -> None:
+    """table.md (``table``), and unless the study was stopped, robustness.png and worst.rrd."""
+    out.mkdir(parents=True, exist_ok=True)
+    if table:
+        (out / "table.md").write_text("\n\n".join(study_tables(summary)) + "\n", encoding="utf-8")
+    if summary.get("partial"):
+        return
     try:
-        png = save_figure(merged, opts, out / "robustness.png")
+        png = save_figure(tally, opts, out / "robustness.png")
         log(f"wrote {png.resolve()}")
     except ImportError as exc:
         log(f"no figure: {exc}")
     rrd = save_worst_rrd(summary, opts, out / "worst.rrd")
     if rrd is not None:
         log(f"wrote {rrd.resolve()} (open it with: rerun {rrd.resolve()})")
-    summary["timing"] = timing()  # summary.json last: its timing covers every other file
-    write_json_atomic(out / "summary.json", summary, indent=2, allow_nan=False)
-    log(f"wrote {(out / 'summary.json').resolve()} and table.md")
-    return summary
 
 
 def _phase(runs: int, duration_s: float, wall_s: float) -> dict:

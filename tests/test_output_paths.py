@@ -1,0 +1,116 @@
+"""Output paths (issue 31, item 9): a character device or a FIFO given as an output file is refused in one line
+before anything starts, never replaced by a regular file nor written into; an unwritable ``--out`` is one line;
+a lockstep ``--start-time`` that is not a whole frame is refused up front; and a disk that fills up in mid-flight
+leaves a FAILED verdict naming the file, with what was written kept.  Real processes, real files."""
+
+from __future__ import annotations
+
+import json
+import os
+import resource
+import stat
+import subprocess
+import sys
+
+import pytest
+from _mavlink_procs import run_cli
+
+from autopilot.shared.process import NotRegularFileError, write_json_atomic
+
+
+def _one_line(r: subprocess.CompletedProcess, *needles: str) -> str:
+    lines = (r.stdout + r.stderr).strip().splitlines()
+    assert r.returncode == 2 and len(lines) == 1 and "Traceback" not in r.stderr, r.stdout + r.stderr
+    for n in needles:
+        assert n in lines[0], lines[0]
+    return lines[0]
+
+
+def _device(tmp_path, kind: str):
+    path = tmp_path / kind
+    if kind == "fifo":
+        os.mkfifo(path)
+    else:  # a character device, as /dev/null is (1, 3): only root may make one
+        if os.geteuid() != 0:
+            pytest.skip("making a character device needs root")
+        os.mknod(path, 0o666 | stat.S_IFCHR, os.makedev(1, 3))
+    return path
+
+
+@pytest.mark.parametrize("kind", ["fifo", "chardev"])
+@pytest.mark.parametrize("module", ["autopilot", "sitl", "tools.gcs"])
+def test_stats_json_on_a_device_is_refused_and_left_alone(tmp_path, module, kind):
+    """Run as root, ``--stats-json /dev/null`` used to replace the device by a regular file (written by a rename).
+    Refused now, before any socket is opened; the device is the same device afterwards."""
+    target = _device(tmp_path, kind)
+    before = os.stat(target)
+    r = run_cli(module, "--lockstep", "--stats-json", str(target), timeout=60)
+    _one_line(r, "--stats-json", str(target), "not a regular file")
+    after = os.stat(target)
+    assert stat.S_IFMT(after.st_mode) == stat.S_IFMT(before.st_mode) and after.st_rdev == before.st_rdev
+    assert not (tmp_path / f"{kind}.tmp").exists()
+
+
+@pytest.mark.parametrize("flag, module", [("--tlog", "autopilot"), ("--rrd", "autopilot"), ("--rrd", "sitl")])
+def test_a_full_device_as_tlog_or_rrd_is_one_line_naming_it(flag, module):
+    """/dev/full (every write fails with ENOSPC) was a traceback at the first flush; now one line, exit 2."""
+    if not os.path.exists("/dev/full"):
+        pytest.skip("no /dev/full here")
+    _one_line(run_cli(module, "--lockstep", flag, "/dev/full", timeout=60), flag, "/dev/full", "character device")
+
+
+def test_stats_are_never_written_over_a_fifo():
+    """The library's own guard, below the command lines' check."""
+    import tempfile
+
+    with tempfile.TemporaryDirectory() as d:
+        fifo = os.path.join(d, "f")
+        os.mkfifo(fifo)
+        with pytest.raises(NotRegularFileError, match="not a regular file"):
+            write_json_atomic(fifo, {"a": 1})
+        assert stat.S_ISFIFO(os.stat(fifo).st_mode) and os.listdir(d) == ["f"]
+
+
+@pytest.mark.parametrize("out", ["/proc/clsac-out", "/proc/self/clsac-out"])
+def test_an_out_folder_that_cannot_be_made_is_one_line(out):
+    """``os.access`` says yes to root on /proc; a real probe (a temporary folder made and removed) says no."""
+    _one_line(run_cli("tools.launch", "--lockstep", "--duration", "1", "--out", out, timeout=60), "--out", out)
+
+
+def test_a_start_time_between_frames_is_refused_before_the_flight(tmp_path):
+    """0.005 s at 100 Hz is half a frame: the SITL refused it at run time (exit 1 after the launch); now the launcher
+    refuses it in one line naming the SITL (its value), before anything starts."""
+    r = run_cli(
+        "tools.launch", "--lockstep", "--start-time", "0.005", "--duration", "1", "--out", str(tmp_path), timeout=60
+    )
+    _one_line(r, "--start-time", "0.005", "whole number of frames", "0.01 s")
+    summary = json.loads((tmp_path / "summary.json").read_text())
+    assert summary["refused"] and summary["failed"] == "sitl" and summary["flown"]["fraction"] == 0
+    assert run_cli("tools.launch", "--lockstep", "--start-time", "0.05", "--duration", "0.5", "--no-rrd",
+                   "--no-png", "--quiet", "--out", str(tmp_path / "ok"), timeout=120).returncode == 0  # fmt: skip
+
+
+@pytest.mark.e2e
+def test_a_disk_full_in_mid_flight_fails_the_flight_naming_the_file_and_keeps_what_was_written(tmp_path):
+    """Files may grow to 300 kB only (RLIMIT_FSIZE: a write past it fails, as on a full disk): a 30 s lockstep flight
+    writes more than that to its tlog.  The flight flies on to its end; the verdict is FAILED, naming the file; the
+    stats are written and the tlog keeps its first 300 kB."""
+    limit = 300_000
+
+    def small_files():
+        resource.setrlimit(resource.RLIMIT_FSIZE, (limit, limit))
+
+    r = subprocess.run(
+        [sys.executable, "-m", "tools.launch", "--lockstep", "--duration", "30", "--out", str(tmp_path), "--quiet",
+         "--no-png"],
+        capture_output=True, text=True, timeout=300, preexec_fn=small_files, stdin=subprocess.DEVNULL,
+    )  # fmt: skip
+    assert r.returncode == 1 and "Traceback" not in r.stdout + r.stderr, r.stdout[-2000:] + r.stderr[-2000:]
+    last = r.stdout.strip().splitlines()[-1]
+    assert last.startswith("FAILED: autopilot failed (exit code 1): autopilot: error: could not write "), last
+    assert "flown 100 %" in last
+    log = (tmp_path / "autopilot.log").read_text()
+    assert f"could not write {tmp_path / 'flight.tlog'}: File too large" in log and "Traceback" not in log
+    assert (tmp_path / "flight.tlog").stat().st_size == limit
+    stats = json.loads((tmp_path / "autopilot.json").read_text())
+    assert stats["steps"] == 3000 and any("flight.tlog" in e for e in stats["output_errors"])
