@@ -58,6 +58,7 @@ def check(text: str) -> str:
         if k == "file":
             load_file(text)
         elif k == "jsbsim":
+            from sitl.jsbsim_models import pilot_gains
             from sitl.jsbsim_plant import JsbsimPlantError, available_models, parse_spec
 
             try:
@@ -66,6 +67,8 @@ def check(text: str) -> str:
                     raise JsbsimPlantError(
                         f"jsbsim plant: no model {spec.model!r}; available: {', '.join(available_models())}"
                     )
+                _ = spec.surface_map  # the model's own command -> deflection, or why it has none in rad
+                pilot_gains(spec.model)  # the safety pilot holds it, or says why not
             except JsbsimPlantError as exc:
                 raise PlantError(str(exc)) from None
     except PlantFileError as exc:
@@ -192,6 +195,34 @@ def build(text: str, physics_rate_hz: float, params: dict | None = None, dist=No
         raise PlantError(str(exc)) from None
 
 
+def surface_of(text: str) -> str:
+    """The surface the plant's command drives: ``rudder`` (the KH2013A), a plant file's ``[input] surface``, a JSBSim
+    spec's ``surface`` (aileron by default)."""
+    k = kind(text)
+    if k == "file":
+        return load_file(text).surface
+    if k == "jsbsim":
+        from sitl.jsbsim_plant import parse_spec
+
+        return parse_spec(text).surface
+    return "rudder"
+
+
+def name_of(text: str) -> str:
+    """The plant's short name (headers, titles, run folders): ``KH2013A``, the JSBSim model (``c172x``, with
+    ``-rudder`` on its rudder), a plant file's ``name`` (else its file name)."""
+    k = kind(text)
+    if k == "file":
+        lp = load_file(text)
+        return lp.name or Path(text).stem
+    if k == "jsbsim":
+        from sitl.jsbsim_plant import parse_spec
+
+        spec = parse_spec(text)
+        return spec.model + ("" if spec.surface == "aileron" else f"-{spec.surface}")
+    return "KH2013A"
+
+
 def surface_limit_rad(text: str) -> float | None:
     """The surface's deflection limit (rad) of a plant, None if unlimited (KH2013A, a file without ``limit``)."""
     k = kind(text)
@@ -204,4 +235,15 @@ def surface_limit_rad(text: str) -> float | None:
     return None
 
 
-__all__ = ["PlantError", "build", "check", "check_disturbances", "injected", "kind", "shipped", "surface_limit_rad"]
+__all__ = [
+    "PlantError",
+    "build",
+    "check",
+    "check_disturbances",
+    "injected",
+    "kind",
+    "name_of",
+    "shipped",
+    "surface_limit_rad",
+    "surface_of",
+]

@@ -77,13 +77,31 @@ class PfcDesign:
         )
 
 
-def _critical_gain(tn: np.ndarray, td: np.ndarray, a: float) -> float | None:
-    """Least g > 0 making 1 + g (s + a) T unstable (inf if none), None if unstable already for small g."""
+def _critical_gain(tn: np.ndarray, td: np.ndarray, a: float, margin: float = MARGIN) -> float | None:
+    """Least g > 0 making 1 + g (s + a) T unstable (inf if none), None if unstable already for small g.
+
+    A plant with an unstable pole (J3Cub's slow spiral at 60 kt) is unstable for small g: C then stabilises it in a
+    window (g_lo, g_hi), and the window's top is the critical gain if C can fly at g_hi / margin with a gain margin
+    of ``margin`` below too (g_hi / margin >= margin g_lo); else None."""
     bands = unstable_gain_bands(np.polymul(tn, [1.0, a]), td)
     if not bands:
         return math.inf
     first = bands[0]
-    return None if first.low <= 1e-12 else first.low
+    if first.low > 1e-12:
+        return first.low
+    g_lo, g_hi = first.high, bands[1].low if len(bands) > 1 else math.inf
+    if math.isinf(g_lo):
+        return None
+    return g_hi if min(g_hi, 1e6) / margin >= margin * g_lo else None
+
+
+KE_UNSTABLE_OPEN_LOOP = 0.01  # an unstable plant's band 0 < K_e < this: the adaptive K_e leaves it within ms
+
+
+def _plant_band(band) -> bool:
+    """A band of 1 + K_e F that starts at 0 and ends below ``KE_UNSTABLE_OPEN_LOOP``: the plant's own slow unstable
+    mode (F has T's poles), which any K_e past it stabilises; not a reason to refuse a PFC."""
+    return band.low <= 1e-12 and band.high < KE_UNSTABLE_OPEN_LOOP
 
 
 def design_pfc(
@@ -101,7 +119,7 @@ def design_pfc(
     rejected: dict[str, int] = {}
     best = None
     for a in corners:
-        g = _critical_gain(tn, td, a)
+        g = _critical_gain(tn, td, a, margin)
         if g is None:
             rejected["C = g (s + a) destabilises the plant at any gain"] = (
                 rejected.get("C = g (s + a) destabilises the plant at any gain", 0) + 1
@@ -117,10 +135,10 @@ def design_pfc(
             rejected["F not W-ASPR"] = rejected.get("F not W-ASPR", 0) + 1
             continue
         real = augmented_realisation(num, den, plant)
-        if unstable_gain_bands(fn, fd, realisation=real):
+        if [b for b in unstable_gain_bands(fn, fd, realisation=real) if not _plant_band(b)]:
             rejected["1 + Ke F unstable for some Ke"] = rejected.get("1 + Ke F unstable for some Ke", 0) + 1
             continue
-        low = [b.low for b in discrete_bands(real, rate_hz)]
+        low = [b.low for b in discrete_bands(real, rate_hz) if not _plant_band(b)]
         if low and min(low) < ke_floor:
             key = f"sampled loop unstable for Ke < {ke_floor:g}"
             rejected[key] = rejected.get(key, 0) + 1
@@ -129,15 +147,26 @@ def design_pfc(
         damping = float(min(damping_ratio(z) for z in zeros)) if zeros.size else 1.0
         offset = _offset_deg(t_dc, k / a)
         cand = PfcDesign(k, a, g, margin, offset, damping, len(corners), 0)
-        if best is None or (round(offset, 9), -damping) < (round(best.offset_deg, 9), -best.min_zero_damping):
+        if best is None or (round(abs(offset), 9), -damping) < (round(abs(best.offset_deg), 9), -best.min_zero_damping):
             best = cand
         rejected["accepted"] = rejected.get("accepted", 0) + 1
     if best is None:
         why = "; ".join(f"{n} corner(s): {r}" for r, n in rejected.items())
-        raise PfcDesignError(f"no PFC k/(s + a) makes this plant W-ASPR with a gain margin of {margin:g} ({why})")
+        raise PfcDesignError(
+            f"no PFC k/(s + a) makes this plant W-ASPR with a gain margin of {margin:g} ({why}){_unstable_note(td)}"
+        )
     best.accepted = rejected.pop("accepted")
     best.rejected = rejected
     return best
+
+
+def _unstable_note(td: np.ndarray) -> str:
+    """The plant's unstable poles, when it has some: the reason C = g (s + a) cannot fly at small gains."""
+    poles = [p for p in np.roots(td) if p.real >= 0.0]
+    if not poles:
+        return ""
+    text = ", ".join(f"{p.real:+.4g}" if abs(p.imag) < 1e-9 else f"{p.real:+.4g}{p.imag:+.4g}j" for p in poles)
+    return f"; the plant has {len(poles)} unstable pole(s) at {text} 1/s"
 
 
 def _tf(num, den):

@@ -316,6 +316,21 @@ def with_plant(scenario: Scenario, plant: str) -> Scenario:
     return replace(scenario, plant=plant, u_limit_rad=limit)
 
 
+def require_design(scenario: Scenario, pfc: str | None = None) -> None:
+    """ExperimentError when the scenario's plant (other than the KH2013A) has no design (``tools.pfc design``) and
+    neither a parameter file nor a PFC was given: its runs would fly another plant's values (as the launcher)."""
+    from sitl import plant as plants
+    from tools.design.linearise import design_command, design_path, designed_params, shown_path
+
+    if plants.kind(scenario.plant) == "kh2013a" or scenario.params is not None or pfc is not None:
+        return
+    if designed_params(scenario.plant) is None:
+        raise ExperimentError(
+            f"--plant: {scenario.plant} has no design (no {shown_path(design_path(scenario.plant))}): make it with "
+            f"`{design_command(scenario.plant)}`, or give --pfc paper|robust to fly the KH2013A's"
+        )
+
+
 def with_disturbances(scenario: Scenario, values: dict, transport: str) -> Scenario:
     """The scenario with the SITL's disturbances (checked: ExperimentError); they need the mavlink transport."""
     from dataclasses import replace
@@ -389,6 +404,7 @@ def run_experiment(
     ]
     if plant is not None:
         scen = with_plant(scen, plant)
+    require_design(scen, pfc)
     if disturbances:
         scen = with_disturbances(scen, disturbances, transport)
     runner = get_transport(transport)

@@ -21,7 +21,7 @@ from autopilot.shared.process import (
     EXIT_OK,
     write_json_atomic,
 )
-from tools.flight.children import Child, free_udp_ports, new_run_dir, stop_children
+from tools.flight.children import Child, cpu_times, free_udp_ports, machine_load, new_run_dir, stop_children
 from tools.flight.config import (
     PROCESSES,
     PROFILES,
@@ -100,6 +100,13 @@ def _web_server(cfg: FlightConfig, out: Path):
     return WebServer(cfg.web_host, cfg.web_port, cfg.web_grpc_port, log_path=out / "web.log")
 
 
+def run_tag(cfg: FlightConfig) -> str:
+    """The plant in a run folder's name: its short name (``sitl.plant.name_of``) in characters a file name keeps."""
+    import re
+
+    return re.sub(r"[^A-Za-z0-9._-]+", "_", cfg.plant_name)[:40]
+
+
 # ---------------------------------------------------------------------------------------- the flight
 class Flight:
     """One flight: ``run()`` blocks and returns its ``FlightResult``; as a context manager, entering starts the
@@ -125,6 +132,7 @@ class Flight:
         self._early_png = None  # one started before this Flight existed (adopt_png_helper), used or closed by start()
         self._recorder = None  # the thread importing rerun while the children start (start_recorder_import)
         self._t0: float | None = None
+        self._cpu0 = None  # the machine's CPU times when the flight started (children.cpu_times)
         self._interrupt = threading.Event()
 
     @classmethod
@@ -144,7 +152,7 @@ class Flight:
             duration=scenario.duration_s,
             controller=run.controller or ("sac" if run.lv == 0 else "clsac"),
             lv=run.lv,
-            pfc=run.pfc or "paper",
+            pfc=run.pfc,
             sigma_xu=run.sigma_xu or 0.0,
             name=run.name,
             rate=scenario.control_rate_hz,
@@ -237,10 +245,11 @@ class Flight:
             raise RuntimeError("this flight was already started; a Flight flies once")
         cfg = self.config
         self._t0 = time.monotonic()
+        self._cpu0 = cpu_times()  # how busy the machine is while it flies (a real-time flight's late steps)
         self.out = (
             Path(cfg.out)
             if cfg.out
-            else new_run_dir("runs", f"-{'lockstep' if cfg.lockstep else 'rt'}-{cfg.controller}")
+            else new_run_dir("runs", f"-{'lockstep' if cfg.lockstep else 'rt'}-{cfg.controller}-{run_tag(cfg)}")
         )
         self.out.mkdir(parents=True, exist_ok=True)
         for f in (*STALE_FILES, "summary.json"):
@@ -388,10 +397,11 @@ class Flight:
         if rrd_error and exit_code == EXIT_OK:
             exit_code, failed, error = EXIT_FAILED, "telemetry", rrd_error
         flown = flown_report(cfg, stats)
+        machine = machine_load(self._cpu0)  # how busy every CPU of the machine was while it flew
         if stopped:
             error = f"stopped by the caller after {flown['sim_time_s']:g} s of {cfg.duration:g} s (sim time)"
         elif exit_code != EXIT_INTERRUPTED:
-            exit_code, failed, error = verdict(self._children, stats, flown, exit_code, failed, error, t_end)
+            exit_code, failed, error = verdict(self._children, stats, flown, exit_code, failed, error, t_end, machine)
             exit_code, failed, error = envelope_verdict(
                 exit_code, failed, error, (stats["autopilot"] or {}).get("controlled")
             )
@@ -408,6 +418,7 @@ class Flight:
             rrd_indexed,
         )
         summary["flown"] = flown
+        summary["machine"] = machine
         png = self._png_result(drawing, metrics)
         summary["files"]["png"] = str(png) if png else None
         write_json_atomic(self.out / "summary.json", summary)
