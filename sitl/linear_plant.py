@@ -14,6 +14,8 @@ like the built-in model.  Format (every key: docs/plants.md):
                roll = "phi", roll_rate = "p", yaw_rate = "r", side_velocity = "v"   (rates optional)
        or      num = [...], den = [...]   (highest power first; roll rate = phi' when the relative degree >= 2)
     [servo]    wn2 = 2367.0, two_zeta_wn = 72.22
+    [atmosphere] airspeed = 7.79 (m/s), span = 0.15 (m), altitude = 10 (m): the aircraft the Dryden turbulence and
+               the gusts are scaled to (optional; without airspeed and span the atmosphere flags are refused)
 """
 
 from __future__ import annotations
@@ -49,6 +51,10 @@ class LinearPlant:
     units: tuple[str, ...]
     input_name: str
     output_name: str
+    # [atmosphere]: the airspeed (m/s), wing span (m) and altitude (m) the turbulence and gusts are scaled to
+    airspeed_m_s: float | None = None
+    span_m: float | None = None
+    altitude_m: float | None = None
 
     def aircraft_params(self) -> dict:
         """The ``params`` of ``sitl.aircraft.Aircraft`` that fly this plant."""
@@ -200,6 +206,12 @@ def load(path) -> LinearPlant:
     if surface not in ("rudder", "aileron"):
         raise PlantFileError(f"{path}: [input] surface must be rudder or aileron, got {surface!r}")
     units = air.get("units", ["?"] * len(states))
+    atm = doc.get("atmosphere", {})
+    if not isinstance(atm, dict):
+        raise PlantFileError(f"{path}: [atmosphere] must be a table (airspeed, span, altitude)")
+    airspeed, span = (_number(path, atm, "atmosphere", k, required=False) for k in ("airspeed", "span"))
+    if (airspeed is None) != (span is None):
+        raise PlantFileError(f"{path}: [atmosphere] needs both airspeed (m/s) and span (m), or neither")
     return LinearPlant(
         name=str(doc.get("name", path.stem)),
         a_p=a_p,
@@ -213,4 +225,7 @@ def load(path) -> LinearPlant:
         units=tuple(str(u) for u in units),
         input_name=str(inp.get("name", "delta")),
         output_name=str(out.get("name", "phi")),
+        airspeed_m_s=airspeed,
+        span_m=span,
+        altitude_m=_number(path, atm, "atmosphere", "altitude", required=False),
     )

@@ -91,16 +91,50 @@ def check_disturbances(text: str, given: dict) -> None:
             f"--{air[0].replace('_', '-')} cannot fly on --plant {text}: the atmosphere needs the airframe states "
             "[v, p, r, phi], in that order"
         )
+    scaled = [d for d in air if d != "crosswind"]  # a steady crosswind is a side velocity: no scale to it
+    if scaled and kind(text) == "file" and load_file(text).airspeed_m_s is None:
+        raise PlantError(
+            f"--{scaled[0].replace('_', '-')} cannot fly on --plant {text}: the Dryden turbulence and the gusts are "
+            "scaled to the aircraft, and the file does not say which: give [atmosphere] airspeed = M/S and span = M "
+            "(and altitude = M) in it"
+        )
+    alt = load_file(text).altitude_m if scaled and kind(text) == "file" else None
+    if alt is not None and given.get("turbulence") is not None and not 3.048 <= alt <= 304.8:
+        raise PlantError(
+            f"--turbulence cannot fly on --plant {text}: its [atmosphere] altitude {alt:g} m is outside the "
+            "low-altitude Dryden model (3.05..304.8 m, 10..1000 ft)"
+        )
 
 
 def injected(text: str, dist):
     """What ``sitl.disturbances.Injector`` applies on this plant: everything but the atmosphere for JSBSim (it flies
-    its own), all of it otherwise."""
-    if dist is None or kind(text) != "jsbsim":
+    its own, at the aircraft's airspeed and altitude); on a plant file the atmosphere scaled to its ``[atmosphere]``
+    airspeed, span and altitude (``scaled_atmosphere``); all of it, as given, on the KH2013A."""
+    if dist is None or kind(text) == "kh2013a":
         return dist
+    if kind(text) == "file":
+        return replace(dist, atmosphere=scaled_atmosphere(load_file(text), dist.atmosphere))
     from sitl.atmosphere import AtmosphereConfig
 
     return replace(dist, atmosphere=AtmosphereConfig())
+
+
+def scaled_atmosphere(lp, atm):
+    """``atm`` (``sitl.atmosphere.AtmosphereConfig``) for the aircraft of plant file ``lp``: the Dryden filters and
+    the gusts at its airspeed and span; a --turbulence intensity at its altitude too, unless --altitude, the sigmas
+    or the scale lengths were given.  Unchanged without ``[atmosphere]`` (only a crosswind is then allowed)."""
+    if lp.airspeed_m_s is None:
+        return atm
+    from sitl.atmosphere import ALTITUDE, DrydenConfig
+
+    turb = atm.turbulence
+    if turb is not None:
+        name = next((n for n in ("light", "moderate", "severe") if DrydenConfig.intensity(n, ALTITUDE) == turb), None)
+        if name is not None and lp.altitude_m is not None:
+            turb = DrydenConfig.intensity(name, lp.altitude_m)
+        turb = replace(turb, airspeed=lp.airspeed_m_s, span=lp.span_m)
+    gusts = tuple(replace(g, airspeed=lp.airspeed_m_s) for g in atm.gusts)
+    return replace(atm, turbulence=turb, gusts=gusts)
 
 
 def _turbulence_name(dist) -> str | None:

@@ -396,7 +396,8 @@ def test_the_kh2013a_file_over_mavlink_equals_the_built_in_bit_for_bit(tmp_path)
         ({"plant": "jsbsim:c172x", "gust": "1,10,2"}, "plant", "--gust cannot fly on --plant jsbsim:c172x"),
         ({"plant": "jsbsim:c172x:airspeed_kt=-5"}, "plant", "airspeed_kt must be positive"),
         ({"params": "/no/such.params"}, "params", "cannot read /no/such.params: No such file or directory"),
-        ({"baseline_gains": "1,2"}, "baseline_gains", "expected KP,KI,KD"),
+        ({"controller": "baseline", "baseline_gains": "1,2"}, "baseline_gains", "expected KP,KI,KD"),
+        ({"baseline_gains": "1,2,3"}, "baseline_gains", "clsac is adaptive"),  # a value the law would not fly
     ],
 )
 def test_a_bad_plant_or_parameter_file_is_refused_by_flight(kwargs, field, needle):

@@ -36,8 +36,11 @@ def test_the_lv_a_parameter_file_sets_is_the_lv_reported(tmp_path):
 
 
 def test_a_timeout_is_quoted_as_given(tmp_path):
-    r = run_cli("tools.launch", "--lockstep", "--duration", "600", "--timeout", "0.4", "--quiet", "--no-rrd")
-    assert r.returncode == 1
+    out = tmp_path / "f"  # never the user's runs/: a test leaves nothing in the checkout
+    r = run_cli(
+        "tools.launch", "--lockstep", "--duration", "600", "--timeout", "0.4", "--quiet", "--no-rrd", "--out", str(out)
+    )
+    assert r.returncode == 1 and json.loads((out / "summary.json").read_text())["ok"] is False
     assert (
         r.stdout.strip()
         .splitlines()[-1]

@@ -657,18 +657,21 @@ def flight_image(
 def pid_panel(t: np.ndarray, gains, changes) -> Panel:
     """The fixed-gain PID's K_p, K_i, K_d as flown (constant, stepping where a ground station changed one), on a
     range from 0 to above the largest: a gain of 0 or a changed one stays readable."""
-    panel = Panel("Fixed-gain PID: K_{p}, K_{i} [1/s], K_{d} [s] (not adaptive)", "[-]", legend_cols=3)
+    panel = Panel("Fixed-gain PID gains (not adaptive)", "[-], [1/s], [s]", legend_cols=3)
     if gains is None:
         panel.missing.append("gains")
         return panel
     top = 0.0
-    for i, (key, label) in enumerate((("ke", "K_{p}"), ("kx", "K_{i}"), ("ku", "K_{d}"))):
+    # K_p wide and K_i dashed over it: the KH2013A's K_p and K_i are both 0.1 (in their units), one line otherwise
+    for i, (key, label, lw, style) in enumerate(
+        (("ke", "K_{p}", 2.6, "-"), ("kx", "K_{i} [1/s]", 1.3, "--"), ("ku", "K_{d} [s]", 1.3, "-"))
+    ):
         y = np.full(len(t), float(gains[i]))
         for c in changes or ():
             if c.get("name") == f"CLSAC_PID_K{'PID'[i]}" and c.get("t_s") is not None:
                 y[t >= c["t_s"]] = float(c["to"])
         top = max(top, float(np.max(y)))
-        panel.lines.append(Line(y, C_GAINS[key], 1.2, steps=True, label=label))
+        panel.lines.append(Line(y, C_GAINS[key], lw, style, steps=True, label=label))
     panel.ylim = (-0.05 * (top or 1.0), 1.2 * (top or 1.0))
     return panel
 
