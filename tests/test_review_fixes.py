@@ -30,7 +30,7 @@ def test_the_lv_a_parameter_file_sets_is_the_lv_reported(tmp_path):
     out = tmp_path / "f"
     r = run_cli("tools.launch", "--lockstep", "--duration", "2", "--params", str(params), "--out", str(out), "--quiet")
     assert r.returncode == 0, r.stderr[-2000:]
-    assert "== lockstep flight, clsac (Lv=50), " in r.stdout
+    assert "== lockstep flight, clsac (Lv=50) on KH2013A (rudder), " in r.stdout
     s = json.loads((out / "summary.json").read_text())
     assert s["Lv"] == 50.0 and s["runs"][0]["Lv"] == 50.0 and s["params"] == str(params)
 

@@ -123,6 +123,13 @@ def select_runs(runs: Iterable[str | RunSpec] | None, available: Sequence[RunSpe
 
 
 # ---------------------------------------------------------------------------------------- analysis
+def _surface(scenario: Scenario) -> str:
+    """The surface the scenario's plant's command drives, as the tables and verdicts name it (``sitl.plant``)."""
+    from sitl.plant import surface_of
+
+    return surface_of(scenario.plant)
+
+
 def saturation(result: RunResult, u_limit_rad: float) -> dict:
     """Whether the rudder command reached its limit, and for which fraction of the control samples."""
     u = result.series.get("u") if result.series else None
@@ -135,17 +142,17 @@ def saturation(result: RunResult, u_limit_rad: float) -> dict:
     return {"saturated": bool(sat), "fraction": None}
 
 
-def controlled(result: RunResult, u_limit_rad: float) -> dict | None:
+def controlled(result: RunResult, u_limit_rad: float, surface: str = "rudder") -> dict | None:
     """Whether the run stayed inside the default envelope (``autopilot.envelope``, the launcher's "controlled"), from
     its series: roll and the law's limited command (``u_cmd`` over MAVLink, where ``u`` is after the PWM map).
     None without series."""
     s = result.series or {}
     if s.get("t") is None or not len(s["t"]):
         return None
-    from autopilot.envelope import judge_series
+    from autopilot.envelope import Envelope, judge_series
 
     u = s["u_cmd"] if s.get("u_cmd") is not None else s["u"]
-    return judge_series(s["t"], s["phi"], u, u_limit_rad).to_dict()
+    return judge_series(s["t"], s["phi"], u, u_limit_rad, Envelope(surface=surface)).to_dict()
 
 
 def paper_checks(results: Sequence[RunResult]) -> dict[str, dict]:
@@ -237,7 +244,8 @@ def write_summary(
                 "name": r.name,
                 "Lv": float(r.lv),
                 "metrics": {k: _finite_or_none(r.metrics[k]) for k in METRIC_NAMES},
-                "controlled": controlled(r, scenario.u_limit_rad),  # inside the envelope (autopilot.envelope)
+                # inside the envelope (autopilot.envelope), its reason naming the plant's surface
+                "controlled": controlled(r, scenario.u_limit_rad, _surface(scenario)),
             }
             for r in results
         ],
@@ -288,10 +296,11 @@ def format_table(results: Sequence[RunResult], scenario: Scenario | None = None)
             parts.append(f"{r.name} yes")
         else:
             parts.append(f"{r.name} yes ({100 * s['fraction']:.1f}% of samples)")
-    lines.append(f"rudder saturated (|u| at the {scenario.u_limit_rad * DEG:g} deg limit): " + "; ".join(parts))
-    verdicts = [(r.name, controlled(r, scenario.u_limit_rad)) for r in results]
+    surface = _surface(scenario)
+    lines.append(f"{surface} saturated (|u| at the {scenario.u_limit_rad * DEG:g} deg limit): " + "; ".join(parts))
+    verdicts = [(r.name, controlled(r, scenario.u_limit_rad, surface)) for r in results]
     lines.append(
-        "controlled (|roll| < 60 deg, rudder saturated < 20 % of the flight): "
+        f"controlled (|roll| < 60 deg, {surface} saturated < 20 % of the flight): "
         + "; ".join(f"{n} {'yes' if c['ok'] else 'NO: ' + c['reason']}" for n, c in verdicts if c is not None)
     )
     checks = _check_lines(paper_checks(results))
@@ -419,7 +428,7 @@ def run_experiment(
         say(
             f"[{i}/{len(specs)}] {spec.name} done in {time.perf_counter() - t0:.2f} s: "
             f"ise_ref={res.metrics['ise_ref']:.4g}"
-            f" energy={res.metrics['energy']:.4g}" + (" (rudder saturated)" if sat["saturated"] else "")
+            f" energy={res.metrics['energy']:.4g}" + (f" ({_surface(scen)} saturated)" if sat["saturated"] else "")
         )
     controller = {"pfc": pfc or "paper", "pfc_num_den": PFC_PRESETS[pfc or "paper"], "sigma_xu": sigma_xu or 0.0}
     if scen.plant != "kh2013a":
