@@ -15,7 +15,10 @@ from autopilot.flags import (
     DEG,
     add_controller_arguments,
     add_envelope_arguments,
+    add_surface_argument,
     envelope_from_args,
+    flag_text,
+    inapplicable,
     rate_arg,
 )
 from autopilot.params import arg_type
@@ -218,6 +221,7 @@ def build_parser() -> OneLineArgumentParser:
     )
     add_controller_arguments(p)
     add_envelope_arguments(p)
+    add_surface_argument(p)
     add_telemetry_arguments(p)
     add_pwm_arguments(p)
     add_signing_argument(p)
@@ -268,12 +272,15 @@ def main(argv=None) -> int:
     from autopilot.vehicle import Mode
 
     controller = controllers.get(args.controller)
+    refused = inapplicable(args.controller, vars(args))  # a flag the law would not fly: refused, not ignored
+    if refused is not None:
+        parser.error(f"{flag_text(refused[0], getattr(args, refused[0]))}: {refused[1]}")
     try:
         cfg = controller.config(
             control_rate_hz=args.rate,
             u_limit_rad=math.radians(args.u_limit_deg),
             lv=args.lv,
-            pfc=args.pfc,
+            pfc=args.pfc or "paper",
             sigma_xu=args.sigma_xu,
             dead_zone_rad=math.radians(args.dead_zone_deg),
             ki_max=args.ki_max,
@@ -289,9 +296,11 @@ def main(argv=None) -> int:
         "failure_injection": float(args.failure_injection),  # SYS_FAILURE_EN (a --params file may set it too)
     }
     params = ParamTable(cfg, options)
+    not_flown: list[str] = []  # another law's values in the file (a design holds every controller's)
     if args.params:
         try:
-            params.update(load_file(args.params))
+            values, not_flown = params.split(load_file(args.params))
+            params.update(values)
         except OSError as exc:
             parser.error(f"--params {args.params}: {exc.strerror or exc}")
         except ParamError as exc:  # a line's error names the file already: "FILE:LINE: ..."
@@ -363,7 +372,9 @@ def main(argv=None) -> int:
     print(
         f"autopilot: {opts.name}{law} {mode} at {rate:g} Hz; SITL link {fmt_endpoint(ap.sitl.local)} -> "
         f"{fmt_endpoint(args.sitl)}; GCS link {fmt_endpoint(ap.gcs.local)} -> {fmt_endpoint(args.gcs)}; system id "
-        f"{args.sysid}{rt_note}" + ("; failure injection on (SYS_FAILURE_EN 1)" if opts.failure_injection else ""),
+        f"{args.sysid}{rt_note}"
+        + ("; failure injection on (SYS_FAILURE_EN 1)" if opts.failure_injection else "")
+        + (f"; {args.params}: {len(not_flown)} value(s) of another law not flown" if not_flown else ""),
         flush=True,
     )
     code = 0

@@ -132,6 +132,20 @@ class Baseline:
         if not all(math.isfinite(g) and g >= 0 for g in gains):
             raise ConfigError(f"PID gains must be finite and >= 0, got {gains!r}")
         self._set(*gains)
+
+    def reconfigure(self, config: BaselineConfig) -> None:
+        """Fly ``config``'s gains and limit from the next step (a ground station's PARAM_SET), keeping the states."""
+        T = self.dt
+        if config.control_rate_hz != self.config.control_rate_hz or (config.am, config.bm, config.cm) != (
+            self.config.am,
+            self.config.bm,
+            self.config.cm,
+        ):
+            raise ConfigError("the baseline's rate and reference model cannot change in flight")
+        self.config = config
+        self._kp, self._ki_t, self._kd_t = float(config.kp), float(config.ki) * T, float(config.kd) / T
+        self._umax = float(config.u_limit_rad)
+        self._aw = bool(config.anti_windup)
         self.kpe = self.ke = self._kp
 
     def reset(self) -> None:

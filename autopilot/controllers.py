@@ -158,7 +158,7 @@ CONTROLLERS: dict[str, Controller] = {
             lv=0.0,  # no reference-model feedback
             mode="BASELINE",
             label="fixed-gain PID",
-            help="baseline (fixed-gain PID; ignores --lv, --pfc, --sigma-xu)",
+            help="baseline (fixed-gain PID; --lv, --pfc and the adaptation's options are refused)",
         ),
         Controller(
             "pid-ff",

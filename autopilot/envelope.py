@@ -94,6 +94,7 @@ class Envelope:
     max_roll_deg: float = MAX_ROLL_DEG  # (0, 180]
     max_saturated_share: float = MAX_SATURATED_SHARE  # (0, 1]
     check: bool = True
+    surface: str = "rudder"  # the surface the command drives, as the reasons name it (the plant's: aileron, rudder)
 
     def __post_init__(self) -> None:
         r, s = self.max_roll_deg, self.max_saturated_share
@@ -371,7 +372,7 @@ def judge(
     roll_in = bool(max_abs_roll_rad < envelope.max_roll_rad)
     share_in = bool(saturated_share < envelope.max_saturated_share)
     track_in = tracking is None or tracking.ok
-    numbers = f"max |roll| {roll_deg:.1f} deg, rudder saturated {pct:.1f} % of the flight"
+    numbers = f"max |roll| {roll_deg:.1f} deg, {envelope.surface} saturated {pct:.1f} % of the flight"
     if not envelope.check:
         return Controlled(
             True, roll_deg, saturated_share, None, f"not checked: {numbers}", envelope, samples, tracking, gs
@@ -388,7 +389,7 @@ def judge(
         parts.append(f"|roll| reached {roll_deg:.1f} deg (limit {lim_roll:g}{at})")
         exits.append(roll_exit_s)
     if not share_in:
-        parts.append(f"rudder saturated {pct:.1f} % of the flight (limit {lim_pct:g} %)")
+        parts.append(f"{envelope.surface} saturated {pct:.1f} % of the flight (limit {lim_pct:g} %)")
         exits.append(share_exit_s)
     if not track_in:
         parts += tracking.parts()
@@ -477,7 +478,8 @@ class EnvelopeMonitor:
                 if not self._share_out:
                     self._share_out = True
                     text = text or (
-                        f"ENVELOPE: rudder saturated {100 * share:.0f}% >= {100 * self._share_lim:g}% at {ft:.0f} s"
+                        f"ENVELOPE: {self.envelope.surface} saturated {100 * share:.0f}% >= "
+                        f"{100 * self._share_lim:g}% at {ft:.0f} s"
                     )
             elif share < SHARE_REARM * self._share_lim:
                 self._share_out = False

@@ -11,6 +11,7 @@ from autopilot.shared.cli import bounded, nonneg_float, positive_float
 
 CONTROLLERS = controllers.NAMES  # the registry's (autopilot.controllers); baseline: the fixed-gain PID
 PFC_CHOICES = ("paper", "robust")  # the keys of autopilot.config.PFC_PRESETS (spelled out: --help needs no numpy)
+SURFACES = ("rudder", "aileron")  # the surfaces a plant's command drives (sitl.plant.surface_of)
 DEG = math.pi / 180.0
 # The flags' types come from the parameter table (autopilot.params.PARAMS): one set of bounds for a flag, a
 # parameter file and PARAM_SET.
@@ -58,7 +59,7 @@ def add_controller_arguments(parser: argparse.ArgumentParser) -> None:
     g.add_argument(
         "--pfc",
         choices=PFC_CHOICES,
-        default="paper",
+        default=None,
         help="parallel feedforward compensator: paper = 10/(4s+40) (default), robust = 10/(s+10)",
     )
     g.add_argument(
@@ -99,6 +100,52 @@ def add_controller_arguments(parser: argparse.ArgumentParser) -> None:
     )
 
 
+# The options only an adaptive law reads (SAC, CL-SAC), each with the value that means "not given" or "off".
+ADAPTIVE_ONLY = {
+    "lv": None,
+    "pfc": None,
+    "sigma_xu": 0.0,
+    "dead_zone_deg": 0.0,
+    "ki_max": None,
+    "freeze_when_saturated": False,
+}
+
+
+def value_text(value) -> str:
+    """A flag's value as typed after it (with its leading blank): `` 50``, `` 1,0.1,0.2``; nothing for a switch."""
+    if value is True:
+        return ""
+    if isinstance(value, tuple):
+        return " " + ",".join(f"{v:g}" for v in value)
+    return f" {value:g}" if isinstance(value, float) else f" {value}"
+
+
+def flag_text(key: str, value) -> str:
+    """The flag of keyword ``key`` with its value, as typed: ``--lv 50``, ``--freeze-when-saturated``."""
+    return "--" + key.replace("_", "-") + value_text(value)
+
+
+def inapplicable(controller: str, given: dict) -> tuple[str, str] | None:
+    """The first option in ``given`` (keyword -> value, as the flags' dests) that ``controller`` would not fly,
+    with why: (keyword, reason), None if all apply.  An option left at its "not given" value always applies."""
+    c = controllers.get(controller)
+    if c.adaptive:
+        if given.get("baseline_gains") is not None:
+            return "baseline_gains", f"{c.name} is adaptive: the PID's gains are the baseline's (--controller baseline)"
+        lv = given.get("lv")
+        if c.lv_fixed is not None and lv is not None and lv != c.lv_fixed:
+            return "lv", (
+                f"{c.name} flies Lv = {c.lv_fixed:g} whatever --lv says (paper sec. 2); for Lv = {lv:g} fly "
+                f"--controller clsac --lv {lv:g}"
+            )
+        return None
+    for key, off in ADAPTIVE_ONLY.items():
+        value = given.get(key, off)
+        if value != off and not (key == "lv" and value == 0.0):
+            return key, f"for sac and clsac only: {c.name} is a {c.label} (no PFC, adaptation or Lv)"
+    return None
+
+
 # The envelope's limits on the command line (autopilot.envelope.Envelope takes the share as a fraction).
 envelope_roll_deg = bounded(0.0, 180.0, "deg", lo_open=True, name="envelope_roll_deg")
 envelope_saturated_pct = bounded(0.0, 100.0, "%", lo_open=True, name="envelope_saturated_pct")
@@ -132,8 +179,24 @@ def add_envelope_arguments(parser: argparse.ArgumentParser) -> None:
     )
 
 
+def add_surface_argument(parser: argparse.ArgumentParser) -> None:
+    """``--surface``: the surface the command drives, as the autopilot's verdict and messages name it."""
+    parser.add_argument(
+        "--surface",
+        choices=SURFACES,
+        default=SURFACES[0],
+        help="the control surface the command drives, as the verdict and the messages name it (default rudder, the "
+        "KH2013A's; the launcher gives the plant's)",
+    )
+
+
 def envelope_from_args(args: argparse.Namespace):
     """The ``autopilot.envelope.Envelope`` of the parsed envelope flags."""
     from autopilot.envelope import Envelope
 
-    return Envelope(args.envelope_roll, args.envelope_saturated / 100.0, check=args.envelope)
+    return Envelope(
+        args.envelope_roll,
+        args.envelope_saturated / 100.0,
+        check=args.envelope,
+        surface=getattr(args, "surface", SURFACES[0]),
+    )

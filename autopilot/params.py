@@ -131,7 +131,14 @@ PARAMS: tuple[Param, ...] = (
         high=1,
     ),
 )
-BY_NAME = {p.name: p for p in PARAMS}
+# The fixed-gain baseline's gains (``autopilot.baseline.BaselineConfig``): its table is the options and these.
+BASELINE_PARAMS: tuple[Param, ...] = (
+    Param("CLSAC_PID_KP", "", "baseline PID K_p, rad of surface per rad of roll error", field="kp", low=0.0),
+    Param("CLSAC_PID_KI", "1/s", "baseline PID K_i", field="ki", low=0.0),
+    Param("CLSAC_PID_KD", "s", "baseline PID K_d", field="kd", low=0.0),
+)
+LAW_PARAMS = {"baseline": BASELINE_PARAMS}  # a law's own parameters (autopilot.controllers.LAWS keys), not CL-SAC's
+BY_NAME = {p.name: p for p in PARAMS + BASELINE_PARAMS}
 BINARY = ("CLSAC_ANTIWINDUP", "SYS_FAILURE_EN")  # 0 or 1, nothing between
 # The options a caller of ParamTable may leave out (every other option has no default: the caller's flags give it)
 OPTION_DEFAULTS = {"failure_injection": 0.0}
@@ -180,8 +187,9 @@ class ParamTable:
     def __init__(self, config, options: dict[str, float]):
         from autopilot.controllers import law_of
 
-        clsac = law_of(config).parameters and config.is_siso and len(config.pfc_den) == 2  # autopilot.controllers
-        self.params = PARAMS if clsac else tuple(p for p in PARAMS if p.option)
+        law = law_of(config)
+        clsac = law.parameters and config.is_siso and len(config.pfc_den) == 2  # autopilot.controllers
+        self.params = PARAMS if clsac else tuple(p for p in PARAMS if p.option) + LAW_PARAMS.get(law.name, ())
         self._names = {p.name: p for p in self.params}
         self._config = config
         self._options = {
@@ -252,6 +260,13 @@ class ParamTable:
         except ConfigError as exc:
             raise ParamError(f"{name}={value:g} rejected: {exc}") from None
         return self.get(name)
+
+    def split(self, values: dict[str, float]) -> tuple[dict[str, float], list[str]]:
+        """A parameter file's values: (those for this table, the names of another law's, which it does not fly).
+        A name of no law stays in the first: ``update`` refuses it.  So the file ``python -m tools.pfc design``
+        writes, with every controller's values, flies each of them."""
+        mine = {n: v for n, v in values.items() if n in self._names or n not in BY_NAME}
+        return mine, [n for n in values if n not in mine]
 
     def update(self, values: dict[str, float]) -> None:
         """Set several (a loaded file) in one go; the first rejected one raises and nothing is changed."""

@@ -125,6 +125,9 @@ class Vehicle:
         control.armed = armed
         # callables(name, value, accepted): each PARAM_SET for us, after it was applied or refused (telemetry)
         self.param_hooks: list = []
+        # each value a ground station changed: sim time (s; None before the first attitude), name, from, to
+        self.param_changes: list[dict] = []
+        self.params_start = dict(params.items())  # every value as the flight starts (flags, then --params)
         self.every = {"attitude": ap._telemetry_every, "gains": self._every(GAINS_RATE_HZ)}
         self.status_period_s = 1.0
         self._next_status = 0.0
@@ -272,6 +275,7 @@ class Vehicle:
             return
         name = _text(msg.param_id)
         try:
+            old = self.params.get(name) if name in self.params else None
             self.params.set(name, msg.param_value)
         except ParamError as exc:
             self.ap.events["param_rejected"] += 1
@@ -288,6 +292,12 @@ class Vehicle:
             return
         self._apply_params(name)
         self.ap.events["param_sets"] += 1
+        new = self.params.get(name)
+        if new != old:
+            now = self.ap._now_sim_us()
+            self.param_changes.append(
+                {"t_s": None if now is None else now * 1e-6, "name": name, "from": old, "to": new}
+            )
         self.send_all(self._param_value(name, self.params.get(name)))
         for hook in self.param_hooks:
             hook(name, float(self.params.get(name)), True)
@@ -450,8 +460,7 @@ class Vehicle:
             control.manual = control.u_last
         else:
             control.manual = None
-            if mode is not Mode.BASELINE:
-                control.reconfigure(self._law_config(mode))
+            control.reconfigure(self._law_config(mode))  # a parameter set while in MANUAL flies from now on
         control.transfer()
         self.selected = mode
         if self.mode is not Mode.FAILSAFE:
@@ -485,7 +494,7 @@ class Vehicle:
         p = self.params.params[self.params.index(name)]
         if p.option:
             setattr(self.ap.opts, p.option, self.params.option(p.option))
-        elif self.selected in (Mode.SAC, Mode.CLSAC):
+        elif self.selected is not Mode.MANUAL:  # MANUAL: the law's next mode flies it (_apply_mode)
             self.control.reconfigure(self._law_config(self.selected))
 
     def _param_value(self, name: str, value: float, index: int | None = None):

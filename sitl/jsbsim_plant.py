@@ -3,14 +3,17 @@
 JSBSim's nonlinear 6-DOF model (the wheel's own aircraft, nothing downloaded), trimmed in level flight at the
 requested airspeed and altitude (``simulation/do_simple_trim``), stepped at the physics rate.  The autopilot's
 command goes through the servo (paper eq. (65) form, exact ZOH per physics step) to the chosen surface, added to
-the trim deflection: ``fcs/aileron-cmd-norm`` (or ``fcs/rudder-cmd-norm``) = trim + sign delta / surface_max, the
-sign (``SURFACE_SIGN``) making a positive command roll the aircraft right.
+the trim deflection: ``fcs/aileron-cmd-norm`` (or ``fcs/rudder-cmd-norm``) = the command whose deflection is the
+trim's plus sign delta, through the model's own mapping of command to deflection (``sitl.jsbsim_models.surface_map``:
+measured on the model; c172x: trim + sign delta / 17.5 deg), the sign (``SURFACE_SIGN``) making a positive command
+roll the aircraft right.
 
 The axes the roll autopilot does not fly are held by the SITL's safety pilot (:class:`SafetyPilot`), every
 ``PILOT_EVERY`` physics steps counted from the start, so its rate does not depend on how the steps are chunked:
-  - altitude: theta_ref = theta_trim + sat(K_H (h_trim - h) - K_HDOT h', +-THETA_MAX), and the elevator
-    delta_e = -(K_THETA e + K_I int e - K_Q q), e = theta_ref - theta, added to the trim;
-  - airspeed: throttle = trim + K_V (V_trim - V) + K_VI int (V_trim - V), clipped to [0, 1].
+  - altitude: theta_ref = theta_trim + sat(k_h (h_trim - h) - k_hdot h', +-theta_max), and the elevator
+    delta_e = -(k_theta e + k_i int e - k_q q), e = theta_ref - theta, added to the trim;
+  - airspeed: throttle = trim + k_v (V_trim - V) + k_vi int (V_trim - V), clipped to [0, 1]
+(``sitl.jsbsim_models.PilotGains``; the aircraft it holds, ``PILOTS``, the others refused in one line).
 (c172x's own ``c172ap.xml`` altitude hold was tried: it oscillates +-3 deg in pitch and rolls the aircraft by
 1.2 deg within 60 s, so the product flies these documented loops instead.)
 
@@ -26,35 +29,37 @@ import math
 import os
 import re
 from dataclasses import dataclass, replace
-from pathlib import Path
 
 import numpy as np
 
 from autopilot.shared.numerics import wrap_pi, zoh
 from sitl import damage, model
+from sitl.jsbsim_models import (
+    PILOT,
+    JsbsimPlantError,
+    PilotGains,
+    SurfaceMap,
+    _new_fdm,
+    _root,
+    available_models,
+    pilot_gains,
+    surface_map,
+)
 
 FT = 0.3048  # m per ft
 KT = 1852.0 / 3600.0  # m/s per kt
 PILOT_EVERY = 10  # safety pilot period in physics steps (100 Hz at 1 kHz physics)
-# Safety pilot gains (SI: rad, m, m/s).  Tuned on c172x at 100 kt: +-10 deg roll steps hold 1000 m to 1 m
-# (default flight condition 90 kt, 1000 m: 0.7x and 1.3x of it, 63 and 117 kt, still trim; 130 kt does not).
-K_H, K_HDOT, THETA_MAX = 0.01, 0.02, math.radians(5.0)
-K_THETA, K_I, K_Q = 4.0, 1.0, 1.5
-K_V, K_VI = 0.05, 0.01
+# Safety pilot gains (SI: rad, m, m/s): sitl.jsbsim_models.PilotGains, tuned on c172x at 100 kt: +-10 deg roll steps
+# hold 1000 m to 1 m (default flight condition 90 kt, 1000 m: 0.7x and 1.3x of it, 63 and 117 kt, still trim; 130 kt
+# does not); the aircraft they hold: sitl.jsbsim_models.PILOTS (the others are refused).
 # MIL-F-8785C turbulence as JSBSim offers it (atmosphere/turb-type 3): wind at 20 ft (kt) and the
 # probability-of-exceedance index (3: 1e-2 light, 4: 1e-3 moderate, 6: 1e-5 severe).
 TURBULENCE = {"light": (15.0, 3), "moderate": (30.0, 4), "severe": (45.0, 6)}
 SURFACES = {"aileron": "fcs/aileron-cmd-norm", "rudder": "fcs/rudder-cmd-norm"}
-# c172x: effective aileron 0.5 (left - right) = 17.5 deg per unit command (range -20..15 deg each side); rudder 16.
-SURFACE_MAX_DEG = {"aileron": 17.5, "rudder": 16.0}
 # JSBSim's signs: a positive aileron command rolls right, a positive rudder command yaws and then rolls left.  The
 # command is mapped with this sign so that a positive command rolls right, as the law assumes (hf gain > 0).
 SURFACE_SIGN = {"aileron": 1.0, "rudder": -1.0}
 SLUG_LB = 32.174049  # lb per slug (JSBSim's slugtolb)
-
-
-class JsbsimPlantError(ValueError):
-    """A JSBSim plant spec is malformed, its model does not exist, or the trim failed."""
 
 
 @dataclass(frozen=True)
@@ -65,7 +70,7 @@ class JsbsimSpec:
     airspeed_kt: float = 90.0
     altitude_m: float = 1000.0
     surface: str = "aileron"
-    surface_max_deg: float | None = None  # rad of surface per unit normalised command; default SURFACE_MAX_DEG
+    surface_max_deg: float | None = None  # deg of surface per unit normalised command; default the model's (measured)
 
     def __post_init__(self) -> None:
         if self.surface not in SURFACES:
@@ -79,13 +84,35 @@ class JsbsimSpec:
                 raise JsbsimPlantError(f"jsbsim plant: {name} must be in [{lo:g}, {hi:g}], got {v!r}")
 
     @property
-    def surface_max_rad(self) -> float:
-        return math.radians(self.surface_max_deg or SURFACE_MAX_DEG[self.surface])
+    def surface_map(self) -> SurfaceMap:
+        """How the command moves the surface: ``surface_max_deg`` on both sides if given, else the model's own
+        (``sitl.jsbsim_models.surface_map``, measured at this airspeed and altitude)."""
+        if self.surface_max_deg is None:
+            return surface_map(self.model, self.surface, self.airspeed_kt, self.altitude_m)
+        k = math.radians(self.surface_max_deg)
+        try:
+            m = surface_map(self.model, self.surface, self.airspeed_kt, self.altitude_m)
+        except JsbsimPlantError:  # a scale the model's aerodynamics do not give in rad: the one given
+            return SurfaceMap(self.model, self.surface, SURFACES[self.surface], k, k, measured=False)
+        return replace(m, positive_rad=k, negative_rad=k, measured=False)
 
-    def text(self) -> str:
-        """The spec string back (``jsbsim:c172x:airspeed_kt=100.0,...``)."""
+    @property
+    def surface_max_rad(self) -> float:
+        """The surface's stop relative to neutral, the same on both sides (the smaller side of an asymmetric one)."""
+        return self.surface_map.limit_rad
+
+    def text(self, short: bool = False) -> str:
+        """The spec string back (``jsbsim:c172x:airspeed_kt=100.0,...``); ``short``: only the keys that differ from
+        the defaults, numbers as typed (``jsbsim:J3Cub:airspeed_kt=60``)."""
         keys = ("airspeed_kt", "altitude_m", "surface") + (("surface_max_deg",) if self.surface_max_deg else ())
-        return f"jsbsim:{self.model}:" + ",".join(f"{k}={getattr(self, k)}" for k in keys)
+        if not short:
+            return f"jsbsim:{self.model}:" + ",".join(f"{k}={getattr(self, k)}" for k in keys)
+        default = JsbsimSpec(model=self.model)
+        parts = [k for k in keys if getattr(self, k) != getattr(default, k)]
+        value = {
+            k: (f"{getattr(self, k):g}" if isinstance(getattr(self, k), float) else getattr(self, k)) for k in parts
+        }
+        return f"jsbsim:{self.model}" + (":" + ",".join(f"{k}={value[k]}" for k in parts) if parts else "")
 
 
 # What a spec's numbers may be: a trim the aircraft can fly, and a surface stop an aircraft has (deg per unit
@@ -124,27 +151,6 @@ def parse_spec(text: str) -> JsbsimSpec:
     return spec
 
 
-def _root() -> Path:
-    import jsbsim
-
-    return Path(jsbsim.get_default_root_dir())
-
-
-def available_models() -> list[str]:
-    """The aircraft the installed JSBSim wheel ships (``aircraft/NAME/NAME.xml``)."""
-    root = _root() / "aircraft"
-    return sorted(d.name for d in root.iterdir() if (d / f"{d.name}.xml").is_file())
-
-
-def _new_fdm():
-    os.environ.setdefault("JSBSIM_DEBUG", "0")  # no start-up banner on the SITL's stdout
-    import jsbsim
-
-    fdm = jsbsim.FGFDMExec(None)  # None: the wheel's own root (its aircraft, engines, systems)
-    fdm.set_debug_level(0)
-    return fdm
-
-
 def _load_damaged(fdm, spec: JsbsimSpec):
     """Load the model's copy with the fault properties (``sitl.jsbsim_damage``) from a temporary folder, deleted
     once loaded; False if JSBSim could not load it."""
@@ -158,22 +164,23 @@ def _load_damaged(fdm, spec: JsbsimSpec):
         return fdm.load_model_with_paths(spec.model, tmp, str(root / "engine"), str(root / "systems"))
 
 
-def trimmed_fdm(spec: JsbsimSpec, dt: float, seed: int = 0, damaged: bool = False):
-    """A JSBSim executive with ``spec.model`` loaded and trimmed in wings-level flight; raises JsbsimPlantError.
-    ``damaged``: the model's copy with the fault properties and ballast (``sitl.jsbsim_damage``)."""
+def trimmed_fdm(spec: JsbsimSpec, dt: float, seed: int = 0, damaged: bool = False, suggest: bool = True):
+    """A JSBSim executive with ``spec.model`` loaded and trimmed in wings-level flight; raises JsbsimPlantError
+    (a failed trim names the airspeeds that do trim there, unless ``suggest`` is False).  ``damaged``: the model's
+    copy with the fault properties and ballast (``sitl.jsbsim_damage``)."""
     import jsbsim
 
     if spec.model not in available_models():
         raise JsbsimPlantError(f"jsbsim plant: no model {spec.model!r}; available: {', '.join(available_models())}")
     fdm = _new_fdm()
     try:
-        return _trim(fdm, spec, dt, seed, damaged)
+        return _trim(fdm, spec, dt, seed, damaged, suggest)
     except jsbsim.BaseError as exc:  # e.g. a property the model reads and nothing defines (L17, f104, fokker50, ...)
         why = " ".join(str(exc).split()) or type(exc).__name__
         raise JsbsimPlantError(f"jsbsim plant: JSBSim cannot initialise model {spec.model!r}: {why}") from None
 
 
-def _trim(fdm, spec: JsbsimSpec, dt: float, seed: int, damaged: bool):
+def _trim(fdm, spec: JsbsimSpec, dt: float, seed: int, damaged: bool, suggest: bool):
     import jsbsim
 
     if not (_load_damaged(fdm, spec) if damaged else fdm.load_model(spec.model)):
@@ -189,23 +196,65 @@ def _trim(fdm, spec: JsbsimSpec, dt: float, seed: int, damaged: bool):
     fdm["ic/vc-kts"] = spec.airspeed_kt
     fdm["ic/h-sl-ft"] = spec.altitude_m / FT
     fdm["ic/psi-true-deg"] = 0.0
-    fdm.run_ic()
+    try:
+        fdm.run_ic()
+    except Exception as exc:  # noqa: BLE001  (JSBSim's own errors: a model that needs FlightGear's properties)
+        raise JsbsimPlantError(f"jsbsim plant: JSBSim cannot fly {spec.model} on its own: {exc}") from None
     fdm["propulsion/set-running"] = -1
     try:
         fdm["simulation/do_simple_trim"] = 1
     except jsbsim.TrimFailureError as exc:
         raise JsbsimPlantError(
             f"jsbsim plant: {spec.model} does not trim in level flight at {spec.airspeed_kt:g} kt, "
-            f"{spec.altitude_m:g} m ({exc})"
+            f"{spec.altitude_m:g} m ({exc}){_trims_instead(spec) if suggest else ''}"
         ) from None
     return fdm
+
+
+SUGGEST_KT = tuple(range(30, 310, 10))  # the airspeeds tried when a trim fails (kt)
+
+
+def trimming_airspeeds(spec: JsbsimSpec, speeds=SUGGEST_KT) -> list[float]:
+    """The airspeeds of ``speeds`` (kt) at which ``spec.model`` trims at ``spec.altitude_m`` (JSBSim's chatter
+    silenced)."""
+    from sitl.jsbsim_models import quiet_stdio
+
+    found = []
+    with quiet_stdio():
+        for kt in speeds:
+            try:
+                trimmed_fdm(replace(spec, airspeed_kt=float(kt)), 0.01, suggest=False)
+            except JsbsimPlantError:
+                continue
+            found.append(float(kt))
+    return found
+
+
+def _trims_instead(spec: JsbsimSpec) -> str:
+    """What a failed trim adds: the airspeeds that trim there, and the spec to try (the middle of the nearest
+    range)."""
+    found = trimming_airspeeds(spec)
+    if not found:
+        return f"; it trims at none of {SUGGEST_KT[0]}-{SUGGEST_KT[-1]} kt there"
+    ranges, start = [], found[0]
+    for a, b in zip(found, found[1:] + [None]):
+        if b is None or b - a > 10.0:
+            ranges.append((start, a))
+            start = b
+    lo, hi = min(
+        ranges, key=lambda r: 0.0 if r[0] <= spec.airspeed_kt <= r[1] else min(abs(spec.airspeed_kt - x) for x in r)
+    )
+    mid = 10.0 * round((lo + hi) / 20.0)
+    where = ", ".join(f"{a:g}-{b:g}" if a != b else f"{a:g}" for a, b in ranges)
+    return f"; it trims at {where} kt there: try {replace(spec, airspeed_kt=mid).text(short=True)}"
 
 
 class SafetyPilot:
     """Holds the trim altitude (elevator, through pitch) and airspeed (throttle); see the module docstring."""
 
-    def __init__(self, fdm, dt: float):
+    def __init__(self, fdm, dt: float, gains: PilotGains = PILOT):
         self.fdm = fdm
+        self.gains = gains
         self.dt = dt * PILOT_EVERY
         self.h0 = fdm["position/h-sl-ft"] * FT
         self.theta0 = fdm["attitude/theta-rad"]
@@ -219,16 +268,16 @@ class SafetyPilot:
         self._throttle = pm.get_node("fcs/throttle-cmd-norm")
 
     def __call__(self) -> None:
-        f = self.fdm
+        f, g = self.fdm, self.gains
         h, hdot = f["position/h-sl-ft"] * FT, f["velocities/h-dot-fps"] * FT
-        theta_ref = self.theta0 + min(THETA_MAX, max(-THETA_MAX, K_H * (self.h0 - h) - K_HDOT * hdot))
+        theta_ref = self.theta0 + min(g.theta_max, max(-g.theta_max, g.k_h * (self.h0 - h) - g.k_hdot * hdot))
         e = theta_ref - f["attitude/theta-rad"]
         self.int_theta += e * self.dt
-        de = -(K_THETA * e + K_I * self.int_theta - K_Q * f["velocities/q-rad_sec"])
+        de = -(g.k_theta * e + g.k_i * self.int_theta - g.k_q * f["velocities/q-rad_sec"])
         self._elevator.set_double_value(min(1.0, max(-1.0, self.elevator0 + de)))
         ev = self.v0 - f["velocities/vc-kts"] * KT
         self.int_v += ev * self.dt
-        thr = self.throttle0 + K_V * ev + K_VI * self.int_v
+        thr = self.throttle0 + g.k_v * ev + g.k_vi * self.int_v
         self._throttle.set_double_value(min(1.0, max(0.0, thr)))
 
 
@@ -262,8 +311,9 @@ class JsbsimPlant:
         self.fdm = fdm = trimmed_fdm(spec, dt, seed, damaged)
         self.surface_trim = fdm[SURFACES[spec.surface]]
         self._cmd = fdm.get_property_manager().get_node(SURFACES[spec.surface])
-        self._per_norm = SURFACE_SIGN[spec.surface] / spec.surface_max_rad
-        self.pilot = SafetyPilot(fdm, dt)
+        self.surface_map = spec.surface_map  # the model's command -> deflection (sitl.jsbsim_models)
+        self._to_norm = self._normalised(self.surface_map, SURFACE_SIGN[spec.surface], self.surface_trim)
+        self.pilot = SafetyPilot(fdm, dt, pilot_gains(spec.model))
         if turbulence is not None:
             w20, severity = TURBULENCE[turbulence]
             fdm["atmosphere/turb-type"] = 3
@@ -291,6 +341,26 @@ class JsbsimPlant:
             self._mass0 = {k: fdm[f"inertia/{k}"] for k in ("weight-lbs", "cg-x-in", "cg-y-in", "cg-z-in")}
             self._mass0["ixx"] = fdm["inertia/ixx-slugs_ft2"]
         self._read()
+
+    @staticmethod
+    def _normalised(m: SurfaceMap, sign: float, trim: float):
+        """delta (rad from the trim deflection) -> the normalised command, clipped to [-1, 1]: trim + sign delta / k
+        on a symmetric surface (c172x: k = 17.5 deg), else the command whose deflection (``SurfaceMap.command``) is
+        the trim's plus sign delta."""
+        if m.symmetric:
+            k = sign / m.positive_rad
+
+            def norm(d: float) -> float:
+                return min(1.0, max(-1.0, trim + d * k))
+
+            return norm
+        kp, kn, t0 = m.positive_rad, m.negative_rad, m.deflection(trim)
+
+        def norm_piecewise(d: float) -> float:
+            target = t0 + sign * d
+            return min(1.0, max(-1.0, target / (kp if target >= 0.0 else kn)))
+
+        return norm_piecewise
 
     @property
     def time(self) -> float:
@@ -355,11 +425,11 @@ class JsbsimPlant:
             return self._advance_servo_fault(u, n)
         a00, a01, a10, a11, b0, b1 = self._servo
         d_, dd = self.delta, self.delta_dot
-        run, cmd, trim, k = self.fdm.run, self._cmd.set_double_value, self.surface_trim, self._per_norm
+        run, cmd, norm = self.fdm.run, self._cmd.set_double_value, self._to_norm
         steps = self.steps
         for _ in range(n):
             d_, dd = a00 * d_ + a01 * dd + b0 * u, a10 * d_ + a11 * dd + b1 * u  # exact ZOH of eq. (65)
-            cmd(min(1.0, max(-1.0, trim + d_ * k)))
+            cmd(norm(d_))
             if steps % PILOT_EVERY == 0:
                 self.pilot()
             run()
@@ -424,7 +494,7 @@ class JsbsimPlant:
         act = self._act
         a00, a01, a10, a11, b0, b1 = self._servo
         d_, dd = self.delta, self.delta_dot
-        run, cmd, trim, k = self.fdm.run, self._cmd.set_double_value, self.surface_trim, self._per_norm
+        run, cmd, norm = self.fdm.run, self._cmd.set_double_value, self._to_norm
         dt = self.config.dt
         steps = self.steps
         for _ in range(n):
@@ -432,7 +502,7 @@ class JsbsimPlant:
             df, ddf = a00 * d_ + a01 * dd + b0 * ue, a10 * d_ + a11 * dd + b1 * ue  # exact ZOH of eq. (65)
             coast, rate = act.surface(d_, df, ddf)
             d_, dd = (d_ + rate * dt, rate) if coast else (df, rate)
-            cmd(min(1.0, max(-1.0, trim + d_ * k)))
+            cmd(norm(d_))
             if steps % PILOT_EVERY == 0:
                 self.pilot()
             run()

@@ -14,6 +14,8 @@ like the built-in model.  Format (every key: docs/plants.md):
                roll = "phi", roll_rate = "p", yaw_rate = "r", side_velocity = "v"   (rates optional)
        or      num = [...], den = [...]   (highest power first; roll rate = phi' when the relative degree >= 2)
     [servo]    wn2 = 2367.0, two_zeta_wn = 72.22
+    [atmosphere] airspeed = 7.79 (m/s), span = 0.15 (m), altitude = 10 (m): the aircraft the Dryden turbulence and
+               the gusts are scaled to (optional; without airspeed and span the atmosphere flags are refused)
 
 Refused, each in one line naming the file and the key (``PlantFileError``; reading and keys: ``sitl.plant_file``):
 values of the wrong type or shape, more than ``MAX_STATES`` airframe states, a surface that moves nothing or an
@@ -60,6 +62,10 @@ class LinearPlant:
     units: tuple[str, ...]
     input_name: str
     output_name: str
+    # [atmosphere]: the airspeed (m/s), wing span (m) and altitude (m) the turbulence and gusts are scaled to
+    airspeed_m_s: float | None = None
+    span_m: float | None = None
+    altitude_m: float | None = None
 
     def aircraft_params(self) -> dict:
         """The ``params`` of ``sitl.aircraft.Aircraft`` that fly this plant."""
@@ -358,6 +364,10 @@ def load(path, physics_rate_hz: float | None = PHYSICS_RATE_HZ) -> LinearPlant:
     a_p, b_p, c_p = augment(a, b, c, wn2, two_zeta_wn)
     if physics_rate_hz is not None:
         check_step(path, a_p, b_p, physics_rate_hz)
+    atm = plant_file.table(path, doc, "atmosphere", required=False)
+    airspeed, span = (_number(path, atm, "atmosphere", k, required=False) for k in ("airspeed", "span"))
+    if (airspeed is None) != (span is None):
+        raise PlantFileError(f"{path}: [atmosphere] needs both airspeed (m/s) and span (m), or neither")
     return LinearPlant(
         name=name,
         a_p=a_p,
@@ -371,4 +381,7 @@ def load(path, physics_rate_hz: float | None = PHYSICS_RATE_HZ) -> LinearPlant:
         units=tuple(units),
         input_name=plant_file.text(path, inp, "[input]", "name", "delta"),
         output_name=plant_file.text(path, out, "[output]", "name", "phi"),
+        airspeed_m_s=airspeed,
+        span_m=span,
+        altitude_m=_number(path, atm, "atmosphere", "altitude", required=False),
     )

@@ -68,6 +68,7 @@ def check(text: str, physics_rate_hz: float | None = PHYSICS_RATE_HZ) -> str:
         if k == "file":
             _load(text, physics_rate_hz)
         elif k == "jsbsim":
+            from sitl.jsbsim_models import pilot_gains
             from sitl.jsbsim_plant import JsbsimPlantError, available_models, parse_spec
 
             try:
@@ -76,6 +77,8 @@ def check(text: str, physics_rate_hz: float | None = PHYSICS_RATE_HZ) -> str:
                     raise JsbsimPlantError(
                         f"jsbsim plant: no model {spec.model!r}; available: {', '.join(available_models())}"
                     )
+                _ = spec.surface_map  # the model's own command -> deflection, or why it has none in rad
+                pilot_gains(spec.model)  # the safety pilot holds it, or says why not
             except JsbsimPlantError as exc:
                 raise PlantError(str(exc)) from None
     except PlantFileError as exc:
@@ -98,16 +101,50 @@ def check_disturbances(text: str, given: dict) -> None:
             f"--{air[0].replace('_', '-')} cannot fly on --plant {text}: the atmosphere needs the airframe states "
             "[v, p, r, phi], in that order"
         )
+    scaled = [d for d in air if d != "crosswind"]  # a steady crosswind is a side velocity: no scale to it
+    if scaled and kind(text) == "file" and load_file(text).airspeed_m_s is None:
+        raise PlantError(
+            f"--{scaled[0].replace('_', '-')} cannot fly on --plant {text}: the Dryden turbulence and the gusts are "
+            "scaled to the aircraft, and the file does not say which: give [atmosphere] airspeed = M/S and span = M "
+            "(and altitude = M) in it"
+        )
+    alt = load_file(text).altitude_m if scaled and kind(text) == "file" else None
+    if alt is not None and given.get("turbulence") is not None and not 3.048 <= alt <= 304.8:
+        raise PlantError(
+            f"--turbulence cannot fly on --plant {text}: its [atmosphere] altitude {alt:g} m is outside the "
+            "low-altitude Dryden model (3.05..304.8 m, 10..1000 ft)"
+        )
 
 
 def injected(text: str, dist):
     """What ``sitl.disturbances.Injector`` applies on this plant: everything but the atmosphere for JSBSim (it flies
-    its own), all of it otherwise."""
-    if dist is None or kind(text) != "jsbsim":
+    its own, at the aircraft's airspeed and altitude); on a plant file the atmosphere scaled to its ``[atmosphere]``
+    airspeed, span and altitude (``scaled_atmosphere``); all of it, as given, on the KH2013A."""
+    if dist is None or kind(text) == "kh2013a":
         return dist
+    if kind(text) == "file":
+        return replace(dist, atmosphere=scaled_atmosphere(load_file(text), dist.atmosphere))
     from sitl.atmosphere import AtmosphereConfig
 
     return replace(dist, atmosphere=AtmosphereConfig())
+
+
+def scaled_atmosphere(lp, atm):
+    """``atm`` (``sitl.atmosphere.AtmosphereConfig``) for the aircraft of plant file ``lp``: the Dryden filters and
+    the gusts at its airspeed and span; a --turbulence intensity at its altitude too, unless --altitude, the sigmas
+    or the scale lengths were given.  Unchanged without ``[atmosphere]`` (only a crosswind is then allowed)."""
+    if lp.airspeed_m_s is None:
+        return atm
+    from sitl.atmosphere import ALTITUDE, DrydenConfig
+
+    turb = atm.turbulence
+    if turb is not None:
+        name = next((n for n in ("light", "moderate", "severe") if DrydenConfig.intensity(n, ALTITUDE) == turb), None)
+        if name is not None and lp.altitude_m is not None:
+            turb = DrydenConfig.intensity(name, lp.altitude_m)
+        turb = replace(turb, airspeed=lp.airspeed_m_s, span=lp.span_m)
+    gusts = tuple(replace(g, airspeed=lp.airspeed_m_s) for g in atm.gusts)
+    return replace(atm, turbulence=turb, gusts=gusts)
 
 
 def _turbulence_name(dist) -> str | None:
@@ -220,6 +257,34 @@ def divergence(truth) -> str | None:
     return None
 
 
+def surface_of(text: str) -> str:
+    """The surface the plant's command drives: ``rudder`` (the KH2013A), a plant file's ``[input] surface``, a JSBSim
+    spec's ``surface`` (aileron by default)."""
+    k = kind(text)
+    if k == "file":
+        return load_file(text).surface
+    if k == "jsbsim":
+        from sitl.jsbsim_plant import parse_spec
+
+        return parse_spec(text).surface
+    return "rudder"
+
+
+def name_of(text: str) -> str:
+    """The plant's short name (headers, titles, run folders): ``KH2013A``, the JSBSim model (``c172x``, with
+    ``-rudder`` on its rudder), a plant file's ``name`` (else its file name)."""
+    k = kind(text)
+    if k == "file":
+        lp = load_file(text)
+        return lp.name or Path(text).stem
+    if k == "jsbsim":
+        from sitl.jsbsim_plant import parse_spec
+
+        spec = parse_spec(text)
+        return spec.model + ("" if spec.surface == "aileron" else f"-{spec.surface}")
+    return "KH2013A"
+
+
 def surface_limit_rad(text: str) -> float | None:
     """The surface's deflection limit (rad) of a plant, None if unlimited (KH2013A, a file without ``limit``)."""
     k = kind(text)
@@ -241,6 +306,8 @@ __all__ = [
     "divergence",
     "injected",
     "kind",
+    "name_of",
     "shipped",
     "surface_limit_rad",
+    "surface_of",
 ]

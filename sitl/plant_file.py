@@ -27,13 +27,14 @@ MAX_NAME_CHARS = 100  # the plant's name is printed in every output: one short l
 
 # The format, table by table (docs/plants.md); None: the top level.  [trim] is informative and free-form.
 KEYS: dict[str | None, tuple[str, ...]] = {
-    None: ("name", "description", "source", "input", "output", "airframe", "servo", "trim"),
+    None: ("name", "description", "source", "input", "output", "airframe", "servo", "atmosphere", "trim"),
     "input": ("name", "unit", "surface", "limit", "rate_limit"),
     "output": ("name", "unit"),
     "airframe": ("states", "units", "A", "B", "C", "num", "den", "roll", "roll_rate", "yaw_rate", "side_velocity"),
     "servo": ("wn2", "two_zeta_wn"),
+    "atmosphere": ("airspeed", "span", "altitude"),
 }
-TABLES = ("input", "output", "airframe", "servo", "trim")
+TABLES = ("input", "output", "airframe", "servo", "atmosphere", "trim")
 
 
 class PlantFileError(ValueError):

@@ -81,9 +81,10 @@ class SitlHook(ProcessHook):
     """``Sitl.hooks`` callable: the truth state, the applied servo command (rad) and its PWM, per ``SitlRecord``;
     with ``held`` (a JSBSim plant) also what the safety pilot holds."""
 
-    def __init__(self, tel, held: bool = False):
+    def __init__(self, tel, held: bool = False, surface: str = "rudder"):
         super().__init__(tel)
-        self.table = tel.table(SITL_TABLE_NO_POSE if held else SITL_TABLE)
+        self._layout = SITL_TABLE.naming("rudder", surface)  # the plant's surface in the labels (an aileron...)
+        self.table = tel.table((SITL_TABLE_NO_POSE if held else SITL_TABLE).naming("rudder", surface))
         self._push = self.table.push
         self._held = tel.table(SITL_HELD_TABLE).push if held else None
         self._phi = STATE_NAMES.index("phi")
@@ -93,7 +94,7 @@ class SitlHook(ProcessHook):
     def __call__(self, rec) -> None:
         self.last_t = t = rec.t_sim
         wall = time.time()
-        self._rows[SITL_TABLE] = row = tuple(rec.x.tolist()) + (nan_if_none(rec.u), nan_if_none(rec.pwm))
+        self._rows[self._layout] = row = tuple(rec.x.tolist()) + (nan_if_none(rec.u), nan_if_none(rec.pwm))
         self._push((t, wall, row))
         if self._held is not None:
             held = rec.sitl.aircraft.held()
@@ -113,5 +114,8 @@ class SitlHook(ProcessHook):
 
 def attach(args: argparse.Namespace, sitl):
     """If a telemetry flag was given, build the writer and register a ``SitlHook`` on ``sitl``; the writer or None."""
+    from sitl.plant import surface_of
+
     held = hasattr(getattr(sitl, "aircraft", None), "held")  # a JSBSim plant
-    return attach_hook(args, "sitl", sitl, lambda tel: SitlHook(tel, held))
+    surface = surface_of(getattr(args, "plant", "kh2013a"))
+    return attach_hook(args, "sitl", sitl, lambda tel: SitlHook(tel, held, surface))

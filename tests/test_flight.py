@@ -175,8 +175,23 @@ def test_a_malformed_csv_is_refused_at_construction(tmp_path):
 
 
 def test_unknown_keywords_raise_type_error_naming_them():
-    with pytest.raises(TypeError, match="no_such_flag, warp"):
-        Flight(lockstep=True, warp=9, no_such_flag=1)
+    with pytest.raises(TypeError, match="unexpected keyword argument 'warp'"):
+        Flight(lockstep=True, warp=9)
+
+
+def test_flight_has_the_config_s_keywords_in_its_signature():
+    """help(Flight) and an IDE show the keywords (issue 30, item 9): one per FlightConfig field, keyword-only, with
+    the same defaults; ``quiet`` among them and documented."""
+    import dataclasses
+    import inspect
+
+    from tools.flight import FlightConfig
+
+    sig = inspect.signature(Flight)
+    expect = {f.name: f.default for f in dataclasses.fields(FlightConfig) if f.init}
+    assert {n: p.default for n, p in sig.parameters.items()} == expect
+    assert all(p.kind is inspect.Parameter.KEYWORD_ONLY for p in sig.parameters.values())
+    assert "``quiet``" in Flight.__init__.__doc__ and "DIR/<process>.log" in Flight.__init__.__doc__
 
 
 def test_keywords_are_normalised_like_the_flags():

@@ -333,10 +333,18 @@ def test_ticks_are_round_numbers_inside_the_range(seed):
 # ---------------------------------------------------------------------------------------- the review's cases
 def test_the_baseline_is_drawn_as_a_fixed_gain_pid_not_as_sac():
     """The fixed-gain PID baseline was titled "SAC (..., L_v=0)" in SAC's red, with K_x = K_u = 0 drawn as adaptive
-    gains: its roll is in its own colour, and its gains panel shows K_p alone (its telemetry's K_e), in K_e's
-    colour, without K_x's and K_u's."""
+    gains: its roll is in its own colour, and its gains panel shows its K_p, K_i and K_d (issue 30: not a flat,
+    autoscaled K_p line alone) on a range from 0 to above the largest, each at its height."""
+    gains_flown = (0.1, 0.1, 0.02)
     img = flight_image(
-        _series(), name="baseline", lv=0.0, metrics={}, u_limit_rad=30 * DEG, title="t", controller="baseline"
+        _series(),
+        name="baseline",
+        lv=0.0,
+        metrics={},
+        u_limit_rad=30 * DEG,
+        title="t",
+        controller="baseline",
+        gains=gains_flown,
     )
     px = np.asarray(img).astype(int)
     frames = _frames(px)
@@ -345,8 +353,34 @@ def test_the_baseline_is_drawn_as_a_fixed_gain_pid_not_as_sac():
     assert _solid(px[roll], flight_png.C_BASE).sum() > 100 and _solid(px[roll], flight_png.C_SAC).sum() == 0
     left, top, right, bottom = frames[2]
     gains = (slice(top + 2, bottom - 1), slice(left + 2, left + 600))
-    assert _solid(px[gains], flight_png.C_GAINS["ke"]).sum() > 100
-    assert _solid(px[gains], flight_png.C_GAINS["kx"]).sum() == 0 == _solid(px[gains], flight_png.C_GAINS["ku"]).sum()
+    rows = {}
+    for key in ("ke", "kx", "ku"):  # K_p, K_i, K_d in K_e's, K_x's and K_u's colours (K_i dashed over K_p)
+        hit = (px[gains] == ImageColor.getrgb(flight_png.C_GAINS[key])).all(axis=-1)
+        assert hit.sum() > 100, key
+        rows[key] = np.median(np.nonzero(hit)[0])
+    # the range runs from -0.05 x to 1.2 x the largest gain (0.1): K_d = 0.02 sits a fifth of K_p's height up
+    height = bottom - 1 - (top + 2)
+    y_of = {k: height * (1.2 * 0.1 - v) / (1.25 * 0.1) for k, v in zip(("ke", "kx", "ku"), gains_flown)}
+    for key in rows:
+        assert abs(rows[key] - y_of[key]) < 4, (key, rows[key], y_of[key])
+
+
+def test_a_parameter_changed_in_flight_steps_the_pid_line_and_is_marked():
+    """A ground station's CLSAC_PID_KP 0.1 -> 0.3 at 15 s: the K_p line steps there, and the picture marks it."""
+    from tools.view.flight_picture import marks
+
+    changes = [{"t_s": 15.0, "name": "CLSAC_PID_KP", "from": 0.1, "to": 0.3}]
+    common = dict(name="b", lv=0.0, metrics={}, u_limit_rad=30 * DEG, title="t", controller="baseline")
+    plain = np.asarray(flight_image(_series(), gains=(0.1, 0.1, 0.02), **common)).astype(int)
+    moved = np.asarray(
+        flight_image(_series(), gains=(0.1, 0.1, 0.02), changes=changes, faults=marks([], changes), **common)
+    ).astype(int)
+    left, top, right, bottom = _frames(moved)[2]
+    region = (slice(top + 2, bottom - 1), slice(left + 2, right - 1))
+    rows = np.nonzero((moved[region] == ImageColor.getrgb(flight_png.C_GAINS["ke"])).all(axis=-1))[0]
+    assert rows.max() - rows.min() > 0.4 * (bottom - top)  # two heights: 0.1, then 0.3 at the top of the range
+    blue = ImageColor.getrgb(flight_png.C_PARAM)  # the change's dashed line, down every panel
+    assert (moved == blue).all(axis=-1).sum() > 50 and (plain == blue).all(axis=-1).sum() == 0
 
 
 def test_mode_lines_go_under_the_legend():

@@ -79,8 +79,8 @@ def test_the_design_reports_how_the_pfc_was_chosen(designed):
 
 def test_the_designed_baseline_has_the_margins_it_claims(designed):
     path, _out = designed
-    line = next(x for x in path.read_text().splitlines() if x.startswith("# baseline_gains ="))
-    kp, ki, kd = (float(v) for v in line.split("=", 1)[1].split("#")[0].split(","))
+    values = load_file(path)  # real parameters, not a comment: the baseline flies the file (issue 30, item 2)
+    kp, ki, kd = (values[f"CLSAC_PID_K{k}"] for k in "PID")
     import control
 
     lp = linear_plant.load(SHIPPED)
@@ -113,8 +113,9 @@ def test_a_plant_no_pfc_can_make_waspr_is_a_clear_error(tmp_path):
 def test_the_launcher_flies_the_shipped_design_by_default():
     path = designed_params("jsbsim:c172x:airspeed_kt=70")
     assert path is not None and path.name == "jsbsim-c172x.params"
-    assert set(load_file(path)) >= {"CLSAC_PFC_NUM", "CLSAC_PFC_DEN1", "CLSAC_PFC_DEN0", "CLSAC_U_LIMIT"}
+    assert set(load_file(path)) >= {"CLSAC_PFC_NUM", "CLSAC_PFC_DEN1", "CLSAC_PFC_DEN0", "CLSAC_PID_KP"}
     assert "CLSAC_LV" not in load_file(path)  # --lv / the run's Lv still chooses SAC or CL-SAC
+    assert "CLSAC_U_LIMIT" not in load_file(path)  # the limit is the plant's stop, given to every controller
     assert designed_baseline("jsbsim:c172x") is not None
     assert designed_params("kh2013a") is None and designed_baseline("kh2013a") is None
     assert designed_params("jsbsim:c172x:surface=rudder") is None  # the aileron's design is not the rudder's
@@ -122,12 +123,12 @@ def test_the_launcher_flies_the_shipped_design_by_default():
 
     cfg = FlightConfig(plant="jsbsim:c172x", lockstep=True)
     assert cfg.params_file == str(path)
-    assert cfg.u_limit_deg == pytest.approx(17.5)  # the command stops at c172x's aileron range, as the file's
-    assert load_file(path)["CLSAC_U_LIMIT"] == pytest.approx(math.radians(17.5))
-    assert FlightConfig(plant="jsbsim:c172x", u_limit_deg=10.0).u_limit_deg == 10.0
-    assert FlightConfig(plant="jsbsim:c172x", controller="baseline").baseline_gains_flown == designed_baseline(
-        "jsbsim:c172x"
-    )
+    assert cfg.u_limit_deg == pytest.approx(17.5)  # the command stops at c172x's aileron range
+    assert FlightConfig(plant="jsbsim:c172x", u_limit_deg=10.0).u_limit_deg == 10.0  # and flies: no file overrides it
+    base = FlightConfig(plant="jsbsim:c172x", controller="baseline")
+    assert base.params_file == str(path) and base.baseline_gains_flown is None  # the baseline flies the file too
+    given = FlightConfig(plant="jsbsim:c172x", controller="baseline", baseline_gains="1,0.1,0.3")
+    assert given.params_file is None and given.baseline_gains_flown == (1.0, 0.1, 0.3)  # gains given fly instead
 
 
 def test_the_rudder_of_the_c172x_gets_a_clear_refusal(tmp_path):

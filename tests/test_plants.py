@@ -396,7 +396,8 @@ def test_the_kh2013a_file_over_mavlink_equals_the_built_in_bit_for_bit(tmp_path)
         ({"plant": "jsbsim:c172x", "gust": "1,10,2"}, "plant", "--gust cannot fly on --plant jsbsim:c172x"),
         ({"plant": "jsbsim:c172x:airspeed_kt=-5"}, "plant", "airspeed_kt must be positive"),
         ({"params": "/no/such.params"}, "params", "cannot read /no/such.params: No such file or directory"),
-        ({"baseline_gains": "1,2"}, "baseline_gains", "expected KP,KI,KD"),
+        ({"controller": "baseline", "baseline_gains": "1,2"}, "baseline_gains", "expected KP,KI,KD"),
+        ({"baseline_gains": "1,2,3"}, "baseline_gains", "clsac is adaptive"),  # a value the law would not fly
     ],
 )
 def test_a_bad_plant_or_parameter_file_is_refused_by_flight(kwargs, field, needle):
@@ -408,8 +409,14 @@ def test_a_bad_plant_or_parameter_file_is_refused_by_flight(kwargs, field, needl
 
 
 @pytest.mark.e2e
-@pytest.mark.parametrize("spec", ["jsbsim:c172x:airspeed_kt=300", "jsbsim:ball"])
-def test_a_jsbsim_plant_that_does_not_trim_is_refused_before_the_flight(tmp_path, spec):
+@pytest.mark.parametrize(
+    ("spec", "why"),
+    [
+        ("jsbsim:c172x:airspeed_kt=300", "does not trim"),
+        ("jsbsim:ball", "aerodynamics reads no aileron position"),  # not an aircraft: nothing to roll it with
+    ],
+)
+def test_a_jsbsim_plant_that_does_not_trim_is_refused_before_the_flight(tmp_path, spec, why):
     """Beyond the aircraft's envelope (or not an aircraft): one line, exit 2, nothing started (only the refusal's
     summary.json), JSBSim's own chatter kept out of the terminal; tools.pfc design says the same in one line."""
     import json
@@ -426,7 +433,7 @@ def test_a_jsbsim_plant_that_does_not_trim_is_refused_before_the_flight(tmp_path
         env=user_env,
     )
     assert r.returncode == 2 and r.stdout == "", r.stdout + r.stderr
-    assert r.stderr.count("\n") == 1 and "does not trim" in r.stderr and "Traceback" not in r.stderr, r.stderr
+    assert r.stderr.count("\n") == 1 and why in r.stderr and "Traceback" not in r.stderr, r.stderr
     assert sorted(p.name for p in out.iterdir()) == ["summary.json"]
     assert json.loads((out / "summary.json").read_text())["refused"] is True
     d = subprocess.run(
@@ -436,7 +443,7 @@ def test_a_jsbsim_plant_that_does_not_trim_is_refused_before_the_flight(tmp_path
         timeout=120,
     )
     last = d.stderr.strip().splitlines()[-1]
-    assert d.returncode == 2 and "does not trim" in last and "Traceback" not in d.stderr, d.stderr
+    assert d.returncode == 2 and why in last and "Traceback" not in d.stderr, d.stderr
 
 
 @pytest.mark.e2e

@@ -30,14 +30,17 @@ def test_the_lv_a_parameter_file_sets_is_the_lv_reported(tmp_path):
     out = tmp_path / "f"
     r = run_cli("tools.launch", "--lockstep", "--duration", "2", "--params", str(params), "--out", str(out), "--quiet")
     assert r.returncode == 0, r.stderr[-2000:]
-    assert "== lockstep flight, clsac (Lv=50), " in r.stdout
+    assert "== lockstep flight, clsac (Lv=50) on KH2013A (rudder), " in r.stdout
     s = json.loads((out / "summary.json").read_text())
     assert s["Lv"] == 50.0 and s["runs"][0]["Lv"] == 50.0 and s["params"] == str(params)
 
 
 def test_a_timeout_is_quoted_as_given(tmp_path):
-    r = run_cli("tools.launch", "--lockstep", "--duration", "600", "--timeout", "0.4", "--quiet", "--no-rrd")
-    assert r.returncode == 1
+    out = tmp_path / "f"  # never the user's runs/: a test leaves nothing in the checkout
+    r = run_cli(
+        "tools.launch", "--lockstep", "--duration", "600", "--timeout", "0.4", "--quiet", "--no-rrd", "--out", str(out)
+    )
+    assert r.returncode == 1 and json.loads((out / "summary.json").read_text())["ok"] is False
     assert (
         r.stdout.strip()
         .splitlines()[-1]

@@ -86,15 +86,27 @@ def outcome_line(s: dict) -> str:
 
 
 def _law(s: dict) -> str:
-    """The law in the header: Lv means something for SAC and CL-SAC only, not for the fixed-gain PID."""
+    """The law in the header: Lv means something for SAC and CL-SAC only, not for the fixed-gain PID; a Lv changed in
+    flight is given as it started and as it ended."""
     c = controllers.get(s["controller"])
-    return f"{c.name} (Lv={s['Lv']:g})" if c.adaptive else f"{c.name} ({c.label})"
+    if not c.adaptive:
+        return f"{c.name} ({c.label})"
+    end = s.get("Lv_end", s["Lv"])
+    return f"{c.name} (Lv={s['Lv']:g}" + (f" -> {end:g}" if end != s["Lv"] else "") + ")"
+
+
+def _plant(s: dict) -> str:
+    """The plant and its surface in the header: "on c172x (aileron)"."""
+    return f" on {s.get('plant_name') or s.get('plant')} ({s.get('surface', 'rudder')})"
 
 
 def print_summary(s: dict) -> None:
     """The summary table of a flight's summary.json, ending with its outcome (``outcome_line``)."""
     print()
-    print(f"== {s['mode']} flight, {_law(s)}, {s['rate_hz']:g} Hz, {s['duration_s']:g} s: {s['outcome']}")
+    print(f"== {s['mode']} flight, {_law(s)}{_plant(s)}, {s['rate_hz']:g} Hz, {s['duration_s']:g} s: {s['outcome']}")
+    for c in (s.get("parameters") or {}).get("changes") or ():
+        at = "before the first attitude" if c.get("t_s") is None else f"at {c['t_s']:.2f} s"
+        print(f"   parameter changed in flight: {c['name']} {c['from']:.6g} -> {c['to']:.6g} {at}")
     if s["runs"]:
         m = s["runs"][0]["metrics"]
         print(f"   {'metric':<12}{'value':>14}")

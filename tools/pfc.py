@@ -22,6 +22,10 @@ from autopilot.shared.cli import OneLineArgumentParser, angle_deg
 from tools import design as analysis
 
 EPILOG = """\
+design: python -m tools.pfc design PLANT [--out FILE.params] designs a PFC, the adaptation weights and a baseline
+PID for another plant (FILE.toml or jsbsim:MODEL[:KEY=VALUE,...]) and writes them where the launcher finds them
+(python -m tools.pfc design --help; docs/plants.md).
+
 coefficients are comma-separated, highest power first: --pfc-num 10 --pfc-den 4,40 is 10/(4s + 40).
 A list starting with a minus sign needs the = form: --pfc-den=-1,-2 (which is then rejected as unstable).
 
@@ -41,8 +45,9 @@ exit status: 0 on success, 2 on bad input (one-line reason on stderr), 1 if the 
 def build_parser() -> argparse.ArgumentParser:
     p = OneLineArgumentParser(
         prog="python -m tools.pfc",
+        usage="python -m tools.pfc [options]\n       python -m tools.pfc design PLANT [--out FILE.params] [options]",
         description="W-ASPR analysis of the KH2013A roll plant with a parallel feedforward compensator "
-        "(Jana & Bhat 2017, sections 2 and 5).",
+        "(Jana & Bhat 2017, sections 2 and 5);\n'design PLANT' designs one for another plant.",
         epilog=EPILOG,
         formatter_class=argparse.RawDescriptionHelpFormatter,
     )

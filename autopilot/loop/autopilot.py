@@ -245,6 +245,9 @@ class Autopilot(LinkHandlers, LockstepScheduler, RealtimeScheduler):
             "controlled": self.envelope.result().to_dict(),  # the envelope verdict (autopilot.envelope)
             # MAV_CMD_INJECT_FAILURE relayed to the SITL, each with its answer (autopilot.injection)
             "failure_injections": self.vehicle.failures.records,
+            "params_start": self.vehicle.params_start,  # every parameter as the flight started
+            "param_changes": self.vehicle.param_changes,  # each value a ground station changed, with its sim time
+            "u_limit_rad": float(self.control.config.u_limit_rad),  # the command limit in force at the end
             "hold_steps": self.hold_steps,
             "late_steps": self.late_steps,  # real time: started more than the attitude timeout after the deadline
             "max_lateness_s": self.max_lateness_s,

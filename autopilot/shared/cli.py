@@ -28,6 +28,26 @@ class OneLineArgumentParser(argparse.ArgumentParser):
         sys.stderr.write(f"{self.prog}: error: {message}\n")
         raise SystemExit(2)
 
+    def parse_known_args(self, args=None, namespace=None):
+        """An unknown ``--flag`` is named first (with the flag it most resembles): otherwise argparse would pass
+        its value on to a positional argument and complain of that instead (``--turbulance moderate``: "argument
+        profile: invalid choice: 'moderate'")."""
+        argv = list(sys.argv[1:] if args is None else args)
+        # a command with subcommands leaves their flags to them (each one a parser of this class)
+        sub = any(isinstance(a, argparse._SubParsersAction) for a in self._actions)  # noqa: SLF001
+        for arg in [] if sub else argv:
+            if arg == "--":
+                break
+            if arg.startswith("--") and len(arg) > 2:
+                flag = arg.split("=", 1)[0]
+                known = [s for s in self._option_string_actions if s.startswith("--")]
+                if flag not in known and not (self.allow_abbrev and any(k.startswith(flag) for k in known)):
+                    import difflib
+
+                    like = difflib.get_close_matches(flag, known, n=1)
+                    self.error(f"unrecognized argument {flag}" + (f" (did you mean {like[0]}?)" if like else ""))
+        return super().parse_known_args(argv, namespace)
+
 
 def _number(text: str) -> float:
     try:

@@ -28,7 +28,7 @@ def attach(args: argparse.Namespace, autopilot, *, control_rate_hz: float | None
     def make_hook(tel):
         from autopilot.telemetry.hooks import AutopilotHook
 
-        hook = AutopilotHook(tel, control_rate_hz=control_rate_hz)
+        hook = AutopilotHook(tel, control_rate_hz=control_rate_hz, surface=getattr(args, "surface", "rudder"))
         vehicle = getattr(autopilot, "vehicle", None)
         if vehicle is not None:  # each PARAM_SET: a line in the event log and a marker on the gain plots
             vehicle.param_hooks.append(hook.param_set)

@@ -19,10 +19,11 @@ from autopilot.telemetry import layout as L
 _GAIN_INDEX = tuple(L.AUTOPILOT.index(k) for k in ("ke", "kx", "ku"))  # in the autopilot's row
 
 
-def autopilot_tables(tel, links: Sequence[str] = L.LINKS):
-    """Register the autopilot's layout with a writer: (main table, {link: table}, mode channel, failsafe channel)."""
+def autopilot_tables(tel, links: Sequence[str] = L.LINKS, surface: str = "rudder"):
+    """Register the autopilot's layout with a writer: (main table, {link: table}, mode channel, failsafe channel);
+    ``surface``: the word its labels use for the command (the plant's: rudder, aileron)."""
     return (
-        tel.table(L.AUTOPILOT),
+        tel.table(L.AUTOPILOT.naming("rudder", surface)),
         {name: tel.table(L.link_layout(name, i)) for i, name in enumerate(links)},
         tel.state_channel(L.AP_MODE, "mode", L.MODE_COLORS, warn=L.MODE_WARN),
         tel.state_channel(L.AP_FAILSAFE, "failsafe", L.FAILSAFE_COLORS, warn=L.FAILSAFE_WARN),
@@ -38,10 +39,16 @@ class AutopilotHook(ProcessHook):
     """
 
     def __init__(
-        self, tel, links: Sequence[str] = L.LINKS, link_rate_hz: float = 10.0, control_rate_hz: float | None = None
+        self,
+        tel,
+        links: Sequence[str] = L.LINKS,
+        link_rate_hz: float = 10.0,
+        control_rate_hz: float | None = None,
+        surface: str = "rudder",
     ):
         super().__init__(tel)
-        self.table, self.links, self.mode, self.failsafe = autopilot_tables(tel, links)
+        self.table, self.links, self.mode, self.failsafe = autopilot_tables(tel, links, surface)
+        self._layout = L.AUTOPILOT.naming("rudder", surface)
         self._push = self.table.push
         self._link_rate_hz = link_rate_hz
         self._link_every = max(1, int(round(control_rate_hz / link_rate_hz))) if control_rate_hz else None
@@ -92,7 +99,7 @@ class AutopilotHook(ProcessHook):
         if not str(text).startswith("SITL: " + FAULT_PREFIX) or self._row is None:
             return
         wall = time.time()
-        layouts = [(L.AUTOPILOT, self._row)]
+        layouts = [(self._layout, self._row)]
         layouts += [(L.link_layout(n, i), self._link_rows[n]) for i, n in enumerate(self.links) if n in self._link_rows]
         for layout, row in layouts:
             if layout.name not in self._marks:

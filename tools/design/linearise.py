@@ -31,10 +31,11 @@ class LinearisationError(RuntimeError):
     """JSBSim's linearisation did not give the states or inputs the roll channel needs."""
 
 
-def designed_params(plant: str) -> Path | None:
-    """The parameter file shipped for ``plant``: ``sitl/plants/jsbsim-MODEL.params`` for ``jsbsim:MODEL[...]`` on the
-    aileron (``jsbsim-MODEL-rudder.params`` on the rudder), ``FILE.params`` beside a plant ``FILE.toml``; None if
-    there is none (and for kh2013a: the paper's defaults).  Any airspeed: a design is flown off its design point."""
+def design_path(plant: str) -> Path | None:
+    """Where the design of ``plant`` is looked for (docs/plants.md, "Where a design is found"):
+    ``sitl/plants/jsbsim-MODEL.params`` for ``jsbsim:MODEL[...]`` on the aileron (``jsbsim-MODEL-rudder.params`` on
+    the rudder), ``FILE.params`` beside a plant ``FILE.toml``; None for kh2013a (the paper's values are its design).
+    Any airspeed: a design is flown off its design point."""
     from sitl import plant as plants
 
     kind = plants.kind(plant)
@@ -43,28 +44,49 @@ def designed_params(plant: str) -> Path | None:
 
         spec = parse_spec(plant)
         suffix = "" if spec.surface == "aileron" else f"-{spec.surface}"
-        path = plants.shipped(f"jsbsim-{spec.model}{suffix}.params")
-    elif kind == "file":
-        path = Path(plant).with_suffix(".params")
-    else:
-        return None
-    return path if path.is_file() else None
+        return plants.shipped(f"jsbsim-{spec.model}{suffix}.params")
+    if kind == "file":
+        return Path(plant).with_suffix(".params")
+    return None
 
 
-BASELINE_KEY = "# baseline_gains ="  # the designed file's line the launcher reads for --controller baseline
+def designed_params(plant: str) -> Path | None:
+    """The parameter file designed for ``plant`` (``python -m tools.pfc design``), found where ``design_path`` says;
+    None if there is none (and for kh2013a: the paper's defaults)."""
+    path = design_path(plant)
+    return path if path is not None and path.is_file() else None
+
+
+def shown_path(path: Path) -> str:
+    """``path`` as a command line shows it: relative to the working folder when inside it."""
+    try:
+        return str(Path(path).resolve().relative_to(Path.cwd().resolve()))
+    except ValueError:
+        return str(path)
+
+
+def design_command(plant: str) -> str:
+    """The command that designs ``plant`` into the file the launcher finds."""
+    return f"python -m tools.pfc design {plant} --out {shown_path(design_path(plant))}"
+
+
+PID_PARAMS = ("CLSAC_PID_KP", "CLSAC_PID_KI", "CLSAC_PID_KD")  # the baseline's gains in a parameter file
+PFC_PARAMS = ("CLSAC_PFC_NUM", "CLSAC_PFC_DEN1", "CLSAC_PFC_DEN0")  # SAC's and CL-SAC's PFC
 
 
 def designed_baseline(plant: str) -> tuple[float, float, float] | None:
-    """The baseline gains designed for ``plant`` (the ``# baseline_gains = KP,KI,KD`` line of its designed
-    parameter file, written by ``python -m tools.pfc design``), or None."""
+    """The baseline gains designed for ``plant`` (``CLSAC_PID_KP``, ``_KI``, ``_KD`` of its designed parameter file,
+    written by ``python -m tools.pfc design``), or None."""
     path = designed_params(plant)
     if path is None:
         return None
-    for line in path.read_text().splitlines():
-        if line.startswith(BASELINE_KEY):
-            kp, ki, kd = (float(v) for v in line[len(BASELINE_KEY) :].split("#")[0].split(","))
-            return kp, ki, kd
-    return None
+    from autopilot.params import load_file
+
+    values = load_file(path)
+    if not all(n in values for n in PID_PARAMS):
+        return None
+    kp, ki, kd = (values[n] for n in PID_PARAMS)
+    return kp, ki, kd
 
 
 def flown_baseline_gains(controller: str, plant: str, given=None) -> tuple | None:
@@ -127,9 +149,10 @@ def linearise(spec, physics_rate_hz: float = 1000.0) -> dict:
     """The roll channel of a trimmed JSBSim model: {"A", "B", "C", "trim", ...} (SI, input in rad)."""
     import jsbsim
 
-    from sitl.jsbsim_plant import SURFACE_SIGN, trimmed_fdm
+    from sitl.jsbsim_plant import SURFACE_SIGN, SURFACES, trimmed_fdm
 
     fdm = trimmed_fdm(spec, 1.0 / physics_rate_hz)
+    surface = spec.surface_map  # the model's command -> deflection, as the SITL maps it
     lin = jsbsim.FGLinearization(fdm)
     x_names, u_names = list(lin.x_names), list(lin.u_names)
     missing = [n for n in (*LATERAL, INPUTS[spec.surface]) if n not in x_names + u_names]
@@ -138,14 +161,16 @@ def linearise(spec, physics_rate_hz: float = 1000.0) -> dict:
     idx = [x_names.index(n) for n in LATERAL]
     a_full, b_full = np.array(lin.system_matrix), np.array(lin.input_matrix)
     a = a_full[np.ix_(idx, idx)]
-    sign = SURFACE_SIGN[spec.surface]  # as the SITL maps the command: positive rolls right
-    b = sign * b_full[idx, u_names.index(INPUTS[spec.surface])].reshape(-1, 1) / spec.surface_max_rad
+    # as the SITL maps the command: positive rolls right, in rad of deflection (the model's slope at the trim)
+    sign, slope = SURFACE_SIGN[spec.surface], surface.slope(float(fdm[SURFACES[spec.surface]]))
+    b = sign * b_full[idx, u_names.index(INPUTS[spec.surface])].reshape(-1, 1) / slope
     c = np.zeros((1, 4))
     c[0, STATES.index("phi")] = 1.0
     return {
         "A": a,
         "B": b,
         "C": c,
+        "surface": surface,
         "trim": {
             "airspeed_kt": spec.airspeed_kt,
             "altitude_m": spec.altitude_m,
@@ -240,6 +265,24 @@ def add_timeout_argument(p) -> None:
     )
 
 
+def _actuator_lines(surface) -> list[str]:
+    """The model's actuator in the plant file: its rate limit as ``rate_limit``; what a linear file cannot carry (the
+    hysteresis, an asymmetric travel) as comments."""
+    if surface is None:
+        return []
+    lines = [f"# {surface.describe()}"]
+    if surface.rate_limit_rad_s is not None:
+        lines.append(f"rate_limit = {surface.rate_limit_rad_s!r}  # rad/s, the model's actuator")
+    if surface.hysteresis_rad > 1e-9:
+        lines.append(
+            f"# not carried: the actuator's hysteresis (backlash) of {surface.hysteresis_rad:.4g} rad, a dead band no "
+            "linear plant has (docs/jsbsim.md)"
+        )
+    if not surface.symmetric:
+        lines.append("# not carried: the travel's other side (the file's limit is the smaller one)")
+    return lines
+
+
 def _row(v) -> str:
     return "[" + ", ".join(repr(float(x)) for x in v) + "]"
 
@@ -261,6 +304,7 @@ def to_toml(spec, lin: dict) -> str:
         'unit = "rad"',
         f'surface = "{spec.surface}"',
         f"limit = {spec.surface_max_rad!r}  # JSBSim's normalised command saturates at +-1",
+        *_actuator_lines(lin.get("surface")),
         "",
         "[output]",
         'name = "phi"',

@@ -2,9 +2,12 @@
 
 PLANT is a linear plant file (``sitl.linear_plant``), ``kh2013a``, or ``jsbsim:MODEL[:...]`` (linearised first with
 ``tools.plant``; the plant file is written beside the output as OUT.toml).  How each value is chosen:
-``tools.design.tuning``.  Writes OUT (default ./<plant name>.params), a parameter file ``python -m autopilot
---params`` loads (the launcher gives it to the autopilot by default when it sits beside the plant), with the design
-story in its comments and the baseline's gains on its ``# baseline_gains =`` line.
+``tools.design.tuning``.  Writes OUT, a parameter file ``python -m autopilot --params`` loads, with every
+controller's values (SAC's and CL-SAC's PFC and adaptation weights, the baseline's PID gains ``CLSAC_PID_KP``,
+``_KI``, ``_KD``: each controller flies its own) and the design story in its comments.  OUT defaults to where the
+launcher finds a plant's design (``tools.design.linearise.design_path``: ``sitl/plants/jsbsim-MODEL.params``, or
+FILE.params beside FILE.toml), so that ``python -m tools.launch --plant PLANT`` flies it; another file there is
+refused, never overwritten.  The last line printed is the command that flies it.
 
 exit status: 0 on success, 2 on bad input, a plant no PFC of the family makes W-ASPR, one the surface cannot move
 enough or one whose numbers defeat the analysis (one line on stderr naming the reason), 130 on Ctrl-C.
@@ -49,6 +52,7 @@ def _plant_file(args, parser) -> tuple[str, Path]:
     from dataclasses import replace
 
     from sitl import plant as plants
+    from tools.design.linearise import design_path, shown_path
 
     kind = plants.kind(args.plant)
     if kind == "kh2013a":
@@ -56,7 +60,9 @@ def _plant_file(args, parser) -> tuple[str, Path]:
         return text, Path(args.out or "kh2013a.params")
     if kind == "file":
         plants.check(args.plant)
-        return args.plant, Path(args.out or Path(args.plant).with_suffix(".params").name)
+        out = Path(args.out or design_path(args.plant))
+        _refuse_another(out, parser)
+        return args.plant, out
     from sitl.jsbsim_plant import parse_spec
     from tools.design.linearise import linearise_bounded, to_toml
 
@@ -66,14 +72,33 @@ def _plant_file(args, parser) -> tuple[str, Path]:
         if not (math.isfinite(args.airspeed) and args.airspeed > 0):
             parser.error(f"--airspeed must be positive and finite, got {args.airspeed!r}")
         spec = replace(spec, airspeed_kt=args.airspeed)
-    out = Path(args.out or f"jsbsim-{spec.model}.params")
+    out = Path(args.out or design_path(args.plant))
+    _refuse_another(out, parser)
     toml = out.with_suffix(".toml")
     text = to_toml(spec, linearise_bounded(spec, args.timeout))
     if toml.exists() and toml.read_text(encoding="utf-8", errors="replace") != text:  # never a user's file silently
         parser.error(f"{toml} exists and is not this linearisation: remove it or give another --out")
     toml.write_text(text)
-    print(f"linearised {spec.text()} -> {toml}")
-    return str(toml), out
+    print(f"linearised {spec.text()} -> {shown_path(toml)}")
+    return shown_path(toml), out
+
+
+def _refuse_another(out: Path, parser) -> None:
+    """An existing OUT that is not a design of ``python -m tools.pfc design`` is never overwritten."""
+    if out.exists() and not out.read_text(encoding="utf-8", errors="replace").startswith(HEADER):
+        parser.error(f"{out} exists and is not a design of python -m tools.pfc design: remove it or give another --out")
+
+
+HEADER = "# CL-SAC parameters designed for "  # the first line of a design (write_params)
+
+
+def fly_command(plant: str, out: Path) -> str:
+    """The launcher command that flies the design written to ``out`` (no --params where the launcher finds it)."""
+    from tools.design.linearise import design_path, shown_path
+
+    found = design_path(plant)
+    given = "" if found is not None and Path(found).resolve() == Path(out).resolve() else f" --params {shown_path(out)}"
+    return f"python -m tools.launch --lockstep --plant {plant}{given}"
 
 
 def _bands(bands) -> str:
@@ -86,6 +111,7 @@ def design_text(plant_text: str, rate_hz: float, margin: float, lv: float) -> tu
     """The design's report lines and the parameter values (name -> value, and 'baseline' -> (kp, ki, kd))."""
     from sitl.linear_plant import load
     from tools import design as analysis
+    from tools.design.linearise import PID_PARAMS
     from tools.design.tuning import GAMMA_NAMES, check_authority, choose_gamma, design_baseline, design_pfc
     from tools.experiment.scenario import PAPER
 
@@ -115,19 +141,19 @@ def design_text(plant_text: str, rate_hz: float, margin: float, lv: float) -> tu
     ]
     values = {"CLSAC_PFC_NUM": pfc.k, "CLSAC_PFC_DEN1": 1.0, "CLSAC_PFC_DEN0": pfc.a}
     values.update({f"CLSAC_GAM_{n.upper()}": gamma for n in GAMMA_NAMES})
-    values["CLSAC_U_LIMIT"] = u_limit
-    values["baseline"] = (base.kp, base.ki, base.kd)
+    # the baseline's gains (its own parameters: SAC and CL-SAC do not fly them, nor it theirs); no CLSAC_U_LIMIT:
+    # the command limit is the plant's surface stop, which the launcher gives every controller
+    values.update(zip(PID_PARAMS, (base.kp, base.ki, base.kd)))
     return lines, values
 
 
-def write_params(path: Path, plant_text: str, lines: list[str], values: dict) -> None:
-    from tools.design.linearise import BASELINE_KEY
-
-    kp, ki, kd = values["baseline"]
-    text = [f"# CL-SAC parameters designed for {plant_text} by python -m tools.pfc design"]
+def write_params(path: Path, plant_text: str, lines: list[str], values: dict, plant: str | None = None) -> None:
+    text = [f"{HEADER}{plant_text} by python -m tools.pfc design"]
     text += [f"#   {line}" for line in lines]
-    text.append(f"{BASELINE_KEY} {kp!r},{ki!r},{kd!r}  # python -m autopilot --controller baseline --baseline-gains")
-    text += [f"{name:<16s} {float(v)!r}" for name, v in values.items() if name != "baseline"]
+    text.append("# SAC and CL-SAC fly the CLSAC_PFC_* and CLSAC_GAM_* values, the baseline the CLSAC_PID_* ones")
+    if plant is not None:
+        text.append(f"#   fly it: {fly_command(plant, path)} [--controller sac|clsac|baseline]")
+    text += [f"{name:<16s} {float(v)!r}" for name, v in values.items()]
     path.write_text("\n".join(text) + "\n")
 
 
@@ -157,9 +183,10 @@ def main(argv=None) -> int:
         print(f"{parser.prog}: interrupted", file=sys.stderr)
         return 130
     try:
-        write_params(out, plant_text, lines, values)
+        write_params(out, plant_text, lines, values, args.plant)
     except OSError as exc:
         parser.error(f"--out {out}: {exc.strerror or exc}")
     print("\n".join(lines))
-    print(f"wrote {out} (python -m autopilot --params {out})")
+    print(f"wrote {out}; fly it (every controller: --controller sac, clsac or baseline):")
+    print(fly_command(args.plant, out))
     return 0

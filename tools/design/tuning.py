@@ -77,9 +77,13 @@ class PfcDesign:
         )
 
 
-def _critical_gain(tn: np.ndarray, td: np.ndarray, a: float) -> float | str:
+def _critical_gain(tn: np.ndarray, td: np.ndarray, a: float, margin: float = MARGIN) -> float | str:
     """Least g > 0 making 1 + g (s + a) T unstable (inf if none); if it is unstable already for small g, why not (no
-    gain stabilises it, or only a window of gains above 0 does: the method needs C stabilising from g -> 0 up)."""
+    gain stabilises it, or only a window of gains above 0 does).
+
+    A plant with an unstable pole (J3Cub's slow spiral at 60 kt) is unstable for small g: C then stabilises it in a
+    window (g_lo, g_hi), and the window's top is the critical gain if C can fly at g_hi / margin with a gain margin
+    of ``margin`` below too (g_hi / margin >= margin g_lo); else the reason."""
     bands = unstable_gain_bands(np.polymul(tn, [1.0, a]), td)
     if not bands:
         return math.inf
@@ -89,7 +93,13 @@ def _critical_gain(tn: np.ndarray, td: np.ndarray, a: float) -> float | str:
     unstable = _open_loop_unstable(td)
     if math.isinf(first.high):
         return "no gain g > 0 of C = g (s + a) stabilises the plant" + unstable
-    return "C = g (s + a) stabilises the plant only in a window of gains above 0, not from 0 up" + unstable
+    g_lo, g_hi = first.high, bands[1].low if len(bands) > 1 else math.inf
+    if min(g_hi, 1e6) / margin >= margin * g_lo:
+        return g_hi  # a window (g_lo, g_hi) wide enough to fly at g_hi / margin with a margin below as well
+    return (
+        f"C = g (s + a) stabilises the plant only in a window of gains ({g_lo:.3g}, {g_hi:.3g}), too narrow for a "
+        f"gain margin of {margin:g} on both sides" + unstable
+    )
 
 
 def check_authority(tn: np.ndarray, td: np.ndarray, u_limit_rad: float, amplitude_rad: float, period_s: float) -> None:
@@ -116,6 +126,15 @@ def _open_loop_unstable(td: np.ndarray) -> str:
     if not bad.size:
         return ""
     return f" (the plant is open-loop unstable: pole at {fmt_complex(bad[np.argmax(bad.real)])})"
+
+
+KE_UNSTABLE_OPEN_LOOP = 0.01  # an unstable plant's band 0 < K_e < this: the adaptive K_e leaves it within ms
+
+
+def _plant_band(band) -> bool:
+    """A band of 1 + K_e F that starts at 0 and ends below ``KE_UNSTABLE_OPEN_LOOP``: the plant's own slow unstable
+    mode (F has T's poles), which any K_e past it stabilises; not a reason to refuse a PFC."""
+    return band.low <= 1e-12 and band.high < KE_UNSTABLE_OPEN_LOOP
 
 
 def design_pfc(
@@ -148,12 +167,14 @@ def _design_pfc(t, tn, td, plant, rate_hz: float, margin: float, corners, ke_flo
             rejected[cand] = rejected.get(cand, 0) + 1
             continue
         offset, damping = cand.offset_deg, cand.min_zero_damping
-        if best is None or (round(offset, 9), -damping) < (round(best.offset_deg, 9), -best.min_zero_damping):
+        if best is None or (round(abs(offset), 9), -damping) < (round(abs(best.offset_deg), 9), -best.min_zero_damping):
             best = cand
         rejected["accepted"] = rejected.get("accepted", 0) + 1
     if best is None:
         why = "; ".join(f"{n} corner(s): {r}" for r, n in rejected.items())
-        raise PfcDesignError(f"no PFC k/(s + a) makes this plant W-ASPR with a gain margin of {margin:g} ({why})")
+        raise PfcDesignError(
+            f"no PFC k/(s + a) makes this plant W-ASPR with a gain margin of {margin:g} ({why}){_unstable_note(td)}"
+        )
     best.accepted = rejected.pop("accepted")
     best.rejected = rejected
     return best
@@ -161,7 +182,7 @@ def _design_pfc(t, tn, td, plant, rate_hz: float, margin: float, corners, ke_flo
 
 def _corner(t, tn, td, t_dc, plant, a, rate_hz, margin, considered, ke_floor) -> PfcDesign | str:
     """The candidate PFC of the corner ``a``, or why the corner is rejected."""
-    g = _critical_gain(tn, td, a)
+    g = _critical_gain(tn, td, a, margin)
     if isinstance(g, str):
         return g
     if math.isinf(g):
@@ -173,15 +194,24 @@ def _corner(t, tn, td, t_dc, plant, a, rate_hz, margin, considered, ke_floor) ->
     if not is_waspr(fn, fd):
         return "F not W-ASPR"
     real = augmented_realisation(num, den, plant)
-    if unstable_gain_bands(fn, fd, realisation=real):
+    if [b for b in unstable_gain_bands(fn, fd, realisation=real) if not _plant_band(b)]:
         return "1 + Ke F unstable for some Ke"
-    low = [b.low for b in discrete_bands(real, rate_hz)]
+    low = [b.low for b in discrete_bands(real, rate_hz) if not _plant_band(b)]
     if low and min(low) < ke_floor:
         return f"sampled loop unstable for Ke < {ke_floor:g}"
     zeros = np.roots(fn)
     damping = float(min(damping_ratio(z) for z in zeros)) if zeros.size else 1.0
     offset = _offset_deg(t_dc, k / a)
     return PfcDesign(k, a, g, margin, offset, damping, considered, 0)
+
+
+def _unstable_note(td: np.ndarray) -> str:
+    """The plant's unstable poles, when it has some: the reason C = g (s + a) cannot fly at small gains."""
+    poles = [p for p in np.roots(td) if p.real >= 0.0]
+    if not poles:
+        return ""
+    text = ", ".join(f"{p.real:+.4g}" if abs(p.imag) < 1e-9 else f"{p.real:+.4g}{p.imag:+.4g}j" for p in poles)
+    return f"; the plant has {len(poles)} unstable pole(s) at {text} 1/s"
 
 
 def _tf(num, den):

@@ -21,6 +21,7 @@ from tools.experiment.runs import (
     format_table,
     get_scenario,
     get_transport,
+    require_design,
     run_experiment,
     select_runs,
     with_disturbances,
@@ -119,6 +120,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         specs = select_runs(runs, available)
         if args.plant is not None:
             scen = with_plant(scen, args.plant)  # a bad plant fails before any folder is made
+        require_design(scen, args.pfc)
         dist = {"turbulence": args.turbulence, "seed": args.seed}
         with_disturbances(scen, dist, args.transport)
         get_transport(args.transport)  # fail before creating any folder if it is unavailable

@@ -123,6 +123,13 @@ def select_runs(runs: Iterable[str | RunSpec] | None, available: Sequence[RunSpe
 
 
 # ---------------------------------------------------------------------------------------- analysis
+def _surface(scenario: Scenario) -> str:
+    """The surface the scenario's plant's command drives, as the tables and verdicts name it (``sitl.plant``)."""
+    from sitl.plant import surface_of
+
+    return surface_of(scenario.plant)
+
+
 def saturation(result: RunResult, u_limit_rad: float) -> dict:
     """Whether the rudder command reached its limit, and for which fraction of the control samples."""
     u = result.series.get("u") if result.series else None
@@ -135,7 +142,7 @@ def saturation(result: RunResult, u_limit_rad: float) -> dict:
     return {"saturated": bool(sat), "fraction": None}
 
 
-def controlled(result: RunResult, u_limit_rad: float) -> dict | None:
+def controlled(result: RunResult, u_limit_rad: float, surface: str = "rudder") -> dict | None:
     """Whether the run stayed inside the default envelope (``autopilot.envelope``, the launcher's "controlled"), from
     its series: roll, the law's limited command (``u_cmd`` over MAVLink, where ``u`` is after the PWM map) and the
     commanded response ``ym_ol`` (tracking: no sustained oscillation, the roll following the command).  None
@@ -143,10 +150,10 @@ def controlled(result: RunResult, u_limit_rad: float) -> dict | None:
     s = result.series or {}
     if s.get("t") is None or not len(s["t"]):
         return None
-    from autopilot.envelope import judge_series
+    from autopilot.envelope import Envelope, judge_series
 
     u = s["u_cmd"] if s.get("u_cmd") is not None else s["u"]
-    return judge_series(s["t"], s["phi"], u, u_limit_rad, ref=s.get("ym_ol")).to_dict()
+    return judge_series(s["t"], s["phi"], u, u_limit_rad, Envelope(surface=surface), ref=s.get("ym_ol")).to_dict()
 
 
 def paper_checks(results: Sequence[RunResult]) -> dict[str, dict]:
@@ -238,7 +245,8 @@ def write_summary(
                 "name": r.name,
                 "Lv": float(r.lv),
                 "metrics": {k: _finite_or_none(r.metrics[k]) for k in METRIC_NAMES},
-                "controlled": controlled(r, scenario.u_limit_rad),  # inside the envelope (autopilot.envelope)
+                # inside the envelope (autopilot.envelope), its reason naming the plant's surface
+                "controlled": controlled(r, scenario.u_limit_rad, _surface(scenario)),
             }
             for r in results
         ],
@@ -289,10 +297,11 @@ def format_table(results: Sequence[RunResult], scenario: Scenario | None = None)
             parts.append(f"{r.name} yes")
         else:
             parts.append(f"{r.name} yes ({100 * s['fraction']:.1f}% of samples)")
-    lines.append(f"rudder saturated (|u| at the {scenario.u_limit_rad * DEG:g} deg limit): " + "; ".join(parts))
-    verdicts = [(r.name, controlled(r, scenario.u_limit_rad)) for r in results]
+    surface = _surface(scenario)
+    lines.append(f"{surface} saturated (|u| at the {scenario.u_limit_rad * DEG:g} deg limit): " + "; ".join(parts))
+    verdicts = [(r.name, controlled(r, scenario.u_limit_rad, surface)) for r in results]
     lines.append(
-        "controlled (|roll| < 60 deg, rudder saturated < 20 % of the flight, tracking in every 20 s window): "
+        f"controlled (|roll| < 60 deg, {surface} saturated < 20 % of the flight, tracking in every 20 s window): "
         + "; ".join(f"{n} {'yes' if c['ok'] else 'NO: ' + c['reason']}" for n, c in verdicts if c is not None)
     )
     checks = _check_lines(paper_checks(results))
@@ -315,6 +324,21 @@ def with_plant(scenario: Scenario, plant: str) -> Scenario:
         raise ExperimentError(f"--plant: {exc}") from None
     limit = min(scenario.u_limit_rad, plants.surface_limit_rad(plant) or math.inf)
     return replace(scenario, plant=plant, u_limit_rad=limit)
+
+
+def require_design(scenario: Scenario, pfc: str | None = None) -> None:
+    """ExperimentError when the scenario's plant (other than the KH2013A) has no design (``tools.pfc design``) and
+    neither a parameter file nor a PFC was given: its runs would fly another plant's values (as the launcher)."""
+    from sitl import plant as plants
+    from tools.design.linearise import design_command, design_path, designed_params, shown_path
+
+    if plants.kind(scenario.plant) == "kh2013a" or scenario.params is not None or pfc is not None:
+        return
+    if designed_params(scenario.plant) is None:
+        raise ExperimentError(
+            f"--plant: {scenario.plant} has no design (no {shown_path(design_path(scenario.plant))}): make it with "
+            f"`{design_command(scenario.plant)}`, or give --pfc paper|robust to fly the KH2013A's"
+        )
 
 
 def with_disturbances(scenario: Scenario, values: dict, transport: str) -> Scenario:
@@ -390,6 +414,7 @@ def run_experiment(
     ]
     if plant is not None:
         scen = with_plant(scen, plant)
+    require_design(scen, pfc)
     if disturbances:
         scen = with_disturbances(scen, disturbances, transport)
     runner = get_transport(transport)
@@ -404,7 +429,7 @@ def run_experiment(
         say(
             f"[{i}/{len(specs)}] {spec.name} done in {time.perf_counter() - t0:.2f} s: "
             f"ise_ref={res.metrics['ise_ref']:.4g}"
-            f" energy={res.metrics['energy']:.4g}" + (" (rudder saturated)" if sat["saturated"] else "")
+            f" energy={res.metrics['energy']:.4g}" + (f" ({_surface(scen)} saturated)" if sat["saturated"] else "")
         )
     controller = {"pfc": pfc or "paper", "pfc_num_den": PFC_PRESETS[pfc or "paper"], "sigma_xu": sigma_xu or 0.0}
     if scen.plant != "kh2013a":

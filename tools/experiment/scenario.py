@@ -125,7 +125,7 @@ def params_config(path: str, cfg: ClSacConfig) -> ClSacConfig:
     from autopilot.params import ParamTable, load_file
 
     table = ParamTable(cfg, {"attitude_timeout_s": 0.1, "setpoint_timeout_s": 1.0, "max_roll_rad": 0.8})
-    table.update(load_file(path))
+    table.update(table.split(load_file(path))[0])  # another law's values (a design's PID gains) are not its own
     return table.config
 
 

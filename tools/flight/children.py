@@ -172,3 +172,28 @@ def new_run_dir(base: str = "runs", tag: str = "") -> Path:
         except FileExistsError:
             continue
     raise RuntimeError(f"cannot create a new run folder under {root}")
+
+
+def cpu_times() -> tuple[float, float] | None:
+    """The machine's CPU time so far, (busy, total) in clock ticks of every CPU (``/proc/stat``), or None where there
+    is no such file."""
+    try:
+        with open("/proc/stat") as f:
+            fields = [float(v) for v in f.readline().split()[1:]]
+    except (OSError, ValueError):
+        return None
+    idle = fields[3] + (fields[4] if len(fields) > 4 else 0.0)  # idle and iowait
+    return sum(fields) - idle, sum(fields)
+
+
+def machine_load(since: tuple[float, float] | None) -> dict | None:
+    """How busy the machine was since ``cpu_times()`` gave ``since``: ``busy`` (share of every CPU's time), ``load1``
+    (the 1-minute load average), ``cpus``; None without /proc/stat."""
+    now = cpu_times()
+    if since is None or now is None or now[1] <= since[1]:
+        return None
+    try:
+        load1 = os.getloadavg()[0]
+    except OSError:
+        load1 = None
+    return {"busy": (now[0] - since[0]) / (now[1] - since[1]), "load1": load1, "cpus": os.cpu_count() or 1}

@@ -4,7 +4,6 @@ its three child processes (``child_argvs``), their telemetry and signing-key arg
 from __future__ import annotations
 
 import argparse
-import contextlib
 import functools
 import math
 import os
@@ -71,7 +70,7 @@ class FlightConfig:
     duration: float | None = None  # sim s; default 30, or a csv profile's last breakpoint (its end)
     controller: str = "clsac"  # one of CONTROLLERS
     lv: float | None = None  # default 0 for sac, 20 for clsac
-    pfc: str = "paper"  # a key of autopilot.config.PFC_PRESETS
+    pfc: str | None = None  # a key of autopilot.config.PFC_PRESETS; None: the plant's design, the paper's on KH2013A
     sigma_xu: float = 0.0  # sigma-modification of K_Ix, K_Iu (0 = the paper)
     dead_zone_deg: float = 0.0  # robustness options of the law (ClSacConfig), off by default = the paper
     ki_max: float | None = None
@@ -196,7 +195,16 @@ class FlightConfig:
             "controller",
             f"controller must be one of {', '.join(CONTROLLERS)}, got {self.controller!r}",
         )
-        _require(self.pfc in PFC_PRESETS, "pfc", f"pfc must be one of {', '.join(PFC_PRESETS)}, got {self.pfc!r}")
+        _require(
+            self.pfc is None or self.pfc in PFC_PRESETS,
+            "pfc",
+            f"pfc must be one of {', '.join(PFC_PRESETS)}, got {self.pfc!r}",
+        )
+        given = {k: getattr(self, k) for k in (*flags.ADAPTIVE_ONLY, "baseline_gains")}
+        refused = flags.inapplicable(self.controller, given)
+        if refused is not None:  # a value the law would not fly: refused, not ignored
+            key, why = refused
+            raise FlightConfigError(key, f"{key}{flags.value_text(getattr(self, key))}: {why}")
         _require(
             self.profile in PROFILES, "profile", f"profile must be one of {', '.join(PROFILES)}, got {self.profile!r}"
         )
@@ -332,24 +340,48 @@ class FlightConfig:
                 )
         if self.params is not None:
             try:
-                _check_params(load_file(self.params))
+                _check_params(load_file(self.params), self.controller)
             except OSError as exc:
                 raise FlightConfigError("params", f"params: cannot read {self.params}: {exc.strerror or exc}") from None
             except ParamError as exc:
                 raise FlightConfigError("params", f"params: {exc}") from None
+        self._check_design()
+
+    def _check_design(self) -> None:
+        """The plant's design or a clear refusal (``tools.flight.designs.refusal``)."""
+        from tools.flight.designs import refusal
+
+        refused = refusal(self)
+        if refused is not None:
+            raise FlightConfigError(*refused)
 
     @property
     def params_file(self) -> str | None:
-        """The autopilot's --params: the one given, else the PFC designed for the plant (tools.pfc design, shipped
-        beside it), for SAC/CL-SAC only (the baseline has no PFC)."""
+        """The autopilot's --params: the one given, else the design made for the plant (``tools.pfc design``, found
+        where ``tools.design.linearise.design_path`` says), which holds every controller's values; not for the
+        baseline when its gains are given (they fly instead of the design's)."""
         if self.params is not None:
             return str(self.params)
-        if not controllers.get(self.controller).adaptive:
+        if not controllers.get(self.controller).adaptive and self.baseline_gains is not None:
             return None
         from tools.design.linearise import designed_params
 
         path = designed_params(self.plant)
         return None if path is None else str(path)
+
+    @property
+    def surface(self) -> str:
+        """The surface the command drives: rudder (the KH2013A, a plant file's ``[input] surface``), aileron, ..."""
+        from sitl import plant as plants
+
+        return plants.surface_of(self.plant)
+
+    @property
+    def plant_name(self) -> str:
+        """The plant as headers, titles and run folders name it: KH2013A, c172x, a plant file's name."""
+        from sitl import plant as plants
+
+        return plants.name_of(self.plant)
 
     @property
     def surface_limit_deg(self) -> float | None:
@@ -361,11 +393,15 @@ class FlightConfig:
 
     @property
     def baseline_gains_flown(self) -> tuple | None:
-        """The baseline's gains: the ones given, else those designed for the plant; None: the built-in defaults.
-        pid-ff: a fourth, its feed-forward, the plant's roll-mode K_ff (``tools.design.linearise.feedforward_gain``)
-        unless given (on the KH2013A the built-in default is that)."""
-        if controllers.get(self.controller).law != "baseline":
+        """The baseline's gains given (``--baseline-gains``); None: the plant's design (its parameter file, which
+        the autopilot reads with ``--params``) or the built-in defaults (the KH2013A's).  pid-ff: a fourth, its
+        feed-forward, the plant's roll-mode K_ff (``tools.design.linearise.feedforward_gain``) unless given, on the
+        designed (or built-in) gains."""
+        c = controllers.get(self.controller)
+        if c.law != "baseline":
             return None
+        if not dict(c.options).get("feedforward"):
+            return None if self.baseline_gains is None else tuple(self.baseline_gains)
         from tools.design.linearise import flown_baseline_gains
 
         return flown_baseline_gains(self.controller, self.plant, self.baseline_gains)
@@ -437,16 +473,18 @@ def _faults(value) -> tuple:
 
 
 # ---------------------------------------------------------------------------------------- child processes
-def _check_params(values: dict[str, float]) -> None:
-    """A parameter file's values against the one table of bounds and the law (``autopilot.params.ParamTable``, as
-    the autopilot loads it): ``ParamError`` naming the first one refused, before anything starts."""
-    from autopilot.config import ClSacConfig
+def _check_params(values: dict[str, float], controller: str) -> None:
+    """A parameter file's values against the one table of bounds and ``controller``'s law
+    (``autopilot.params.ParamTable``, as the autopilot loads it: another law's values are not its to fly):
+    ``ParamError`` naming the first one refused, before anything starts."""
     from autopilot.loop import AutopilotOptions
     from autopilot.params import ParamTable
 
     defaults = AutopilotOptions()  # the options the autopilot starts from (the file's values replace them)
     options = {k: getattr(defaults, k) for k in ("attitude_timeout_s", "setpoint_timeout_s", "max_roll_rad")}
-    ParamTable(ClSacConfig(), options).update(values)
+    cfg = controllers.get(controller).config(control_rate_hz=100.0, u_limit_rad=math.radians(30.0))
+    table = ParamTable(cfg, options)
+    table.update(table.split(values)[0])
 
 
 @functools.cache
@@ -454,42 +492,10 @@ def _trims(plant: str) -> None:
     """Build (and so trim) a JSBSim plant once per process: ``sitl.plant.PlantError`` if it cannot trim (an airspeed
     outside the aircraft's envelope, a model that is not an aircraft), found here instead of in the SITL mid-launch."""
     from sitl import plant as plants
+    from sitl.jsbsim_models import quiet_stdio
 
-    with _quiet_fds():  # JSBSim's own chatter (its C++ writes to fds 1 and 2): the refusal is one line
+    with quiet_stdio():  # JSBSim's own chatter (its C++ writes to fds 1 and 2): the refusal is one line
         plants.build(plant, 1000.0)
-
-
-def _libc_fflush() -> None:
-    """C's ``fflush(NULL)``: every stdio stream's buffer written out (C and C++ libraries' output)."""
-    import ctypes
-
-    try:
-        ctypes.CDLL(None).fflush(None)
-    except (OSError, AttributeError):  # no C library to ask: only Python's own buffers were flushed
-        pass
-
-
-@contextlib.contextmanager
-def _quiet_fds():
-    """File descriptors 1 and 2 to /dev/null for the block (C++ output too, not only Python's)."""
-    sys.stdout.flush()
-    sys.stderr.flush()
-    saved = [os.dup(1), os.dup(2)]
-    null = os.open(os.devnull, os.O_WRONLY)
-    try:
-        os.dup2(null, 1)
-        os.dup2(null, 2)
-        yield
-    finally:
-        # What was written meanwhile, to /dev/null: JSBSim's messages reach Python's buffered sys.stdout (and C's
-        # stdio), and flushed after the restore they came out on the terminal (PYTHONUNBUFFERED hid it).
-        sys.stdout.flush()
-        sys.stderr.flush()
-        _libc_fflush()
-        os.dup2(saved[0], 1)
-        os.dup2(saved[1], 2)
-        for fd in (*saved, null):
-            os.close(fd)
 
 
 def child_argvs(
@@ -537,16 +543,7 @@ def child_argvs(
             repr(cfg.rate),
             "--controller",
             cfg.controller,
-            "--lv",
-            repr(cfg.lv_value),
-            "--pfc",
-            cfg.pfc,
-            "--sigma-xu",
-            repr(cfg.sigma_xu),
-            "--dead-zone-deg",
-            repr(cfg.dead_zone_deg),
-            *(["--ki-max", repr(cfg.ki_max)] if cfg.ki_max is not None else []),
-            *(["--freeze-when-saturated"] if cfg.freeze_when_saturated else []),
+            *_adaptive_argv(cfg),
             "--name",
             cfg.name or cfg.controller,
             "--u-limit-deg",
@@ -556,6 +553,8 @@ def child_argvs(
             "--envelope-saturated",
             repr(cfg.envelope_saturated),
             *([] if cfg.envelope else ["--no-envelope"]),
+            "--surface",
+            cfg.surface,
             "--duration",
             repr(cfg.duration),
             "--telemetry-rate",
@@ -631,6 +630,24 @@ def child_argvs(
     for host, port in cfg.gcs_peer:
         ap += ["--gcs-peer", f"{host}:{port}"]
     return {"sitl": sitl, "autopilot": ap, "gcs": gcs}
+
+
+def _adaptive_argv(cfg: FlightConfig) -> list[str]:
+    """The adaptive laws' flags (SAC, CL-SAC; the autopilot refuses them for any other law)."""
+    if not controllers.get(cfg.controller).adaptive:
+        return []
+    return [
+        "--lv",
+        repr(cfg.lv_value),
+        "--pfc",
+        cfg.pfc or "paper",
+        "--sigma-xu",
+        repr(cfg.sigma_xu),
+        "--dead-zone-deg",
+        repr(cfg.dead_zone_deg),
+        *(["--ki-max", repr(cfg.ki_max)] if cfg.ki_max is not None else []),
+        *(["--freeze-when-saturated"] if cfg.freeze_when_saturated else []),
+    ]
 
 
 def _fault_argv(faults) -> list[str]:

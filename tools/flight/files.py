@@ -33,6 +33,8 @@ def png_request(cfg: FlightConfig, out: Path, name: str, metrics: dict) -> dict:
         "rate": cfg.rate,
         "u_limit_deg": cfg.u_limit_deg,
         "metrics": metrics,
+        "plant": cfg.plant_name,
+        "surface": cfg.surface,
     }
 
 
@@ -130,10 +132,26 @@ def _load(path: Path):
         return None
 
 
-def _flown_lv(cfg: FlightConfig, stats: dict):
-    """The closed-loop reference gain the autopilot flew (its stats), else the configured one (nothing flew)."""
-    lv = (stats.get("autopilot") or {}).get("Lv")
-    return cfg.lv_value if lv is None or controllers.get(cfg.controller).lv_fixed is not None else lv
+def _flown_lv(cfg: FlightConfig, stats: dict, at: str = "start"):
+    """The closed-loop reference gain the autopilot flew at the ``start`` or the ``end`` of the flight (its stats:
+    CLSAC_LV as it started, the law's at the end), else the configured one (nothing flew); SAC flies 0."""
+    ap = stats.get("autopilot") or {}
+    lv = (ap.get("params_start") or {}).get("CLSAC_LV") if at == "start" else ap.get("Lv")
+    if lv is None:
+        lv = ap.get("Lv")
+    return controllers.flown_lv(cfg.controller, cfg.lv_value if lv is None else lv)
+
+
+def parameters(stats: dict) -> dict:
+    """summary.json's ``parameters``: every value as the flight started (``start``), as it ended (``end``: the start
+    with the changes), and each change a ground station made (``changes``: sim time, name, from, to)."""
+    ap = stats.get("autopilot") or {}
+    start = dict(ap.get("params_start") or {})
+    changes = list(ap.get("param_changes") or [])
+    end = dict(start)
+    for c in changes:
+        end[c["name"]] = c["to"]
+    return {"start": start, "end": end, "changes": changes}
 
 
 def build_summary(
@@ -155,7 +173,7 @@ def build_summary(
         runs.append(
             {
                 "name": ap["name"],
-                "Lv": ap["Lv"],
+                "Lv": ap["Lv"] if ap["Lv"] is None else _flown_lv(cfg, stats),  # as it started (None: a PID)
                 "metrics": ap["metrics"],
                 "steps": ap["steps"],
                 "controlled": ap.get("controlled"),
@@ -169,12 +187,17 @@ def build_summary(
         "signing": cfg.signing,  # MAVLink 2 signing on every link (docs/design.md, "Trust model")
         "failure_injection": cfg.failure_injection,  # MAV_CMD_INJECT_FAILURE taken from a ground station
         "controller": cfg.controller,
-        # the Lv that flew: a --params file (CLSAC_LV) may set another than the flags; SAC flies 0
+        # the Lv that flew, as the flight started and as it ended (a ground station may change CLSAC_LV: the
+        # changes are in "parameters"); a --params file (CLSAC_LV) may set another than the flags; SAC flies 0
         "Lv": _flown_lv(cfg, stats),
+        "Lv_end": _flown_lv(cfg, stats, "end"),
         # a parameter file (given, or the one designed for the plant) sets the PFC the autopilot flies
-        "pfc": cfg.pfc if cfg.params_file is None else f"from {cfg.params_file}",
+        "pfc": (cfg.pfc or "paper") if cfg.params_file is None else f"from {cfg.params_file}",
         "plant": cfg.plant,  # the SITL's plant (sitl.plant): kh2013a, FILE.toml or jsbsim:MODEL[:...]
+        "plant_name": cfg.plant_name,  # as the header, flight.png and the run folder name it
+        "surface": cfg.surface,  # the surface the command drives: rudder (KH2013A), aileron (a JSBSim aircraft), ...
         "params": cfg.params_file,  # the autopilot's --params file, None if none
+        "parameters": parameters(stats),  # every value at the start and the end, and each change in flight
         "sigma_xu": cfg.sigma_xu,
         "dead_zone_deg": cfg.dead_zone_deg,
         "ki_max": cfg.ki_max,

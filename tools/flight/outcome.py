@@ -166,7 +166,7 @@ def _stall_reason(children: dict, stall: tuple) -> str:
     return f"{name} stalled: sent nothing for {seconds:.1f} s from {t_from - t0:.1f} s after start ({evidence})"
 
 
-def shortfall(flown: dict, stats: dict, rate: float) -> tuple[str, str]:
+def shortfall(flown: dict, stats: dict, rate: float, machine: dict | None = None) -> tuple[str, str]:
     """(process, reason) of a flight the autopilot flew to its end with steps lost.  The steps flown late and the
     time the SITL flew without a command are the autopilot's loss; the steps flown as a hold for want of attitude,
     the SITL's (its attitude did not arrive within the attitude timeout).  The owner of the larger loss, in control
@@ -199,11 +199,29 @@ def shortfall(flown: dict, stats: dict, rate: float) -> tuple[str, str]:
         parts.append(f"{_steps(lost['hold_steps'])} flown as a hold without attitude (none fresher than {tmo:g} s)")
     if not parts:
         parts.append(f"{flown['steps_asked'] - flown['steps']} of {flown['steps_asked']} steps not flown")
-    return name, f"{name}: " + "; ".join(parts)
+    return name, f"{name}: " + "; ".join(parts) + realtime_advice(lost, machine)
+
+
+BUSY_SHARE = 0.8  # a machine whose CPUs were this busy while a real-time flight flew starved it
+
+
+def realtime_advice(lost: dict, machine: dict | None) -> str:
+    """What a real-time flight that lost steps (late, held, on the servo timeout) adds to its reason: what to do, and
+    how busy the machine was when it was busy (``machine``: ``tools.flight.children.machine_load``)."""
+    if not (lost.get("late_steps") or lost.get("hold_steps") or lost.get("servo_timeout_s")):
+        return ""
+    load = ""
+    if machine and (machine["busy"] >= BUSY_SHARE or (machine["load1"] or 0.0) > machine["cpus"]):
+        avg = "" if machine["load1"] is None else f", load average {machine['load1']:.1f}"
+        load = f" (the machine's {machine['cpus']} CPUs were {100 * machine['busy']:.0f} % busy{avg})"
+    return (
+        f"; a real-time process starved of CPU{load}: fly --lockstep (no deadlines), or --pin --busy-wait (the "
+        "autopilot alone on a CPU), or on a quieter machine"
+    )
 
 
 def verdict(
-    children: dict, stats: dict, flown: dict, exit_code: int, failed, error, t_end: float
+    children: dict, stats: dict, flown: dict, exit_code: int, failed, error, t_end: float, machine: dict | None = None
 ) -> tuple[int, str | None, str | None]:
     """(exit code, process that failed first, reason) of a flight from what flew and how each process ended.
 
@@ -217,7 +235,8 @@ def verdict(
     3. the process that exited first (a child that ends early with status 0 included), or, when it ended because
        a peer went silent (its stats' ``peer_lost``), that peer.
 
-    The reason is one line with the numbers, plus the fraction flown.
+    The reason is one line with the numbers, plus the fraction flown; a real-time flight that lost steps also says
+    what to do and, when it was high, the machine's CPU load (``machine``: ``tools.flight.children.machine_load``).
     """
     complete = flown["complete"]
     ap_exit = children["autopilot"].exited_at
@@ -249,7 +268,7 @@ def verdict(
     ended_early = early or any(c.code not in (None, 0) for c in order)
     if not complete and _ended_normally(stats.get("autopilot")) and not ended_early:
         # every process flew to the end: what failed the flight is the steps lost (a stall, if any, is noted)
-        name, why = shortfall(flown, stats, flown["steps_asked"] / flown["duration_s"])
+        name, why = shortfall(flown, stats, flown["steps_asked"] / flown["duration_s"], machine)
         return EXIT_FAILED, name, "; ".join([why, *([stalled] if stalled else [])]) + tail
     if stall is not None:
         name = stall[0]

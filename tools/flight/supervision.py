@@ -9,7 +9,7 @@ import os
 import sys
 import threading
 import time
-from dataclasses import dataclass, fields
+from dataclasses import dataclass
 from functools import cached_property
 from pathlib import Path
 
@@ -21,7 +21,7 @@ from autopilot.shared.process import (
     EXIT_OK,
     write_json_atomic,
 )
-from tools.flight.children import Child, free_udp_ports, new_run_dir, stop_children
+from tools.flight.children import Child, cpu_times, free_udp_ports, machine_load, new_run_dir, stop_children
 from tools.flight.config import (
     PROCESSES,
     PROFILES,
@@ -108,6 +108,13 @@ def _web_server(cfg: FlightConfig, out: Path):
     return WebServer(cfg.web_host, cfg.web_port, cfg.web_grpc_port, log_path=out / "web.log")
 
 
+def run_tag(cfg: FlightConfig) -> str:
+    """The plant in a run folder's name: its short name (``sitl.plant.name_of``) in characters a file name keeps."""
+    import re
+
+    return re.sub(r"[^A-Za-z0-9._-]+", "_", cfg.plant_name)[:40]
+
+
 # ---------------------------------------------------------------------------------------- the flight
 class Flight:
     """One flight: ``run()`` blocks and returns its ``FlightResult``; as a context manager, entering starts the
@@ -117,12 +124,159 @@ class Flight:
     handler or another thread) ends the flight as interrupted at the next poll of ``wait``.
     """
 
-    def __init__(self, **options):
-        known = {f.name for f in fields(FlightConfig) if f.init}
-        unknown = sorted(set(options) - known)
-        if unknown:
-            raise TypeError(f"Flight() got unknown keyword argument(s): {', '.join(unknown)}")
-        self.config = FlightConfig(**options)
+    def __init__(
+        self,
+        *,
+        lockstep: bool = False,
+        duration: float | None = None,
+        controller: str = "clsac",
+        lv: float | None = None,
+        pfc: str | None = None,
+        sigma_xu: float = 0.0,
+        dead_zone_deg: float = 0.0,
+        ki_max: float | None = None,
+        freeze_when_saturated: bool = False,
+        rate: float = 100.0,
+        physics_rate: float | None = None,
+        sensor_rate: float = 200.0,
+        telemetry_rate: float | None = None,
+        out: str | os.PathLike | None = None,
+        base_port: int | None = None,
+        start_time: float = 0.0,
+        profile: str = "square",
+        csv: str | None = None,
+        amplitude: float = 10.0,
+        period: float = 10.0,
+        u_limit_deg: float = 30.0,
+        envelope_roll: float = 60.0,
+        envelope_saturated: float = 20.0,
+        envelope: bool = True,
+        timeout: float | None = None,
+        rt_priority: int = 0,
+        pin: bool = False,
+        busy_wait: bool = False,
+        lockstep_spin_us: float | None = None,
+        lockstep_idle_exit: float = 5.0,
+        vehicle_timeout: float = 5.0,
+        quiet: bool = False,
+        viewer: bool = False,
+        connect: str | None = None,
+        rrd: bool = True,
+        rrd_live: bool = False,
+        rrd_merge_max_mb: float = 64.0,
+        series: bool = True,
+        png: bool = True,
+        web: bool = False,
+        web_host: str = "127.0.0.1",
+        web_port: int = 9090,
+        web_grpc_port: int = 9877,
+        gcs_peer: tuple = (),
+        failure_injection: bool = False,
+        name: str | None = None,
+        signing: bool = True,
+        signing_key: str | os.PathLike | None = None,
+        sysid: int = 1,
+        turbulence: str | None = None,
+        turbulence_sigma: str | tuple | None = None,
+        turbulence_length: str | tuple | None = None,
+        altitude: float | None = None,
+        gust: str | tuple | None = None,
+        crosswind: float | None = None,
+        roll_noise: float | None = None,
+        roll_bias: float | None = None,
+        rate_noise: float | None = None,
+        rate_bias: float | None = None,
+        sensor_delay: int | None = None,
+        loss: float | None = None,
+        delay: float | None = None,
+        duplicate: float | None = None,
+        reorder: float | None = None,
+        scale: str | tuple | None = None,
+        seed: int | None = None,
+        fault: str | tuple | list | None = None,
+        plant: str = "kh2013a",
+        params: str | os.PathLike | None = None,
+        baseline_gains: str | tuple | None = None,
+    ):
+        """The keywords are ``FlightConfig``'s, the long flags of ``python -m tools.launch`` (docs/python-api.md):
+        how it flies (``lockstep``, ``duration``, ``rate``, ...), the controller (``controller``, ``lv``, ``pfc``,
+        ``params``, ``baseline_gains``, ...), the profile, the plant (``plant``), disturbances and faults, the
+        envelope, the outputs (``out``, ``rrd``, ``series``, ``png``, ``viewer``, ``web``, ...) and the links
+        (``signing``, ``sysid``, ...).  ``quiet``: the children's output is not echoed to this process's stdout
+        (it is still in DIR/<process>.log); the launcher's ``--quiet``.  A bad value raises ``FlightConfigError``
+        naming the keyword, before anything starts."""
+        self.config = FlightConfig(
+            lockstep=lockstep,
+            duration=duration,
+            controller=controller,
+            lv=lv,
+            pfc=pfc,
+            sigma_xu=sigma_xu,
+            dead_zone_deg=dead_zone_deg,
+            ki_max=ki_max,
+            freeze_when_saturated=freeze_when_saturated,
+            rate=rate,
+            physics_rate=physics_rate,
+            sensor_rate=sensor_rate,
+            telemetry_rate=telemetry_rate,
+            out=out,
+            base_port=base_port,
+            start_time=start_time,
+            profile=profile,
+            csv=csv,
+            amplitude=amplitude,
+            period=period,
+            u_limit_deg=u_limit_deg,
+            envelope_roll=envelope_roll,
+            envelope_saturated=envelope_saturated,
+            envelope=envelope,
+            timeout=timeout,
+            rt_priority=rt_priority,
+            pin=pin,
+            busy_wait=busy_wait,
+            lockstep_spin_us=lockstep_spin_us,
+            lockstep_idle_exit=lockstep_idle_exit,
+            vehicle_timeout=vehicle_timeout,
+            quiet=quiet,
+            viewer=viewer,
+            connect=connect,
+            rrd=rrd,
+            rrd_live=rrd_live,
+            rrd_merge_max_mb=rrd_merge_max_mb,
+            series=series,
+            png=png,
+            web=web,
+            web_host=web_host,
+            web_port=web_port,
+            web_grpc_port=web_grpc_port,
+            gcs_peer=gcs_peer,
+            failure_injection=failure_injection,
+            name=name,
+            signing=signing,
+            signing_key=signing_key,
+            sysid=sysid,
+            turbulence=turbulence,
+            turbulence_sigma=turbulence_sigma,
+            turbulence_length=turbulence_length,
+            altitude=altitude,
+            gust=gust,
+            crosswind=crosswind,
+            roll_noise=roll_noise,
+            roll_bias=roll_bias,
+            rate_noise=rate_noise,
+            rate_bias=rate_bias,
+            sensor_delay=sensor_delay,
+            loss=loss,
+            delay=delay,
+            duplicate=duplicate,
+            reorder=reorder,
+            scale=scale,
+            seed=seed,
+            fault=fault,
+            plant=plant,
+            params=params,
+            baseline_gains=baseline_gains,
+        )
         self.out: Path | None = None  # the run folder, once started
         self.result: FlightResult | None = None
         self._children: dict[str, Child] = {}
@@ -133,6 +287,7 @@ class Flight:
         self._early_png = None  # one started before this Flight existed (adopt_png_helper), used or closed by start()
         self._recorder = None  # the thread importing rerun while the children start (start_recorder_import)
         self._t0: float | None = None
+        self._cpu0 = None  # the machine's CPU times when the flight started (children.cpu_times)
         self._interrupt = threading.Event()
 
     @classmethod
@@ -152,7 +307,7 @@ class Flight:
             duration=scenario.duration_s,
             controller=run.controller or ("sac" if run.lv == 0 else "clsac"),
             lv=run.lv,
-            pfc=run.pfc or "paper",
+            pfc=run.pfc,
             sigma_xu=run.sigma_xu or 0.0,
             name=run.name,
             rate=scenario.control_rate_hz,
@@ -245,10 +400,11 @@ class Flight:
             raise RuntimeError("this flight was already started; a Flight flies once")
         cfg = self.config
         self._t0 = time.monotonic()
+        self._cpu0 = cpu_times()  # how busy the machine is while it flies (a real-time flight's late steps)
         self.out = (
             Path(cfg.out)
             if cfg.out
-            else new_run_dir("runs", f"-{'lockstep' if cfg.lockstep else 'rt'}-{cfg.controller}")
+            else new_run_dir("runs", f"-{'lockstep' if cfg.lockstep else 'rt'}-{cfg.controller}-{run_tag(cfg)}")
         )
         self.out.mkdir(parents=True, exist_ok=True)
         for f in (*STALE_FILES, "summary.json"):
@@ -396,12 +552,13 @@ class Flight:
         if rrd_error and exit_code == EXIT_OK:
             exit_code, failed, error = EXIT_FAILED, "telemetry", rrd_error
         flown = flown_report(cfg, stats)
+        machine = machine_load(self._cpu0)  # how busy every CPU of the machine was while it flew
         if stopped:
             error = f"stopped by the caller after {flown['sim_time_s']:g} s of {cfg.duration:g} s (sim time)"
         elif exit_code != EXIT_INTERRUPTED and (div := diverged_verdict(self._children, stats, flown, t_end)):
             exit_code, failed, error = div  # the plant diverged: the SITL stopped the flight, out of the envelope
         elif exit_code != EXIT_INTERRUPTED:
-            exit_code, failed, error = verdict(self._children, stats, flown, exit_code, failed, error, t_end)
+            exit_code, failed, error = verdict(self._children, stats, flown, exit_code, failed, error, t_end, machine)
             exit_code, failed, error = envelope_verdict(
                 exit_code, failed, error, (stats["autopilot"] or {}).get("controlled")
             )
@@ -419,6 +576,7 @@ class Flight:
         )
         summary["flown"] = flown
         summary["recovery"] = flight_recovery(self.out, summary.get("faults"))  # per fault: back to tracking?
+        summary["machine"] = machine
         png = self._png_result(drawing, metrics)
         summary["files"]["png"] = str(png) if png else None
         write_json_atomic(self.out / "summary.json", summary)

@@ -42,8 +42,12 @@ def draw_flight_png(
     u_limit_deg: float,
     metrics: dict,
     controller: str | None = None,
+    plant: str = "KH2013A",
+    surface: str = "rudder",
 ) -> Path | None:
-    """DIR/flight.png from the flight's series (``tools.view.flight_png``); None without series."""
+    """DIR/flight.png from the flight's series (``tools.view.flight_png``); None without series.  ``plant``,
+    ``surface``: named in the title and the command's panel; the baseline's gains at the start and the parameters
+    changed in flight come from the autopilot's stats (DIR/autopilot.json ``params_start``, ``param_changes``)."""
     from tools.view.flight_png import save_flight_png
 
     out = Path(out)
@@ -51,8 +55,8 @@ def draw_flight_png(
     if not series or series.get("t") is None or not len(series["t"]):
         return None
     mode = "lockstep" if lockstep else "real time"
-    title = f"Flight {out.name}: {name}, {mode}, {rate:g} Hz"
-    faults = _fault_marks(out)
+    title = f"Flight {out.name}: {name} on {plant} ({surface}), {mode}, {rate:g} Hz"
+    faults, changes = _stats(out, "sitl", "faults"), _stats(out, "autopilot", "param_changes")
     return save_flight_png(
         out / "flight.png",
         series,
@@ -62,19 +66,61 @@ def draw_flight_png(
         u_limit_rad=math.radians(u_limit_deg),
         title=title,
         controller=controller,
-        faults=faults,
+        faults=marks(faults, changes),
+        surface=surface,
+        gains=_start_gains(out),
+        changes=changes,
     )
 
 
-def _fault_marks(out: Path) -> list[tuple[float, str]]:
-    """The faults of the flight (the SITL's stats, DIR/sitl.json) as flight.png marks; none without the file."""
-    from tools.view.flight_png import fault_marks
-
+def _start_gains(out: Path) -> tuple[float, float, float] | None:
+    """The baseline's K_p, K_i, K_d the flight started with (DIR/autopilot.json ``params_start``), or None."""
     try:
-        with open(out / "sitl.json") as f:
-            return fault_marks(json.load(f).get("faults"))
-    except (OSError, ValueError, AttributeError):
+        with open(out / "autopilot.json") as f:
+            start = json.load(f).get("params_start") or {}
+        return tuple(float(start[f"CLSAC_PID_K{k}"]) for k in "PID")
+    except (OSError, ValueError, AttributeError, TypeError, KeyError):
+        return None
+
+
+def _stats(out: Path, process: str, key: str) -> list:
+    """A list from a process's stats (DIR/sitl.json ``faults``, DIR/autopilot.json ``param_changes``); none without
+    the file."""
+    try:
+        with open(out / f"{process}.json") as f:
+            return list(json.load(f).get(key) or [])
+    except (OSError, ValueError, AttributeError, TypeError):
         return []
+
+
+def marks(faults, changes) -> list[tuple]:
+    """flight.png's marks: (time, text) of each fault's start and end (sitl.json ``faults``) and (time, text, colour)
+    of each parameter a ground station changed (autopilot.json ``param_changes``: "NAME from -> to")."""
+    from tools.view.flight_png import C_PARAM
+
+    return sorted([*fault_marks(faults), *((t, text, C_PARAM) for t, text in change_marks(changes))])
+
+
+def change_marks(changes) -> list[tuple[float, str]]:
+    """(time, "NAME from -> to") of each parameter a ground station changed (``summary.json`` ``param_changes``)."""
+    return [
+        (float(c["t_s"]), f"{c['name']} {c['from']:.4g} -> {c['to']:.4g}")
+        for c in changes or ()
+        if isinstance(c, dict) and c.get("t_s") is not None and c.get("from") is not None
+    ]
+
+
+def fault_marks(records) -> list[tuple[float, str]]:
+    """(time, text) of the start and end of each fault that started (``summary.json`` / sitl.json ``faults``)."""
+    out = []
+    for f in records or ():
+        if not isinstance(f, dict) or not f.get("started"):
+            continue
+        label = str(f.get("spec", f.get("kind", "fault"))).split("@")[0]
+        out.append((float(f["start"]), f"fault {label}"))
+        if f.get("end") is not None:
+            out.append((float(f["end"]), f"end {label}"))
+    return sorted(out)
 
 
 def _warm_up() -> None:

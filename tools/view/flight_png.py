@@ -50,6 +50,7 @@ C_GAINS = {"ke": "#ff7f0e", "kx": "#9467bd", "ku": "#8c564b"}
 C_GRID = "#e7e7e7"  # matplotlib's grid, #b0b0b0 at alpha 0.3 on white
 C_MARK = "#4d4d4d"  # mode switches and rudder limits ("0.3")
 C_FAULT = "#d55e00"  # a fault's start and end (sitl.damage), dashed, its name in the top panel
+C_PARAM = "#0072b2"  # a parameter changed in flight by a ground station, dashed, its name and values in the top panel
 C_NOTE = "#666666"  # "not recorded" notes ("0.4")
 C_LEGEND_EDGE = "#cccccc"
 C_NOTE_EDGE = "#b3b3b3"
@@ -234,6 +235,7 @@ class Panel:
     legend_cols: int = 1
     missing: list[str] = field(default_factory=list)  # the series this flight's files do not have
     note: list[str] = field(default_factory=list)  # lines of text in a box at the bottom right
+    ylim: tuple[float, float] | None = None  # the y range; None: the data's
 
     @property
     def has_data(self) -> bool:
@@ -426,9 +428,9 @@ def _draw_panel(
         c.rule(True, ax.y(v), ax.left, ax.right, C_MARK, dotted_lw=0.8)
     for ts, _name in modes:  # the mode switches, under the legend and the notes
         c.rule(False, ax.x(ts), ax.top, ax.bottom, C_MARK, dotted_lw=0.8)
-    for ts, _name in faults:  # a fault's start or end, where it lies on the time axis
+    for ts, _name, *color in faults:  # a fault's start or end (a parameter change), where it lies on the time axis
         if ax.xlim[0] <= ts <= ax.xlim[1]:
-            c.rule(False, ax.x(ts), ax.top, ax.bottom, C_FAULT, dotted_lw=1.6)
+            c.rule(False, ax.x(ts), ax.top, ax.bottom, color[0] if color else C_FAULT, dotted_lw=1.6)
     # frame and ticks (outward); tick labels at the left, and at the bottom of the last panel only (shared time axis)
     for horizontal, at, a, b in (
         (True, ax.top, ax.left, ax.right + 1),
@@ -501,12 +503,14 @@ def render(
     xticks = nice_ticks(*xlim, _bins(frames[0][2] - frames[0][0], 3))  # one time axis for all the panels
     for i, (panel, frame) in enumerate(zip(panels, frames)):
         values = [ln.y for ln in panel.lines if ln.y is not None] + [np.asarray(panel.hlines, float)]
-        ax = _Axes(*frame, xlim, data_range(values) or (0.0, 1.0))
+        ax = _Axes(*frame, xlim, panel.ylim or data_range(values) or (0.0, 1.0))
         _draw_panel(c, ax, panel, t, xticks, modes, last=i == len(panels) - 1, faults=faults)
         if i == 0:  # the faults' texts along their lines in the top panel, reading upwards, left of the line
-            for ts, s in faults:
+            for ts, s, *color in faults:
                 if xlim[0] <= ts <= xlim[1]:
-                    c.text((ax.x(ts) - 1, (ax.top + ax.bottom) / 2), s, PT_MODE, color=C_FAULT, rotate=True)
+                    c.text(
+                        (ax.x(ts) - 1, (ax.top + ax.bottom) / 2), s, PT_MODE, color=(color or [C_FAULT])[0], rotate=True
+                    )
         title_y = ax.top - TITLE_PAD
         if i == 0 and modes:
             # The names, each after the previous one if they would overlap; one that would land more than
@@ -575,11 +579,16 @@ def flight_image(
     title: str,
     controller: str | None = None,
     faults: list[tuple[float, str]] = (),
+    surface: str = "rudder",
+    gains: tuple[float, float, float] | None = None,
+    changes: list[dict] = (),
 ) -> Image.Image:
     """The picture of one flight (``series``: ``tools.view.series_files.load_series``; ``t`` must be there): roll
-    against the command and the reference models, the rudder command, the adaptive gains; mode switches marked.
-    ``controller``: "clsac", "sac" or "baseline" (the fixed-gain PID: no adaptive gains); None: CL-SAC if
-    ``lv`` > 0, else SAC.  ``faults``: (time, text) of each fault's start and end (``fault_marks``), marked."""
+    against the command and the reference models, the command of the ``surface``, the adaptive gains; mode switches
+    marked.  ``controller``: "clsac", "sac" or "baseline" (the fixed-gain PID: its gains ``gains`` = K_p, K_i, K_d
+    as flown from the start); None: CL-SAC if ``lv`` > 0, else SAC.  ``faults``: (time, text[, colour]) of each
+    fault's start and end and each parameter change (``tools.view.flight_picture.marks``), marked; ``changes``: the
+    parameters a ground station changed (``summary.json`` ``param_changes``), for the PID's gains."""
     t = _column(series, "t")
     if t is None:
         raise ValueError("flight_image: no time series 't'")
@@ -614,7 +623,7 @@ def flight_image(
         at_limit = float(np.mean(np.abs(u) >= u_limit_rad * (1.0 - 1e-9)))
         if at_limit:
             share = f"{100 * at_limit:.0f}%" if at_limit >= 0.005 else "<1%"  # never "0%" for a flight that touched it
-            note.append(f"rudder at the {u_limit_rad * DEG:.3g} deg limit {share} of the time")
+            note.append(f"{surface} at the {u_limit_rad * DEG:.3g} deg limit {share} of the time")
     tracking = Panel(
         f"Roll tracking, {law} ({name})" if baseline else f"Roll tracking, {law} ({name}, L_{{v}}={lv:g})",
         "roll [deg]",
@@ -624,22 +633,17 @@ def flight_image(
     )
 
     # The rudder command, with its limits when it comes near them (else they would squash it to a line)
-    rudder = Panel("Rudder command u_{p}", "rudder [deg]")
+    rudder = Panel(f"{surface.capitalize()} command u_{{p}}", f"{surface} [deg]")
     if u is None:
         rudder.missing = ["u"]
     else:
-        rudder.lines.append(Line(u * DEG, color, 1.0, label="rudder command (flown, after PWM)"))
+        rudder.lines.append(Line(u * DEG, color, 1.0, label=f"{surface} command (flown, after PWM)"))
         if _finite_max_abs(u) > 0.5 * u_limit_rad:
             rudder.hlines = [u_limit_rad * DEG, -u_limit_rad * DEG]
 
     # The adaptive gains; the baseline adapts nothing (its telemetry records K_p as K_e, the rest 0)
     if baseline:
-        gains = Panel("Fixed-gain PID: no adaptive gains", "[-]")
-        if col["ke"] is None:
-            gains.missing.append("ke")
-        else:
-            gains.lines.append(Line(col["ke"], C_GAINS["ke"], 1.0, label="K_{p} (fixed)"))
-        return render(t, [tracking, rudder, gains], mode_switches(t, col["mode"]), title, faults)
+        return render(t, [tracking, rudder, pid_panel(t, gains, changes)], mode_switches(t, col["mode"]), title, faults)
     gains = Panel("Adaptive gains K = K_{p} + K_{I}", "[-]", legend_cols=3)
     for key, label in (("ke", "K_{e}"), ("kx", "K_{x}"), ("ku", "K_{u}")):
         if col[key] is None:
@@ -650,17 +654,26 @@ def flight_image(
     return render(t, [tracking, rudder, gains], mode_switches(t, col["mode"]), title, faults)
 
 
-def fault_marks(records) -> list[tuple[float, str]]:
-    """(time, text) of the start and end of each fault that started (``summary.json`` / sitl.json ``faults``)."""
-    out = []
-    for f in records or ():
-        if not isinstance(f, dict) or not f.get("started"):
-            continue
-        label = str(f.get("spec", f.get("kind", "fault"))).split("@")[0]
-        out.append((float(f["start"]), f"fault {label}"))
-        if f.get("end") is not None:
-            out.append((float(f["end"]), f"end {label}"))
-    return sorted(out)
+def pid_panel(t: np.ndarray, gains, changes) -> Panel:
+    """The fixed-gain PID's K_p, K_i, K_d as flown (constant, stepping where a ground station changed one), on a
+    range from 0 to above the largest: a gain of 0 or a changed one stays readable."""
+    panel = Panel("Fixed-gain PID gains (not adaptive)", "[-], [1/s], [s]", legend_cols=3)
+    if gains is None:
+        panel.missing.append("gains")
+        return panel
+    top = 0.0
+    # K_p wide and K_i dashed over it: the KH2013A's K_p and K_i are both 0.1 (in their units), one line otherwise
+    for i, (key, label, lw, style) in enumerate(
+        (("ke", "K_{p}", 2.6, "-"), ("kx", "K_{i} [1/s]", 1.3, "--"), ("ku", "K_{d} [s]", 1.3, "-"))
+    ):
+        y = np.full(len(t), float(gains[i]))
+        for c in changes or ():
+            if c.get("name") == f"CLSAC_PID_K{'PID'[i]}" and c.get("t_s") is not None:
+                y[t >= c["t_s"]] = float(c["to"])
+        top = max(top, float(np.max(y)))
+        panel.lines.append(Line(y, C_GAINS[key], lw, style, steps=True, label=label))
+    panel.ylim = (-0.05 * (top or 1.0), 1.2 * (top or 1.0))
+    return panel
 
 
 def save_flight_png(path: str | os.PathLike, series: dict, **kw) -> Path:

@@ -20,6 +20,7 @@ Timelines (both on every row):
 
 from __future__ import annotations
 
+import dataclasses
 import math
 import uuid
 from dataclasses import dataclass
@@ -124,6 +125,17 @@ class TableLayout:
 
     def index(self, field: str) -> int:
         return self.fields.index(field)
+
+    def naming(self, word: str, instead: str) -> TableLayout:
+        """This layout with ``word`` in its plots' and poses' labels replaced by ``instead`` (the plant's surface:
+        "rudder" -> "aileron"); the entity paths, and so the viewer's layout, stay."""
+        if word == instead:
+            return self
+        plots = tuple(
+            dataclasses.replace(p, labels=tuple(s.replace(word, instead) for s in p.labels)) for p in self.plots
+        )
+        poses = tuple(dataclasses.replace(p, label=p.label.replace(word, instead)) for p in self.poses)
+        return dataclasses.replace(self, plots=plots, poses=poses)
 
     @property
     def paths(self) -> tuple[str, ...]:

@@ -1,0 +1,54 @@
+"""A flight's design: the parameter file each controller flies on a plant (``FlightConfig.params_file``), and the
+refusals of ``FlightConfig`` when there is none, or when a flag asks for what the file overrides
+(docs/plants.md, "Where a design is found")."""
+
+from __future__ import annotations
+
+import math
+
+from autopilot import controllers, flags
+
+
+def refusal(cfg) -> tuple[str, str] | None:
+    """A plant other than the KH2013A flies its own design (``tools.pfc design``: found where
+    ``tools.design.linearise.design_path`` says) or a parameter file given; without either it is refused, naming
+    the command that designs it, unless the controller's values are given (``pfc``, ``baseline_gains``).  A flag
+    the file would override (it wins over the flags) is refused, and so is a command limit beyond the plant's
+    stop.  ``cfg``: a ``FlightConfig``; returns (its keyword, the one-line reason) or None."""
+    from autopilot.params import load_file
+    from sitl import plant as plants
+    from tools.design.linearise import PFC_PARAMS, PID_PARAMS, design_command, design_path, shown_path
+
+    c = controllers.get(cfg.controller)
+    path = cfg.params_file
+    if path is None:
+        explicit = cfg.pfc is not None if c.adaptive else cfg.baseline_gains is not None
+        if plants.kind(cfg.plant) != "kh2013a" and not explicit:
+            return (
+                "plant",
+                f"plant: {cfg.plant} has no design (no {shown_path(design_path(cfg.plant))}): make it with "
+                f"`{design_command(cfg.plant)}`, or fly a parameter file of your own (--params FILE)",
+            )
+        return None
+    values = load_file(path)
+    whose = "the parameter file" if cfg.params is not None else f"{cfg.plant}'s design"
+    for key, names, given in (
+        ("pfc", PFC_PARAMS, c.adaptive and cfg.pfc is not None),
+        ("lv", ("CLSAC_LV",), c.adaptive and cfg.lv is not None),
+        ("baseline_gains", PID_PARAMS, not c.adaptive and cfg.baseline_gains is not None),
+    ):
+        if given and any(n in values for n in names):
+            return (
+                key,
+                f"{key}{flags.value_text(getattr(cfg, key))}: {whose} {path} sets "
+                f"{', '.join(n for n in names if n in values)}, which wins over the flags: give one or the other",
+            )
+    limit = values.get("CLSAC_U_LIMIT") if c.adaptive else None
+    stop = cfg.surface_limit_deg
+    if limit is not None and stop is not None and math.degrees(limit) > stop * (1 + 1e-12):
+        return (
+            "params",
+            f"params: {path} sets CLSAC_U_LIMIT {math.degrees(limit):.4g} deg, beyond {cfg.plant}'s surface stop "
+            f"{stop:.4g} deg: the command cannot go past the stop",
+        )
+    return None
