@@ -15,6 +15,7 @@ launcher gives the autopilot by default.
 
 from __future__ import annotations
 
+import dataclasses
 import os
 import sys
 from pathlib import Path
@@ -229,6 +230,10 @@ def linearise_bounded(spec, timeout_s: float = LINEARISE_TIMEOUT_S, physics_rate
         if proc.returncode != 0 or not out.is_file():
             raise LinearisationError(f"JSBSim's linearisation of {spec.model} failed: {why}")
         lin = json.loads(out.read_text())
+    if isinstance(lin.get("surface"), dict):  # the child's surface map, back to its dataclass
+        from sitl.jsbsim_models import SurfaceMap
+
+        lin["surface"] = SurfaceMap(**lin["surface"])
     return {k: (np.array(v) if k in ("A", "B", "C") else v) for k, v in lin.items()}
 
 
@@ -248,7 +253,12 @@ def _linearise_child(argv: list[str]) -> int:
     except LinearisationError as exc:
         print(exc, file=sys.stderr)
         return 4
-    Path(out).write_text(json.dumps({k: (v.tolist() if isinstance(v, np.ndarray) else v) for k, v in lin.items()}))
+    def plain(v):  # arrays as lists, the surface map (a dataclass) as its fields
+        if isinstance(v, np.ndarray):
+            return v.tolist()
+        return dataclasses.asdict(v) if dataclasses.is_dataclass(v) else v
+
+    Path(out).write_text(json.dumps({k: plain(v) for k, v in lin.items()}))
     return 0
 
 
