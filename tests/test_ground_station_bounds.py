@@ -107,9 +107,9 @@ def test_each_peer_is_checked_within_its_own_budget_and_a_floods_rest_is_dropped
 
 
 def test_the_autopilots_budgets_are_per_control_period():
-    """What the autopilot asks of its links: 16 datagrams per control period for each ground station (64 at once),
+    """What the autopilot asks of its links: 16 datagrams per control period for each ground station (256 at once),
     256 for all other addresses together; at 100 Hz, 1,600 and 25,600 a second."""
-    assert (PEER_BUDGET, PEER_BURST) == (16, 64) and (REPLY_RATE, REPLY_BURST) == (50.0, 60.0)
+    assert (PEER_BUDGET, PEER_BURST) == (16, 256) and (REPLY_RATE, REPLY_BURST) == (50.0, 60.0)
 
 
 # ------------------------------------------------------------------------------------------------- slots

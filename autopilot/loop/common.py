@@ -75,7 +75,7 @@ ANNOUNCE_SLOW_S = 0.25
 # once); the real-time SITL link at least SITL_PEER_RATE a second (five times the highest sensor rate).  The lockstep
 # SITL is not limited: its frames are the run.
 PEER_BUDGET = 16
-PEER_BURST = 64
+PEER_BURST = 256
 OTHERS_BUDGET = 256
 SITL_PEER_RATE = 5000.0
 # A ground station admitted by its signature that sent no HEARTBEAT for this long loses its slot (MAVLink's heartbeat
