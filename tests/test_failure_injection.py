@@ -304,7 +304,7 @@ def test_a_lost_relay_is_resent_and_a_command_sent_twice_is_injected_once(vehicl
 
 def test_on_a_signed_link_only_the_key_holder_injects(tmp_path, vehicle_factory):
     key_file = tmp_path / "flight.key"
-    assert run_cli("tools.keygen", str(key_file)).returncode == 0
+    assert run_cli("tools.flight.keygen", str(key_file)).returncode == 0
     key = load_key(key_file)
     v = vehicle_factory("--failure-injection", key_file=key_file)
     holder = Gcs(v.gcs_port, 230, key)

@@ -227,22 +227,28 @@ class Procs:
 
 
 def test_setpoint_queue_cannot_be_exhausted(tmp_path):
-    p = Procs(tmp_path, duration=4.0)
-    g = mav(255, 190)
+    """An admitted station floods setpoints 46 days ahead while another flies its real stream: the flood is checked
+    within its own budget per control period (the rest ``over_budget``) and refused (``future_setpoint``), the
+    queue never fills, and the real stream, within its own budget, flies every point."""
+    real, flooder = udp(), udp()
+    peers = [a for s in (real, flooder) for a in ("--gcs-peer", "127.0.0.1:%d" % s.getsockname()[1])]
+    p = Procs(tmp_path, duration=4.0, ap_args=peers)
+    g, f = mav(255, 190), mav(255, 191)
     to = ("127.0.0.1", p.ap_gcs_port)
-    p.gcs.sendto(_setpoint(g, math.radians(5)), to)  # the ground station talks first: it is admitted
-    far = [_setpoint(g, math.radians(40), ms) for ms in range(4_000_000_000, 4_000_100_050)]  # 100,050, ~46 days
+    far = [_setpoint(f, math.radians(40), ms) for ms in range(4_000_000_000, 4_000_100_050)]  # 100,050, ~46 days
     t0 = time.monotonic()
     k = 0
     while time.monotonic() - t0 < 3.5:
-        p.gcs.sendto(_setpoint(g, math.radians(5)), to)  # the real stream: "now", 50 Hz ...
-        for _ in range(2000):  # ... and the flood in between (from the same, admitted, address)
+        real.sendto(_setpoint(g, math.radians(5)), to)  # the real stream: "now", 50 Hz ...
+        for _ in range(2000):  # ... and the flood in between, from the other admitted address
             if k < len(far):
-                p.gcs.sendto(far[k], to)
+                flooder.sendto(far[k], to)
                 k += 1
             if k % 200 == 0:
                 time.sleep(0.001)  # at most a poll's budget at once: the flood is not dropped unread
         time.sleep(0.02)
+    real.close()
+    flooder.close()
     ap = p.finish()
     rej = ap["links"]["gcs"]["rejected"]
     assert k == len(far) and rej.get("future_setpoint", 0) + rej.get("over_budget", 0) >= 0.9 * k

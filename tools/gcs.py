@@ -150,6 +150,7 @@ class Gcs:
         self.points_sent = 0
         self.sent_schedule: list = []  # lockstep: [abs ms, roll, Unix us sent] of each point not passed yet, in order
         self.flown_ms = None  # lockstep: the newest sim time the vehicle is known to have flown
+        self.first_sim_ms = None  # the first sim time seen (the frame the vehicle waited at first)
         self.resends = 0  # lockstep: times the schedule was sent again ...
         self.points_resent = 0  # ... and the points in them
         self._nap_from: tuple[float, int] | None = None  # lockstep: (wall, sim ms) at the last pass (_lockstep_nap)
@@ -225,6 +226,8 @@ class Gcs:
                 return False
         if held is not None and ms > held:
             self.flown_ms = max(self.flown_ms or 0, held)  # the vehicle moved past it: that frame was flown
+        if self.first_sim_ms is None:
+            self.first_sim_ms = ms
         self.sim_ms = ms
         self._sim_rx = t_rx
         return True
@@ -268,7 +271,8 @@ class Gcs:
         clock), it was lost: the schedule goes again from the point in force at the last frame known flown, which
         the vehicle holds, so the datagrams link (``autopilot.schedule``)."""
         sched = self.sent_schedule
-        cover = next((p for p in sched if p[0] >= frame_ms), None)
+        # a point past the frame's floored ms (the frame itself may lie between two ms at rates like 300 Hz)
+        cover = next((p for p in sched if p[0] > frame_ms), None)
         if cover is None:
             return  # not scheduled that far yet: the vehicle waits for us, rightly
         now_us = time.time_ns() // 1000
@@ -306,12 +310,17 @@ class Gcs:
         # time_boot_ms 0 means "now" to the autopilot; a schedule starting at sim time 0 uses that.
         new = [[self.origin_ms + rel, self.profile.value(rel / 1000.0), now_us] for rel in pts if rel >= start]
         sched = self.sent_schedule
+        lead = []
+        if new and not self.points_sent and self.first_sim_ms is not None and self.first_sim_ms < new[0][0]:
+            # a profile that starts after the frame the vehicle waits at (--start-time): the schedule begins at that
+            # frame with the command it flies until then (0, no setpoint yet), so the first datagram links to it
+            lead = [[self.first_sim_ms, 0.0, now_us]]
         if self.flown_ms is not None:  # what the vehicle flew past is not sent again: keep the point in force
             keep = next((i for i, p in enumerate(sched) if p[0] > self.flown_ms), len(sched)) - 1
             del sched[: max(0, keep)]
         if new:
-            self._send_linked(sched[-1:] + new)
-            sched.extend(new)
+            self._send_linked(sched[-1:] + lead + new)
+            sched.extend(lead + new)
             self.points_sent += len(new)
         self.next_point_rel_ms = end_rel + 1
 

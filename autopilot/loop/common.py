@@ -73,9 +73,11 @@ ANNOUNCE_SLOW_S = 0.25
 # checked within a budget per control period of wall time, the rest read and dropped (``over_budget``): each
 # admitted ground station PEER_BUDGET (PEER_BURST at once), all other addresses together OTHERS_BUDGET (as many at
 # once); the real-time SITL link at least SITL_PEER_RATE a second (five times the highest sensor rate).  The lockstep
-# SITL is not limited: its frames are the run.
+# SITL is not limited: its frames are the run.  At a low control rate a station still gets PEER_RATE_MIN a second
+# (the GCS script alone sends 21 a second in real time).
 PEER_BUDGET = 16
-PEER_BURST = 64
+PEER_BURST = 256
+PEER_RATE_MIN = 1000.0
 OTHERS_BUDGET = 256
 SITL_PEER_RATE = 5000.0
 # A ground station admitted by its signature that sent no HEARTBEAT for this long loses its slot (MAVLink's heartbeat

@@ -253,6 +253,7 @@ def _linearise_child(argv: list[str]) -> int:
     except LinearisationError as exc:
         print(exc, file=sys.stderr)
         return 4
+
     def plain(v):  # arrays as lists, the surface map (a dataclass) as its fields
         if isinstance(v, np.ndarray):
             return v.tolist()

@@ -10,7 +10,8 @@ bytes flipped in the middle of a Scalars column decode to other numbers.  Two ch
   ``length`` bytes; kind 0 ends the stream, its payload is the footer (the index, rerun's ``RrdFooter``), and a
   32-byte trailer follows it: the footer's offset in its stream (u64) and length (u64), its checksum (u32),
   ``b"RRF2FOOT"`` and a version (u32).  A file cut anywhere, the trailer included, has fewer bytes than its
-  framing says.  Several streams may follow each other (``cat a.rrd b.rrd`` is a valid recording).
+  framing says.  Several streams may follow each other (``cat a.rrd b.rrd`` frames whole; rerun judges what they
+  hold).
 * :func:`write_digest` writes ``FILE.rrd.sha256`` beside every recording the product writes (the launcher's
   ``flight.rrd``, ``tools.rrd merge|record``, an experiment's ``paper.rrd``), in ``sha256sum``'s format
   (``<64 hex>  <name>``, so ``sha256sum -c FILE.rrd.sha256`` checks it too), and :func:`digest_problem` compares.
