@@ -15,17 +15,11 @@ from autopilot import controllers, flags
 from autopilot.envelope import MAX_ROLL_DEG, MAX_SATURATED_SHARE, Envelope
 from autopilot.flags import CONTROLLERS, default_lv, envelope_roll_deg, envelope_saturated_pct
 from autopilot.shared import cli
-from autopilot.shared.process import (
-    rt_throttling,
-)
+from autopilot.shared.process import rt_throttling
 from tools.flight.profiles import Profile, ProfileError
 
 PROCESSES = ("sitl", "gcs", "autopilot")
-
-
 PROFILES = ("square", "step", "sine")
-
-
 MERGE_MAX_MB = 64.0  # default rrd_merge_max_mb: larger telemetry parts are concatenated (streamed), not merged
 
 
@@ -393,10 +387,8 @@ class FlightConfig:
 
     @property
     def baseline_gains_flown(self) -> tuple | None:
-        """The baseline's gains given (``--baseline-gains``); None: the plant's design (its parameter file, which
-        the autopilot reads with ``--params``) or the built-in defaults (the KH2013A's).  pid-ff: a fourth, its
-        feed-forward, the plant's roll-mode K_ff (``tools.design.linearise.feedforward_gain``) unless given, on the
-        designed (or built-in) gains."""
+        """The baseline's gains given, else None (the design's parameter file, or the built-in defaults); pid-ff:
+        with its feed-forward K_ff (``tools.design.linearise.flown_baseline_gains``)."""
         c = controllers.get(self.controller)
         if c.law != "baseline":
             return None
