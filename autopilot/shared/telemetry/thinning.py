@@ -25,7 +25,7 @@ import time
 
 import numpy as np
 
-BATCH_S = 2.0  # wall seconds a thinned table's rows are gathered for before they go to the viewer, as one chunk
+BATCH_S = 4.0  # wall seconds a thinned table's rows are gathered for before they go to the viewer, as one chunk
 
 
 def thinned(sim: np.ndarray, rate_hz: float, last_bucket: float) -> tuple[np.ndarray, float]:
