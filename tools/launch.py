@@ -275,9 +275,9 @@ def build_parser() -> OneLineArgumentParser:
     g.add_argument(
         "--rrd-live",
         action="store_true",
-        help="the autopilot and the SITL write their own parts of DIR/flight.rrd with rerun while they fly, as with a "
-        "viewer (by default a flight without a viewer has them spool their rows, recorded by the launcher afterwards: "
-        "the same recording, no rerun in either process)",
+        help="the autopilot and the SITL write their own parts of DIR/flight.rrd with rerun while they fly (by "
+        "default they spool their rows, recorded by the launcher afterwards in sim-time order: the same rows, no "
+        "rerun for the file in either process)",
     )
     g.add_argument(
         "--rrd-merge-max-mb",

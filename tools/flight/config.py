@@ -112,8 +112,8 @@ class FlightConfig:
     viewer: bool = False  # spawn a Rerun viewer (or reuse the one on port 9876) and stream to it live
     connect: str | None = None  # stream live to a running Rerun viewer at this URL
     rrd: bool = True  # Rerun telemetry of the autopilot and the SITL, joined into DIR/flight.rrd
-    # the processes write their parts with rerun as they fly even without a viewer (else they spool their rows and
-    # the launcher records them after the flight: the same recording, no rerun in either process)
+    # the processes write their parts with rerun as they fly (else they spool their rows and the launcher records
+    # them after the flight in sim-time order: the same rows, no rerun for the file in either process)
     rrd_live: bool = False
     # parts up to this size are merged (compacted, indexed: memory about twice their size); larger ones are
     # concatenated (streamed into one file without an index: bounded memory whatever the flight's length)

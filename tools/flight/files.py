@@ -83,8 +83,9 @@ def _join_telemetry(
     target = out / "flight.rrd"
     spools = [p for p in existing if p.suffix == ".spool"]
     if spools:
-        # The processes spooled their rows (a file-only flight): one recording from them, written here by the same
-        # code a live writer sends with (autopilot.shared.telemetry.rerun_sink), then joined like a live part.
+        # The processes spooled their rows (the default): one recording from them, both processes side by side in
+        # sim time, written here by the same code a live writer sends with (autopilot.shared.telemetry.rerun_sink),
+        # then joined like a live part.
         part = out / ".parts" / "flight.rrd"
         try:
             tm.record_spools(spools, part)
