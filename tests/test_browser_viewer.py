@@ -37,7 +37,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from _browser import Browser, chromium_path, free_tcp_port
+from _browser import Browser, chromium_path, free_tcp_port, viewer_state
 from _mavlink_procs import free_ports
 
 from autopilot.shared.telemetry.layout import ORANGE, PURPLE, SKY
@@ -110,8 +110,24 @@ def plots_drawn(counts: dict[str, int]) -> bool:
     )
 
 
-def view_in_browser(url: str, shot: Path) -> tuple[dict[str, int], list[str], list[str]]:
-    """Open ``url`` in headless Chromium, screenshot until the plots are drawn; (pixel counts, errors, internet)."""
+def viewer_lags(b: Browser, n: int = 5, every_s: float = 2.0) -> list[float]:
+    """``n`` readings, ``every_s`` apart, of how old the newest sample the page's viewer holds is: the host clock
+    minus the newest ``wall_time`` of the recording (every row carries its sample's host clock)."""
+    lags = []
+    for _ in range(n):
+        b.pump(every_s)
+        state = viewer_state(b)
+        recs = [r for r in (state.recordings if state else []) if r.store_id.startswith("Recording:")]
+        ends = [r.ranges["wall_time"][1] for r in recs if "wall_time" in r.ranges]
+        if ends:
+            lags.append(time.time() - max(ends) * 1e-9)
+    return lags
+
+
+def view_in_browser(url: str, shot: Path, lags: bool = False, holds=None) -> tuple:
+    """Open ``url`` in headless Chromium, screenshot until the plots are drawn; (pixel counts, errors, internet,
+    the viewer's lag behind the flight if ``lags``: ``viewer_lags`` once drawn, the viewer's state at the end: once
+    ``holds(state)`` is true if given, for at most ``LOAD_TIMEOUT_S``)."""
     with Browser(1600, 1000) as b:
         b.open(url)
         state = {}
@@ -122,7 +138,10 @@ def view_in_browser(url: str, shot: Path) -> tuple[dict[str, int], list[str], li
 
         b.wait_until(check, LOAD_TIMEOUT_S, poll_s=3.0)
         b.pump(3.0)  # a few more seconds of the live page: errors after drawing count too
-        return state["counts"], b.errors(), b.external
+        behind = viewer_lags(b) if lags else []
+        if holds is not None:
+            b.wait_until(lambda: holds(viewer_state(b)), LOAD_TIMEOUT_S, poll_s=2.0)
+        return state["counts"], b.errors(), b.external, behind, viewer_state(b)
 
 
 class _Gcs:
@@ -173,7 +192,7 @@ def live(tmp_path_factory):
         gcs.param_set("CLSAC_LV", 10.0, expect=10.0)  # accepted
         gcs.param_set("CLSAC_AM", 3.0, expect=-5.0)  # refused (outside its bounds: A_m < 0): the value stays -5
         url = WebServer("127.0.0.1", http, grpc).browser_url()
-        counts, errors, external = view_in_browser(url, tmp / "live.png")
+        counts, errors, external, lags, _ = view_in_browser(url, tmp / "live.png", lags=True)
         running = proc.poll() is None
         proc.send_signal(signal.SIGINT)
         proc.wait(120)
@@ -189,6 +208,7 @@ def live(tmp_path_factory):
         "counts": counts,
         "errors": errors,
         "external": external,
+        "lags": lags,
         "running": running,
         "code": proc.returncode,
         "stdout": "".join(lines),
@@ -204,12 +224,30 @@ def test_live_web_flight_is_drawn_in_the_browser(live):
     assert (live["out"] / "flight.rrd").is_file()
 
 
+def test_the_live_viewer_keeps_up_with_the_flight(live):
+    """The live viewer holds samples a few seconds old, not the 31-84 s of a viewer sent every row: it gets a
+    thinned stream in 4 s batches (``--live-rate``; ``python -m tools.bench viewer`` measures both)."""
+    lags = live["lags"]
+    assert len(lags) >= 3, lags
+    assert min(lags) < 15.0, lags
+
+
 def test_saved_flight_rrd_is_drawn_in_the_browser(live, tmp_path):
     """``rerun --serve-web DIR/flight.rrd`` on loopback (the README's way to look at a flight after it)."""
+    # the viewer's own account of what it holds (tools.bench._browser.decode_viewer_state): once it has read the
+    # whole file, the sim_time range of the file's data
+    data = rrd.load(live["out"] / "flight.rrd")
+    span = (min(int(s.t_ns[0]) for s in data.values()), max(int(s.t_ns[-1]) for s in data.values()))
+
+    def whole(state) -> bool:
+        recs = [r for r in (state.recordings if state else []) if r.store_id.startswith("Recording:")]
+        return len(recs) == 1 and recs[0].ranges.get("sim_time") == span
+
     with WebServer("127.0.0.1", free_tcp_port(), free_tcp_port(), source=live["out"] / "flight.rrd") as srv:
-        counts, errors, _ = view_in_browser(srv.browser_url(), tmp_path / "saved.png")
+        counts, errors, _, _, state = view_in_browser(srv.browser_url(), tmp_path / "saved.png", holds=whole)
     assert plots_drawn(counts), f"not drawn within {LOAD_TIMEOUT_S:g} s: {counts} ({tmp_path})"
     assert errors == [], errors
+    assert whole(state), (span, state)
 
 
 def test_live_tuning_is_in_the_event_log_and_on_the_gain_plots(live):

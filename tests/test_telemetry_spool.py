@@ -144,11 +144,13 @@ def test_a_spooling_writer_never_imports_rerun(tmp_path):
     assert kinds.count("rows") == 1 and "table" in kinds and reader.process == "autopilot"
 
 
-def test_a_spool_is_a_writers_only_sink(tmp_path):
-    with pytest.raises(ValueError, match="only sink"):
+def test_a_writer_has_a_spool_or_a_file_not_both(tmp_path):
+    """A spool and a part file are two recordings of the same rows: refused.  A spool beside a viewer is what a
+    live flight does (the viewer has a stream of its own; a viewer nobody runs is dropped, the spool stays)."""
+    with pytest.raises(ValueError, match="two recordings"):
         tm.Telemetry("x", None, tmp_path / "a.rrd", spool_path=tmp_path / "a.spool")
-    with pytest.raises(ValueError, match="only sink"):
-        tm.Telemetry("x", None, connect_url="rerun+http://127.0.0.1:1/proxy", spool_path=tmp_path / "a.spool")
+    with tm.Telemetry("x", None, connect_url="rerun+http://127.0.0.1:1/proxy", spool_path=tmp_path / "a.spool") as t:
+        assert t.enabled and t.connect_url is None and t.rec is None and t.live_rec is None
     for prog in ("autopilot", "sitl"):
         r = subprocess.run(
             [sys.executable, "-m", prog, "--telemetry-spool", str(tmp_path / "s"), "--rrd", str(tmp_path / "r.rrd")],
@@ -211,17 +213,28 @@ def test_a_file_only_flight_spools_and_a_live_one_writes_parts(tmp_path):
     """Without a viewer the processes spool (no rerun in either); with ``rrd_live`` (or a viewer) they write their
     own parts with rerun as before; one recording id for both either way."""
     from tools.flight import FlightConfig
-    from tools.flight.config import _telemetry_argvs
+    from tools.flight.telemetry import telemetry_argvs
 
-    argv, parts, rid = _telemetry_argvs(FlightConfig(lockstep=True), tmp_path)
+    argv, parts, rid = telemetry_argvs(FlightConfig(lockstep=True), tmp_path)
     assert parts == tm.spool_paths(tmp_path)
     for name in ("autopilot", "sitl"):
         assert argv[name] == ["--recording-id", rid, "--telemetry-spool", str(parts[name])]
-    argv, parts, rid = _telemetry_argvs(FlightConfig(lockstep=True, rrd_live=True), tmp_path)
+    argv, parts, rid = telemetry_argvs(FlightConfig(lockstep=True, rrd_live=True), tmp_path)
     assert parts == tm.part_paths(tmp_path)
     for name in ("autopilot", "sitl"):
         assert argv[name] == ["--recording-id", rid, "--rrd", str(parts[name])]
-    assert _telemetry_argvs(FlightConfig(lockstep=True, rrd=False), tmp_path) == (None, {}, None)
+    assert telemetry_argvs(FlightConfig(lockstep=True, rrd=False), tmp_path) == (None, {}, None)
+    # a live viewer: the recording is spooled all the same, the viewer gets a thinned stream of its own
+    url = "rerun+http://127.0.0.1:1/proxy"  # nobody listens: the layout is not sent, the flags are what matters
+    argv, parts, rid = telemetry_argvs(FlightConfig(lockstep=True, connect=url, live_rate=25), tmp_path)
+    assert parts == tm.spool_paths(tmp_path)
+    for name in ("autopilot", "sitl"):
+        assert argv[name] == ["--recording-id", rid, "--telemetry-spool", str(parts[name])] + [
+            "--connect",
+            url,
+            "--live-rate",
+            "25.0",
+        ]
 
 
 @pytest.mark.e2e

@@ -38,6 +38,7 @@ from pathlib import Path
 from autopilot import controllers
 from autopilot.flags import add_controller_arguments, add_envelope_arguments, rate_arg
 from autopilot.shared.cli import (
+    MAX_SIM_S,
     OneLineArgumentParser,
     angle_deg,
     bounded,
@@ -55,6 +56,8 @@ from autopilot.shared.cli import (
 from autopilot.shared.process import EXIT_USAGE, install_stop_handlers
 from sitl import damage, disturbances
 from tools.flight import (
+    LIVE_RATE_HZ,
+    LIVE_WINDOW_S,
     LOCKSTEP_IDLE_EXIT_S,
     MERGE_MAX_MB,
     PROCESSES,
@@ -286,9 +289,9 @@ def build_parser() -> OneLineArgumentParser:
     g.add_argument(
         "--rrd-live",
         action="store_true",
-        help="the autopilot and the SITL write their own parts of DIR/flight.rrd with rerun while they fly, as with a "
-        "viewer (by default a flight without a viewer has them spool their rows, recorded by the launcher afterwards: "
-        "the same recording, no rerun in either process)",
+        help="the autopilot and the SITL write their own parts of DIR/flight.rrd with rerun while they fly (by "
+        "default they spool their rows, recorded by the launcher afterwards in sim-time order: the same rows, no "
+        "rerun for the file in either process)",
     )
     g.add_argument(
         "--rrd-merge-max-mb",
@@ -297,6 +300,23 @@ def build_parser() -> OneLineArgumentParser:
         metavar="MB",
         help=f"telemetry up to this size is merged into an indexed DIR/flight.rrd (memory about twice the size); "
         f"more is concatenated into it without an index, in constant memory (default {MERGE_MAX_MB:g})",
+    )
+    g.add_argument(
+        "--live-rate",
+        type=bounded(0.0, 1e4, "Hz"),
+        default=LIVE_RATE_HZ,
+        metavar="HZ",
+        help=f"a live viewer (--viewer, --connect, --web) gets at most HZ rows per second of sim time of each plot, "
+        f"so that a software-rendered one keeps up (default {LIVE_RATE_HZ:g}; 0: every row); DIR/flight.rrd keeps "
+        "every row",
+    )
+    g.add_argument(
+        "--live-window",
+        type=bounded(0.0, MAX_SIM_S, "s"),
+        default=LIVE_WINDOW_S,
+        metavar="S",
+        help=f"a live viewer's plots show the last S seconds of sim time (default {LIVE_WINDOW_S:g}; 0: the whole "
+        "flight); DIR/flight.rrd opens on the whole flight",
     )
     g.add_argument(
         "--web",

@@ -21,6 +21,8 @@ from tools.flight.profiles import Profile, ProfileError
 PROCESSES = ("sitl", "gcs", "autopilot")
 PROFILES = ("square", "step", "sine")
 MERGE_MAX_MB = 64.0  # default rrd_merge_max_mb: larger telemetry parts are concatenated (streamed), not merged
+LIVE_RATE_HZ = 20.0  # default live_rate: rows per sim second of each table a live viewer gets (docs/telemetry.md)
+LIVE_WINDOW_S = 20.0  # default live_window: the sim seconds a live viewer's plots show
 
 
 DEFAULT_DURATION_S = 30.0  # a flight's length unless given (a csv profile: its last breakpoint)
@@ -103,12 +105,16 @@ class FlightConfig:
     viewer: bool = False  # spawn a Rerun viewer (or reuse the one on port 9876) and stream to it live
     connect: str | None = None  # stream live to a running Rerun viewer at this URL
     rrd: bool = True  # Rerun telemetry of the autopilot and the SITL, joined into DIR/flight.rrd
-    # the processes write their parts with rerun as they fly even without a viewer (else they spool their rows and
-    # the launcher records them after the flight: the same recording, no rerun in either process)
+    # the processes write their parts with rerun as they fly (else they spool their rows and the launcher records
+    # them after the flight in sim-time order: the same rows, no rerun for the file in either process)
     rrd_live: bool = False
     # parts up to this size are merged (compacted, indexed: memory about twice their size); larger ones are
     # concatenated (streamed into one file without an index: bounded memory whatever the flight's length)
     rrd_merge_max_mb: float = MERGE_MAX_MB
+    # a live viewer (viewer, connect, web) gets at most this many rows per second of sim time of each table of lines
+    # (autopilot.shared.telemetry.thinning; 0: every row); DIR/flight.rrd keeps every row
+    live_rate: float = LIVE_RATE_HZ
+    live_window: float = LIVE_WINDOW_S  # a live viewer's plots show the last this many sim s (0: the whole flight)
     series: bool = True  # per-step series in DIR/autopilot_series.npz and DIR/sitl_series.npz
     png: bool = True  # DIR/flight.png: roll vs command and reference models, rudder, adaptive gains (from the series)
     web: bool = (
@@ -166,6 +172,8 @@ class FlightConfig:
             ("u_limit_deg", flags.u_limit_deg_arg),
             ("rt_priority", cli.rt_priority_arg),
             ("rrd_merge_max_mb", cli.bounded(0.0, 1e6, "MB")),
+            ("live_rate", cli.bounded(0.0, 1e4, "Hz")),
+            ("live_window", cli.bounded(0.0, cli.MAX_SIM_S, "s")),
             ("envelope_roll", envelope_roll_deg),
             ("envelope_saturated", envelope_saturated_pct),
             ("sysid", cli.sysid_arg),
@@ -661,40 +669,3 @@ def _flight_key(cfg: FlightConfig, out: Path) -> Path | None:
     path.unlink(missing_ok=True)
     write_key(path)
     return path
-
-
-def _telemetry_argvs(
-    cfg: FlightConfig, out: Path, web_url: str | None = None
-) -> tuple[dict[str, list[str]] | None, dict[str, Path], str | None]:
-    """One recording id for the flight; each process writes its own part (joined at the end).  ``web_url``: the
-    flight's web viewer (``--web``, already started), which the processes stream to.
-
-    A flight that only writes ``flight.rrd`` (no viewer, ``--connect`` or ``--web``) has the processes spool their
-    rows (``--telemetry-spool``: no rerun in either) and the launcher records the spools into one part after the
-    flight (``tools.flight.files._join_telemetry``); a live flight's processes write their own parts with rerun, as
-    they stream."""
-    if not (cfg.rrd or cfg.viewer or cfg.connect or cfg.web):
-        return None, {}, None
-    from autopilot.shared import telemetry as tm
-
-    rid = tm.new_recording_id()
-    url = cfg.connect or (tm.spawn_viewer() if cfg.viewer else None)  # one viewer for both processes
-    if web_url is not None:
-        url = web_url
-    spooled = cfg.rrd and not url and not cfg.rrd_live
-    parts = (tm.spool_paths(out) if spooled else tm.part_paths(out)) if cfg.rrd else {}
-    for p in parts.values():
-        p.parent.mkdir(parents=True, exist_ok=True)
-        p.unlink(missing_ok=True)
-    if url:  # the processes send data only; the layout that joins them comes from here
-        from tools.view.views import flight_blueprint
-
-        tm.send_blueprint(url, flight_blueprint(), rid)
-    argv = {}
-    for name in ("autopilot", "sitl"):
-        argv[name] = ["--recording-id", rid]
-        if name in parts:
-            argv[name] += ["--telemetry-spool" if spooled else "--rrd", str(parts[name])]
-        if url:
-            argv[name] += ["--connect", url]
-    return argv, parts, rid

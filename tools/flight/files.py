@@ -66,9 +66,10 @@ def start_recorder_import(parts: dict[str, Path]) -> threading.Thread | None:
 
 
 def _join_telemetry(
-    parts: dict[str, Path], out: Path, recording_id: str | None, merge_max_mb: float
+    parts: dict[str, Path], out: Path, recording_id: str | None, merge_max_mb: float, span=None
 ) -> tuple[Path | None, bool, str | None]:
     """Join the processes' part files into DIR/flight.rrd (whatever ended the flight); (path, indexed, error).
+    ``span``: the flight's (start, end) sim s, the plots' visible time range (``tools.view.views.flight_blueprint``).
 
     ``rerun rrd merge`` compacts the chunks and writes the footer (index) the viewer uses for random access, but
     holds the whole recording in memory (about twice the files' size).  So parts larger than ``merge_max_mb`` in
@@ -84,8 +85,9 @@ def _join_telemetry(
     target = out / "flight.rrd"
     spools = [p for p in existing if p.suffix == ".spool"]
     if spools:
-        # The processes spooled their rows (a file-only flight): one recording from them, written here by the same
-        # code a live writer sends with (autopilot.shared.telemetry.rerun_sink), then joined like a live part.
+        # The processes spooled their rows (the default): one recording from them, both processes side by side in
+        # sim time, written here by the same code a live writer sends with (autopilot.shared.telemetry.rerun_sink),
+        # then joined like a live part.
         part = out / ".parts" / "flight.rrd"
         try:
             tm.record_spools(spools, part)
@@ -101,18 +103,18 @@ def _join_telemetry(
             # The layout saved once for this code (tools.view.layout_cache): no rerun import in the launcher.
             from tools.view.layout_cache import flight_blueprint_file
 
-            layout = flight_blueprint_file()
+            layout = flight_blueprint_file(span=span)
             if layout is not None:
                 tm.merge_recordings(existing, target, blueprint_file=layout, remove_parts=True)
             else:
                 from tools.view.views import flight_blueprint
 
-                tm.merge_recordings(existing, target, blueprint=flight_blueprint(), remove_parts=True)
+                tm.merge_recordings(existing, target, blueprint=flight_blueprint(span), remove_parts=True)
         else:
             from tools.view.views import flight_blueprint
 
             tm.concatenate_recordings(
-                existing, target, blueprint=flight_blueprint(), recording_id=recording_id, remove_parts=True
+                existing, target, blueprint=flight_blueprint(span), recording_id=recording_id, remove_parts=True
             )
     except Exception as exc:  # noqa: BLE001  (a flight's other files stay valid; say what went wrong)
         return None, False, f"joining telemetry into {target} failed: {exc}"

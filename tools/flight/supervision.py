@@ -28,7 +28,6 @@ from tools.flight.config import (
     FlightConfig,
     FlightConfigError,
     _flight_key,
-    _telemetry_argvs,
     child_argvs,
 )
 from tools.flight.files import (
@@ -52,6 +51,7 @@ from tools.flight.outcome import (
     outcome_of,
     verdict,
 )
+from tools.flight.telemetry import flight_span, telemetry_argvs
 from tools.view.flight_picture import PngHelper
 
 
@@ -425,7 +425,7 @@ class Flight:
                     self._png = None
             elif early is not None:
                 early.close()  # not wanted (the request never comes): killed before it takes more CPU
-            telemetry, self._parts, self._recording_id = _telemetry_argvs(cfg, self.out, web_url)
+            telemetry, self._parts, self._recording_id = telemetry_argvs(cfg, self.out, web_url)
             key_file = _flight_key(cfg, self.out)
             for attempt in range(3):
                 ports = range(cfg.base_port, cfg.base_port + 4) if cfg.base_port is not None else free_udp_ports(4)
@@ -547,7 +547,7 @@ class Flight:
         # flight.png (the helper draws it from the series and the metrics) while the recording is joined here
         drawing = self._request_png(metrics)
         rrd_path, rrd_indexed, rrd_error = _join_telemetry(
-            self._parts, self.out, self._recording_id, cfg.rrd_merge_max_mb
+            self._parts, self.out, self._recording_id, cfg.rrd_merge_max_mb, flight_span(cfg, stats["sitl"])
         )
         if rrd_error and exit_code == EXIT_OK:
             exit_code, failed, error = EXIT_FAILED, "telemetry", rrd_error

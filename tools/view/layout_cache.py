@@ -15,7 +15,9 @@ built again and the cache rewritten (atomically: a concurrent launcher reads the
 one).  A layout that cannot be cached (no writable folder) is built in the process, as before.
 
 The folder: ``$CLSAC_CACHE_DIR``, else ``$XDG_CACHE_HOME/clsac-autopilot``, else ``~/.cache/clsac-autopilot``; one
-slot per checkout (named by a hash of its root), so two worktrees of different code do not evict each other.
+slot per checkout (named by a hash of its root) and flight span (the plots' visible time range, ``span``: a flight of
+the same start clock and length reuses it), so two worktrees of different code do not evict each other.  At most
+``MAX_LAYOUTS`` layouts are kept per checkout: the least recently used beyond are removed.
 ``CLSAC_CACHE_DIR=off`` turns the cache off.
 """
 
@@ -30,7 +32,8 @@ from importlib.util import find_spec
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[2]  # the checkout: autopilot/, sitl/, tools/
-_FORMAT = 1  # bump when the meaning of the JSON changes
+_FORMAT = 2  # bump when the meaning of the JSON changes (2: the span)
+MAX_LAYOUTS = 16  # layouts kept per checkout (one per flight span)
 
 
 def cache_dir() -> Path | None:
@@ -77,20 +80,42 @@ def _project_sources() -> dict[str, str]:
     return dict(sorted(out.items()))
 
 
-def _paths(application_id: str) -> tuple[Path, Path] | None:
+def _span_key(span) -> list | None:
+    """The span as exact integers (ns), or None (no span: the whole timeline)."""
+    return None if span is None else [round(float(t) * 1e9) for t in span]
+
+
+def _checkout() -> str:
+    return hashlib.sha256(str(ROOT).encode()).hexdigest()[:12]
+
+
+def _paths(application_id: str, span=None) -> tuple[Path, Path] | None:
     d = cache_dir()
     if d is None:
         return None
-    slot = hashlib.sha256(f"{ROOT}\0{application_id}".encode()).hexdigest()[:16]
-    return d / f"flight-blueprint-{slot}.rbl", d / f"flight-blueprint-{slot}.json"
+    slot = hashlib.sha256(f"{ROOT}\0{application_id}\0{_span_key(span)}".encode()).hexdigest()[:16]
+    name = f"flight-blueprint-{_checkout()}-{slot}"
+    return d / f"{name}.rbl", d / f"{name}.json"
 
 
-def _valid(rbl: Path, meta_path: Path, application_id: str) -> bool:
+def _prune(keep: Path) -> None:
+    """Remove this checkout's layouts beyond the ``MAX_LAYOUTS`` most recently used (``keep`` stays)."""
+    try:
+        layouts = sorted(keep.parent.glob(f"flight-blueprint-{_checkout()}-*.rbl"), key=lambda p: p.stat().st_mtime_ns)
+        for old in [p for p in layouts if p != keep][: max(0, len(layouts) - MAX_LAYOUTS)]:
+            old.with_suffix(".json").unlink(missing_ok=True)
+            old.unlink(missing_ok=True)
+    except OSError:
+        pass  # another launcher pruned them meanwhile
+
+
+def _valid(rbl: Path, meta_path: Path, application_id: str, span=None) -> bool:
     try:
         meta = json.loads(meta_path.read_text())
         if (
             meta.get("format") != _FORMAT
             or meta.get("application_id") != application_id
+            or meta.get("span_ns") != _span_key(span)
             or meta.get("python") != list(sys.version_info[:2])
             or meta.get("rerun") != _rerun_fingerprint()
             or not rbl.is_file()
@@ -114,17 +139,22 @@ def _write_atomic(path: Path, data: bytes) -> None:
         raise
 
 
-def flight_blueprint_file(application_id: str | None = None) -> Path | None:
-    """The saved flight layout (built now if the cache has none for this code and this rerun), or None if it cannot
-    be cached (then the caller builds ``tools.view.views.flight_blueprint()`` itself)."""
+def flight_blueprint_file(application_id: str | None = None, span=None) -> Path | None:
+    """The saved flight layout for the flight ``span`` (start, end sim s; ``tools.view.views.flight_blueprint``),
+    built now if the cache has none for this code, this rerun and this span, or None if it cannot be cached (then
+    the caller builds ``tools.view.views.flight_blueprint(span)`` itself)."""
     from autopilot.shared.telemetry.layout import APPLICATION_ID
 
     application_id = application_id or APPLICATION_ID
-    paths = _paths(application_id)
+    paths = _paths(application_id, span)
     if paths is None:
         return None
     rbl, meta_path = paths
-    if _valid(rbl, meta_path, application_id):
+    if _valid(rbl, meta_path, application_id, span):
+        try:
+            os.utime(rbl)  # used: the last to be pruned
+        except OSError:
+            pass
         return rbl
     try:
         rbl.parent.mkdir(parents=True, exist_ok=True)
@@ -132,11 +162,12 @@ def flight_blueprint_file(application_id: str | None = None) -> Path | None:
 
         with tempfile.TemporaryDirectory(prefix=".flight-blueprint-", dir=rbl.parent) as tmp:
             built = Path(tmp) / "flight.rbl"
-            flight_blueprint().save(application_id, str(built))
+            flight_blueprint(span).save(application_id, str(built))
             data = built.read_bytes()
         meta = {
             "format": _FORMAT,
             "application_id": application_id,
+            "span_ns": _span_key(span),
             "python": list(sys.version_info[:2]),
             "rerun": _rerun_fingerprint(),
             "sources": _project_sources(),
@@ -145,4 +176,5 @@ def flight_blueprint_file(application_id: str | None = None) -> Path | None:
         _write_atomic(meta_path, json.dumps(meta, indent=1).encode())
     except OSError:
         return None
+    _prune(rbl)
     return rbl

@@ -87,8 +87,9 @@ def log_experiment(
 
     ``results`` are ``tools.experiment.scenario.RunResult``-like objects: ``name``, ``lv``, ``metrics`` and
     ``series`` (numpy arrays ``t, um, phi, ym, ym_ol, e, u, ke, kx, ku, kpe, kie, ...``).  The blueprint
-    overlays all runs; each run also gets its own tab.  Its SHA-256 goes beside it (``path.sha256``,
-    ``autopilot.shared.telemetry.integrity``).  Returns the path.
+    overlays all runs; each run also gets its own tab; every plot shows the runs' span of sim time (the first to the
+    last sample).  Its SHA-256 goes beside it (``path.sha256``, ``autopilot.shared.telemetry.integrity``).  Returns
+    the path.
     """
     results = list(results)
     if not results:
@@ -105,7 +106,9 @@ def log_experiment(
     rec.set_sinks(rr.FileSink(str(out)))
     try:
         rec.send_recording_name(f"{scenario}: " + ", ".join(names))
-        rec.send_blueprint(experiment_blueprint(names))
+        times = [np.asarray(r.series["t"], dtype=float) for r in results if len(r.series["t"])]
+        span = (min(float(t[0]) for t in times), max(float(t[-1]) for t in times)) if times else None
+        rec.send_blueprint(experiment_blueprint(names, span if span and span[1] > span[0] else None))
 
         def send(entity: str, t: np.ndarray, values: np.ndarray) -> None:
             rec.send_columns(entity, indexes=[sim_time_column(t)], columns=[scalar_column(values)], strict=True)

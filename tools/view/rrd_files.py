@@ -76,6 +76,58 @@ def blueprint_components(path: str | os.PathLike, component: str) -> list:
     return out
 
 
+def visible_time_ranges(path: str | os.PathLike) -> dict[str, list[dict]]:
+    """The visible time range (``VisibleTimeRanges``) of every view that sets one, by the view's display name:
+    ``[{"timeline", "start": (kind, value), "end": (kind, value)}, ...]`` with kind ``Absolute``,
+    ``CursorRelative`` (value ns) or ``Infinite`` (value None), in the file's blueprint store(s)."""
+    r = _reader(path)
+    names: dict[str, str] = {}
+    ranges: dict[str, list[dict]] = {}
+    for entry in r.blueprints():
+        for chunk in r.stream(store=entry):
+            rb = chunk.to_record_batch()
+            view = chunk.entity_path.split("/VisibleTimeRanges")[0]
+            if "ViewBlueprint:display_name" in rb.schema.names:
+                for v in _to_list(rb.column("ViewBlueprint:display_name")):
+                    names[chunk.entity_path] = v[0] if isinstance(v, list) else v
+            if "VisibleTimeRanges:ranges" in rb.schema.names:
+                items = rb.column("VisibleTimeRanges:ranges").flatten()  # one struct per range
+                timelines = items.field("timeline").to_pylist()
+                bounds = items.field("range")
+                ranges[view] = [
+                    {
+                        "timeline": tl,
+                        "start": _boundary(bounds.field("start"), i),
+                        "end": _boundary(bounds.field("end"), i),
+                    }
+                    for i, tl in enumerate(timelines)
+                ]
+    return {names.get(view, view): rng for view, rng in ranges.items()}
+
+
+def _boundary(union, i: int) -> tuple[str, int | None]:
+    """(kind, value) of element ``i`` of a ``TimeRangeBoundary`` dense union."""
+    code = union.type_codes[i].as_py()
+    child = list(union.type.type_codes).index(code)
+    value = union.field(child)[union.offsets[i].as_py()].as_py()
+    return union.type.field(child).name, value
+
+
+def chunk_order(
+    path: str | os.PathLike, *, timeline: str = SIM_TIME, recording_id: str | None = None
+) -> list[tuple[str, float, float]]:
+    """The temporal chunks of one recording in file order, each as (entity path, first, last time in s on
+    ``timeline``): the order in which a viewer that reads the file from its start receives the data."""
+    r = _reader(path)
+    out = []
+    for chunk in r.stream(store=_store(r, recording_id)):
+        rb = chunk.to_record_batch()
+        if timeline in rb.schema.names and rb.num_rows:
+            t = rb.column(timeline).cast("int64").to_numpy(zero_copy_only=False)
+            out.append((chunk.entity_path, t.min() * 1e-9, t.max() * 1e-9))
+    return out
+
+
 def _store(r, recording_id: str | None):
     entries = r.recordings()
     if not entries:

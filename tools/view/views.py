@@ -5,12 +5,19 @@
 ``experiment_blueprint`` lays out ``paper.rrd`` (entities under ``/runs``, ``tools.view.recording``).  Every
 time-series and state-timeline view links its time axis to the global one (``TimeAxis(link="LinkToGlobal")``):
 zooming or panning one plot moves them all.  The time panel opens on the ``sim_time`` timeline.
+
+Each time-series and state-timeline view shows the span it is given (``span``: the flight's, or the experiment's
+runs', in sim seconds) as its visible time range (``VisibleTimeRanges`` on ``sim_time``), so the plots open on the
+flight and not on a window past its end.  A live viewer's layout (``trailing_s``) shows the plots over the last
+``trailing_s`` seconds before the time cursor instead (what a live viewer draws stays bounded however long the flight);
+its state lanes keep the whole span (a lane logs a state only when it changes).
 """
 
 from __future__ import annotations
 
 from collections.abc import Sequence
 
+import rerun as rr
 import rerun.blueprint as rrb
 
 from autopilot.shared.telemetry.layout import SIM_TIME, fault_mark_path
@@ -33,6 +40,28 @@ def _axis() -> rrb.TimeAxis:
     return rrb.TimeAxis(link="LinkToGlobal")
 
 
+Span = tuple[float, float] | None  # (start, end) sim s; None: the whole timeline (rerun's default)
+
+
+def time_range(span: Span = None, trailing_s: float | None = None) -> rrb.VisibleTimeRange | None:
+    """The visible time range on ``sim_time``: the last ``trailing_s`` s before the cursor, else ``span`` (absolute,
+    ns-exact), else None (rerun's default: the whole timeline)."""
+    if trailing_s is not None:
+        return rrb.VisibleTimeRange(
+            SIM_TIME,
+            start=rr.TimeRangeBoundary.cursor_relative(seconds=-float(trailing_s)),
+            end=rr.TimeRangeBoundary.cursor_relative(),
+        )
+    if span is None:
+        return None
+    start, end = (round(float(t) * 1e9) for t in span)
+    if not end > start:
+        raise ValueError(f"a time span must end after it starts, got {span!r}")
+    return rrb.VisibleTimeRange(
+        SIM_TIME, start=rr.TimeRangeBoundary.absolute(nanos=start), end=rr.TimeRangeBoundary.absolute(nanos=end)
+    )
+
+
 # The plots a fault's start and end are marked on (autopilot.shared.telemetry.layout.fault_marks_layout).
 FAULT_MARKED = frozenset(p.path for t in (A.AUTOPILOT, S.SITL_TABLE, S.SITL_HELD_TABLE) for p in t.plots) | {
     f"{A.AP_LINK}/**"
@@ -44,13 +73,16 @@ def _with_fault_marks(contents: Sequence[str]) -> list[str]:
     return list(contents) + [fault_mark_path(c) for c in contents if c in FAULT_MARKED]
 
 
-def _plot(name: str, contents: Sequence[str], *, legend: bool = True) -> rrb.TimeSeriesView:
+def _plot_in(
+    name: str, contents: Sequence[str], *, legend: bool = True, window: rrb.VisibleTimeRange | None = None
+) -> rrb.TimeSeriesView:
     return rrb.TimeSeriesView(
         name=name,
         origin="/",
         contents=_with_fault_marks(contents),
         axis_x=_axis(),
         plot_legend=rrb.PlotLegend(visible=legend),
+        time_ranges=window,
     )
 
 
@@ -68,11 +100,7 @@ def _attitude_view() -> rrb.Spatial3DView:
     )
 
 
-def _gains(name: str, gain: str, marks: str) -> rrb.TimeSeriesView:
-    return _plot(name, [gain, marks])
-
-
-def flight_blueprint() -> rrb.Blueprint:
+def flight_blueprint(span: Span = None, *, trailing_s: float | None = None) -> rrb.Blueprint:
     """The layout of a flight (``flight.rrd``): a "Flight" tab and a "Details" tab, fitting a 1600x1000 browser
     window (the side panels and the streams tree start collapsed; the time bar stays).
 
@@ -88,7 +116,19 @@ def flight_blueprint() -> rrb.Blueprint:
     Details tab: augmented output and PFC output, roll rate (measured vs truth) and yaw rate, side
     velocity, rudder rate, saturation flag.  Held axes tab (a JSBSim plant): altitude, airspeed, pitch and the
     safety pilot's elevator and throttle.
+
+    ``span`` (start, end sim s): the flight, every plot's and lane's visible time range; ``trailing_s``: a live
+    viewer's plots over the last ``trailing_s`` s instead (the lanes keep ``span``).
     """
+    window = time_range(span, trailing_s)
+    lanes = time_range(span)
+
+    def _plot(name: str, contents: Sequence[str]) -> rrb.TimeSeriesView:
+        return _plot_in(name, contents, window=window)
+
+    def _gains(name: str, gain: str, marks: str) -> rrb.TimeSeriesView:
+        return _plot(name, [gain, marks])
+
     flight = rrb.Vertical(
         rrb.Horizontal(
             _plot("Roll tracking [deg]", [A.AP_ROLL, S.SITL_ROLL]),
@@ -112,7 +152,7 @@ def flight_blueprint() -> rrb.Blueprint:
             _plot("Link counters", [f"{A.AP_LINK}/**"]),
         ),
         rrb.Horizontal(
-            rrb.StateTimelineView(name="Mode and failsafe", origin=A.AP_STATUS, time_view=_axis()),
+            rrb.StateTimelineView(name="Mode and failsafe", origin=A.AP_STATUS, time_view=_axis(), time_ranges=lanes),
             rrb.TextLogView(name="Events", origin="/", contents=[A.AP_EVENTS, S.SITL_EVENTS]),
         ),
         row_shares=[2.5, 1.6, 1.6, 1.3, 1.9],
@@ -144,9 +184,14 @@ def flight_blueprint() -> rrb.Blueprint:
     )
 
 
-def experiment_blueprint(run_names: Sequence[str]) -> rrb.Blueprint:
-    """Every run side by side (``paper.rrd``): overlays of roll, references, error, rudder and gains; a tab per run."""
+def experiment_blueprint(run_names: Sequence[str], span: Span = None) -> rrb.Blueprint:
+    """Every run side by side (``paper.rrd``): overlays of roll, references, error, rudder and gains; a tab per run.
+    ``span`` (start, end sim s): the runs', every plot's visible time range."""
     names = list(run_names)
+    window = time_range(span)
+
+    def _plot(name: str, contents: Sequence[str]) -> rrb.TimeSeriesView:
+        return _plot_in(name, contents, window=window)
 
     def each(what: str) -> list[str]:
         return [run_path(n, what) for n in names]

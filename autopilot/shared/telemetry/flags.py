@@ -7,13 +7,15 @@ loads rerun.
 from __future__ import annotations
 
 import argparse
+import math
 from collections.abc import Callable
 
 from autopilot.shared.cli import viewer_url
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
-    """``--rrd PATH``, ``--telemetry-spool PATH``, ``--recording-id ID``, ``--connect URL``, ``--viewer``."""
+    """``--rrd PATH``, ``--telemetry-spool PATH``, ``--recording-id ID``, ``--connect URL``, ``--viewer``,
+    ``--live-rate HZ``."""
     g = parser.add_argument_group("telemetry (Rerun)")
     g.add_argument("--rrd", metavar="PATH", default=None, help="write telemetry to this .rrd file (default: no file)")
     g.add_argument(
@@ -21,7 +23,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         metavar="PATH",
         default=None,
         help="write the telemetry rows to this spool file, for another process to record into a .rrd "
-        "(autopilot.shared.telemetry.record_spools; rerun is not imported); not with --rrd, --connect or --viewer",
+        "(autopilot.shared.telemetry.record_spools; without a viewer rerun is not imported); not with --rrd",
     )
     g.add_argument(
         "--recording-id",
@@ -39,6 +41,24 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     g.add_argument(
         "--viewer", action="store_true", help="spawn a Rerun viewer (or reuse the one on port 9876) and stream to it"
     )
+    g.add_argument(
+        "--live-rate",
+        type=_live_rate,
+        metavar="HZ",
+        default=None,
+        help="a viewer (--connect, --viewer) gets at most HZ rows per second of sim time of each table of lines; "
+        "the --rrd file or the spool keeps every row (default: every row; autopilot.shared.telemetry.thinning)",
+    )
+
+
+def _live_rate(text: str) -> float:
+    try:
+        value = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected rows per second (a number >= 0), got {text!r}") from None
+    if not (math.isfinite(value) and value >= 0):
+        raise argparse.ArgumentTypeError(f"expected rows per second >= 0 (0: every row), got {text!r}")
+    return value
 
 
 def requested(args: argparse.Namespace) -> bool:
@@ -52,13 +72,9 @@ def requested(args: argparse.Namespace) -> bool:
 
 
 def check_arguments(parser: argparse.ArgumentParser, args: argparse.Namespace) -> None:
-    """A usage error (``parser.error``) for flags that cannot go together: a spool is a writer's only sink."""
-    if getattr(args, "telemetry_spool", None) and (
-        getattr(args, "rrd", None) or getattr(args, "connect", None) or getattr(args, "viewer", False)
-    ):
-        parser.error(
-            "--telemetry-spool writes the rows for another process to record: not with --rrd, --connect or --viewer"
-        )
+    """A usage error (``parser.error``) for flags that cannot go together: a spool and a file are two recordings."""
+    if getattr(args, "telemetry_spool", None) and getattr(args, "rrd", None):
+        parser.error("--telemetry-spool writes the rows for another process to record: not with --rrd")
 
 
 def from_args(args: argparse.Namespace, process: str, **kwargs):
@@ -72,6 +88,7 @@ def from_args(args: argparse.Namespace, process: str, **kwargs):
         connect_url=getattr(args, "connect", None),
         spawn_viewer=bool(getattr(args, "viewer", False)),
         spool_path=getattr(args, "telemetry_spool", None),
+        live_rate_hz=getattr(args, "live_rate", None),
         **kwargs,
     )
 

@@ -10,6 +10,7 @@ differs: a live writer's flushes against one flush per spooled flush).
 
 from __future__ import annotations
 
+import math
 import os
 from collections.abc import Callable, Sequence
 from pathlib import Path
@@ -147,6 +148,105 @@ def _dispatch(sink: RerunSink, handles: dict, head: dict, arrays: tuple) -> None
 
 FLUSH_EVERY_BYTES = 4 << 20  # record_spools waits for the file after this much spooled data: bounded memory (measured:
 # peak RSS 120 MB recording 1 h of a 100 Hz autopilot table, 126 MB for 3 h; 187 MB for 1 h without these flushes)
+INTERLEAVE_S = 2.0  # record_spools sends every process's rows in slices of this many sim seconds, in sim-time order
+_TIMED = ("rows", "states", "events")  # records with times (the others register a table or a channel)
+
+
+def _slice(head: dict, arrays: tuple, keep: np.ndarray) -> tuple[dict, tuple]:
+    """The part of a timed record whose rows ``keep`` selects (a boolean mask over its rows)."""
+    kind = head["k"]
+    out = tuple(a[keep] for a in arrays)
+    if kind == "rows":
+        return {**head, "n": int(keep.sum())}, out
+    idx = np.flatnonzero(keep)
+    if kind == "states":
+        return {**head, "states": [head["states"][i] for i in idx]}, out
+    return {**head, "texts": [head["texts"][i] for i in idx], "levels": [head["levels"][i] for i in idx]}, out
+
+
+def _joined(parts: list[tuple[dict, tuple]]) -> tuple[dict, tuple]:
+    """Timed records of one table, channel or event log as one (their rows in order)."""
+    if len(parts) == 1:
+        return parts[0]
+    head = dict(parts[0][0])
+    arrays = tuple(np.concatenate(columns) for columns in zip(*(a for _, a in parts)))
+    if head["k"] == "rows":
+        head["n"] = sum(h["n"] for h, _ in parts)
+    for key in ("states", "texts", "levels"):
+        if key in head:
+            head[key] = [v for h, _ in parts for v in h[key]]
+    return head, arrays
+
+
+class _Source:
+    """One spool being recorded: its reader, its sink, and the timed records read but not all sent yet."""
+
+    def __init__(self, reader: SpoolReader, rec: rr.RecordingStream, errors: list):
+        self.reader = reader
+        self.records = iter(reader)
+        self.sink = RerunSink(rec, f"/{reader.process}/events", errors.append)
+        self.handles: dict[int, object] = {}
+        self.pending: list[tuple[dict, tuple]] = []
+        self.done = False
+        self.span = [math.inf, -math.inf]  # the sim times of its rows
+
+    def _dispatch(self, head: dict, arrays: tuple) -> None:
+        try:
+            _dispatch(self.sink, self.handles, head, arrays)
+        except (KeyError, TypeError, ValueError) as exc:
+            if isinstance(exc, SpoolError):
+                raise
+            raise SpoolError(f"{self.reader.path}: a {head.get('k')!r} record: {type(exc).__name__}: {exc}") from None
+
+    def fill(self, until: float, read: Callable[[tuple], None]) -> None:
+        """Read records until one starts at or after ``until`` (or the spool ends); a record that registers a table
+        or a channel is sent at once (it comes before that table's rows)."""
+        while not self.done and not (self.pending and self.pending[-1][1][0].size and self._start(-1) >= until):
+            item = next(self.records, None)
+            if item is None:
+                self.done = True
+                return
+            head, arrays = item
+            read(arrays)
+            if head.get("k") in _TIMED:
+                if head["k"] == "rows" and arrays[0].size:
+                    ok = arrays[0][np.isfinite(arrays[0])]
+                    if ok.size:
+                        self.span = [min(self.span[0], float(ok.min())), max(self.span[1], float(ok.max()))]
+                self.pending.append(item)
+            else:
+                self._dispatch(head, arrays)
+
+    def _start(self, i: int) -> float:
+        sim = self.pending[i][1][0]
+        return float(np.nanmin(sim)) if np.isfinite(sim).any() else -math.inf
+
+    def start(self) -> float:
+        """The earliest sim time not sent yet (inf: nothing pending)."""
+        return min((self._start(i) for i in range(len(self.pending)) if self.pending[i][1][0].size), default=math.inf)
+
+    def send_before(self, until: float | None) -> None:
+        """Send what of the pending records lies before ``until``: one send per table, channel and event log (the
+        slice's rows of each, in the spool's order: one chunk per entity per slice).  ``until=None``: every pending
+        record as it is, one send each."""
+        if until is None:
+            for head, arrays in self.pending:
+                self._dispatch(head, arrays)
+            self.pending = []
+            return
+        left, due = [], {}
+        for head, arrays in self.pending:
+            later = arrays[0] >= until
+            if later.all():
+                left.append((head, arrays))
+                continue
+            if later.any():
+                left.append(_slice(head, arrays, later))
+                head, arrays = _slice(head, arrays, ~later)
+            due.setdefault((head["k"], head.get("id")), []).append((head, arrays))
+        self.pending = left
+        for parts in due.values():
+            self._dispatch(*_joined(parts))
 
 
 def record_spools(
@@ -154,15 +254,25 @@ def record_spools(
     rrd_path: str | os.PathLike,
     *,
     write_footer: bool = False,
+    interleave_s: float | None = INTERLEAVE_S,
 ) -> dict:
     """Send the spooled rows of one flight's processes (``spool.SpoolReader``) into one recording at ``rrd_path``.
 
-    Every spool must hold the same recording id (one flight).  The file is written like a live writer's part
-    (without a footer unless ``write_footer``), one stream for all processes, in bounded memory: the spools are
-    read a record at a time and the stream is flushed to the file after every ``FLUSH_EVERY_BYTES`` sent.
-    Returns ``{"recording_id", "chunks", "truncated": [spools cut short]}``; a send that failed, a spool that is
-    not one, or spools of different flights raise ``SpoolError``.
+    Every spool must hold the same recording id (one flight).  The processes' rows go out together, in sim-time
+    order: every ``interleave_s`` seconds of sim time, each spool's rows of that slice in turn (a record spanning
+    more is cut at the slice's end), so the file holds both processes' data of one instant side by side: a viewer
+    that reads the file in order (``rerun rrd merge`` keeps the order in which the chunks were made) shows the
+    SITL's truth with the autopilot's signals, not after all of them.  ``interleave_s=None`` sends each spool whole,
+    in turn (the order before).  The same rows either way: only the chunking and the order differ.
+
+    The file is written like a live writer's part (without a footer unless ``write_footer``), one stream for all
+    processes, in bounded memory: the spools are read a flush at a time and the stream is flushed to the file after
+    every ``FLUSH_EVERY_BYTES`` sent.  Returns ``{"recording_id", "chunks", "truncated": [spools cut short],
+    "span": (first, last) sim s of the rows or None}``; a send that failed, a spool that is not one, or spools of
+    different flights raise ``SpoolError``.
     """
+    if interleave_s is not None and not (math.isfinite(interleave_s) and interleave_s > 0):
+        raise ValueError(f"interleave_s must be positive seconds or None, got {interleave_s!r}")
     readers = [SpoolReader(p) for p in spools]
     try:
         ids = {(r.application_id, r.recording_id) for r in readers}
@@ -174,30 +284,40 @@ def record_spools(
         path = Path(rrd_path)
         path.parent.mkdir(parents=True, exist_ok=True)
         rec.set_sinks(rr.FileSink(str(path), write_footer=write_footer))
-        chunks = 0
-        pending = 0  # bytes sent since the stream was last flushed to the file
-        for reader in readers:
-            sink = RerunSink(rec, f"/{reader.process}/events", errors.append)
-            handles: dict[int, object] = {}
-            for head, arrays in reader:
-                pending += sum(a.nbytes for a in arrays)
-                if pending > FLUSH_EVERY_BYTES:  # rerun queues what is sent: let the file catch up
-                    rec.flush()
-                    pending = 0
-                try:
-                    _dispatch(sink, handles, head, arrays)
-                except (KeyError, TypeError, ValueError) as exc:
-                    if isinstance(exc, SpoolError):
-                        raise
-                    raise SpoolError(
-                        f"{reader.path}: a {head.get('k')!r} record: {type(exc).__name__}: {exc}"
-                    ) from None
-            chunks += sink.chunks_sent
+        pending = [0]  # bytes read since the stream was last flushed to the file
+
+        def read(arrays: tuple) -> None:
+            pending[0] += sum(a.nbytes for a in arrays)
+            if pending[0] > FLUSH_EVERY_BYTES:  # rerun queues what is sent: let the file catch up
+                rec.flush()
+                pending[0] = 0
+
+        sources = [_Source(r, rec, errors) for r in readers]
+        if interleave_s is None:
+            for src in sources:
+                src.fill(math.inf, read)
+                src.send_before(None)
+        else:
+            until = -math.inf
+            while True:
+                for src in sources:
+                    src.fill(until, read)
+                    src.send_before(until)
+                first = min(src.start() for src in sources)
+                if first == math.inf and all(src.done for src in sources):
+                    break
+                until = first + interleave_s  # the next slice starts at the earliest row left (>= the last end)
         rec.flush()
         rec.disconnect()
         if errors:
             raise SpoolError(f"{len(errors)} sends failed, the first: {errors[0]}")
-        return {"recording_id": rid, "chunks": chunks, "truncated": [str(r.path) for r in readers if r.truncated]}
+        t0, t1 = min(s.span[0] for s in sources), max(s.span[1] for s in sources)
+        return {
+            "recording_id": rid,
+            "chunks": sum(s.sink.chunks_sent for s in sources),
+            "truncated": [str(r.path) for r in readers if r.truncated],
+            "span": (t0, t1) if t0 <= t1 else None,
+        }
     finally:
         for r in readers:
             r.close()

@@ -1,11 +1,12 @@
 """A spool: the telemetry rows of one process in a file, for another process to record (no rerun here).
 
-A process that only writes a file (no live viewer) need not import rerun (about 0.45 CPU s with numpy and
-pyarrow) nor encode Arrow chunks while it flies.  Its writer (``writer.Telemetry`` with ``spool_path``) hands
-each flush's rows to a ``SpoolSink`` instead of Rerun's streams, and after the flight one process reads the
-spools of the whole flight back and sends them, through the same ``rerun_sink.RerunSink`` a live writer uses,
-into one recording (``rerun_sink.record_spools``).  So a file-only recording and a live one are made by the same
-code from the same arrays: the same entities, rows and values.
+A process that writes a file need not import rerun for it (about 0.45 CPU s with numpy and pyarrow) nor encode
+Arrow chunks while it flies (a live viewer, if any, gets a thinned stream of its own: ``thinning``).  Its writer
+(``writer.Telemetry`` with ``spool_path``) hands each flush's rows to a ``SpoolSink`` instead of Rerun's streams,
+and after the flight one process reads the spools of the whole flight back and sends them, through the same
+``rerun_sink.RerunSink`` a live writer uses, into one recording (``rerun_sink.record_spools``).  So a recording
+from spools and one written live are made by the same code from the same arrays: the same entities, rows and
+values.
 
 The format, all little-endian: the 12 bytes ``MAGIC``, then records, each a ``<II`` pair (header length, payload
 length), a UTF-8 JSON header and a payload of float64 arrays.  The headers (``"k"``):

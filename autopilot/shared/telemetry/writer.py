@@ -67,11 +67,14 @@ class Telemetry:
 
     ``process`` names the events entity (``/<process>/events``); ``recording_id`` must be the same in
     every process of a flight.  ``rrd_path`` writes a file, ``connect_url`` streams to a viewer,
-    ``spawn_viewer`` starts one first (or reuses the one on the default port); ``spool_path`` (alone) writes the
-    rows to a spool file instead, for another process to record (``spool``, ``rerun_sink.record_spools``): rerun is
-    then never imported here.  Without any of them the writer is disabled: its tables are ``NullTable`` and its
-    channels accept appends and drop them.  Either way the queues, the thread and the drain are this class's; what
-    becomes of a flush's arrays is the sink's (``rerun_sink.RerunSink`` or ``spool.SpoolSink``).
+    ``spawn_viewer`` starts one first (or reuses the one on the default port); ``spool_path`` writes the rows to a
+    spool file instead of a file, for another process to record (``spool``, ``rerun_sink.record_spools``): without a
+    viewer rerun is then never imported here.  ``live_rate_hz`` thins what the viewer gets to that many rows per
+    second of sim time of each table of lines (``thinning``; None or 0: every row); the file or the spool keeps every
+    row (the viewer then has a stream of its own, ``live_rec``).  Without any of them the writer is disabled: its
+    tables are ``NullTable`` and its channels accept appends and drop them.  Either way the queues, the thread and the
+    drain are this class's; what becomes of a flush's arrays is the sink's (``rerun_sink.RerunSink``,
+    ``spool.SpoolSink``, ``thinning.TeeSink`` of both).
     """
 
     def __init__(
@@ -90,13 +93,16 @@ class Telemetry:
         recording_name: str | None = None,
         write_footer: bool = False,
         finalize: bool = False,
+        live_rate_hz: float | None = None,
     ):
         if not process or "/" in process:
             raise ValueError(f"process must be a non-empty name without '/', got {process!r}")
         if not (math.isfinite(flush_interval_s) and 0 < flush_interval_s <= 1.0):
             raise ValueError(f"flush_interval_s must be in (0, 1] s, got {flush_interval_s!r}")
-        if spool_path is not None and (rrd_path is not None or connect_url is not None or spawn_viewer):
-            raise ValueError("a spool is a writer's only sink: not with a .rrd file or a viewer")
+        if spool_path is not None and rrd_path is not None:
+            raise ValueError("a spool and a .rrd file are two recordings of the same rows: give one")
+        if live_rate_hz is not None and not (math.isfinite(live_rate_hz) and live_rate_hz >= 0):
+            raise ValueError(f"live_rate_hz must be >= 0 rows/s (0: every row), got {live_rate_hz!r}")
         if spool_path is not None and (recording_name or write_footer or finalize):
             raise ValueError("recording_name, write_footer and finalize are the recording's: not with a spool")
         self.process = process
@@ -108,6 +114,7 @@ class Telemetry:
         self._recording_name = recording_name
         self._write_footer = bool(write_footer)
         self._finalize = bool(finalize)
+        self.live_rate_hz = float(live_rate_hz) if live_rate_hz else None
         if spawn_viewer and connect_url is None:
             connect_url = _viewer.spawn_viewer(application_id=application_id)
         self.connect_url = connect_url
@@ -129,33 +136,32 @@ class Telemetry:
         self._yield_s = 5e-5
         self._segment_start = 0.0
         self.stretches: deque = deque(maxlen=8192)  # writer stretches between GIL hand-overs, s (diagnostic)
-        self.rec = None  # the rerun.RecordingStream of a live writer
+        self.rec = None  # the rerun.RecordingStream of the file (and of the viewer, unless it has its own)
+        self.live_rec = None  # the viewer's own stream: beside a spool, or thinned (live_rate_hz)
+        self.thinning = None  # the thinning.ThinnedSink of the viewer's stream
         self._sink = None
         if switch_interval_s is not None:
             sys.setswitchinterval(float(switch_interval_s))
         if not self.enabled:
             return
+        sinks = []
         if self.spool_path is not None:
             from autopilot.shared.telemetry.spool import SpoolSink
 
-            self._sink = SpoolSink(self.spool_path, process, self.recording_id, application_id)  # a bad path raises
+            sinks.append(SpoolSink(self.spool_path, process, self.recording_id, application_id))  # a bad path raises
+        if self.rrd_path is not None or self.connect_url is not None:
+            sinks += self._rerun_sinks()
+        if not sinks:
+            # Only a viewer URL was given and nobody listens: without any sink rerun would buffer everything in
+            # memory, so this writer turns itself off.
+            self.enabled = False
+            return
+        if len(sinks) == 1:
+            self._sink = sinks[0]
         else:
-            import rerun as rr
+            from autopilot.shared.telemetry.thinning import TeeSink
 
-            from autopilot.shared.telemetry.rerun_sink import RerunSink
-
-            if self.rrd_path is not None:
-                self.rrd_path.parent.mkdir(parents=True, exist_ok=True)
-            self.rec = rr.RecordingStream(self.application_id, recording_id=self.recording_id)
-            # Sinks are opened here, once (a second set_sinks would start the file again): a bad path raises
-            # now, in the caller, and a --connect URL with nothing behind it is dropped after a short probe.
-            if not self._open_sinks(rr):
-                # Only a viewer URL was given and nobody listens: without any sink rerun would buffer
-                # everything in memory, so this writer turns itself off.
-                self.enabled = False
-                self.rec = None
-                return
-            self._sink = RerunSink(self.rec, self.events_path, self._error, self._yield)
+            self._sink = TeeSink(*sinks)
         global _atexit_installed
         if not _atexit_installed:
             atexit.register(_close_all_at_exit)
@@ -234,26 +240,48 @@ class Telemetry:
             if stopping:
                 return
 
-    def _open_sinks(self, rr) -> int:
-        sinks = []
+    def _rerun_sinks(self) -> list:
+        """The ``RerunSink`` of the file and of the viewer (one stream for both, or one each when the viewer's is
+        thinned or beside a spool).  Sinks are opened here, once (a second set_sinks would start the file again): a
+        bad path raises now, in the caller, and a --connect URL with nothing behind it is dropped after a short
+        probe."""
+        import rerun as rr
+
+        from autopilot.shared.telemetry.rerun_sink import RerunSink
+
+        if self.connect_url is not None and not _viewer.viewer_reachable(self.connect_url):
+            kept = self.rrd_path is not None or self.spool_path is not None
+            log.warning(
+                "no Rerun viewer at %s: %s", self.connect_url, "writing the file only" if kept else "telemetry is off"
+            )
+            self.connect_url = None
+        own_stream = self.connect_url is not None and (self.live_rate_hz is not None or self.spool_path is not None)
+        file_sinks = []
         if self.rrd_path is not None:
-            sinks.append(rr.FileSink(str(self.rrd_path), write_footer=self._write_footer))
-        if self.connect_url is not None:
-            if _viewer.viewer_reachable(self.connect_url):
-                sinks.append(rr.GrpcSink(self.connect_url))
-            else:
-                log.warning(
-                    "no Rerun viewer at %s: %s",
-                    self.connect_url,
-                    "writing the file only" if sinks else "telemetry is off",
-                )
-                self.connect_url = None
-        if not sinks:
-            return 0
-        self.rec.set_sinks(*sinks)
+            self.rrd_path.parent.mkdir(parents=True, exist_ok=True)
+            file_sinks.append(rr.FileSink(str(self.rrd_path), write_footer=self._write_footer))
+        if self.connect_url is not None and not own_stream:
+            file_sinks.append(rr.GrpcSink(self.connect_url))
+        out = []
+        if file_sinks:
+            self.rec = self._stream(rr, file_sinks)
+            out.append(RerunSink(self.rec, self.events_path, self._error, self._yield))
+        if own_stream:
+            self.live_rec = self._stream(rr, [rr.GrpcSink(self.connect_url)])
+            live = RerunSink(self.live_rec, self.events_path, self._error, self._yield)
+            if self.live_rate_hz is not None:
+                from autopilot.shared.telemetry.thinning import ThinnedSink
+
+                live = self.thinning = ThinnedSink(live, self.live_rate_hz)
+            out.append(live)
+        return out
+
+    def _stream(self, rr, sinks: list):
+        rec = rr.RecordingStream(self.application_id, recording_id=self.recording_id)
+        rec.set_sinks(*sinks)
         if self._recording_name:
-            self.rec.send_recording_name(self._recording_name)
-        return len(sinks)
+            rec.send_recording_name(self._recording_name)
+        return rec
 
     def flush(self) -> None:
         """Hand everything queued so far to the sink (the writer thread does this every ``flush_interval_s``)."""
@@ -353,17 +381,21 @@ class Telemetry:
             if self._thread.is_alive():
                 log.warning("telemetry writer thread did not stop within %.1f s", timeout_s)
         self.flush()  # whatever the writer thread had not sent yet (it flushed once more on its way out)
-        if self.rec is None:  # a spool: the file is complete once it is closed
-            self._sink.close()
-            return
-        try:
-            self.rec.flush(timeout_sec=timeout_s)
-        except Exception as exc:  # noqa: BLE001 - e.g. a viewer that went away: the file is what matters
-            log.warning("telemetry flush: %s", exc)
-        try:
-            self.rec.disconnect()
-        except Exception as exc:  # noqa: BLE001
-            log.warning("telemetry disconnect: %s", exc)
+        close = getattr(self._sink, "close", None)  # a spool is complete once closed; a thinned stream sends the rest
+        if close is not None:
+            with self._lock:
+                close()
+        for rec in (self.rec, self.live_rec):
+            if rec is None:
+                continue
+            try:
+                rec.flush(timeout_sec=timeout_s)
+            except Exception as exc:  # noqa: BLE001 - e.g. a viewer that went away: the file is what matters
+                log.warning("telemetry flush: %s", exc)
+            try:
+                rec.disconnect()
+            except Exception as exc:  # noqa: BLE001
+                log.warning("telemetry disconnect: %s", exc)
         if self._finalize and self.rrd_path is not None and self.rrd_path.is_file():
             try:
                 merge_recordings([self.rrd_path], self.rrd_path)
