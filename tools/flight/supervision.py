@@ -23,6 +23,8 @@ from autopilot.shared.process import (
 )
 from tools.flight.children import Child, cpu_times, free_udp_ports, machine_load, new_run_dir, stop_children
 from tools.flight.config import (
+    LIVE_RATE_HZ,
+    LIVE_WINDOW_S,
     PROCESSES,
     PROFILES,
     FlightConfig,
@@ -163,6 +165,8 @@ class Flight:
         connect: str | None = None,
         rrd: bool = True,
         rrd_live: bool = False,
+        live_rate: float = LIVE_RATE_HZ,
+        live_window: float = LIVE_WINDOW_S,
         rrd_merge_max_mb: float = 64.0,
         series: bool = True,
         png: bool = True,
@@ -242,6 +246,8 @@ class Flight:
             connect=connect,
             rrd=rrd,
             rrd_live=rrd_live,
+            live_rate=live_rate,
+            live_window=live_window,
             rrd_merge_max_mb=rrd_merge_max_mb,
             series=series,
             png=png,
