@@ -146,7 +146,7 @@ def test_baseline_flight_header_names_the_pid_not_an_lv(tmp_path):
     )
     assert r.returncode == 0, r.stdout[-2000:] + r.stderr[-2000:]
     header = next(ln for ln in r.stdout.splitlines() if ln.startswith("== "))
-    assert header == "== lockstep flight, baseline (fixed-gain PID), 100 Hz, 2 s: OK"
+    assert header == "== lockstep flight, baseline (fixed-gain PID) on KH2013A (rudder), 100 Hz, 2 s: OK"
     start = next(ln for ln in (out / "autopilot.log").read_text().splitlines() if ln.startswith("autopilot: baseline"))
     assert "Lv" not in start and start.startswith("autopilot: baseline (fixed-gain PID) lockstep at 100 Hz")
     assert r.stdout.strip().splitlines()[-1].startswith("OK: flown to the end; controlled: max |roll| ")
