@@ -2,17 +2,21 @@
 
 Slow tests that start real processes carry the ``e2e`` marker: ``python -m pytest -m "not e2e"`` runs the fast ones
 in seconds.  ``python -m pytest`` runs on pytest-xdist workers (``addopts`` in pyproject.toml); this file decides
-how, in two phases:
+how, in three phases:
 
 * **Everything that does not fly in real time, in parallel.**  Every such module runs whole on one worker, so a
   module-scoped fixture (a flight, a study several tests only read) runs once; the longest modules start first
   (``LONGEST_FIRST``), so no worker is left with a long module when the others are done.
-* **Then the real-time tests, alone, one after the other.**  The tests that fly in real time assert timing
-  (deadlines, stalls, latencies, sim time against the wall clock), and they failed whenever other tests shared the
-  two cores with them (in two lanes beside the rest, 7 of them on a quiet machine).  Their modules (``SERIAL_LAST``)
-  are one unit that starts only when every other test is done, on one worker, with the machine to itself: as the
-  serial suite ran them.  The browser module is among them: its live flight flies in real time, and its software
-  rendering takes both cores.
+* **Then the real-time tests, in two lanes, with nothing else running.**  The tests that fly in real time assert
+  timing (deadlines, stalls, latencies, sim time against the wall clock), and they failed whenever the CPU-bound
+  tests shared the two cores with them (in lanes beside the rest, 7 of them on a quiet machine).  A real-time flight
+  itself takes little CPU (the whole phase averaged 0.4 of one core run serially), so two lanes of them (``LANES``,
+  balanced by their measured durations) share the machine with each other only.  A barrier keeps them from starting
+  while any other test is still to run: a worker waiting at it is sent one test of ``test_process_hygiene.py`` (an
+  xdist worker runs the last test it holds only once it is given more work), so the test it held runs before the
+  barrier opens, not beside the lanes.
+* **Then the browser, alone.**  Its live flight flies in real time and its software rendering takes both cores
+  (``ALONE``): a worker that finds only it left ends, and the last worker takes it.
 """
 
 from __future__ import annotations
@@ -21,29 +25,35 @@ import pytest
 
 from tools.experiment.scenario import PAPER, PAPER_RUNS, run_inprocess
 
-# The modules whose tests fly in real time and assert its timing (or share the machine with such a flight, as the
-# browser's software rendering does): one unit, run last, alone (``_assign``).
-SERIAL_LAST = (
-    "test_stalls.py",
-    "test_clients.py",
-    "test_hostile.py",
-    "test_mavlink_badinput.py",
-    "test_signing.py",
-    "test_web.py",
-    "test_sysid.py",
-    "test_launch_verdict.py",
-    "test_e2e_envelope.py",
-    "test_vehicle.py",
-    "test_telemetry_flight.py",
-    "test_e2e_realtime.py",
-    "test_e2e_disturbances.py",
-    "test_signed_gcs.py",
-    "test_e2e_telemetry.py",
-    "test_gcs_admission.py",
-    "test_user_lines.py",
-    "test_browser_viewer.py",
+# The modules whose tests fly in real time and assert its timing: two lanes that run side by side once everything
+# else is done, balanced by their durations (seconds, run one after the other with --durations=0: 211 and 212).
+LANES = (
+    (
+        "test_stalls.py",
+        "test_vehicle.py",
+        "test_hostile.py",
+        "test_mavlink_badinput.py",
+        "test_e2e_disturbances.py",
+        "test_signed_gcs.py",
+        "test_gcs_admission.py",
+        "test_sysid.py",
+        "test_user_lines.py",
+    ),
+    (
+        "test_clients.py",
+        "test_launch_verdict.py",
+        "test_e2e_envelope.py",
+        "test_telemetry_flight.py",
+        "test_signing.py",
+        "test_web.py",
+        "test_e2e_telemetry.py",
+    ),
 )
-SERIAL = "real time, alone"  # the serial unit's name
+# Last, alone: real time with software rendering on both cores, and a flight pinned to a core it busy-waits on.
+ALONE = ("test_browser_viewer.py", "test_e2e_realtime.py")
+SERIAL_LAST = tuple(m for lane in LANES for m in lane) + ALONE  # every module that flies in real time
+BARRIER = "test_process_hygiene.py"  # its tests are what a worker waiting at the barrier runs (one each)
+SERIAL = "real time, alone"  # the last unit's name
 
 # Started first, in this order (modules; measured with --durations=0), in the parallel phase.
 LONGEST_FIRST = (
@@ -71,25 +81,49 @@ def _module(nodeid: str) -> str:
     return nodeid.split("::", 1)[0]
 
 
+def _file(nodeid: str) -> str:
+    return _module(nodeid).rsplit("/", 1)[-1]
+
+
 def _serial(nodeid: str) -> bool:
-    return _module(nodeid).rsplit("/", 1)[-1] in SERIAL_LAST
+    return _file(nodeid) in SERIAL_LAST
 
 
 def _unit(nodeid: str) -> str:
-    """What one worker runs, one test after the other: the serial unit, or else a whole module."""
-    return SERIAL if _serial(nodeid) else _module(nodeid)
+    """What one worker runs, one test after the other: a lane, the last unit, one barrier test, or a module."""
+    name = _file(nodeid)
+    if name in ALONE:
+        return SERIAL
+    for k, lane in enumerate(LANES):
+        if name in lane:
+            return f"real time, lane {k + 1}"
+    if name == BARRIER:
+        return f"barrier {nodeid}"
+    return _module(nodeid)
+
+
+def _phase(unit: str) -> int:
+    """0: in parallel; 1: a barrier test; 2: a real-time lane; 3: alone, last."""
+    if unit == SERIAL:
+        return 3
+    if unit.startswith("real time, lane "):
+        return 2
+    if unit.startswith("barrier "):
+        return 1
+    return 0
 
 
 def _rank(nodeid: str) -> int:
-    if _serial(nodeid):
-        return len(LONGEST_FIRST) + 1  # last
+    phase = _phase(_unit(nodeid))
+    if phase:
+        return len(LONGEST_FIRST) + phase  # after every module of the parallel phase, in phase order
     listed = (i for i, prefix in enumerate(LONGEST_FIRST) if nodeid.startswith(prefix))
     return next(listed, len(LONGEST_FIRST))
 
 
 def pytest_collection_modifyitems(config, items):
-    """The longest modules first, the real-time ones last; a unit starts where its best-ranked test is (stable: file
-    order)."""
+    """The longest modules first, then the barrier, the real-time lanes and the browser; a unit starts where its
+    best-ranked test is (stable: file order)."""
     first = {}
     for item in items:
         first[_unit(item.nodeid)] = min(first.get(_unit(item.nodeid), _rank(item.nodeid)), _rank(item.nodeid))
@@ -99,30 +133,66 @@ def pytest_collection_modifyitems(config, items):
 @pytest.hookimpl(tryfirst=True, optionalhook=True)
 def pytest_xdist_make_scheduler(config, log):
     """xdist's scope scheduling (one unit of tests to a worker, in collection order) with ``_unit`` as the scope, and
-    a barrier before the serial unit: a worker that finds only it left ends (after the test it holds), and the last
-    worker takes it once every other worker is gone, so the serial unit runs alone.  (An xdist worker runs the last
-    test it holds only when it gets more work or is told to end, so a worker cannot simply wait for the barrier.)
-    (Not ``--dist loadgroup`` and xdist_group marks: pytest 9.2 builds node ids in a way xdist 3.8's loadgroup no
-    longer renames, so every test was its own group.)"""
+    two barriers (the module docstring).  (Not ``--dist loadgroup`` and xdist_group marks: pytest 9.2 builds node
+    ids in a way xdist 3.8's loadgroup no longer renames, so every test was its own group.)"""
     from xdist.scheduler import LoadScopeScheduling
 
     class Phases(LoadScopeScheduling):
         def _split_scope(self, nodeid: str) -> str:
             return _unit(nodeid)
 
-        def _assign_work_unit(self, node) -> None:
-            scope = next((s for s in self.workqueue if s != SERIAL), None)
-            if scope is None:  # only the serial unit is left
-                others = [n for n in self.assigned_work if n is not node]
-                if others:
-                    if not all(n.shutting_down for n in others):
-                        node.shutdown()  # another worker still runs its module: this one ends, that one goes on
-                    return  # else wait for the ending workers to be gone (remove_node)
-                scope = SERIAL
+        def _give(self, node, scope: str) -> None:
             work_unit = self.workqueue.pop(scope)
             self.assigned_work.setdefault(node, {})[scope] = work_unit
             collection = self.registered_collections[node]
             node.send_runtest_some([collection.index(nodeid) for nodeid, done in work_unit.items() if not done])
+
+        def _pending(self, node, phase: int) -> int:
+            return sum(
+                list(unit.values()).count(False)
+                for scope, unit in self.assigned_work.get(node, {}).items()
+                if _phase(scope) == phase
+            )
+
+        def _queued(self, phase: int) -> list:
+            return [s for s in self.workqueue if _phase(s) == phase]
+
+        def _assign_work_unit(self, node) -> None:
+            parallel = self._queued(0)
+            if parallel:
+                self._give(node, parallel[0])
+                return
+            lanes = self._queued(2)
+            if lanes:
+                if self._pending(node, 0):  # it holds a test of the parallel phase: a barrier test runs that one
+                    barriers = self._queued(1)
+                    if barriers and not self._pending(node, 1):
+                        self._give(node, barriers[0])
+                        return
+                    if barriers:
+                        return  # its barrier test is on its way
+                elif any(self._pending(n, 0) for n in self.assigned_work if n is not node):
+                    return  # another worker still runs the parallel phase: wait at the barrier
+                # the barrier opens: a lane to this worker and one to each other worker waiting at it
+                for n in [node, *(n for n in self.assigned_work if n is not node and not n.shutting_down)]:
+                    lanes = self._queued(2)
+                    if not lanes:
+                        break
+                    if n is node or self._pending(n, 2) + self._pending(n, 3) == 0:
+                        self._give(n, lanes[0])
+                for barrier in self._queued(1):  # barrier tests no worker needed
+                    self._give(node, barrier)
+                return
+            for barrier in self._queued(1):
+                self._give(node, barrier)
+            if SERIAL not in self.workqueue:
+                return
+            others = [n for n in self.assigned_work if n is not node]
+            if others:
+                if not all(n.shutting_down for n in others):
+                    node.shutdown()  # another worker still runs: this one ends, that one goes on
+                return  # else wait for the ending workers to be gone (remove_node)
+            self._give(node, SERIAL)
 
         def _reschedule(self, node) -> None:
             if node.shutting_down:
