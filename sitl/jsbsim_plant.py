@@ -59,6 +59,13 @@ SURFACES = {"aileron": "fcs/aileron-cmd-norm", "rudder": "fcs/rudder-cmd-norm"}
 # JSBSim's signs: a positive aileron command rolls right, a positive rudder command yaws and then rolls left.  The
 # command is mapped with this sign so that a positive command rolls right, as the law assumes (hf gain > 0).
 SURFACE_SIGN = {"aileron": 1.0, "rudder": -1.0}
+# Square MIMO plants (docs/plants.md, "m inputs, m outputs"): a ``surface`` naming several surfaces flies one output
+# on each, in order: the roll angle on the aileron, the sideslip angle on the rudder (sideslip command 0 by default:
+# coordinated flight).  Each surface's sign there makes its own output's high-frequency gain positive: the aileron's
+# as above (rolls right), the rudder's JSBSim's own (a positive rudder command yaws the nose left, which raises the
+# sideslip beta, the wind from the right).
+MIMO = {"aileron+rudder": (("aileron", "phi"), ("rudder", "beta"))}
+MIMO_SIGN = {"aileron": 1.0, "rudder": 1.0}
 SLUG_LB = 32.174049  # lb per slug (JSBSim's slugtolb)
 
 
@@ -73,8 +80,10 @@ class JsbsimSpec:
     surface_max_deg: float | None = None  # deg of surface per unit normalised command; default the model's (measured)
 
     def __post_init__(self) -> None:
-        if self.surface not in SURFACES:
-            raise JsbsimPlantError(f"jsbsim plant: surface must be aileron or rudder, got {self.surface!r}")
+        if self.surface not in SURFACES and self.surface not in MIMO:
+            raise JsbsimPlantError(
+                f"jsbsim plant: surface must be aileron, rudder or {', '.join(MIMO)}, got {self.surface!r}"
+            )
         for name in ("airspeed_kt", "altitude_m", "surface_max_deg"):
             v = getattr(self, name)
             if v is not None and not (math.isfinite(v) and v > 0):
@@ -84,16 +93,49 @@ class JsbsimSpec:
                 raise JsbsimPlantError(f"jsbsim plant: {name} must be in [{lo:g}, {hi:g}], got {v!r}")
 
     @property
+    def surfaces(self) -> tuple[str, ...]:
+        """The surfaces flown, one per input: (surface,), or a MIMO plant's in order (``MIMO``)."""
+        return tuple(s for s, _ in MIMO[self.surface]) if self.surface in MIMO else (self.surface,)
+
+    @property
+    def outputs(self) -> tuple[str, ...]:
+        """The outputs flown, one per surface: ("phi",), or a MIMO plant's (``MIMO``: phi on the aileron, beta on the
+        rudder)."""
+        return tuple(y for _, y in MIMO[self.surface]) if self.surface in MIMO else ("phi",)
+
+    @property
+    def is_mimo(self) -> bool:
+        return self.surface in MIMO
+
+    @property
+    def signs(self) -> tuple[float, ...]:
+        """Each surface's sign from the law's command to JSBSim's (``SURFACE_SIGN``; MIMO: ``MIMO_SIGN``)."""
+        return tuple((MIMO_SIGN if self.is_mimo else SURFACE_SIGN)[s] for s in self.surfaces)
+
+    @property
+    def surface_maps(self) -> tuple[SurfaceMap, ...]:
+        """Each surface's ``surface_map``, in the order of ``surfaces``."""
+        if not self.is_mimo:
+            return (self.surface_map,)
+        return tuple(replace(self, surface=s).surface_map for s in self.surfaces)
+
+    @property
+    def surface_limits_rad(self) -> tuple[float, ...]:
+        """Each surface's stop (``surface_max_rad``), in the order of ``surfaces``."""
+        return tuple(m.limit_rad for m in self.surface_maps)
+
+    @property
     def surface_map(self) -> SurfaceMap:
-        """How the command moves the surface: ``surface_max_deg`` on both sides if given, else the model's own
+        """How the command moves the surface (a MIMO plant: its first surface's, the aileron's): ``surface_max_deg``
+        on both sides if given, else the model's own
         (``sitl.jsbsim_models.surface_map``, measured at this airspeed and altitude)."""
         if self.surface_max_deg is None:
-            return surface_map(self.model, self.surface, self.airspeed_kt, self.altitude_m)
+            return surface_map(self.model, self.surfaces[0], self.airspeed_kt, self.altitude_m)
         k = math.radians(self.surface_max_deg)
         try:
-            m = surface_map(self.model, self.surface, self.airspeed_kt, self.altitude_m)
+            m = surface_map(self.model, self.surfaces[0], self.airspeed_kt, self.altitude_m)
         except JsbsimPlantError:  # a scale the model's aerodynamics do not give in rad: the one given
-            return SurfaceMap(self.model, self.surface, SURFACES[self.surface], k, k, measured=False)
+            return SurfaceMap(self.model, self.surfaces[0], SURFACES[self.surfaces[0]], k, k, measured=False)
         return replace(m, positive_rad=k, negative_rad=k, measured=False)
 
     @property
