@@ -202,7 +202,7 @@ def _load_damaged(fdm, spec: JsbsimSpec):
 
     root = _root()
     with tempfile.TemporaryDirectory(prefix="clsac-jsbsim-") as tmp:
-        jsbsim_damage.write_model(root / "aircraft" / spec.model, tmp, spec.model, spec.surface)
+        jsbsim_damage.write_model(root / "aircraft" / spec.model, tmp, spec.model, spec.surfaces[0])
         return fdm.load_model_with_paths(spec.model, tmp, str(root / "engine"), str(root / "systems"))
 
 
@@ -351,10 +351,21 @@ class JsbsimPlant:
         self.config = JsbsimConfig(physics_rate_hz)
         dt = self.config.dt
         self.fdm = fdm = trimmed_fdm(spec, dt, seed, damaged)
-        self.surface_trim = fdm[SURFACES[spec.surface]]
-        self._cmd = fdm.get_property_manager().get_node(SURFACES[spec.surface])
+        first = spec.surfaces[0]  # the surface of the command (a MIMO plant's first: the aileron, on the roll)
+        self.surface_trim = fdm[SURFACES[first]]
+        self._cmd = fdm.get_property_manager().get_node(SURFACES[first])
         self.surface_map = spec.surface_map  # the model's command -> deflection (sitl.jsbsim_models)
-        self._to_norm = self._normalised(self.surface_map, SURFACE_SIGN[spec.surface], self.surface_trim)
+        self._to_norm = self._normalised(self.surface_map, spec.signs[0], self.surface_trim)
+        # A square MIMO plant (spec.is_mimo): the second surface (the rudder, on the sideslip) flies ``u2`` (rad),
+        # set by the endpoint from its own SERVO_OUTPUT_RAW channel, through a servo of its own (the same eq. (65))
+        self.mimo = spec.is_mimo
+        self.u2 = self.delta2 = self.delta2_dot = 0.0
+        if self.mimo:
+            second = spec.surfaces[1]
+            m2 = spec.surface_maps[1]
+            self._cmd2 = fdm.get_property_manager().get_node(SURFACES[second])
+            self._to_norm2 = self._normalised(m2, spec.signs[1], fdm[SURFACES[second]])
+            self.surface2_limit_rad = m2.limit_rad
         self.pilot = SafetyPilot(fdm, dt, pilot_gains(spec.model))
         if turbulence is not None:
             w20, severity = TURBULENCE[turbulence]
@@ -377,7 +388,7 @@ class JsbsimPlant:
         if damaged:  # the trimmed aircraft's mass properties: the ballast is sized from them
             from sitl.jsbsim_damage import anatomy
 
-            a = anatomy(_root() / "aircraft" / spec.model / f"{spec.model}.xml", spec.surface)
+            a = anatomy(_root() / "aircraft" / spec.model / f"{spec.model}.xml", spec.surfaces[0])
             self._ballast0 = a.pointmasses  # index of the first ballast point mass
             self._semispan_in = 6.0 * a.span_ft if a.span_ft else None
             self._mass0 = {k: fdm[f"inertia/{k}"] for k in ("weight-lbs", "cg-x-in", "cg-y-in", "cg-z-in")}
@@ -465,6 +476,8 @@ class JsbsimPlant:
         self._u_last = u
         if self._act is not None:
             return self._advance_servo_fault(u, n)
+        if self.mimo:
+            return self._advance_mimo(u, n)
         a00, a01, a10, a11, b0, b1 = self._servo
         d_, dd = self.delta, self.delta_dot
         run, cmd, norm = self.fdm.run, self._cmd.set_double_value, self._to_norm
@@ -479,6 +492,31 @@ class JsbsimPlant:
         self.delta, self.delta_dot, self.steps = d_, dd, steps
         self._read()
         return self.x
+
+    def _advance_mimo(self, u: float, n: int) -> np.ndarray:
+        """``advance`` of a MIMO plant: both servos (the same exact ZOH of eq. (65)), each on its own surface."""
+        a00, a01, a10, a11, b0, b1 = self._servo
+        d_, dd, e_, ed = self.delta, self.delta_dot, self.delta2, self.delta2_dot
+        u2 = float(self.u2)
+        run, cmd, norm = self.fdm.run, self._cmd.set_double_value, self._to_norm
+        cmd2, norm2 = self._cmd2.set_double_value, self._to_norm2
+        steps = self.steps
+        for _ in range(n):
+            d_, dd = a00 * d_ + a01 * dd + b0 * u, a10 * d_ + a11 * dd + b1 * u
+            e_, ed = a00 * e_ + a01 * ed + b0 * u2, a10 * e_ + a11 * ed + b1 * u2
+            cmd(norm(d_))
+            cmd2(norm2(e_))
+            if steps % PILOT_EVERY == 0:
+                self.pilot()
+            run()
+            steps += 1
+        self.delta, self.delta_dot, self.delta2, self.delta2_dot, self.steps = d_, dd, e_, ed, steps
+        self._read()
+        return self.x
+
+    def sideslip(self) -> tuple[float, float]:
+        """JSBSim's (angle of attack, sideslip) in rad: what AOA_SSA carries (sitl.endpoint)."""
+        return self.fdm["aero/alpha-rad"], self.fdm["aero/beta-rad"]
 
     # ------------------------------------------------------------------ faults (sitl.damage)
     def set_effect(self, effect: damage.Effect) -> None:

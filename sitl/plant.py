@@ -170,7 +170,7 @@ def fault_refusals(text: str) -> dict[str, str]:
         from sitl.jsbsim_plant import _root, parse_spec
 
         spec = parse_spec(text)
-        return refusals(_root() / "aircraft" / spec.model / f"{spec.model}.xml", spec.surface)
+        return refusals(_root() / "aircraft" / spec.model / f"{spec.model}.xml", spec.surfaces[0])
     why = {kd: "a JSBSim aircraft's mass properties and safety pilot only" for kd in damage.JSBSIM_KINDS}
     for kd in damage.LINEAR_KINDS:
         why.pop(kd)
@@ -193,7 +193,7 @@ def check_faults(text: str, faults) -> None:
         from sitl.jsbsim_plant import _root, parse_spec
 
         spec = parse_spec(text)
-        span = anatomy(_root() / "aircraft" / spec.model / f"{spec.model}.xml", spec.surface).span_ft
+        span = anatomy(_root() / "aircraft" / spec.model / f"{spec.model}.xml", spec.surfaces[0]).span_ft
         most = 0.25 * span * 0.3048 if span else None  # half the half span: a tip ballast as heavy as the aircraft
         for f in faults:
             if f.kind == "cg" and most and abs(f.value) > most:

@@ -25,6 +25,7 @@ from autopilot.loop.common import (
     M,
 )
 from autopilot.schedule import NEW, UNLINKED
+from autopilot.shared.fastmav import AOA_SSA_ID
 from autopilot.shared.link import ANY_COMPONENT
 from autopilot.shared.mavlink import (
     GCS_SYSTEMS,
@@ -72,6 +73,12 @@ class LinkHandlers:
                 t_rx,
                 (msg.time_boot_ms, msg.roll, msg.pitch, msg.yaw, msg.rollspeed, msg.pitchspeed, msg.yawspeed),
             )
+        elif mid == AOA_SSA_ID:  # a square MIMO plant's sideslip (deg on the wire), for the next step
+            ssa = msg.SSA
+            if ssa - ssa == 0.0 and -90.0 <= ssa <= 90.0:
+                self.ctrl.y2 = math.radians(ssa)
+            else:
+                self.sitl.reject("nonfinite_attitude")
         elif mid == STATUSTEXT:
             text = self._sitl_texts.add(msg)  # a long text arrives in chunks (autopilot.shared.events)
             if text is not None:
@@ -234,6 +241,16 @@ class LinkHandlers:
             wire = self._servo_wire(0, pwm)
             tail = self._servo_tails[pwm] = M.MAVLink_servo_output_raw_message.unpacker.pack(*wire)[4:]
         return time_usec.to_bytes(4, "little") + tail
+
+    def _servo_wire_mimo(self, time_usec: int, pwm: int) -> tuple:
+        """``_servo_wire`` of a square MIMO plant: the second surface's pulse (``ctrl.u2`` through ``pwm2``) on its
+        own channel beside the first's."""
+        s = list(self.pwm.servo_fields(pwm))
+        s[self.pwm2.channel - 1] = self.pwm2.to_pwm(self.ctrl.u2)
+        return (time_usec, *s[:8], 0, *s[8:])
+
+    def _servo_payload_mimo(self, time_usec: int, pwm: int) -> bytes:
+        return M.MAVLink_servo_output_raw_message.unpacker.pack(*self._servo_wire_mimo(time_usec, pwm))
 
     def _start_announcing(self, now: float) -> None:
         """The run's first HEARTBEAT, now; the next ones as ``_heartbeat_period`` says."""
