@@ -310,7 +310,12 @@ def main(argv=None) -> int:
     if pwm2 is not None:  # a square MIMO plant: the law of both channels from the design's file (autopilot.mimo)
         mimo_law = _mimo_law(parser, args, controller)
         cfg = mimo_law.config
-    params = ParamTable(cfg, options)
+    if mimo_law is not None:
+        from autopilot.mimo import param_table
+
+        params = param_table(mimo_law, options)
+    else:
+        params = ParamTable(cfg, options)
     not_flown: list[str] = []  # another law's values in the file (a design holds every controller's)
     if args.params and mimo_law is not None:
         not_flown = []  # the file's values are the MIMO law's (autopilot.mimo.from_values), not the table's

@@ -133,11 +133,12 @@ class MimoLaw:
             self.laws[0].flew(u_applied)
 
     def reconfigure(self, config) -> None:
-        """A parameter change of channel 1 (its table: ``autopilot.params``) or a SAC <-> CL-SAC switch (L_v)."""
+        """A parameter change (``param_table``) or a SAC <-> CL-SAC switch (L_v = 0): the whole MIMO configuration
+        for CL-SAC, channel 1's for the baseline (channel 2's PID is set by the table itself)."""
         if self.law is not None:
             lv = np.atleast_2d(np.asarray(config.lv, dtype=float))
             lv = float(lv[0, 0]) * np.eye(2) if lv.shape == (1, 1) else lv
-            cfg = self.config.with_(lv=tuple(map(tuple, lv)))
+            cfg = config.with_(lv=tuple(map(tuple, lv)))
             self.law.reconfigure(cfg)
             self.config = cfg
         else:
@@ -280,3 +281,88 @@ class ChannelMetrics:
             "channels": channels,
             "steps": n,
         }
+
+
+def param_table(law: MimoLaw, options: dict):
+    """The parameter table of a MIMO flight (``autopilot.params.ParamTable``'s interface): each channel's values
+    under the names a ground station shows (channel 1 the SISO names, channel 2 with a 2: ``CLSAC_PFC2_NUM``,
+    ``CLSAC_PID2_KP``; the adaptation weights, sigma and L_v one for both), then the options."""
+    from autopilot.params import ParamTable
+
+    class MimoParamTable(ParamTable):
+        def __init__(self):
+            from autopilot.params import BASELINE_PARAMS, BY_NAME, MIMO_PARAMS, OPTION_DEFAULTS, PARAMS
+
+            self.law = law
+            if law.kind == "clsac":
+                names = ("CLSAC_LV", "CLSAC_SIGMA", *(f"CLSAC_GAM_{n}" for n in ("PE", "IE", "PX", "IX", "PU", "IU")))
+                names += ("CLSAC_PFC_NUM", "CLSAC_PFC_DEN1", "CLSAC_PFC_DEN0")
+                own = tuple(BY_NAME[n] for n in names) + MIMO_PARAMS[:3]
+            else:
+                own = BASELINE_PARAMS + MIMO_PARAMS[3:]
+            self.params = own + tuple(p for p in PARAMS if p.option)
+            self._names = {p.name: p for p in self.params}
+            self._config = law.config
+            self._options = {
+                p.option: float(options[p.option] if p.option in options else OPTION_DEFAULTS[p.option])
+                for p in PARAMS
+                if p.option
+            }
+            self.flying = False
+
+        def get(self, name: str) -> float:
+            from autopilot.params import ParamError
+
+            p = self._names.get(name)
+            if p is None:
+                raise ParamError(f"unknown parameter {name!r}")
+            if p.option:
+                return self._options[p.option]
+            if law.kind != "clsac":
+                cfg = self._config if "PID2" not in name else law.laws[1].config
+                return float(getattr(cfg, name.rsplit("_", 1)[1].lower()))
+            cfg = self._config
+            if name.startswith("CLSAC_PFC"):
+                num, den = cfg.pfc_channels[1 if "PFC2" in name else 0]
+                return float(num[-1] if name.endswith("NUM") else den[0 if name.endswith("DEN1") else 1])
+            return float(np.atleast_2d(np.asarray(getattr(cfg, p.field), dtype=float))[0, 0])
+
+        def set(self, name: str, value: float) -> float:
+            from autopilot.params import ParamError
+
+            p = self._names.get(name)
+            if p is None:
+                raise ParamError(f"unknown parameter {name!r}")
+            value = float(value)
+            if not math.isfinite(value) or not p.admits(value):
+                raise ParamError(f"{name} must be in {p.bounds()}, got {value:g}")
+            if p.option:
+                self._options[p.option] = value
+                return value
+            try:
+                if law.kind != "clsac":
+                    gain = name.rsplit("_", 1)[1].lower()
+                    if "PID2" in name:  # channel 2 flies it at once (the loop reconfigures channel 1's)
+                        law.laws[1].reconfigure(law.laws[1].config.with_(**{gain: value}))
+                    else:
+                        self._config = self._config.with_(**{gain: value})
+                    return self.get(name)
+                cfg = self._config
+                if name.startswith("CLSAC_PFC"):
+                    ch = 1 if "PFC2" in name else 0
+                    pfcs = [list(map(list, c)) for c in cfg.pfc_channels]
+                    if name.endswith("NUM"):
+                        pfcs[ch][0] = [value]
+                    else:
+                        pfcs[ch][1][0 if name.endswith("DEN1") else 1] = value
+                    change = {"pfc_channels": tuple((tuple(n), tuple(d)) for n, d in pfcs)}
+                elif p.field == "sigma":
+                    change = {"sigma": value}
+                else:  # L_v and the weights: value * I
+                    change = {p.field: tuple(map(tuple, value * np.eye(2)))}
+                self._config = cfg.with_(**change)
+            except ConfigError as exc:
+                raise ParamError(f"{name}={value:g} rejected: {exc}") from None
+            return self.get(name)
+
+    return MimoParamTable()

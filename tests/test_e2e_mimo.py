@@ -71,3 +71,8 @@ def test_the_mimo_flight_flies_both_surfaces(design, controller, tmp_path):
     assert tlog["ssa"].size >= 3000
     assert side["max_abs_sideslip_deg"] == pytest.approx(np.max(np.abs(tlog["ssa"][:3000])), rel=0.05, abs=0.05)
     assert summary["runs"][0]["steps"] == 3000
+    # each channel's parameters under the names a ground station shows, and the matrix gain in the recording
+    start = summary["parameters"]["start"]
+    assert ("CLSAC_PFC2_NUM" in start) if controller == "clsac" else ("CLSAC_PID2_KP" in start)
+    rrd = _run("tools.rrd", "summary", str(out / "flight.rrd"))
+    assert rrd.returncode == 0 and "/autopilot/mimo/ke " in rrd.stdout and "/autopilot/mimo/sideslip" in rrd.stdout
