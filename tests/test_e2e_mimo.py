@@ -76,3 +76,27 @@ def test_the_mimo_flight_flies_both_surfaces(design, controller, tmp_path):
     assert ("CLSAC_PFC2_NUM" in start) if controller == "clsac" else ("CLSAC_PID2_KP" in start)
     rrd = _run("tools.rrd", "summary", str(out / "flight.rrd"))
     assert rrd.returncode == 0 and "/autopilot/mimo/ke " in rrd.stdout and "/autopilot/mimo/sideslip" in rrd.stdout
+
+
+def test_the_second_setpoint_comes_from_the_gcs_profile(design, tmp_path):
+    """A CSV profile's third column (sideslip_deg): the GCS sends it as NAMED_VALUE_FLOAT SSA_SP, the autopilot flies
+    it on the rudder, and the sideslip JSBSim reports (AOA_SSA in the tlog) follows it."""
+    csv = tmp_path / "profile.csv"
+    csv.write_text("time_s, roll_deg, sideslip_deg\n0, 10, 0\n10, -10, 3\n20, 0, -3\n30, 0, -3\n")
+    r = _run(
+        "tools.launch", "--lockstep", "--quiet", "--duration", "30", "--plant", PLANT, "--params", str(design),
+        "--controller", "baseline", "--csv", str(csv), "--out", str(tmp_path / "run"),
+    )  # fmt: skip
+    assert r.returncode == 0, r.stdout[-2000:] + r.stderr[-2000:]
+    out = Path(re.search(r"files: (\S+)/flight\.tlog", r.stdout).group(1))
+    m = mavutil.mavlink_connection(str(out / "flight.tlog"), dialect="ardupilotmega")
+    sp, ssa = [], []
+    while (msg := m.recv_match(type=["NAMED_VALUE_FLOAT", "AOA_SSA"])) is not None:
+        if msg.get_type() == "AOA_SSA":
+            ssa.append((msg.time_usec / 1e6, msg.SSA))
+        elif msg.name == "SSA_SP":
+            sp.append((msg.time_boot_ms / 1e3, msg.value))
+    assert sp and {round(v) for _t, v in sp} >= {0, 3, -3}
+    beta = np.array(ssa)
+    late = {lo: beta[(beta[:, 0] > lo) & (beta[:, 0] < lo + 5), 1].mean() for lo in (5.0, 15.0, 25.0)}
+    assert abs(late[5.0]) < 1.0 and late[15.0] > 1.5 and late[25.0] < -1.5, late

@@ -104,3 +104,19 @@ def test_aoa_ssa_decodes_as_pymavlink_s_ardupilotmega_does():
     got = FAST_DECODERS[AOA_SSA_ID](raw)
     assert ref.get_type() == "AOA_SSA" and (got.time_usec, got.AOA, got.SSA) == (ref.time_usec, ref.AOA, ref.SSA)
     assert got.SSA == -1.25
+
+
+def test_a_csv_profile_s_third_column_is_the_sideslip_command(tmp_path):
+    from tools.flight.profiles import Profile, ProfileError, from_csv
+
+    f = tmp_path / "p.csv"
+    f.write_text("time_s, roll_deg, sideslip_deg\n0, 10, 0\n10, -10, 3\n20, 0\n")
+    p = Profile.from_csv(str(f))
+    assert p.has_sideslip and p.sideslip(12.0) == pytest.approx(math.radians(3.0)) and p.sideslip(25.0) == 0.0
+    assert from_csv(str(f))[1][1] == pytest.approx(math.radians(-10.0))  # the two-column reader is unchanged
+    two = tmp_path / "two.csv"
+    two.write_text("0, 10\n10, -10\n")
+    assert not Profile.from_csv(str(two)).has_sideslip
+    f.write_text("0, 10, 45\n")
+    with pytest.raises(ProfileError, match="sideslip must be in"):
+        Profile.from_csv(str(f))

@@ -43,7 +43,7 @@ from autopilot.shared.mavlink import (
 )
 from autopilot.shared.pwm import PwmMap
 from autopilot.shared.signing import SIGNING_LINK_GCS, SIGNING_LINK_SITL, Signing
-from autopilot.step import ControlStep, Failsafe
+from autopilot.step import ControlStep, Failsafe, SetpointQueue
 from autopilot.vehicle import MSGIDS as VEHICLE_MSGIDS
 from autopilot.vehicle import Mode, Vehicle
 
@@ -79,6 +79,8 @@ class Autopilot(LinkHandlers, LockstepScheduler, RealtimeScheduler):
         # second surface flies on ``pwm2``'s channel and whose sideslip comes in AOA_SSA)
         self.control = ControlStep(ctrl_config, pwm, law=law)
         self.pwm2 = pwm2
+        # MIMO: the second setpoint (the sideslip command, NAMED_VALUE_FLOAT SSA_SP), on sim time like the roll's
+        self.setpoints2 = SetpointQueue() if pwm2 is not None else None
         self.ctrl = self.control.law
         self.setpoints = self.control.setpoints
         self.send_clock = SendClock()  # both links: when this process last sent anything (the verdict's evidence)
@@ -106,7 +108,13 @@ class Autopilot(LinkHandlers, LockstepScheduler, RealtimeScheduler):
             peers=opts.gcs_ids,
             learn_gcs=opts.max_gcs if opts.learn_gcs else 0,
             gcs_systems=GCS_SYSTEMS,
-            msgids=[SET_ATTITUDE_TARGET, HEARTBEAT, *VEHICLE_MSGIDS],
+            # MIMO: NAMED_VALUE_FLOAT SSA_SP, the sideslip setpoint, too
+            msgids=[
+                SET_ATTITUDE_TARGET,
+                HEARTBEAT,
+                *VEHICLE_MSGIDS,
+                *((M.MAVLINK_MSG_ID_NAMED_VALUE_FLOAT,) if pwm2 else ()),
+            ],
             admit=opts.max_gcs,
             peer_addrs=opts.gcs_peers,
             signing=Signing(opts.signing_key, SIGNING_LINK_GCS) if opts.signing_key else None,

@@ -36,6 +36,9 @@ from autopilot.shared.mavlink import (
 )
 from autopilot.step import Failsafe, StepResult
 
+NAMED_VALUE_FLOAT = M.MAVLINK_MSG_ID_NAMED_VALUE_FLOAT
+SIDESLIP_SETPOINT = "SSA_SP"  # tools.gcs.SIDESLIP_SETPOINT: a square MIMO plant's sideslip command (deg)
+
 
 def refusal_text(reason: str, sysid: int, compid: int, addr, opts: AutopilotOptions) -> str:
     """Why the GCS link refused a would-be ground station's packet, in one line (docs/design.md, "Which ground
@@ -117,6 +120,9 @@ class LinkHandlers:
 
     def _on_gcs(self, msg, t_rx):
         if msg.get_msgId() != SET_ATTITUDE_TARGET:
+            if self.pwm2 is not None and msg.get_msgId() == NAMED_VALUE_FLOAT and msg.name == SIDESLIP_SETPOINT:
+                self._on_sideslip_setpoint(msg)
+                return
             self.vehicle.handle(msg)  # commands, parameters, modes, manual input (autopilot.vehicle)
             return
         ev = self.events
@@ -163,6 +169,22 @@ class LinkHandlers:
             self.horizon_us = t_us
         if self.opts.lockstep and self.pending_frame is not None:
             self._try_step(t_rx)
+
+    def _on_sideslip_setpoint(self, msg) -> None:
+        """A square MIMO plant's second setpoint (NAMED_VALUE_FLOAT ``SSA_SP``, deg, sent by the ground station just
+        before the roll setpoint of the same ``time_boot_ms``): queued on sim time like the roll's (0: now), flown
+        as the sideslip command ``ctrl.um2`` from its time on."""
+        value = float(msg.value)
+        if value - value != 0.0 or abs(value) > 30.0:
+            self.gcs.reject("nonfinite_setpoint")
+            return
+        ms = msg.time_boot_ms if self.opts.setpoint_time == "sim" else 0
+        now_us = self._now_sim_us()
+        t_us = (now_us or 0.0) if ms == 0 else ms * 1000.0
+        if not self.setpoints2.push(t_us, math.radians(value)):
+            self.gcs.reject("setpoint_queue_full")
+            return
+        self.events["sideslip_setpoints"] += 1
 
     def _schedule_lost(self, msg, now_us: float | None) -> bool:
         """Lockstep: whether this setpoint is a copy of one held or follows a lost datagram (``autopilot.schedule``:
