@@ -282,10 +282,10 @@ class Sitl:
         """ATTITUDE from the truth state: roll, pitch, yaw, rollspeed, pitchspeed, yawspeed (float32 on the wire).
 
         ``k``: the global frame index in lockstep (for the link faults)."""
+        if self.mimo:  # the sideslip as JSBSim has it: no sensor errors nor link faults of its own
+            self._send_sideslip(ms)
         if self.inj is not None:
             return self._send_attitude_disturbed(ms, k)
-        if self.mimo:
-            self._send_sideslip(ms)
         if self._euler:
             phi, theta, psi, p, q, r = self.aircraft.attitude()
             raw = self.link.pack_fast(self._pk_att, ms, phi, theta, psi, p, q, r)
