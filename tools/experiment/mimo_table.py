@@ -87,7 +87,27 @@ def fly(plant: str, controller: str, fault: str | None, out: Path) -> dict:
 def main(argv=None) -> int:
     p = argparse.ArgumentParser(prog="python -m tools.experiment.mimo_table", description=__doc__.split("\n\n")[0])
     p.add_argument("--out", default="runs/mimo-table", help="the folder of the flights (default runs/mimo-table)")
+    p.add_argument(
+        "--damage",
+        action="store_true",
+        help="instead: the damage sweep, the aileron's effectiveness 1, 0.5, 0.3, 0.2 for the whole flight, in-process "
+        "(tools.experiment.mimo_inprocess: bit for bit the lockstep flights)",
+    )
     args = p.parse_args(argv)
+    if args.damage:
+        from tools.experiment.mimo_inprocess import sweep
+
+        print(
+            "| aileron effectiveness | controller | roll ise_ref (rad^2 s) | max \\|roll\\| (deg) "
+            "| max \\|sideslip\\| (deg) | aileron saturated |"
+        )
+        print("|---|---|---|---|---|---|")
+        for r in sweep():
+            print(
+                f"| {r['effectiveness']:g} | {r['controller']} | {r['ise_ref']:.4g} | {r['max_abs_roll_deg']:.1f} | "
+                f"{r['max_abs_sideslip_deg']:.2f} | {100 * r['aileron_saturated']:.1f} % |"
+            )
+        return 0
     out = Path(args.out)
     rows = []
     for case, keys, fault in CASES:
