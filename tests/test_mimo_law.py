@@ -120,3 +120,13 @@ def test_a_csv_profile_s_third_column_is_the_sideslip_command(tmp_path):
     f.write_text("0, 10, 45\n")
     with pytest.raises(ProfileError, match="sideslip must be in"):
         Profile.from_csv(str(f))
+
+
+def test_the_monte_carlo_flies_the_mimo_plant_with_its_controllers():
+    from tools.experiment.study.flights import FlightOptions, simulate
+
+    opts = FlightOptions("jsbsim:c172x:surface=aileron+rudder", turbulence=("none",), seeds=1)
+    flights = opts.flights()
+    assert [f.controller for f in flights] == ["sac", "clsac", "baseline"]  # pid-ff is not flown on it
+    r = simulate(flights[1])
+    assert r["bounded"] and 0.0 < r["max_abs_sideslip"] < math.radians(10.0) and r["rudder_sat_fraction"] == 0.0

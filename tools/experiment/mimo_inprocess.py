@@ -45,10 +45,13 @@ def run_mimo(
     faults=(),
     profile: Profile | None = None,
     wire: bool = True,
+    disturbances=(),
 ) -> dict:
     """One flight of ``plant`` (a MIMO JSBSim spec) by ``controller`` ("clsac", "sac", "baseline") with the design
     ``params`` (default the plant's, ``tools.design.linearise.designed_params``); returns {"metrics": the roll's five
-    metrics, "sideslip": ``ChannelMetrics.result()``, "series": t, phi, beta, u, u2}."""
+    metrics, "sideslip": ``ChannelMetrics.result()``, "series": t, phi, beta, u, u2, ym_ol}; ``disturbances``: what a
+    JSBSim plant flies by itself, ((name, value), ...) of ``sitl.disturbances`` (``turbulence``, ``seed``,
+    ``crosswind``), as the SITL's flags."""
     from sitl import damage
     from sitl.jsbsim_plant import parse_spec
     from tools.design.linearise import designed_params
@@ -70,13 +73,18 @@ def run_mimo(
     faults = tuple(damage.parse(f) if isinstance(f, str) else f for f in faults)
     if faults:
         plants.check_faults(plant, faults)
-    ac = plants.build(plant, physics_rate_hz, None, None, plants.needs_damaged_model(faults))
+    dist = None
+    if disturbances:
+        from sitl import disturbances as _dist
+
+        dist = _dist.from_values(dict(disturbances))
+    ac = plants.build(plant, physics_rate_hz, None, dist, plants.needs_damaged_model(faults))
     advance = ac.advance
     if faults:
         advance = damage.ScheduledEffects(ac, damage.Schedule(faults, 0.0, 1.0 / physics_rate_hz), advance).advance
     channels = ChannelMetrics(1.0 / rate_hz, limits)
     n, nphys = int(round(duration_s * rate_hz)), int(round(physics_rate_hz / rate_hz))
-    rows = np.empty((n, 5))
+    rows = np.empty((n, 6))
     for k in range(n):
         t = k / rate_hz
         beta = ac.sideslip()[1]
@@ -89,9 +97,9 @@ def run_mimo(
         u2 = pwm2.to_rad(pwm2.to_pwm(law.u2)) if wire else law.u2
         ac.u2 = u2
         channels(_Record(res, law))
-        rows[k] = (t, phi, beta, res.u, u2)
+        rows[k] = (t, phi, beta, res.u, u2, law.ym_ol)
         advance(res.u, nphys)
-    series = {name: rows[:, i].copy() for i, name in enumerate(("t", "phi", "beta", "u", "u2"))}
+    series = {name: rows[:, i].copy() for i, name in enumerate(("t", "phi", "beta", "u", "u2", "ym_ol"))}
     return {"metrics": step.metrics.result(), "sideslip": channels.result(), "series": series}
 
 
