@@ -11,8 +11,6 @@ from __future__ import annotations
 import math
 import sys
 
-import numpy as np
-
 from autopilot.flags import (
     DEG,
     add_controller_arguments,
@@ -402,6 +400,8 @@ def main(argv=None) -> int:
     mode = "lockstep" if args.lockstep else "real time"
     shown_lv = 0.0
     if controller.adaptive:  # a MIMO table has no CLSAC_LV: its law's own (autopilot.mimo)
+        import numpy as np
+
         configured = params.get("CLSAC_LV") if "CLSAC_LV" in params else float(np.atleast_2d(cfg.lv)[0, 0])
         shown_lv = controllers.flown_lv(args.controller, configured)
     law = f" (Lv={shown_lv:g})" if controller.adaptive else f" ({controller.label})"  # a PID has no Lv
