@@ -47,6 +47,8 @@ SERIAL = "real time, alone"  # the serial unit's name
 
 # Started first, in this order (modules; measured with --durations=0), in the parallel phase.
 LONGEST_FIRST = (
+    "tests/test_e2e_damage.py",
+    "tests/test_e2e_every_plant.py",
     "tests/test_readme_robustness.py",
     "tests/test_study.py",
     "tests/test_plants.py",
@@ -54,6 +56,8 @@ LONGEST_FIRST = (
     "tests/test_bad_input.py",
     "tests/test_pfc_design.py",
     "tests/test_mavlink_cli.py",
+    "tests/test_docs_jsbsim.py",
+    "tests/test_failure_clients.py",
 )
 
 

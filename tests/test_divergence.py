@@ -95,8 +95,12 @@ def test_the_divergence_is_the_verdict_unless_a_process_failed_or_stalled_first(
 def test_a_plus_200_pole_is_out_of_envelope_not_a_crash(tmp_path, mode):
     f = tmp_path / "pole200.toml"
     f.write_text(POLE_200)
+    # a plant with no design is refused (issue 30): the default gains are flown, from a parameter file of the user's own
+    params = tmp_path / "defaults.params"
+    params.write_text("# the default gains, flown on a plant they were not designed for\n")
     out = tmp_path / "run"
-    argv = [sys.executable, "-m", "tools.launch", "--duration", "5", "--plant", str(f), "--out", str(out), "--no-rrd"]
+    argv = [sys.executable, "-m", "tools.launch", "--duration", "5", "--plant", str(f), "--params", str(params)]
+    argv += ["--out", str(out), "--no-rrd"]
     r = subprocess.run(
         argv + (["--lockstep"] if mode == "lockstep" else []), capture_output=True, text=True, timeout=120
     )

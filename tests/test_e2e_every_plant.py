@@ -94,7 +94,7 @@ def test_a_c172x_flight_names_c172x_and_its_aileron_everywhere(tmp_path):
     assert (s["plant"], s["plant_name"], s["surface"]) == ("jsbsim:c172x", "c172x", "aileron")
     listed = (ROOT / "docs" / "flying.md").read_text()
     files = sorted(p.name for p in folder.iterdir())
-    assert len(files) == 13 and all(f"`{name}`" in listed for name in files), files
+    assert len(files) == 14 and all(f"`{name}`" in listed for name in files), files
 
 
 def test_the_j3cub_at_60_kt_is_designed_and_flies(tmp_path):

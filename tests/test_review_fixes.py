@@ -5,6 +5,7 @@ child killed by a signal is named by that signal, not by its last log line."""
 from __future__ import annotations
 
 import json
+import subprocess
 import sys
 
 import pytest
@@ -55,3 +56,23 @@ def test_a_child_killed_by_a_signal_is_named_by_the_signal(tmp_path):
     c.proc.kill()
     assert c.wait(10.0) == -9
     assert c.reason() == "killed by SIGKILL"
+
+
+def test_a_reader_that_closes_the_pipe_early_does_not_end_the_flight_in_a_traceback(tmp_path):
+    """``python -m tools.launch | head -3``: the launcher's stdout closes after three lines; the flight still goes
+    to its end, writes its summary and exits with the verdict's code, and nothing is traced back on stderr."""
+    out = tmp_path / "f"
+    p = subprocess.Popen(
+        [sys.executable, "-m", "tools.launch", "--lockstep", "--duration", "3", "--no-png", "--no-rrd"]
+        + ["--out", str(out)],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        stdin=subprocess.DEVNULL,
+    )
+    head = [p.stdout.readline() for _ in range(3)]
+    p.stdout.close()  # as head does
+    err = p.stderr.read().decode()
+    code = p.wait(120)
+    assert all(head) and code == 0, err[-2000:]
+    assert "Traceback" not in err and "BrokenPipeError" not in err, err[-2000:]
+    assert json.loads((out / "summary.json").read_text())["outcome"] == "OK"

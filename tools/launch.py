@@ -53,7 +53,7 @@ from autopilot.shared.cli import (
     timeout_s,
     viewer_url,
 )
-from autopilot.shared.process import EXIT_USAGE, install_stop_handlers
+from autopilot.shared.process import EXIT_USAGE, install_stop_handlers, survive_closed_stdout
 from sitl import damage, disturbances
 from tools.flight import (
     LIVE_RATE_HZ,
@@ -494,4 +494,5 @@ def exit_without_teardown(code: int) -> None:
 
 
 if __name__ == "__main__":
+    survive_closed_stdout()
     exit_without_teardown(main(png_helper=EARLY_PNG_HELPER))

@@ -163,3 +163,38 @@ def apply_rt_priority(prio: int, who: str) -> str:
     except (OSError, AttributeError) as exc:
         print(f"{who}: warning: cannot use SCHED_FIFO ({exc}); normal priority", file=sys.stderr, flush=True)
         return ""
+
+
+class _ClosedPipeSafe:
+    """A text stream whose reader may go away (``python -m tools.launch | head``): the first BrokenPipeError points
+    the file descriptor at /dev/null, and the flight goes on to its end, its files and its exit code."""
+
+    def __init__(self, stream):
+        self._stream = stream
+
+    def _closed(self) -> None:
+        devnull = os.open(os.devnull, os.O_WRONLY)
+        os.dup2(devnull, self._stream.fileno())
+        os.close(devnull)
+
+    def write(self, text: str) -> int:
+        try:
+            return self._stream.write(text)
+        except BrokenPipeError:
+            self._closed()
+            return len(text)
+
+    def flush(self) -> None:
+        try:
+            self._stream.flush()
+        except BrokenPipeError:
+            self._closed()
+
+    def __getattr__(self, name):
+        return getattr(self._stream, name)
+
+
+def survive_closed_stdout() -> None:
+    """``sys.stdout`` made safe against a reader that closes the pipe early (see ``_ClosedPipeSafe``)."""
+    if not isinstance(sys.stdout, _ClosedPipeSafe):
+        sys.stdout = _ClosedPipeSafe(sys.stdout)
