@@ -49,7 +49,8 @@ def run_mimo(
 ) -> dict:
     """One flight of ``plant`` (a MIMO JSBSim spec) by ``controller`` ("clsac", "sac", "baseline") with the design
     ``params`` (default the plant's, ``tools.design.linearise.designed_params``); returns {"metrics": the roll's five
-    metrics, "sideslip": ``ChannelMetrics.result()``, "series": t, phi, beta, u, u2, ym_ol}; ``disturbances``: what a
+    metrics, "sideslip": ``ChannelMetrics.result()``, "series": t, phi, beta, u, u2, ym_ol, um (the roll command in
+    force)}; ``disturbances``: what a
     JSBSim plant flies by itself, ((name, value), ...) of ``sitl.disturbances`` (``turbulence``, ``seed``,
     ``crosswind``), as the SITL's flags."""
     from sitl import damage
@@ -84,7 +85,7 @@ def run_mimo(
         advance = damage.ScheduledEffects(ac, damage.Schedule(faults, 0.0, 1.0 / physics_rate_hz), advance).advance
     channels = ChannelMetrics(1.0 / rate_hz, limits)
     n, nphys = int(round(duration_s * rate_hz)), int(round(physics_rate_hz / rate_hz))
-    rows = np.empty((n, 6))
+    rows = np.empty((n, 7))
     for k in range(n):
         t = k / rate_hz
         beta = ac.sideslip()[1]
@@ -97,9 +98,9 @@ def run_mimo(
         u2 = pwm2.to_rad(pwm2.to_pwm(law.u2)) if wire else law.u2
         ac.u2 = u2
         channels(_Record(res, law))
-        rows[k] = (t, phi, beta, res.u, u2, law.ym_ol)
+        rows[k] = (t, phi, beta, res.u, u2, law.ym_ol, res.um)
         advance(res.u, nphys)
-    series = {name: rows[:, i].copy() for i, name in enumerate(("t", "phi", "beta", "u", "u2", "ym_ol"))}
+    series = {name: rows[:, i].copy() for i, name in enumerate(("t", "phi", "beta", "u", "u2", "ym_ol", "um"))}
     return {"metrics": step.metrics.result(), "sideslip": channels.result(), "series": series}
 
 
