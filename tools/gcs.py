@@ -76,6 +76,9 @@ LOCKSTEP_NAP_MAX_S = 0.02
 # Lockstep schedule (autopilot.schedule): at most this many setpoints per datagram (40 signed SET_ATTITUDE_TARGET,
 # 2.6 kB, within the 4 kB a link reads at once), each datagram beginning with the last point of the one before.
 SCHEDULE_CHUNK = 40
+# A square MIMO plant's schedule: each point's NAMED_VALUE_FLOAT SSA_SP (43 bytes signed) just before it in the
+# same datagram, so fewer points a datagram (20 pairs, 2.1 kB signed).
+SCHEDULE_CHUNK_MIMO = 20
 SIDESLIP_SETPOINT = "SSA_SP"  # NAMED_VALUE_FLOAT name of a square MIMO plant's sideslip command (deg)
 # The vehicle's SYSTEM_TIME says it waits for frame t and read its link at time_unix_usec: a point covering t sent
 # more than RESEND_GRACE_US before that read was lost (the same host's clock); on another host's clock, after
@@ -270,14 +273,20 @@ class Gcs:
         """Lockstep: ``points`` ([abs ms, roll, ...] in order) as linked datagrams of at most SCHEDULE_CHUNK, each
         beginning with the last point of the one before (``autopilot.schedule``)."""
         link, i = self.link, 0
-        side = self.profile.has_sideslip  # each point's sideslip setpoint first, in the same datagram
-        size = SCHEDULE_CHUNK
+        side = self.profile.has_sideslip  # each point's sideslip setpoint just before it, in the same datagram
+        size = SCHEDULE_CHUNK_MIMO if side else SCHEDULE_CHUNK
         while i < len(points):
             chunk = points[i : i + size]
-            if side:  # the chunk's sideslip setpoints in a datagram of their own, just before (unlinked)
-                bufs = [link.pack(self._sideslip(p[0], (p[0] - (self.origin_ms or 0)) / 1000.0)) for p in chunk]
-                link.send_batch(bufs, [M.MAVLINK_MSG_ID_NAMED_VALUE_FLOAT] * len(chunk))
-            link.send_batch([link.pack(self._setpoint(p[0], p[1])) for p in chunk], [_SET_ATTITUDE_TARGET] * len(chunk))
+            if side:  # SSA_SP, roll, SSA_SP, roll, ...: a datagram delivers both or neither, and is resent whole
+                origin, bufs = self.origin_ms or 0, []
+                for p in chunk:  # packed in the order sent: their signatures' timestamps increase along the datagram
+                    bufs.append(link.pack(self._sideslip(p[0], (p[0] - origin) / 1000.0)))
+                    bufs.append(link.pack(self._setpoint(p[0], p[1])))
+                ids = [M.MAVLINK_MSG_ID_NAMED_VALUE_FLOAT, _SET_ATTITUDE_TARGET] * len(chunk)
+            else:
+                bufs = [link.pack(self._setpoint(p[0], p[1])) for p in chunk]
+                ids = [_SET_ATTITUDE_TARGET] * len(chunk)
+            link.send_batch(bufs, ids)
             i += max(1, len(chunk) - 1)
             if i == len(points) - 1:
                 break  # the last point closed this datagram: nothing new for another

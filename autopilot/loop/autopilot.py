@@ -148,6 +148,9 @@ class Autopilot(LinkHandlers, LockstepScheduler, RealtimeScheduler):
         self.att = _Attitude()
         self.horizon_us = -1.0  # newest scheduled setpoint time received
         self._chain = ScheduleChain()  # lockstep: which scheduled setpoints continue a station's schedule
+        self._side_pending: list = []  # lockstep MIMO: SSA_SP (datagram, t_us, rad) waiting for its roll point
+        self._side_seen = False  # lockstep MIMO: a station sends SSA_SP in the roll's linked datagrams
+        self._side_in_dg = (-1, 0)  # (datagram, SSA_SP in it so far): the roll point's place among roll points
         self._read_unix_us = 0  # lockstep: wall time (Unix us) of the last read of the links (SYSTEM_TIME says it)
         self.last_setpoint_wall = None
         self.setpoint_lost = False

@@ -119,6 +119,10 @@ class LinkHandlers:
         att.ms, att.roll, att.p, att.r, att.t_rx, att.valid = ms, roll, p, r, t_rx, True
 
     def _on_gcs(self, msg, t_rx):
+        if self._side_pending and (
+            msg.get_msgId() != SET_ATTITUDE_TARGET or self._side_pending[0][0] != self.gcs.rx_datagrams
+        ):
+            self._flush_sideslip(True)  # not followed by a roll point of its datagram: taken as sent
         if msg.get_msgId() != SET_ATTITUDE_TARGET:
             if self.pwm2 is not None and msg.get_msgId() == NAMED_VALUE_FLOAT and msg.name == SIDESLIP_SETPOINT:
                 self._on_sideslip_setpoint(msg)
@@ -146,7 +150,12 @@ class LinkHandlers:
             self._report_future_setpoint(msg, now_us)
             return
         if self._schedule_lost(msg, now_us):
+            self._flush_sideslip(False)  # the roll point's copy or a lost datagram's follower: its sideslip too
             return
+        if self._side_pending:
+            self._flush_sideslip(True)  # the roll point continues the schedule: its sideslip is taken before it
+        elif self.pwm2 is not None and self.opts.lockstep and self._side_seen:
+            self.events["sideslip_unpaired"] += 1  # a MIMO schedule's roll point without its SSA_SP: counted
         lim = self.opts.max_roll_rad
         clamped = math.copysign(lim, roll) if (roll > lim or roll < -lim) else None
         if not self.setpoints.push(t_us, roll if clamped is None else clamped):
@@ -181,10 +190,30 @@ class LinkHandlers:
         ms = msg.time_boot_ms if self.opts.setpoint_time == "sim" else 0
         now_us = self._now_sim_us()
         t_us = (now_us or 0.0) if ms == 0 else ms * 1000.0
-        if not self.setpoints2.push(t_us, math.radians(value)):
+        if self.opts.lockstep and self.gcs.rx_more:
+            # Lockstep: the GCS sends each SSA_SP just before the roll point of its time in the roll's linked
+            # datagram (tools.gcs._send_linked); it shares that point's verdict (autopilot.schedule): taken with
+            # it, dropped with it when a copy or after a lost datagram (then the GCS sends both again).
+            self._side_seen = True
+            dg, n = self._side_in_dg
+            self._side_in_dg = (self.gcs.rx_datagrams, n + 1 if dg == self.gcs.rx_datagrams else 1)
+            self._side_pending.append((self.gcs.rx_datagrams, t_us, math.radians(value)))
+            return
+        self._push_sideslip(t_us, math.radians(value))
+
+    def _push_sideslip(self, t_us: float, value: float) -> None:
+        if not self.setpoints2.push(t_us, value):
             self.gcs.reject("setpoint_queue_full")
             return
         self.events["sideslip_setpoints"] += 1
+
+    def _flush_sideslip(self, take: bool) -> None:
+        """The SSA_SP waiting for its roll point: queued (``take``) or dropped with it (after a lost datagram it is
+        counted in ``sideslip_setpoints_unlinked``, by ``_schedule_lost``)."""
+        pending, self._side_pending = self._side_pending, []
+        if take:
+            for _, t_us, value in pending:
+                self._push_sideslip(t_us, value)
 
     def _schedule_lost(self, msg, now_us: float | None) -> bool:
         """Lockstep: whether this setpoint is a copy of one held or follows a lost datagram (``autopilot.schedule``:
@@ -192,10 +221,11 @@ class LinkHandlers:
         if not self.opts.lockstep:
             return False
         g = self.gcs
+        dg, sides = self._side_in_dg  # the SSA_SP before it in its datagram are not roll points
         verdict = self._chain.take(
             (msg.get_srcSystem(), msg.get_srcComponent()),
             g.rx_datagrams,
-            g.rx_packet_index,
+            g.rx_packet_index - (sides if dg == g.rx_datagrams else 0),
             g.rx_more,
             msg.time_boot_ms * 1000.0,
             now_us,
@@ -204,6 +234,7 @@ class LinkHandlers:
             return False
         if verdict == UNLINKED:
             self.events["setpoints_unlinked"] += 1
+            self.events["sideslip_setpoints_unlinked"] += len(self._side_pending)
         elif g.rx_packet_index:  # a datagram's first point is the one it links to: expected, not counted
             self.events["setpoints_resent"] += 1
         return True
