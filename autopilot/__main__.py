@@ -35,6 +35,7 @@ from autopilot.shared.cli import (
     endpoint,
     fmt_endpoint,
     peer_endpoint,
+    pwm2_from_args,
     pwm_from_args,
     signing_key_from_args,
     spin_us,
@@ -219,6 +220,13 @@ def build_parser() -> OneLineArgumentParser:
         action="store_true",
         help="start disarmed (rudder neutral until a ground station arms: COMPONENT_ARM_DISARM)",
     )
+    p.add_argument(
+        "--u-limit2-deg",
+        type=float,
+        default=None,
+        metavar="DEG",
+        help="a square MIMO plant (--channel2): the second surface's command limit, deg (default --u-limit-deg)",
+    )
     add_controller_arguments(p)
     add_envelope_arguments(p)
     add_surface_argument(p)
@@ -252,6 +260,7 @@ def main(argv=None) -> int:
     check_output_files(parser, args, "tlog", "stats_json", "series", "rrd", "telemetry_spool")
     check_telemetry_arguments(parser, args)
     pwm = pwm_from_args(parser, args)
+    pwm2 = pwm2_from_args(parser, args)
     if args.busy_wait:
         if args.lockstep:
             parser.error("--busy-wait is for real time (lockstep polls for --lockstep-spin-us before sleeping)")
@@ -295,9 +304,20 @@ def main(argv=None) -> int:
         "max_roll_rad": math.radians(args.max_roll_deg),
         "failure_injection": float(args.failure_injection),  # SYS_FAILURE_EN (a --params file may set it too)
     }
-    params = ParamTable(cfg, options)
+    mimo_law = None
+    if pwm2 is not None:  # a square MIMO plant: the law of both channels from the design's file (autopilot.mimo)
+        mimo_law = _mimo_law(parser, args, controller)
+        cfg = mimo_law.config
+    if mimo_law is not None:
+        from autopilot.mimo import param_table
+
+        params = param_table(mimo_law, options)
+    else:
+        params = ParamTable(cfg, options)
     not_flown: list[str] = []  # another law's values in the file (a design holds every controller's)
-    if args.params:
+    if args.params and mimo_law is not None:
+        not_flown = []  # the file's values are the MIMO law's (autopilot.mimo.from_values), not the table's
+    elif args.params:
         try:
             values, not_flown = params.split(load_file(args.params))
             params.update(values)
@@ -345,6 +365,8 @@ def main(argv=None) -> int:
             params=params,
             mode=Mode[controller.mode],
             armed=not args.disarmed,
+            law=mimo_law,
+            pwm2=pwm2,
         )
     except OSError as exc:
         print(f"autopilot: error: {exc}", file=sys.stderr)
@@ -352,8 +374,17 @@ def main(argv=None) -> int:
 
     recorder = None
     if args.series:
-        recorder = series_recorder()
+        recorder = series_recorder(mimo=mimo_law is not None)
         ap.hooks.append(recorder)
+    channels = None
+    if mimo_law is not None:  # per channel: metrics, saturation per surface, max |sideslip| (summary.json)
+        from autopilot.mimo import ChannelMetrics
+
+        lim = (
+            mimo_law.config.u_limits_rad if mimo_law.kind == "clsac" else [c.config.u_limit_rad for c in mimo_law.laws]
+        )
+        channels = ChannelMetrics(1.0 / rate, lim)
+        ap.hooks.append(channels)
     tel = attach_telemetry(args, ap, control_rate_hz=rate)
     rt_note = apply_rt_priority(args.rt_priority, "autopilot")  # after the helper threads exist: they stay normal
     if args.busy_wait:
@@ -367,7 +398,12 @@ def main(argv=None) -> int:
 
     install_stop_handlers(stop)
     mode = "lockstep" if args.lockstep else "real time"
-    shown_lv = controllers.flown_lv(args.controller, params.get("CLSAC_LV")) if controller.adaptive else 0.0
+    shown_lv = 0.0
+    if controller.adaptive:  # a MIMO table has no CLSAC_LV: its law's own (autopilot.mimo)
+        import numpy as np
+
+        configured = params.get("CLSAC_LV") if "CLSAC_LV" in params else float(np.atleast_2d(cfg.lv)[0, 0])
+        shown_lv = controllers.flown_lv(args.controller, configured)
     law = f" (Lv={shown_lv:g})" if controller.adaptive else f" ({controller.label})"  # a PID has no Lv
     print(
         f"autopilot: {opts.name}{law} {mode} at {rate:g} Hz; SITL link {fmt_endpoint(ap.sitl.local)} -> "
@@ -385,6 +421,8 @@ def main(argv=None) -> int:
         code = 1
     finally:
         stats = ap.stats()
+        if channels is not None:
+            stats["sideslip"] = channels.result()
         if tlog is not None:
             tlog.close()
         ap.close()
@@ -399,6 +437,29 @@ def main(argv=None) -> int:
     if args.stats_json:
         failed += filter(None, [write_failure(args.stats_json, lambda: write_stats_json(args.stats_json, stats))])
     return report_write_failures("autopilot", failed, code)
+
+
+def _mimo_law(parser, args, controller):
+    """The square MIMO law (``autopilot.mimo.from_values``) of ``--params`` (a MIMO design), one line on error."""
+    from autopilot import mimo
+    from autopilot.config import ConfigError
+    from autopilot.params import ParamError, load_file
+
+    if not args.params:
+        parser.error("--channel2 (a square MIMO plant) flies a MIMO design: give its --params FILE")
+    kind = "baseline" if controller.law == "baseline" else ("sac" if controller.lv_fixed == 0.0 else "clsac")
+    if controller.options:
+        parser.error(f"--controller {controller.name} is not flown on a square MIMO plant (clsac, sac, baseline)")
+    lim1 = math.radians(args.u_limit_deg)
+    lim2 = math.radians(args.u_limit2_deg) if args.u_limit2_deg is not None else lim1
+    try:
+        return mimo.from_values(
+            kind, load_file(args.params), control_rate_hz=args.rate, limits=(lim1, lim2), lv=args.lv
+        )
+    except OSError as exc:
+        parser.error(f"--params {args.params}: {exc.strerror or exc}")
+    except (ParamError, ConfigError) as exc:
+        parser.error(f"--params {args.params}: {exc}")
 
 
 def _print_summary(stats: dict) -> None:

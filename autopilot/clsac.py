@@ -105,6 +105,22 @@ def pfc_state_space(num, den) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     return a, b, c
 
 
+def _block_pfc(channels, T: float):
+    """(e^{A_D T}, Gamma_D, C_D) of D(s) = diag(D_1, ..., D_m), D_i = num_i/den_i (``pfc_state_space`` each, blocks
+    on the diagonal): a square MIMO plant's PFC, one of its own per channel, discretised exactly (ZOH)."""
+    blocks = [pfc_state_space(num, den) for num, den in channels]
+    n = sum(a.shape[0] for a, _, _ in blocks)
+    m = len(blocks)
+    a_d, b_d, c_d = np.zeros((n, n)), np.zeros((n, m)), np.zeros((m, n))
+    k = 0
+    for i, (a, b, c) in enumerate(blocks):
+        j = k + a.shape[0]
+        a_d[k:j, k:j], b_d[k:j, i], c_d[i, k:j] = a, b[:, 0], c[0]
+        k = j
+    phi, gam = zoh(a_d, b_d, T)
+    return phi, gam, c_d
+
+
 class ClSac:
     """The CL-SAC controller: call once per control step with the measured output and the command.
 
@@ -159,6 +175,12 @@ class ClSac:
         self._nd = ad.shape[0]
         self._phi_d, self._gam_d = zoh(ad, bd, T)
         self._cd = cd
+        # A PFC of its own per channel (``pfc_channels``): D(s) = diag(D_1, ..., D_m) as one block-diagonal state
+        # space (A_D, B_D, C_D), x_d one vector; y_d = C_D x_d, x_d[k+1] = e^{A_D T} x_d + Gamma_D u (exact ZOH).
+        self._blk = cfg.pfc_channels is not None
+        if self._blk:
+            self._phi_d, self._gam_d, self._cd = _block_pfc(cfg.pfc_channels, T)
+            self._nd = self._phi_d.shape[0]
 
         # sigma-modification: K_Ie' = e e^T G_Ie - sigma K_Ie, exact for held e.
         def leak(sig: float) -> tuple[float, float]:
@@ -168,7 +190,7 @@ class ClSac:
         self._decay, self._gain_ie = leak(cfg.sigma)
         self._decay_x, self._gain_ix = leak(cfg.sigma_x)
         self._decay_u, self._gain_iu = leak(cfg.sigma_u)
-        self._umax = float(cfg.u_limit_rad)
+        self._umax = float(cfg.u_limit_rad) if cfg.u_limits_rad is None else np.asarray(cfg.u_limits_rad, float)
         self._aw = bool(cfg.anti_windup)
         # Optional robustness modifications (ClSacConfig; all off by default = the paper's law).
         self._dz = float(cfg.dead_zone_rad)
@@ -225,7 +247,7 @@ class ClSac:
         else:
             self.xm = np.zeros(n_m)
             self.xm_ol = np.zeros(n_m)
-            self.xd = np.zeros((self._nd, m))  # one PFC per output channel
+            self.xd = np.zeros(self._nd) if self._blk else np.zeros((self._nd, m))  # one PFC per output channel
             self.ki_e, self.ki_x, self.ki_u = (k.copy() for k in self._ki0)
             self.kie, self.kix, self.kiu = (k.copy() for k in self._ki0)
             self.um = np.zeros(m_m)
@@ -274,7 +296,7 @@ class ClSac:
             self.u = self.u_raw = float(u_applied)
         else:
             u = np.broadcast_to(np.asarray(u_applied, dtype=float), (self._m,))
-            self.xd = self._phi_d @ self.xd + self._gam_d @ u[None, :]
+            self.xd = self._pfc_next(self.xd, u)
             self.u = self.u_raw = u.copy()
         self.frozen = True
 
@@ -285,7 +307,8 @@ class ClSac:
             self.xd += self._s["g_d"] * (float(u_applied) - self.u)
         else:
             u_applied = np.broadcast_to(np.asarray(u_applied, dtype=float), (self._m,))
-            self.xd = self.xd + self._gam_d @ (u_applied - self.u)[None, :]
+            du = u_applied - self.u
+            self.xd = self.xd + (self._gam_d @ du if self._blk else self._gam_d @ du[None, :])
 
     def reconfigure(self, config: ClSacConfig) -> None:
         """Fly ``config`` from the next step on, keeping the states (a parameter change or a SAC <-> CL-SAC
@@ -299,9 +322,18 @@ class ClSac:
         self.__init__(config, fast=self._fast)
         if self._nd != nd_old:
             del kept["xd"]
+        elif self._blk and self._nd == self._m and cd_old.shape == self._cd.shape:  # first-order D_i: y_d kept
+            kept["xd"] = kept["xd"] * (np.diag(cd_old) / np.diag(self._cd))
         elif self._nd == 1:
             kept["xd"] = kept["xd"] * float(cd_old[0, 0] / self._cd[0, 0])  # y_d = C_d x_d unchanged
         vars(self).update(kept)
+
+    def _pfc_next(self, xd, u):
+        """x_d[k+1] of the matrix step's PFC driven by the applied ``u`` (one D(s) per channel, or the block-diagonal
+        D(s) = diag(D_i) of ``pfc_channels``)."""
+        if self._blk:
+            return self._phi_d @ xd + self._gam_d @ u
+        return self._phi_d @ xd + self._gam_d @ u[None, :]
 
     def _step_siso(self, y, um):
         """One SISO step in floats (paper sections 2-3): ``_command_siso`` then ``_advance_siso``."""
@@ -382,7 +414,7 @@ class ClSac:
             raise NonFiniteInputError(f"controller inputs must be finite, got y={y!r}, um={um!r}")
         G = self._G
         xm = self.xm
-        y_pfc = (self._cd @ self.xd).reshape(m)  # y_d = C_d x_d, per channel
+        y_pfc = (self._cd @ self.xd).reshape(m)  # y_d = C_d x_d, per channel (block-diagonal: C_D x_d)
         ya = y + y_pfc  # y_a = y_p + D(s) u_p
         ym = self._cm @ xm  # y_m = C_m x_m
         e = ym - ya  # e_my = y_m - y_a
@@ -418,7 +450,7 @@ class ClSac:
         self.xm = self._phi_m @ xm + (self._gam_mu @ um + self._gam_my @ ya)
         ym_ol = self._cm @ self.xm_ol
         self.xm_ol = self._phi_ol @ self.xm_ol + self._gam_ol @ um
-        self.xd = self._phi_d @ self.xd + self._gam_d @ u[None, :]
+        self.xd = self._pfc_next(self.xd, u)
         self.um, self.y, self.ym, self.ym_ol, self.ya, self.y_pfc, self.e = um, y, ym, ym_ol, ya, y_pfc, e
         self.u_raw, self.u, self.saturated = u_raw, u, bool(np.any(sat_ch))
         self.kpe, self.kpx, self.kpu, self.ke, self.kx, self.ku = kpe, kpx, kpu, ke, kx, ku

@@ -85,6 +85,11 @@ class ClSacConfig:
     # Freeze every integral channel while the command saturates (anti_windup skips only the channels that push
     # further past the limit).
     freeze_when_saturated: bool = False
+    # A square MIMO plant (m > 1; docs/design.md, "Square MIMO CL-SAC"): a PFC per channel, D(s) = diag(D_1, ..., D_m)
+    # with D_i = num_i/den_i (``pfc_num``/``pfc_den`` are then unused), and a command limit per channel (each surface
+    # its own stop).  None: every channel the same D(s) = pfc_num/pfc_den and the one ``u_limit_rad``.
+    pfc_channels: tuple | None = None
+    u_limits_rad: tuple | None = None
     _dims: tuple = field(default=(), init=False, repr=False, compare=False)
 
     @classmethod
@@ -164,7 +169,20 @@ class ClSacConfig:
                 f"am - lv cm must be Hurwitz so the closed-loop reference model is stable, got lv={self.lv!r}"
             )
         self._check_pfc()
+        self._check_channels(m)
         object.__setattr__(self, "_dims", (m, n_m, m_m))
+
+    def _check_channels(self, m: int) -> None:
+        """``pfc_channels`` and ``u_limits_rad``: m of each, every PFC as ``pfc_num``/``pfc_den`` are checked."""
+        if self.pfc_channels is not None:
+            if len(self.pfc_channels) != m:
+                raise ConfigError(f"pfc_channels must have one (num, den) per channel ({m}), got {self.pfc_channels!r}")
+            for num, den in self.pfc_channels:
+                replace(self, pfc_num=tuple(num), pfc_den=tuple(den), pfc_channels=None, u_limits_rad=None)
+        if self.u_limits_rad is not None:
+            lim = self.u_limits_rad
+            if len(lim) != m or not all(isinstance(v, (int, float)) and math.isfinite(v) and v > 0 for v in lim):
+                raise ConfigError(f"u_limits_rad must be {m} positive finite limits, one per channel, got {lim!r}")
 
     def _check_pfc(self) -> None:
         try:

@@ -185,6 +185,9 @@ def get(name: str) -> Controller:
 
 def law_of(obj) -> Law:
     """The law of a configuration or a law object (by its class, without importing the others)."""
+    registered = getattr(obj, "registered_law", None)  # a law flying another's interface (autopilot.mimo.MimoLaw)
+    if registered in LAWS:
+        return LAWS[registered]
     where = f"{type(obj).__module__}:{type(obj).__qualname__}"
     for law in LAWS.values():
         if where in (law.config, law.law):

@@ -138,7 +138,17 @@ BASELINE_PARAMS: tuple[Param, ...] = (
     Param("CLSAC_PID_KD", "s", "baseline PID K_d", field="kd", low=0.0),
 )
 LAW_PARAMS = {"baseline": BASELINE_PARAMS}  # a law's own parameters (autopilot.controllers.LAWS keys), not CL-SAC's
-BY_NAME = {p.name: p for p in PARAMS + BASELINE_PARAMS}
+# A square MIMO design's second channel (the sideslip on the rudder; ``tools.design.mimo_report``): read by
+# ``autopilot.mimo.from_values``, in no table of the one-channel laws (a SISO flight leaves them, as another law's)
+MIMO_PARAMS: tuple[Param, ...] = (
+    Param("CLSAC_PFC2_NUM", "", "channel 2's PFC D_2(s) = NUM / (DEN1 s + DEN0)", low=0.0, low_open=True),
+    Param("CLSAC_PFC2_DEN1", "s", "channel 2's PFC denominator, s coefficient", low=0.0, low_open=True),
+    Param("CLSAC_PFC2_DEN0", "", "channel 2's PFC denominator, constant", low=0.0, low_open=True),
+    Param("CLSAC_PID2_KP", "", "channel 2's baseline PID K_p, rad of surface per rad of sideslip error", low=0.0),
+    Param("CLSAC_PID2_KI", "1/s", "channel 2's baseline PID K_i", low=0.0),
+    Param("CLSAC_PID2_KD", "s", "channel 2's baseline PID K_d", low=0.0),
+)
+BY_NAME = {p.name: p for p in PARAMS + BASELINE_PARAMS + MIMO_PARAMS}
 BINARY = ("CLSAC_ANTIWINDUP", "SYS_FAILURE_EN")  # 0 or 1, nothing between
 # The options a caller of ParamTable may leave out (every other option has no default: the caller's flags give it)
 OPTION_DEFAULTS = {"failure_injection": 0.0}

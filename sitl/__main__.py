@@ -26,6 +26,7 @@ from autopilot.shared.cli import (
     fmt_endpoint,
     peer_endpoint,
     physics_rate_hz,
+    pwm2_from_args,
     pwm_from_args,
     rate_hz,
     sensor_rate_hz,
@@ -223,7 +224,7 @@ def main(argv=None) -> int:
         faults=tuple(args.fault or ()),
     )
     try:
-        sitl = Sitl(opts, pwm)
+        sitl = Sitl(opts, pwm, pwm2=pwm2_from_args(parser, args))
     except plants.PlantError as exc:
         parser.error(str(exc))
     except OSError as exc:

@@ -20,6 +20,7 @@ ATTITUDE sent (real time).
 from __future__ import annotations
 
 import gc
+import math
 import select
 import sys
 import time
@@ -105,9 +106,11 @@ def series_recorder() -> SeriesRecorder:
 
 
 class Sitl:
-    def __init__(self, opts: SitlOptions, pwm: PwmMap, out=None):
+    def __init__(self, opts: SitlOptions, pwm: PwmMap, out=None, pwm2: PwmMap | None = None):
+        """``pwm2``: a square MIMO plant's second surface (its own SERVO_OUTPUT_RAW channel, ``--channel2``)."""
         self.opts = opts
         self.pwm = pwm
+        self.pwm2 = pwm2
         self.out = out or sys.stdout
         self.inj = None  # sitl.disturbances.Injector when opts.disturbances is given
         params = None
@@ -121,6 +124,16 @@ class Sitl:
         damaged = plants.needs_damaged_model(opts.faults)
         self.aircraft = plants.build(opts.plant, opts.physics_rate_hz, params, opts.disturbances, damaged)
         self._euler = plants.kind(opts.plant) == "jsbsim"  # ATTITUDE carries the plant's own pitch, yaw and q
+        self.mimo = bool(getattr(self.aircraft, "mimo", False))
+        if self.mimo != (pwm2 is not None):
+            raise plants.PlantError(
+                f"--plant {opts.plant}: "
+                + (
+                    "a square MIMO plant needs --channel2 (its second surface's channel)"
+                    if self.mimo
+                    else "--channel2 is for a square MIMO plant (jsbsim:MODEL:surface=aileron+rudder)"
+                )
+            )
         self._advance_plant = self.aircraft.advance if self.inj is None else self._advance_disturbed
         self._rt_faults = self.inj is not None and not opts.lockstep and self.inj.up is not None
         _, autopilot_id, sitl_id = vehicle_ids(opts.sysid)
@@ -157,6 +170,16 @@ class Sitl:
         self._servos: list = []  # servo commands received (PWM checked), not yet consumed: (time_usec, pwm, t_rx)
         self._servo_field = f"servo{pwm.channel}_raw"
         self._servo_index = HOT_DECODERS[SERVO_OUTPUT_RAW].index(self._servo_field)
+        # MIMO: the second surface's pulse of each servo message, by its time_usec, taken with the first's frame
+        self._servo2_field = f"servo{pwm2.channel}_raw" if pwm2 else None
+        self._servo2_index = HOT_DECODERS[SERVO_OUTPUT_RAW].index(self._servo2_field) if pwm2 else None
+        self._pwm2_by_usec: dict = {}
+        self.pwm2_applied = pwm2.neutral if pwm2 else None
+        self.u2 = 0.0
+        if pwm2:
+            from autopilot.shared.fastmav import AOA_SSA
+
+            self._pk_aoa = self.link.fast_packer(AOA_SSA)
         self.link.on_hot(SERVO_OUTPUT_RAW, self._on_servo)  # the usual servo datagram, without a message object
         self._fds = [self.link.sock]  # select(2): microsecond timeouts (epoll rounds up to milliseconds)
         self._pk_att = self.link.fast_packer(M.MAVLink_attitude_message)
@@ -186,13 +209,33 @@ class Sitl:
     def _on_msg(self, msg, t_rx):
         mid = msg.get_msgId()
         if mid == SERVO_OUTPUT_RAW:
+            if self._servo2_field:
+                self._pwm2_by_usec[msg.time_usec] = getattr(msg, self._servo2_field)
             self._take_servo(t_rx, msg.time_usec, getattr(msg, self._servo_field))
         elif mid == COMMAND_LONG:
             self.faulting.command(msg, t_rx)
 
     def _on_servo(self, t_rx, values):
         """SERVO_OUTPUT_RAW from the link's hot path: the payload in wire order (the rudder at ``_servo_index``)."""
+        if self._servo2_index is not None:
+            self._pwm2_by_usec[values[0]] = values[self._servo2_index]
         self._take_servo(t_rx, values[0], values[self._servo_index])
+
+    def _apply_second(self, usec: int) -> None:
+        """MIMO: the second surface flies the pulse that came with the first's servo message ``usec`` (the last one
+        applied if it had none or an invalid one); older ones are dropped."""
+        pwm2 = self._pwm2_by_usec.pop(usec, None)
+        if len(self._pwm2_by_usec) > 64:
+            self._pwm2_by_usec.clear()
+        if pwm2 is not None and PWM_VALID_RANGE[0] <= pwm2 <= PWM_VALID_RANGE[1]:
+            self.pwm2_applied = pwm2
+        self.u2 = self.aircraft.u2 = self.pwm2.to_rad(self.pwm2_applied)
+
+    def _send_sideslip(self, ms: int) -> None:
+        """MIMO: AOA_SSA (ArduPilot's, deg) with the plant's angle of attack and sideslip, just before ATTITUDE."""
+        alpha, beta = self.aircraft.sideslip()
+        raw = self.link.pack_fast(self._pk_aoa, ms * 1000, math.degrees(alpha), math.degrees(beta))
+        self.link.send_raw(raw, self._pk_aoa.msgid)
 
     def _take_servo(self, t_rx, usec: int, pwm: int):
         """A servo command from the autopilot: a PWM out of range is rejected (``bad_pwm``, while the link is
@@ -239,6 +282,8 @@ class Sitl:
         """ATTITUDE from the truth state: roll, pitch, yaw, rollspeed, pitchspeed, yawspeed (float32 on the wire).
 
         ``k``: the global frame index in lockstep (for the link faults)."""
+        if self.mimo:  # the sideslip as JSBSim has it: no sensor errors nor link faults of its own
+            self._send_sideslip(ms)
         if self.inj is not None:
             return self._send_attitude_disturbed(ms, k)
         if self._euler:
@@ -381,6 +426,8 @@ class Sitl:
                 pwm = self.pwm_applied if delivered is None else delivered
             self.pwm_applied = pwm
             self.u = u = self.pwm.to_rad(pwm)
+            if self.mimo:
+                self._apply_second(expected)
             advance(u, nphys)
             self._check_plant()
             K += 1
@@ -457,6 +504,8 @@ class Sitl:
                     last_servo_wall = t_rx
                     self.pwm_applied = pwm
                     self.u = self.pwm.to_rad(pwm)
+                    if self.mimo:
+                        self._apply_second(usec)
                     ev["servo_applied"] += 1
                     if timed_out:
                         timed_out = False
@@ -484,6 +533,9 @@ class Sitl:
                 timeout_from = ac.steps
                 self.u = 0.0
                 self.pwm_applied = self.pwm.neutral
+                if self.mimo:
+                    self.u2 = self.aircraft.u2 = 0.0
+                    self.pwm2_applied = self.pwm2.neutral
                 ev["servo_timeouts"] += 1
                 self.say(M.MAV_SEVERITY_WARNING, f"autopilot silent {now - last_servo_wall:.2f} s: rudder neutral")
             if now >= next_hb:

@@ -59,6 +59,13 @@ SURFACES = {"aileron": "fcs/aileron-cmd-norm", "rudder": "fcs/rudder-cmd-norm"}
 # JSBSim's signs: a positive aileron command rolls right, a positive rudder command yaws and then rolls left.  The
 # command is mapped with this sign so that a positive command rolls right, as the law assumes (hf gain > 0).
 SURFACE_SIGN = {"aileron": 1.0, "rudder": -1.0}
+# Square MIMO plants (docs/plants.md, "m inputs, m outputs"): a ``surface`` naming several surfaces flies one output
+# on each, in order: the roll angle on the aileron, the sideslip angle on the rudder (sideslip command 0 by default:
+# coordinated flight).  Each surface's sign there makes its own output's high-frequency gain positive: the aileron's
+# as above (rolls right), the rudder's JSBSim's own (a positive rudder command yaws the nose left, which raises the
+# sideslip beta, the wind from the right).
+MIMO = {"aileron+rudder": (("aileron", "phi"), ("rudder", "beta"))}
+MIMO_SIGN = {"aileron": 1.0, "rudder": 1.0}
 SLUG_LB = 32.174049  # lb per slug (JSBSim's slugtolb)
 
 
@@ -73,8 +80,10 @@ class JsbsimSpec:
     surface_max_deg: float | None = None  # deg of surface per unit normalised command; default the model's (measured)
 
     def __post_init__(self) -> None:
-        if self.surface not in SURFACES:
-            raise JsbsimPlantError(f"jsbsim plant: surface must be aileron or rudder, got {self.surface!r}")
+        if self.surface not in SURFACES and self.surface not in MIMO:
+            raise JsbsimPlantError(
+                f"jsbsim plant: surface must be aileron, rudder or {', '.join(MIMO)}, got {self.surface!r}"
+            )
         for name in ("airspeed_kt", "altitude_m", "surface_max_deg"):
             v = getattr(self, name)
             if v is not None and not (math.isfinite(v) and v > 0):
@@ -84,16 +93,49 @@ class JsbsimSpec:
                 raise JsbsimPlantError(f"jsbsim plant: {name} must be in [{lo:g}, {hi:g}], got {v!r}")
 
     @property
+    def surfaces(self) -> tuple[str, ...]:
+        """The surfaces flown, one per input: (surface,), or a MIMO plant's in order (``MIMO``)."""
+        return tuple(s for s, _ in MIMO[self.surface]) if self.surface in MIMO else (self.surface,)
+
+    @property
+    def outputs(self) -> tuple[str, ...]:
+        """The outputs flown, one per surface: ("phi",), or a MIMO plant's (``MIMO``: phi on the aileron, beta on the
+        rudder)."""
+        return tuple(y for _, y in MIMO[self.surface]) if self.surface in MIMO else ("phi",)
+
+    @property
+    def is_mimo(self) -> bool:
+        return self.surface in MIMO
+
+    @property
+    def signs(self) -> tuple[float, ...]:
+        """Each surface's sign from the law's command to JSBSim's (``SURFACE_SIGN``; MIMO: ``MIMO_SIGN``)."""
+        return tuple((MIMO_SIGN if self.is_mimo else SURFACE_SIGN)[s] for s in self.surfaces)
+
+    @property
+    def surface_maps(self) -> tuple[SurfaceMap, ...]:
+        """Each surface's ``surface_map``, in the order of ``surfaces``."""
+        if not self.is_mimo:
+            return (self.surface_map,)
+        return tuple(replace(self, surface=s).surface_map for s in self.surfaces)
+
+    @property
+    def surface_limits_rad(self) -> tuple[float, ...]:
+        """Each surface's stop (``surface_max_rad``), in the order of ``surfaces``."""
+        return tuple(m.limit_rad for m in self.surface_maps)
+
+    @property
     def surface_map(self) -> SurfaceMap:
-        """How the command moves the surface: ``surface_max_deg`` on both sides if given, else the model's own
+        """How the command moves the surface (a MIMO plant: its first surface's, the aileron's): ``surface_max_deg``
+        on both sides if given, else the model's own
         (``sitl.jsbsim_models.surface_map``, measured at this airspeed and altitude)."""
         if self.surface_max_deg is None:
-            return surface_map(self.model, self.surface, self.airspeed_kt, self.altitude_m)
+            return surface_map(self.model, self.surfaces[0], self.airspeed_kt, self.altitude_m)
         k = math.radians(self.surface_max_deg)
         try:
-            m = surface_map(self.model, self.surface, self.airspeed_kt, self.altitude_m)
+            m = surface_map(self.model, self.surfaces[0], self.airspeed_kt, self.altitude_m)
         except JsbsimPlantError:  # a scale the model's aerodynamics do not give in rad: the one given
-            return SurfaceMap(self.model, self.surface, SURFACES[self.surface], k, k, measured=False)
+            return SurfaceMap(self.model, self.surfaces[0], SURFACES[self.surfaces[0]], k, k, measured=False)
         return replace(m, positive_rad=k, negative_rad=k, measured=False)
 
     @property
@@ -160,7 +202,7 @@ def _load_damaged(fdm, spec: JsbsimSpec):
 
     root = _root()
     with tempfile.TemporaryDirectory(prefix="clsac-jsbsim-") as tmp:
-        jsbsim_damage.write_model(root / "aircraft" / spec.model, tmp, spec.model, spec.surface)
+        jsbsim_damage.write_model(root / "aircraft" / spec.model, tmp, spec.model, spec.surfaces[0])
         return fdm.load_model_with_paths(spec.model, tmp, str(root / "engine"), str(root / "systems"))
 
 
@@ -309,10 +351,21 @@ class JsbsimPlant:
         self.config = JsbsimConfig(physics_rate_hz)
         dt = self.config.dt
         self.fdm = fdm = trimmed_fdm(spec, dt, seed, damaged)
-        self.surface_trim = fdm[SURFACES[spec.surface]]
-        self._cmd = fdm.get_property_manager().get_node(SURFACES[spec.surface])
+        first = spec.surfaces[0]  # the surface of the command (a MIMO plant's first: the aileron, on the roll)
+        self.surface_trim = fdm[SURFACES[first]]
+        self._cmd = fdm.get_property_manager().get_node(SURFACES[first])
         self.surface_map = spec.surface_map  # the model's command -> deflection (sitl.jsbsim_models)
-        self._to_norm = self._normalised(self.surface_map, SURFACE_SIGN[spec.surface], self.surface_trim)
+        self._to_norm = self._normalised(self.surface_map, spec.signs[0], self.surface_trim)
+        # A square MIMO plant (spec.is_mimo): the second surface (the rudder, on the sideslip) flies ``u2`` (rad),
+        # set by the endpoint from its own SERVO_OUTPUT_RAW channel, through a servo of its own (the same eq. (65))
+        self.mimo = spec.is_mimo
+        self.u2 = self.delta2 = self.delta2_dot = 0.0
+        if self.mimo:
+            second = spec.surfaces[1]
+            m2 = spec.surface_maps[1]
+            self._cmd2 = fdm.get_property_manager().get_node(SURFACES[second])
+            self._to_norm2 = self._normalised(m2, spec.signs[1], fdm[SURFACES[second]])
+            self.surface2_limit_rad = m2.limit_rad
         self.pilot = SafetyPilot(fdm, dt, pilot_gains(spec.model))
         if turbulence is not None:
             w20, severity = TURBULENCE[turbulence]
@@ -335,7 +388,7 @@ class JsbsimPlant:
         if damaged:  # the trimmed aircraft's mass properties: the ballast is sized from them
             from sitl.jsbsim_damage import anatomy
 
-            a = anatomy(_root() / "aircraft" / spec.model / f"{spec.model}.xml", spec.surface)
+            a = anatomy(_root() / "aircraft" / spec.model / f"{spec.model}.xml", spec.surfaces[0])
             self._ballast0 = a.pointmasses  # index of the first ballast point mass
             self._semispan_in = 6.0 * a.span_ft if a.span_ft else None
             self._mass0 = {k: fdm[f"inertia/{k}"] for k in ("weight-lbs", "cg-x-in", "cg-y-in", "cg-z-in")}
@@ -423,6 +476,8 @@ class JsbsimPlant:
         self._u_last = u
         if self._act is not None:
             return self._advance_servo_fault(u, n)
+        if self.mimo:
+            return self._advance_mimo(u, n)
         a00, a01, a10, a11, b0, b1 = self._servo
         d_, dd = self.delta, self.delta_dot
         run, cmd, norm = self.fdm.run, self._cmd.set_double_value, self._to_norm
@@ -437,6 +492,31 @@ class JsbsimPlant:
         self.delta, self.delta_dot, self.steps = d_, dd, steps
         self._read()
         return self.x
+
+    def _advance_mimo(self, u: float, n: int) -> np.ndarray:
+        """``advance`` of a MIMO plant: both servos (the same exact ZOH of eq. (65)), each on its own surface."""
+        a00, a01, a10, a11, b0, b1 = self._servo
+        d_, dd, e_, ed = self.delta, self.delta_dot, self.delta2, self.delta2_dot
+        u2 = float(self.u2)
+        run, cmd, norm = self.fdm.run, self._cmd.set_double_value, self._to_norm
+        cmd2, norm2 = self._cmd2.set_double_value, self._to_norm2
+        steps = self.steps
+        for _ in range(n):
+            d_, dd = a00 * d_ + a01 * dd + b0 * u, a10 * d_ + a11 * dd + b1 * u
+            e_, ed = a00 * e_ + a01 * ed + b0 * u2, a10 * e_ + a11 * ed + b1 * u2
+            cmd(norm(d_))
+            cmd2(norm2(e_))
+            if steps % PILOT_EVERY == 0:
+                self.pilot()
+            run()
+            steps += 1
+        self.delta, self.delta_dot, self.delta2, self.delta2_dot, self.steps = d_, dd, e_, ed, steps
+        self._read()
+        return self.x
+
+    def sideslip(self) -> tuple[float, float]:
+        """JSBSim's (angle of attack, sideslip) in rad: what AOA_SSA carries (sitl.endpoint)."""
+        return self.fdm["aero/alpha-rad"], self.fdm["aero/beta-rad"]
 
     # ------------------------------------------------------------------ faults (sitl.damage)
     def set_effect(self, effect: damage.Effect) -> None:

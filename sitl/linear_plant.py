@@ -66,6 +66,19 @@ class LinearPlant:
     airspeed_m_s: float | None = None
     span_m: float | None = None
     altitude_m: float | None = None
+    # A square plant of m inputs and m outputs (B of m columns, C of m rows; docs/plants.md, "m inputs, m outputs"):
+    # each input's surface, limit, rate limit and name, each output's name, in order.  One input: 1 and
+    # (surface,), (limit_rad,), ... so that a SISO file's fields above are exactly what they were.
+    m: int = 1
+    surfaces: tuple[str, ...] = ()
+    limits_rad: tuple[float | None, ...] = ()
+    rate_limits_rad_s: tuple[float | None, ...] = ()
+    input_names: tuple[str, ...] = ()
+    output_names: tuple[str, ...] = ()
+
+    @property
+    def is_mimo(self) -> bool:
+        return self.m > 1
 
     def aircraft_params(self) -> dict:
         """The ``params`` of ``sitl.aircraft.Aircraft`` that fly this plant."""
@@ -207,8 +220,14 @@ def _airframe(path, air: dict):
     n = a.shape[0]
     if a.shape != (n, n):
         raise PlantFileError(f"{path}: [airframe] A must be square, got shape {a.shape}")
-    b = _matrix(path, air, "B", (n, 1))
-    c = _matrix(path, air, "C", (1, n))
+    b = _matrix(path, air, "B", (n, None))
+    m = b.shape[1]
+    c = _matrix(path, air, "C", (1 if m == 1 else None, n))
+    if c.shape[0] != m:
+        raise PlantFileError(
+            f"{path}: [airframe] B has {m} column(s) (inputs) and C {c.shape[0]} row(s) (outputs): a plant is square, "
+            "one output per input"
+        )
     if not np.any(b):
         raise PlantFileError(f"{path}: [airframe] B = 0: the surface moves no state (uncontrollable)")
     if not np.any(c):
@@ -268,15 +287,24 @@ def _max_pole(a: np.ndarray) -> float:
 
 def _check_dynamics(path, a, b, c, form: str, wn2: float, two_zeta_wn: float) -> None:
     """The surface reaches the output, and no pole is beyond ``MAX_POLE_RAD_S`` (nor infinite)."""
+    b, c = np.atleast_2d(b), np.atleast_2d(c)
     try:
-        r = markov_relative_degree(a, b, c)
+        degrees = [[markov_relative_degree(a, b[:, j], c[i]) for j in range(b.shape[1])] for i in range(c.shape[0])]
+        r = 0
     except OverflowError:
         r = -1
-    if r is None:
+    if r == 0 and b.shape[1] == 1 and degrees[0][0] is None:
         raise PlantFileError(
             f"{path}: [airframe] C (sI - A)^-1 B = 0: the surface moves no state the output shows "
             "(uncontrollable or unobservable)"
         )
+    if r == 0:
+        for j in range(b.shape[1]):  # a square plant: every input moves some output, every output sees some input
+            if all(degrees[i][j] is None for i in range(c.shape[0])):
+                raise PlantFileError(f"{path}: [airframe] input {j + 1} (column {j + 1} of B) moves no output")
+        for i in range(c.shape[0]):
+            if all(degrees[i][j] is None for j in range(b.shape[1])):
+                raise PlantFileError(f"{path}: [airframe] output {i + 1} (row {i + 1} of C) sees no input")
     servo = _max_pole(np.array([[0.0, 1.0], [-wn2, -two_zeta_wn]]))
     if servo > MAX_POLE_RAD_S:
         raise PlantFileError(
@@ -313,7 +341,10 @@ def check_step(path, a_p: np.ndarray, b_p: np.ndarray, physics_rate_hz: float) -
 
 def augment(a: np.ndarray, b: np.ndarray, c: np.ndarray, wn2: float, two_zeta_wn: float):
     """(A_p, B_p, C_p): the servo (paper eq. (65)) appended as the last two states, as in
-    ``sitl.model.augmented_matrices``: the deflection drives the airframe through B, the command is the input."""
+    ``sitl.model.augmented_matrices``: the deflection drives the airframe through B, the command is the input.
+    B of m > 1 columns: one servo per input, the states [delta_1, delta_1', ..., delta_m, delta_m'] last."""
+    if b.shape[1] > 1:
+        return _augment_mimo(a, b, c, wn2, two_zeta_wn)
     n = a.shape[0]
     a_p = np.zeros((n + 2, n + 2))
     a_p[:n, :n] = a
@@ -325,6 +356,20 @@ def augment(a: np.ndarray, b: np.ndarray, c: np.ndarray, wn2: float, two_zeta_wn
     return a_p, b_p, c_p
 
 
+def _augment_mimo(a, b, c, wn2: float, two_zeta_wn: float):
+    n, m = a.shape[0], b.shape[1]
+    a_p = np.zeros((n + 2 * m, n + 2 * m))
+    a_p[:n, :n] = a
+    b_p = np.zeros((n + 2 * m, m))
+    for j in range(m):
+        k = n + 2 * j
+        a_p[:n, k] = b[:, j]
+        a_p[k : k + 2, k : k + 2] = np.array([[0.0, 1.0], [-wn2, -two_zeta_wn]])
+        b_p[k + 1, j] = wn2
+    c_p = np.hstack([c, np.zeros((c.shape[0], 2 * m))])
+    return a_p, b_p, c_p
+
+
 UNIT = "rad"  # the surface deflection and the roll angle are in rad (SI inside)
 
 
@@ -332,6 +377,60 @@ def _unit(path, section: dict, where: str) -> None:
     unit = plant_file.text(path, section, where, "unit", UNIT)
     if unit != UNIT:
         raise PlantFileError(f"{path}: {where} unit must be {UNIT!r} (SI inside), got {unit!r}")
+
+
+SURFACES = ("rudder", "aileron")
+
+
+def _limit(path, value, where: str = "[input] limit") -> float | None:
+    """A surface's stop (rad, in (0, pi/2]) or None."""
+    if value is None:
+        return None
+    limit = _number(path, {"limit": value}, "input", "limit")
+    if limit > math.pi / 2:
+        raise PlantFileError(f"{path}: {where} must be in (0, pi/2] rad (a surface's stop), got {limit!r}")
+    return limit
+
+
+def _per_channel(path, section: dict, where: str, key: str, m: int, default):
+    """A key of a plant of ``m`` inputs: a list of ``m`` values, one per channel (``default``: m Nones)."""
+    if key not in section:
+        return [default] * m
+    v = section[key]
+    if not isinstance(v, list) or len(v) != m:
+        got = f"a list of {len(v)}" if isinstance(v, list) else f"{type(v).__name__} {v!r:.40}"
+        raise PlantFileError(
+            f"{path}: {where} {key} must be a list of {m} values, one per input (B has {m} columns), got {got}"
+        )
+    return v
+
+
+def _mimo_channels(path, inp: dict, out: dict, m: int):
+    """((surfaces, limits, rate limits), (input names, output names)) of a plant of ``m`` inputs and outputs."""
+    surfaces = tuple(_per_channel(path, inp, "[input]", "surface", m, None))
+    if any(s not in SURFACES for s in surfaces) or len(set(surfaces)) != m:
+        raise PlantFileError(
+            f"{path}: [input] surface must be a list of {m} different surfaces of rudder, aileron, got {list(surfaces)}"
+        )
+    limits = tuple(
+        _limit(path, v, f"[input] limit[{k}]")
+        for k, v in enumerate(_per_channel(path, inp, "[input]", "limit", m, None))
+    )
+    rates = tuple(
+        None if v is None else _number(path, {"rate_limit": v}, "input", "rate_limit")
+        for v in _per_channel(path, inp, "[input]", "rate_limit", m, None)
+    )
+    names = []
+    for where, section, key, default in (("[input]", inp, "name", "delta"), ("[output]", out, "name", "y")):
+        given = _per_channel(path, section, where, key, m, None)
+        got = tuple(
+            plant_file.text(path, {key: v}, where, key, f"{default}{k + 1}") if v is not None else f"{default}{k + 1}"
+            for k, v in enumerate(given)
+        )
+        if len(set(got)) != m:
+            raise PlantFileError(f"{path}: {where} {key} must be {m} different names, got {list(got)}")
+        names.append(got)
+    return (surfaces, limits, rates), tuple(names)
 
 
 def load(path, physics_rate_hz: float | None = PHYSICS_RATE_HZ) -> LinearPlant:
@@ -351,15 +450,20 @@ def load(path, physics_rate_hz: float | None = PHYSICS_RATE_HZ) -> LinearPlant:
     a, b, c, states, units, truth = _airframe(path, air)
     wn2 = _number(path, servo, "servo", "wn2")
     two_zeta_wn = _number(path, servo, "servo", "two_zeta_wn")  # both > 0: the servo is stable (Hurwitz)
-    surface = plant_file.text(path, inp, "[input]", "surface", "rudder")
-    if surface not in ("rudder", "aileron"):
-        raise PlantFileError(f"{path}: [input] surface must be rudder or aileron, got {surface!r}")
     for where, section in (("[input]", inp), ("[output]", out)):
         _unit(path, section, where)
-    limit = _number(path, inp, "input", "limit", required=False)
-    if limit is not None and limit > math.pi / 2:
-        raise PlantFileError(f"{path}: [input] limit must be in (0, pi/2] rad (a surface's stop), got {limit!r}")
-    rate_limit = _number(path, inp, "input", "rate_limit", required=False)
+    m = b.shape[1]
+    if m == 1:
+        surface = plant_file.text(path, inp, "[input]", "surface", "rudder")
+        if surface not in SURFACES:
+            raise PlantFileError(f"{path}: [input] surface must be rudder or aileron, got {surface!r}")
+        limit = _limit(path, inp.get("limit"))
+        rate_limit = _number(path, inp, "input", "rate_limit", required=False)
+        channels = ((surface,), (limit,), (rate_limit,))
+        names = ((plant_file.text(path, inp, "[input]", "name", "delta"),),)
+        names += ((plant_file.text(path, out, "[output]", "name", "phi"),),)
+    else:
+        channels, names = _mimo_channels(path, inp, out, m)
     _check_dynamics(path, a, b, c, "num/den" if "den" in air else "A", wn2, two_zeta_wn)
     a_p, b_p, c_p = augment(a, b, c, wn2, two_zeta_wn)
     if physics_rate_hz is not None:
@@ -374,14 +478,20 @@ def load(path, physics_rate_hz: float | None = PHYSICS_RATE_HZ) -> LinearPlant:
         b_p=b_p,
         c_p=c_p,
         truth=truth,
-        surface=surface,
-        limit_rad=limit,
-        rate_limit_rad_s=rate_limit,
+        surface=channels[0][0],
+        limit_rad=channels[1][0],
+        rate_limit_rad_s=channels[2][0],
         states=tuple(states),
         units=tuple(units),
-        input_name=plant_file.text(path, inp, "[input]", "name", "delta"),
-        output_name=plant_file.text(path, out, "[output]", "name", "phi"),
+        input_name=names[0][0],
+        output_name=names[1][0],
         airspeed_m_s=airspeed,
         span_m=span,
         altitude_m=_number(path, atm, "atmosphere", "altitude", required=False),
+        m=m,
+        surfaces=channels[0],
+        limits_rad=channels[1],
+        rate_limits_rad_s=channels[2],
+        input_names=names[0],
+        output_names=names[1],
     )

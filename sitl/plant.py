@@ -77,7 +77,7 @@ def check(text: str, physics_rate_hz: float | None = PHYSICS_RATE_HZ) -> str:
                     raise JsbsimPlantError(
                         f"jsbsim plant: no model {spec.model!r}; available: {', '.join(available_models())}"
                     )
-                _ = spec.surface_map  # the model's own command -> deflection, or why it has none in rad
+                _ = spec.surface_maps  # the model's own command -> deflection, or why it has none in rad
                 pilot_gains(spec.model)  # the safety pilot holds it, or says why not
             except JsbsimPlantError as exc:
                 raise PlantError(str(exc)) from None
@@ -170,7 +170,7 @@ def fault_refusals(text: str) -> dict[str, str]:
         from sitl.jsbsim_plant import _root, parse_spec
 
         spec = parse_spec(text)
-        return refusals(_root() / "aircraft" / spec.model / f"{spec.model}.xml", spec.surface)
+        return refusals(_root() / "aircraft" / spec.model / f"{spec.model}.xml", spec.surfaces[0])
     why = {kd: "a JSBSim aircraft's mass properties and safety pilot only" for kd in damage.JSBSIM_KINDS}
     for kd in damage.LINEAR_KINDS:
         why.pop(kd)
@@ -193,7 +193,7 @@ def check_faults(text: str, faults) -> None:
         from sitl.jsbsim_plant import _root, parse_spec
 
         spec = parse_spec(text)
-        span = anatomy(_root() / "aircraft" / spec.model / f"{spec.model}.xml", spec.surface).span_ft
+        span = anatomy(_root() / "aircraft" / spec.model / f"{spec.model}.xml", spec.surfaces[0]).span_ft
         most = 0.25 * span * 0.3048 if span else None  # half the half span: a tip ballast as heavy as the aircraft
         for f in faults:
             if f.kind == "cg" and most and abs(f.value) > most:
@@ -217,6 +217,11 @@ def build(text: str, physics_rate_hz: float, params: dict | None = None, dist=No
         return Aircraft(AircraftConfig(physics_rate_hz=physics_rate_hz), params=params)
     if k == "file":
         lp = _load(text, physics_rate_hz)  # its physics step checked at the rate it flies
+        if lp.is_mimo:
+            raise PlantError(
+                f"{text}: a plant file of {lp.m} inputs is designed (python -m tools.pfc design) but not flown by the "
+                "SITL: fly the JSBSim aircraft it was linearised from (jsbsim:MODEL:surface=aileron+rudder)"
+            )
         cfg = AircraftConfig(
             physics_rate_hz=physics_rate_hz, rudder_limit_rad=lp.limit_rad, rudder_rate_limit_rad_s=lp.rate_limit_rad_s
         )

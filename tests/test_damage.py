@@ -172,6 +172,22 @@ def test_an_in_process_fault_starts_at_its_onset_and_not_before():
     assert np.ptp(after) == 0.0  # the surface is stuck where it was
 
 
+def test_a_mimo_plant_flies_the_mimo_laws_and_names_the_others_it_does_not():
+    mimo = "jsbsim:c172x:surface=aileron+rudder"
+    cells = {"kh2013a": [("effectiveness", 0.3)], mimo: [("effectiveness", 0.3)]}
+    flights = grid.make_flights(["kh2013a", mimo], list(grid.CONTROLLERS), cells, [10.0], 1, 1, 30.0, "light")
+    assert {f.controller for f in flights if f.plant == mimo} == {"baseline", "sac", "clsac"}
+    assert {f.controller for f in flights if f.plant == "kh2013a"} == set(grid.CONTROLLERS)
+    assert set(grid.controller_refusals(mimo, grid.CONTROLLERS)) == {"pid-ff", grid.RETUNED, grid.ENERGY}
+    assert grid.controller_refusals("jsbsim:c172x", grid.CONTROLLERS) == {}
+    assert grid.designs_needed([f for f in flights if f.plant == mimo]) == []  # nothing SISO designed for it
+    from tools.experiment.damage.runner import Study, not_flown
+
+    doc = not_flown(Study(plants=("kh2013a", mimo), kinds=("effectiveness", "inertia")))
+    assert set(doc[mimo]) == {"controllers"} and "inertia" in doc["kh2013a"]
+    assert "controllers" not in doc["kh2013a"]
+
+
 def test_bad_damage_flags_are_one_line_exit_2(tmp_path):
     for args, needle in (
         (["--kinds", "bogus"], "unknown kind 'bogus'"),
@@ -182,6 +198,7 @@ def test_bad_damage_flags_are_one_line_exit_2(tmp_path):
         (["--scheduler", "localhost:1"], "--scheduler must look like tcp://HOST:PORT"),
         (["--runs", "0"], "--runs"),
         (["--kinds", "inertia", "--plant", "kh2013a"], "no plant flies"),
+        (["--plant", "jsbsim:c172x:surface=aileron+rudder", "--controllers", "pid-ff"], "a square MIMO plant flies"),
         (["--out", str(tmp_path / "f"), "--runs", "1"], "not a directory"),
     ):
         if args[:1] == ["--out"]:

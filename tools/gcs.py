@@ -25,7 +25,7 @@ import math
 import selectors
 import sys
 import time
-from dataclasses import dataclass, fields
+from dataclasses import dataclass, fields, replace
 
 from autopilot.shared.cli import (
     OneLineArgumentParser,
@@ -76,6 +76,10 @@ LOCKSTEP_NAP_MAX_S = 0.02
 # Lockstep schedule (autopilot.schedule): at most this many setpoints per datagram (40 signed SET_ATTITUDE_TARGET,
 # 2.6 kB, within the 4 kB a link reads at once), each datagram beginning with the last point of the one before.
 SCHEDULE_CHUNK = 40
+# A square MIMO plant's schedule: each point's NAMED_VALUE_FLOAT SSA_SP (43 bytes signed) just before it in the
+# same datagram, so fewer points a datagram (20 pairs, 2.1 kB signed).
+SCHEDULE_CHUNK_MIMO = 20
+SIDESLIP_SETPOINT = "SSA_SP"  # NAMED_VALUE_FLOAT name of a square MIMO plant's sideslip command (deg)
 # The vehicle's SYSTEM_TIME says it waits for frame t and read its link at time_unix_usec: a point covering t sent
 # more than RESEND_GRACE_US before that read was lost (the same host's clock); on another host's clock, after
 # RESEND_AFTER_S of our own the schedule is sent again anyway.
@@ -250,7 +254,18 @@ class Gcs:
             0.0,
         )
 
+    def _sideslip(self, time_boot_ms: int, rel_s: float):
+        """A square MIMO plant's second setpoint: NAMED_VALUE_FLOAT ``SSA_SP`` (deg), the sideslip command at the
+        same ``time_boot_ms`` as the roll's SET_ATTITUDE_TARGET it goes with (docs/design.md, "Square MIMO CL-SAC")."""
+        return M.MAVLink_named_value_float_message(
+            time_boot_ms, SIDESLIP_SETPOINT.encode(), math.degrees(self.profile.sideslip(rel_s))
+        )
+
     def _send_setpoint(self, time_boot_ms: int, roll: float):
+        if self.profile.has_sideslip:  # before the roll's: the vehicle steps on the roll setpoint
+            known = self.sim_ms is not None and self.origin_ms is not None
+            rel = (self.sim_ms - self.origin_ms) / 1000.0 if known else 0.0
+            self.link.send(self._sideslip(time_boot_ms, rel))
         self.link.send(self._setpoint(time_boot_ms, roll))
         self.points_sent += 1
 
@@ -258,9 +273,20 @@ class Gcs:
         """Lockstep: ``points`` ([abs ms, roll, ...] in order) as linked datagrams of at most SCHEDULE_CHUNK, each
         beginning with the last point of the one before (``autopilot.schedule``)."""
         link, i = self.link, 0
+        side = self.profile.has_sideslip  # each point's sideslip setpoint just before it, in the same datagram
+        size = SCHEDULE_CHUNK_MIMO if side else SCHEDULE_CHUNK
         while i < len(points):
-            chunk = points[i : i + SCHEDULE_CHUNK]
-            link.send_batch([link.pack(self._setpoint(p[0], p[1])) for p in chunk], [_SET_ATTITUDE_TARGET] * len(chunk))
+            chunk = points[i : i + size]
+            if side:  # SSA_SP, roll, SSA_SP, roll, ...: a datagram delivers both or neither, and is resent whole
+                origin, bufs = self.origin_ms or 0, []
+                for p in chunk:  # packed in the order sent: their signatures' timestamps increase along the datagram
+                    bufs.append(link.pack(self._sideslip(p[0], (p[0] - origin) / 1000.0)))
+                    bufs.append(link.pack(self._setpoint(p[0], p[1])))
+                ids = [M.MAVLINK_MSG_ID_NAMED_VALUE_FLOAT, _SET_ATTITUDE_TARGET] * len(chunk)
+            else:
+                bufs = [link.pack(self._setpoint(p[0], p[1])) for p in chunk]
+                ids = [_SET_ATTITUDE_TARGET] * len(chunk)
+            link.send_batch(bufs, ids)
             i += max(1, len(chunk) - 1)
             if i == len(points) - 1:
                 break  # the last point closed this datagram: nothing new for another
@@ -481,6 +507,15 @@ def build_parser() -> OneLineArgumentParser:
         help="fly a CSV profile: rows 'time_s, roll_deg', each held until the next (not interpolated), to the last",
     )
     p.add_argument("--amplitude", type=angle_deg, default=10.0, metavar="DEG", help="amplitude (default 10)")
+    p.add_argument(
+        "--sideslip",
+        type=angle_deg,
+        default=None,
+        metavar="DEG",
+        help="a square MIMO plant's second setpoint: a constant sideslip command, sent as NAMED_VALUE_FLOAT SSA_SP "
+        "with every roll setpoint (default: none sent, the vehicle flies 0; a --csv file's third column sideslip_deg "
+        "is a profile of it)",
+    )
     p.add_argument("--period", type=timeout_s, default=10.0, metavar="S", help="square/sine period (default 10)")
     p.add_argument("--step-time", type=clock_s, default=1.0, metavar="S", help="step: switch time (default 1)")
     p.add_argument(
@@ -556,6 +591,13 @@ def main(argv=None) -> int:
         )
     except (OSError, ValueError) as exc:
         parser.error(f"--csv: {exc}")
+    if args.sideslip is not None:
+        if profile.sideslips:
+            parser.error("--sideslip and a --csv file with a sideslip column: give one")
+        try:
+            profile = replace(profile, sideslip_const=math.radians(args.sideslip))
+        except ValueError as exc:
+            parser.error(f"--sideslip: {exc}")
     args.duration = profile_duration(args.duration, profile)
     apply_cpu(parser, args.cpu)
     try:

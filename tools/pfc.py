@@ -24,7 +24,9 @@ from tools import design as analysis
 EPILOG = """\
 design: python -m tools.pfc design PLANT [--out FILE.params] designs a PFC, the adaptation weights and a baseline
 PID for another plant (FILE.toml or jsbsim:MODEL[:KEY=VALUE,...]) and writes them where the launcher finds them
-(python -m tools.pfc design --help; docs/plants.md).
+(python -m tools.pfc design --help; docs/plants.md).  A square MIMO plant (jsbsim:MODEL:surface=aileron+rudder, a
+plant file of m inputs) gets a PFC per channel, its transmission zeros, K_e bands along rays and two PIDs
+(docs/design.md, "Square MIMO CL-SAC").
 
 coefficients are comma-separated, highest power first: --pfc-num 10 --pfc-den 4,40 is 10/(4s + 40).
 A list starting with a minus sign needs the = form: --pfc-den=-1,-2 (which is then rejected as unstable).

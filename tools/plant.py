@@ -60,7 +60,8 @@ def main(argv=None) -> int:
     except OSError as exc:
         parser.error(f"--out {args.out}: {exc.strerror or exc}")
     poles = np.linalg.eigvals(lin["A"])
-    print(f"wrote {args.out}: {spec.text()} roll channel, poles " + ", ".join(f"{z:.4g}" for z in poles))
+    what = f"{len(spec.surfaces)}x{len(spec.surfaces)} lateral channels" if spec.is_mimo else "roll channel"
+    print(f"wrote {args.out}: {spec.text()} {what}, poles " + ", ".join(f"{z:.4g}" for z in poles))
     return 0
 
 

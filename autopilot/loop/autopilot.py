@@ -35,6 +35,7 @@ from autopilot.loop.realtime import RealtimeScheduler
 from autopilot.params import ParamTable
 from autopilot.schedule import ScheduleChain
 from autopilot.shared.events import StatusEvents, StatusTextAssembler
+from autopilot.shared.fastmav import AOA_SSA_ID
 from autopilot.shared.link import SendClock, UdpLink
 from autopilot.shared.mavlink import (
     GCS_SYSTEMS,
@@ -42,7 +43,7 @@ from autopilot.shared.mavlink import (
 )
 from autopilot.shared.pwm import PwmMap
 from autopilot.shared.signing import SIGNING_LINK_GCS, SIGNING_LINK_SITL, Signing
-from autopilot.step import ControlStep, Failsafe
+from autopilot.step import ControlStep, Failsafe, SetpointQueue
 from autopilot.vehicle import MSGIDS as VEHICLE_MSGIDS
 from autopilot.vehicle import Mode, Vehicle
 
@@ -62,6 +63,8 @@ class Autopilot(LinkHandlers, LockstepScheduler, RealtimeScheduler):
         params: ParamTable | None = None,
         mode: Mode = Mode.CLSAC,
         armed: bool = True,
+        law=None,
+        pwm2: PwmMap | None = None,
     ):
         """``ctrl_config``: the law at start; ``params``: the parameter table (default: from ``ctrl_config`` and
         ``opts``; its CLSAC_LV is the configured L_v, which mode SAC flies as 0); ``mode``, ``armed``: at start."""
@@ -72,7 +75,12 @@ class Autopilot(LinkHandlers, LockstepScheduler, RealtimeScheduler):
         self.rate = float(opts.rate_hz)
         self.period = 1.0 / self.rate
         # The control step: setpoint queue, law, limit, PWM map, metrics from what flew (autopilot.step).
-        self.control = ControlStep(ctrl_config, pwm)
+        # ``law``: a law object instead of ``ctrl_config``'s (``autopilot.mimo.MimoLaw``: a square MIMO plant, whose
+        # second surface flies on ``pwm2``'s channel and whose sideslip comes in AOA_SSA)
+        self.control = ControlStep(ctrl_config, pwm, law=law)
+        self.pwm2 = pwm2
+        # MIMO: the second setpoint (the sideslip command, NAMED_VALUE_FLOAT SSA_SP), on sim time like the roll's
+        self.setpoints2 = SetpointQueue() if pwm2 is not None else None
         self.ctrl = self.control.law
         self.setpoints = self.control.setpoints
         self.send_clock = SendClock()  # both links: when this process last sent anything (the verdict's evidence)
@@ -83,7 +91,7 @@ class Autopilot(LinkHandlers, LockstepScheduler, RealtimeScheduler):
             opts.sitl_bind,
             opts.sitl,
             peers=[sitl_id],
-            msgids=[ATTITUDE, HEARTBEAT, STATUSTEXT, COMMAND_ACK],
+            msgids=[ATTITUDE, HEARTBEAT, STATUSTEXT, COMMAND_ACK, *((AOA_SSA_ID,) if pwm2 else ())],
             signing=Signing(opts.signing_key, SIGNING_LINK_SITL) if opts.signing_key else None,
             tlog=tlog,
             send_clock=self.send_clock,
@@ -100,7 +108,13 @@ class Autopilot(LinkHandlers, LockstepScheduler, RealtimeScheduler):
             peers=opts.gcs_ids,
             learn_gcs=opts.max_gcs if opts.learn_gcs else 0,
             gcs_systems=GCS_SYSTEMS,
-            msgids=[SET_ATTITUDE_TARGET, HEARTBEAT, *VEHICLE_MSGIDS],
+            # MIMO: NAMED_VALUE_FLOAT SSA_SP, the sideslip setpoint, too
+            msgids=[
+                SET_ATTITUDE_TARGET,
+                HEARTBEAT,
+                *VEHICLE_MSGIDS,
+                *((M.MAVLINK_MSG_ID_NAMED_VALUE_FLOAT,) if pwm2 else ()),
+            ],
             admit=opts.max_gcs,
             peer_addrs=opts.gcs_peers,
             signing=Signing(opts.signing_key, SIGNING_LINK_GCS) if opts.signing_key else None,
@@ -134,6 +148,9 @@ class Autopilot(LinkHandlers, LockstepScheduler, RealtimeScheduler):
         self.att = _Attitude()
         self.horizon_us = -1.0  # newest scheduled setpoint time received
         self._chain = ScheduleChain()  # lockstep: which scheduled setpoints continue a station's schedule
+        self._side_pending: list = []  # lockstep MIMO: SSA_SP (datagram, t_us, rad) waiting for its roll point
+        self._side_seen = False  # lockstep MIMO: a station sends SSA_SP in the roll's linked datagrams
+        self._side_in_dg = (-1, 0)  # (datagram, SSA_SP in it so far): the roll point's place among roll points
         self._read_unix_us = 0  # lockstep: wall time (Unix us) of the last read of the links (SYSTEM_TIME says it)
         self.last_setpoint_wall = None
         self.setpoint_lost = False
@@ -193,6 +210,9 @@ class Autopilot(LinkHandlers, LockstepScheduler, RealtimeScheduler):
         self._pk_att_target = self.gcs.fast_packer(M.MAVLink_attitude_target_message)
         self._wire_rest: dict = {}  # PWM -> SERVO_OUTPUT_RAW's fields after time_usec (``_servo_wire``)
         self._servo_tails: dict = {}  # PWM -> their packed bytes (``_servo_payload``)
+        if pwm2 is not None:  # MIMO: both surfaces in every SERVO_OUTPUT_RAW, each on its own channel
+            self._servo_wire = self._servo_wire_mimo
+            self._servo_payload = self._servo_payload_mimo
 
     # ================================================================== exit
     def run(self) -> int:

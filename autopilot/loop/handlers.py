@@ -25,6 +25,7 @@ from autopilot.loop.common import (
     M,
 )
 from autopilot.schedule import NEW, UNLINKED
+from autopilot.shared.fastmav import AOA_SSA_ID
 from autopilot.shared.link import ANY_COMPONENT
 from autopilot.shared.mavlink import (
     GCS_SYSTEMS,
@@ -34,6 +35,9 @@ from autopilot.shared.mavlink import (
     roll_to_quaternion,
 )
 from autopilot.step import Failsafe, StepResult
+
+NAMED_VALUE_FLOAT = M.MAVLINK_MSG_ID_NAMED_VALUE_FLOAT
+SIDESLIP_SETPOINT = "SSA_SP"  # tools.gcs.SIDESLIP_SETPOINT: a square MIMO plant's sideslip command (deg)
 
 
 def refusal_text(reason: str, sysid: int, compid: int, addr, opts: AutopilotOptions) -> str:
@@ -72,6 +76,12 @@ class LinkHandlers:
                 t_rx,
                 (msg.time_boot_ms, msg.roll, msg.pitch, msg.yaw, msg.rollspeed, msg.pitchspeed, msg.yawspeed),
             )
+        elif mid == AOA_SSA_ID:  # a square MIMO plant's sideslip (deg on the wire), for the next step
+            ssa = msg.SSA
+            if ssa - ssa == 0.0 and -90.0 <= ssa <= 90.0:
+                self.ctrl.y2 = math.radians(ssa)
+            else:
+                self.sitl.reject("nonfinite_attitude")
         elif mid == STATUSTEXT:
             text = self._sitl_texts.add(msg)  # a long text arrives in chunks (autopilot.shared.events)
             if text is not None:
@@ -109,7 +119,14 @@ class LinkHandlers:
         att.ms, att.roll, att.p, att.r, att.t_rx, att.valid = ms, roll, p, r, t_rx, True
 
     def _on_gcs(self, msg, t_rx):
+        if self._side_pending and (
+            msg.get_msgId() != SET_ATTITUDE_TARGET or self._side_pending[0][0] != self.gcs.rx_datagrams
+        ):
+            self._flush_sideslip(True)  # not followed by a roll point of its datagram: taken as sent
         if msg.get_msgId() != SET_ATTITUDE_TARGET:
+            if self.pwm2 is not None and msg.get_msgId() == NAMED_VALUE_FLOAT and msg.name == SIDESLIP_SETPOINT:
+                self._on_sideslip_setpoint(msg)
+                return
             self.vehicle.handle(msg)  # commands, parameters, modes, manual input (autopilot.vehicle)
             return
         ev = self.events
@@ -133,7 +150,12 @@ class LinkHandlers:
             self._report_future_setpoint(msg, now_us)
             return
         if self._schedule_lost(msg, now_us):
+            self._flush_sideslip(False)  # the roll point's copy or a lost datagram's follower: its sideslip too
             return
+        if self._side_pending:
+            self._flush_sideslip(True)  # the roll point continues the schedule: its sideslip is taken before it
+        elif self.pwm2 is not None and self.opts.lockstep and self._side_seen:
+            self.events["sideslip_unpaired"] += 1  # a MIMO schedule's roll point without its SSA_SP: counted
         lim = self.opts.max_roll_rad
         clamped = math.copysign(lim, roll) if (roll > lim or roll < -lim) else None
         if not self.setpoints.push(t_us, roll if clamped is None else clamped):
@@ -157,16 +179,53 @@ class LinkHandlers:
         if self.opts.lockstep and self.pending_frame is not None:
             self._try_step(t_rx)
 
+    def _on_sideslip_setpoint(self, msg) -> None:
+        """A square MIMO plant's second setpoint (NAMED_VALUE_FLOAT ``SSA_SP``, deg, sent by the ground station just
+        before the roll setpoint of the same ``time_boot_ms``): queued on sim time like the roll's (0: now), flown
+        as the sideslip command ``ctrl.um2`` from its time on."""
+        value = float(msg.value)
+        if value - value != 0.0 or abs(value) > 30.0:
+            self.gcs.reject("nonfinite_setpoint")
+            return
+        ms = msg.time_boot_ms if self.opts.setpoint_time == "sim" else 0
+        now_us = self._now_sim_us()
+        t_us = (now_us or 0.0) if ms == 0 else ms * 1000.0
+        if self.opts.lockstep and self.gcs.rx_more:
+            # Lockstep: the GCS sends each SSA_SP just before the roll point of its time in the roll's linked
+            # datagram (tools.gcs._send_linked); it shares that point's verdict (autopilot.schedule): taken with
+            # it, dropped with it when a copy or after a lost datagram (then the GCS sends both again).
+            self._side_seen = True
+            dg, n = self._side_in_dg
+            self._side_in_dg = (self.gcs.rx_datagrams, n + 1 if dg == self.gcs.rx_datagrams else 1)
+            self._side_pending.append((self.gcs.rx_datagrams, t_us, math.radians(value)))
+            return
+        self._push_sideslip(t_us, math.radians(value))
+
+    def _push_sideslip(self, t_us: float, value: float) -> None:
+        if not self.setpoints2.push(t_us, value):
+            self.gcs.reject("setpoint_queue_full")
+            return
+        self.events["sideslip_setpoints"] += 1
+
+    def _flush_sideslip(self, take: bool) -> None:
+        """The SSA_SP waiting for its roll point: queued (``take``) or dropped with it (after a lost datagram it is
+        counted in ``sideslip_setpoints_unlinked``, by ``_schedule_lost``)."""
+        pending, self._side_pending = self._side_pending, []
+        if take:
+            for _, t_us, value in pending:
+                self._push_sideslip(t_us, value)
+
     def _schedule_lost(self, msg, now_us: float | None) -> bool:
         """Lockstep: whether this setpoint is a copy of one held or follows a lost datagram (``autopilot.schedule``:
         it is dropped, counted, and the ground station sends it again), by the wire time it carries."""
         if not self.opts.lockstep:
             return False
         g = self.gcs
+        dg, sides = self._side_in_dg  # the SSA_SP before it in its datagram are not roll points
         verdict = self._chain.take(
             (msg.get_srcSystem(), msg.get_srcComponent()),
             g.rx_datagrams,
-            g.rx_packet_index,
+            g.rx_packet_index - (sides if dg == g.rx_datagrams else 0),
             g.rx_more,
             msg.time_boot_ms * 1000.0,
             now_us,
@@ -175,6 +234,7 @@ class LinkHandlers:
             return False
         if verdict == UNLINKED:
             self.events["setpoints_unlinked"] += 1
+            self.events["sideslip_setpoints_unlinked"] += len(self._side_pending)
         elif g.rx_packet_index:  # a datagram's first point is the one it links to: expected, not counted
             self.events["setpoints_resent"] += 1
         return True
@@ -234,6 +294,16 @@ class LinkHandlers:
             wire = self._servo_wire(0, pwm)
             tail = self._servo_tails[pwm] = M.MAVLink_servo_output_raw_message.unpacker.pack(*wire)[4:]
         return time_usec.to_bytes(4, "little") + tail
+
+    def _servo_wire_mimo(self, time_usec: int, pwm: int) -> tuple:
+        """``_servo_wire`` of a square MIMO plant: the second surface's pulse (``ctrl.u2`` through ``pwm2``) on its
+        own channel beside the first's."""
+        s = list(self.pwm.servo_fields(pwm))
+        s[self.pwm2.channel - 1] = self.pwm2.to_pwm(self.ctrl.u2)
+        return (time_usec, *s[:8], 0, *s[8:])
+
+    def _servo_payload_mimo(self, time_usec: int, pwm: int) -> bytes:
+        return M.MAVLink_servo_output_raw_message.unpacker.pack(*self._servo_wire_mimo(time_usec, pwm))
 
     def _start_announcing(self, now: float) -> None:
         """The run's first HEARTBEAT, now; the next ones as ``_heartbeat_period`` says."""

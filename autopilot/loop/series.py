@@ -45,6 +45,11 @@ def _series_row(rec: StepRecord) -> tuple:
     )
 
 
-def series_recorder() -> SeriesRecorder:
-    """A step hook recording every control step (t, um, phi, p, r, u sent after PWM, the law's internals)."""
+def series_recorder(mimo: bool = False) -> SeriesRecorder:
+    """A step hook recording every control step (t, um, phi, p, r, u sent after PWM, the law's internals);
+    ``mimo``: a square MIMO law's second channel and K_e too (``autopilot.mimo.MIMO_FIELDS``)."""
+    if mimo:
+        from autopilot.mimo import MIMO_FIELDS
+
+        return SeriesRecorder(SERIES_KEYS + MIMO_FIELDS, lambda rec: _series_row(rec) + rec.ctrl.mimo_row())
     return SeriesRecorder(SERIES_KEYS, _series_row)

@@ -376,6 +376,28 @@ def add_pwm_arguments(parser: argparse.ArgumentParser) -> None:
     g.add_argument(
         "--rudder-channel", type=int, default=4, help="SERVO_OUTPUT_RAW channel of the rudder, 1..16 (default 4)"
     )
+    g.add_argument(
+        "--channel2",
+        type=int,
+        default=0,
+        metavar="N",
+        help="a square MIMO plant (jsbsim:MODEL:surface=aileron+rudder): the SERVO_OUTPUT_RAW channel of the second "
+        "surface, 1..16, the first on --rudder-channel (the launcher: aileron 1, rudder 4, as ArduPilot Plane); "
+        "default 0: one surface",
+    )
+
+
+def pwm2_from_args(parser: argparse.ArgumentParser, args: argparse.Namespace) -> PwmMap | None:
+    """The second surface's map (``--channel2``: the same calibration on its own channel), None without it."""
+    if not args.channel2:
+        return None
+    if args.channel2 == args.rudder_channel:
+        parser.error(f"--channel2 {args.channel2} is the first surface's channel (--rudder-channel)")
+    try:
+        return PwmMap(args.pwm_min, args.pwm_max, args.pwm_trim, math.radians(args.rudder_max_deg), args.channel2)
+    except PwmConfigError as exc:
+        parser.error(str(exc))
+        raise  # unreachable
 
 
 def pwm_from_args(parser: argparse.ArgumentParser, args: argparse.Namespace) -> PwmMap:

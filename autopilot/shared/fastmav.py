@@ -132,5 +132,13 @@ class HotDecoder:
 
 FAST_DECODE_IDS = (mavlink.MAVLINK_MSG_ID_ATTITUDE, mavlink.MAVLINK_MSG_ID_SERVO_OUTPUT_RAW)
 FAST_DECODERS = {mid: FastDecoder(mavlink.mavlink_map[mid]) for mid in FAST_DECODE_IDS}
+# ArduPilot's AOA_SSA (ardupilotmega dialect, id 11020: time_usec, AOA and SSA in deg): the sideslip a square MIMO
+# plant's SITL sends beside ATTITUDE (docs/design.md, "Square MIMO CL-SAC"); decoded here, since the links parse the
+# common dialect
+from pymavlink.dialects.v20 import ardupilotmega as _apm  # noqa: E402
+
+AOA_SSA = _apm.MAVLink_aoa_ssa_message
+AOA_SSA_ID = AOA_SSA.id
+FAST_DECODERS[AOA_SSA_ID] = FastDecoder(AOA_SSA)
 HOT_IDS = FAST_DECODE_IDS
 HOT_DECODERS = {mid: HotDecoder(mavlink.mavlink_map[mid]) for mid in HOT_IDS}

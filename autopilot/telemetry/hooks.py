@@ -58,6 +58,7 @@ class AutopilotHook(ProcessHook):
         self._row: tuple | None = None  # the last step's row: its Ke, Kx, Ku are where a PARAM_SET's markers sit
         self._link_rows: dict = {}  # the last counters of each link: where a fault's markers sit on their plot
         self._marks: dict = {}  # the fault-marker tables, made at the first fault the SITL reports
+        self._mimo = None  # a MIMO law's table (layout.MIMO), made at its first step
 
     def __call__(self, rec) -> None:
         wall = time.time()
@@ -75,6 +76,11 @@ class AutopilotHook(ProcessHook):
             float(ap.timing.missed),
         )
         self._push((t, wall, row))
+        mimo_row = getattr(ctrl, "mimo_row", None)
+        if mimo_row is not None:  # a square MIMO law (autopilot.mimo): its second channel and K_e, a table beside
+            if self._mimo is None:
+                self._mimo = self.tel.table(L.MIMO)
+            self._mimo.push((t, wall, tuple(float(v) for v in mimo_row())))
         mode = ap.vehicle.mode.name
         if mode != self.mode.last:
             self.mode.set(t, wall, mode)

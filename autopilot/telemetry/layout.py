@@ -100,6 +100,33 @@ AUTOPILOT = TableLayout(
     poses=(Pose(AP_REFERENCE_ATTITUDE, "ym", "reference ym (ghost)", (*ORANGE, 110)),),
 )
 
+# A square MIMO flight's second channel and matrix gain (autopilot.mimo.MIMO_FIELDS, one row per step beside the
+# autopilot's): the sideslip, its references and error, the rudder command, and the entries of K_e.
+AP_MIMO = f"{AP}/mimo"
+AP_SIDESLIP = f"{AP_MIMO}/sideslip"  # beta (AOA_SSA), um2, ym2, ym_ol2, e2     deg
+AP_RUDDER2 = f"{AP_MIMO}/rudder"  # u2 (limited), sat2                       deg
+AP_GAIN_KE_MATRIX = f"{AP_MIMO}/ke"  # ke11, ke12, ke21, ke22
+MIMO = TableLayout(
+    "mimo",
+    ("beta", "um2", "u2", "e2", "ym2", "ym_ol2", "sat2", "ke11", "ke12", "ke21", "ke22"),
+    (
+        Plot(
+            AP_SIDESLIP,
+            ("um2", "ym2", "ym_ol2", "beta", "e2"),
+            ("sideslip command", "reference (closed loop)", "reference (open loop)", "sideslip beta", "error e2"),
+            (GREY, ORANGE, SKY, YELLOW, VERMILLION),
+            scale=DEG,
+        ),
+        Plot(AP_RUDDER2, ("u2",), ("rudder command u2 (limited)",), (BLUE,), scale=DEG),
+        Plot(
+            AP_GAIN_KE_MATRIX,
+            ("ke11", "ke12", "ke21", "ke22"),
+            ("Ke11", "Ke12", "Ke21", "Ke22"),
+            (WHITE, SKY, PURPLE, ORANGE),
+        ),
+    ),
+)
+
 # One row per PARAM_SET a ground station sent: each gain's value at that moment, in the series of the outcome
 # (the other one NaN, not drawn), so a marker sits on every gain plot where the tuning happened.
 PARAM_SET_FIELDS = ("ke_accepted", "ke_refused", "kx_accepted", "kx_refused", "ku_accepted", "ku_refused")

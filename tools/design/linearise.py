@@ -153,6 +153,8 @@ def linearise(spec, physics_rate_hz: float = 1000.0) -> dict:
     from sitl.jsbsim_plant import SURFACE_SIGN, SURFACES, trimmed_fdm
 
     fdm = trimmed_fdm(spec, 1.0 / physics_rate_hz)
+    if spec.is_mimo:
+        return _linearise_mimo(jsbsim, fdm, spec)
     surface = spec.surface_map  # the model's command -> deflection, as the SITL maps it
     lin = jsbsim.FGLinearization(fdm)
     x_names, u_names = list(lin.x_names), list(lin.u_names)
@@ -178,6 +180,44 @@ def linearise(spec, physics_rate_hz: float = 1000.0) -> dict:
             "phi": float(fdm["attitude/phi-rad"]),
             "theta": float(fdm["attitude/theta-rad"]),
         },
+    }
+
+
+def _trim_of(spec, fdm) -> dict:
+    return {
+        "airspeed_kt": spec.airspeed_kt,
+        "altitude_m": spec.altitude_m,
+        "phi": float(fdm["attitude/phi-rad"]),
+        "theta": float(fdm["attitude/theta-rad"]),
+    }
+
+
+def _linearise_mimo(jsbsim, fdm, spec) -> dict:
+    """A square MIMO plant (``sitl.jsbsim_plant.MIMO``): one column of B per surface (in rad, each with its sign
+    ``spec.signs`` and the model's slope at its trim), one row of C per output (phi, beta), the same lateral states."""
+    from sitl.jsbsim_plant import SURFACES
+
+    maps = spec.surface_maps
+    lin = jsbsim.FGLinearization(fdm)
+    x_names, u_names = list(lin.x_names), list(lin.u_names)
+    missing = [n for n in (*LATERAL, *(INPUTS[s] for s in spec.surfaces)) if n not in x_names + u_names]
+    if missing:
+        raise LinearisationError(f"JSBSim's linearisation of {spec.model} has no {', '.join(missing)}")
+    idx = [x_names.index(n) for n in LATERAL]
+    a_full, b_full = np.array(lin.system_matrix), np.array(lin.input_matrix)
+    cols = []
+    for surface, sign, m in zip(spec.surfaces, spec.signs, maps):
+        slope = m.slope(float(fdm[SURFACES[surface]]))
+        cols.append(sign * b_full[idx, u_names.index(INPUTS[surface])] / slope)
+    c = np.zeros((len(spec.outputs), 4))
+    for i, y in enumerate(spec.outputs):
+        c[i, STATES.index(y)] = 1.0
+    return {
+        "A": a_full[np.ix_(idx, idx)],
+        "B": np.column_stack(cols),
+        "C": c,
+        "surface": list(maps),
+        "trim": _trim_of(spec, fdm),
     }
 
 
@@ -234,6 +274,10 @@ def linearise_bounded(spec, timeout_s: float = LINEARISE_TIMEOUT_S, physics_rate
         from sitl.jsbsim_models import SurfaceMap
 
         lin["surface"] = SurfaceMap(**lin["surface"])
+    elif isinstance(lin.get("surface"), list):  # a MIMO plant's, one per surface
+        from sitl.jsbsim_models import SurfaceMap
+
+        lin["surface"] = [SurfaceMap(**m) for m in lin["surface"]]
     return {k: (np.array(v) if k in ("A", "B", "C") else v) for k, v in lin.items()}
 
 
@@ -257,6 +301,8 @@ def _linearise_child(argv: list[str]) -> int:
     def plain(v):  # arrays as lists, the surface map (a dataclass) as its fields
         if isinstance(v, np.ndarray):
             return v.tolist()
+        if isinstance(v, list):
+            return [plain(x) for x in v]
         return dataclasses.asdict(v) if dataclasses.is_dataclass(v) else v
 
     Path(out).write_text(json.dumps({k: plain(v) for k, v in lin.items()}))
@@ -302,6 +348,8 @@ def to_toml(spec, lin: dict) -> str:
     """The plant file text (``sitl.linear_plant`` format) of a linearisation."""
     from sitl import model
 
+    if spec.is_mimo:
+        return _to_toml_mimo(spec, lin)
     a, b, c = lin["A"], lin["B"], lin["C"]
     trim = lin["trim"]
     lines = [
@@ -340,6 +388,63 @@ def to_toml(spec, lin: dict) -> str:
         f"altitude_m = {trim['altitude_m']!r}",
         f"phi = {trim['phi']!r}",
         f"theta = {trim['theta']!r}",
+        "",
+    ]
+    return "\n".join(lines)
+
+
+def _strings(v) -> str:
+    return "[" + ", ".join(f'"{x}"' for x in v) + "]"
+
+
+def _to_toml_mimo(spec, lin: dict) -> str:
+    """The plant file of a square MIMO linearisation: B of m columns, C of m rows, the inputs and outputs named."""
+    from sitl import model
+
+    a, b, c = lin["A"], lin["B"], lin["C"]
+    trim, maps = lin["trim"], lin.get("surface") or [None] * len(spec.surfaces)
+    limits = spec.surface_limits_rad
+    rates = [None if m is None else m.rate_limit_rad_s for m in maps]
+    pairs = ", ".join(f"{y} on the {s}" for s, y in zip(spec.surfaces, spec.outputs))
+    lines = [
+        f"# {spec.model} lateral channels ({pairs}), linearised by JSBSim (FGLinearization) at the trim point of",
+        f"# {spec.text()} (python -m tools.plant linearise).  States [beta, phi, p, r]; the inputs are the",
+        "# surface deflections in rad, each with the sign that makes its own output's high-frequency gain positive.",
+        f'name = "{spec.model}-{spec.airspeed_kt:g}kt-{spec.surface}"',
+        f'source = "{spec.text()}"',
+        "",
+        "[input]",
+        "name = " + _strings(f"delta_{s[0]}" for s in spec.surfaces),
+        'unit = "rad"',
+        "surface = " + _strings(spec.surfaces),
+        f"limit = {_row(limits)}  # JSBSim's normalised commands saturate at +-1",
+    ]
+    for m in maps:
+        lines += [line.replace("# ", f"# {m.surface}: ", 1) for line in _actuator_lines(m) if line.startswith("#")]
+    if all(r is not None for r in rates):
+        lines.append(f"rate_limit = {_row(rates)}  # rad/s, the model's actuators")
+    lines += [
+        "",
+        "[output]",
+        "name = " + _strings(spec.outputs),
+        'unit = "rad"',
+        "",
+        "[airframe]",
+        "states = [" + ", ".join(f'"{s}"' for s in STATES) + "]",
+        "units = [" + ", ".join(f'"{u}"' for u in UNITS) + "]",
+        "A = [\n" + "".join(f"    {_row(r)},\n" for r in a) + "]",
+        "B = [\n" + "".join(f"    {_row(r)},\n" for r in b) + "]",
+        "C = [\n" + "".join(f"    {_row(r)},\n" for r in c) + "]",
+        'roll = "phi"',
+        'roll_rate = "p"',
+        'yaw_rate = "r"',
+        "",
+        "[servo]  # the SITL's servo (paper eq. (65) form), one per surface",
+        f"wn2 = {model.SERVO_WN2!r}",
+        f"two_zeta_wn = {model.SERVO_2ZETA_WN!r}",
+        "",
+        "[trim]  # informative",
+        *(f"{k} = {v!r}" for k, v in trim.items()),
         "",
     ]
     return "\n".join(lines)

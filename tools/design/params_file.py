@@ -116,6 +116,10 @@ def design_text(plant_text: str, rate_hz: float, margin: float, lv: float) -> tu
     from tools.experiment.scenario import PAPER
 
     lp = load(plant_text)
+    if lp.is_mimo:
+        from tools.design.mimo_report import design_text_mimo
+
+        return design_text_mimo(lp, plant_text, rate_hz, margin, lv)
     mats = (lp.a_p, lp.b_p, lp.c_p)
     u_limit = lp.limit_rad if lp.limit_rad is not None else math.radians(30.0)
     tn, td = analysis.tf_coefficients(analysis.plant_tf(mats))
@@ -150,7 +154,10 @@ def design_text(plant_text: str, rate_hz: float, margin: float, lv: float) -> tu
 def write_params(path: Path, plant_text: str, lines: list[str], values: dict, plant: str | None = None) -> None:
     text = [f"{HEADER}{plant_text} by python -m tools.pfc design"]
     text += [f"#   {line}" for line in lines]
-    text.append("# SAC and CL-SAC fly the CLSAC_PFC_* and CLSAC_GAM_* values, the baseline the CLSAC_PID_* ones")
+    if any(n.startswith("CLSAC_PFC2") for n in values):
+        text.append("# SAC and CL-SAC fly the CLSAC_PFC*_* and CLSAC_GAM_* values, the baseline the CLSAC_PID*_* ones")
+    else:
+        text.append("# SAC and CL-SAC fly the CLSAC_PFC_* and CLSAC_GAM_* values, the baseline the CLSAC_PID_* ones")
     if plant is not None:
         text.append(f"#   fly it: {fly_command(plant, path)} [--controller sac|clsac|baseline]")
     text += [f"{name:<16s} {float(v)!r}" for name, v in values.items()]

@@ -373,10 +373,27 @@ class FlightConfig:
 
     @property
     def surface(self) -> str:
-        """The surface the command drives: rudder (the KH2013A, a plant file's ``[input] surface``), aileron, ..."""
+        """The surface the command drives: rudder (the KH2013A, a plant file's ``[input] surface``), aileron, ...;
+        a square MIMO plant's first (the aileron: the roll channel the loop's verdict and messages name)."""
         from sitl import plant as plants
 
-        return plants.surface_of(self.plant)
+        return plants.surface_of(self.plant).split("+")[0]
+
+    @property
+    def mimo(self) -> bool:
+        """A square MIMO plant (``jsbsim:MODEL:surface=aileron+rudder``): two surfaces, roll and sideslip."""
+        from sitl import plant as plants
+
+        return "+" in plants.surface_of(self.plant)
+
+    @property
+    def surface2_limit_deg(self) -> float | None:
+        """A square MIMO plant's second surface's stop (deg), None for one surface."""
+        if not self.mimo:
+            return None
+        from sitl.jsbsim_plant import parse_spec
+
+        return math.degrees(parse_spec(self.plant).surface_limits_rad[1])
 
     @property
     def plant_name(self) -> str:
@@ -498,6 +515,9 @@ def _trims(plant: str) -> None:
         plants.build(plant, 1000.0)
 
 
+MIMO_CHANNELS = (1, 4)  # SERVO_OUTPUT_RAW channels of a square MIMO plant's surfaces: aileron, rudder (ArduPilot Plane)
+
+
 def child_argvs(
     cfg: FlightConfig,
     out: Path,
@@ -511,6 +531,8 @@ def child_argvs(
     given to all three so that every link is pinned to its peer from the start (docs/design.md, "Trust model")."""
     py = [sys.executable, "-u", "-m"]
     pwm = ["--rudder-max-deg", repr(max(RUDDER_MAX_DEG, cfg.u_limit_deg))]
+    if cfg.mimo:  # each surface on its own SERVO_OUTPUT_RAW channel, as ArduPilot Plane: aileron 1, rudder 4
+        pwm += ["--rudder-channel", str(MIMO_CHANNELS[0]), "--channel2", str(MIMO_CHANNELS[1])]
     sitl = (
         py
         + [
@@ -568,6 +590,8 @@ def child_argvs(
     )
     if cfg.params_file is not None:
         ap += ["--params", cfg.params_file]
+    if cfg.mimo:
+        ap += ["--u-limit2-deg", repr(cfg.surface2_limit_deg)]
     if cfg.baseline_gains_flown is not None:
         ap += ["--baseline-gains", ",".join(repr(g) for g in cfg.baseline_gains_flown)]
     if cfg.failure_injection:

@@ -224,6 +224,9 @@ def build_summary(
         if (sitl or {}).get("diverged")
         else None,
         "controlled": ap.get("controlled") if ap else None,
+        # a square MIMO plant's sideslip channel (autopilot.mimo.ChannelMetrics): max |sideslip| and its envelope,
+        # saturation per surface, the metrics per channel; None with one surface
+        "sideslip": ap.get("sideslip") if ap else None,
         # the time a ground station disarmed the vehicle or flew it in MANUAL (autopilot.envelope), and the words
         # the verdict line adds for it
         "ground_station": (ap.get("controlled") or {}).get("ground_station") if ap else None,

@@ -32,15 +32,19 @@ def sine(t: float, amplitude: float, period: float) -> float:
     return amplitude * math.sin(2.0 * math.pi * t / period)
 
 
-def from_csv(path: str) -> tuple[list[float], list[float]]:
-    """Read a profile from a CSV file of ``time_s, roll_deg`` rows (header and ``#`` lines skipped).
+def read_csv(path: str) -> tuple[list[float], list[float], list[float] | None]:
+    """Read a profile from a CSV file of ``time_s, roll_deg[, sideslip_deg]`` rows (header and ``#`` lines skipped;
+    the third column, a square MIMO plant's sideslip command, is optional: 0 where a row has none).
 
-    Returns (times in s, rolls in rad), times strictly increasing.  Raises ValueError with the line
+    Returns (times in s, rolls in rad, sideslips in rad or None without a third column), times strictly
+    increasing.  Raises ValueError with the line
     number on a malformed, non-finite, out-of-range or out-of-order row: times are bounded like durations, in
     [0, MAX_SIM_S] s (a day of sim time), rolls like ``--amplitude``, in [-180, 180] deg.
     """
     times: list[float] = []
     rolls: list[float] = []
+    sides: list[float] = []
+    third = False
     try:
         with open(path, "rb") as f:
             data = f.read().decode("utf-8")
@@ -67,10 +71,26 @@ def from_csv(path: str) -> tuple[list[float], list[float]]:
             raise ValueError(f"{path}:{lineno}: roll must be in [-180, 180] deg, got {parts[1]!r}")
         if times and t <= times[-1]:
             raise ValueError(f"{path}:{lineno}: times must increase, got {t} after {times[-1]}")
+        b = 0.0
+        if len(parts) > 2 and parts[2]:
+            try:
+                b = float(parts[2])
+            except ValueError:
+                raise ValueError(f"{path}:{lineno}: sideslip_deg must be a number, got {parts[2]!r}") from None
+            if not (math.isfinite(b) and -30.0 <= b <= 30.0):
+                raise ValueError(f"{path}:{lineno}: sideslip must be in [-30, 30] deg, got {parts[2]!r}")
+            third = True
         times.append(t)
         rolls.append(math.radians(r))
+        sides.append(math.radians(b))
     if not times:
         raise ValueError(f"{path}: no data rows")
+    return times, rolls, (sides if third else None)
+
+
+def from_csv(path: str) -> tuple[list[float], list[float]]:
+    """``read_csv``'s (times in s, rolls in rad): a ``time_s, roll_deg`` profile."""
+    times, rolls, _sides = read_csv(path)
     return times, rolls
 
 
@@ -103,6 +123,10 @@ class Profile:
     step_time: float = 1.0
     times: tuple[float, ...] = ()
     values: tuple[float, ...] = ()
+    # A square MIMO plant's second setpoint, the sideslip (rad): a CSV's third column (held like the roll, on its
+    # ``times``), else one constant; no sideslip setpoint is sent unless one is given (``has_sideslip``)
+    sideslips: tuple[float, ...] = ()
+    sideslip_const: float | None = None
 
     def __post_init__(self) -> None:
         if self.kind not in KINDS:
@@ -115,6 +139,12 @@ class Profile:
             raise ProfileError("step_time", f"step_time must be finite and >= 0, got {self.step_time!r}")
         object.__setattr__(self, "times", tuple(self.times))
         object.__setattr__(self, "values", tuple(self.values))
+        object.__setattr__(self, "sideslips", tuple(self.sideslips))
+        if self.sideslips and len(self.sideslips) != len(self.times):
+            raise ProfileError("sideslips", "sideslips must be one per time")
+        c = self.sideslip_const
+        if c is not None and not (math.isfinite(c) and abs(c) <= math.radians(30.0)):
+            raise ProfileError("sideslip", f"the sideslip command must be in [-30, 30] deg, got {math.degrees(c)!r}")
         if self.kind == "csv":
             self._check_table()
 
@@ -161,10 +191,10 @@ class Profile:
     def from_csv(cls, path: str) -> Profile:
         """The breakpoints of a ``time_s, roll_deg`` CSV file, held; OSError if it cannot be read."""
         try:
-            times, values = from_csv(path)
+            times, values, sides = read_csv(path)
         except ValueError as exc:
             raise ProfileError("csv", str(exc)) from None
-        return cls("csv", times=tuple(times), values=tuple(values))
+        return cls("csv", times=tuple(times), values=tuple(values), sideslips=tuple(sides or ()))
 
     @classmethod
     def of(
@@ -180,6 +210,17 @@ class Profile:
         if csv:
             return cls.from_csv(csv)
         return cls(kind, math.radians(amplitude_deg), period, step_time)
+
+    @property
+    def has_sideslip(self) -> bool:
+        """A sideslip setpoint is given (a CSV's third column or ``sideslip_const``): the GCS sends it."""
+        return bool(self.sideslips) or self.sideslip_const is not None
+
+    def sideslip(self, t: float) -> float:
+        """The sideslip command in rad at ``t`` s (0 without one)."""
+        if self.sideslips:
+            return hold(t, self.times, self.sideslips)
+        return self.sideslip_const or 0.0
 
     def value(self, t: float) -> float:
         """The roll command in rad at ``t`` s."""

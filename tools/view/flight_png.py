@@ -640,6 +640,14 @@ def flight_image(
         rudder.lines.append(Line(u * DEG, color, 1.0, label=f"{surface} command (flown, after PWM)"))
         if _finite_max_abs(u) > 0.5 * u_limit_rad:
             rudder.hlines = [u_limit_rad * DEG, -u_limit_rad * DEG]
+    mimo = {k: _column(series, k) for k in ("u2", "beta", "ke12", "ke21", "ke22")}
+    mimo = {k: v for k, v in mimo.items() if v is not None and len(v) == len(t)}
+    if "u2" in mimo and "beta" in mimo:  # a square MIMO flight (autopilot.mimo): the rudder on the sideslip
+        rudder.title = f"Surface commands and sideslip (max |β| {_finite_max_abs(mimo['beta']) * DEG:.2f} deg)"
+        rudder.ylabel = "[deg]"
+        rudder.legend_cols = 3
+        rudder.lines.append(Line(mimo["u2"] * DEG, C_GAINS["kx"], 1.0, label="rudder command u_{2}"))
+        rudder.lines.append(Line(mimo["beta"] * DEG, C_GAINS["ku"], 1.2, label="sideslip β"))
 
     # The adaptive gains; the baseline adapts nothing (its telemetry records K_p as K_e, the rest 0)
     if baseline:
@@ -649,7 +657,10 @@ def flight_image(
         if col[key] is None:
             gains.missing.append(key)
         else:
-            gains.lines.append(Line(col[key], C_GAINS[key], 1.0, label=label))
+            gains.lines.append(Line(col[key], C_GAINS[key], 1.0, label="K_{e,11}" if mimo and key == "ke" else label))
+    for key, label, style in (("ke12", "K_{e,12}", "--"), ("ke21", "K_{e,21}", ":"), ("ke22", "K_{e,22}", "--")):
+        if key in mimo:  # the matrix gain's other entries (MIMO)
+            gains.lines.append(Line(mimo[key], C_GAINS["ke"] if key != "ke22" else C_CMD, 1.0, style, label=label))
 
     return render(t, [tracking, rudder, gains], mode_switches(t, col["mode"]), title, faults)
 

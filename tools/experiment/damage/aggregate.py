@@ -59,6 +59,18 @@ def cell_of(records: Sequence[dict]) -> dict:
         "ise_ref_periods_p50": [
             _median(r["ise_ref_periods"][i] for r in records if i < len(r["ise_ref_periods"])) for i in range(n_periods)
         ],
+    } | _sideslip_of(records)
+
+
+def _sideslip_of(records: Sequence[dict]) -> dict:
+    """A square MIMO plant's cell: the median and the largest max |sideslip| (deg) of its flights and the median
+    share of steps the rudder is saturated; nothing for a SISO plant's."""
+    if not records or "max_abs_sideslip_deg" not in records[0]:
+        return {}
+    return {
+        "max_abs_sideslip_deg_p50": _median(r["max_abs_sideslip_deg"] for r in records),
+        "max_abs_sideslip_deg_max": max(r["max_abs_sideslip_deg"] for r in records),
+        "rudder_saturated_share_p50": _median(r["rudder_saturated_share"] for r in records),
     }
 
 
@@ -91,6 +103,34 @@ def summarise(flights, results) -> list[dict]:
 
 def _fmt(v, spec: str = ".3g") -> str:
     return "-" if v is None else format(v, spec)
+
+
+def sideslip_table(cells: Sequence[dict], plant: str, controllers: Sequence[str], onset: float | None = None) -> str:
+    """A square MIMO plant's coordination: a row per fault (at ``onset``, the first by default), per controller the
+    median max |sideslip| (deg) of the cell's flights and the largest."""
+    mine = [c for c in cells if c["plant"] == plant]
+    onsets = sorted({c["onset_s"] for c in mine if c["onset_s"] is not None})
+    onset = onsets[0] if onset is None and onsets else onset
+    rows: dict[tuple, dict] = {}
+    for c in mine:
+        if c["kind"] == NONE or c["onset_s"] == onset:
+            rows.setdefault((c["kind"], c["severity"]), {})[c["controller"]] = c
+    width = 22
+    head = f"{'fault':<22}" + "".join(f"{LABELS.get(n, n)[: width - 1]:>{width}}" for n in controllers)
+    lines = [f"{plant}: max |sideslip| (deg), median / largest over the seeds, onset {_fmt(onset, 'g')} s", head]
+    for (kind, sev), per in rows.items():
+        name = kind if kind == NONE else f"{kind}={'here' if sev is None else format(sev, 'g')}"
+        row = f"{name:<22}"
+        for n in controllers:
+            c = per.get(n)
+            row += (
+                f"{'-':>{width}}"
+                if c is None or "max_abs_sideslip_deg_p50" not in c
+                else f"{_fmt(c['max_abs_sideslip_deg_p50'], '.2f'):>10} / "
+                f"{_fmt(c['max_abs_sideslip_deg_max'], '.2f'):>8}"
+            )
+        lines.append(row)
+    return "\n".join(lines)
 
 
 def table(cells: Sequence[dict], plant: str, controllers: Sequence[str], onset: float | None = None) -> str:

@@ -124,18 +124,24 @@ def study_of(args) -> object:
     cells, _ = study.cells()
     if not any(cells.values()):
         raise grid.DamageError("no plant flies any of the fault kinds asked for")
+    if not study.flights():
+        raise grid.DamageError(
+            "no plant flies any of the controllers asked for (a square MIMO plant flies "
+            + ", ".join(grid.MIMO_CONTROLLERS)
+            + ")"
+        )
     if grid.RETUNED in study.controllers:
         from tools.design.linearise import linear_model
 
         for p in plant_list:
-            if linear_model(p) is None:
+            if not grid.is_mimo(p) and linear_model(p) is None:
                 raise grid.DamageError(f"{grid.RETUNED} needs a linear model of {p} (tools.design.linearise)")
     return study
 
 
 def main(argv: Sequence[str] | None = None) -> int:
     from sitl import plant as plants
-    from tools.experiment.damage.aggregate import period_table, table
+    from tools.experiment.damage.aggregate import period_table, sideslip_table, table
     from tools.experiment.damage.runner import run, write
     from tools.experiment.outdir import OutDirError, check_out_dir, default_out_dir, prepare_out_dir
     from tools.experiment.study import StudyError
@@ -158,6 +164,9 @@ def main(argv: Sequence[str] | None = None) -> int:
         for p, why in skipped.items():
             for k, reason in why.items():
                 print(f"not flown on {p}: {k} ({reason})")
+        for p in study.plants:
+            for c, reason in grid.controller_refusals(p, study.controllers).items():
+                print(f"not flown on {p}: controller {c} ({reason})")
         doc = run(study, workers=workers, scheduler=args.scheduler, progress=not args.quiet)
         written = write(doc, out, plot=not args.no_plot)
     except (StudyError, OutDirError) as exc:
@@ -168,10 +177,14 @@ def main(argv: Sequence[str] | None = None) -> int:
         return 130
     for p in study.plants:
         print()
-        print(table(doc["cells"], p, study.controllers))
+        flown = [c for c in study.controllers if c not in grid.controller_refusals(p, study.controllers)]
+        print(table(doc["cells"], p, flown))
+        if grid.is_mimo(p):
+            print()
+            print(sideslip_table(doc["cells"], p, flown))
         if study.duration >= LONG_S:
             print()
-            print(period_table(doc["cells"], p, study.controllers))
+            print(period_table(doc["cells"], p, flown))
     print()
     print(
         f"{doc['flights']} flights and {len(doc['designs'])} design(s) in {doc['wall_s']:.1f} s "

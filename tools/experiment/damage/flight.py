@@ -24,6 +24,7 @@ import numpy as np
 
 from tools.experiment.damage.grid import (
     ENERGY,
+    MIMO_CONTROLLERS,
     NONE,
     RETUNED,
     Calibration,
@@ -31,6 +32,7 @@ from tools.experiment.damage.grid import (
     Flight,
     effect_of,
     fault_of,
+    is_mimo,
 )
 
 PAPER_RATE_HZ = 100.0  # the reference scenario's control rate (tools.experiment.scenario.PAPER)
@@ -117,8 +119,39 @@ def recovery_of(t, phi, ym, um, onset: float) -> dict:
 
 
 def fly_record(task: Flight) -> dict:
+    if is_mimo(task.plant):
+        return fly_record_mimo(task)
     res, scen = fly(task)
     return record(res.series, res.metrics, task.onset, scen.period_s, scen.u_limit_rad, 1.0 / scen.control_rate_hz)
+
+
+def fly_record_mimo(task: Flight) -> dict:
+    """A square MIMO plant's flight (``tools.experiment.mimo_inprocess.run_mimo``, bit for bit the lockstep MAVLink
+    flight): the same square wave, fault, onset and turbulence; the fault acts on the first surface, the aileron
+    (``sitl.damage.ScheduledEffects`` on the aileron's command, effectiveness on its control derivatives), the
+    rudder flies as designed.  The record is a SISO flight's, judged on the roll channel, with the sideslip beside:
+    ``max_abs_sideslip_deg`` (|beta| as AOA_SSA carries it) and ``rudder_saturated_share``."""
+    from tools.experiment.mimo_inprocess import run_mimo
+    from tools.experiment.scenario import PAPER
+
+    if task.controller not in MIMO_CONTROLLERS:
+        raise ValueError(
+            f"{task.plant}: a square MIMO plant flies {', '.join(MIMO_CONTROLLERS)}, not {task.controller}"
+        )
+    faults = () if task.kind == NONE else (fault_of(task.kind, task.value, task.onset),)
+    r = run_mimo(
+        task.plant,
+        task.controller,
+        duration_s=task.duration,
+        rate_hz=PAPER.control_rate_hz,
+        faults=faults,
+        disturbances=disturbances(task.turbulence, task.seed),
+    )
+    scen = _scenario(task.plant, task.duration)
+    out = record(r["series"], r["metrics"], task.onset, scen.period_s, scen.u_limit_rad, 1.0 / scen.control_rate_hz)
+    out["max_abs_sideslip_deg"] = float(np.degrees(np.max(np.abs(r["series"]["beta"]))))
+    out["rudder_saturated_share"] = float(r["sideslip"]["saturated_fraction"]["rudder"])
+    return out
 
 
 def design(task: Design) -> dict:

@@ -47,6 +47,26 @@ DEFAULT_DURATION_S = 30.0
 DEFAULT_TURBULENCE = "light"
 TURBULENCE = ("none", "light", "moderate", "severe")
 LINEAR_KINDS = ("effectiveness", "damping", "delay")  # a retuned PID is designed on the faulted linear plant
+# A square MIMO plant (jsbsim:MODEL:surface=aileron+rudder) flies the laws autopilot.mimo builds, nothing else.
+MIMO_CONTROLLERS = ("baseline", "sac", "clsac")
+MIMO_REFUSALS = {
+    "pid-ff": "autopilot.mimo flies clsac, sac and baseline only (the launcher refuses --controller pid-ff on it)",
+    RETUNED: "its PID is retuned on a single-input linear model (tools.design.tuning.design_baseline): no MIMO retune",
+    ENERGY: "its gain factor is calibrated on the single-input PID's energy: no MIMO calibration",
+}
+
+
+def is_mimo(plant: str) -> bool:
+    """A square MIMO JSBSim plant (``jsbsim:MODEL:surface=aileron+rudder``)."""
+    return plant.startswith("jsbsim:") and "+" in plant.split(":", 2)[-1]
+
+
+def controller_refusals(plant: str, controllers) -> dict[str, str]:
+    """{controller: why not} for the study's controllers ``plant`` does not fly (a square MIMO plant:
+    ``MIMO_REFUSALS``)."""
+    if not is_mimo(plant):
+        return {}
+    return {c: MIMO_REFUSALS[c] for c in controllers if c not in MIMO_CONTROLLERS}
 
 
 class DamageError(ValueError):
@@ -152,10 +172,14 @@ def make_flights(
     turbulence: str,
 ) -> list[Flight]:
     """Every flight of the study, without the designed gains (``with_designs`` adds them): per plant, controller
-    and seed the fault-free flight, and per fault cell and onset one faulted flight."""
+    and seed the fault-free flight, and per fault cell and onset one faulted flight (a controller the plant does
+    not fly, ``controller_refusals``, flies none)."""
     out = []
     for p in plants:
+        refused = controller_refusals(p, controllers)
         for c in controllers:
+            if c in refused:
+                continue
             for s in seeds(seed, runs):
                 out.append(Flight(p, c, NONE, None, float(onsets[0]), s, duration, turbulence))
                 for kind, value in cells_by_plant[p]:

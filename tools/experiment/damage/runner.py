@@ -68,7 +68,6 @@ def run(study: Study, *, workers: int = 1, scheduler: str | None = None, progres
     by_task = dict(zip(free, first[len(prep) :])) | dict(zip(bound, second))
     flights = grid.with_designs(flights, gains)
     results = [by_task[f] for f in flights]
-    _, skipped = study.cells()
     return {
         "study": "damage",
         "plants": list(study.plants),
@@ -82,7 +81,7 @@ def run(study: Study, *, workers: int = 1, scheduler: str | None = None, progres
         "seeds": grid.seeds(study.seed, study.runs),
         "duration_s": study.duration,
         "turbulence": study.turbulence,
-        "not_flown": {p: why for p, why in skipped.items() if why},
+        "not_flown": not_flown(study),
         "designs": [
             {"task": type(t).__name__.lower(), "plant": t.plant, **_task_fields(t), **_plain(r)}
             for t, r in designed.items()
@@ -93,6 +92,21 @@ def run(study: Study, *, workers: int = 1, scheduler: str | None = None, progres
         "flights_per_s": len(flights) / (t1 - t0) if t1 > t0 else None,
         "executor": scheduler or f"{workers} local process(es)",
     }
+
+
+def not_flown(study: Study) -> dict:
+    """{plant: {kind: why, ..., "controllers": {controller: why}}} for what a plant does not fly (plants that fly
+    everything asked for are not listed)."""
+    _, skipped = study.cells()
+    out = {}
+    for p in study.plants:
+        why = dict(skipped.get(p) or {})
+        refused = grid.controller_refusals(p, study.controllers)
+        if refused:
+            why["controllers"] = refused
+        if why:
+            out[p] = why
+    return out
 
 
 def _task_fields(t) -> dict:

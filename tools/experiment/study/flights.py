@@ -64,6 +64,8 @@ def simulate(task: Flight) -> dict:
 
     dist = (("seed", task.seed),) + ((("turbulence", task.turbulence),) if task.turbulence != "none" else ())
     limit = min(PAPER.u_limit_rad, plants.surface_limit_rad(task.plant) or float("inf"))
+    if is_mimo(task.plant):
+        return _simulate_mimo(task, dist, limit)
     scenario = replace(PAPER, plant=task.plant, u_limit_rad=limit, disturbances=dist)
     res = run_inprocess(scenario, run_of(task.controller), atmosphere=True)
     u, phi = res.series["u"], res.series["phi"]
@@ -72,6 +74,33 @@ def simulate(task: Flight) -> dict:
     out["sat_fraction"] = float(np.mean(np.abs(u) >= limit * (1 - 1e-9)))
     # inside the envelope (autopilot.envelope, the launcher's "controlled"): |roll|, saturation and tracking
     c = judge_series(res.series["t"], phi, u, limit, ref=res.series["ym_ol"])
+    out["bounded"] = bool(c.ok)
+    out["oscillating"] = bool(c.tracking is not None and c.tracking.oscillating_windows)
+    out["not_following"] = bool(c.tracking is not None and c.tracking.not_following_windows)
+    return out
+
+
+def is_mimo(plant: str) -> bool:
+    """A square MIMO JSBSim plant (``jsbsim:MODEL:surface=aileron+rudder``)."""
+    return plant.startswith("jsbsim:") and "+" in plant.split(":", 2)[-1]
+
+
+MIMO_CONTROLLERS = ("sac", "clsac", "baseline")  # the controllers a square MIMO plant flies (autopilot.mimo)
+
+
+def _simulate_mimo(task: Flight, dist, limit: float) -> dict:
+    """``simulate`` on a square MIMO plant: ``tools.experiment.mimo_inprocess.run_mimo`` (bit for bit its lockstep
+    flight), the roll channel judged as a SISO flight's, the sideslip's max |beta| (rad) beside."""
+    from tools.experiment.mimo_inprocess import run_mimo
+
+    r = run_mimo(task.plant, task.controller, disturbances=dist)
+    s = r["series"]
+    out = dict(r["metrics"])
+    out["max_abs_roll"] = float(np.max(np.abs(s["phi"])))
+    out["sat_fraction"] = float(np.mean(np.abs(s["u"]) >= limit * (1 - 1e-9)))
+    out["max_abs_sideslip"] = float(np.max(np.abs(s["beta"])))
+    out["rudder_sat_fraction"] = r["sideslip"]["saturated_fraction"]["rudder"]
+    c = judge_series(s["t"], s["phi"], s["u"], limit, ref=s["ym_ol"])
     out["bounded"] = bool(c.ok)
     out["oscillating"] = bool(c.tracking is not None and c.tracking.oscillating_windows)
     out["not_following"] = bool(c.tracking is not None and c.tracking.not_following_windows)
@@ -113,10 +142,12 @@ class FlightOptions:
         return [(text, v, t) for text, v in speeds for t in self.turbulence]
 
     def flights(self) -> list[Flight]:
-        """Every flight, controller by controller, condition by condition, seed by seed."""
+        """Every flight, controller by controller, condition by condition, seed by seed (a square MIMO plant: the
+        controllers it flies, ``MIMO_CONTROLLERS``)."""
+        names = [c for c in self.controllers if not is_mimo(self.plant) or c in MIMO_CONTROLLERS]
         return [
             Flight(c, text, t, self.seed * SEED_STRIDE + i, v)
-            for c in self.controllers
+            for c in names
             for text, v, t in self.conditions()
             for i in range(self.seeds)
         ]
@@ -199,8 +230,9 @@ def fly(opts: FlightOptions, *, log=print, progress: bool = True, stop: threadin
     for the estimate; ``stop`` set: the flights done, ``partial`` True."""
     flights = opts.flights()
     where = opts.scheduler or ("this process" if opts.workers == 1 else f"{opts.workers} local processes")
+    n_ctrl = len({f.controller for f in flights}) or 1  # a square MIMO plant flies MIMO_CONTROLLERS only
     log(
-        f"study of {opts.plant}: {len(opts.controllers)} controllers x {len(flights) // len(opts.controllers)} "
+        f"study of {opts.plant}: {n_ctrl} controllers x {len(flights) // n_ctrl} "
         f"flights = {len(flights)} in-process flights of 30 s on {where}"
     )
     bar = Progress(len(flights), "30 s flights", enabled=progress, unit="flights")

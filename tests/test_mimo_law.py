@@ -1,0 +1,132 @@
+"""The MIMO law behind the one-channel loop (issue 32, stages C and D): ``autopilot.mimo``.  Checked against
+independent computations: the PFC of each channel by its exact ZOH by hand, the channel metrics by numpy on the same
+samples, AOA_SSA's fast decoder against pymavlink's ardupilotmega dialect."""
+
+from __future__ import annotations
+
+import math
+from types import SimpleNamespace
+
+import numpy as np
+import pytest
+
+from autopilot import mimo
+from autopilot.params import load_file
+from sitl import plant as plants
+
+T = 0.01
+OPTIONS = {"attitude_timeout_s": 0.1, "setpoint_timeout_s": 1.0, "max_roll_rad": 1.0}
+
+
+@pytest.fixture
+def values():
+    return load_file(plants.shipped("jsbsim-c172x-aileron+rudder.params"))
+
+
+def test_the_clsac_law_flies_both_channels_with_their_own_pfc(values):
+    law = mimo.from_values("clsac", values, control_rate_hz=100.0, limits=(0.305, 0.279))
+    ks = [(values["CLSAC_PFC_NUM"], values["CLSAC_PFC_DEN0"]), (values["CLSAC_PFC2_NUM"], values["CLSAC_PFC2_DEN0"])]
+    xd = np.zeros(2)
+    rng = np.random.default_rng(3)
+    for _ in range(300):
+        law.y2 = float(rng.normal(0, 0.02))
+        u1 = law(float(rng.normal(0, 0.1)), 0.17)
+        u = (u1, law.u2)
+        assert abs(u1) <= 0.305 and abs(law.u2) <= 0.279
+        assert law.Ke.shape == (2, 2)
+        for i, (_k, a) in enumerate(ks):
+            xd[i] = math.exp(-a * T) * xd[i] + (1 - math.exp(-a * T)) / a * u[i]
+    # the next step's y_d of each channel is k_i x_d,i (D_i = k_i/(s + a_i), exact ZOH by hand)
+    law.y2 = 0.0
+    law(0.0, 0.0)
+    assert law.y_pfc == pytest.approx(ks[0][0] * xd[0], abs=1e-12)
+    assert float(law.law.y_pfc[1]) == pytest.approx(ks[1][0] * xd[1], abs=1e-12)
+
+
+def test_a_file_without_the_second_channel_is_refused(values):
+    siso = load_file(plants.shipped("jsbsim-c172x.params"))
+    with pytest.raises(ValueError, match="CLSAC_PFC2_NUM"):
+        mimo.from_values("clsac", siso, control_rate_hz=100.0, limits=(0.3, 0.28))
+    with pytest.raises(ValueError, match="CLSAC_PID2_KP"):
+        mimo.from_values("baseline", siso, control_rate_hz=100.0, limits=(0.3, 0.28))
+
+
+def test_the_parameter_table_names_each_channel_and_sets_it(values):
+    law = mimo.from_values("clsac", values, control_rate_hz=100.0, limits=(0.305, 0.279))
+    table = mimo.param_table(law, OPTIONS)
+    names = [n for n, _ in table.items()]
+    assert {"CLSAC_PFC_NUM", "CLSAC_PFC2_NUM", "CLSAC_PFC2_DEN0", "CLSAC_LV", "CLSAC_GAM_PE"} <= set(names)
+    assert all(len(n) <= 16 for n in names)
+    assert table.get("CLSAC_PFC2_DEN0") == values["CLSAC_PFC2_DEN0"]
+    table.set("CLSAC_PFC2_NUM", 2.0)
+    law.reconfigure(table.config)
+    assert law.law._cd[1, 1] == 2.0 and law.law._cd[0, 0] == pytest.approx(values["CLSAC_PFC_NUM"])
+    with pytest.raises(ValueError, match="CLSAC_PFC2_DEN0"):
+        table.set("CLSAC_PFC2_DEN0", -1.0)
+    base = mimo.from_values("baseline", values, control_rate_hz=100.0, limits=(0.305, 0.279))
+    bt = mimo.param_table(base, OPTIONS)
+    bt.set("CLSAC_PID2_KP", 2.5)
+    assert base.laws[1].config.kp == 2.5 and bt.get("CLSAC_PID2_KP") == 2.5 and bt.get("CLSAC_PID_KP") == 1.0
+
+
+def test_the_channel_metrics_are_the_sums_of_their_samples():
+    rng = np.random.default_rng(5)
+    acc = mimo.ChannelMetrics(T, (0.3, 0.28))
+    rows = []
+    from autopilot.step import Failsafe
+
+    for _ in range(500):
+        phi, beta, u, u2 = rng.normal(0, 0.1, 4)
+        ym1, ym2 = rng.normal(0, 0.1, 2)
+        sat1, sat2 = bool(rng.random() < 0.1), bool(rng.random() < 0.2)
+        ctrl = SimpleNamespace(y2=beta, ym_ol=ym1, ym_ol2=ym2, u2=u2, saturated=sat1, sat2=sat2, frozen=False)
+        acc(SimpleNamespace(result=SimpleNamespace(phi=phi, u=u, failsafe=Failsafe.NONE), ctrl=ctrl))
+        rows.append((phi, beta, u, u2, ym1, ym2, sat1, sat2))
+    a = np.array(rows, dtype=float)
+    r = acc.result()
+    roll, side = r["channels"]
+    assert roll["metrics"]["ise_ref"] == pytest.approx(np.sum((a[:, 0] - a[:, 4]) ** 2) * T)
+    assert side["metrics"]["ise_ref"] == pytest.approx(np.sum((a[:, 1] - a[:, 5]) ** 2) * T)
+    assert side["metrics"]["tv"] == pytest.approx(np.sum(np.abs(np.diff(a[:, 3]))))
+    assert side["metrics"]["energy"] == pytest.approx(np.sum(a[:, 3] ** 2) * T)
+    assert r["max_abs_sideslip_deg"] == pytest.approx(math.degrees(np.max(np.abs(a[:, 1]))))
+    assert r["saturated_fraction"]["rudder"] == pytest.approx(np.mean(a[:, 7]))
+    assert r["within_envelope"] == (r["max_abs_sideslip_deg"] <= 10.0)
+
+
+def test_aoa_ssa_decodes_as_pymavlink_s_ardupilotmega_does():
+    from pymavlink.dialects.v20 import ardupilotmega
+
+    from autopilot.shared.fastmav import AOA_SSA, AOA_SSA_ID, FAST_DECODERS, FastPacker
+
+    raw = FastPacker(AOA_SSA, 1, 200)(7, 123456, 2.5, -1.25)
+    ref = ardupilotmega.MAVLink(None).decode(bytearray(raw))
+    got = FAST_DECODERS[AOA_SSA_ID](raw)
+    assert ref.get_type() == "AOA_SSA" and (got.time_usec, got.AOA, got.SSA) == (ref.time_usec, ref.AOA, ref.SSA)
+    assert got.SSA == -1.25
+
+
+def test_a_csv_profile_s_third_column_is_the_sideslip_command(tmp_path):
+    from tools.flight.profiles import Profile, ProfileError, from_csv
+
+    f = tmp_path / "p.csv"
+    f.write_text("time_s, roll_deg, sideslip_deg\n0, 10, 0\n10, -10, 3\n20, 0\n")
+    p = Profile.from_csv(str(f))
+    assert p.has_sideslip and p.sideslip(12.0) == pytest.approx(math.radians(3.0)) and p.sideslip(25.0) == 0.0
+    assert from_csv(str(f))[1][1] == pytest.approx(math.radians(-10.0))  # the two-column reader is unchanged
+    two = tmp_path / "two.csv"
+    two.write_text("0, 10\n10, -10\n")
+    assert not Profile.from_csv(str(two)).has_sideslip
+    f.write_text("0, 10, 45\n")
+    with pytest.raises(ProfileError, match="sideslip must be in"):
+        Profile.from_csv(str(f))
+
+
+def test_the_monte_carlo_flies_the_mimo_plant_with_its_controllers():
+    from tools.experiment.study.flights import FlightOptions, simulate
+
+    opts = FlightOptions("jsbsim:c172x:surface=aileron+rudder", turbulence=("none",), seeds=1)
+    flights = opts.flights()
+    assert [f.controller for f in flights] == ["sac", "clsac", "baseline"]  # pid-ff is not flown on it
+    r = simulate(flights[1])
+    assert r["bounded"] and 0.0 < r["max_abs_sideslip"] < math.radians(10.0) and r["rudder_sat_fraction"] == 0.0
