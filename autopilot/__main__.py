@@ -423,6 +423,9 @@ def main(argv=None) -> int:
         stats = ap.stats()
         if channels is not None:
             stats["sideslip"] = channels.result()
+            from autopilot.mimo import with_sideslip
+
+            stats["controlled"] = with_sideslip(stats.get("controlled"), stats["sideslip"])
         if tlog is not None:
             tlog.close()
         ap.close()

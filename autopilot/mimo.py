@@ -283,6 +283,35 @@ class ChannelMetrics:
         }
 
 
+def with_sideslip(controlled: dict, side: dict) -> dict:
+    """The envelope verdict (``autopilot.envelope``'s ``controlled`` block) of a MIMO flight with its second channel
+    in it: out of the envelope also when |sideslip| went past ``side["envelope_deg"]`` or the rudder saturated in as
+    large a share of the steps as the aileron may (``limits["max_saturated_share"]``, strict as for the aileron);
+    the reason says the sideslip's numbers either way.  A flight with no verdict (not checked) is left as it is."""
+    if not controlled or not controlled.get("checked", True):
+        return controlled
+    beta, env = side["max_abs_sideslip_deg"], side["envelope_deg"]
+    rudder = side["saturated_fraction"]["rudder"]
+    share = controlled.get("limits", {}).get("max_saturated_share", 0.2)
+    out = []
+    if not beta <= env:  # a NaN is out
+        out.append(f"|sideslip| reached {beta:.1f} deg (limit {env:g})")
+    if not rudder < share:
+        out.append(f"rudder saturated {100 * rudder:.1f} % of the flight (limit {100 * share:g} %)")
+    said = (
+        f"sideslip: max |sideslip| {beta:.1f} deg, rudder saturated {100 * rudder:.1f} % of the flight "
+        f"(limits {env:g} deg, {100 * share:g} %)"
+    )
+    result = dict(controlled, sideslip_ok=not out)
+    if out and controlled["ok"]:
+        result.update(ok=False, reason="; ".join(out))
+    elif out:
+        result["reason"] = f"{controlled['reason']}; " + "; ".join(out)
+    else:
+        result["reason"] = f"{controlled['reason']}; {said}"
+    return result
+
+
 def param_table(law: MimoLaw, options: dict):
     """The parameter table of a MIMO flight (``autopilot.params.ParamTable``'s interface): each channel's values
     under the names a ground station shows (channel 1 the SISO names, channel 2 with a 2: ``CLSAC_PFC2_NUM``,

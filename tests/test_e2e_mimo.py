@@ -60,6 +60,10 @@ def test_the_mimo_flight_flies_both_surfaces(design, controller, tmp_path):
     out = Path(re.search(r"files: (\S+)/flight\.tlog", r.stdout).group(1))
     summary = json.loads((out / "summary.json").read_text())
     side = summary["sideslip"]
+    last = r.stdout.strip().splitlines()[-1]  # the verdict names both channels, and the header both surfaces
+    assert last.startswith("OK: flown to the end; controlled: ") and "; sideslip: max |sideslip| " in last, last
+    assert "c172x-aileron+rudder (aileron: roll, rudder: sideslip)" in r.stdout
+    assert summary["controlled"]["sideslip_ok"] is True
     assert side is not None and [c["channel"] for c in side["channels"]] == ["roll", "sideslip"]
     assert set(side["saturated_fraction"]) == {"aileron", "rudder"} and side["within_envelope"]
     tlog = _tlog(out / "flight.tlog")

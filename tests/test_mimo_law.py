@@ -130,3 +130,42 @@ def test_the_monte_carlo_flies_the_mimo_plant_with_its_controllers():
     assert [f.controller for f in flights] == ["sac", "clsac", "baseline"]  # pid-ff is not flown on it
     r = simulate(flights[1])
     assert r["bounded"] and 0.0 < r["max_abs_sideslip"] < math.radians(10.0) and r["rudder_sat_fraction"] == 0.0
+
+
+def _controlled(ok=True, reason="controlled: max |roll| 12.5 deg"):
+    return {
+        "ok": ok,
+        "checked": True,
+        "reason": reason,
+        "limits": {"max_abs_roll_deg": 60.0, "max_saturated_share": 0.2},
+    }
+
+
+def _side(beta, rudder):
+    return {
+        "max_abs_sideslip_deg": beta,
+        "envelope_deg": 10.0,
+        "saturated_fraction": {"aileron": 0.0, "rudder": rudder},
+    }
+
+
+def test_the_verdict_takes_the_sideslip_channel_at_its_limits():
+    from autopilot.mimo import with_sideslip
+
+    ok = with_sideslip(_controlled(), _side(10.0, 0.199))  # at the envelope's edge, just under the share: in
+    assert ok["ok"] and ok["sideslip_ok"]
+    assert ok["reason"].endswith("; sideslip: max |sideslip| 10.0 deg, rudder saturated 19.9 % of the flight "
+                                 "(limits 10 deg, 20 %)")  # fmt: skip
+    out = with_sideslip(_controlled(), _side(10.05, 0.0))
+    assert not out["ok"] and out["reason"] == "|sideslip| reached 10.1 deg (limit 10)"
+    sat = with_sideslip(_controlled(), _side(1.0, 0.2))  # strict, as for the aileron
+    assert not sat["ok"] and sat["reason"] == "rudder saturated 20.0 % of the flight (limit 20 %)"
+    nan = with_sideslip(_controlled(), _side(float("nan"), 0.0))
+    assert not nan["ok"]
+    both = with_sideslip(_controlled(False, "|roll| reached 70.0 deg (limit 60)"), _side(12.0, 0.5))
+    assert not both["ok"] and both["reason"] == (
+        "|roll| reached 70.0 deg (limit 60); |sideslip| reached 12.0 deg (limit 10); rudder saturated 50.0 % of the "
+        "flight (limit 20 %)"
+    )
+    unchecked = {"ok": True, "checked": False, "reason": "not checked"}
+    assert with_sideslip(unchecked, _side(50.0, 1.0)) is unchecked

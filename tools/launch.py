@@ -99,8 +99,14 @@ def _law(s: dict) -> str:
 
 
 def _plant(s: dict) -> str:
-    """The plant and its surface in the header: "on c172x (aileron)"."""
-    return f" on {s.get('plant_name') or s.get('plant')} ({s.get('surface', 'rudder')})"
+    """The plant and its surface in the header: "on c172x (aileron)"; a square MIMO plant's surfaces, each on its
+    channel: "on c172x-aileron+rudder (aileron: roll, rudder: sideslip)"."""
+    side = s.get("sideslip")
+    if side and side.get("channels"):
+        surfaces = ", ".join(f"{c['surface']}: {c['channel']}" for c in side["channels"])
+    else:
+        surfaces = s.get("surface", "rudder")
+    return f" on {s.get('plant_name') or s.get('plant')} ({surfaces})"
 
 
 def print_summary(s: dict) -> None:
