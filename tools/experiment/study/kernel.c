@@ -57,6 +57,15 @@ typedef struct {
     int64_t tblock, tblocks;
     double dev_ratio2, dev_floor2, ref_floor2, follow_min, hits_min, rearm_lim, nw;
     double *tblk, *tring, *track, *hit_armed;
+    /* faults (tools/experiment/study/faults.py): nphase phases, each from step ph_start on with the matrix set
+     * ph_mat (mphi (nmat * 36, n), mgam (nmat * 24, n); set 0 the plant as built), the surface's jump (0 none,
+     * 1 where it is, 2 at ph_at; delta_dot = 0), the servo driven with 0 (ph_off), a delay line of ph_delay steps
+     * (ph_reset: a new one, full of the command held); ring (ring_len, n) and its head (n,) per run.  nphase 0:
+     * none of these is read. */
+    int64_t nphase, ring_len;
+    const int64_t *ph_start, *ph_mat, *ph_jump, *ph_off, *ph_delay, *ph_reset;
+    const double *ph_at, *mphi, *mgam;
+    double *ring, *ring_pos;
 } Batch;
 
 /* numpy's maximum / minimum: a NaN operand propagates */
@@ -89,6 +98,19 @@ void study_steps(const Batch *b, int64_t k0, int64_t m, const double *z_all) {
         for (int j = 0; j < 21; j++) co[j] = b->coef[j * n + i];
         for (int j = 0; j < 36; j++) ph[j] = b->phi[j * n + i];
         for (int j = 0; j < 24; j++) ga[j] = b->gam[j * n + i];
+        /* faults: the phase in force before step k0, its matrices, its servo path */
+        int64_t cur = 0, fd = 0, pos = 0;
+        int off = 0;
+        if (b->nphase) {
+            while (cur < b->nphase && b->ph_start[cur] < k0) cur++;
+            if (cur > 0) {
+                const int64_t mt = b->ph_mat[cur - 1];
+                for (int j = 0; j < 36; j++) ph[j] = b->mphi[(mt * 36 + j) * n + i];
+                for (int j = 0; j < 24; j++) ga[j] = b->mgam[(mt * 24 + j) * n + i];
+                off = b->ph_off[cur - 1] != 0, fd = b->ph_delay[cur - 1];
+            }
+            pos = (int64_t)b->ring_pos[i];
+        }
 #define CO(j) co[j]
 #define PHI(r, j) ph[(r) * 6 + (j)]
 #define GAM(r, j) ga[(r) * 4 + (j)]
@@ -111,6 +133,24 @@ void study_steps(const Batch *b, int64_t k0, int64_t m, const double *z_all) {
         for (int64_t s = 0; s < m; s++) {
             const int64_t k = k0 + s;
             const double *z = z_all ? z_all + (i * m + s) * 7 : NULL;
+            while (cur < b->nphase && b->ph_start[cur] == k) { /* a fault starts or ends (faults.Phase) */
+                const int64_t mt = b->ph_mat[cur];
+                for (int j = 0; j < 36; j++) ph[j] = b->mphi[(mt * 36 + j) * n + i];
+                for (int j = 0; j < 24; j++) ga[j] = b->mgam[(mt * 24 + j) * n + i];
+                if (b->ph_jump[cur] != 0) { /* sitl.damage.jammed: the surface jams, delta_dot = 0 */
+                    if (b->ph_jump[cur] == 2) x[4] = b->ph_at[cur];
+                    x[5] = 0.0;
+                }
+                off = b->ph_off[cur] != 0;
+                if (b->ph_reset[cur]) { /* a new delay line, full of the command held (sitl.damage.Actuator) */
+                    fd = b->ph_delay[cur];
+                    for (int64_t q = 0; q < fd; q++) b->ring[q * n + i] = u_fly;
+                    pos = 0;
+                } else if (!b->ph_delay[cur]) {
+                    fd = 0;
+                }
+                cur++;
+            }
             const double phi_true = x[3];
             /* sensor: delay, bias, noise (sitl.sensors semantics: the first sample repeats for k < D) */
             b->hist[(k % b->hist_len) * n + i] = phi_true;
@@ -241,6 +281,14 @@ void study_steps(const Batch *b, int64_t k0, int64_t m, const double *z_all) {
                                        kix, kx, kpu, kiu, ku, x[0], x[1], x[2], x[4]};
                 for (int q = 0; q < R_COUNT; q++) b->rec[(q * b->steps + k) * n + i] = row[q];
             }
+            /* what drives the servo: u_fly, through the delay line, 0 when off */
+            double u_s = u_fly;
+            if (fd) {
+                u_s = b->ring[pos * n + i];
+                b->ring[pos * n + i] = u_fly;
+                pos = (pos + 1) % fd;
+            }
+            if (off) u_s = 0.0;
             /* disturbance d = [v_g, p_g, r_g], held over the period, and the plant */
             double xn[6];
             if (b->dist) {
@@ -266,12 +314,12 @@ void study_steps(const Batch *b, int64_t k0, int64_t m, const double *z_all) {
                 dd[0] = dd[0] + crosswind;
                 for (int r = 0; r < 6; r++)
                     xn[r] = PHI(r, 0) * x[0] + PHI(r, 1) * x[1] + PHI(r, 2) * x[2] + PHI(r, 3) * x[3] +
-                            PHI(r, 4) * x[4] + PHI(r, 5) * x[5] + GAM(r, 0) * u_fly +
+                            PHI(r, 4) * x[4] + PHI(r, 5) * x[5] + GAM(r, 0) * u_s +
                             (GAM(r, 1) * dd[0] + GAM(r, 2) * dd[1] + GAM(r, 3) * dd[2]);
             } else {
                 for (int r = 0; r < 6; r++)
                     xn[r] = PHI(r, 0) * x[0] + PHI(r, 1) * x[1] + PHI(r, 2) * x[2] + PHI(r, 3) * x[3] +
-                            PHI(r, 4) * x[4] + PHI(r, 5) * x[5] + GAM(r, 0) * u_fly;
+                            PHI(r, 4) * x[4] + PHI(r, 5) * x[5] + GAM(r, 0) * u_s;
             }
             for (int r = 0; r < 6; r++) x[r] = xn[r];
         }
@@ -279,6 +327,7 @@ void study_steps(const Batch *b, int64_t k0, int64_t m, const double *z_all) {
         for (int r = 0; r < 4; r++) b->xt[r * n + i] = xt[r];
         b->law[0 * n + i] = s0, b->law[1 * n + i] = s1, b->law[2 * n + i] = s2;
         b->law[3 * n + i] = s3, b->law[4 * n + i] = s4, b->law[5 * n + i] = s5;
+        if (b->nphase) b->ring_pos[i] = (double)pos;
         b->y_prev[i] = y_prev, b->u_fly[i] = u_fly, b->u_prev[i] = u_prev, b->wmax[i] = wmax;
         b->acc[0 * n + i] = a_ise_ref, b->acc[1 * n + i] = a_ise_crm, b->acc[2 * n + i] = a_energy;
         b->acc[3 * n + i] = a_tv, b->acc[4 * n + i] = a_max_u, b->acc[5 * n + i] = a_max_roll;

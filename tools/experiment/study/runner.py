@@ -58,11 +58,11 @@ class Plan:
         return tuple(out)
 
 
-def _tasks(controllers, plan: Plan, seed: int, chunk: int, duration_s: float) -> Iterator[Task]:
+def _tasks(controllers, plan: Plan, seed: int, chunk: int, duration_s: float, faults=()) -> Iterator[Task]:
     """Every controller's runs in chunks of ``chunk`` (``make_tasks``'s tasks, one at a time)."""
     for c in controllers:
         for i in range(0, plan.total, chunk):
-            yield Task(c, plan.pairs(i, min(i + chunk, plan.total)), seed, duration_s)
+            yield Task(c, plan.pairs(i, min(i + chunk, plan.total)), seed, duration_s, faults=tuple(faults))
 
 
 def _pilot(controller: str, plan: Plan, seed: int, stop) -> float | None:
@@ -187,7 +187,7 @@ def fly_study(
             log(estimate_line(est, where if client is None else f"{where} ({parallel} worker threads)"))
         t0 = time.perf_counter()
         bar = Progress(total, "30 s runs", enabled=progress)
-        rest = _tasks(opts.controllers, plan, opts.seed, opts.chunk, 30.0)
+        rest = _tasks(opts.controllers, plan, opts.seed, opts.chunk, 30.0, opts.faults)
         for t, r in stream(rest, opts.scheduler, opts.workers, stop=stop, client=client):
             tally.add(t, r)
             bar.add(len(t.runs))
@@ -197,7 +197,7 @@ def fly_study(
             log(f"long flight: {len(long_ctrls)} controllers x {long_plan.total} runs of {LONG_DURATION_S:g} s")
             t0, before = time.perf_counter(), tally.runs
             bar = Progress(n_long, "600 s runs", enabled=progress)
-            long_tasks = _tasks(long_ctrls, long_plan, opts.seed, opts.chunk, LONG_DURATION_S)
+            long_tasks = _tasks(long_ctrls, long_plan, opts.seed, opts.chunk, LONG_DURATION_S, opts.faults)
             for t, r in stream(long_tasks, opts.scheduler, opts.workers, stop=stop, client=client):
                 tally.add(t, r)
                 bar.add(len(t.runs))
@@ -220,6 +220,7 @@ def study_summary(opts: StudyOptions, tally: Tally, sweeps, long_ctrls, long_flo
         "study": "robustness",
         "plant": "kh2013a",
         "seed": opts.seed,
+        **({"faults": [f.record(True) for f in opts.faults]} if opts.faults else {}),
         "runs_per_condition": opts.runs,
         "sweep_runs": opts.sweep_runs,
         "scheduler": opts.scheduler or "local",

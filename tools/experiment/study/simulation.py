@@ -24,6 +24,7 @@ from autopilot.envelope import (
     window_flags,
     within,
 )
+from tools.experiment.study import faults as study_faults
 from tools.experiment.study import native
 from tools.experiment.study.sampling import (
     BLOCK,
@@ -190,6 +191,18 @@ def simulate(task: Task, engine: str | None = None) -> dict:
     phis, gams = _plants(scales, dt)
     PHI = [[_columns(phis[:, i, j]) for j in range(6)] for i in range(6)]
     GAM = [[_columns(gams[:, i, j]) for j in range(4)] for i in range(6)]
+    # Faults (tools.experiment.study.faults): the phases on the control-step grid and each matrix set they fly
+    fplan = study_faults.plan(task.faults, steps, dt)
+    mats = [(phis, gams)]
+    if fplan is not None:
+        mats += [study_faults.matrices(scales, dt, key) for key in fplan.keys[1:]]
+    MATS = [
+        (
+            [[_columns(p[:, i, j]) for j in range(6)] for i in range(6)],
+            [[_columns(g[:, i, j]) for j in range(4)] for i in range(6)],
+        )
+        for p, g in mats
+    ]
 
     # Disturbances: Dryden at T, scaled per run; gust samples; crosswind.
     dist = bool(np.any(turb > 0) or np.any(gust_amp != 0) or np.any(crosswind != 0))
@@ -237,6 +250,8 @@ def simulate(task: Task, engine: str | None = None) -> dict:
         um_all=um_all,
         PHI=PHI,
         GAM=GAM,
+        fplan=fplan,
+        MATS=MATS,
         dry=dry,
         xt=xt,
         record=task.record,
@@ -348,11 +363,12 @@ def _fly_kernel(lib, b) -> tuple[dict, np.ndarray, np.ndarray, dict | None]:
         "tring": np.zeros((TRACK_BLOCKS * 4, n)),
         "track": np.zeros((2, n)),
         "hit_armed": np.ones(n),
+        **_fault_arrays(b),
     }
     tblock = int(round(TRACK_BLOCK_S * b.rate))
     if keep["dry"].shape != (44,):  # kernel.c reads c (3 x 4), ad (4 x 4), ld (4 x 4)
         raise ValueError(f"the Dryden filter's coefficients: {keep['dry'].shape[0]} values, kernel.c reads 44")
-    ints = {"delay", "g_first"}
+    ints = {"delay", "g_first", "ph_start", "ph_mat", "ph_jump", "ph_off", "ph_delay", "ph_reset"}
     batch = native.Batch(
         n=n,
         steps=steps,
@@ -382,6 +398,8 @@ def _fly_kernel(lib, b) -> tuple[dict, np.ndarray, np.ndarray, dict | None]:
         hits_min=float(STOP_HITS_MIN),
         rearm_lim=HIT_REARM * b.umax,
         nw=float(TRACK_BLOCKS * tblock),
+        nphase=0 if b.fplan is None else len(b.fplan.phases),
+        ring_len=keep["ring"].shape[0],
         **{k: (_ptr(v, ctypes.c_int64) if k in ints else _ptr(v)) for k, v in keep.items() if v is not None},
     )
     ref = ctypes.byref(batch)
@@ -399,6 +417,22 @@ def _fly_kernel(lib, b) -> tuple[dict, np.ndarray, np.ndarray, dict | None]:
     acc = {name: keep["acc"][j].copy() for j, name in enumerate(names)}
     series = {name: keep["rec"][j] for j, name in enumerate(_SERIES)} if b.record else None
     return acc, keep["peaks"], keep["track"] != 0.0, series
+
+
+def _fault_arrays(b) -> dict:
+    """kernel.c's fault fields (``faults.Phase`` column by column, the matrix sets (nmat * 36, n) and
+    (nmat * 24, n), the delay line and its head); none of them read without phases."""
+    n, fp = b.n, b.fplan
+    phases = fp.phases if fp is not None else ()
+    col = {
+        f"ph_{k}": np.ascontiguousarray([int(getattr(p, k)) for p in phases] or [0], dtype=np.int64)
+        for k in ("start", "mat", "jump", "off", "delay", "reset")
+    }
+    col["ph_at"] = np.ascontiguousarray([p.at for p in phases] or [0.0], dtype=float)
+    mphi = np.concatenate([_rows([v for row in p for v in row], n) for p, _g in b.MATS])
+    mgam = np.concatenate([_rows([v for row in g for v in row], n) for _p, g in b.MATS])
+    ring = np.zeros((max(fp.max_delay if fp is not None else 0, 1), n))
+    return {**col, "mphi": mphi, "mgam": mgam, "ring": ring, "ring_pos": np.zeros(n)}
 
 
 def _fly_numpy(b) -> tuple[dict, np.ndarray, np.ndarray, dict | None]:
@@ -428,8 +462,24 @@ def _fly_numpy(b) -> tuple[dict, np.ndarray, np.ndarray, dict | None]:
     u_prev = None
     rec = {} if b.record else None
     block = None
+    phases = b.fplan.phases if b.fplan is not None else ()
+    nxt, off, dline, pos = 0, False, None, 0  # the next phase; the servo driven with 0; the delay line and its head
     with np.errstate(all="ignore"):
         for k in range(steps):
+            while nxt < len(phases) and phases[nxt].start == k:  # a fault starts or ends (faults.Phase)
+                ph = phases[nxt]
+                PHI, GAM = b.MATS[ph.mat]
+                if ph.jump != study_faults.JUMP_NONE:  # sitl.damage.jammed: the surface jams, delta_dot = 0
+                    if ph.jump == study_faults.JUMP_AT:
+                        x[4] = np.full(n, ph.at)
+                    x[5] = np.zeros(n)
+                off = ph.off
+                if ph.reset:  # a new delay line, full of the command held (sitl.damage.Actuator)
+                    dline = np.tile(u_fly, (ph.delay, 1)) if ph.delay else None
+                    pos = 0
+                elif not ph.delay:
+                    dline = None
+                nxt += 1
             if noisy and k % BLOCK == 0:
                 m = min(BLOCK, steps - k)
                 buf = np.empty((n, m * CHANNELS))
@@ -480,6 +530,13 @@ def _fly_numpy(b) -> tuple[dict, np.ndarray, np.ndarray, dict | None]:
                 blk = [np.zeros(n) for _ in range(4)]
             if rec is not None:
                 _record(rec, k * dt, um, y, law, u, x)
+            u_s = u_fly  # what drives the servo: u_fly, through the delay line, 0 when off
+            if dline is not None:
+                u_s = dline[pos].copy()
+                dline[pos] = u_fly
+                pos = (pos + 1) % dline.shape[0]
+            if off:
+                u_s = np.zeros(n)
             # disturbance d = [v_g, p_g, r_g], held over the period
             if dist:
                 if np.any(turb > 0):
@@ -510,7 +567,7 @@ def _fly_numpy(b) -> tuple[dict, np.ndarray, np.ndarray, dict | None]:
                     + PHI[r][3] * x[3]
                     + PHI[r][4] * x[4]
                     + PHI[r][5] * x[5]
-                    + GAM[r][0] * u_fly
+                    + GAM[r][0] * u_s
                     + (GAM[r][1] * dd[0] + GAM[r][2] * dd[1] + GAM[r][3] * dd[2])
                     for r in range(6)
                 ]
@@ -522,7 +579,7 @@ def _fly_numpy(b) -> tuple[dict, np.ndarray, np.ndarray, dict | None]:
                     + PHI[r][3] * x[3]
                     + PHI[r][4] * x[4]
                     + PHI[r][5] * x[5]
-                    + GAM[r][0] * u_fly
+                    + GAM[r][0] * u_s
                     for r in range(6)
                 ]
     series = {key: np.array(v) for key, v in rec.items()} if rec is not None else None
