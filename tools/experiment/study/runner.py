@@ -248,6 +248,14 @@ def study_summary(opts: StudyOptions, tally: Tally, sweeps, long_ctrls, long_flo
             for c in opts.controllers
         },
     }
+    if opts.faults:  # the worst runs' replays fly the same faults
+        flags = " " + " ".join(f"--fault {f.spec}" for f in opts.faults)
+        for cells in summary["results"].values():
+            for cell in cells.values():
+                w = cell.get("worst") if isinstance(cell, dict) else None
+                if w:
+                    w["replay_inprocess"] += flags
+                    w["replay_mavlink"] += flags
     summary["breaks"] = breaks(summary)
     if long_ctrls and long_flown:
         summary["long_flight"] = {

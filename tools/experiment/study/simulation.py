@@ -630,6 +630,9 @@ def _record(rec: dict, t: float, um, y, law, u, x) -> None:
         rec.setdefault(key, []).append(np.array(v, dtype=float))
 
 
-def replay(controller: str, condition: str, seed: int, run: int, duration_s: float = 30.0, record: bool = True):
-    """Run ``run`` of the study alone (a batch of one: bit for bit the study's numbers)."""
-    return simulate(Task(controller, ((condition, run),), seed, duration_s, record))
+def replay(
+    controller: str, condition: str, seed: int, run: int, duration_s: float = 30.0, record: bool = True, faults=()
+):
+    """Run ``run`` of the study alone (a batch of one: bit for bit the study's numbers), with ``faults``
+    (``sitl.damage.Fault``) if given."""
+    return simulate(Task(controller, ((condition, run),), seed, duration_s, record, tuple(faults)))
