@@ -28,6 +28,8 @@ SPECS = (
     "off@10",
     "delay=0.05@10",
     "delay=0.03@3:12",
+    "rate=5@10",
+    "rate=20@3:12",
 )
 
 
@@ -55,7 +57,14 @@ def _bits(a: dict, b: dict) -> list[str]:
 RUNS = tuple(("moderate", i) for i in range(4)) + (("nominal", 0), ("severe", 1))
 
 
-@pytest.mark.parametrize("spec", [*SPECS, "effectiveness=0.5@4 damping=0.5@6:14 stuck@9:11 delay=0.02@8"])
+@pytest.mark.parametrize(
+    "spec",
+    [
+        *SPECS,
+        "effectiveness=0.5@4 damping=0.5@6:14 stuck@9:11 delay=0.02@8",
+        "rate=10@5 effectiveness=0.5@8 stuck@12:13 delay=0.02@9",
+    ],
+)
 @pytest.mark.parametrize("controller", ["clsac", "baseline"])
 def test_the_kernel_flies_each_fault_bit_for_bit_as_the_numpy_loop(kernel, controller, spec):
     task = Task(controller, RUNS, 7, 20.0, True, _faults(*spec.split()))
@@ -165,7 +174,7 @@ def _cli(*argv, cwd=ROOT):
 @pytest.mark.parametrize(
     ("spec", "says"),
     [
-        ("rate=20@10", "slew limit"),
+        ("rate=0@1", "must be > 0"),
         ("delay=0.015@10", "whole control periods"),
         ("bogus@1", "unknown kind"),
         ("effectiveness=0.3", "missing @START"),
@@ -208,18 +217,25 @@ def test_the_study_with_a_fault_records_it_and_its_replays_fly_it(tmp_path):
         "off@10:15",
         "delay=0.05@10",
         "delay=0.03@4:12",
+        "rate=5@10",
+        "rate=20@10",
+        "rate=5@5:15",
+        "rate=10@5 effectiveness=0.5@8",
+        "rate=5@5 delay=0.03@7 off@20:22",
     ],
 )
 @pytest.mark.parametrize("controller", ["clsac", "baseline"])
 def test_the_study_under_a_fault_is_the_in_process_sitl_flight_with_it(controller, spec):
     """The same fault flown by ``run_inprocess`` (the SITL's sitl.Aircraft at 1 kHz, ``set_effect`` and
     ``damage.Actuator`` one physics step at a time, in still air): the same linear system and the same fault
-    semantics computed another way, so equal to rounding (measured: 2e-12 relative at most), not bit for bit."""
+    semantics computed another way, so equal to rounding (measured: 2e-12 relative at most, 1e-10 under a rate
+    limit, whose coast-or-not branch can flip on a last bit), not bit for bit.  A rate limit is the check that the
+    study's SUBSTEPS physics steps are the SITL's."""
     import dataclasses
 
     from tools.experiment.scenario import BASELINE_RUN, PAPER, PAPER_RUNS, run_inprocess
 
-    faults = _faults(spec)
+    faults = _faults(*spec.split())
     ref = run_inprocess(
         dataclasses.replace(PAPER, faults=faults), PAPER_RUNS[1] if controller == "clsac" else BASELINE_RUN
     ).metrics
@@ -228,4 +244,4 @@ def test_the_study_under_a_fault_is_the_in_process_sitl_flight_with_it(controlle
     clean = simulate(Task(controller, (("nominal", i),), 0, 30.0))
     assert r["ise_ref"][i] != pytest.approx(clean["ise_ref"][0], rel=1e-3)  # the fault does change the flight
     for key in ("ise_ref", "ise_crm", "energy", "tv", "max_abs_u"):
-        assert r[key][i] == pytest.approx(ref[key], rel=1e-9), key
+        assert r[key][i] == pytest.approx(ref[key], rel=1e-8), key

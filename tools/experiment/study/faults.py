@@ -16,8 +16,13 @@ semantics with its physics step equal to h):
 * delay=S, S a whole number D of control periods: the servo is driven with the command of D steps before, through
   a line that starts full of the command held at the onset (``Actuator``'s deque); a new line starts whenever the
   servo faults change (a new ``Actuator``), none when they end.
-* rate is refused: a slew limit coasts or not depending on the free step's move (``Actuator.surface``), a
-  nonlinearity inside the step; the study flies no such branch (fly it with ``python -m tools.experiment damage``).
+* rate=DEG_PER_S: a slew limit decides inside each physics step whether the surface coasts at +-rate or takes its
+  free step with delta_dot clipped (``Actuator.surface``), a nonlinearity the ZOH form at h does not have.  So a
+  control step under a rate limit is flown as the SITL flies it: ``SUBSTEPS`` physics steps of h / SUBSTEPS (the
+  SITL's 1 kHz), each the free step x_f = Phi_1 x + Gamma_1 u_s, its move delta_f - delta against rate h_1; beyond
+  it the coasting step Phi_c1 [.., delta, +-rate], else x_f with delta_dot clipped to +-rate; the disturbance held
+  over the control step added on each (Gamma_1's columns).  At the phase's start delta_dot is clipped to +-rate
+  (``set_effect``).  A stuck surface ignores the rate limit (it coasts at 0).
 
 Everything is a function of the spec and the step index; the numpy loop and the C kernel read the same phases.
 """
@@ -30,11 +35,9 @@ import numpy as np
 
 from tools.experiment.study.sampling import StudyError
 
-KINDS = ("effectiveness", "damping", "stuck", "off", "delay")
-REFUSED = {
-    "rate": "a slew limit is a nonlinearity inside the step (the surface coasts or not by its free move), not the "
-    "study's ZOH form; fly it with python -m tools.experiment damage or python -m tools.launch",
-}
+KINDS = ("effectiveness", "damping", "stuck", "off", "delay", "rate")
+REFUSED: dict = {}
+SUBSTEPS = 10  # physics steps per control step under a rate limit (the SITL's 1 kHz at the study's 100 Hz)
 JUMP_NONE, JUMP_WHERE, JUMP_AT = 0, 1, 2
 
 
@@ -51,6 +54,8 @@ class Phase:
     off: bool
     delay: int
     reset: bool
+    rate: float = 0.0  # rad/s; 0: no rate limit (flown in SUBSTEPS physics steps with Faults.fine[fine])
+    fine: int = -1
 
 
 @dataclass(frozen=True)
@@ -60,6 +65,7 @@ class Faults:
 
     phases: tuple
     keys: tuple
+    fine: tuple = ()  # (effectiveness, damping) of each physics-step matrix set a rate limit flies
 
     @property
     def max_delay(self) -> int:
@@ -93,6 +99,7 @@ def plan(faults, steps: int, dt: float) -> Faults | None:
     sched = damage.Schedule(faults, 0.0, dt)
     marks = sorted({b for _f, s, e in sched.entries for b in (s, e) if b is not None and 0 <= b < steps})
     keys = [(1.0, 1.0, False)]
+    fine: list = []
     phases = []
     old = damage.NOMINAL
     for k in marks:
@@ -110,11 +117,17 @@ def plan(faults, steps: int, dt: float) -> Faults | None:
         elif new.stuck and new.stuck_at is not None and new.stuck_at != old.stuck_at:
             jump, at = JUMP_AT, new.stuck_at  # sitl.damage.jammed
         delay = int(round(new.delay / dt)) if new.servo else 0
-        phases.append(Phase(k, keys.index(key), jump, float(at), bool(new.off), delay, bool(reset)))
+        rate, fi = 0.0, -1
+        if new.rate is not None and not new.stuck:
+            rate = float(new.rate)
+            if key[:2] not in fine:
+                fine.append(key[:2])
+            fi = fine.index(key[:2])
+        phases.append(Phase(k, keys.index(key), jump, float(at), bool(new.off), delay, bool(reset), rate, fi))
         old = new
     if not phases:
         return None
-    return Faults(tuple(phases), tuple(keys))
+    return Faults(tuple(phases), tuple(keys), tuple(fine))
 
 
 def matrices(scales: np.ndarray, dt: float, key) -> tuple[np.ndarray, np.ndarray]:
@@ -150,4 +163,25 @@ def matrices(scales: np.ndarray, dt: float, key) -> tuple[np.ndarray, np.ndarray
     return phi[index], gam[index]
 
 
-__all__ = ["JUMP_AT", "JUMP_NONE", "JUMP_WHERE", "KINDS", "REFUSED", "Faults", "Phase", "check", "matrices", "plan"]
+def fine_matrices(scales: np.ndarray, dt: float, key) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Per-run (Phi_1, Gamma_1, Phi_c1) at the physics step dt / SUBSTEPS under (effectiveness, damping): the free
+    step's ZOH and the coasting one's (``coasting_matrix``), as ``matrices``."""
+    h = dt / SUBSTEPS
+    phi, gam = matrices(scales, h, (*key, False))
+    phic, _ = matrices(scales, h, (*key, True))
+    return phi, gam, phic
+
+
+__all__ = [
+    "JUMP_AT",
+    "JUMP_NONE",
+    "JUMP_WHERE",
+    "KINDS",
+    "REFUSED",
+    "SUBSTEPS",
+    "Faults",
+    "Phase",
+    "check",
+    "matrices",
+    "plan",
+]

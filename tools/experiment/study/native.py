@@ -67,6 +67,10 @@ class Batch(ctypes.Structure):
         *((name, _i) for name in ("nphase", "ring_len")),
         *((name, _q) for name in ("ph_start", "ph_mat", "ph_jump", "ph_off", "ph_delay", "ph_reset")),
         *((name, _p) for name in ("ph_at", "mphi", "mgam", "ring", "ring_pos")),
+        ("nsub", _i),
+        ("sub_h", _d),
+        ("ph_fine", _q),
+        *((name, _p) for name in ("ph_rate", "mphi1", "mgam1", "mphic1")),
     ]
 
 
