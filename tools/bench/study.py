@@ -54,7 +54,7 @@ TARGET_LONG_OVER_30S = 1.0  # a long flight's simulated second per aircraft cost
 STUDY_ARGV = ["--runs", "50", "--sweep-runs", "5", "--long-runs", "2"]
 _SUMMARY_LINE = re.compile(r"^(\d+) runs \((.*)\) in ([0-9.]+) s ", re.M)
 QUICK_ARGV = ["--quick"]
-FAULT_SPECS = ("effectiveness=0.3@10", "damping=0.3@10", "stuck@10", "off@10", "delay=0.05@10")
+FAULT_SPECS = ("effectiveness=0.3@10", "damping=0.3@10", "stuck@10", "off@10", "delay=0.05@10", "rate=20@10")
 
 
 def _pairs(n: int, condition: str = "moderate"):

@@ -131,7 +131,7 @@ def _add_fault(group) -> None:
         default=None,
         metavar=damage.SYNTAX,
         help="a fault in every run, from START to END sim seconds (without END it stays), repeatable: "
-        "effectiveness=F, damping=F, stuck[=DEG], off, delay=S (whole 10 ms periods); not rate (docs/faults.md)",
+        "effectiveness=F, damping=F, stuck[=DEG], off, delay=S (whole 10 ms periods), rate=DEG_PER_S (docs/faults.md)",
     )
 
 
