@@ -65,7 +65,7 @@ def _tasks(controllers, plan: Plan, seed: int, chunk: int, duration_s: float, fa
             yield Task(c, plan.pairs(i, min(i + chunk, plan.total)), seed, duration_s, faults=tuple(faults))
 
 
-def _pilot(controller: str, plan: Plan, seed: int, stop) -> float | None:
+def _pilot(controller: str, plan: Plan, seed: int, stop, faults=()) -> float | None:
     """30 s runs per second in this process: a warm-up run (the imports, the C kernel's loading), then up to
     ``PILOT_RUNS`` runs spread over the plan's conditions, timed and thrown away (a few tenths of a second in C)."""
     if not plan.total:
@@ -75,7 +75,7 @@ def _pilot(controller: str, plan: Plan, seed: int, stop) -> float | None:
     for _ in stream([Task(controller, pairs[:1], seed, 1.0)], stop=stop):
         pass
     t0 = time.perf_counter()
-    flown = list(stream([Task(controller, pairs, seed)], stop=stop))
+    flown = list(stream([Task(controller, pairs, seed, faults=tuple(faults))], stop=stop))  # with the study's faults
     return len(pairs) / max(time.perf_counter() - t0, 1e-9) if flown else None
 
 
@@ -177,7 +177,7 @@ def fly_study(
         client = connect(opts.scheduler)  # bounded: one line if it is not a Dask scheduler
     phases: dict = {}
     try:
-        rate = _pilot(opts.controllers[0], plan, opts.seed, stop)
+        rate = _pilot(opts.controllers[0], plan, opts.seed, stop, opts.faults)
         if rate is not None:
             from tools.experiment.study.scheduler import threads
 
