@@ -24,6 +24,11 @@ Figures, all measured in this one benchmark run:
   summary.json's ``timing.phases``; both are the same steps in C, and a long flight has less set-up per simulated
   second, so above 1 means a per-step overhead is back).  ``--with-numpy`` adds the same command with the numpy
   steps (``CLSAC_STUDY_KERNEL=numpy``, the study before the C kernel; about a minute) for comparison.
+* ``faults_KIND_runs_per_s`` and ``faults_KIND_over_fault_free``: the C kernel's 30 s runs per second (one
+  process, CL-SAC, "moderate", batches of ``--fault-runs`` runs, default 1000) with each KH2013A fault of
+  ``FAULT_SPECS`` flown from 10 s (tools.experiment.study.faults; the faulted plants' ZOH included), medians of
+  ``--fault-repeats`` (default 5) batches alternated with fault-free ones, and the median ratio to the fault-free
+  rate measured in the same run (``faults_fault_free_runs_per_s``).  ``--faults-only``: just these.
 """
 
 from __future__ import annotations
@@ -49,6 +54,7 @@ TARGET_LONG_OVER_30S = 1.0  # a long flight's simulated second per aircraft cost
 STUDY_ARGV = ["--runs", "50", "--sweep-runs", "5", "--long-runs", "2"]
 _SUMMARY_LINE = re.compile(r"^(\d+) runs \((.*)\) in ([0-9.]+) s ", re.M)
 QUICK_ARGV = ["--quick"]
+FAULT_SPECS = ("effectiveness=0.3@10", "damping=0.3@10", "stuck@10", "off@10", "delay=0.05@10", "rate=20@10")
 
 
 def _pairs(n: int, condition: str = "moderate"):
@@ -141,6 +147,36 @@ def study_figures(repeats: int, numpy: bool = False) -> dict[str, dict]:
     }
 
 
+def fault_figures(runs: int, repeats: int) -> dict[str, dict]:
+    """The kernel's runs per second with each fault of ``FAULT_SPECS`` against fault-free, alternated batch by
+    batch in this process (medians, and the median of the per-round ratios)."""
+    from sitl import damage
+    from tools.experiment.study import Task, native, simulate
+
+    if native.load() is None:
+        print(f"no fault figures: no C kernel ({native.reason()})")
+        return {}
+    pairs = tuple(_pairs(runs))
+    tasks = {"fault_free": Task("clsac", pairs, 0, 30.0)}
+    tasks.update(
+        {s.split("=")[0].split("@")[0]: Task("clsac", pairs, 0, 30.0, faults=(damage.parse(s),)) for s in FAULT_SPECS}
+    )
+    simulate(Task("clsac", pairs[:1], 0, 1.0), "kernel")  # the kernel's loading outside the timing
+    rates: dict[str, list[float]] = {k: [] for k in tasks}
+    for _ in range(repeats):
+        for k, t in tasks.items():
+            t0 = time.perf_counter()
+            simulate(t, "kernel")
+            rates[k].append(runs / (time.perf_counter() - t0))
+    free = statistics.median(rates["fault_free"])
+    figs = {"faults_fault_free_runs_per_s": figure(free, "run/s", None, runs=runs, repeats=repeats)}
+    for spec, k in zip(FAULT_SPECS, list(tasks)[1:], strict=True):
+        ratio = statistics.median(a / b for a, b in zip(rates[k], rates["fault_free"], strict=True))
+        figs[f"faults_{k}_runs_per_s"] = figure(statistics.median(rates[k]), "run/s", None, fault=spec)
+        figs[f"faults_{k}_over_fault_free"] = figure(ratio, "1", None)
+    return figs
+
+
 def main(argv: list[str] | None = None) -> dict:
     p = argparse.ArgumentParser(prog="python -m tools.bench study", description=__doc__.split("\n\n")[0])
     p.add_argument("--quick", action="store_true", help="2,000 runs instead of 10,000 (target scaled)")
@@ -150,7 +186,14 @@ def main(argv: list[str] | None = None) -> dict:
     p.add_argument("--study-repeats", type=int, default=None, help="runs of the study command (default 3)")
     p.add_argument("--no-study", action="store_true", help="skip the study command's figures")
     p.add_argument("--with-numpy", action="store_true", help="also the study command with the numpy steps")
+    p.add_argument("--fault-runs", type=int, default=None, help="runs per batch of the fault figures (default 1000)")
+    p.add_argument("--fault-repeats", type=int, default=None, help="batches per fault figure (default 5)")
+    p.add_argument("--faults-only", action="store_true", help="only the KH2013A fault figures")
     args = p.parse_args(argv)
+    if args.faults_only:
+        figs = fault_figures(args.fault_runs or (200 if args.quick else 1000), args.fault_repeats or 5)
+        print_table("study benchmarks: KH2013A faults in the C kernel (tools.experiment.study.faults)", figs)
+        return figs
     runs = args.runs or (2000 if args.quick else 10_000)
     plain_runs = args.plain_runs or (5 if args.quick else 20)
     figs: dict[str, dict] = {}
@@ -183,6 +226,7 @@ def main(argv: list[str] | None = None) -> dict:
         figs.update(study_figures(args.study_repeats or (1 if args.quick else 3)))
         if args.with_numpy:
             figs.update(study_figures(1, numpy=True))
+    figs.update(fault_figures(args.fault_runs or (200 if args.quick else 1000), args.fault_repeats or 5))
     print_table("study benchmarks (vectorised Monte Carlo, tools.experiment.study)", figs)
     warning = load_warning()
     if warning:

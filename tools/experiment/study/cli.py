@@ -13,6 +13,7 @@ from pathlib import Path
 from autopilot.shared import cli
 from autopilot.shared.cli import OneLineArgumentParser
 from tools.experiment.outdir import check_out_dir, default_out_dir, prepare_out_dir
+from tools.experiment.study import faults as study_faults
 from tools.experiment.study import flights
 from tools.experiment.study.execution import interruptible
 from tools.experiment.study.robustness import final_line, notes, report, run_plants, sections_of
@@ -43,6 +44,7 @@ def build_replay_parser(prog: str = REPLAY_PROG) -> argparse.ArgumentParser:
     q.add_argument("--seed", type=cli.seed, required=True)
     q.add_argument("--run", type=cli.count(0, 10**9, name="run"), required=True)
     q.add_argument("--duration", type=cli.duration_s, default=30.0)
+    _add_fault(q)
     return q
 
 
@@ -98,6 +100,7 @@ def add_run_arguments(r: argparse.ArgumentParser) -> None:
         type=cli.count(1, 10**6, name="chunk"),
         help="runs per batch (default 2500; results do not depend on it)",
     )
+    _add_fault(k)
     f = r.add_argument_group("a JSBSim aircraft or plant file (one in-process flight at a time)")
     f.add_argument(
         "--airspeeds",
@@ -117,7 +120,22 @@ def add_run_arguments(r: argparse.ArgumentParser) -> None:
     )
 
 
-KH2013A_FLAGS = ("runs", "conditions", "sweep_runs", "long_runs", "chunk")
+def _add_fault(group) -> None:
+    """``--fault`` (repeatable): ``sitl.damage``'s spec, the kinds the study flies exactly (study.faults)."""
+    from sitl import damage
+
+    group.add_argument(
+        "--fault",
+        type=damage.fault_arg,
+        action="append",
+        default=None,
+        metavar=damage.SYNTAX,
+        help="a fault in every run, from START to END sim seconds (without END it stays), repeatable: "
+        "effectiveness=F, damping=F, stuck[=DEG], off, delay=S (whole 10 ms periods), rate=DEG_PER_S (docs/faults.md)",
+    )
+
+
+KH2013A_FLAGS = ("runs", "conditions", "sweep_runs", "long_runs", "chunk", "fault")
 FLIGHT_FLAGS = ("airspeeds", "turbulence", "seeds")
 
 
@@ -188,6 +206,11 @@ def plan_from_args(args) -> list[tuple[str, object]]:
                 f"--{k} applies to a JSBSim aircraft or plant file only (--plant kh2013a flies --runs runs per "
                 "--conditions condition)"
             )
+    if "fault" in given and scalar:
+        raise StudyError(
+            "--fault in the robustness study flies on --plant kh2013a alone (on a JSBSim aircraft or plant file: "
+            "python -m tools.experiment damage)"
+        )
     if "airspeeds" in given and not any(t.startswith("jsbsim:") for t in texts):
         raise StudyError("--airspeeds applies to a JSBSim aircraft (--plant jsbsim:MODEL) only")
     controllers = _names(args.controllers, "controllers")
@@ -196,6 +219,9 @@ def plan_from_args(args) -> list[tuple[str, object]]:
     for text in texts:
         if text == "kh2013a":
             kw = {k: getattr(args, k) for k in ("runs", "sweep_runs", "long_runs", "chunk") if k in given}
+            if args.fault:
+                study_faults.check(args.fault)
+                kw["faults"] = tuple(args.fault)
             if controllers is not None:
                 kw["controllers"] = controllers
             if "conditions" in given:
@@ -277,7 +303,10 @@ def main_run(args, prog: str) -> int:
 def main_replay(args, prog: str) -> int:
     try:
         get_condition(args.condition)
-        r = replay(args.controller, args.condition, args.seed, args.run, args.duration, record=False)
+        study_faults.check(args.fault or ())
+        r = replay(
+            args.controller, args.condition, args.seed, args.run, args.duration, record=False, faults=args.fault or ()
+        )
     except StudyError as exc:
         print(f"{prog}: error: {exc}", file=sys.stderr)
         return 2

@@ -57,6 +57,21 @@ typedef struct {
     int64_t tblock, tblocks;
     double dev_ratio2, dev_floor2, ref_floor2, follow_min, hits_min, rearm_lim, nw;
     double *tblk, *tring, *track, *hit_armed;
+    /* faults (tools/experiment/study/faults.py): nphase phases, each from step ph_start on with the matrix set
+     * ph_mat (mphi (nmat * 36, n), mgam (nmat * 24, n); set 0 the plant as built), the surface's jump (0 none,
+     * 1 where it is, 2 at ph_at; delta_dot = 0), the servo driven with 0 (ph_off), a delay line of ph_delay steps
+     * (ph_reset: a new one, full of the command held); ring (ring_len, n) and its head (n,) per run.  nphase 0:
+     * none of these is read. */
+    int64_t nphase, ring_len;
+    const int64_t *ph_start, *ph_mat, *ph_jump, *ph_off, *ph_delay, *ph_reset;
+    const double *ph_at, *mphi, *mgam;
+    double *ring, *ring_pos;
+    /* a rate limit (faults.py, simulation._rate_limited): ph_rate rad/s (0: none), flown in nsub physics steps of
+     * sub_h with the physics-step set ph_fine: mphi1 (nfine * 36, n), mgam1 (nfine * 24, n), mphic1 (coasting) */
+    int64_t nsub;
+    double sub_h;
+    const int64_t *ph_fine;
+    const double *ph_rate, *mphi1, *mgam1, *mphic1;
 } Batch;
 
 /* numpy's maximum / minimum: a NaN operand propagates */
@@ -75,6 +90,34 @@ enum { B_PHI_OL, B_G_OL, B_CM, B_KP, B_KI_T, B_KD_T };
 enum { R_T, R_UM, R_PHI, R_YM, R_YM_OL, R_YA, R_Y_PFC, R_E, R_U, R_KPE, R_KIE, R_KE, R_KPX, R_KIX, R_KX, R_KPU,
        R_KIU, R_KU, R_V, R_P, R_R, R_DELTA_R, R_COUNT };
 
+/* One control step under a rate limit (simulation._rate_limited; sitl.aircraft.Aircraft._advance_servo_fault):
+ * nsub physics steps, each the free step, its move against rate * h; beyond it the coasting step at +-rate, else
+ * the free step with delta_dot clipped; the held disturbance dd (or none) added on each.  x in, xn out. */
+static void rate_limited(const double *x0, double *xn, double u_s, const double *dd, const double *p1,
+                         const double *g1, const double *pc, double rate, double sub_h, int64_t nsub) {
+    double x[6], xf[6], xc[6];
+    for (int r = 0; r < 6; r++) x[r] = x0[r];
+    const double move_max = rate * sub_h; /* damage.Actuator's max move */
+    for (int64_t s = 0; s < nsub; s++) {
+        for (int r = 0; r < 6; r++)
+            xf[r] = p1[r * 6 + 0] * x[0] + p1[r * 6 + 1] * x[1] + p1[r * 6 + 2] * x[2] + p1[r * 6 + 3] * x[3] +
+                    p1[r * 6 + 4] * x[4] + p1[r * 6 + 5] * x[5] + g1[r * 4 + 0] * u_s;
+        const double move = xf[4] - x[4];
+        const int up = move > move_max, down = move < -move_max;
+        const double at = up ? rate : -rate;
+        for (int r = 0; r < 6; r++)
+            xc[r] = pc[r * 6 + 0] * x[0] + pc[r * 6 + 1] * x[1] + pc[r * 6 + 2] * x[2] + pc[r * 6 + 3] * x[3] +
+                    pc[r * 6 + 4] * x[4] + pc[r * 6 + 5] * at;
+        xf[5] = np_min(rate, np_max(-rate, xf[5]));
+        const int coast = up | down;
+        for (int r = 0; r < 6; r++) x[r] = coast ? xc[r] : xf[r];
+        if (dd)
+            for (int r = 0; r < 6; r++)
+                x[r] = x[r] + (g1[r * 4 + 1] * dd[0] + g1[r * 4 + 2] * dd[1] + g1[r * 4 + 3] * dd[2]);
+    }
+    for (int r = 0; r < 6; r++) xn[r] = x[r];
+}
+
 int study_series_count(void) { return R_COUNT; }
 int64_t study_batch_size(void) { return (int64_t)sizeof(Batch); }
 
@@ -89,6 +132,29 @@ void study_steps(const Batch *b, int64_t k0, int64_t m, const double *z_all) {
         for (int j = 0; j < 21; j++) co[j] = b->coef[j * n + i];
         for (int j = 0; j < 36; j++) ph[j] = b->phi[j * n + i];
         for (int j = 0; j < 24; j++) ga[j] = b->gam[j * n + i];
+        /* faults: the phase in force before step k0, its matrices, its servo path */
+        int64_t cur = 0, fd = 0, pos = 0;
+        int off = 0;
+        double rate = 0.0, p1[36], g1[24], pc[36];
+#define LOAD_FINE(f)                                                                   \
+    do {                                                                              \
+        const int64_t fm = (f);                                                       \
+        for (int j = 0; j < 36; j++) p1[j] = b->mphi1[(fm * 36 + j) * n + i];         \
+        for (int j = 0; j < 24; j++) g1[j] = b->mgam1[(fm * 24 + j) * n + i];         \
+        for (int j = 0; j < 36; j++) pc[j] = b->mphic1[(fm * 36 + j) * n + i];        \
+    } while (0)
+        if (b->nphase) {
+            while (cur < b->nphase && b->ph_start[cur] < k0) cur++;
+            if (cur > 0) {
+                const int64_t mt = b->ph_mat[cur - 1];
+                for (int j = 0; j < 36; j++) ph[j] = b->mphi[(mt * 36 + j) * n + i];
+                for (int j = 0; j < 24; j++) ga[j] = b->mgam[(mt * 24 + j) * n + i];
+                off = b->ph_off[cur - 1] != 0, fd = b->ph_delay[cur - 1];
+                rate = b->ph_rate[cur - 1];
+                if (rate != 0.0) LOAD_FINE(b->ph_fine[cur - 1]);
+            }
+            pos = (int64_t)b->ring_pos[i];
+        }
 #define CO(j) co[j]
 #define PHI(r, j) ph[(r) * 6 + (j)]
 #define GAM(r, j) ga[(r) * 4 + (j)]
@@ -111,6 +177,29 @@ void study_steps(const Batch *b, int64_t k0, int64_t m, const double *z_all) {
         for (int64_t s = 0; s < m; s++) {
             const int64_t k = k0 + s;
             const double *z = z_all ? z_all + (i * m + s) * 7 : NULL;
+            while (cur < b->nphase && b->ph_start[cur] == k) { /* a fault starts or ends (faults.Phase) */
+                const int64_t mt = b->ph_mat[cur];
+                for (int j = 0; j < 36; j++) ph[j] = b->mphi[(mt * 36 + j) * n + i];
+                for (int j = 0; j < 24; j++) ga[j] = b->mgam[(mt * 24 + j) * n + i];
+                if (b->ph_jump[cur] != 0) { /* sitl.damage.jammed: the surface jams, delta_dot = 0 */
+                    if (b->ph_jump[cur] == 2) x[4] = b->ph_at[cur];
+                    x[5] = 0.0;
+                }
+                off = b->ph_off[cur] != 0;
+                rate = b->ph_rate[cur];
+                if (rate != 0.0) { /* Aircraft.set_effect: delta_dot within the limit */
+                    LOAD_FINE(b->ph_fine[cur]);
+                    x[5] = np_min(rate, np_max(-rate, x[5]));
+                }
+                if (b->ph_reset[cur]) { /* a new delay line, full of the command held (sitl.damage.Actuator) */
+                    fd = b->ph_delay[cur];
+                    for (int64_t q = 0; q < fd; q++) b->ring[q * n + i] = u_fly;
+                    pos = 0;
+                } else if (!b->ph_delay[cur]) {
+                    fd = 0;
+                }
+                cur++;
+            }
             const double phi_true = x[3];
             /* sensor: delay, bias, noise (sitl.sensors semantics: the first sample repeats for k < D) */
             b->hist[(k % b->hist_len) * n + i] = phi_true;
@@ -241,6 +330,14 @@ void study_steps(const Batch *b, int64_t k0, int64_t m, const double *z_all) {
                                        kix, kx, kpu, kiu, ku, x[0], x[1], x[2], x[4]};
                 for (int q = 0; q < R_COUNT; q++) b->rec[(q * b->steps + k) * n + i] = row[q];
             }
+            /* what drives the servo: u_fly, through the delay line, 0 when off */
+            double u_s = u_fly;
+            if (fd) {
+                u_s = b->ring[pos * n + i];
+                b->ring[pos * n + i] = u_fly;
+                pos = (pos + 1) % fd;
+            }
+            if (off) u_s = 0.0;
             /* disturbance d = [v_g, p_g, r_g], held over the period, and the plant */
             double xn[6];
             if (b->dist) {
@@ -264,14 +361,20 @@ void study_steps(const Batch *b, int64_t k0, int64_t m, const double *z_all) {
                     dd[0] = dd[0] + ((j >= 0 && j < b->gust_width) ? b->gust_k[i * b->gust_width + j] : 0.0);
                 }
                 dd[0] = dd[0] + crosswind;
-                for (int r = 0; r < 6; r++)
-                    xn[r] = PHI(r, 0) * x[0] + PHI(r, 1) * x[1] + PHI(r, 2) * x[2] + PHI(r, 3) * x[3] +
-                            PHI(r, 4) * x[4] + PHI(r, 5) * x[5] + GAM(r, 0) * u_fly +
-                            (GAM(r, 1) * dd[0] + GAM(r, 2) * dd[1] + GAM(r, 3) * dd[2]);
+                if (rate != 0.0) {
+                    rate_limited(x, xn, u_s, dd, p1, g1, pc, rate, b->sub_h, b->nsub);
+                } else {
+                    for (int r = 0; r < 6; r++)
+                        xn[r] = PHI(r, 0) * x[0] + PHI(r, 1) * x[1] + PHI(r, 2) * x[2] + PHI(r, 3) * x[3] +
+                                PHI(r, 4) * x[4] + PHI(r, 5) * x[5] + GAM(r, 0) * u_s +
+                                (GAM(r, 1) * dd[0] + GAM(r, 2) * dd[1] + GAM(r, 3) * dd[2]);
+                }
+            } else if (rate != 0.0) {
+                rate_limited(x, xn, u_s, NULL, p1, g1, pc, rate, b->sub_h, b->nsub);
             } else {
                 for (int r = 0; r < 6; r++)
                     xn[r] = PHI(r, 0) * x[0] + PHI(r, 1) * x[1] + PHI(r, 2) * x[2] + PHI(r, 3) * x[3] +
-                            PHI(r, 4) * x[4] + PHI(r, 5) * x[5] + GAM(r, 0) * u_fly;
+                            PHI(r, 4) * x[4] + PHI(r, 5) * x[5] + GAM(r, 0) * u_s;
             }
             for (int r = 0; r < 6; r++) x[r] = xn[r];
         }
@@ -279,6 +382,7 @@ void study_steps(const Batch *b, int64_t k0, int64_t m, const double *z_all) {
         for (int r = 0; r < 4; r++) b->xt[r * n + i] = xt[r];
         b->law[0 * n + i] = s0, b->law[1 * n + i] = s1, b->law[2 * n + i] = s2;
         b->law[3 * n + i] = s3, b->law[4 * n + i] = s4, b->law[5 * n + i] = s5;
+        if (b->nphase) b->ring_pos[i] = (double)pos;
         b->y_prev[i] = y_prev, b->u_fly[i] = u_fly, b->u_prev[i] = u_prev, b->wmax[i] = wmax;
         b->acc[0 * n + i] = a_ise_ref, b->acc[1 * n + i] = a_ise_crm, b->acc[2 * n + i] = a_energy;
         b->acc[3 * n + i] = a_tv, b->acc[4 * n + i] = a_max_u, b->acc[5 * n + i] = a_max_roll;
@@ -288,5 +392,6 @@ void study_steps(const Batch *b, int64_t k0, int64_t m, const double *z_all) {
 #undef CO
 #undef PHI
 #undef GAM
+#undef LOAD_FINE
     }
 }

@@ -64,6 +64,13 @@ class Batch(ctypes.Structure):
         *((name, _d) for name in ("dev_ratio2", "dev_floor2", "ref_floor2", "follow_min", "hits_min", "rearm_lim")),
         ("nw", _d),
         *((name, _p) for name in ("tblk", "tring", "track", "hit_armed")),
+        *((name, _i) for name in ("nphase", "ring_len")),
+        *((name, _q) for name in ("ph_start", "ph_mat", "ph_jump", "ph_off", "ph_delay", "ph_reset")),
+        *((name, _p) for name in ("ph_at", "mphi", "mgam", "ring", "ring_pos")),
+        ("nsub", _i),
+        ("sub_h", _d),
+        ("ph_fine", _q),
+        *((name, _p) for name in ("ph_rate", "mphi1", "mgam1", "mphic1")),
     ]
 
 

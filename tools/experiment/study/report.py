@@ -128,7 +128,7 @@ def save_worst_rrd(summary: dict, opts: StudyOptions, path: Path, condition: str
         w = summary["results"][ctrl][cond].get("worst")
         if not w:
             continue
-        r = replay(ctrl, cond, opts.seed, w["run"])
+        r = replay(ctrl, cond, opts.seed, w["run"], faults=opts.faults)
         series = {k: v[:, 0] for k, v in r["series"].items()}
         metrics = {m: float(r[m][0]) for m in ("ise_ref", "ise_crm", "energy", "tv", "max_abs_u")}
         results.append(RunResult(f"{ctrl}_{cond}_run{w['run']}", CONTROLLERS[ctrl].lv, metrics, series))

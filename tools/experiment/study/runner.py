@@ -58,14 +58,14 @@ class Plan:
         return tuple(out)
 
 
-def _tasks(controllers, plan: Plan, seed: int, chunk: int, duration_s: float) -> Iterator[Task]:
+def _tasks(controllers, plan: Plan, seed: int, chunk: int, duration_s: float, faults=()) -> Iterator[Task]:
     """Every controller's runs in chunks of ``chunk`` (``make_tasks``'s tasks, one at a time)."""
     for c in controllers:
         for i in range(0, plan.total, chunk):
-            yield Task(c, plan.pairs(i, min(i + chunk, plan.total)), seed, duration_s)
+            yield Task(c, plan.pairs(i, min(i + chunk, plan.total)), seed, duration_s, faults=tuple(faults))
 
 
-def _pilot(controller: str, plan: Plan, seed: int, stop) -> float | None:
+def _pilot(controller: str, plan: Plan, seed: int, stop, faults=()) -> float | None:
     """30 s runs per second in this process: a warm-up run (the imports, the C kernel's loading), then up to
     ``PILOT_RUNS`` runs spread over the plan's conditions, timed and thrown away (a few tenths of a second in C)."""
     if not plan.total:
@@ -75,7 +75,7 @@ def _pilot(controller: str, plan: Plan, seed: int, stop) -> float | None:
     for _ in stream([Task(controller, pairs[:1], seed, 1.0)], stop=stop):
         pass
     t0 = time.perf_counter()
-    flown = list(stream([Task(controller, pairs, seed)], stop=stop))
+    flown = list(stream([Task(controller, pairs, seed, faults=tuple(faults))], stop=stop))  # with the study's faults
     return len(pairs) / max(time.perf_counter() - t0, 1e-9) if flown else None
 
 
@@ -177,7 +177,7 @@ def fly_study(
         client = connect(opts.scheduler)  # bounded: one line if it is not a Dask scheduler
     phases: dict = {}
     try:
-        rate = _pilot(opts.controllers[0], plan, opts.seed, stop)
+        rate = _pilot(opts.controllers[0], plan, opts.seed, stop, opts.faults)
         if rate is not None:
             from tools.experiment.study.scheduler import threads
 
@@ -187,7 +187,7 @@ def fly_study(
             log(estimate_line(est, where if client is None else f"{where} ({parallel} worker threads)"))
         t0 = time.perf_counter()
         bar = Progress(total, "30 s runs", enabled=progress)
-        rest = _tasks(opts.controllers, plan, opts.seed, opts.chunk, 30.0)
+        rest = _tasks(opts.controllers, plan, opts.seed, opts.chunk, 30.0, opts.faults)
         for t, r in stream(rest, opts.scheduler, opts.workers, stop=stop, client=client):
             tally.add(t, r)
             bar.add(len(t.runs))
@@ -197,7 +197,7 @@ def fly_study(
             log(f"long flight: {len(long_ctrls)} controllers x {long_plan.total} runs of {LONG_DURATION_S:g} s")
             t0, before = time.perf_counter(), tally.runs
             bar = Progress(n_long, "600 s runs", enabled=progress)
-            long_tasks = _tasks(long_ctrls, long_plan, opts.seed, opts.chunk, LONG_DURATION_S)
+            long_tasks = _tasks(long_ctrls, long_plan, opts.seed, opts.chunk, LONG_DURATION_S, opts.faults)
             for t, r in stream(long_tasks, opts.scheduler, opts.workers, stop=stop, client=client):
                 tally.add(t, r)
                 bar.add(len(t.runs))
@@ -220,6 +220,8 @@ def study_summary(opts: StudyOptions, tally: Tally, sweeps, long_ctrls, long_flo
         "study": "robustness",
         "plant": "kh2013a",
         "seed": opts.seed,
+        **({"faults": [f.record(f.start <= 30.0 - 0.01) for f in opts.faults]} if opts.faults else {}),  # started:
+        # within the 30 s runs (their last control step is t = 29.99 s)
         "runs_per_condition": opts.runs,
         "sweep_runs": opts.sweep_runs,
         "scheduler": opts.scheduler or "local",
@@ -247,6 +249,14 @@ def study_summary(opts: StudyOptions, tally: Tally, sweeps, long_ctrls, long_flo
             for c in opts.controllers
         },
     }
+    if opts.faults:  # the worst runs' replays fly the same faults
+        flags = " " + " ".join(f"--fault {f.spec}" for f in opts.faults)
+        for cells in summary["results"].values():
+            for cell in cells.values():
+                w = cell.get("worst") if isinstance(cell, dict) else None
+                if w:
+                    w["replay_inprocess"] += flags
+                    w["replay_mavlink"] += flags
     summary["breaks"] = breaks(summary)
     if long_ctrls and long_flown:
         summary["long_flight"] = {

@@ -181,6 +181,7 @@ class Task:
     seed: int
     duration_s: float = 30.0
     record: bool = False
+    faults: tuple = ()  # sitl.damage.Fault, flown in every run (tools.experiment.study.faults)
 
 
 # ---------------------------------------------------------------------------------------- many batches
@@ -206,6 +207,7 @@ class StudyOptions:
     chunk: int = 2500
     scheduler: str | None = None
     workers: int = 1  # local processes (ignored with a scheduler)
+    faults: tuple = ()  # sitl.damage.Fault, flown in every run (--fault; tools.experiment.study.faults)
 
     def __post_init__(self) -> None:
         for name in ("runs", "sweep_runs", "long_runs"):

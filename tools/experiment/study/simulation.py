@@ -24,6 +24,7 @@ from autopilot.envelope import (
     window_flags,
     within,
 )
+from tools.experiment.study import faults as study_faults
 from tools.experiment.study import native
 from tools.experiment.study.sampling import (
     BLOCK,
@@ -190,6 +191,20 @@ def simulate(task: Task, engine: str | None = None) -> dict:
     phis, gams = _plants(scales, dt)
     PHI = [[_columns(phis[:, i, j]) for j in range(6)] for i in range(6)]
     GAM = [[_columns(gams[:, i, j]) for j in range(4)] for i in range(6)]
+    # Faults (tools.experiment.study.faults): the phases on the control-step grid and each matrix set they fly
+    fplan = study_faults.plan(task.faults, steps, dt)
+    mats = [(phis, gams)]
+    if fplan is not None:
+        mats += [study_faults.matrices(scales, dt, key) for key in fplan.keys[1:]]
+    fine = [study_faults.fine_matrices(scales, dt, key) for key in (fplan.fine if fplan is not None else ())]
+    MATS1 = [tuple([[_columns(m[:, i, j]) for j in range(m.shape[2])] for i in range(6)] for m in f) for f in fine]
+    MATS = [
+        (
+            [[_columns(p[:, i, j]) for j in range(6)] for i in range(6)],
+            [[_columns(g[:, i, j]) for j in range(4)] for i in range(6)],
+        )
+        for p, g in mats
+    ]
 
     # Disturbances: Dryden at T, scaled per run; gust samples; crosswind.
     dist = bool(np.any(turb > 0) or np.any(gust_amp != 0) or np.any(crosswind != 0))
@@ -237,6 +252,9 @@ def simulate(task: Task, engine: str | None = None) -> dict:
         um_all=um_all,
         PHI=PHI,
         GAM=GAM,
+        fplan=fplan,
+        MATS=MATS,
+        MATS1=MATS1,
         dry=dry,
         xt=xt,
         record=task.record,
@@ -348,11 +366,12 @@ def _fly_kernel(lib, b) -> tuple[dict, np.ndarray, np.ndarray, dict | None]:
         "tring": np.zeros((TRACK_BLOCKS * 4, n)),
         "track": np.zeros((2, n)),
         "hit_armed": np.ones(n),
+        **_fault_arrays(b),
     }
     tblock = int(round(TRACK_BLOCK_S * b.rate))
     if keep["dry"].shape != (44,):  # kernel.c reads c (3 x 4), ad (4 x 4), ld (4 x 4)
         raise ValueError(f"the Dryden filter's coefficients: {keep['dry'].shape[0]} values, kernel.c reads 44")
-    ints = {"delay", "g_first"}
+    ints = {"delay", "g_first", "ph_start", "ph_mat", "ph_jump", "ph_off", "ph_delay", "ph_reset", "ph_fine"}
     batch = native.Batch(
         n=n,
         steps=steps,
@@ -382,6 +401,10 @@ def _fly_kernel(lib, b) -> tuple[dict, np.ndarray, np.ndarray, dict | None]:
         hits_min=float(STOP_HITS_MIN),
         rearm_lim=HIT_REARM * b.umax,
         nw=float(TRACK_BLOCKS * tblock),
+        nphase=0 if b.fplan is None else len(b.fplan.phases),
+        ring_len=keep["ring"].shape[0],
+        nsub=study_faults.SUBSTEPS,
+        sub_h=b.dt / study_faults.SUBSTEPS,
         **{k: (_ptr(v, ctypes.c_int64) if k in ints else _ptr(v)) for k, v in keep.items() if v is not None},
     )
     ref = ctypes.byref(batch)
@@ -399,6 +422,26 @@ def _fly_kernel(lib, b) -> tuple[dict, np.ndarray, np.ndarray, dict | None]:
     acc = {name: keep["acc"][j].copy() for j, name in enumerate(names)}
     series = {name: keep["rec"][j] for j, name in enumerate(_SERIES)} if b.record else None
     return acc, keep["peaks"], keep["track"] != 0.0, series
+
+
+def _fault_arrays(b) -> dict:
+    """kernel.c's fault fields (``faults.Phase`` column by column, the matrix sets (nmat * 36, n) and
+    (nmat * 24, n), the delay line and its head); none of them read without phases."""
+    n, fp = b.n, b.fplan
+    phases = fp.phases if fp is not None else ()
+    col = {
+        f"ph_{k}": np.ascontiguousarray([int(getattr(p, k)) for p in phases] or [0], dtype=np.int64)
+        for k in ("start", "mat", "jump", "off", "delay", "reset", "fine")
+    }
+    col["ph_at"] = np.ascontiguousarray([p.at for p in phases] or [0.0], dtype=float)
+    col["ph_rate"] = np.ascontiguousarray([p.rate for p in phases] or [0.0], dtype=float)
+    for name, q in (("mphi1", 0), ("mgam1", 1), ("mphic1", 2)):
+        sets = [_rows([v for row in f[q] for v in row], n) for f in b.MATS1]
+        col[name] = np.concatenate(sets) if sets else np.zeros((1, n))
+    mphi = np.concatenate([_rows([v for row in p for v in row], n) for p, _g in b.MATS])
+    mgam = np.concatenate([_rows([v for row in g for v in row], n) for _p, g in b.MATS])
+    ring = np.zeros((max(fp.max_delay if fp is not None else 0, 1), n))
+    return {**col, "mphi": mphi, "mgam": mgam, "ring": ring, "ring_pos": np.zeros(n)}
 
 
 def _fly_numpy(b) -> tuple[dict, np.ndarray, np.ndarray, dict | None]:
@@ -428,8 +471,28 @@ def _fly_numpy(b) -> tuple[dict, np.ndarray, np.ndarray, dict | None]:
     u_prev = None
     rec = {} if b.record else None
     block = None
+    phases = b.fplan.phases if b.fplan is not None else ()
+    nxt, off, dline, pos = 0, False, None, 0  # the next phase; the servo driven with 0; the delay line and its head
+    rate, fine = 0.0, None  # a rate limit (rad/s, 0: none) and its physics-step matrices (faults.SUBSTEPS)
     with np.errstate(all="ignore"):
         for k in range(steps):
+            while nxt < len(phases) and phases[nxt].start == k:  # a fault starts or ends (faults.Phase)
+                ph = phases[nxt]
+                PHI, GAM = b.MATS[ph.mat]
+                if ph.jump != study_faults.JUMP_NONE:  # sitl.damage.jammed: the surface jams, delta_dot = 0
+                    if ph.jump == study_faults.JUMP_AT:
+                        x[4] = np.full(n, ph.at)
+                    x[5] = np.zeros(n)
+                off = ph.off
+                rate, fine = ph.rate, (b.MATS1[ph.fine] if ph.rate else None)
+                if rate:  # Aircraft.set_effect: delta_dot within the limit
+                    x[5] = np.minimum(rate, np.maximum(-rate, x[5]))
+                if ph.reset:  # a new delay line, full of the command held (sitl.damage.Actuator)
+                    dline = np.tile(u_fly, (ph.delay, 1)) if ph.delay else None
+                    pos = 0
+                elif not ph.delay:
+                    dline = None
+                nxt += 1
             if noisy and k % BLOCK == 0:
                 m = min(BLOCK, steps - k)
                 buf = np.empty((n, m * CHANNELS))
@@ -480,6 +543,13 @@ def _fly_numpy(b) -> tuple[dict, np.ndarray, np.ndarray, dict | None]:
                 blk = [np.zeros(n) for _ in range(4)]
             if rec is not None:
                 _record(rec, k * dt, um, y, law, u, x)
+            u_s = u_fly  # what drives the servo: u_fly, through the delay line, 0 when off
+            if dline is not None:
+                u_s = dline[pos].copy()
+                dline[pos] = u_fly
+                pos = (pos + 1) % dline.shape[0]
+            if off:
+                u_s = np.zeros(n)
             # disturbance d = [v_g, p_g, r_g], held over the period
             if dist:
                 if np.any(turb > 0):
@@ -503,17 +573,22 @@ def _fly_numpy(b) -> tuple[dict, np.ndarray, np.ndarray, dict | None]:
                     inside = (j >= 0) & (j < gust_k.shape[1])
                     dd[0] = dd[0] + np.where(inside, gust_k[cols, np.clip(j, 0, gust_k.shape[1] - 1)], 0.0)
                 dd[0] = dd[0] + crosswind
-                x = [
-                    PHI[r][0] * x[0]
-                    + PHI[r][1] * x[1]
-                    + PHI[r][2] * x[2]
-                    + PHI[r][3] * x[3]
-                    + PHI[r][4] * x[4]
-                    + PHI[r][5] * x[5]
-                    + GAM[r][0] * u_fly
-                    + (GAM[r][1] * dd[0] + GAM[r][2] * dd[1] + GAM[r][3] * dd[2])
-                    for r in range(6)
-                ]
+                if fine is not None:
+                    x = _rate_limited(x, u_s, dd, fine, rate, dt)
+                else:
+                    x = [
+                        PHI[r][0] * x[0]
+                        + PHI[r][1] * x[1]
+                        + PHI[r][2] * x[2]
+                        + PHI[r][3] * x[3]
+                        + PHI[r][4] * x[4]
+                        + PHI[r][5] * x[5]
+                        + GAM[r][0] * u_s
+                        + (GAM[r][1] * dd[0] + GAM[r][2] * dd[1] + GAM[r][3] * dd[2])
+                        for r in range(6)
+                    ]
+            elif fine is not None:
+                x = _rate_limited(x, u_s, None, fine, rate, dt)
             else:
                 x = [
                     PHI[r][0] * x[0]
@@ -522,11 +597,44 @@ def _fly_numpy(b) -> tuple[dict, np.ndarray, np.ndarray, dict | None]:
                     + PHI[r][3] * x[3]
                     + PHI[r][4] * x[4]
                     + PHI[r][5] * x[5]
-                    + GAM[r][0] * u_fly
+                    + GAM[r][0] * u_s
                     for r in range(6)
                 ]
     series = {key: np.array(v) for key, v in rec.items()} if rec is not None else None
     return acc, peaks, track, series
+
+
+def _rate_limited(x: list, u_s, dd, fine, rate: float, dt: float) -> list:
+    """One control step under a rate limit, as ``sitl.aircraft.Aircraft._advance_servo_fault`` flies it
+    (``faults.SUBSTEPS`` physics steps of dt / SUBSTEPS): the free step, its move against rate * h; beyond it the
+    coasting step at +-rate (``damage.coasting_matrix``'s ZOH), else the free step with delta_dot clipped; the
+    disturbance ``dd`` (held) added on each step."""
+    p1, g1, pc = fine
+    move_max = rate * (dt / study_faults.SUBSTEPS)  # damage.Actuator's max move
+    for _ in range(study_faults.SUBSTEPS):
+        xf = [
+            p1[r][0] * x[0]
+            + p1[r][1] * x[1]
+            + p1[r][2] * x[2]
+            + p1[r][3] * x[3]
+            + p1[r][4] * x[4]
+            + p1[r][5] * x[5]
+            + g1[r][0] * u_s
+            for r in range(6)
+        ]
+        move = xf[4] - x[4]
+        up, down = move > move_max, move < -move_max
+        at = np.where(up, rate, -rate)  # the coasting rate
+        xc = [
+            pc[r][0] * x[0] + pc[r][1] * x[1] + pc[r][2] * x[2] + pc[r][3] * x[3] + pc[r][4] * x[4] + pc[r][5] * at
+            for r in range(6)
+        ]
+        xf[5] = np.minimum(rate, np.maximum(-rate, xf[5]))
+        coast = up | down
+        x = [np.where(coast, xc[r], xf[r]) for r in range(6)]
+        if dd is not None:
+            x = [x[r] + (g1[r][1] * dd[0] + g1[r][2] * dd[1] + g1[r][3] * dd[2]) for r in range(6)]
+    return x
 
 
 def _close_block(blk: list, ring: np.ndarray, track: np.ndarray, closed: int, nw: float) -> None:
@@ -573,6 +681,9 @@ def _record(rec: dict, t: float, um, y, law, u, x) -> None:
         rec.setdefault(key, []).append(np.array(v, dtype=float))
 
 
-def replay(controller: str, condition: str, seed: int, run: int, duration_s: float = 30.0, record: bool = True):
-    """Run ``run`` of the study alone (a batch of one: bit for bit the study's numbers)."""
-    return simulate(Task(controller, ((condition, run),), seed, duration_s, record))
+def replay(
+    controller: str, condition: str, seed: int, run: int, duration_s: float = 30.0, record: bool = True, faults=()
+):
+    """Run ``run`` of the study alone (a batch of one: bit for bit the study's numbers), with ``faults``
+    (``sitl.damage.Fault``) if given."""
+    return simulate(Task(controller, ((condition, run),), seed, duration_s, record, tuple(faults)))
