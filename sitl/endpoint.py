@@ -24,7 +24,7 @@ import math
 import select
 import sys
 import time
-from collections import Counter
+from collections import Counter, deque
 from dataclasses import dataclass
 
 from autopilot.shared.events import StatusEvents
@@ -176,6 +176,7 @@ class Sitl:
         self._pwm2_by_usec: dict = {}
         self.pwm2_applied = pwm2.neutral if pwm2 else None
         self.u2 = 0.0
+        self._side_hist = None  # MIMO with disturbances: the sideslip's sensor delay line (_measure_sideslip)
         if pwm2:
             from autopilot.shared.fastmav import AOA_SSA
 
@@ -261,20 +262,42 @@ class Sitl:
         for usec, pwm, _t_rx in self.inj.downlink(now):
             self._servos.append((usec, pwm, now))
 
+    def _measure_sideslip(self) -> tuple[float, float]:
+        """MIMO with ``self.inj``: (alpha, beta) as the sensor reports them: the attitude's sensor delay (whole
+        samples, ``sitl.sensors``) on both; the roll's bias and noise are the roll sensor's, not the sideslip's."""
+        hist = self._side_hist
+        if hist is None:
+            d = self.inj.sensors.cfg.delay if self.inj.sensors is not None else 0
+            hist = self._side_hist = deque(maxlen=d + 1)
+        hist.append(self.aircraft.sideslip())
+        return hist[0]  # D samples old once full, the first sample before (as sitl.sensors.Sensors)
+
     def _send_attitude_disturbed(self, ms: int, k: int | None) -> bytes:
-        """ATTITUDE with the sensor errors and the link faults of ``self.inj`` (see sitl.disturbances.Injector)."""
+        """ATTITUDE with the sensor errors and the link faults of ``self.inj`` (see sitl.disturbances.Injector);
+        a MIMO plant's AOA_SSA goes with it, through the same link faults (lockstep: the same sample held or
+        delivered; real time: one datagram, AOA_SSA then ATTITUDE, delayed, lost or duplicated whole)."""
         inj = self.inj
         phi, p, r = inj.measure(self.aircraft.truth)
         phi = wrap_pi(phi)
         theta, psi, q = self._pitch_yaw_q()
+        side = self._measure_sideslip() if self.mimo else None
         if k is not None:  # lockstep: this frame carries the newest sample delivered, once per datagram arriving
-            (phi, p, r), n = inj.uplink_frame(k, (phi, p, r))
+            if side is None:
+                (phi, p, r), n = inj.uplink_frame(k, (phi, p, r))
+            else:
+                (phi, p, r, side), n = inj.uplink_frame(k, (phi, p, r, side))
+                aoa = self.link.pack_fast(self._pk_aoa, ms * 1000, math.degrees(side[0]), math.degrees(side[1]))
+                self.link.send_raw(aoa, self._pk_aoa.msgid)
             raw = self.link.pack_fast(self._pk_att, ms, phi, theta, psi, p, q, r)
             for _ in range(max(1, n)):
                 self.link.send_raw(raw, ATTITUDE)
             return raw
+        aoa = b""  # packed first: the signatures' timestamps increase along the datagram (else ATTITUDE is a replay)
+        if side is not None:
+            aoa = self.link.pack_fast(self._pk_aoa, ms * 1000, math.degrees(side[0]), math.degrees(side[1]))
         raw = self.link.pack_fast(self._pk_att, ms, phi, theta, psi, p, q, r)
-        for out in inj.uplink_raw(time.perf_counter(), raw):
+        out_raw = aoa + raw
+        for out in inj.uplink_raw(time.perf_counter(), out_raw):
             self.link.send_raw(out, ATTITUDE)
         return raw
 
@@ -282,10 +305,10 @@ class Sitl:
         """ATTITUDE from the truth state: roll, pitch, yaw, rollspeed, pitchspeed, yawspeed (float32 on the wire).
 
         ``k``: the global frame index in lockstep (for the link faults)."""
-        if self.mimo:  # the sideslip as JSBSim has it: no sensor errors nor link faults of its own
-            self._send_sideslip(ms)
-        if self.inj is not None:
+        if self.inj is not None:  # the sensor errors and link faults (a MIMO plant's AOA_SSA with them)
             return self._send_attitude_disturbed(ms, k)
+        if self.mimo:  # the sideslip as JSBSim has it, just before ATTITUDE
+            self._send_sideslip(ms)
         if self._euler:
             phi, theta, psi, p, q, r = self.aircraft.attitude()
             raw = self.link.pack_fast(self._pk_att, ms, phi, theta, psi, p, q, r)
