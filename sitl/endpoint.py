@@ -100,8 +100,11 @@ def _series_row(rec: SitlRecord) -> tuple:
     return (rec.t_sim, x[0], x[1], x[2], x[3], x[4], x[5], rec.u)
 
 
-def series_recorder() -> SeriesRecorder:
-    """A SITL hook recording (t, v, p, r, phi, delta_r, delta_r_dot, u) per frame / sensor message."""
+def series_recorder(mimo: bool = False) -> SeriesRecorder:
+    """A SITL hook recording (t, v, p, r, phi, delta_r, delta_r_dot, u) per frame / sensor message; ``mimo``: and
+    ``u2``, the second surface's command applied (rad)."""
+    if mimo:
+        return SeriesRecorder((*SERIES_KEYS, "u2"), lambda rec: (*_series_row(rec), rec.sitl.u2))
     return SeriesRecorder(SERIES_KEYS, _series_row)
 
 
@@ -225,9 +228,13 @@ class Sitl:
     def _apply_second(self, usec: int) -> None:
         """MIMO: the second surface flies the pulse that came with the first's servo message ``usec`` (the last one
         applied if it had none or an invalid one); older ones are dropped."""
-        pwm2 = self._pwm2_by_usec.pop(usec, None)
-        if len(self._pwm2_by_usec) > 64:
-            self._pwm2_by_usec.clear()
+        held = self._pwm2_by_usec
+        pwm2 = None if usec is None else held.pop(usec, None)  # None: the message was lost (link faults): hold
+        if usec is not None and len(held) > 64:  # those before it were lost or overtaken: never flown
+            for old in [t for t in held if usec_diff(t, usec) < 0]:
+                del held[old]
+        if len(held) > 4096:
+            held.clear()
         if pwm2 is not None and PWM_VALID_RANGE[0] <= pwm2 <= PWM_VALID_RANGE[1]:
             self.pwm2_applied = pwm2
         self.u2 = self.aircraft.u2 = self.pwm2.to_rad(self.pwm2_applied)
@@ -444,13 +451,18 @@ class Sitl:
             if pwm is None:  # stopped by a signal while waiting for the answer
                 break
             ev["resends_frame"] = 0
+            usec2 = expected  # MIMO: the servo message whose second pulse the rudder flies
             if inj is not None:  # link faults: the newest command delivered by this frame, else hold
-                delivered = inj.downlink_frame(K, pwm)
-                pwm = self.pwm_applied if delivered is None else delivered
+                if self.mimo:  # the message, both pulses: the rudder's is delivered or held with the aileron's
+                    delivered = inj.downlink_frame(K, (pwm, expected))
+                    pwm, usec2 = (self.pwm_applied, None) if delivered is None else delivered
+                else:
+                    delivered = inj.downlink_frame(K, pwm)
+                    pwm = self.pwm_applied if delivered is None else delivered
             self.pwm_applied = pwm
             self.u = u = self.pwm.to_rad(pwm)
             if self.mimo:
-                self._apply_second(expected)
+                self._apply_second(usec2)
             advance(u, nphys)
             self._check_plant()
             K += 1

@@ -80,3 +80,17 @@ def test_real_time_link_faults_carry_the_sideslip_with_the_attitude(tmp_path):
     assert r.returncode == 0, r.stdout[-2000:] + r.stderr[-2000:]
     got = json.loads((out / "autopilot.json").read_text())["links"]["sitl"]["rx_by_type"]
     assert got["ATTITUDE"] == got["AOA_SSA"] > 300  # paired: the 200 Hz sensor for 6 s, less the 10 % lost
+
+
+def test_a_delayed_servo_message_delays_the_rudder_with_the_aileron(tmp_path):
+    """Lockstep link delay on the servo message (SERVO_OUTPUT_RAW, servo1 the aileron, servo4 the rudder): the
+    SITL applies each surface's command exactly as many frames after the autopilot sent it."""
+
+    def lags(f):
+        ap, sitl = f["ap"], f["sitl"]
+        return _lag(sitl["u"], ap["u"]), _lag(sitl["u2"], ap["u2"])
+
+    base_ail, base_rud = lags(_fly(tmp_path, "clean"))
+    assert base_ail == base_rud
+    ail, rud = lags(_fly(tmp_path, "delay", "--delay", "0.05"))
+    assert ail == base_ail + 5 and rud == ail, (base_ail, ail, rud)
