@@ -233,7 +233,7 @@ def main(argv=None) -> int:
 
     recorder = None
     if args.series:
-        recorder = series_recorder()
+        recorder = series_recorder(mimo=sitl.mimo)
         sitl.hooks.append(recorder)
     tel = attach_telemetry(args, sitl)
     rt_note = apply_rt_priority(args.rt_priority, "sitl")  # after the helper threads exist: they stay normal

@@ -24,7 +24,7 @@ import math
 import select
 import sys
 import time
-from collections import Counter
+from collections import Counter, deque
 from dataclasses import dataclass
 
 from autopilot.shared.events import StatusEvents
@@ -100,8 +100,11 @@ def _series_row(rec: SitlRecord) -> tuple:
     return (rec.t_sim, x[0], x[1], x[2], x[3], x[4], x[5], rec.u)
 
 
-def series_recorder() -> SeriesRecorder:
-    """A SITL hook recording (t, v, p, r, phi, delta_r, delta_r_dot, u) per frame / sensor message."""
+def series_recorder(mimo: bool = False) -> SeriesRecorder:
+    """A SITL hook recording (t, v, p, r, phi, delta_r, delta_r_dot, u) per frame / sensor message; ``mimo``: and
+    ``u2``, the second surface's command applied (rad)."""
+    if mimo:
+        return SeriesRecorder((*SERIES_KEYS, "u2"), lambda rec: (*_series_row(rec), rec.sitl.u2))
     return SeriesRecorder(SERIES_KEYS, _series_row)
 
 
@@ -176,6 +179,7 @@ class Sitl:
         self._pwm2_by_usec: dict = {}
         self.pwm2_applied = pwm2.neutral if pwm2 else None
         self.u2 = 0.0
+        self._side_hist = None  # MIMO with disturbances: the sideslip's sensor delay line (_measure_sideslip)
         if pwm2:
             from autopilot.shared.fastmav import AOA_SSA
 
@@ -224,9 +228,13 @@ class Sitl:
     def _apply_second(self, usec: int) -> None:
         """MIMO: the second surface flies the pulse that came with the first's servo message ``usec`` (the last one
         applied if it had none or an invalid one); older ones are dropped."""
-        pwm2 = self._pwm2_by_usec.pop(usec, None)
-        if len(self._pwm2_by_usec) > 64:
-            self._pwm2_by_usec.clear()
+        held = self._pwm2_by_usec
+        pwm2 = None if usec is None else held.pop(usec, None)  # None: the message was lost (link faults): hold
+        if usec is not None and len(held) > 64:  # those before it were lost or overtaken: never flown
+            for old in [t for t in held if usec_diff(t, usec) < 0]:
+                del held[old]
+        if len(held) > 4096:
+            held.clear()
         if pwm2 is not None and PWM_VALID_RANGE[0] <= pwm2 <= PWM_VALID_RANGE[1]:
             self.pwm2_applied = pwm2
         self.u2 = self.aircraft.u2 = self.pwm2.to_rad(self.pwm2_applied)
@@ -261,20 +269,42 @@ class Sitl:
         for usec, pwm, _t_rx in self.inj.downlink(now):
             self._servos.append((usec, pwm, now))
 
+    def _measure_sideslip(self) -> tuple[float, float]:
+        """MIMO with ``self.inj``: (alpha, beta) as the sensor reports them: the attitude's sensor delay (whole
+        samples, ``sitl.sensors``) on both; the roll's bias and noise are the roll sensor's, not the sideslip's."""
+        hist = self._side_hist
+        if hist is None:
+            d = self.inj.sensors.cfg.delay if self.inj.sensors is not None else 0
+            hist = self._side_hist = deque(maxlen=d + 1)
+        hist.append(self.aircraft.sideslip())
+        return hist[0]  # D samples old once full, the first sample before (as sitl.sensors.Sensors)
+
     def _send_attitude_disturbed(self, ms: int, k: int | None) -> bytes:
-        """ATTITUDE with the sensor errors and the link faults of ``self.inj`` (see sitl.disturbances.Injector)."""
+        """ATTITUDE with the sensor errors and the link faults of ``self.inj`` (see sitl.disturbances.Injector);
+        a MIMO plant's AOA_SSA goes with it, through the same link faults (lockstep: the same sample held or
+        delivered; real time: one datagram, AOA_SSA then ATTITUDE, delayed, lost or duplicated whole)."""
         inj = self.inj
         phi, p, r = inj.measure(self.aircraft.truth)
         phi = wrap_pi(phi)
         theta, psi, q = self._pitch_yaw_q()
+        side = self._measure_sideslip() if self.mimo else None
         if k is not None:  # lockstep: this frame carries the newest sample delivered, once per datagram arriving
-            (phi, p, r), n = inj.uplink_frame(k, (phi, p, r))
+            if side is None:
+                (phi, p, r), n = inj.uplink_frame(k, (phi, p, r))
+            else:
+                (phi, p, r, side), n = inj.uplink_frame(k, (phi, p, r, side))
+                aoa = self.link.pack_fast(self._pk_aoa, ms * 1000, math.degrees(side[0]), math.degrees(side[1]))
+                self.link.send_raw(aoa, self._pk_aoa.msgid)
             raw = self.link.pack_fast(self._pk_att, ms, phi, theta, psi, p, q, r)
             for _ in range(max(1, n)):
                 self.link.send_raw(raw, ATTITUDE)
             return raw
+        aoa = b""  # packed first: the signatures' timestamps increase along the datagram (else ATTITUDE is a replay)
+        if side is not None:
+            aoa = self.link.pack_fast(self._pk_aoa, ms * 1000, math.degrees(side[0]), math.degrees(side[1]))
         raw = self.link.pack_fast(self._pk_att, ms, phi, theta, psi, p, q, r)
-        for out in inj.uplink_raw(time.perf_counter(), raw):
+        out_raw = aoa + raw
+        for out in inj.uplink_raw(time.perf_counter(), out_raw):
             self.link.send_raw(out, ATTITUDE)
         return raw
 
@@ -282,10 +312,10 @@ class Sitl:
         """ATTITUDE from the truth state: roll, pitch, yaw, rollspeed, pitchspeed, yawspeed (float32 on the wire).
 
         ``k``: the global frame index in lockstep (for the link faults)."""
-        if self.mimo:  # the sideslip as JSBSim has it: no sensor errors nor link faults of its own
-            self._send_sideslip(ms)
-        if self.inj is not None:
+        if self.inj is not None:  # the sensor errors and link faults (a MIMO plant's AOA_SSA with them)
             return self._send_attitude_disturbed(ms, k)
+        if self.mimo:  # the sideslip as JSBSim has it, just before ATTITUDE
+            self._send_sideslip(ms)
         if self._euler:
             phi, theta, psi, p, q, r = self.aircraft.attitude()
             raw = self.link.pack_fast(self._pk_att, ms, phi, theta, psi, p, q, r)
@@ -421,13 +451,18 @@ class Sitl:
             if pwm is None:  # stopped by a signal while waiting for the answer
                 break
             ev["resends_frame"] = 0
+            usec2 = expected  # MIMO: the servo message whose second pulse the rudder flies
             if inj is not None:  # link faults: the newest command delivered by this frame, else hold
-                delivered = inj.downlink_frame(K, pwm)
-                pwm = self.pwm_applied if delivered is None else delivered
+                if self.mimo:  # the message, both pulses: the rudder's is delivered or held with the aileron's
+                    delivered = inj.downlink_frame(K, (pwm, expected))
+                    pwm, usec2 = (self.pwm_applied, None) if delivered is None else delivered
+                else:
+                    delivered = inj.downlink_frame(K, pwm)
+                    pwm = self.pwm_applied if delivered is None else delivered
             self.pwm_applied = pwm
             self.u = u = self.pwm.to_rad(pwm)
             if self.mimo:
-                self._apply_second(expected)
+                self._apply_second(usec2)
             advance(u, nphys)
             self._check_plant()
             K += 1
