@@ -102,6 +102,15 @@ def test_a_record_integrates_the_error_after_the_onset_and_per_period():
     assert r["energy_after"] == pytest.approx((s["u"][1000:] ** 2).sum() * dt, rel=1e-12)
     assert r["controlled"] and r["saturated_share"] == 0.0
     assert r["max_abs_roll_deg"] == pytest.approx(math.degrees(np.abs(s["phi"]).max()))
+    assert "rudder saturated 0.0 %" in r["reason"]  # the KH2013A's surface, the default
+
+
+def test_a_record_names_the_surface_that_rolls_the_plant():
+    s = _series()
+    s["u"] = np.full(3000, math.radians(30))  # on the stop the whole flight
+    r = record(s, {"ise_ref": 1.0, "energy": 2.0}, 10.0, 10.0, math.radians(30), 0.01, "aileron")
+    assert not r["controlled"] and "aileron saturated 100.0 % of the flight" in r["reason"], r["reason"]
+    assert "rudder" not in r["reason"]
 
 
 def test_cells_aggregate_their_seeds():

@@ -76,14 +76,17 @@ def fly(task: Flight):
     return run_inprocess(scen, _run(task.controller), atmosphere=True), scen
 
 
-def record(series: dict, metrics: dict, onset: float, period: float, u_limit: float, dt: float) -> dict:
-    """A flight's record from its series (``t``, ``phi``, ``u``, ``ym_ol``; rad, one sample per control step)."""
-    from autopilot.envelope import judge_series
+def record(
+    series: dict, metrics: dict, onset: float, period: float, u_limit: float, dt: float, surface: str = "rudder"
+) -> dict:
+    """A flight's record from its series (``t``, ``phi``, ``u``, ``ym_ol``; rad, one sample per control step);
+    ``surface``: the roll's surface, as the verdict's reason names it (the plant's: ``sitl.plant.surface_of``)."""
+    from autopilot.envelope import Envelope, judge_series
 
     t, phi, u, ym, um = (np.asarray(series[k], dtype=float) for k in ("t", "phi", "u", "ym_ol", "um"))
     d2 = (phi - ym) ** 2  # the tracking error of autopilot.metrics' ise_ref, per sample
     after = t >= onset - 1e-9
-    verdict = judge_series(t, phi, u, u_limit, ref=ym)  # |roll|, saturation and tracking (limit cycles)
+    verdict = judge_series(t, phi, u, u_limit, Envelope(surface=surface), ref=ym)  # |roll|, saturation, tracking
     tracking = verdict.tracking
     n_periods = int(math.ceil(round(len(t) * dt / period, 9)))
     periods = [
@@ -118,11 +121,21 @@ def recovery_of(t, phi, ym, um, onset: float) -> dict:
     return {"recovered": r.recovered, "recovery_s": r.time_s, "recovery_reason": r.reason}
 
 
+def _roll_surface(plant: str) -> str:
+    """The surface that rolls the plant: the first of a square MIMO plant's (``aileron+rudder``: the aileron)."""
+    from sitl import plant as plants
+
+    return plants.surface_of(plant).split("+")[0]
+
+
 def fly_record(task: Flight) -> dict:
     if is_mimo(task.plant):
         return fly_record_mimo(task)
     res, scen = fly(task)
-    return record(res.series, res.metrics, task.onset, scen.period_s, scen.u_limit_rad, 1.0 / scen.control_rate_hz)
+    return record(
+        res.series, res.metrics, task.onset, scen.period_s, scen.u_limit_rad, 1.0 / scen.control_rate_hz,
+        _roll_surface(task.plant),
+    )  # fmt: skip
 
 
 def fly_record_mimo(task: Flight) -> dict:
@@ -148,7 +161,10 @@ def fly_record_mimo(task: Flight) -> dict:
         disturbances=disturbances(task.turbulence, task.seed),
     )
     scen = _scenario(task.plant, task.duration)
-    out = record(r["series"], r["metrics"], task.onset, scen.period_s, scen.u_limit_rad, 1.0 / scen.control_rate_hz)
+    out = record(
+        r["series"], r["metrics"], task.onset, scen.period_s, scen.u_limit_rad, 1.0 / scen.control_rate_hz,
+        _roll_surface(task.plant),
+    )  # fmt: skip
     out["max_abs_sideslip_deg"] = float(np.degrees(np.max(np.abs(r["series"]["beta"]))))
     out["rudder_saturated_share"] = float(r["sideslip"]["saturated_fraction"]["rudder"])
     return out
