@@ -59,6 +59,10 @@ SERIAL = "real time, alone"  # the last unit's name
 LONGEST_FIRST = (
     "tests/test_e2e_damage.py",
     "tests/test_e2e_every_plant.py",
+    "tests/test_study_faults.py",
+    "tests/test_e2e_damage_mimo.py",
+    "tests/test_mimo_design.py",
+    "tests/test_e2e_mimo_sensors.py",
     "tests/test_readme_robustness.py",
     "tests/test_study.py",
     "tests/test_plants.py",

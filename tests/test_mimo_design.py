@@ -45,6 +45,16 @@ def _f(values, lp):
     return a, b, c
 
 
+def test_the_shipped_design_is_what_the_command_makes(design):
+    """sitl/plants/jsbsim-c172x-aileron+rudder.params (what a MIMO flight of the c172x finds beside its plant, and
+    what tests/test_e2e_mimo.py flies) holds the values this fresh `tools.pfc design` wrote, every one."""
+    from pathlib import Path
+
+    _text, values, _lp = design
+    shipped = load_file(Path(plants.__file__).parent / "plants" / "jsbsim-c172x-aileron+rudder.params")
+    assert values == shipped and "CLSAC_PFC2_NUM" in values and "CLSAC_PID2_KP" in values
+
+
 def test_the_printout_says_how_each_item_was_chosen(design):
     text, values, lp = design
     for needle in (
