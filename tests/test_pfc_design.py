@@ -157,3 +157,47 @@ def test_the_analysis_of_the_designed_pfc_on_the_plant_file_confirms_its_margin(
     d = json.loads(r.stdout)
     assert d["waspr"] and d["relative_degree"] == 1 and d["unstable_gain_bands"] == []
     assert d["compensator_gain_margin"] == pytest.approx(3.0, rel=1e-3)
+
+
+def _brute_force_baseline(plant, rate_hz=100.0, delay_steps=0):
+    """The baseline design as the grid search was first written: every point's python-control margins, the
+    largest qualifying crossover, the first of equal ones in grid order."""
+    from autopilot.baseline import BaselineConfig
+    from tools.design.margins import baseline_margins
+    from tools.design.tuning import CROSSOVER_MAX, GM_MIN_DB, PM_MIN_DEG
+
+    best = None
+    for kp in np.logspace(-2, 1, 19):
+        for td_ratio in (0.0, 0.1, 0.2, 0.3):
+            cfg = BaselineConfig(control_rate_hz=rate_hz, kp=float(kp), ki=float(kp) / 10.0, kd=float(kp * td_ratio))
+            m = baseline_margins(cfg, plant=plant, delay_steps=delay_steps)
+            ok = (
+                m["closed_loop_stable"]
+                and m["phase_margin_deg"] >= PM_MIN_DEG
+                and m["gain_margin_db"] >= GM_MIN_DB
+                and m["gain_crossover_rad_s"] <= CROSSOVER_MAX
+            )
+            if ok and (best is None or m["gain_crossover_rad_s"] > best[3]["gain_crossover_rad_s"]):
+                best = (cfg.kp, cfg.ki, cfg.kd, m)
+    return best
+
+
+@pytest.mark.e2e  # the brute force takes about 6 s a plant
+@pytest.mark.parametrize(
+    "plant, kind, value",
+    [("kh2013a", "none", None), ("jsbsim:c172x", "effectiveness", 0.3), ("jsbsim:c172x", "delay", 0.1),
+     ("jsbsim:c172x", "damping", 0.3)],
+)  # fmt: skip
+def test_the_pruned_baseline_search_is_the_brute_force_one(plant, kind, value):
+    """design_baseline skips the grid points whose |L| scan shows they cannot win; the design, gains and
+    python-control's margins, must be the brute force's to the last bit (16 such plants checked when written)."""
+    from tools.design.linearise import linear_model
+    from tools.design.tuning import design_baseline, faulted_plant
+    from tools.experiment.damage.grid import effect_of
+
+    model = linear_model(plant)
+    effect = effect_of(kind, value)
+    faulted = faulted_plant(model[:3], model[3], effect)
+    delay = int(round(effect.delay * 100))
+    d = design_baseline(faulted, delay_steps=delay)
+    assert (d.kp, d.ki, d.kd, d.margins) == _brute_force_baseline(faulted, delay_steps=delay)

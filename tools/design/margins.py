@@ -10,6 +10,20 @@ from tools.design._common import ct
 from tools.design.aspr import plant_tf
 
 
+def sampled_loop(cfg: BaselineConfig, plant=None, delay_steps: int = 0, sampled_plant=None):
+    """The baseline's loop sampled at its control rate: C(z) = K_p + K_i T z/(z - 1) + K_d (z - 1)/(T z) times the
+    ZOH-sampled plant (``sampled_plant``: that, computed once by the caller) times z^-d, a python-control tf."""
+    control = ct()
+    T = cfg.dt
+    if sampled_plant is None:
+        sampled_plant = control.c2d(plant_tf(plant), T, "zoh")
+    num = [cfg.kd + cfg.kp * T + cfg.ki * T * T, -(cfg.kp * T + 2 * cfg.kd), cfg.kd]
+    loop = control.tf(num, [T, -T, 0.0], T) * sampled_plant
+    if delay_steps:
+        loop = loop * control.tf([1.0], [1.0] + [0.0] * int(delay_steps), T)
+    return loop
+
+
 def baseline_margins(
     config: BaselineConfig | None = None, *, pfc_inverse: bool = False, plant=None, delay_steps: int = 0
 ) -> dict[str, float]:
@@ -23,15 +37,10 @@ def baseline_margins(
     """
     control = ct()
     cfg = config or BaselineConfig()
-    plant = plant_tf(plant)
     if pfc_inverse:
-        loop = control.tf([4.0, 40.0], [10.0]) * plant
+        loop = control.tf([4.0, 40.0], [10.0]) * plant_tf(plant)
     else:
-        T = cfg.dt
-        num = [cfg.kd + cfg.kp * T + cfg.ki * T * T, -(cfg.kp * T + 2 * cfg.kd), cfg.kd]
-        loop = control.tf(num, [T, -T, 0.0], T) * control.c2d(plant, T, "zoh")
-        if delay_steps:
-            loop = loop * control.tf([1.0], [1.0] + [0.0] * int(delay_steps), T)
+        loop = sampled_loop(cfg, plant, delay_steps)
     with warnings.catch_warnings():  # python-control notes it falls back to its frequency-response method
         warnings.simplefilter("ignore", UserWarning)
         gm, pm, wcg, wcp = control.margin(loop)

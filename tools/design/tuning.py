@@ -26,7 +26,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from tools.design._common import AnalysisError, fmt_complex
+from tools.design._common import AnalysisError, ct, fmt_complex
 from tools.design.aspr import (
     augmented_realisation,
     damping_ratio,
@@ -235,31 +235,72 @@ class BaselineDesign:
     margins: dict
 
 
+BASELINE_KPS = tuple(float(k) for k in np.logspace(-2, 1, 19))
+BASELINE_TD_RATIOS = (0.0, 0.1, 0.2, 0.3)
+CROSSOVER_GRID = 8000  # frequencies of the sampled loop's |L| scan (log-spaced up to Nyquist): 0.16 % apart
+CROSSOVER_SLACK = 1.01  # the scan's crossover brackets widened by 1 %
+
+
+def crossover_range(loop, dt: float) -> tuple[float, float]:
+    """Bounds (rad/s) on every gain crossover of the sampled loop ``loop`` (a python-control tf in z): |L(e^{jwT})|
+    on a log grid up to Nyquist, each sign change of |L| - 1 bracketed by its two grid points and widened by
+    ``CROSSOVER_SLACK``; (lowest, highest) of those brackets, or (0, inf) when the scan cannot bound them (no sign
+    change, or |L| >= 1 still at Nyquist)."""
+    num, den = (np.asarray(c, dtype=float) for c in (loop.num[0][0], loop.den[0][0]))
+    w = np.logspace(-3, math.log10(0.999 * math.pi / dt), CROSSOVER_GRID)
+    z = np.exp(1j * w * dt)
+    mag = np.abs(np.polyval(num, z) / np.polyval(den, z))
+    above = mag >= 1.0
+    flips = np.flatnonzero(above[1:] != above[:-1])
+    if not len(flips) or above[-1] or not np.all(np.isfinite(mag)):
+        return 0.0, math.inf
+    return float(w[flips[0]] / CROSSOVER_SLACK), float(w[flips[-1] + 1] * CROSSOVER_SLACK)
+
+
 def design_baseline(plant, *, rate_hz: float = 100.0, delay_steps: int = 0) -> BaselineDesign:
     """The fixed-gain PID for ``plant``: the largest crossover <= 5 rad/s at PM >= 60 deg and GM >= 10 dB;
-    ``delay_steps``: with that many control periods of delay in front of the plant (``baseline_margins``)."""
-    from autopilot.baseline import BaselineConfig
-    from tools.design.margins import baseline_margins
+    ``delay_steps``: with that many control periods of delay in front of the plant (``baseline_margins``).
 
-    best = None
-    for kp in np.logspace(-2, 1, 19):
-        for td_ratio in (0.0, 0.1, 0.2, 0.3):
-            cfg = BaselineConfig(control_rate_hz=rate_hz, kp=float(kp), ki=float(kp) / 10.0, kd=float(kp * td_ratio))
-            m = baseline_margins(cfg, plant=plant, delay_steps=delay_steps)
-            ok = (
-                m["closed_loop_stable"]
-                and m["phase_margin_deg"] >= PM_MIN_DEG
-                and m["gain_margin_db"] >= GM_MIN_DB
-                and m["gain_crossover_rad_s"] <= CROSSOVER_MAX
-            )
-            if ok and (best is None or m["gain_crossover_rad_s"] > best.margins["gain_crossover_rad_s"]):
-                best = BaselineDesign(cfg.kp, cfg.ki, cfg.kd, m)
+    The grid (``BASELINE_KPS`` x ``BASELINE_TD_RATIOS``, K_i = K_p/10) is searched for the design the brute-force
+    search gives (every point's margins, python-control's, the first of equal crossovers in grid order), in fewer
+    margin computations: each point's gain crossovers are bracketed by a scan of |L| (``crossover_range``); a point
+    all of whose crossovers lie above 5 rad/s cannot qualify, and the points are taken by their highest bracket, so
+    once one qualifies with crossover W, a point bracketed below W cannot beat it (python-control's crossover is one
+    of the loop's).  ``tests/test_pfc_design.py`` checks it against the brute force."""
+    from autopilot.baseline import BaselineConfig
+    from tools.design.aspr import plant_tf
+    from tools.design.margins import baseline_margins, sampled_loop
+
+    control = ct()
+    dt = 1.0 / rate_hz
+    sampled = control.c2d(plant_tf(plant), dt, "zoh")
+    points = []
+    for kp in BASELINE_KPS:
+        for td_ratio in BASELINE_TD_RATIOS:
+            cfg = BaselineConfig(control_rate_hz=rate_hz, kp=kp, ki=kp / 10.0, kd=kp * td_ratio)
+            low, high = crossover_range(sampled_loop(cfg, delay_steps=delay_steps, sampled_plant=sampled), dt)
+            if low <= CROSSOVER_MAX:  # else every crossover is above the limit: it cannot qualify
+                points.append((len(points), cfg, high))
+    best = None  # (crossover, grid index, design)
+    for index, cfg, high in sorted(points, key=lambda p: -p[2]):  # stable: grid order among equal brackets
+        if best is not None and high < best[0]:
+            break  # this point's crossover, and every later one's, is below the best's
+        m = baseline_margins(cfg, plant=plant, delay_steps=delay_steps)
+        ok = (
+            m["closed_loop_stable"]
+            and m["phase_margin_deg"] >= PM_MIN_DEG
+            and m["gain_margin_db"] >= GM_MIN_DB
+            and m["gain_crossover_rad_s"] <= CROSSOVER_MAX
+        )
+        w = m["gain_crossover_rad_s"]
+        if ok and (best is None or w > best[0] or (w == best[0] and index < best[1])):
+            best = (w, index, BaselineDesign(cfg.kp, cfg.ki, cfg.kd, m))
     if best is None:
         raise PfcDesignError(
             f"no PID of the grid gives PM >= {PM_MIN_DEG:g} deg and GM >= {GM_MIN_DB:g} dB "
             f"below {CROSSOVER_MAX:g} rad/s"
         )
-    return best
+    return best[2]
 
 
 def choose_gamma(plant_text: str, num, den, u_limit_rad: float, gammas=GAMMAS) -> tuple[float, list[dict]]:
