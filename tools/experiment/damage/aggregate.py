@@ -105,9 +105,9 @@ def _fmt(v, spec: str = ".3g") -> str:
     return "-" if v is None else format(v, spec)
 
 
-def sideslip_table(cells: Sequence[dict], plant: str, controllers: Sequence[str], onset: float | None = None) -> str:
-    """A square MIMO plant's coordination: a row per fault (at ``onset``, the first by default), per controller the
-    median max |sideslip| (deg) of the cell's flights and the largest."""
+def _fault_table(cells, plant: str, controllers, onset, title: str, entry) -> str:
+    """A plant's printed table: a row per fault (kind and severity, at ``onset``: the first one by default), per
+    controller ``entry(cell)`` (22 characters) or "-" where the cell is missing."""
     mine = [c for c in cells if c["plant"] == plant]
     onsets = sorted({c["onset_s"] for c in mine if c["onset_s"] is not None})
     onset = onsets[0] if onset is None and onsets else onset
@@ -117,48 +117,37 @@ def sideslip_table(cells: Sequence[dict], plant: str, controllers: Sequence[str]
             rows.setdefault((c["kind"], c["severity"]), {})[c["controller"]] = c
     width = 22
     head = f"{'fault':<22}" + "".join(f"{LABELS.get(n, n)[: width - 1]:>{width}}" for n in controllers)
-    lines = [f"{plant}: max |sideslip| (deg), median / largest over the seeds, onset {_fmt(onset, 'g')} s", head]
+    lines = [f"{plant}: {title}, onset {_fmt(onset, 'g')} s", head]
     for (kind, sev), per in rows.items():
         name = kind if kind == NONE else f"{kind}={'here' if sev is None else format(sev, 'g')}"
-        row = f"{name:<22}"
-        for n in controllers:
-            c = per.get(n)
-            row += (
-                f"{'-':>{width}}"
-                if c is None or "max_abs_sideslip_deg_p50" not in c
-                else f"{_fmt(c['max_abs_sideslip_deg_p50'], '.2f'):>10} / "
-                f"{_fmt(c['max_abs_sideslip_deg_max'], '.2f'):>8}"
-            )
-        lines.append(row)
+        lines.append(
+            f"{name:<22}" + "".join(f"{'-':>{width}}" if (e := entry(per.get(n))) is None else e for n in controllers)
+        )
     return "\n".join(lines)
+
+
+def sideslip_table(cells: Sequence[dict], plant: str, controllers: Sequence[str], onset: float | None = None) -> str:
+    """A square MIMO plant's coordination: a row per fault (at ``onset``, the first by default), per controller the
+    median max |sideslip| (deg) of the cell's flights and the largest."""
+
+    def entry(c):
+        if c is None or "max_abs_sideslip_deg_p50" not in c:
+            return None
+        return f"{_fmt(c['max_abs_sideslip_deg_p50'], '.2f'):>10} / {_fmt(c['max_abs_sideslip_deg_max'], '.2f'):>8}"
+
+    title = "max |sideslip| (deg), median / largest over the seeds"
+    return _fault_table(cells, plant, controllers, onset, title, entry)
 
 
 def table(cells: Sequence[dict], plant: str, controllers: Sequence[str], onset: float | None = None) -> str:
     """The printed table of one plant: a row per fault (kind and severity, at ``onset``: the first one by default),
     per controller the share controlled (%) and the median ise_ref after the onset."""
-    mine = [c for c in cells if c["plant"] == plant]
-    onsets = sorted({c["onset_s"] for c in mine if c["onset_s"] is not None})
-    onset = onsets[0] if onset is None and onsets else onset
-    rows: dict[tuple, dict] = {}
-    for c in mine:
-        if c["kind"] != NONE and c["onset_s"] != onset:
-            continue
-        rows.setdefault((c["kind"], c["severity"]), {})[c["controller"]] = c
-    width = 22
-    head = f"{'fault':<22}" + "".join(f"{LABELS.get(n, n)[: width - 1]:>{width}}" for n in controllers)
-    lines = [f"{plant}: % controlled / median ise_ref after the onset (rad^2 s), onset {_fmt(onset, 'g')} s", head]
-    for (kind, sev), per in rows.items():
-        name = kind if kind == NONE else f"{kind}={'here' if sev is None else format(sev, 'g')}"
-        row = f"{name:<22}"
-        for n in controllers:
-            c = per.get(n)
-            row += (
-                f"{'-':>{width}}"
-                if c is None
-                else f"{100 * c['share_controlled']:>9.0f} % {_fmt(c['ise_ref_after_p50']):>10}"
-            )
-        lines.append(row)
-    return "\n".join(lines)
+
+    def entry(c):
+        return None if c is None else f"{100 * c['share_controlled']:>9.0f} % {_fmt(c['ise_ref_after_p50']):>10}"
+
+    title = "% controlled / median ise_ref after the onset (rad^2 s)"
+    return _fault_table(cells, plant, controllers, onset, title, entry)
 
 
 def period_table(cells: Sequence[dict], plant: str, controllers: Sequence[str], period: float = 10.0) -> str:
