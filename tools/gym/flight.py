@@ -87,7 +87,11 @@ def _argv(opts: dict) -> list[str]:
     for key in ("amplitude", "period", "csv"):
         if opts.get(key) is not None:
             argv += [f"--{key}", str(opts[key])]
-    argv += to_argv({d: opts.get(d) for d in DISTURBANCES})
+    values = {d: opts.get(d) for d in DISTURBANCES}
+    for d, v in values.items():  # a repeatable flag (--gust, --scale) given one value as text
+        if isinstance(v, str) and FLAGS[d][1].get("action") == "append":
+            values[d] = [v]
+    argv += to_argv(values)
     if opts.get("profile") is not None:
         argv.append(str(opts["profile"]))
     return argv
