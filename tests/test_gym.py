@@ -144,3 +144,58 @@ def test_a_pid_policy_flies_the_launchers_roll_series(tmp_path, plant, extra):
     assert np.abs(np.array(flown) - phi).max() <= 1e-9
     assert np.array_equal(np.array(flown), phi)
     assert info["fault"]["active"] == ["effectiveness=0.5@5"]
+
+
+def _policy(obs, k):
+    """A proportional law on roll and roll rate for lanes 0-3, a pulse train that shakes lane 4 into an oscillation
+    the envelope sees (a hit of each stop every 0.5 s), a hard one that rolls lane 5 past 60 deg."""
+    u = 0.5 * (obs[:, 3] - obs[:, 0]) - 0.05 * obs[:, 1]
+    u[4] = 0.6 if k % 100 == 0 else (-0.6 if k % 100 == 50 else 0.0)
+    u[5] = 0.5 if k % 1500 < 40 else u[5]
+    return u[:, None]
+
+
+def test_the_native_vector_env_gives_the_numbers_of_n_single_envs_to_the_last_bit():
+    from tools.gym.vector import RollVectorEnv
+
+    lanes = [
+        {"fault": "effectiveness=0.3@2"},
+        {"fault": ["stuck@3:6", "rate=20@8"]},  # servo faults: the lane's own steps
+        {"turbulence": "moderate", "roll_noise": 0.2, "sensor_delay": 2},
+        {"plant": "jsbsim:c172x", "fault": "effectiveness=0.5@1"},
+        {"fault": "damping=0.5@4"},
+        {},
+    ]
+    n = len(lanes)
+    vec = RollVectorEnv(n, duration=22)
+    sync = gymnasium.vector.SyncVectorEnv([lambda: gymnasium.make(ENV, duration=22) for _ in range(n)])
+    ov, _ = vec.reset(seed=11, options=lanes)
+    os_ = np.array([e.reset(seed=11 + i, options=lanes[i])[0] for i, e in enumerate(sync.envs)])
+    assert np.array_equal(ov, os_)
+    ends = {}
+    for k in range(2400):  # beyond the 22 s: every lane ends once and autoresets (NEXT_STEP)
+        act = _policy(ov, k)
+        ov, rv, tv, trv, iv = vec.step(act)
+        os_, rs, ts, trs, is_ = sync.step(act)
+        assert np.array_equal(ov, os_) and np.array_equal(rv, rs), k
+        assert np.array_equal(tv, ts) and np.array_equal(trv, trs), k
+        for i in np.flatnonzero(tv | trv):
+            ends.setdefault(int(i), (k, iv["exit"][i]))
+        for key in ("ise_ref", "energy", "saturation"):
+            assert np.array_equal(iv[key][~(tv | trv)], is_[key][~(tv | trv)]), (k, key)
+    sync.close()
+    assert sorted(ends) == list(range(n)) and ends[0] == (2199, None)  # truncated at 22 s
+    assert ends[4] == (2000, "oscillation")  # the first 20 s window closes at 20 s
+    assert ends[5][1] == "roll" and ends[1][1] == "roll"  # (the stuck and rate-limited aileron)
+
+
+def test_make_vec_finds_the_native_vector_env():
+    from tools.gym.vector import RollVectorEnv
+
+    envs = gymnasium.make_vec(ENV, num_envs=3, vectorization_mode="vector_entry_point", fault="effectiveness=0.3@1")
+    assert isinstance(envs.unwrapped, RollVectorEnv)
+    obs, info = envs.reset(seed=0)
+    obs, r, term, trunc, info = envs.step(np.zeros((3, 1)))
+    assert obs.shape == (3, 5) and r.shape == (3,) and info["t"].tolist() == [0.01] * 3
+    with pytest.raises(ValueError, match=r"environment 1, step 1 \(t = 0.010 s\): the action must be finite"):
+        envs.step(np.array([[0.0], [math.nan], [0.0]]))

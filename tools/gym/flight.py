@@ -17,12 +17,13 @@ So a PID policy flies the launcher's roll series (tests/test_gym.py).
 
 from __future__ import annotations
 
+import functools
 import math
 from dataclasses import dataclass, field
 
 import numpy as np
 
-from autopilot.envelope import Envelope, EnvelopeMonitor
+from autopilot.envelope import TRACK_BLOCK_S, TRACK_BLOCKS, Envelope, EnvelopeMonitor
 from autopilot.metrics import MetricsAccumulator
 from autopilot.shared.mavlink import quaternion_to_roll, roll_to_quaternion
 from autopilot.shared.numerics import wrap_pi, zoh
@@ -135,6 +136,15 @@ def episode(opts: dict) -> Episode:
     return Episode(args.plant, tuple(args.fault or ()), dist, profile, float(duration), rate, float(physics), weight)
 
 
+@functools.lru_cache(maxsize=16)
+def commands(profile, dt: float, steps: int) -> np.ndarray:
+    """u_m(k dt), k = 0..steps, as the autopilot has it: the GCS's SET_ATTITUDE_TARGET quaternion in float32
+    (``tools.experiment.scenario.run_inprocess``'s wire model); computed once per profile and length, read-only."""
+    um = np.array([quaternion_to_roll(np.float32(roll_to_quaternion(profile.value(k * dt)))) for k in range(steps + 1)])
+    um.flags.writeable = False
+    return um
+
+
 class Lane:
     """One aircraft flown by actions: ``observe()`` after construction, then ``act(u)`` once per control period
     (the pulse), ``advance()`` (the physics), ``score(...)`` (the metrics and the verdict), ``observe()`` again."""
@@ -166,14 +176,15 @@ class Lane:
         self.metrics = MetricsAccumulator(self.dt)
         self.monitor = EnvelopeMonitor(Envelope(surface=plants.surface_of(ep.plant).split("+")[0]))
         self.exit: str | None = None
+        self._block = -1
         self.measure()
 
     def _advance_air(self, u: float, n: int):
         return self.inj.advance(self.plant, u, n)
 
     def command(self, k: int) -> float:
-        """u_m(t_k) as the autopilot has it: the GCS's quaternion in float32 (tools.experiment.scenario's wire)."""
-        return quaternion_to_roll(np.float32(roll_to_quaternion(self.ep.profile.value(k * self.dt))))
+        """u_m(t_k) as the autopilot has it (:func:`commands`)."""
+        return float(commands(self.ep.profile, self.dt, self.ep.steps)[min(k, self.ep.steps)])
 
     def measure(self) -> None:
         """The ATTITUDE of this frame (``sitl.endpoint.Sitl._send_attitude``): roll, roll rate, yaw rate."""
@@ -209,15 +220,18 @@ class Lane:
         self.metrics.add(phi, ym, ym - phi, u)
         d = phi - ym
         reward = -(d * d + self.ep.effort_weight * (u * u)) * self.dt
-        text = self.monitor.add(self.k * self.dt, phi, u, self.limit, ym)
-        if text is not None and self.exit is None:
-            if self.monitor.roll_exit_s is not None:
-                self.exit = text
-            else:
-                # a closed window that oscillated (a limit cycle; the window still open ends later): out
-                w = self.monitor.tracking().first_oscillation
-                if w is not None and w.end_s <= self.k * self.dt + 1e-6:
-                    self.exit = text
+        ft = self.k * self.dt
+        text = self.monitor.add(ft, phi, u, self.limit, ym)
+        if self.exit is None and self.monitor.roll_exit_s is not None:
+            self.exit = text or f"ENVELOPE: |roll| reached {self.monitor.envelope.max_roll_deg:g} deg"
+        block = math.floor(ft / TRACK_BLOCK_S + 1e-6)  # the monitor's 1 s blocks: a window closes as one begins
+        if self.exit is None and block != self._block and block >= TRACK_BLOCKS:
+            w = self.monitor.tracking().first_oscillation  # a closed window that oscillated (a limit cycle): out
+            if w is not None and w.end_s <= ft + 1e-6:  # (the window still open ends later)
+                self.exit = (
+                    f"ENVELOPE: oscillation +-{w.amplitude_deg:.0f} deg in the window {w.start_s:g}-{w.end_s:g} s"
+                )
+        self._block = block
         if self.exit is None and self.monitor.n_saturated >= self.share_steps():
             self.exit = f"ENVELOPE: {self.monitor.envelope.surface} saturated in {self.monitor.n_saturated} steps"
         self.xm = self.ref[0] * self.xm + self.ref[1] * self.um

@@ -39,7 +39,8 @@ def action_space() -> spaces.Box:
 class RollEnv(gym.Env):
     """The roll loop of one aircraft: one step = one control period (10 ms at 100 Hz) of the lockstep flight.
 
-    Keywords (the defaults of every reset; ``reset(options=...)`` overrides them for one episode): ``plant``
+    Keywords (the defaults of every reset; ``reset(options=...)`` puts options on top of them, for that episode and
+    the later ones reset without options): ``plant``
     (``kh2013a``, ``FILE.toml``, ``jsbsim:MODEL[:KEY=VALUE,...]``), ``fault`` (a ``--fault`` spec or a list of
     them), ``duration`` (s, 30), ``control_rate`` (Hz, 100), ``physics_rate`` (Hz, 1000), the command ``profile``
     (square, step, sine), ``amplitude`` (deg), ``period`` (s), ``csv``, the disturbance flags of ``python -m
@@ -58,7 +59,8 @@ class RollEnv(gym.Env):
 
     def reset(self, *, seed: int | None = None, options: dict | None = None):
         super().reset(seed=seed)
-        self._ep = episode({**self._defaults, **(options or {})}) if options else episode(self._defaults)
+        if options:  # the keywords' defaults with these on top, for this episode and the next ones without options
+            self._ep = episode({**self._defaults, **options})
         flight_seed = seed if seed is not None else int(self.np_random.integers(0, SEED_MAX))
         self.lane = lane = Lane(self._ep, flight_seed)
         return lane.observation(), {**lane.info(), "seed": lane.seed}
