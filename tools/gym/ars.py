@@ -115,9 +115,8 @@ def train(iterations: int, directions: int, top: int, seed: int, step: float, no
         sd = float(np.std(np.concatenate([rp[best], rm[best]]))) or 1.0
         policy.m = policy.m + step / (top * sd) * np.einsum("k,kij->ij", rp[best] - rm[best], deltas[best])
         policy.update_stats()
-        log(
-            f"iteration {it + 1:3d}: mean return {np.mean(ret):9.4f}, best {np.max(ret):9.4f} ({time.perf_counter() - t0:.1f} s)"
-        )
+        took = time.perf_counter() - t0
+        log(f"iteration {it + 1:3d}: mean return {np.mean(ret):9.4f}, best {np.max(ret):9.4f} ({took:.1f} s)")
     return policy
 
 
