@@ -1,5 +1,5 @@
-"""The Gymnasium environments (docs/gymnasium.md): ``Roll-v0`` (sitl.gym, tools.gym.roll), the native vector
-environment (tools.gym.vector) and the ARS example (tools.gym.ars)."""
+"""The Gymnasium environments (docs/gymnasium.md): ``Roll-v0`` (sitl.gym, tools.experiment.gym.roll), the native vector
+environment (tools.experiment.gym.vector) and the ARS example (tools.experiment.gym.ars)."""
 
 from __future__ import annotations
 
@@ -156,7 +156,7 @@ def _policy(obs, k):
 
 
 def test_the_native_vector_env_gives_the_numbers_of_n_single_envs_to_the_last_bit():
-    from tools.gym.vector import RollVectorEnv
+    from tools.experiment.gym.vector import RollVectorEnv
 
     lanes = [
         {"fault": "effectiveness=0.3@2"},
@@ -190,7 +190,7 @@ def test_the_native_vector_env_gives_the_numbers_of_n_single_envs_to_the_last_bi
 
 
 def test_make_vec_finds_the_native_vector_env():
-    from tools.gym.vector import RollVectorEnv
+    from tools.experiment.gym.vector import RollVectorEnv
 
     envs = gymnasium.make_vec(ENV, num_envs=3, vectorization_mode="vector_entry_point", fault="effectiveness=0.3@1")
     assert isinstance(envs.unwrapped, RollVectorEnv)
@@ -199,3 +199,41 @@ def test_make_vec_finds_the_native_vector_env():
     assert obs.shape == (3, 5) and r.shape == (3,) and info["t"].tolist() == [0.01] * 3
     with pytest.raises(ValueError, match=r"environment 1, step 1 \(t = 0.010 s\): the action must be finite"):
         envs.step(np.array([[0.0], [math.nan], [0.0]]))
+
+
+def test_ars_steps_along_the_better_direction_and_saves_and_scores(tmp_path):
+    """One iteration of ARS (Mania et al. 2018, Algorithm 1): M moves by alpha / (b sigma_R) sum (r+ - r-) delta,
+    recomputed here from the returns of the same perturbed policies flown again in single Roll-v0 envs."""
+    import json
+
+    from tools.experiment.gym import ars
+
+    logged = []
+    pol = ars.train(1, 2, 1, seed=3, step=0.02, noise=0.03, log=logged.append)
+    assert len(logged) == 1 and pol.m.shape == (1, 5) and np.all(pol.sigma > 0)
+    # the same draws by hand
+    rng = np.random.default_rng(3)
+    deltas = rng.standard_normal((2, 1, 5))
+    faults = [f"effectiveness={rng.uniform(0.3, 1.0):.3f}@5" for _ in range(2)]
+    seed = int(rng.integers(1, 2**31 - 1))
+    rets = {}
+    for k in range(2):
+        for sign in (1, -1):
+            env = gymnasium.make(ENV, duration=15.0, turbulence="light")
+            obs, _ = env.reset(seed=seed + k, options={"fault": faults[k]})
+            m, total, done = sign * 0.03 * deltas[k], 0.0, False
+            while not done:  # the policy before the update: M = 0, mu = 0, sigma = 1
+                obs, r, term, trunc, _ = env.step(m @ obs)
+                total += r
+                done = term or trunc
+            rets[k, sign] = total
+    best = max(range(2), key=lambda k: max(rets[k, 1], rets[k, -1]))
+    sd = np.std([rets[best, 1], rets[best, -1]])
+    expect = 0.02 / sd * (rets[best, 1] - rets[best, -1]) * deltas[best]
+    np.testing.assert_allclose(pol.m, expect, rtol=1e-9)
+    assert ars.main(["--out", str(tmp_path), "--iterations", "1", "--directions", "2", "--top", "1"]) == 0
+    saved = json.loads((tmp_path / "policy.json").read_text())
+    assert set(saved) >= {"M", "mu", "sigma", "train_faults", "settings"}
+    scores = json.loads((tmp_path / "scores.json").read_text())["scores"]
+    assert len(scores["ars"]) == len(scores["pid"]) == 4 * 3
+    assert all(r["controlled"] for r in scores["pid"] if r["fault"] == "none")

@@ -4,7 +4,7 @@
 
 Both fly ``Roll-v0`` on the KH2013A with a different effectiveness fault each (0.2 .. 1.0 at 5 s), the same
 actions (a proportional policy on roll and roll rate, one matrix product for all), ``--envs`` aircraft (64):
-``tools.gym.vector.RollVectorEnv`` (the batch step) and ``SyncVectorEnv`` over ``gymnasium.make`` (one
+``tools.experiment.gym.vector.RollVectorEnv`` (the batch step) and ``SyncVectorEnv`` over ``gymnasium.make`` (one
 ``RollEnv.step`` each, with gymnasium's wrappers).  A figure is aircraft steps per second (envs x vector steps / s),
 the median of ``--reps`` timed runs of ``--steps`` vector steps each; the ratio's target is >= 10.
 """
@@ -47,7 +47,7 @@ def rate(envs, n: int, steps: int, reps: int) -> list[float]:
 def main(argv: list[str] | None = None) -> dict:
     import gymnasium
 
-    from tools.gym.vector import RollVectorEnv
+    from tools.experiment.gym.vector import RollVectorEnv
 
     p = argparse.ArgumentParser(prog="python -m tools.bench.gym", description=__doc__.split("\n\n")[0])
     p.add_argument("--quick", action="store_true", help="fewer steps and repetitions")
@@ -78,4 +78,6 @@ def main(argv: list[str] | None = None) -> dict:
 
 
 if __name__ == "__main__":
-    main()
+    import sys
+
+    main(sys.argv[1:])

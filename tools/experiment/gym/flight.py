@@ -1,6 +1,6 @@
-"""One aircraft as the environments fly it (``tools.gym.roll``, ``tools.gym.vector``): the options checked as the
-launcher checks them, the SITL's plant, faults, atmosphere and sensors, the wire, the reference model and the
-product's metrics and verdict.  No I/O.
+"""One aircraft as the environments fly it (``tools.experiment.gym.roll``, ``tools.experiment.gym.vector``): the
+options checked as the launcher checks them, the SITL's plant, faults, atmosphere and sensors, the wire, the
+reference model and the product's metrics and verdict.  No I/O.
 
 A :class:`Lane` is the lockstep flight of ``python -m tools.launch --lockstep`` with the autopilot's law replaced by
 the caller's action, frame by frame, in the order the SITL flies it (``sitl.endpoint.Sitl.run_lockstep``):

@@ -1,13 +1,13 @@
 """A linear policy trained by augmented random search over the vector environment, scored on held-out faults.
 
-    python -m tools.gym.ars --out /tmp/ars [--iterations 60] [--directions 8] [--seed 1]
+    python -m tools.experiment.gym.ars --out /tmp/ars [--iterations 60] [--directions 8] [--seed 1]
 
 Augmented random search (Mania, Guy & Recht, "Simple random search of static linear policies is competitive for
 reinforcement learning", NeurIPS 2018), their Algorithm 1, version V2-t: the policy is u = M (s - mu) / sigma on the
 observation s of ``Roll-v0`` (roll, roll rate, yaw rate, command, last surface command); mu and sigma are the
 running mean and standard deviation of the states seen in training.  Each iteration draws ``--directions`` N
 perturbations delta_k (entries N(0, 1)), flies M + nu delta_k and M - nu delta_k on the same fault and seed (all 2N
-aircraft in one ``tools.gym.vector.RollVectorEnv``), keeps the ``--top`` b directions with the largest
+aircraft in one ``tools.experiment.gym.vector.RollVectorEnv``), keeps the ``--top`` b directions with the largest
 max(r+, r-) and steps
 
     M <- M + alpha / (b sigma_R) sum_k (r+_k - r-_k) delta_k        (sigma_R: std of the 2b returns used)
@@ -95,7 +95,7 @@ def rollout(env, act, options, seed: int, record=None) -> tuple[np.ndarray, dict
 
 
 def train(iterations: int, directions: int, top: int, seed: int, step: float, noise: float, log=print) -> Linear:
-    from tools.gym.vector import RollVectorEnv
+    from tools.experiment.gym.vector import RollVectorEnv
 
     rng = np.random.default_rng(seed)
     policy = Linear(5)
@@ -177,7 +177,7 @@ def table(rows: dict) -> str:
 
 
 def main(argv=None) -> int:
-    p = argparse.ArgumentParser(prog="python -m tools.gym.ars", description=__doc__.split("\n\n")[0])
+    p = argparse.ArgumentParser(prog="python -m tools.experiment.gym.ars", description=__doc__.split("\n\n")[0])
     p.add_argument("--out", required=True, help="folder for policy.json and scores.json (outside the repository)")
     p.add_argument("--iterations", type=int, default=60)
     p.add_argument("--directions", type=int, default=8, help="N, perturbation directions per iteration")

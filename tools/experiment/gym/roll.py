@@ -1,7 +1,7 @@
 """``Roll-v0``: the roll loop of the SITL's aircraft as a Gymnasium environment (docs/gymnasium.md).
 
 ``gymnasium.make("sitl.gym:Roll-v0", plant="jsbsim:c172x")`` (``sitl.gym`` registers it).  The physics is the
-lockstep flight's own (``tools.gym.flight.Lane``: ``sitl.plant``, ``sitl.damage``, ``sitl.disturbances``,
+lockstep flight's own (``tools.experiment.gym.flight.Lane``: ``sitl.plant``, ``sitl.damage``, ``sitl.disturbances``,
 ``sitl.sensors``); the action is the surface command that the autopilot would send, the observation what it
 receives.  Imported only when an environment is made: the product does not depend on gymnasium.
 """
@@ -14,7 +14,7 @@ import gymnasium as gym
 import numpy as np
 from gymnasium import spaces
 
-from tools.gym.flight import OPTIONS, U_LIMIT_RAD, Episode, Lane, episode
+from tools.experiment.gym.flight import OPTIONS, U_LIMIT_RAD, Episode, Lane, episode
 
 OBSERVATION = ("phi", "p", "r", "um", "u_last")  # rad, rad/s, rad/s, rad, rad
 SEED_MAX = 2**31 - 1
