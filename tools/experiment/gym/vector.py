@@ -144,9 +144,15 @@ class RollVectorEnv(VectorEnv):
         self._x = np.zeros((self.num_envs, max(m, 1)))
         self._ad = np.zeros((self.num_envs, max(m, 1), max(m, 1)))
         self._bd = np.zeros((self.num_envs, max(m, 1)))
-        self._pairs = [None] * self.num_envs
+        # per lane: the plant's physics step, the last command, the next fault change (a physics step), whether
+        # its next steps are a plain update (no stop, no servo fault, the pair built): ``_refresh``
+        self._psteps = np.zeros(self.num_envs, dtype=np.int64)
+        self._ulast = np.zeros(self.num_envs)
+        self._mark = np.zeros(self.num_envs, dtype=np.int64)
+        self._plain = np.zeros(self.num_envs, dtype=bool)
         for i in np.flatnonzero(self._linear_ok):
             self._adopt(int(i))
+            self._refresh(int(i))
 
     @staticmethod
     def _linear(ln: Lane) -> bool:
@@ -162,16 +168,23 @@ class RollVectorEnv(VectorEnv):
         self._x[i] = ac.x
         ac.x = self._x[i]
 
-    def _pair(self, i: int, n: int):
-        """The aircraft's (Ad^n, sum Ad^i Bd) for the next n steps if they are one plain linear update, else None."""
+    def _refresh(self, i: int) -> None:
+        """Lane i's batch bookkeeping from its aircraft (after a reset or a step the aircraft flew itself): its step,
+        its last command, the next step where a fault starts or ends (``sitl.damage.ScheduledEffects``), and
+        whether a plain update x <- Ad^n x + Bd_n u flies it, with the aircraft's own matrices for n steps."""
         ln = self.lanes[i]
         ac = ln.plant
-        if ac._limited or ac._act is not None:  # noqa: SLF001 (stops, servo faults: stepped one by one)
-            return None
+        self._psteps[i] = ac.steps
+        self._ulast[i] = ac._u_last  # noqa: SLF001 (the Aircraft's own state, read not copied)
         sched = ln.scheduled
-        if sched is not None and sched._next is not None and sched._next < ac.steps + n:  # noqa: SLF001
-            return None  # a fault starts or ends within these steps
-        return ac._multi.get(n)  # noqa: SLF001 (None until the aircraft flew n steps once: it builds the pair)
+        nxt = None if sched is None else sched._next  # noqa: SLF001
+        self._mark[i] = np.iinfo(np.int64).max if nxt is None else nxt
+        pair = None
+        if not ac._limited and ac._act is None:  # noqa: SLF001 (stops, servo faults: stepped one by one)
+            pair = ac._multi.get(int(self._nphys[i]))  # noqa: SLF001 (built by the aircraft on its first advance)
+        self._plain[i] = pair is not None
+        if pair is not None:
+            self._ad[i], self._bd[i] = pair
 
     # ------------------------------------------------------------------------------------------------ step
     def step(self, actions):
@@ -269,30 +282,26 @@ class RollVectorEnv(VectorEnv):
 
     def _advance(self, u: np.ndarray) -> None:
         n = self.num_envs
-        fast = np.zeros(n, dtype=bool)
-        for i in np.flatnonzero(self._linear_ok):
-            pair = self._pair(int(i), int(self._nphys[i]))
-            if pair is not None:
-                if pair is not self._pairs[i]:
-                    self._pairs[i] = pair
-                    self._ad[i], self._bd[i] = pair
-                fast[i] = True
+        fast = self._plain & (self._mark >= self._psteps + self._nphys)  # no fault starts or ends in these steps
         idx = np.flatnonzero(fast)
         if idx.size == n:  # x <- Ad^n x + Bd_n u (sitl.aircraft.Aircraft.advance), one product per aircraft
             self._x[:] = np.matmul(self._ad, self._x[:, :, None])[:, :, 0] + self._bd * u[:, None]
         elif idx.size:
             self._x[idx] = np.matmul(self._ad[idx], self._x[idx, :, None])[:, :, 0] + self._bd[idx] * u[idx, None]
+        self._psteps += np.where(fast, self._nphys, 0)  # what the aircraft's own advance keeps besides the state
+        self._ulast = np.where(fast, u, self._ulast)
         lanes = self.lanes
-        for i in idx:  # what the aircraft's own advance keeps besides the state
-            ac = lanes[i].plant
-            ac.steps += int(self._nphys[i])
-            ac._u_last = float(u[i])  # noqa: SLF001 (where a servo fault's delay line starts)
         for i in np.flatnonzero(~fast):
             ln = lanes[i]
+            lin = self._linear_ok[i]
+            if lin:  # the aircraft's own step and last command, kept here while the batch flew it
+                ln.plant.steps = int(self._psteps[i])
+                ln.plant._u_last = float(self._ulast[i])  # noqa: SLF001 (where a servo fault's delay line starts)
             ln.u = float(u[i])
             ln.advance()
-            if self._linear_ok[i]:
+            if lin:
                 self._adopt(int(i))
+                self._refresh(int(i))
 
     def _measure(self) -> None:
         """The ATTITUDE of every lane: from the state rows (roll wrapped, float32), else the lane's own."""
@@ -326,11 +335,11 @@ class RollVectorEnv(VectorEnv):
     def _autoreset(self, i: int) -> None:
         self.lanes[i] = self._lane(i, None)
         lanes, self.lanes = self.lanes, [self.lanes[i]]
-        saved = {k: v for k, v in self.__dict__.items() if isinstance(v, np.ndarray) or k == "_pairs"}
+        saved = {k: v for k, v in self.__dict__.items() if isinstance(v, np.ndarray)}
         self.num_envs = 1
         try:
             self._build()
-            row = {k: v for k, v in self.__dict__.items() if isinstance(v, np.ndarray) or k == "_pairs"}
+            row = {k: v for k, v in self.__dict__.items() if isinstance(v, np.ndarray)}
         finally:
             self.num_envs = len(lanes)
             self.lanes = lanes
@@ -348,9 +357,10 @@ class RollVectorEnv(VectorEnv):
         self._um[i, :width] = row["_um"][0]
         lin = bool(row["_linear_ok"][0]) and row["_x"].shape[1] == self._x.shape[1]
         self._linear_ok[i] = lin
-        self._pairs[i] = None
+        self._plain[i] = False
         if lin:
             self._adopt(i)
+            self._refresh(i)
 
     # ------------------------------------------------------------------------------------------------ out
     def _obs(self) -> np.ndarray:
