@@ -116,22 +116,28 @@ def test_make_vec_steps(mode):
 
 @pytest.mark.e2e
 @pytest.mark.parametrize(
-    ("plant", "extra"), [("kh2013a", ("--turbulence", "moderate")), ("jsbsim:c172x", ("--turbulence", "light"))]
+    ("plant", "opts"),
+    [
+        ("kh2013a", {"turbulence": "moderate", "roll_noise": "0.2", "sensor_delay": "2"}),
+        ("jsbsim:c172x", {"turbulence": "light"}),
+    ],
 )
-def test_a_pid_policy_flies_the_launchers_roll_series(tmp_path, plant, extra):
+def test_a_pid_policy_flies_the_launchers_roll_series(tmp_path, plant, opts):
     """The baseline PID as a policy gives the roll series of ``python -m tools.launch --lockstep --controller
-    baseline`` with the same plant, fault, turbulence and seed: to the last bit (the issue asks 1e-9 rad)."""
+    baseline`` with the same plant, fault, turbulence, sensor errors and seed: to the last bit (the issue asks
+    1e-9 rad)."""
     from autopilot.controllers import make_law
     from tools.experiment.scenario import BASELINE_RUN, PAPER, controller_config
 
     r = run_cli(
         "tools.launch", "--lockstep", "--quiet", "--controller", "baseline", "--plant", plant, "--duration", "12",
-        "--fault", "effectiveness=0.5@5", "--seed", "7", *extra, "--out", str(tmp_path), timeout=300,
+        "--fault", "effectiveness=0.5@5", "--seed", "7", "--out", str(tmp_path),
+        *[a for k, v in opts.items() for a in ("--" + k.replace("_", "-"), v)], timeout=300,
     )  # fmt: skip
     assert r.returncode == 0, r.stdout + r.stderr
     with np.load(tmp_path / "autopilot_series.npz") as s:
         phi = s["phi"]
-    env = gymnasium.make(ENV, plant=plant, duration=12, fault="effectiveness=0.5@5", turbulence=extra[1])
+    env = gymnasium.make(ENV, plant=plant, duration=12, fault="effectiveness=0.5@5", **opts)
     law = make_law(controller_config(replace(PAPER, plant=plant), BASELINE_RUN))
     obs, _ = env.reset(seed=7)
     flown = []
