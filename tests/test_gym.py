@@ -243,3 +243,41 @@ def test_ars_steps_along_the_better_direction_and_saves_and_scores(tmp_path):
     scores = json.loads((tmp_path / "scores.json").read_text())["scores"]
     assert len(scores["ars"]) == len(scores["pid"]) == 4 * 3
     assert all(r["controlled"] for r in scores["pid"] if r["fault"] == "none")
+
+
+@pytest.mark.parametrize("controller", ["baseline", "clsac"])
+def test_a_square_mimo_plant_observes_the_sideslip_and_flies_the_in_process_mimo_flight(controller):
+    """On ``jsbsim:c172x:surface=aileron+rudder`` the observation has the sideslip and the action both surfaces;
+    the MIMO law as a policy flies ``tools.experiment.mimo_inprocess.run_mimo``'s roll and sideslip to the last bit
+    (run_mimo is the lockstep MAVLink flight's, tests/test_mimo_inprocess.py)."""
+    from gymnasium.utils.env_checker import check_env
+
+    from autopilot.mimo import from_values
+    from autopilot.params import load_file
+    from sitl.jsbsim_plant import parse_spec
+    from tools.design.linearise import designed_params
+    from tools.experiment.mimo_inprocess import run_mimo
+
+    plant = "jsbsim:c172x:surface=aileron+rudder"
+    fault, dist = "effectiveness=0.5@5", (("seed", 7), ("turbulence", "light"))
+    ref = run_mimo(plant, controller, duration_s=12, faults=(fault,), disturbances=dist)["series"]
+    env = gymnasium.make(ENV, plant=plant, duration=12, fault=fault, turbulence="light")
+    assert env.observation_space.shape == (8,) and env.action_space.shape == (2,)
+    limits = parse_spec(plant).surface_limits_rad
+    law = from_values(controller, load_file(designed_params(plant)), control_rate_hz=100.0, limits=limits)
+    obs, _ = env.reset(seed=7)
+    flown = []
+    while True:
+        flown.append((obs[0], obs[3]))
+        law.y2, law.um2 = obs[3], obs[5]
+        u1 = law(obs[0], obs[4])
+        obs, _r, term, trunc, info = env.step(np.array([u1, law.u2]))
+        if term or trunc:
+            break
+    flown = np.array(flown)
+    assert np.array_equal(flown[:, 0], ref["phi"]) and np.array_equal(flown[:, 1], ref["beta"])
+    assert info["verdict"]["ok"] and np.abs(flown[:, 1]).max() > 1e-4  # the sideslip moved, and was held
+    if controller == "baseline":
+        check_env(env.unwrapped, skip_render_check=True)
+        with pytest.raises(ValueError, match="spaces are for a square MIMO plant"):
+            env.reset(options={"plant": "kh2013a"})

@@ -19,6 +19,7 @@ from __future__ import annotations
 
 import functools
 import math
+from collections import deque
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -67,6 +68,26 @@ class Episode:
     @property
     def physics_per_control(self) -> int:
         return int(round(self.physics_rate_hz / self.control_rate_hz))
+
+    @property
+    def mimo(self) -> bool:
+        """A square MIMO plant (``jsbsim:MODEL:surface=aileron+rudder``): roll on the aileron, sideslip on the
+        rudder."""
+        if plants.kind(self.plant) != "jsbsim":
+            return False
+        from sitl.jsbsim_plant import parse_spec
+
+        return parse_spec(self.plant).is_mimo
+
+    @property
+    def limits_rad(self) -> tuple[float, ...]:
+        """Each surface's limit: the roll's (``u_limit_rad``), and on a MIMO plant the rudder's stop."""
+        if not self.mimo:
+            return (self.u_limit_rad,)
+        from sitl.jsbsim_plant import parse_spec
+
+        lims = parse_spec(self.plant).surface_limits_rad
+        return (min(U_LIMIT_RAD, lims[0]), min(U_LIMIT_RAD, lims[1]))
 
     @property
     def u_limit_rad(self) -> float:
@@ -127,11 +148,6 @@ def episode(opts: dict) -> Episode:
     weight = float(opts.get("effort_weight", 1.0))
     if not (math.isfinite(weight) and weight >= 0):
         raise ValueError(f"effort_weight must be >= 0 and finite, got {opts.get('effort_weight')!r}")
-    if plants.kind(args.plant) == "jsbsim":
-        from sitl.jsbsim_plant import parse_spec
-
-        if parse_spec(args.plant).is_mimo:
-            raise ValueError(f"--plant {args.plant}: a square MIMO plant is not an environment yet (docs/gymnasium.md)")
     dist = {d: getattr(args, d) for d in DISTURBANCES}
     return Episode(args.plant, tuple(args.fault or ()), dist, profile, float(duration), rate, float(physics), weight)
 
@@ -165,8 +181,15 @@ class Lane:
         self.schedule = damage.Schedule(ep.faults, 0.0, 1.0 / ep.physics_rate_hz) if ep.faults else None
         self.scheduled = None if self.schedule is None else damage.ScheduledEffects(self.plant, self.schedule, advance)
         self._advance = advance if self.scheduled is None else self.scheduled.advance
-        self.limit = ep.u_limit_rad
+        self.mimo = ep.mimo
+        self.limits = ep.limits_rad
+        self.limit = self.limits[0]
         self.pwm = PwmMap(rudder_max_rad=max(U_LIMIT_RAD, self.limit))  # the launcher's calibration
+        self.u2 = self.beta = self.beta_cmd = 0.0
+        if self.mimo:  # the rudder's pulse on its own channel, the same span (tools.experiment.mimo_inprocess)
+            self.pwm2 = PwmMap(rudder_max_rad=max(U_LIMIT_RAD, self.limit))
+            delay = self.inj.sensors.cfg.delay if self.sensors else 0
+            self._side = deque(maxlen=delay + 1)  # AOA_SSA's sensor delay (sitl.endpoint.Sitl._measure_sideslip)
         self.dt = 1.0 / ep.control_rate_hz
         phi, gam = zoh(np.array([[REF_AM]]), np.array([[REF_BM]]), self.dt)
         self.ref = (float(phi[0, 0]), float(gam[0, 0]))  # y_m,ol's exact ZOH (autopilot.baseline.Baseline)
@@ -198,9 +221,16 @@ class Lane:
             phi, p, r = wrap_pi(x[3]), x[1], x[2]
         self.phi, self.p, self.r = (float(np.float32(v)) for v in (phi, p, r))
         self.um = self.command(self.k)
+        if self.mimo:  # AOA_SSA: the sideslip in deg as float32; its command as the GCS's profile gives it
+            self._side.append(self.plant.sideslip())
+            self.beta = math.radians(float(np.float32(math.degrees(self._side[0][1]))))
+            self.beta_cmd = self.ep.profile.sideslip(min(self.k, self.ep.steps) * self.dt)
         self.ym = REF_CM * self.xm
 
     def observation(self) -> np.ndarray:
+        if self.mimo:
+            obs = (self.phi, self.p, self.r, self.beta, self.um, self.beta_cmd, self.u, self.u2)
+            return np.array(obs, dtype=np.float64)
         return np.array([self.phi, self.p, self.r, self.um, self.u], dtype=np.float64)
 
     def act(self, a: float) -> float:
@@ -209,6 +239,13 @@ class Lane:
         u = lim if a > lim else (-lim if a < -lim else a)
         self.u = self.pwm.to_rad(self.pwm.to_pwm(u))
         return self.u
+
+    def act2(self, a: float) -> float:
+        """A MIMO plant's rudder: clipped to its stop, through its 1 us pulse, held by the plant (``u2``)."""
+        lim = self.limits[1]
+        u = lim if a > lim else (-lim if a < -lim else a)
+        self.u2 = self.plant.u2 = self.pwm2.to_rad(self.pwm2.to_pwm(u))
+        return self.u2
 
     def advance(self) -> None:
         self._advance(self.u, self.ep.physics_per_control)
@@ -219,7 +256,11 @@ class Lane:
         phi, ym, u = self.phi, self.ym, self.u
         self.metrics.add(phi, ym, ym - phi, u)
         d = phi - ym
-        reward = -(d * d + self.ep.effort_weight * (u * u)) * self.dt
+        if self.mimo:  # the sideslip's error and the rudder's effort too
+            d2, u2 = self.beta - self.beta_cmd, self.u2
+            reward = -(d * d + d2 * d2 + self.ep.effort_weight * (u * u + u2 * u2)) * self.dt
+        else:
+            reward = -(d * d + self.ep.effort_weight * (u * u)) * self.dt
         ft = self.k * self.dt
         text = self.monitor.add(ft, phi, u, self.limit, ym)
         if self.exit is None and self.monitor.roll_exit_s is not None:

@@ -56,6 +56,8 @@ class RollVectorEnv(VectorEnv):
         self.num_envs = n = num_envs
         self._defaults = dict(options)
         ep = episode(self._defaults)
+        if ep.mimo:
+            raise ValueError(f"--plant {ep.plant}: a square MIMO plant flies in Roll-v0, one aircraft, not here yet")
         self._eps = [ep] * n
         self.single_observation_space = observation_space()
         self.single_action_space = action_space()
@@ -84,6 +86,8 @@ class RollVectorEnv(VectorEnv):
                 key = repr(sorted(o.items())) if o else None
                 if key is not None and key not in cache:
                     cache[key] = episode({**self._defaults, **o})
+                    if cache[key].mimo:
+                        raise ValueError(f"--plant {cache[key].plant}: a square MIMO plant flies in Roll-v0 only")
                 eps.append(self._eps[i] if key is None else cache[key])
             self._eps = eps
         for i, s in enumerate(seeds):
