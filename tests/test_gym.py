@@ -281,3 +281,22 @@ def test_a_square_mimo_plant_observes_the_sideslip_and_flies_the_in_process_mimo
         check_env(env.unwrapped, skip_render_check=True)
         with pytest.raises(ValueError, match="spaces are for a square MIMO plant"):
             env.reset(options={"plant": "kh2013a"})
+
+
+def test_importing_sitl_gym_loads_gymnasium_and_nothing_of_the_autopilot_or_tools():
+    """sitl.gym only registers (docs/design.md, "Dependency rule"): the environment is loaded when one is made."""
+    import subprocess
+    import sys
+    import textwrap
+    from pathlib import Path
+
+    code = textwrap.dedent("""
+        import sys
+        import sitl.gym, gymnasium
+        assert "Roll-v0" in gymnasium.registry
+        print(sorted(m for m in sys.modules if m.split('.')[0] in ('autopilot', 'tools')
+                     and not m.startswith('autopilot.shared') and m != 'autopilot'))
+    """)
+    root = Path(__file__).resolve().parents[1]
+    out = subprocess.run([sys.executable, "-c", code], cwd=root, capture_output=True, text=True, check=True)
+    assert out.stdout.strip() == "[]", out.stdout + out.stderr
