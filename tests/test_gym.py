@@ -31,6 +31,8 @@ def test_check_env_passes_and_zero_actions_fly_a_fault_to_truncation():
     from gymnasium.utils.env_checker import check_env
 
     env = gymnasium.make(ENV)
+    with pytest.warns(UserWarning, match="different from the unwrapped"):  # gymnasium's advice, not a failure
+        check_env(env)
     check_env(env.unwrapped, skip_render_check=True)
     obs, info = env.reset(seed=1, options={"fault": "effectiveness=0.3@10"})
     assert env.observation_space.contains(obs) and info["fault"]["active"] == []
