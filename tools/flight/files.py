@@ -24,6 +24,8 @@ from tools.view.series_files import load_series  # noqa: F401  (re-exported: too
 def png_request(cfg: FlightConfig, out: Path, name: str, metrics: dict) -> dict:
     """The keywords of ``tools.view.flight_picture.draw_flight_png`` for a flight's picture (plain values: the helper
     process gets them as JSON)."""
+    from sitl import plant as plants
+
     return {
         "out": str(out),
         "name": name,
@@ -35,6 +37,7 @@ def png_request(cfg: FlightConfig, out: Path, name: str, metrics: dict) -> dict:
         "metrics": metrics,
         "plant": cfg.plant_name,
         "surface": cfg.surface,
+        "surface2": plants.surface_of(cfg.plant).split("+")[1] if cfg.mimo else None,
     }
 
 
