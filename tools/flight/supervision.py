@@ -555,7 +555,12 @@ class Flight:
         # flight.png (the helper draws it from the series and the metrics) while the recording is joined here
         drawing = self._request_png(metrics)
         rrd_path, rrd_indexed, rrd_error = _join_telemetry(
-            self._parts, self.out, self._recording_id, cfg.rrd_merge_max_mb, flight_span(cfg, stats["sitl"])
+            self._parts,
+            self.out,
+            self._recording_id,
+            cfg.rrd_merge_max_mb,
+            flight_span(cfg, stats["sitl"]),
+            cfg.u_limit_deg,
         )
         if rrd_error and exit_code == EXIT_OK:
             exit_code, failed, error = EXIT_FAILED, "telemetry", rrd_error
