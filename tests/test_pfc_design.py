@@ -313,3 +313,56 @@ def test_zeros_and_roots_on_the_imaginary_axis_count_as_unstable():
     assert not design_mimo._stable(rot, discrete=True)  # |z| = 1
     pfc = design_mimo.MimoPfc([], [], np.array([2j, -2j]), np.array([2j, -2j]), np.eye(2), 1.0)
     assert not pfc.minimum_phase and not pfc.waspr
+
+
+def test_the_mimo_rudder_corner_is_the_acceptable_one_with_the_least_d0():
+    """The square c172x's second channel (rudder on the sideslip), designed with the aileron's loop closed by its
+    C_1 = (s + a_1)/k_1: of the corners whose k_2 = 3/g* (g* the critical gain of C_2 = g (s + a) on that channel,
+    computed here from the matrices) gives a coupled F = T + diag(D_1, D_2) with its transmission zeros (Rosenbrock
+    pencil, scipy) in the left half plane, u = -k y_a stable for every k of a log grid and its ZOH sampling
+    (scipy's expm) for every k up to 50, the design keeps the one with the least D_2(0) = k_2/a_2, as the shipped
+    file says, and the designer makes again.  The choice matters: another corner (100 1/s) is acceptable too."""
+    import scipy.linalg
+
+    from tools.design.mimo import design_pfc_mimo
+    from tools.design.tuning import CORNERS
+
+    lp = linear_plant.load(plants.shipped("jsbsim-c172x-aileron+rudder.toml"))
+    v = load_file(plants.shipped("jsbsim-c172x-aileron+rudder.params"))
+    A, B, C = lp.a_p, lp.b_p, lp.c_p
+    k1, a1 = v["CLSAC_PFC_NUM"], v["CLSAC_PFC_DEN0"]
+    a_sub = A - B[:, :1] @ ((C[:1] @ A + a1 * C[:1]) / k1)
+    b2, c2 = B[:, 1:], C[1:]
+    assert float((c2 @ b2)[0, 0]) == 0.0  # y' = C_2 A x: C_2 = g (s + a) is a state feedback
+    n = A.shape[0]
+    rows = []
+    for a in CORNERS:
+        g = _first_unstable_gain(lambda g, a=a: a_sub - g * b2 @ (c2 @ a_sub + a * c2))
+        if math.isinf(g):
+            continue  # no critical gain: no margin to take
+        k2 = 3.0 / g
+        af = scipy.linalg.block_diag(A, -np.diag([a1, a]))
+        bf = np.vstack([B, np.eye(2)])
+        cf = np.hstack([C, np.diag([k1, k2])])
+        pencil = np.block([[af, bf], [cf, np.zeros((2, 2))]])
+        e = np.zeros_like(pencil)
+        e[: n + 2, : n + 2] = np.eye(n + 2)
+        z = scipy.linalg.eigvals(pencil, e)
+        z = z[np.isfinite(z) & (np.abs(z) < 1e9)]
+        if np.max(z.real) >= 0.0:
+            continue
+        if any(np.max(np.linalg.eigvals(af - k * bf @ cf).real) >= 0.0 for k in np.logspace(-4, 5, 300)):
+            continue
+        big = scipy.linalg.expm(np.block([[af, bf], [np.zeros((2, n + 4))]]) * 0.01)
+        phi, gam = big[: n + 2, : n + 2], big[: n + 2, n + 2 :]
+        if any(np.max(np.abs(np.linalg.eigvals(phi - k * gam @ cf))) >= 1.0 for k in np.linspace(0.05, 50.0, 300)):
+            continue
+        rows.append({"a": a, "k": k2, "d0": k2 / a, "damping": float(np.min(-z.real / np.abs(z)))})
+    assert len(rows) >= 2
+    chosen = min(rows, key=lambda r: (round(r["d0"], 12), -r["damping"]))
+    assert len({round(r["d0"], 12) for r in rows}) == len(rows)  # no tie: the choice is D(0)'s
+    assert v["CLSAC_PFC2_DEN0"] == chosen["a"] and v["CLSAC_PFC2_NUM"] == pytest.approx(chosen["k"], rel=1e-6)
+    design = design_pfc_mimo((A, B, C))
+    assert design.pfcs[0] == pytest.approx((k1, a1), rel=1e-9)
+    assert design.pfcs[1][1] == chosen["a"] and design.pfcs[1][0] == pytest.approx(chosen["k"], rel=1e-6)
+    assert design.designs[1].accepted == len(rows)
