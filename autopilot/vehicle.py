@@ -44,7 +44,8 @@ _PROTOCOL_VERSION_MSG = SimpleNamespace(id=PROTOCOL_VERSION, crc_extra=217, unpa
 class Mode(enum.IntEnum):
     """The modes, as HEARTBEAT.custom_mode.  MANUAL is 0, which ArduPlane's table (what MAVProxy and pymavlink's
     ``mode_string_v10`` use for a fixed wing) also calls MANUAL; the others are numbers that table does not
-    have, so those tools show ``Mode(100)`` etc., never a wrong name.  FAILSAFE is entered and left by itself."""
+    have, so those tools show ``Mode(100)`` etc., never a wrong name; MAVProxy names them all with the module
+    ``tools.flight.mavproxy_modes`` loaded.  FAILSAFE is entered and left by itself."""
 
     MANUAL = 0
     SAC = 100

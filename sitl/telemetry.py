@@ -43,7 +43,7 @@ SITL_TABLE = TableLayout(
     "sitl",
     SITL_FIELDS,
     (
-        Plot(SITL_ROLL, ("phi",), ("roll phi (truth)",), (PURPLE,), scale=DEG),
+        Plot(SITL_ROLL, ("phi",), ("roll phi (truth, wrapped to +-180)",), (PURPLE,), scale=DEG, wrap=True),
         Plot(SITL_RATES, ("p", "r"), ("roll rate p (truth)", "yaw rate r (truth)"), (PURPLE, GREEN), scale=DEG),
         Plot(SITL_SIDE_VELOCITY, ("v",), ("side velocity v (truth)",), (GREEN,)),
         Plot(

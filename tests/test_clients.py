@@ -170,7 +170,7 @@ class MavProxy:
     """MAVProxy as a user runs it: ``mavproxy.py --master udpin:...``, commands typed on stdin (without
     --non-interactive, which ignores stdin), its console read from stdout."""
 
-    def __init__(self, py: str, port: int, cwd: Path):
+    def __init__(self, py: str, port: int, cwd: Path, **env: str):
         self.lines: list[str] = []
         self.p = subprocess.Popen(
             [py, str(Path(py).parent / "mavproxy.py"), "--master", f"udpin:127.0.0.1:{port}", "--nowait"],
@@ -181,7 +181,7 @@ class MavProxy:
             cwd=cwd,
             # its console line by line, as on a terminal: on a pipe Python buffers it, and without this (an
             # environment without PYTHONUNBUFFERED) the parameter count never reached the test in time
-            env=dict(os.environ, PYTHONUNBUFFERED="1"),
+            env=dict(os.environ, PYTHONUNBUFFERED="1", **env),
         )
         threading.Thread(target=self._read, daemon=True).start()
 
@@ -341,3 +341,44 @@ def test_mavproxy_sees_two_vehicles_with_sysid_1_and_2(tmp_path, mavproxy_python
         mp.close()
         codes = [p.wait(120) for p in launches]
     assert codes == [0, 0]
+
+
+def test_mavproxy_names_this_vehicles_modes_with_its_module(vehicle, tmp_path, mavproxy_python):
+    """Plain MAVProxy lists ArduPlane's modes for this fixed wing (none of them this vehicle's but MANUAL) and shows
+    Mode(101); with ``tools.flight.mavproxy_modes`` loaded (the checkout on its PYTHONPATH, as the docs say) it lists
+    this vehicle's modes, switches by name (DO_SET_MODE, answered by the autopilot's own "AP: mode ..."), names the
+    mode in its prompt, and a FAILSAFE asked for is DENIED (the vehicle enters and leaves it by itself).  The
+    module's table is ``autopilot.vehicle.Mode``."""
+    from autopilot.vehicle import Mode
+    from tools.flight.mavproxy_modes import MODES
+
+    assert MODES == {m.value: m.name for m in Mode}
+    mp = MavProxy(mavproxy_python, vehicle.port, tmp_path, PYTHONPATH=str(ROOT))  # the checkout, as the docs say
+    try:
+        mp.wait_for(r"Detected vehicle 1:1", 20)
+        mark = mp.mark()
+        mp.send("mode")
+        listed = mp.wait_for(r"Available modes:\s+(.*)$", start=mark).group(1)
+        assert "FBWA" in listed and "CLSAC" not in listed  # ArduPlane's, without the module
+        mark = mp.mark()
+        mp.send("module load tools.flight.mavproxy_modes")
+        mp.wait_for(r"Loaded module tools.flight.mavproxy_modes", start=mark)
+        mp.wait_for(r"clsac_modes: this vehicle's modes: MANUAL SAC CLSAC FAILSAFE BASELINE", start=mark)
+        mark = mp.mark()
+        mp.send("mode")
+        listed = mp.wait_for(r"Available modes:\s+(.*)$", start=mark).group(1)
+        assert sorted(s.strip() for s in listed.split(",")) == sorted(MODES.values()), listed
+        mp.send("mode SAC")
+        mp.wait_for(r"AP: mode SAC", start=mark)
+        mp.send("mode CLSAC")
+        mp.wait_for(r"AP: mode CLSAC", start=mark)
+        mp.send("mode MANUAL")
+        mp.wait_for(r"AP: mode MANUAL", start=mark)
+        mp.wait_for(r"^MANUAL> ", start=mark, timeout=10)  # the prompt names the mode (MAVProxy's flightmode)
+        mark = mp.mark()
+        mp.send("mode FAILSAFE")
+        mp.wait_for(r"Got COMMAND_ACK: DO_SET_MODE: DENIED", start=mark)
+        mp.send("mode CLSAC")
+        mp.wait_for(r"^CLSAC> ", start=mp.mark(), timeout=10)
+    finally:
+        mp.close()

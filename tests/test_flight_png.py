@@ -451,3 +451,123 @@ def test_odd_values_are_drawn_and_said_not_crashed_on():
     finally:
         flight_png._note_box = original
     assert notes[0] == "ise_ref=1 rad²s, max|φ|=n/a" and notes[1] == "ise_ref=1 rad²s, max|φ|=5.73e+31 deg", notes
+
+
+# ---------------------------------------------------------------------------------------- issue 35: what a user sees
+def _text_mask(s: str, pt: float, rotate: bool = False, ink: int = 90) -> np.ndarray:
+    """``s`` drawn alone in DejaVu at ``pt`` points (read upwards if ``rotate``), as the ink a reader sees."""
+    font = ImageFont.truetype(flight_png.font_file(), pt * flight_png.PX)
+    img = Image.new("L", (int(font.getlength(s)) + 40, 60), 0)
+    ImageDraw.Draw(img).text((20, 30), s, font=font, fill=255, anchor="lm")
+    if rotate:
+        img = img.transpose(Image.Transpose.ROTATE_90)
+    return _crop(np.asarray(img) > ink)
+
+
+def _iou(a: np.ndarray, b: np.ndarray) -> float:
+    h, w = max(a.shape[0], b.shape[0]), max(a.shape[1], b.shape[1])
+    pa, pb = np.zeros((h, w), bool), np.zeros((h, w), bool)
+    pa[: a.shape[0], : a.shape[1]], pb[: b.shape[0], : b.shape[1]] = a, b
+    return (pa & pb).sum() / max((pa | pb).sum(), 1)
+
+
+def test_a_roll_that_wraps_at_180_deg_is_not_joined_across_the_wrap(digits):
+    """A steady roll of 20 deg/s, as ATTITUDE reports it (wrapped to +-180 deg): 180 deg at t = 9 s, then -180.
+    The line was joined across the wrap, a vertical stroke over the whole panel: no column of the panel now has the
+    roll's colour over more than a tenth of its height, and the line is there just before the wrap near the top
+    and just after it near the bottom."""
+    phi = ((20.0 * T + 180.0) % 360.0 - 180.0) * DEG
+    px = _draw(_series(phi=phi))
+    frames = _frames(px)
+    left, top, right, bottom = frames[0]
+    cover = _coverage(px[top + 1 : bottom, left + 1 : right], flight_png.C_CLSAC) > 0.3
+    assert cover.sum(axis=0).max() < 0.1 * (bottom - top), cover.sum(axis=0).max()
+    col = lambda t: round(_at(_x_grid(px, frames, digits), t)) - left - 1  # noqa: E731
+    before, after = np.flatnonzero(cover[:, col(8.8)]), np.flatnonzero(cover[:, col(9.2)])
+    height = bottom - top
+    assert before.size and before.max() < 0.15 * height  # 176 deg: near the top (the range is +-198)
+    assert after.size and after.min() > 0.85 * height  # -176 deg: near the bottom
+    # the same roll unwrapped (a truth roll, 0 to 600 deg) is one unbroken line
+    px = _draw(_series(phi=20.0 * T * DEG))
+    cover = _coverage(px[top + 1 : bottom, left + 1 : right], flight_png.C_CLSAC) > 0.3
+    assert cover[:, col(1.0) : col(24.0)].any(axis=0).all()
+
+
+def test_gain_spikes_are_clipped_and_marked_not_flattening_the_panel(digits):
+    """K_e = 0.1 but for three steps of 330 at t = 15 s: the panel is scaled to the gains' levels (0.1, -0.05 and
+    0.02 drawn to scale: the rows of K_u and K_e are 0.08/0.15 of the way from K_e to K_x), the spike drawn as a
+    triangle in K_e's colour at the top edge at its time (and nowhere else), and the note gives the clipped
+    extremes.  A gain that grows steadily to 330 is not clipped: its line spans the panel."""
+    ke = np.full(N, 0.1)
+    ke[1500:1503] = 330.0
+    notes = []
+    original = flight_png._note_box
+    try:
+        flight_png._note_box = lambda c, ax, lines: (notes.extend(lines), original(c, ax, lines))
+        px = _draw(_series(ke=ke))
+        frames = _frames(px)
+        left, top, right, bottom = frames[2]
+        rows = {}
+        for key in ("ke", "kx", "ku"):
+            flat = _solid(px[top + 12 : bottom - 1, left + 2 : left + 600], flight_png.C_GAINS[key])
+            rows[key] = float(np.median(np.nonzero(flat)[0]))
+        assert rows["kx"] - rows["ke"] > 0.5 * (bottom - top), rows  # not squashed into one line
+        assert abs((rows["ku"] - rows["ke"]) / (rows["kx"] - rows["ke"]) - 0.08 / 0.15) < 0.02, rows
+        band = _coverage(px[top + 1 : top + 10, left + 1 : right], flight_png.C_GAINS["ke"]) > 0.5
+        cols = np.flatnonzero(band.any(axis=0)) + left + 1
+        x15 = _at(_x_grid(px, frames, digits), 15.0)
+        assert cols.size and np.all(np.abs(cols - x15) <= 5), (cols, x15)
+        assert any("330" in s and "K_e" in s for s in notes), notes
+        notes.clear()
+        px = _draw(_series(ke=np.linspace(0.0, 330.0, N)))
+        rows = np.flatnonzero(
+            (_coverage(px[top + 1 : bottom, left + 1 : right], flight_png.C_GAINS["ke"]) > 0.5).any(1)
+        )
+        assert rows.max() - rows.min() > 0.75 * (bottom - top) and not any("clipped" in s for s in notes), notes
+    finally:
+        flight_png._note_box = original
+
+
+def test_fault_labels_that_fall_together_are_merged_not_drawn_over_each_other(digits):
+    """Eight faults starting within 0.35 s of each other (about 11 px) and one ending at 20 s: the eight labels were
+    written on top of each other.  Left of the first of the eight lines, the ink of the faults' colour is one text as
+    drawn alone (all eight names, or the first and "(+7 more)" when they do not fit the panel's height); left of
+    the 20 s line, its own label."""
+    faults = [(12.0 + 0.05 * k, f"fault stuck={k + 1}") for k in range(8)] + [(20.0, "end stuck=3")]
+    img = flight_image(
+        _series(phi=np.full(N, 9.5 * DEG)),
+        name="clsac",
+        lv=20.0,
+        metrics={},
+        u_limit_rad=30 * DEG,
+        title="t",
+        faults=faults,
+    )
+    px = np.asarray(img).astype(int)
+    frames = _frames(px)
+    left, top, right, bottom = frames[0]
+    x = _x_grid(px, frames, digits)
+    names = ", ".join(s for _, s in faults[:8])
+    for t0, texts in ((12.0, (names, "fault stuck=1 (+7 more)")), (20.0, ("end stuck=3",))):
+        col = math.floor(_at(x, t0))
+        ink = _crop(_coverage(px[top + 1 : bottom, col - 20 : col], flight_png.C_FAULT) > 0.35)
+        best = max(_iou(ink, _text_mask(s, flight_png.PT_MODE, rotate=True)) for s in texts)
+        assert best > 0.8, (t0, best, ink.shape)
+
+
+def test_a_mimo_flights_title_names_both_surfaces(tmp_path):
+    """A square MIMO flight (aileron and rudder): the title said "(aileron)" alone.  The picture drawn from the
+    request the launcher makes for such a flight (``tools.flight.files.png_request``) has, as its top line, exactly
+    the title naming both surfaces, drawn alone in the same font."""
+    from tools.flight.config import FlightConfig
+    from tools.flight.files import png_request
+
+    out = tmp_path / "run-mimo"
+    out.mkdir()
+    np.savez(out / "autopilot_series.npz", **_series(u2=2 * DEG * SQUARE, beta=np.full(N, 0.5 * DEG)))
+    cfg = FlightConfig(plant="jsbsim:c172x:surface=aileron+rudder", lockstep=True)
+    png = draw_flight_png(**png_request(cfg, out, "clsac", {}))
+    px = np.asarray(Image.open(png).convert("RGB")).astype(int)
+    ink = _crop(px[5:45].mean(axis=-1) < 128)
+    title = "Flight run-mimo: clsac on c172x-aileron+rudder (aileron and rudder), lockstep, 100 Hz"
+    assert _iou(ink, _text_mask(title, flight_png.PT_SUPTITLE, ink=127)) > 0.8

@@ -169,3 +169,68 @@ def test_the_verdict_takes_the_sideslip_channel_at_its_limits():
     )
     unchecked = {"ok": True, "checked": False, "reason": "not checked"}
     assert with_sideslip(unchecked, _side(50.0, 1.0)) is unchecked
+
+
+# ---------------------------------------------------------------------------------------- the second channel alone
+# The two surfaces have different limits (the c172x's aileron 0.305 rad, rudder 0.279): each test drives one channel
+# where the other does not go, so a second channel that reads the first's flag, limit or command is caught.
+LIMITS = (0.305, 0.279)
+
+
+@pytest.mark.parametrize("kind", ["clsac", "baseline"])
+def test_each_surface_saturates_at_its_own_limit_and_says_so_on_its_own_flag(values, kind):
+    """A 1 rad sideslip error, no roll error: the rudder's command is exactly at the rudder's limit (0.279, not the
+    aileron's 0.305), its flag is set, the aileron's is not and its command is 0.  Then the other way round: a 1 rad
+    roll error, no sideslip: the aileron at 0.305 with its flag, the rudder at 0 without."""
+    law = mimo.from_values(kind, values, control_rate_hz=100.0, limits=LIMITS)
+    law.y2, law.um2 = 1.0, 0.0
+    u1 = law(0.0, 0.0)
+    assert abs(law.u2) == LIMITS[1] and law.sat2 is True
+    assert u1 == 0.0 and law.saturated is False
+    row = dict(zip(mimo.MIMO_FIELDS, law.mimo_row()))
+    assert row["sat2"] is True and abs(row["u2"]) == LIMITS[1]
+    law = mimo.from_values(kind, values, control_rate_hz=100.0, limits=LIMITS)
+    law.y2, law.um2 = 0.0, 0.0
+    u1 = law(1.0, 0.0)
+    assert abs(u1) == LIMITS[0] and law.saturated is True
+    assert law.u2 == 0.0 and law.sat2 is False
+
+
+@pytest.mark.parametrize("kind", ["clsac", "baseline"])
+def test_the_channel_metrics_count_each_surfaces_saturation_on_its_own(values, kind):
+    """Ten steps with the rudder at its limit and the aileron free: the rudder's saturated share is 1, the aileron's
+    0, and the largest rudder command the rudder's limit (hand count: every step)."""
+    law = mimo.from_values(kind, values, control_rate_hz=100.0, limits=LIMITS)
+    metrics = mimo.ChannelMetrics(T, LIMITS)
+    from autopilot.step import Failsafe
+
+    for _ in range(10):
+        law.y2 = 1.0
+        u = law(0.0, 0.0)
+        metrics(SimpleNamespace(result=SimpleNamespace(failsafe=Failsafe.NONE, phi=0.0, u=u), ctrl=law))
+    side = metrics.result()
+    assert side["saturated_fraction"] == {"aileron": 0.0, "rudder": 1.0}
+    assert side["channels"][1]["metrics"]["max_abs_u"] == LIMITS[1]
+
+
+@pytest.mark.parametrize("kind", ["clsac", "baseline"])
+def test_in_a_hold_the_rudder_goes_neutral_while_the_aileron_takes_what_is_applied(values, kind):
+    """After 50 steps with a sideslip error (the rudder deflected), a failsafe hold applying 0.1 rad to the aileron:
+    the rudder's command is 0 (neutral), not the command it held nor the aileron's 0.1, in the law and in its
+    telemetry row; for CL-SAC the rudder's PFC state decays as its exact ZOH with zero input,
+    x_d <- exp(-a2 T) x_d (D_2 = k_2/(s + a_2)), and the aileron's follows 0.1."""
+    law = mimo.from_values(kind, values, control_rate_hz=100.0, limits=LIMITS)
+    for _ in range(50):
+        law.y2 = 0.2
+        law(0.0, 0.0)
+    assert abs(law.u2) > 1e-3  # deflected before the hold
+    xd = None if kind != "clsac" else np.array(law.law.xd, dtype=float).ravel().copy()
+    law.hold(0.1)
+    assert law.u2 == 0.0 and law.u == 0.1 and law.frozen
+    assert dict(zip(mimo.MIMO_FIELDS, law.mimo_row()))["u2"] == 0.0
+    if xd is not None:
+        a1, a2 = values["CLSAC_PFC_DEN0"], values["CLSAC_PFC2_DEN0"]
+        after = np.array(law.law.xd, dtype=float).ravel()
+        assert after[1] == pytest.approx(math.exp(-a2 * T) * xd[1], rel=1e-12, abs=1e-15)
+        expect1 = math.exp(-a1 * T) * xd[0] + (1 - math.exp(-a1 * T)) / a1 * 0.1
+        assert after[0] == pytest.approx(expect1, rel=1e-12, abs=1e-15)

@@ -38,3 +38,23 @@ def test_the_manual_loop_flies_the_paper_law(capsys):
     # loop.
     ref = run_inprocess(Scenario(profile=Profile("square", 0.1745, 10.0), duration_s=30.01), RunSpec("clsac", 20.0))
     assert ac.phi == ref.series["phi"][-1]
+
+
+def test_the_run_folders_the_manual_names_are_the_ones_the_launcher_makes(tmp_path):
+    """Every ``runs/<timestamp>...`` in the README and docs/telemetry.md ("open a saved flight": it once lacked the
+    plant) is the folder ``python -m tools.launch`` makes with its defaults: ``new_run_dir`` with the launcher's tag
+    for the default flight, made here in a scratch folder, its time stamp replaced by ``<timestamp>``."""
+    from tools.flight.children import new_run_dir
+    from tools.flight.config import FlightConfig
+    from tools.flight.supervision import run_folder_tag
+
+    made = new_run_dir(str(tmp_path / "runs"), run_folder_tag(FlightConfig()))
+    assert re.fullmatch(r"\d{8}-\d{6}-rt-clsac-KH2013A", made.name), made.name
+    expected = "runs/<timestamp>" + made.name[len("20250101-120000") :]
+    root = API_PAGE.parents[1]
+    named = [
+        m
+        for page in ("README.md", "docs/telemetry.md")
+        for m in re.findall(r"runs/<timestamp>[^/`\s]*", (root / page).read_text())
+    ]
+    assert len(named) >= 3 and set(named) == {expected}, named

@@ -147,6 +147,29 @@ def test_bad_rows_are_dropped_not_fatal(tmp_path):
     assert len(rrd.load(path)[S.SITL_ROLL].t) == 10
 
 
+def test_the_true_roll_is_shown_wrapped_as_the_measured_roll_is(tmp_path):
+    """After a full roll the SITL's true roll (the plant's state, unwrapped: 368 to 500 deg) was drawn beside the
+    measured roll, which ATTITUDE reports wrapped to (-180, 180] deg.  The viewer now gets the true roll wrapped the
+    same way: each value is ``autopilot.shared.numerics.wrap_pi`` of the row's (the SITL's ATTITUDE encoding), in
+    degrees; the row itself (the series files, the 3D pose) keeps the unwrapped state.  The spooled layout keeps the
+    flag."""
+    from autopilot.shared.numerics import wrap_pi
+    from autopilot.shared.telemetry.spool import layout_from_data, layout_to_data
+
+    phi = [0.0, 3.0, 3.3, 2 * math.pi + 0.1, 8.7, -3.3, math.pi, -math.pi, -7 * math.pi, float("nan")]
+    path = tmp_path / "t.rrd"
+    with tm.Telemetry("sitl", None, path) as tel:
+        st = tel.table(S.SITL_TABLE)
+        for k, v in enumerate(phi):
+            st.append(k * 0.01, time.time(), tuple(v if f == "phi" else 0.0 for f in S.SITL_FIELDS))
+    got = rrd.load(path)[S.SITL_ROLL].values[:, 0]
+    expect = [math.degrees(wrap_pi(v)) if math.isfinite(v) else math.nan for v in phi]
+    np.testing.assert_allclose(got, expect, rtol=1e-12, atol=1e-12)
+    assert np.nanmax(np.abs(got)) <= 180.0 and got[6] == got[7] == 180.0  # -pi and pi: both +180, as ATTITUDE
+    assert layout_from_data(layout_to_data(S.SITL_TABLE)) == S.SITL_TABLE
+    assert [p.wrap for p in S.SITL_TABLE.plots if p.path == S.SITL_ROLL] == [True]
+
+
 def test_state_channel_ignores_repeats_and_logs_text(tmp_path):
     path = tmp_path / "t.rrd"
     with tm.Telemetry("autopilot", None, path) as tel:

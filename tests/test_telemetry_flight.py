@@ -27,6 +27,7 @@ from autopilot.telemetry import layout as L
 from autopilot.telemetry.hooks import autopilot_tables
 from sitl import telemetry as S
 from tools.view import rrd_files as rrd
+from tools.view import views
 from tools.view.views import flight_blueprint
 
 pytestmark = pytest.mark.e2e  # real processes over loopback UDP
@@ -244,7 +245,7 @@ def test_blueprint_present_once_and_verified(flight):
         "Roll tracking [deg]",
         "Attitude: aircraft (true roll) and reference ym (ghost)",
         "Error e = ym - ya [deg]",
-        "Rudder [deg]",
+        views.RUDDER_PLOT,
         "Gain Ke (error), PARAM_SET marks",
         "Loop timing [s]",
         "Link counters",

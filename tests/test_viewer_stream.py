@@ -33,6 +33,7 @@ from autopilot.shared.telemetry.thinning import thinned
 from autopilot.telemetry import layout as L
 from sitl import telemetry as S
 from tools.view import rrd_files as rrd
+from tools.view import views
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -158,6 +159,25 @@ def test_a_launched_flight_is_interleaved_and_its_plots_show_the_flight(tmp_path
         ]
     data = rrd.load(path)
     assert min(s.t[0] for s in data.values()) >= 5.0 and max(s.t[-1] for s in data.values()) <= 17.0 + 1e-9
+    assert rrd.y_ranges(path) == {views.RUDDER_PLOT: [-37.5, 37.5]}  # the KH2013A's 30 deg rudder, 25 % margin
+
+
+@pytest.mark.parametrize(("limit_deg", "half"), [(17.5, 21.875), (30.0, 37.5), (None, 37.5), (float("nan"), 37.5)])
+def test_the_rudder_plot_has_a_fixed_range_and_u_raw_its_own_plot(tmp_path, monkeypatch, limit_deg, half):
+    """A diverging law's unlimited command u_raw reaches -100,000 deg: autoscaled, the Rudder plot drew the real
+    rudder as a flat line.  Its y range is now fixed at 1.25 times the surface's limit (17.5 deg on the c172x: +-21.875;
+    none given, or not a number: the KH2013A's 30 deg), read back from the layout's file, the only fixed range; u_raw
+    is also in the Details tab's plot of the command, autoscaled.  The cached layout is one per limit."""
+    from tools.view import layout_cache
+
+    views.flight_blueprint((0.0, 30.0), rudder_limit_deg=limit_deg).save(tm.APPLICATION_ID, str(tmp_path / "f.rbl"))
+    assert rrd.y_ranges(tmp_path / "f.rbl") == {views.RUDDER_PLOT: [-half, half]}
+    assert views.RUDDER_RAW_PLOT in rrd.blueprint_components(tmp_path / "f.rbl", "ViewBlueprint:display_name")
+    monkeypatch.setenv("CLSAC_CACHE_DIR", str(tmp_path / "cache"))
+    cached = layout_cache.flight_blueprint_file(span=(0.0, 30.0), rudder_limit_deg=limit_deg)
+    other = layout_cache.flight_blueprint_file(span=(0.0, 30.0), rudder_limit_deg=45.0)
+    assert cached != other and rrd.y_ranges(other) == {views.RUDDER_PLOT: [-56.25, 56.25]}
+    assert rrd.y_ranges(cached) == {views.RUDDER_PLOT: [-half, half]}
 
 
 def test_the_experiment_plots_show_its_runs(tmp_path):

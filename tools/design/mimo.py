@@ -371,8 +371,9 @@ def choose_gamma_mimo(plant, pfcs, limits, *, lv: float = 20.0, rate_hz: float =
         sat = any(mt["saturated_fraction"] > 0 for mt in run.metrics)
         ise = run.metrics[0]["ise_ref"]
         rows.append({"gamma": g, "ise_ref": ise, "max_abs_beta": run.metrics[1]["max_abs_y"], "saturated": sat})
-    ok = [r for r in rows if not r["saturated"] and math.isfinite(r["ise_ref"])]
-    if not ok:
+    from tools.design.tuning import pick_gamma
+
+    gamma = pick_gamma(rows)
+    if gamma is None:
         raise MimoDesignError("the MIMO CL-SAC saturates a surface for every adaptation weight of the grid")
-    best = min(r["ise_ref"] for r in ok)
-    return next(r["gamma"] for r in ok if r["ise_ref"] <= 1.5 * best), rows
+    return gamma, rows

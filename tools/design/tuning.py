@@ -319,11 +319,26 @@ def choose_gamma(plant_text: str, num, den, u_limit_rad: float, gammas=GAMMAS) -
         res = run_inprocess(scenario, PAPER_RUNS[1], base=base)
         sat = bool(np.max(np.abs(res.series["u"])) >= u_limit_rad * (1 - 1e-9))
         rows.append({"gamma": g, "ise_ref": res.metrics["ise_ref"], "energy": res.metrics["energy"], "saturated": sat})
+    gamma = pick_gamma(rows)
+    if gamma is None:
+        raise PfcDesignError("CL-SAC saturates the surface for every adaptation weight of the grid")
+    return gamma, rows
+
+
+GAMMA_WITHIN = 1.5  # a Gamma is good enough when its ise_ref is at most this times the grid's best
+
+
+def pick_gamma(rows: list[dict]) -> float | None:
+    """The rule of ``choose_gamma`` and ``tools.design.mimo.choose_gamma_mimo``: of the rows (``gamma``, ``ise_ref``,
+    ``saturated``) that did not saturate and have a finite ise_ref, the smallest gamma whose ise_ref is at most
+    GAMMA_WITHIN times the least of them (the weakest adaptation that tracks about as well as the best); None when
+    no row qualifies.  The smallest, not the best: a larger Gamma buys little ise_ref for more effort and a loop
+    nearer its sampled stability limit."""
     ok = [r for r in rows if not r["saturated"] and math.isfinite(r["ise_ref"])]
     if not ok:
-        raise PfcDesignError("CL-SAC saturates the surface for every adaptation weight of the grid")
+        return None
     best = min(r["ise_ref"] for r in ok)
-    return next(r["gamma"] for r in ok if r["ise_ref"] <= 1.5 * best), rows
+    return min(r["gamma"] for r in ok if r["ise_ref"] <= GAMMA_WITHIN * best)
 
 
 GAMMA_NAMES = ("pe", "ie", "px", "ix", "pu", "iu")

@@ -24,6 +24,8 @@ from tools.view.series_files import load_series  # noqa: F401  (re-exported: too
 def png_request(cfg: FlightConfig, out: Path, name: str, metrics: dict) -> dict:
     """The keywords of ``tools.view.flight_picture.draw_flight_png`` for a flight's picture (plain values: the helper
     process gets them as JSON)."""
+    from sitl import plant as plants
+
     return {
         "out": str(out),
         "name": name,
@@ -35,6 +37,7 @@ def png_request(cfg: FlightConfig, out: Path, name: str, metrics: dict) -> dict:
         "metrics": metrics,
         "plant": cfg.plant_name,
         "surface": cfg.surface,
+        "surface2": plants.surface_of(cfg.plant).split("+")[1] if cfg.mimo else None,
     }
 
 
@@ -66,10 +69,16 @@ def start_recorder_import(parts: dict[str, Path]) -> threading.Thread | None:
 
 
 def _join_telemetry(
-    parts: dict[str, Path], out: Path, recording_id: str | None, merge_max_mb: float, span=None
+    parts: dict[str, Path],
+    out: Path,
+    recording_id: str | None,
+    merge_max_mb: float,
+    span=None,
+    rudder_limit_deg: float | None = None,
 ) -> tuple[Path | None, bool, str | None]:
     """Join the processes' part files into DIR/flight.rrd (whatever ended the flight); (path, indexed, error).
-    ``span``: the flight's (start, end) sim s, the plots' visible time range (``tools.view.views.flight_blueprint``).
+    ``span``: the flight's (start, end) sim s, the plots' visible time range; ``rudder_limit_deg``: the surface's
+    limit, the Rudder plot's fixed range (``tools.view.views.flight_blueprint``).
 
     ``rerun rrd merge`` compacts the chunks and writes the footer (index) the viewer uses for random access, but
     holds the whole recording in memory (about twice the files' size).  So parts larger than ``merge_max_mb`` in
@@ -103,18 +112,20 @@ def _join_telemetry(
             # The layout saved once for this code (tools.view.layout_cache): no rerun import in the launcher.
             from tools.view.layout_cache import flight_blueprint_file
 
-            layout = flight_blueprint_file(span=span)
+            layout = flight_blueprint_file(span=span, rudder_limit_deg=rudder_limit_deg)
             if layout is not None:
                 tm.merge_recordings(existing, target, blueprint_file=layout, remove_parts=True)
             else:
                 from tools.view.views import flight_blueprint
 
-                tm.merge_recordings(existing, target, blueprint=flight_blueprint(span), remove_parts=True)
+                blueprint = flight_blueprint(span, rudder_limit_deg=rudder_limit_deg)
+                tm.merge_recordings(existing, target, blueprint=blueprint, remove_parts=True)
         else:
             from tools.view.views import flight_blueprint
 
+            blueprint = flight_blueprint(span, rudder_limit_deg=rudder_limit_deg)
             tm.concatenate_recordings(
-                existing, target, blueprint=flight_blueprint(span), recording_id=recording_id, remove_parts=True
+                existing, target, blueprint=blueprint, recording_id=recording_id, remove_parts=True
             )
     except Exception as exc:  # noqa: BLE001  (a flight's other files stay valid; say what went wrong)
         return None, False, f"joining telemetry into {target} failed: {exc}"

@@ -117,6 +117,12 @@ def run_tag(cfg: FlightConfig) -> str:
     return re.sub(r"[^A-Za-z0-9._-]+", "_", cfg.plant_name)[:40]
 
 
+def run_folder_tag(cfg: FlightConfig) -> str:
+    """What follows the time stamp in a new run folder's name: ``-rt-clsac-KH2013A`` (``-lockstep-...`` in lockstep,
+    then the controller and ``run_tag``), as in ``runs/20250101-120000-rt-clsac-KH2013A``."""
+    return f"-{'lockstep' if cfg.lockstep else 'rt'}-{cfg.controller}-{run_tag(cfg)}"
+
+
 # ---------------------------------------------------------------------------------------- the flight
 class Flight:
     """One flight: ``run()`` blocks and returns its ``FlightResult``; as a context manager, entering starts the
@@ -407,11 +413,7 @@ class Flight:
         cfg = self.config
         self._t0 = time.monotonic()
         self._cpu0 = cpu_times()  # how busy the machine is while it flies (a real-time flight's late steps)
-        self.out = (
-            Path(cfg.out)
-            if cfg.out
-            else new_run_dir("runs", f"-{'lockstep' if cfg.lockstep else 'rt'}-{cfg.controller}-{run_tag(cfg)}")
-        )
+        self.out = Path(cfg.out) if cfg.out else new_run_dir("runs", run_folder_tag(cfg))
         self.out.mkdir(parents=True, exist_ok=True)
         for f in (*STALE_FILES, "summary.json"):
             (self.out / f).unlink(missing_ok=True)
@@ -553,7 +555,12 @@ class Flight:
         # flight.png (the helper draws it from the series and the metrics) while the recording is joined here
         drawing = self._request_png(metrics)
         rrd_path, rrd_indexed, rrd_error = _join_telemetry(
-            self._parts, self.out, self._recording_id, cfg.rrd_merge_max_mb, flight_span(cfg, stats["sitl"])
+            self._parts,
+            self.out,
+            self._recording_id,
+            cfg.rrd_merge_max_mb,
+            flight_span(cfg, stats["sitl"]),
+            cfg.u_limit_deg,
         )
         if rrd_error and exit_code == EXIT_OK:
             exit_code, failed, error = EXIT_FAILED, "telemetry", rrd_error

@@ -32,7 +32,7 @@ def live_blueprint(cfg: FlightConfig):
     """The flight layout for a live viewer: ``flight_span`` as asked, the plots on a trailing ``live_window``."""
     from tools.view.views import flight_blueprint
 
-    return flight_blueprint(flight_span(cfg), trailing_s=cfg.live_window or None)
+    return flight_blueprint(flight_span(cfg), trailing_s=cfg.live_window or None, rudder_limit_deg=cfg.u_limit_deg)
 
 
 def telemetry_argvs(

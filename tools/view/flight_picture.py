@@ -44,9 +44,11 @@ def draw_flight_png(
     controller: str | None = None,
     plant: str = "KH2013A",
     surface: str = "rudder",
+    surface2: str | None = None,
 ) -> Path | None:
     """DIR/flight.png from the flight's series (``tools.view.flight_png``); None without series.  ``plant``,
-    ``surface``: named in the title and the command's panel; the baseline's gains at the start and the parameters
+    ``surface``: named in the title and the command's panel, with ``surface2``, a square MIMO plant's second (the
+    rudder: the title names both); the baseline's gains at the start and the parameters
     changed in flight come from the autopilot's stats (DIR/autopilot.json ``params_start``, ``param_changes``)."""
     from tools.view.flight_png import save_flight_png
 
@@ -55,7 +57,8 @@ def draw_flight_png(
     if not series or series.get("t") is None or not len(series["t"]):
         return None
     mode = "lockstep" if lockstep else "real time"
-    title = f"Flight {out.name}: {name} on {plant} ({surface}), {mode}, {rate:g} Hz"
+    surfaces = surface if not surface2 else f"{surface} and {surface2}"
+    title = f"Flight {out.name}: {name} on {plant} ({surfaces}), {mode}, {rate:g} Hz"
     faults, changes = _stats(out, "sitl", "faults"), _stats(out, "autopilot", "param_changes")
     return save_flight_png(
         out / "flight.png",

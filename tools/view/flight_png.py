@@ -1,9 +1,10 @@
 """A flight's ``flight.png`` drawn with Pillow and numpy only: the roll against the command and the reference models,
 the rudder command and the adaptive gains K_e, K_x, K_u, in three panels sharing the time axis, mode switches marked.
+The roll is not joined across a wrap at +-180 deg, a gain's rare spikes are clipped and marked, the labels of faults
+that fall together are merged (``tools.view.flight_scales``).
 
 It is the figure ``tools.view.plots`` used to draw with matplotlib, in the same layout, colours and font (DejaVu Sans,
-read
-from matplotlib's package folder without importing matplotlib): matplotlib's import (about 0.45 CPU s) and draw
+read from matplotlib's package folder without importing matplotlib): matplotlib's import (about 0.45 CPU s) and draw
 (about 0.3 CPU s) were the largest cost of a launch, in the picture helper (``tools.view.flight_picture``).  Here the
 helper's imports (numpy, PIL) cost about 0.09 CPU s and its draw, PNG included, about 0.07 s.
 
@@ -11,8 +12,8 @@ How it is drawn: every line, frame, tick and box on a canvas ``SS`` times the pi
 (each picture pixel the mean of SS x SS canvas pixels: the lines come out anti-aliased); the text after, on the
 reduced picture (FreeType anti-aliases it, and it stays as sharp as matplotlib's).  Sizes are given in points at
 matplotlib's 100 dpi, as they were in ``tools.view.plots``, and converted here (``PX``).  Coordinates are picture
-pixels,
-floats, with pixel ``i`` covering ``[i, i + 1)``.  The same input gives the same bytes (no time stamp in the PNG)."""
+pixels, floats, with pixel ``i`` covering ``[i, i + 1)``.  The same input gives the same bytes (no time stamp in the
+PNG)."""
 
 from __future__ import annotations
 
@@ -28,6 +29,8 @@ import numpy as np
 from PIL import Image, ImageColor, ImageDraw, ImageFont
 
 from autopilot import controllers
+from tools.view import flight_scales
+from tools.view.flight_scales import data_range, nice_ticks, tick_labels
 
 DEG = 180.0 / math.pi
 SIZE = 1100  # the picture, px (matplotlib's 11 x 11 in at 100 dpi)
@@ -99,6 +102,10 @@ def _runs(s: str) -> list[tuple[str, bool]]:
     return [(p, i % 2 == 1) for i, p in enumerate(parts) if p]
 
 
+def _mode_width(s: str) -> float:
+    return text_width(s, PT_MODE)
+
+
 def text_width(s: str, pt: float) -> float:
     """How wide a label is drawn, px."""
     return sum(_font(pt * SUB_SIZE if sub else pt).getlength(p) for p, sub in _runs(s))
@@ -123,58 +130,6 @@ def _draw_text(draw: ImageDraw.ImageDraw, x: float, y: float, s: str, pt: float,
 
 
 # ---------------------------------------------------------------------------------------- axes
-def nice_ticks(lo: float, hi: float, max_bins: int) -> np.ndarray:
-    """Tick values in [lo, hi]: multiples of a step of 1, 2, 2.5 or 5 x 10^k, the smallest giving at most
-    ``max_bins`` intervals, and at least two ticks (how matplotlib's default locator chooses them)."""
-    raw = (hi - lo) / max_bins
-    if not (math.isfinite(raw) and raw > 0.0):  # a range too narrow (or wide) for a float to divide: its ends
-        return np.array([lo] if lo == hi else [lo, hi])
-    scale = 10.0 ** math.floor(math.log10(raw))
-    steps = [m * scale for m in (0.5, 1, 2, 2.5, 5, 10)]
-    i = next(i for i, s in enumerate(steps) if s >= raw * (1 - 1e-9))
-    for step in steps[i::-1]:  # the first that fits, or smaller ones until two ticks fall in the range
-        ticks = np.arange(math.ceil(lo / step - 1e-9), math.floor(hi / step + 1e-9) + 1) * step
-        if len(ticks) >= 2:
-            break
-    return ticks
-
-
-def tick_labels(ticks: np.ndarray) -> tuple[list[str], str]:
-    """The ticks' labels, all with the decimals the step needs, and the multiplier written above the axis ("1e−5";
-    "" if none).  As matplotlib does for values below 1e-4 or from 1e6 on, but from 1e-3 and 1e5 on: labels longer
-    than six characters would push the axis label out of the picture."""
-    if not len(ticks):
-        return [], ""
-    big = float(np.max(np.abs(ticks)))
-    exp = math.floor(math.log10(big)) if big > 0 else 0
-    exp = exp if exp <= -4 or exp >= 5 else 0
-    values = ticks / 10.0**exp
-    step = abs(values[1] - values[0]) if len(values) > 1 else 1.0
-    k = math.floor(math.log10(step) + 1e-9)
-    decimals = max(0, -k + (1 if round(step / 10.0**k, 6) == 2.5 else 0))
-    labels = []
-    for v in values:
-        s = f"{v:.{decimals}f}"
-        s = s.lstrip("-") if float(s) == 0 else s  # no "-0.0"
-        labels.append(s.replace("-", "\u2212"))  # a real minus sign, as matplotlib writes
-    return labels, (f"1e{exp}".replace("-", "\u2212") if exp else "")
-
-
-def data_range(values: list[np.ndarray]) -> tuple[float, float] | None:
-    """The range of the finite values, widened by 5 % on each side (matplotlib's margins); a single value gets
-    +-5 % of itself (+-0.05 if zero) first.  None without a finite value."""
-    finite = [v[np.isfinite(v)] for v in values]
-    finite = [np.clip(v, -1e300, 1e300) for v in finite if v.size]  # huge values: a range that does not overflow
-    if not finite:
-        return None
-    lo, hi = float(min(v.min() for v in finite)), float(max(v.max() for v in finite))
-    if hi - lo <= 1e-12 * max(abs(lo), abs(hi), 1e-300):
-        tiny = max(abs(lo), abs(hi)) < 1e-290  # zero, or so near it that 5 % of it is no wider (denormals)
-        lo, hi = (-0.05, 0.05) if tiny else (lo - 0.05 * abs(lo), hi + 0.05 * abs(hi))
-    pad = 0.05 * (hi - lo)
-    return lo - pad, hi + pad
-
-
 @dataclass
 class _Axes:
     """A panel's frame (picture pixels: the frame's lines are rows ``top`` and ``bottom``, columns ``left`` and
@@ -224,6 +179,7 @@ class Line:
     steps: bool = False
     label: str | None = None
     z: int = 2
+    wrap: float | None = None  # a wrapped angle: not joined where it jumps by more than this (180 deg)
 
 
 @dataclass
@@ -236,6 +192,7 @@ class Panel:
     missing: list[str] = field(default_factory=list)  # the series this flight's files do not have
     note: list[str] = field(default_factory=list)  # lines of text in a box at the bottom right
     ylim: tuple[float, float] | None = None  # the y range; None: the data's
+    clipped: list[tuple[np.ndarray, bool, str]] = field(default_factory=list)  # (times, above, colour): marks
 
     @property
     def has_data(self) -> bool:
@@ -283,6 +240,11 @@ class _Canvas:
         for px, py in pieces:
             if len(px) >= 2:
                 self.draw.line(np.column_stack((px, py)).ravel().tolist(), fill=color, width=width)
+
+    def triangle(self, x: float, tip: float, base: float, color: str) -> None:
+        """A filled triangle, its tip at (x, tip), its base 8 px wide on row ``base`` (picture coordinates)."""
+        pts = [(x, tip), (x - 4, base), (x + 4, base)]
+        self.draw.polygon([(px * SS, py * SS) for px, py in pts], fill=color)
 
     def box(self, x0: float, y0: float, x1: float, y1: float, edge: str | None, alpha: float = 0.9) -> None:
         """A white box, ``alpha`` opaque over what is drawn (a legend's, a note's), with a rounded 1 px edge."""
@@ -417,13 +379,17 @@ def _draw_panel(
     # the series, in z order (a stable sort: then in the order given), each finite stretch on its own
     columns = ax.x(t)
     for ln in sorted((ln for ln in panel.lines if ln.y is not None), key=lambda ln: ln.z):
-        for x, v in _finite_runs(columns, ln.y):
+        for x, v in (r for run in _finite_runs(columns, ln.y) for r in flight_scales.wrap_runs(*run, ln.wrap)):
             if len(x) < 2:
                 continue
             if ln.steps:
                 x, v = _steps_post(x, v)
-            x, y = _envelope(x, ax.y(np.clip(v, -1e300, 1e300)))
+            x, y = _envelope(x, ax.y(np.clip(v, *(panel.ylim or (-1e300, 1e300)))))
             c.polyline(x, y, ln.color, ln.lw, ln.style)
+    for times, above, color in panel.clipped:  # a clipped value: a triangle at the edge, pointing out
+        tip = ax.top + 1 if above else ax.bottom
+        for col in np.unique(np.round(ax.x(times))):
+            c.triangle(float(col), tip, tip + (8 if above else -8), color)
     for v in panel.hlines:
         c.rule(True, ax.y(v), ax.left, ax.right, C_MARK, dotted_lw=0.8)
     for ts, _name in modes:  # the mode switches, under the legend and the notes
@@ -505,12 +471,13 @@ def render(
         values = [ln.y for ln in panel.lines if ln.y is not None] + [np.asarray(panel.hlines, float)]
         ax = _Axes(*frame, xlim, panel.ylim or data_range(values) or (0.0, 1.0))
         _draw_panel(c, ax, panel, t, xticks, modes, last=i == len(panels) - 1, faults=faults)
-        if i == 0:  # the faults' texts along their lines in the top panel, reading upwards, left of the line
-            for ts, s, *color in faults:
-                if xlim[0] <= ts <= xlim[1]:
-                    c.text(
-                        (ax.x(ts) - 1, (ax.top + ax.bottom) / 2), s, PT_MODE, color=(color or [C_FAULT])[0], rotate=True
-                    )
+        if i == 0:  # the faults' texts in the top panel, reading upwards, left of their lines, merged if together
+            shown = [(float(ax.x(ts)), s, (c0 or [C_FAULT])[0]) for ts, s, *c0 in faults if xlim[0] <= ts <= xlim[1]]
+            for group in flight_scales.label_groups([m[0] for m in shown], 1.3 * PT_MODE * PX):
+                marks = [shown[k] for k in group]
+                text = flight_scales.merged_label([m[1] for m in marks], _mode_width, ax.bottom - ax.top - 10)
+                color = marks[0][2] if len({m[2] for m in marks}) == 1 else C_FAULT
+                c.text((marks[0][0] - 1, (ax.top + ax.bottom) / 2), text, PT_MODE, color=color, rotate=True)
         title_y = ax.top - TITLE_PAD
         if i == 0 and modes:
             # The names, each after the previous one if they would overlap; one that would land more than
@@ -612,7 +579,7 @@ def flight_image(
     elif lv == 0 and ym_ol is not None and not baseline:
         lines.append(Line(None, C_CRM, 1.2, label="closed-loop ref. model = open loop (L_{v}=0)"))
     if phi is not None:
-        lines.append(Line(_deg(phi), color, 1.1, label="roll φ", z=zphi))
+        lines.append(Line(_deg(phi), color, 1.1, label="roll φ", z=zphi, wrap=180.0))  # ATTITUDE's, wrapped
     ise = metrics.get("ise_ref") if isinstance(metrics, dict) else None
     note = [
         (f"ise_ref={ise:.3g} rad²s" if isinstance(ise, (int, float)) else "ise_ref=n/a")
@@ -662,7 +629,26 @@ def flight_image(
         if key in mimo:  # the matrix gain's other entries (MIMO)
             gains.lines.append(Line(mimo[key], C_GAINS["ke"] if key != "ke22" else C_CMD, 1.0, style, label=label))
 
+    _clip_spikes(t, gains)
     return render(t, [tracking, rudder, gains], mode_switches(t, col["mode"]), title, faults)
+
+
+def _clip_spikes(t: np.ndarray, panel: Panel) -> None:
+    """A panel whose few spikes would flatten the rest (``flight_scales.robust_range``): scaled to the bulk of its
+    values, each clipped sample marked by a triangle at the edge in its line's colour, the extremes in the note."""
+    lim = flight_scales.robust_range([ln.y for ln in panel.lines if ln.y is not None])
+    if lim is None:
+        return
+    panel.ylim = lim
+    for ln in panel.lines:
+        if ln.y is None:
+            continue
+        above, below = flight_scales.clipped_marks(t, ln.y, lim)
+        panel.clipped += [(ts, up, ln.color) for ts, up in ((above, True), (below, False)) if len(ts)]
+        if len(above) or len(below):
+            v = ln.y[~np.isnan(ln.y)]
+            name = re.sub(r"_\{([^}]*)\}", r"_\1", ln.label or "")
+            panel.note.append(f"{name} clipped (▲▼): {v.min():.3g} to {v.max():.3g}")
 
 
 def pid_panel(t: np.ndarray, gains, changes) -> Panel:

@@ -15,8 +15,9 @@ built again and the cache rewritten (atomically: a concurrent launcher reads the
 one).  A layout that cannot be cached (no writable folder) is built in the process, as before.
 
 The folder: ``$CLSAC_CACHE_DIR``, else ``$XDG_CACHE_HOME/clsac-autopilot``, else ``~/.cache/clsac-autopilot``; one
-slot per checkout (named by a hash of its root) and flight span (the plots' visible time range, ``span``: a flight of
-the same start clock and length reuses it), so two worktrees of different code do not evict each other.  At most
+slot per checkout (named by a hash of its root), flight span (the plots' visible time range, ``span``: a flight of
+the same start clock and length reuses it) and rudder limit (the Rudder plot's fixed range, ``rudder_limit_deg``),
+so two worktrees of different code do not evict each other.  At most
 ``MAX_LAYOUTS`` layouts are kept per checkout: the least recently used beyond are removed.
 ``CLSAC_CACHE_DIR=off`` turns the cache off.
 """
@@ -32,7 +33,7 @@ from importlib.util import find_spec
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[2]  # the checkout: autopilot/, sitl/, tools/
-_FORMAT = 2  # bump when the meaning of the JSON changes (2: the span)
+_FORMAT = 3  # bump when the meaning of the JSON changes (2: the span; 3: the rudder's limit)
 MAX_LAYOUTS = 16  # layouts kept per checkout (one per flight span)
 
 
@@ -89,11 +90,16 @@ def _checkout() -> str:
     return hashlib.sha256(str(ROOT).encode()).hexdigest()[:12]
 
 
-def _paths(application_id: str, span=None) -> tuple[Path, Path] | None:
+def _limit_key(rudder_limit_deg) -> str | None:
+    return None if rudder_limit_deg is None else repr(float(rudder_limit_deg))
+
+
+def _paths(application_id: str, span=None, rudder_limit_deg=None) -> tuple[Path, Path] | None:
     d = cache_dir()
     if d is None:
         return None
-    slot = hashlib.sha256(f"{ROOT}\0{application_id}\0{_span_key(span)}".encode()).hexdigest()[:16]
+    key = f"{ROOT}\0{application_id}\0{_span_key(span)}\0{_limit_key(rudder_limit_deg)}"
+    slot = hashlib.sha256(key.encode()).hexdigest()[:16]
     name = f"flight-blueprint-{_checkout()}-{slot}"
     return d / f"{name}.rbl", d / f"{name}.json"
 
@@ -109,13 +115,14 @@ def _prune(keep: Path) -> None:
         pass  # another launcher pruned them meanwhile
 
 
-def _valid(rbl: Path, meta_path: Path, application_id: str, span=None) -> bool:
+def _valid(rbl: Path, meta_path: Path, application_id: str, span=None, rudder_limit_deg=None) -> bool:
     try:
         meta = json.loads(meta_path.read_text())
         if (
             meta.get("format") != _FORMAT
             or meta.get("application_id") != application_id
             or meta.get("span_ns") != _span_key(span)
+            or meta.get("rudder_limit_deg") != _limit_key(rudder_limit_deg)
             or meta.get("python") != list(sys.version_info[:2])
             or meta.get("rerun") != _rerun_fingerprint()
             or not rbl.is_file()
@@ -139,18 +146,18 @@ def _write_atomic(path: Path, data: bytes) -> None:
         raise
 
 
-def flight_blueprint_file(application_id: str | None = None, span=None) -> Path | None:
-    """The saved flight layout for the flight ``span`` (start, end sim s; ``tools.view.views.flight_blueprint``),
-    built now if the cache has none for this code, this rerun and this span, or None if it cannot be cached (then
-    the caller builds ``tools.view.views.flight_blueprint(span)`` itself)."""
+def flight_blueprint_file(application_id: str | None = None, span=None, rudder_limit_deg=None) -> Path | None:
+    """The saved flight layout for the flight ``span`` (start, end sim s) and rudder limit (deg, the Rudder plot's
+    range; ``tools.view.views.flight_blueprint``), built now if the cache has none for this code, this rerun, this
+    span and this limit, or None if it cannot be cached (then the caller builds the layout itself)."""
     from autopilot.shared.telemetry.layout import APPLICATION_ID
 
     application_id = application_id or APPLICATION_ID
-    paths = _paths(application_id, span)
+    paths = _paths(application_id, span, rudder_limit_deg)
     if paths is None:
         return None
     rbl, meta_path = paths
-    if _valid(rbl, meta_path, application_id, span):
+    if _valid(rbl, meta_path, application_id, span, rudder_limit_deg):
         try:
             os.utime(rbl)  # used: the last to be pruned
         except OSError:
@@ -162,12 +169,13 @@ def flight_blueprint_file(application_id: str | None = None, span=None) -> Path 
 
         with tempfile.TemporaryDirectory(prefix=".flight-blueprint-", dir=rbl.parent) as tmp:
             built = Path(tmp) / "flight.rbl"
-            flight_blueprint(span).save(application_id, str(built))
+            flight_blueprint(span, rudder_limit_deg=rudder_limit_deg).save(application_id, str(built))
             data = built.read_bytes()
         meta = {
             "format": _FORMAT,
             "application_id": application_id,
             "span_ns": _span_key(span),
+            "rudder_limit_deg": _limit_key(rudder_limit_deg),
             "python": list(sys.version_info[:2]),
             "rerun": _rerun_fingerprint(),
             "sources": _project_sources(),

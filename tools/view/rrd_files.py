@@ -105,6 +105,24 @@ def visible_time_ranges(path: str | os.PathLike) -> dict[str, list[dict]]:
     return {names.get(view, view): rng for view, rng in ranges.items()}
 
 
+def y_ranges(path: str | os.PathLike) -> dict[str, list[float]]:
+    """The fixed y range (``ScalarAxis:range``, [low, high]) of every view that sets one, by the view's display name,
+    in the file's blueprint store(s)."""
+    r = _reader(path)
+    names: dict[str, str] = {}
+    ranges: dict[str, list[float]] = {}
+    for entry in r.blueprints():
+        for chunk in r.stream(store=entry):
+            rb = chunk.to_record_batch()
+            if "ViewBlueprint:display_name" in rb.schema.names:
+                for v in _to_list(rb.column("ViewBlueprint:display_name")):
+                    names[chunk.entity_path] = v[0] if isinstance(v, list) else v
+            if "ScalarAxis:range" in rb.schema.names:
+                for v in _to_list(rb.column("ScalarAxis:range")):
+                    ranges[chunk.entity_path.split("/ScalarAxis")[0]] = [float(x) for x in (v[0] if len(v) == 1 else v)]
+    return {names.get(view, view): rng for view, rng in ranges.items()}
+
+
 def _boundary(union, i: int) -> tuple[str, int | None]:
     """(kind, value) of element ``i`` of a ``TimeRangeBoundary`` dense union."""
     code = union.type_codes[i].as_py()

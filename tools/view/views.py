@@ -36,6 +36,10 @@ def run_path(name: str, what: str) -> str:
     return f"{RUNS}/{name}/{what}"
 
 
+RUDDER_PLOT = "Rudder [deg] (fixed range: 1.25 x the limit; u_raw beyond it in Details)"
+RUDDER_RAW_PLOT = "Rudder command u and unlimited u_raw [deg] (autoscaled)"
+
+
 def _axis() -> rrb.TimeAxis:
     return rrb.TimeAxis(link="LinkToGlobal")
 
@@ -74,16 +78,35 @@ def _with_fault_marks(contents: Sequence[str]) -> list[str]:
 
 
 def _plot_in(
-    name: str, contents: Sequence[str], *, legend: bool = True, window: rrb.VisibleTimeRange | None = None
+    name: str,
+    contents: Sequence[str],
+    *,
+    legend: bool = True,
+    window: rrb.VisibleTimeRange | None = None,
+    y_range: tuple[float, float] | None = None,
 ) -> rrb.TimeSeriesView:
     return rrb.TimeSeriesView(
         name=name,
         origin="/",
         contents=_with_fault_marks(contents),
         axis_x=_axis(),
+        axis_y=None if y_range is None else rrb.ScalarAxis(range=y_range, zoom_lock=False),
         plot_legend=rrb.PlotLegend(visible=legend),
         time_ranges=window,
     )
+
+
+RUDDER_MARGIN = 1.25  # the Rudder plot's fixed y range: the surface's limit times this, on each side
+DEFAULT_RUDDER_LIMIT_DEG = 30.0  # the KH2013A's rudder limit (the paper's), for a layout built without a flight
+
+
+def rudder_range(limit_deg: float | None) -> tuple[float, float]:
+    """The Rudder plot's y range (deg): +-RUDDER_MARGIN times the surface's limit (30 deg when not given or not a
+    positive finite number), so the commanded and true deflections fill the plot whatever the unlimited command
+    u_raw does (it can reach 1e5 deg when the law diverges: it is also drawn, autoscaled, in the Details tab)."""
+    ok = isinstance(limit_deg, (int, float)) and 0.0 < limit_deg < float("inf")
+    half = RUDDER_MARGIN * (float(limit_deg) if ok else DEFAULT_RUDDER_LIMIT_DEG)
+    return -half, half
 
 
 def _attitude_view() -> rrb.Spatial3DView:
@@ -100,21 +123,25 @@ def _attitude_view() -> rrb.Spatial3DView:
     )
 
 
-def flight_blueprint(span: Span = None, *, trailing_s: float | None = None) -> rrb.Blueprint:
+def flight_blueprint(
+    span: Span = None, *, trailing_s: float | None = None, rudder_limit_deg: float | None = None
+) -> rrb.Blueprint:
     """The layout of a flight (``flight.rrd``): a "Flight" tab and a "Details" tab, fitting a 1600x1000 browser
     window (the side panels and the streams tree start collapsed; the time bar stays).
 
     Flight tab, top to bottom (angles in degrees, rates in deg/s):
       1. Roll tracking: command um, closed-loop reference ym, open-loop reference ym_ol, roll measured by the
          autopilot and the SITL's true roll | the aircraft in 3D at its true roll, the reference ym as a ghost.
-      2. Error e | rudder (command u, unlimited u_raw, applied servo command, true deflection) | rudder PWM.
+      2. Error e | rudder (command u, unlimited u_raw, applied servo command, true deflection) on a fixed range,
+         +-1.25 times the surface's limit (``rudder_limit_deg``: ``rudder_range``) | rudder PWM.
       3. Adaptive gains Ke | Kx | Ku, each with its proportional and integral parts, and a marker per PARAM_SET
          (accepted green, refused vermillion) at the gain's value then.
       4. Loop timing (period, compute, jitter) | missed deadlines | link counters.
       5. The vehicle's mode (MANUAL, SAC, CLSAC, BASELINE, FAILSAFE) and failsafe state lanes | event log of both
          processes (status texts, state changes, every PARAM_SET).
     Details tab: augmented output and PFC output, roll rate (measured vs truth) and yaw rate, side
-    velocity, rudder rate, saturation flag.  Held axes tab (a JSBSim plant): altitude, airspeed, pitch and the
+    velocity, rudder rate, saturation flag, and the rudder command with its unlimited u_raw, autoscaled.  Held axes
+    tab (a JSBSim plant): altitude, airspeed, pitch and the
     safety pilot's elevator and throttle.
 
     ``span`` (start, end sim s): the flight, every plot's and lane's visible time range; ``trailing_s``: a live
@@ -137,7 +164,7 @@ def flight_blueprint(span: Span = None, *, trailing_s: float | None = None) -> r
         ),
         rrb.Horizontal(
             _plot("Error e = ym - ya [deg]", [A.AP_ERROR]),
-            _plot("Rudder [deg]", [A.AP_RUDDER, S.SITL_RUDDER]),
+            _plot_in(RUDDER_PLOT, [A.AP_RUDDER, S.SITL_RUDDER], window=window, y_range=rudder_range(rudder_limit_deg)),
             _plot("Rudder PWM [us]", [A.AP_RUDDER_PWM, S.SITL_SERVO_PWM]),
             column_shares=[1, 1.4, 1],
         ),
@@ -164,6 +191,7 @@ def flight_blueprint(span: Span = None, *, trailing_s: float | None = None) -> r
         _plot("Side velocity v [m/s]", [S.SITL_SIDE_VELOCITY]),
         _plot("Rudder rate [deg/s]", [S.SITL_RUDDER_RATE]),
         _plot("Rudder saturated", [A.AP_SATURATED]),
+        _plot(RUDDER_RAW_PLOT, [A.AP_RUDDER]),
         grid_columns=2,
         name="Details",
     )

@@ -55,6 +55,17 @@ WHITE: Rgb = (240, 240, 240)
 PALETTE: tuple[Rgb, ...] = (SKY, VERMILLION, GREEN, ORANGE, PURPLE, YELLOW, BLUE, WHITE)  # for series in turn
 
 
+def wrap_angles(rad):
+    """Angles (rad, a numpy array) wrapped to (-pi, pi], as ``autopilot.shared.numerics.wrap_pi`` wraps one: those
+    already in it unchanged (to the bit), NaN stays NaN."""
+    import numpy as np
+
+    v = np.asarray(rad, dtype=float)
+    w = np.remainder(v + math.pi, 2 * math.pi) - math.pi  # in [-pi, pi)
+    w = np.where(w == -math.pi, math.pi, w)
+    return np.where((v > -math.pi) & (v <= math.pi), v, w)
+
+
 @dataclass(frozen=True)
 class Plot:
     """One entity: the series ``fields`` (names of table fields) drawn with ``labels`` and ``colors``."""
@@ -66,6 +77,13 @@ class Plot:
     step: bool = False  # staircase lines (counters, 0/1 flags)
     scale: float = 1.0  # the series sent are the row's values times this (DEG_PER_RAD: angles in degrees)
     points: bool = False  # markers at each row (events), no lines
+    wrap: bool = False  # angles (rad rows) wrapped to (-pi, pi] before the scale, as ATTITUDE reports the roll
+
+    def shown(self, values):
+        """What the viewer gets of the rows' ``values`` (rad, ...): wrapped if ``wrap``, times ``scale``."""
+        if self.wrap:
+            values = wrap_angles(values)
+        return values if self.scale == 1.0 else values * self.scale
 
     def __post_init__(self) -> None:
         if not (len(self.fields) == len(self.labels) == len(self.colors)) or not self.fields:
@@ -166,6 +184,7 @@ def fault_marks_layout(table: TableLayout, color: Rgb = VERMILLION) -> TableLayo
                 (color,) * len(p.fields),
                 scale=p.scale,
                 points=True,
+                wrap=p.wrap,
             )
             for p in table.plots
         ),

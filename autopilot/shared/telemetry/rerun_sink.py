@@ -98,7 +98,7 @@ class RerunSink:
         indexes = [sim_time_column(sim), wall_time_column(wall)]
         self._pause()
         for plot, idx in plots:
-            cols = vals[:, idx] if plot.scale == 1.0 else vals[:, idx] * plot.scale
+            cols = plot.shown(vals[:, idx])
             self._send(plot.path, sim, wall, [scalar_column(cols)], indexes)
             self._pause()
         for pose in layout.poses:

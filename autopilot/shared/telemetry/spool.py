@@ -68,6 +68,7 @@ def layout_from_data(d: dict) -> TableLayout:
             step=bool(p["step"]),
             scale=float(p["scale"]),
             points=bool(p["points"]),
+            wrap=bool(p.get("wrap", False)),
         )
         for p in d["plots"]
     )
