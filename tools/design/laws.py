@@ -182,7 +182,8 @@ def _pick(make, grid, model, limit) -> tuple[float, str]:
 
 
 def _unstable(model: RollModel, k: np.ndarray, integral: bool) -> float:
-    """The largest real part of the full continuous plant's poles under u = -k_i x_I - k_phi phi - k_p p (x_I' = phi)."""
+    """The largest real part of the full continuous plant's poles under u = -k_i x_I - k_phi phi - k_p p
+    (x_I' = phi)."""
     a, b = model.a_p, model.b_p
     n = a.shape[0]
     m = n + 1 if integral else n
@@ -215,8 +216,7 @@ def baseline_gains(model: RollModel, speeds, integral: bool) -> tuple[np.ndarray
 
 def _robust(make, grid, model: RollModel, limit: float) -> tuple[float, str]:
     """The first value of ``grid`` (fastest first) whose flights of the paper's scenario on the full linear plant with
-    the surface's effect scaled by 0.5, 1 and 2 all ``settle`` (finite, the roll within 1 deg of the reference in
-    the last second of every half-period, the surface saturated at most 25 % of the time: a limit cycle saturates most of it); (nan, table) if none."""
+    the surface's effect scaled by ROBUST_GAINS all ``settle``); (nan, table) if none."""
     table = []
     for v in grid:
         oks = []
@@ -270,9 +270,7 @@ def design(model: RollModel, control_rate_hz: float = 100.0, u_limit_rad: float 
         w_c, table = _robust(lambda w, c=cfg: L1(c.with_(omega_c=w)), [top * f for f in STEPS_DOWN], model, u_limit_rad)
         big_l = abs(float(model.a[1, 1])) / float(model.b[1])
         if not math.isfinite(w_c):
-            out["l1"] = (
-                f"no filter bandwidth from {top:.4g} rad/s down to 1/100 of it flies without saturating ({table})"
-            )
+            out["l1"] = f"no filter bandwidth from {top:.4g} rad/s down to 1/100 of it settles ({table})"
         else:
             cfg = cfg.with_(omega_c=w_c)
             g_norm = l1_condition(cfg, 1.0)
@@ -285,8 +283,8 @@ def design(model: RollModel, control_rate_hz: float = 100.0, u_limit_rad: float 
                 out["l1"] = (cfg, [
                     f"A_m poles -{a * scale:.4g}, -{3 * a * scale:.4g} (the rule's x {scale:.4g}): k_m = [{km[0]:.5g}, "
                     f"{km[1]:.5g}]",
-                    f"w_c = {w_c:.5g} rad/s: the largest from {top:.4g} down whose flights at surface effect x 0.5, 1, 1.4 "
-                    f"do not saturate ({table})",
+                    f"w_c = {w_c:.5g} rad/s: the largest from {top:.4g} down whose flights at surface effect "
+                    f"x 0.5, 1, 1.4 settle ({table})",
                     f"L1-norm condition ||G||_L1 L = {g_norm:.4g} x {big_l:.4g} = {lam:.4g} < 1; covers L up to "
                     f"{1 / g_norm:.4g} ({1 / g_norm / (abs(km[0]) + abs(km[1])):.3g} ||k_m||_1)",
                 ])  # fmt: skip
@@ -299,7 +297,7 @@ def design(model: RollModel, control_rate_hz: float = 100.0, u_limit_rad: float 
     w_f, table = _robust(lambda w, c=cfg: Indi(c.with_(omega_f=w)), [top * f for f in STEPS_DOWN[:6]], model,
                          u_limit_rad)  # fmt: skip
     if not math.isfinite(w_f):
-        out["indi"] = f"no filter from {top:.4g} rad/s down to a tenth flies without saturating ({table})"
+        out["indi"] = f"no filter from {top:.4g} rad/s down to a tenth settles ({table})"
         return out
     cfg = cfg.with_(omega_f=w_f)
     mu, scores = _pick(lambda m, c=cfg: Indi(c.with_(mu=m)), MUS, half, u_limit_rad)
@@ -309,8 +307,8 @@ def design(model: RollModel, control_rate_hz: float = 100.0, u_limit_rad: float 
         out["indi"] = (cfg.with_(mu=mu), [
             f"G0 = b_p of the design model = {g0:.5g} (A_p[p, delta] = {model.g_hf:.5g}), tau_act = {tau:.4g} s, "
             f"k_att = {wn**2:g}, k_rate = {2 * 0.7 * wn:g}",
-            f"w_f = {w_f:.4g} rad/s: the largest from {top:.4g} down whose flights at surface effect x 0.5, 1, 1.4 (G fixed) "
-            f"do not saturate ({table})",
+            f"w_f = {w_f:.4g} rad/s: the largest from {top:.4g} down whose flights at surface effect x 0.5, 1, "
+            f"1.4 (G fixed) settle ({table})",
             f"mu = {mu:g} (ise_ref with G0 twice the true effectiveness: {scores})",
         ])  # fmt: skip
     return out
