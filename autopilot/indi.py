@@ -55,7 +55,7 @@ class IndiConfig:
     u_limit_rad: float = math.radians(30.0)
     g0: float = 196.14607966050582  # 1/s^2 per rad: b_p of the residualised design model
     g_min: float = 1.9614607966050581  # G0 / 100
-    mu: float = 0.0001  # 1/s
+    mu: float = 1.0  # 1/s (the design's rule over 0.01 ... 1000)
     omega_f: float = 12.559432157547901  # rad/s (the design's rule: 50 rad/s of Smeur et al. 2016 and down)
     zeta_f: float = 0.55
     tau_act: float = 0.030511195606252636  # s: 2 zeta / w_n of the paper's servo (eq. (65))

@@ -50,7 +50,7 @@ from autopilot.shared.numerics import zoh
 
 REF_POLE = 5.0  # 1/s, the paper's reference model 5 / (s + 5)
 GAMMAS = (0.3, 1.0, 3.0, 10.0, 30.0, 100.0)
-MUS = (1e-4, 1e-3, 1e-2, 1e-1, 1.0)
+MUS = (0.01, 0.1, 1.0, 10.0, 100.0, 1000.0)
 # The surface's effect scaled by these in every robustness check: -6 dB and +3 dB of gain margin (the KH2013A's
 # rudder-driven dutch roll, 43 rad/s at damping 0.34, leaves little room upwards).
 ROBUST_GAINS = (0.5, 1.0, 1.4)
