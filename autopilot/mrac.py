@@ -113,7 +113,7 @@ class MracConfig:
 def crm_config(**changes) -> MracConfig:
     """The CRM-MRAC default: the same design with l = 12.8 1/s (4 x the reference model's dominant pole 3.2 1/s,
     the ratio of the paper's CL-SAC, L_v = 20 on A_m = -5)."""
-    return MracConfig(**{"crm_l": 12.8, **changes})
+    return MracConfig(**{"crm_l": 4.0 * 5.0 * 0.8**2, **changes})  # as tools.design.laws computes it
 
 
 def matrices(cfg: MracConfig):

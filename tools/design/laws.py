@@ -3,32 +3,38 @@ linear roll model, each by a stated rule; ``python -m tools.design.laws PLANT [-
 ``NAME value`` lines of a parameter file (``sitl/plants/*.params``).
 
 The roll model.  A plant's linear model (``tools.design.linearise.linear_model``: A_p, B_p, C_p with the servo's two
-states last, and the index of the roll-rate state) gives the design model of every law
+states last, and the index of the roll-rate state) gives every law's design model on x = [phi, p] by residualising
+the other states x_2 (sideslip, yaw rate, the servo: x_2' = 0, the singular perturbation approximation, which keeps
+the plant's steady-state gain):
 
-    phi' = p,   p' = L_p p + L_delta delta,    L_p = A_p[p, p],  L_delta = A_p[p, delta]   (delta: the servo's first
-                                                                                           state)
+    x' = A x + b u,   A = A_11 - A_12 A_22^-1 A_21,   b = b_1 - A_12 A_22^-1 b_2
 
-and the servo w_n^2 = -A_p[-1, -2], 2 zeta w_n = -A_p[-1, -1].  A plant with no roll-rate state, or no surface
-effectiveness on it (L_delta <= 0), cannot be designed: the reason is returned instead of a design.
+On the KH2013A the rudder rolls the aircraft mostly through the dutch roll (r and v), so b_p = 196 1/s^2 per rad,
+three times the rudder's immediate A_p[p, delta] = 59.7.  A plant with no roll-rate state, an output other than
+one state, or no positive effectiveness cannot be designed: the reason is returned instead of a design.
 
-The rules (a = 5 1/s, the paper's reference model 5 / (s + 5), Jana & Bhat 2017 sec. 5.1):
+The rules (a = 5 1/s, the paper's reference model 5 / (s + 5), Jana & Bhat 2017 sec. 5.1; ROBUST_GAINS = the
+surface's effect x 0.5, 1, 1.4, i.e. -6 dB and +3 dB of gain margin):
 
-* MRAC: the baseline K = [k_i, k_phi, k_p] places the poles of the integral-extended design model at -a, -2a,
-  -3a (the reference model A_ref = A - B K, dominant pole the paper's); P from A_ref^T P + P A_ref = -I; the
-  projection bound k_max = 4 ||K|| (the ideal dK* = K (1 - 1/lambda) for an effectiveness lambda down to 1/5);
-  gamma: the smallest of GAMMAS whose roll ise_ref (the paper's +-10 deg square wave, 30 s, on the full linear
-  plant with its servo, sampled at the control rate, the effectiveness halved: a factor-2 error in L_delta) is
-  within 1.5 times the best of the grid without saturating the surface (the rule CL-SAC's Gamma is designed by).
-* CRM-MRAC: the same, with l = 4a (the ratio of the paper's CL-SAC, L_v = 20 on A_m = -5); its gamma by the same
-  rule, flown as CRM-MRAC.
-* L1: k_m places A_m's poles at -a, -3a; w_c = the servo's w_n / 2 (an actuator lag at least twice as fast as the
-  filter; without a servo, a fifth of the Nyquist frequency); the L1-norm condition lambda = ||G||_L1 L < 1 is
-  checked with L = |L_p| / L_delta (a 100 % error in the roll damping, theta = [0, +-L_p / L_delta]); a design
-  whose lambda >= 1 is refused with the value.  The largest L the chosen w_c covers, 1 / ||G||_L1, is reported.
-* INDI: G0 = L_delta; the actuator model tau = 2 zeta / w_n (the servo's first moment; 0 without a servo); the
-  synchronising filter w_f = 50 rad/s, zeta_f = 0.55 (Smeur et al. 2016), lowered to 0.45 of the Nyquist frequency
-  at slower control rates; outer loop k_att = w_n^2, k_rate = 2 zeta w_n with w_n = 2a, zeta = 0.7; the command
-  filter a; G_min = G0 / 100; mu by the gamma rule above over MUS (G0 twice the true effectiveness).
+* MRAC: the baseline K = [k_i, k_phi, k_p] places the integral-extended design model's poles at -a (1, 2, 3),
+  scaled by 0.8^j until u = -K z leaves the full continuous plant (dutch roll and servo included) stable at every
+  ROBUST_GAINS factor; A_ref = A - B K; P from A_c^T P + P A_c = -I; the projection bound k_max = 4 ||K|| (the
+  ideal dK* = K (1 - 1/lambda) for an effectiveness lambda down to 1/5); gamma: the smallest of GAMMAS whose roll
+  ise_ref (the paper's +-10 deg square wave, 30 s, on the full linear plant sampled at the control rate, with the
+  surface's effect halved) is within 1.5 times the best of the grid without saturating the surface (the rule
+  CL-SAC's Gamma is designed by).
+* CRM-MRAC: the same, with l = 4 x the reference model's dominant pole (the ratio of the paper's CL-SAC, L_v = 20
+  on A_m = -5); gamma by the same rule, flown as CRM-MRAC.
+* L1: k_m places A_m's poles at -a (1, 3), scaled as MRAC's; w_c = the largest of the servo's w_n / 2 x 10^(-i/5)
+  (i = 0..10; without a servo, a fifth of the Nyquist frequency and down) whose flights at every ROBUST_GAINS
+  factor ``settle``; the L1-norm condition lambda = ||G||_L1 L < 1 is then checked with L = |A[p, p]| / b_p (a
+  100 % error in the roll damping) and a design whose lambda >= 1 is refused with the value; the largest L the
+  chosen w_c covers, 1 / ||G||_L1, is reported.
+* INDI: G0 = b_p (the effectiveness at the outer loop's bandwidth); the actuator model tau = 2 zeta / w_n (the
+  servo's first moment; 0 without a servo); outer loop k_att = w_n^2, k_rate = 2 zeta w_n with w_n = 2a, zeta = 0.7;
+  the command filter a; G_min = G0 / 100; the synchronising filter w_f = the largest of 50 rad/s (Smeur et al.
+  2016; at most 0.45 of the Nyquist frequency) x 10^(-i/5), i = 0..5, whose flights with G fixed settle at every
+  ROBUST_GAINS factor, zeta_f = 0.55; mu by the gamma rule over MUS.
 """
 
 from __future__ import annotations
@@ -370,7 +376,10 @@ def main(argv=None) -> int:
     p.add_argument("plant", help="kh2013a, a plant file, or jsbsim:MODEL")
     p.add_argument("--out", help="write the lines to this file (default: print)")
     args = p.parse_args(argv)
-    designs = design_plant(args.plant)
+    try:
+        designs = design_plant(args.plant)
+    except (ValueError, OSError) as exc:  # a plant spec or file that does not read (PlantFileError is a ValueError)
+        designs = str(exc)
     if isinstance(designs, str):
         print(f"error: {designs}", file=sys.stderr)
         return 2
