@@ -371,10 +371,40 @@ def design_plant(plant: str, control_rate_hz: float = 100.0) -> dict | str:
     return design(model, control_rate_hz, limit)
 
 
+def late_error_deg(run) -> float:
+    """max |phi - ref| over the last second of every 5 s half-period of a ``fly`` run (deg); inf if it diverged."""
+    if not math.isfinite(ise_ref(run)) or len(run["t"]) < 2:
+        return math.inf
+    late = (run["t"] % 5.0) >= 4.0
+    return float(np.degrees(np.max(np.abs(run["phi"] - run["ref"])[late])))
+
+
+def fly_report(plant: str, designs: dict) -> list[str]:
+    """Each designed law flying the paper's scenario on the plant's full linear model, as designed and with the
+    surface's effectiveness dropped to 0.3 at 10 s: ise_ref, the late error, the largest surface."""
+    from tools.design.linearise import linear_model
+
+    model = roll_model(*linear_model(plant))
+    make = {"mrac": Mrac, "crm-mrac": Mrac, "l1": L1, "indi": Indi}
+    lines = [f"# {plant}, linear, 100 Hz: ise_ref (rad^2 s) / late |phi - ref| (deg) / max |u| (deg)"]
+    for law in LAWS:
+        d = designs.get(law)
+        if d is None or isinstance(d, str):
+            continue
+        cells = []
+        for eff in (None, (10.0, 0.3)):
+            run = fly(make[law](d[0]), model, effectiveness=eff)
+            u_max = math.degrees(np.max(np.abs(run["u"])))
+            cells.append(f"{ise_ref(run):.4g} / {late_error_deg(run):.3g} / {u_max:.3g}")
+        lines.append(f"#   {law:<9} as designed {cells[0]};  effectiveness 0.3 at 10 s {cells[1]}")
+    return lines
+
+
 def main(argv=None) -> int:
     p = argparse.ArgumentParser(prog="python -m tools.design.laws", description=__doc__.split("\n\n")[0])
     p.add_argument("plant", help="kh2013a, a plant file, or jsbsim:MODEL")
     p.add_argument("--out", help="write the lines to this file (default: print)")
+    p.add_argument("--fly", action="store_true", help="also fly each design on the linear plant and print the numbers")
     args = p.parse_args(argv)
     try:
         designs = design_plant(args.plant)
@@ -386,6 +416,8 @@ def main(argv=None) -> int:
     text = "\n".join(
         [f"# adaptive-law bench designs for {args.plant} by python -m tools.design.laws", *params_lines(designs)]
     )
+    if args.fly:
+        print("\n".join(fly_report(args.plant, designs)))
     if args.out:
         with open(args.out, "w", encoding="utf-8") as f:
             f.write(text + "\n")
