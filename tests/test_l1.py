@@ -77,15 +77,15 @@ def test_l1_norm_condition_against_an_independent_impulse_response():
         for row in range(2):
             num, den = signal.ss2tf(a_m, np.array([[cfg.b1], [cfg.b2]]), np.eye(2)[row : row + 1], [[0.0]])
             g = signal.lti(np.polymul(num[0], [1.0, 0.0]), np.polymul(den, [1.0, w_c]))  # H_i(s) s / (s + w_c)
-            t = np.linspace(0.0, 40.0 / min(5.0, w_c), 400001)
+            t = np.linspace(0.0, 40.0 / min(5.0, w_c), 100001)
             _, y = signal.impulse(g, T=t)
             norms.append(np.trapezoid(np.abs(y), t))
         assert l1_condition(cfg, 1.0) == pytest.approx(max(norms), rel=2e-3)
         assert l1_condition(cfg, 0.5) == pytest.approx(0.5 * l1_condition(cfg, 1.0))
     # ||G||_L1 falls as the filter's bandwidth grows (1 - C(s) -> 0): the condition is met above some w_c.
-    vals = [l1_condition(L1Config(omega_c=w), 1.0) for w in (1.0, 10.0, 100.0, 1000.0)]
+    vals = [l1_condition(L1Config(omega_c=w), 1.0) for w in (1.0, 10.0, 100.0)]
     assert vals == sorted(vals, reverse=True)
-    print(f"\nL1-norm ||G||_L1 of the KH2013A design at w_c = 1, 10, 100, 1000 rad/s: {vals}")
+    print(f"\nL1-norm ||G||_L1 of the KH2013A design at w_c = 1, 10, 100 rad/s: {vals}")
 
 
 def test_tracks_the_paper_scenario_and_reports_the_effectiveness_drop():
