@@ -82,6 +82,8 @@ def filter_matrices(omega: float, zeta: float) -> tuple[np.ndarray, np.ndarray]:
 class Indi:
     """Adaptive INDI: ``u = law.step(phi, p, r, command)`` once per control step."""
 
+    TELEMETRY_FIELDS = TELEMETRY_FIELDS
+
     def __init__(self, config: IndiConfig | None = None):
         self.config = cfg = config or IndiConfig()
         self.dt = T = cfg.dt
@@ -122,6 +124,12 @@ class Indi:
         self.r, self.u_raw, self.u, self.saturated = r, u_raw, u, u != u_raw
         self.steps += 1
         return u
+
+    def reconfigure(self, config) -> None:
+        """Fly ``config`` from the next step on (a parameter set live), keeping the states and the adaptation."""
+        kept = {k: v for k, v in vars(self).items() if not k.startswith("_") and k not in ("config", "dt")}
+        self.__init__(config)
+        vars(self).update(kept)
 
     def hold(self, u_applied: float = 0.0) -> None:
         """G frozen; the actuator model moved by what flew; filters and reference not advanced."""

@@ -130,6 +130,8 @@ def l1_condition(cfg: L1Config, lipschitz: float) -> float:
 class L1:
     """The L1 adaptive controller: ``u = law.step(phi, p, r, command)`` once per control step."""
 
+    TELEMETRY_FIELDS = TELEMETRY_FIELDS
+
     def __init__(self, config: L1Config | None = None):
         self.config = cfg = config or L1Config()
         self.dt = T = cfg.dt
@@ -173,6 +175,12 @@ class L1:
     def _predict(self, u_ad: float) -> None:
         """x^ to the next sample: x^' = A_m x^ + b (u_ad + sigma^_m) + b_um sigma^_um, inputs held (exact ZOH)."""
         self.x_hat = self._e @ self.x_hat + self._gb @ np.array([u_ad + self.sigma[0], self.sigma[1]])
+
+    def reconfigure(self, config) -> None:
+        """Fly ``config`` from the next step on (a parameter set live), keeping the states and the adaptation."""
+        kept = {k: v for k, v in vars(self).items() if not k.startswith("_") and k not in ("config", "dt")}
+        self.__init__(config)
+        vars(self).update(kept)
 
     def hold(self, u_applied: float = 0.0) -> None:
         """Adaptation frozen (sigma^ held); the predictor advanced on the surface that flew and the last state."""

@@ -128,6 +128,8 @@ def matrices(cfg: MracConfig):
 class Mrac:
     """MRAC with integral action (``crm_l`` = 0) or CRM-MRAC (``crm_l`` > 0): ``u = law.step(phi, p, r, command)``."""
 
+    TELEMETRY_FIELDS = TELEMETRY_FIELDS
+
     def __init__(self, config: MracConfig | None = None):
         self.config = cfg = config or MracConfig()
         self.dt = T = cfg.dt
@@ -182,6 +184,12 @@ class Mrac:
         self.u_raw, self.u, self.saturated = u_raw, u, sat
         self.steps += 1
         return u
+
+    def reconfigure(self, config) -> None:
+        """Fly ``config`` from the next step on (a parameter set live), keeping the states and the adaptation."""
+        kept = {k: v for k, v in vars(self).items() if not k.startswith("_") and k not in ("config", "dt")}
+        self.__init__(config)
+        vars(self).update(kept)
 
     def hold(self, u_applied: float = 0.0) -> None:
         """The surface asked for was not applied (``u_applied`` flew), or no fresh data: dK and x_I frozen, the

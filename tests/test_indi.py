@@ -94,3 +94,12 @@ def test_interface_hold_reset_telemetry_and_bad_input():
     assert Indi(IndiConfig(tau_act=0.0)).step(0.0, 0.0, 0.0, 0.1) == 0.0  # no actuator lag: a = 0
     names = [r[0] for r in PARAMETERS]
     assert all(n.startswith("INDI_") and len(n) <= 16 for n in names) and len(set(names)) == len(names)
+
+
+def test_reconfigure_keeps_the_effectiveness_estimate():
+    law = Indi(IndiConfig(mu=10.0))
+    for k in range(100):
+        law.step(0.0, 0.1 * math.sin(k / 5), 0.0, 0.2)
+    g = law.g
+    law.reconfigure(IndiConfig(mu=0.0, k_att=50.0))
+    assert law.g == g and law.config.k_att == 50.0

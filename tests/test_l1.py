@@ -122,3 +122,12 @@ def test_interface_hold_reset_telemetry_and_bad_input():
         L1Config(omega_c=0.0)
     names = [r[0] for r in PARAMETERS]
     assert all(n.startswith("L1_") and len(n) <= 16 for n in names) and len(set(names)) == len(names)
+
+
+def test_reconfigure_keeps_the_estimates():
+    law = L1()
+    for _ in range(30):
+        law.step(0.01, 0.05, 0.0, 0.2)
+    sigma, u_f = law.sigma.copy(), law.u_f
+    law.reconfigure(L1Config(omega_c=5.0))
+    assert np.array_equal(law.sigma, sigma) and law.u_f == u_f and law.config.omega_c == 5.0

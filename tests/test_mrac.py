@@ -130,3 +130,14 @@ def test_interface_hold_reset_telemetry_and_bad_input():
     assert len(set(names)) == len(names) and all(len(n) <= 16 for n in names)  # MAVLink param_id
     assert all(n.startswith("MRAC_") for n in names[: len(PARAMETERS)])
     assert all(n.startswith("CRM_") for n in names[len(PARAMETERS) :])
+
+
+def test_reconfigure_keeps_the_adaptation():
+    law = Mrac()
+    for _ in range(200):
+        law.step(0.0, 0.0, 0.0, 0.2)
+    dk, xi = law.dk.copy(), law.xi
+    law.reconfigure(crm_config(gamma=0.0))
+    assert np.array_equal(law.dk, dk) and law.xi == xi and law.config.crm_l > 0
+    law.step(0.0, 0.0, 0.0, 0.2)
+    assert np.array_equal(law.dk, dk)  # gamma = 0 from now on
