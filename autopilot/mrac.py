@@ -45,6 +45,7 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
+from autopilot.config import ConfigError
 from autopilot.lawkit import check_fields, finite, lyapunov, proj
 from autopilot.shared.numerics import zoh
 
@@ -98,8 +99,6 @@ class MracConfig:
     def __post_init__(self) -> None:
         check_fields(self, PARAMETERS)
         if not (isinstance(self.crm_l, (int, float)) and math.isfinite(self.crm_l) and 0.0 <= self.crm_l <= 1e4):
-            from autopilot.config import ConfigError
-
             raise ConfigError(f"crm_l must be in [0, 10000] 1/s, got {self.crm_l!r}")
 
     @property
@@ -136,8 +135,6 @@ class Mrac:
         _a, b, b_ref, k, a_ref = matrices(cfg)
         a_c = a_ref - cfg.crm_l * np.eye(3)
         if np.max(np.linalg.eigvals(a_c).real) >= 0.0:
-            from autopilot.config import ConfigError
-
             raise ConfigError(f"the reference model A_ref - l I is not stable (eigenvalues {np.linalg.eigvals(a_c)})")
         self._k = k[0]
         self._phi, gam = zoh(a_c, np.hstack([b_ref, cfg.crm_l * np.eye(3)]), T)
