@@ -59,9 +59,9 @@ def test_a_model_jsbsim_cannot_initialise_is_one_line_from_the_launcher_and_the_
     fly = ["-m", "tools.launch", "--lockstep", "--duration", "2", "--plant", plant, "--out", str(tmp_path / "run")]
     design = ["-m", "tools.pfc", "design", plant, "--out", str(tmp_path / f"{model}.params")]
     for argv in (fly, design):
-        r, took = _run(argv)
+        r, _took = _run(argv)
         assert r.returncode in (0, 2, 3), (r.returncode, r.stderr[-2000:])
-        assert "Traceback" not in r.stderr and took < 60
+        assert "Traceback" not in r.stderr  # a hang: _run's timeout
         if r.returncode == 2:
             lines = r.stderr.strip().splitlines()
             assert len(lines) == 1 and f"JSBSim cannot fly {model} on its own" in lines[0], r.stderr
@@ -82,7 +82,8 @@ def test_the_linearisation_is_bounded_by_its_timeout(tmp_path):
             "3",
         ]
     )
-    assert r.returncode == 2 and took < 30, (r.returncode, took, r.stderr)
+    # stopped by its 3 s, not the 340 s the linearisation takes: a bound that a loaded machine's start-up meets
+    assert r.returncode == 2 and took < 150, (r.returncode, took, r.stderr)
     assert "did not finish within 3 s" in r.stderr and len(r.stderr.strip().splitlines()) == 1
 
 
@@ -93,11 +94,15 @@ def test_the_design_answers_ctrl_c_during_the_linearisation_and_leaves_no_child(
         stderr=subprocess.PIPE,
         text=True,
     )
-    time.sleep(3.0)  # in FGLinearization by now (the trim takes 0.02 s)
+    deadline = time.monotonic() + 120  # in FGLinearization once its child runs (not a guess of the start-up's time)
+    while subprocess.run(["pgrep", "-f", "tools.plant _linearise jsbsim:Boeing314"], capture_output=True).returncode:
+        assert time.monotonic() < deadline and p.poll() is None, "the design never started linearising"
+        time.sleep(0.1)
+    time.sleep(0.5)
     t0 = time.monotonic()
     p.send_signal(signal.SIGINT)
-    err = p.communicate(timeout=30)[1]
-    assert p.returncode == 130 and time.monotonic() - t0 < 2.0, (p.returncode, err)
+    err = p.communicate(timeout=60)[1]  # a hang; the linearisation alone would take 340 s
+    assert p.returncode == 130, (p.returncode, time.monotonic() - t0, err)
     assert "interrupted" in err and "Traceback" not in err
     time.sleep(0.2)
     left = subprocess.run(["pgrep", "-f", "tools.plant _linearise jsbsim:Boeing314"], capture_output=True)
