@@ -486,6 +486,8 @@ class EnvelopeMonitor:
         if ref is not None:
             said = self._track(ft, roll, ref, u, u_limit_rad, sat)
             text = text or said
+        else:
+            self._d_prev = None  # the law did not fly this step: no derivative of d across the gap
         if text is not None and self.envelope.check:
             self.excursions += 1
             return text
@@ -528,7 +530,9 @@ class EnvelopeMonitor:
             self._ring.append(b)
             if len(self._ring) > TRACK_BLOCKS:
                 del self._ring[0]
-            if len(self._ring) == TRACK_BLOCKS:
+            # a window of no sample is not judged: the law flew none of it (MANUAL, disarmed or a stall longer than
+            # a window); its sums would divide by 0 samples (issue 35: re-engaging after 21 s of MANUAL crashed)
+            if len(self._ring) == TRACK_BLOCKS and any(r[_N] for r in self._ring):
                 end = (self._block_index + 1 + k) * TRACK_BLOCK_S
                 said = self._judge(_window(self._ring, end))
                 text = text or said
