@@ -82,9 +82,9 @@ def test_failure_injection_in_force_counts_a_param_set_in_flight():
 
     cfg = FlightConfig()
     start = {"SYS_FAILURE_EN": 0.0, "CLSAC_LV": 20.0}
-    on = {"sim_time_s": 4.0, "name": "SYS_FAILURE_EN", "from": 0.0, "to": 1.0}
-    off = {"sim_time_s": 9.0, "name": "SYS_FAILURE_EN", "from": 1.0, "to": 0.0}
-    lv = {"sim_time_s": 2.0, "name": "CLSAC_LV", "from": 20.0, "to": 1.0}  # another parameter's 1 is not it
+    on = {"t_s": 4.0, "name": "SYS_FAILURE_EN", "from": 0.0, "to": 1.0}
+    off = {"t_s": 9.0, "name": "SYS_FAILURE_EN", "from": 1.0, "to": 0.0}
+    lv = {"t_s": 2.0, "name": "CLSAC_LV", "from": 20.0, "to": 1.0}  # another parameter's 1 is not it
     for changes, expect in (([], False), ([lv], False), ([on], True), ([on, off], True)):
         stats = {"autopilot": {"params_start": start, "param_changes": changes}}
         assert failure_injection_in_force(cfg, stats) is expect, changes
