@@ -160,10 +160,11 @@ def test_a_sideslip_setpoint_from_a_ground_station_is_clamped_to_the_envelope(va
     from autopilot.shared.pwm import PwmMap
 
     law = mimo.from_values("clsac", values, control_rate_hz=100.0, limits=(0.3, 0.25))
-    opts = AutopilotOptions(lockstep=False, signing_key=None, verbose=False)
-    ap = Autopilot(opts, law.config, PwmMap(), law=law, pwm2=PwmMap())
     sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
     sock.bind(("127.0.0.1", 0))
+    where = sock.getsockname()  # its streams to this station, none to the default ports
+    opts = AutopilotOptions(lockstep=False, signing_key=None, verbose=False, gcs=where, sitl=where)
+    ap = Autopilot(opts, law.config, PwmMap(), law=law, pwm2=PwmMap())
     mav = M.MAVLink(None, 255, 190)
     try:
         for value in (25.0, -12.0, 7.5, float("nan")):

@@ -42,12 +42,17 @@ class Bench:
     def __init__(self, controller: str):
         ctl = controllers.get(controller)
         cfg = ctl.config(control_rate_hz=float(RATE), u_limit_rad=U_LIMIT)
-        opts = AutopilotOptions(lockstep=True, pace=False, signing_key=None, verbose=False, name=controller)
+        self.sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)  # the ground station
+        self.sock.bind(("127.0.0.1", 0))
+        self.sock.settimeout(30.0)  # a hang, not a speed
+        self.sitl = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)  # where the servo commands go, unread
+        self.sitl.bind(("127.0.0.1", 0))
+        opts = AutopilotOptions(
+            lockstep=True, pace=False, signing_key=None, verbose=False, name=controller,
+            gcs=self.sock.getsockname(), sitl=self.sitl.getsockname(),
+        )  # fmt: skip
         self.ap = Autopilot(opts, cfg, PwmMap(), mode=Mode[ctl.mode])
         self.law_mode = Mode[ctl.mode]
-        self.sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
-        self.sock.bind(("127.0.0.1", 0))
-        self.sock.settimeout(2.0)
         self.mav = M.MAVLink(None, 255, 190)
         self.plant = Aircraft(AircraftConfig(physics_rate_hz=1000.0))
         self.results: list = []
@@ -72,7 +77,7 @@ class Bench:
                 self.sock.recv(65535)
         except BlockingIOError:
             pass
-        self.sock.settimeout(2.0)
+        self.sock.settimeout(30.0)
         self.send(M.MAVLink_command_long_message(1, 1, cmd, 0, *p))
         while True:  # the COMMAND_ACK, on the ground station's socket
             data, _ = self.sock.recvfrom(65535)
@@ -104,6 +109,7 @@ class Bench:
 
     def close(self) -> None:
         self.sock.close()
+        self.sitl.close()
         self.ap.close()
 
 
