@@ -176,17 +176,22 @@ def test_a_law_re_armed_after_26_s_disarmed_flies_on(controller):
         b.close()
 
 
-@pytest.mark.parametrize(("controller", "other"), [("clsac", Mode.SAC), ("sac", Mode.CLSAC)])
+@pytest.mark.parametrize(
+    ("controller", "other"),
+    [("clsac", Mode.SAC), ("sac", Mode.CLSAC), ("baseline", Mode.BASELINE), ("pid-ff", Mode.BASELINE)],
+)
 def test_manual_then_the_other_mode_of_the_law_after_25_s(controller, other):
-    """MANUAL -> each mode of the CL-SAC law: from MANUAL (25 s, rolled off) to the mode the flight did not start
-    in, and back to the first one after 10 s; then MANUAL, disarmed for 22 s (the KH2013A levels itself at neutral
-    rudder), armed in MANUAL and rolled off by the station's rudder for 4 s, and the other mode again."""
+    """MANUAL -> each mode of the law: from MANUAL (25 s, rolled off) to the mode the flight did not start in (the
+    CL-SAC law's other one; the PIDs have one), and back to the first one after 10 s; then MANUAL, disarmed for 22 s
+    (the KH2013A levels itself at neutral rudder), armed in MANUAL and rolled off by the station's rudder for 4 s,
+    and the other mode again."""
     b = Bench(controller)
     try:
         b.fly(3)
         b.mode(Mode.MANUAL)
         b.send(M.MAVLink_manual_control_message(1, 0, 0, 0, -300, 0))
         b.fly(25)
+        assert abs(b.results[-1].phi) > math.radians(60.0), math.degrees(b.results[-1].phi)  # rolled off
         b.mode(other)
         b.fly(10)
         b.mode(b.law_mode)
