@@ -22,6 +22,7 @@ from autopilot.flags import (
     rate_arg,
 )
 from autopilot.params import arg_type
+from autopilot.shared import crash
 from autopilot.shared.cli import (
     OneLineArgumentParser,
     add_cpu_argument,
@@ -417,7 +418,7 @@ def main(argv=None) -> int:
     try:
         code = ap.run()
     except Exception as exc:  # noqa: BLE001  (report, still write the files)
-        print(f"autopilot: error: {type(exc).__name__}: {exc}", file=sys.stderr, flush=True)
+        crash.report("autopilot", exc)  # one line; the traceback in autopilot.log (autopilot.shared.crash)
         code = 1
     finally:
         stats = ap.stats()
@@ -494,4 +495,5 @@ def _print_summary(stats: dict) -> None:
 
 
 if __name__ == "__main__":
+    crash.install("autopilot")
     sys.exit(main())

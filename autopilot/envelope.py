@@ -6,7 +6,10 @@ A flight is **controlled** when it stayed inside the envelope for the whole flig
 * the rudder command was saturated in < ``Envelope.max_saturated_share`` of the control steps (default 20 %), and
 * it **tracked** the command in every window of ``TRACK_WINDOW_S`` (20 s, sliding by 1 s; judged when a reference
   response is given: the autopilot's and the study's law's y_m,ol): no sustained oscillation and the roll
-  following the command (:func:`window_flags`, below).
+  following the command (:func:`window_flags`, below), and
+* the **law flew it**: a ground station had the loop (disarmed, or in MANUAL) for < ``GROUND_STATION_SHARE_MAX``
+  (half) of the control steps, when they are counted (the autopilot's monitor): a flight the law did not fly for
+  most of its length says nothing of the law (issue 35: a DISARM for 97 % of a 300 s flight ended OK).
 
 Both inequalities are strict: a flight exactly at a limit has left the envelope.  A step's command is
 **saturated** when it is at the rudder limit, |u| >= (1 - ``SAT_RTOL``) u_limit, or not finite (:func:`saturated`).
@@ -67,6 +70,7 @@ SAT_RTOL = 1e-9  # relative tolerance of "at the limit": |u| >= (1 - SAT_RTOL) u
 SHARE_MIN_S = 5.0  # the running saturated share is judged (and announced) from this flight time on
 ROLL_REARM_DEG = 5.0  # a roll excursion is announced again only after |roll| came back this far inside the limit
 SHARE_REARM = 0.9  # a saturation excursion is announced again only after the running share fell below 0.9 x limit
+GROUND_STATION_SHARE_MAX = 0.5  # steps disarmed or in MANUAL, as a share of the flight: at or past it, not controlled
 
 # Tracking (module docstring, "Tracking"): windows of TRACK_BLOCKS blocks of TRACK_BLOCK_S of flight time.
 TRACK_WINDOW_S = 20.0  # the window a sustained oscillation or a failure to follow is judged over
@@ -239,6 +243,7 @@ class Tracking:
     worst_deviation_ratio: float
     min_gain: float
     flown_s: float
+    law_s: float = math.nan  # the time the law flew (steps with a reference response), s
 
     @property
     def ok(self) -> bool:
@@ -282,8 +287,13 @@ class Tracking:
 
     def summary_text(self) -> str:
         """What an OK reason says of the tracking."""
-        if not self.judged:
+        if not self.judged and self.flown_s < TRACK_WINDOW_S:
             return f"tracking not judged (flown {self.flown_s:.1f} s, shorter than a {TRACK_WINDOW_S:g} s window)"
+        if not self.judged:  # a longer flight in which the law flew less than a window (a ground station had it)
+            return (
+                f"tracking not judged (the law flew {self.law_s:.1f} s of the {self.flown_s:.1f} s flight, less than "
+                f"a {TRACK_WINDOW_S:g} s window)"
+            )
         gain = f", in-phase response >= {self.min_gain:.2f}" if math.isfinite(self.min_gain) else ""
         return (
             f"tracked in every {TRACK_WINDOW_S:g} s window (deviation <= {self.worst_deviation_ratio:.2f} x the "
@@ -372,12 +382,14 @@ def judge(
     roll_in = bool(max_abs_roll_rad < envelope.max_roll_rad)
     share_in = bool(saturated_share < envelope.max_saturated_share)
     track_in = tracking is None or tracking.ok
+    taken = (gs["disarmed_share"] + gs["manual_share"]) if gs else 0.0  # a ground station had the loop
+    law_in = bool(taken < GROUND_STATION_SHARE_MAX)
     numbers = f"max |roll| {roll_deg:.1f} deg, {envelope.surface} saturated {pct:.1f} % of the flight"
     if not envelope.check:
         return Controlled(
             True, roll_deg, saturated_share, None, f"not checked: {numbers}", envelope, samples, tracking, gs
         )
-    if roll_in and share_in and track_in:
+    if roll_in and share_in and track_in and law_in:
         why = f"controlled: {numbers} (limits {lim_roll:g} deg, {lim_pct:g} %)"
         if tracking is not None:
             why += f"; {tracking.summary_text()}"
@@ -394,6 +406,12 @@ def judge(
     if not track_in:
         parts += tracking.parts()
         exits += [w.end_s for w in (tracking.first_oscillation, tracking.first_not_following) if w is not None]
+    if not law_in:
+        law = 100.0 * (1.0 - taken)
+        lim = 100.0 * (1.0 - GROUND_STATION_SHARE_MAX)
+        parts.append(
+            f"the law flew only {law:.1f} % of the flight (limit: more than {lim:g} %; a ground station had the rest)"
+        )
     known = [t for t in exits if t is not None]
     first_exit = min(known) if known else None
     return Controlled(False, roll_deg, saturated_share, first_exit, "; ".join(parts), envelope, samples, tracking, gs)
@@ -431,6 +449,7 @@ class EnvelopeMonitor:
         self.excursions = 0
         self._roll_out = self._share_out = False
         self.n_disarmed = self.n_manual = 0
+        self.n_law = 0  # steps with a reference response: the law flew them
         # tracking: the open block, the last TRACK_BLOCKS - 1 closed ones, what the windows found
         self._block: list | None = None
         self._block_index = -1
@@ -484,8 +503,11 @@ class EnvelopeMonitor:
             elif share < SHARE_REARM * self._share_lim:
                 self._share_out = False
         if ref is not None:
+            self.n_law += 1
             said = self._track(ft, roll, ref, u, u_limit_rad, sat)
             text = text or said
+        else:
+            self._d_prev = None  # the law did not fly this step: no derivative of d across the gap
         if text is not None and self.envelope.check:
             self.excursions += 1
             return text
@@ -528,7 +550,9 @@ class EnvelopeMonitor:
             self._ring.append(b)
             if len(self._ring) > TRACK_BLOCKS:
                 del self._ring[0]
-            if len(self._ring) == TRACK_BLOCKS:
+            # a window of no sample is not judged: the law flew none of it (MANUAL, disarmed or a stall longer than
+            # a window); its sums would divide by 0 samples (issue 35: re-engaging after 21 s of MANUAL crashed)
+            if len(self._ring) == TRACK_BLOCKS and any(r[_N] for r in self._ring):
                 end = (self._block_index + 1 + k) * TRACK_BLOCK_S
                 said = self._judge(_window(self._ring, end))
                 text = text or said
@@ -578,10 +602,11 @@ class EnvelopeMonitor:
                 end = min((self._block_index + 1) * TRACK_BLOCK_S, self._block[_T1] + period)
                 self._note(_window(ring, end))
             flown = (self.t_last - self.t0) if self.n else 0.0
+            law_s = self.n_law * ((self.t_last - self.t0) / (self.n - 1) if self.n > 1 else 0.0)
             return Tracking(
                 self._windows > 0, self._windows, self._n_osc, self._n_lag, self._first_osc, self._last_osc,
                 self._first_lag, self._last_window, self._worst_ratio if self._windows else math.nan,
-                self._min_gain if math.isfinite(self._min_gain) else math.nan, flown,
+                self._min_gain if math.isfinite(self._min_gain) else math.nan, flown, law_s,
             )  # fmt: skip
         finally:
             (self._windows, self._n_osc, self._n_lag, self._first_osc, self._last_osc, self._first_lag) = saved[:6]

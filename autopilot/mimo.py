@@ -19,6 +19,7 @@ import math
 import numpy as np
 
 from autopilot.config import ConfigError
+from autopilot.shared.cli import SIDESLIP_ENVELOPE_DEG  # |beta| a coordinated flight stays within, setpoints too
 
 MIMO_FIELDS = ("beta", "um2", "u2", "e2", "ym2", "ym_ol2", "sat2", "ke11", "ke12", "ke21", "ke22")
 
@@ -204,9 +205,6 @@ def _clsac_config(values: dict, *, control_rate_hz: float, limits, lv: float):
 def _check_limits(limits) -> None:
     if len(limits) != 2 or not all(math.isfinite(v) and v > 0 for v in limits):
         raise ConfigError(f"a MIMO law needs two positive surface limits, got {limits!r}")
-
-
-SIDESLIP_ENVELOPE_DEG = 10.0  # |beta| a coordinated flight stays within (summary.json "sideslip": within_envelope)
 
 
 class ChannelMetrics:

@@ -11,6 +11,7 @@ from __future__ import annotations
 import argparse
 import sys
 
+from autopilot.shared import crash
 from autopilot.shared.cli import (
     OneLineArgumentParser,
     add_cpu_argument,
@@ -257,7 +258,7 @@ def main(argv=None) -> int:
         print(f"sitl: error: {exc}", file=sys.stderr, flush=True)
         code = 1
     except Exception as exc:  # noqa: BLE001
-        print(f"sitl: error: {type(exc).__name__}: {exc}", file=sys.stderr, flush=True)
+        crash.report("sitl", exc)  # one line; the traceback in sitl.log (autopilot.shared.crash)
         code = 1
     finally:
         stats = sitl.stats()
@@ -285,4 +286,5 @@ def main(argv=None) -> int:
 
 
 if __name__ == "__main__":
+    crash.install("sitl")
     sys.exit(main())

@@ -166,6 +166,24 @@ def test_where_the_method_does_not_apply_the_reason_is_one_line_exit_2(tmp_path,
     assert len(r.stderr.strip().splitlines()) == 1 and needle in r.stderr and "num is zero" not in r.stderr
 
 
+@pytest.mark.parametrize("b", ["1e-300", "1e-12"])
+def test_the_analysis_of_a_plant_no_surface_moves_is_one_line_exit_2(tmp_path, b, capsys):
+    """Issue 35: ``python -m tools.pfc --plant FILE`` with B = 1e-300 exited 1, "analysis failed: band [...] failed
+    its root check": the plant's own numbers, so one line naming the file and why, exit 2, as the design says it.
+    |T(j w0)| = 1e-300 / |j w0 (j w0 + 2)| at w0 = 2 pi / 10 s, far below the 10 deg / 30 deg the scenario needs."""
+    from tools import pfc
+
+    f = _file(tmp_path, f"A = [[-2.0, 0.0], [1.0, 0.0]]\nB = [[{b}], [0.0]]\nC = [[0.0, 1.0]]\nroll = 'x2'\n")
+    with pytest.raises(SystemExit) as exc:
+        pfc.main(["--plant", str(f)])
+    err = capsys.readouterr().err.strip()
+    assert exc.value.code == 2 and len(err.splitlines()) == 1, err
+    assert err.startswith(f"python -m tools.pfc: error: --plant {f}: the surface cannot move this plant enough")
+    w0 = 2 * math.pi / 10
+    gain = float(b) / abs(1j * w0 * (1j * w0 + 2.0))  # the servo's gain is 1 at w0 to 0.1 %
+    assert f"|T(j w) = {gain:.3g};" in err.replace("|T(j w)| = ", "|T(j w) = ")
+
+
 def test_an_open_loop_unstable_plant_that_no_gain_stabilises_from_zero_is_told_so(tmp_path):
     """1/(s - 1) behind the servo and an integrator: unstable at g -> 0 (the pole at +1), so the method (C stabilising
     T from g = 0 up) does not apply; the reason names the pole."""

@@ -222,3 +222,45 @@ def test_flight_keywords_are_bounded_like_the_flags():
         Flight(envelope_saturated=-1)
     cfg = Flight(envelope_roll=45, envelope_saturated=5, envelope=False).config
     assert cfg.flight_envelope == Envelope(45.0, 0.05, check=False)
+
+
+# ------------------------------------------------------------------------------- a flight the law did not fly
+def _disarmed_flight(steps: int, law_steps, rate: float = 100.0):
+    """A level flight of ``steps`` control steps that the law flew at the steps in ``law_steps`` (tracking the
+    command exactly) and that a ground station had disarmed at all others."""
+    from autopilot.envelope import EnvelopeMonitor
+
+    mon = EnvelopeMonitor()
+    law = set(law_steps)
+    for k in range(steps):
+        flew = k in law
+        mon.add(k / rate, 0.05, 0.0, math.radians(30), 0.05 if flew else None, armed=flew)
+    return mon.result()
+
+
+def test_a_flight_disarmed_for_most_of_its_length_is_not_ok_and_every_clause_is_true():
+    """Issue 35: a keyed DISARM for 97 % of a 300 s flight ended "OK (disarmed ... by a ground station)", with the
+    clause "tracking not judged (flown 300.0 s, shorter than a 20 s window)".  Here the law flies the first 9 s of
+    30,000 steps: 900 / 30000 = 3.0 % of the flight."""
+    c = _disarmed_flight(30000, range(900))
+    assert not c.ok
+    assert c.reason == "the law flew only 3.0 % of the flight (limit: more than 50 %; a ground station had the rest)"
+    assert c.ground_station["disarmed_s"] == pytest.approx(291.0)
+    assert "shorter than" not in c.reason and c.tracking.law_s == pytest.approx(9.0)
+
+
+@pytest.mark.parametrize(("law_steps", "ok"), [(1501, True), (1500, False), (1499, False)])
+def test_the_ground_station_s_share_is_strict_at_half(law_steps, ok):
+    """Of 3000 steps: the ground station at exactly half (1500) is out, as every limit of the envelope is strict."""
+    c = _disarmed_flight(3000, range(law_steps))
+    assert c.ok is ok, c.reason
+    assert c.ground_station["disarmed_share"] == (3000 - law_steps) / 3000
+
+
+def test_tracking_not_judged_says_how_long_the_law_flew_when_the_flight_was_longer():
+    """Law 16 s, then disarmed 14 s (47 %: controlled): no 20 s window of the law, and the reason says that, not that
+    the 30 s flight was shorter than a window."""
+    c = _disarmed_flight(3000, range(1600))
+    assert c.ok and not c.tracking.judged
+    why = "tracking not judged (the law flew 16.0 s of the 30.0 s flight, less than a 20 s window)"
+    assert c.reason.endswith("; " + why)

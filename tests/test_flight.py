@@ -65,6 +65,33 @@ def test_run_returns_the_result_of_what_flew(short_flight):
 
 
 @pytest.mark.e2e
+def test_summary_says_failure_injection_was_on_when_a_params_file_turned_it_on(tmp_path, short_flight):
+    """Issue 35: with SYS_FAILURE_EN 1 from --params, summary.json said ``failure_injection: false``: what the
+    launcher was told, not what was in force."""
+    params = tmp_path / "inject.params"
+    params.write_text("SYS_FAILURE_EN 1\n")
+    res = Flight(lockstep=True, duration=2, out=tmp_path / "f", quiet=True, params=str(params), rrd=False).run()
+    assert res.summary["parameters"]["start"]["SYS_FAILURE_EN"] == 1.0
+    assert res.summary["failure_injection"] is True
+    assert short_flight[1].summary["failure_injection"] is False  # off: nothing turned it on
+
+
+def test_failure_injection_in_force_counts_a_param_set_in_flight():
+    from tools.flight.config import FlightConfig
+    from tools.flight.files import failure_injection_in_force
+
+    cfg = FlightConfig()
+    start = {"SYS_FAILURE_EN": 0.0, "CLSAC_LV": 20.0}
+    on = {"t_s": 4.0, "name": "SYS_FAILURE_EN", "from": 0.0, "to": 1.0}
+    off = {"t_s": 9.0, "name": "SYS_FAILURE_EN", "from": 1.0, "to": 0.0}
+    lv = {"t_s": 2.0, "name": "CLSAC_LV", "from": 20.0, "to": 1.0}  # another parameter's 1 is not it
+    for changes, expect in (([], False), ([lv], False), ([on], True), ([on, off], True)):
+        stats = {"autopilot": {"params_start": start, "param_changes": changes}}
+        assert failure_injection_in_force(cfg, stats) is expect, changes
+    assert failure_injection_in_force(FlightConfig(failure_injection=True), {"autopilot": None}) is True
+
+
+@pytest.mark.e2e
 def test_the_series_are_the_flown_steps(short_flight):
     _, res = short_flight
     s = res.series
@@ -163,6 +190,34 @@ def test_bad_keywords_raise_flight_config_error(kwargs, field, needle):
     message = str(info.value)
     assert info.value.field == field and message.startswith(field) and needle in message
     assert "\n" not in message
+
+
+SWITCHES = (  # every on/off keyword of Flight, by hand (the test below checks none is missing)
+    "lockstep", "freeze_when_saturated", "envelope", "pin", "busy_wait", "quiet", "viewer", "rrd", "rrd_live",
+    "series", "png", "web", "failure_injection", "signing",
+)  # fmt: skip
+
+
+@pytest.mark.parametrize("switch", SWITCHES)
+@pytest.mark.parametrize("value", ["no", "yes", "False", "", 0, 1, None, 1.0])
+def test_a_switch_takes_only_true_or_false(switch, value):
+    """Issue 35: ``Flight(failure_injection="no")`` turned injection on (a non-empty string is true) and recorded
+    "no"; ``signing="no"`` kept signing on.  Every switch refuses what is not a bool, naming itself."""
+    with pytest.raises(FlightConfigError) as info:
+        Flight(**{switch: value})
+    assert info.value.field == switch and str(info.value) == f"{switch} must be True or False, got {value!r}"
+
+
+def test_the_switches_are_every_bool_keyword_and_take_true_and_false():
+    import dataclasses
+
+    from tools.flight import FlightConfig
+
+    bools = {f.name for f in dataclasses.fields(FlightConfig) if f.init and isinstance(f.default, bool)}
+    assert bools == set(SWITCHES)
+    for value in (True, False):
+        assert Flight(failure_injection=value).config.failure_injection is value
+        assert Flight(signing=value).config.signing is value
 
 
 def test_a_malformed_csv_is_refused_at_construction(tmp_path):

@@ -52,7 +52,15 @@ def test_the_shipped_design_is_what_the_command_makes(design):
 
     _text, values, _lp = design
     shipped = load_file(Path(plants.__file__).parent / "plants" / "jsbsim-c172x-aileron+rudder.params")
-    assert values == shipped and "CLSAC_PFC2_NUM" in values and "CLSAC_PID2_KP" in values
+    assert sorted(values) == sorted(shipped) and "CLSAC_PFC2_NUM" in values and "CLSAC_PID2_KP" in values
+    # Not to the last bit: the PFC gains are margin / g*, with g* the critical gain from polynomial roots and matrix
+    # eigenvalues (LAPACK), whose last digits differ between numpy/scipy builds (CLSAC_PFC2_NUM 1.0582135411183893
+    # against 1.058213541092955, 2.4e-11 relative, numpy 2.4.6/scipy 1.17.1).  1e-7 relative is 4000 times that, and
+    # still far finer than any choice the design makes: a corner, a Gamma or a PID gain taken from the next grid
+    # point is at least 47 % away (tools/design/tuning.py: CORNERS 10^(3/15), BASELINE_KPS 10^(1/6), GAMMAS 3x
+    # apart), and the report prints 6 significant digits.
+    for name, value in shipped.items():
+        assert values[name] == pytest.approx(value, rel=1e-7, abs=0.0), name
 
 
 def test_the_printout_says_how_each_item_was_chosen(design):

@@ -122,6 +122,66 @@ def test_a_csv_profile_s_third_column_is_the_sideslip_command(tmp_path):
         Profile.from_csv(str(f))
 
 
+@pytest.mark.parametrize("deg, ok", [(10.0, True), (-10.0, True), (10.5, False), (-30.0, False), (45.0, False)])
+def test_a_sideslip_setpoint_past_the_sideslip_envelope_is_refused_where_it_is_written(tmp_path, deg, ok):
+    """Issue 35: a sideslip setpoint up to +-30 deg was taken while the sideslip envelope is 10 deg; a setpoint the
+    verdict would call out of the envelope is refused on the command line and in a CSV, with the range."""
+    from tools.flight.profiles import Profile, ProfileError
+
+    f = tmp_path / "p.csv"
+    f.write_text(f"0, 10, {deg}\n10, -10, 0\n")
+    if ok:
+        assert Profile.from_csv(str(f)).sideslip(1.0) == pytest.approx(math.radians(deg))
+        return
+    with pytest.raises(ProfileError, match=r"p\.csv:1: sideslip must be in \[-10, 10\] deg \(the sideslip envelope\)"):
+        Profile.from_csv(str(f))
+
+
+def test_the_gcs_script_refuses_a_sideslip_past_the_envelope_in_one_line(capsys):
+    from tools import gcs
+
+    with pytest.raises(SystemExit) as exc:
+        gcs.main(["--sideslip", "12"])
+    err = capsys.readouterr().err.strip()
+    assert exc.value.code == 2 and len(err.splitlines()) == 1
+    assert "--sideslip: the sideslip command must be in [-10, 10] deg (the sideslip envelope), got 12" in err
+
+
+def test_a_sideslip_setpoint_from_a_ground_station_is_clamped_to_the_envelope(values):
+    """Over MAVLink (NAMED_VALUE_FLOAT SSA_SP, real datagrams on the real GCS link of an in-process autopilot):
+    clamped to +-10 deg as a roll setpoint is to the roll limit, counted and said; NaN refused."""
+    import os
+    import socket
+
+    os.environ.setdefault("MAVLINK20", "1")
+    from pymavlink.dialects.v20 import common as M
+
+    from autopilot.loop import Autopilot, AutopilotOptions
+    from autopilot.shared.pwm import PwmMap
+
+    law = mimo.from_values("clsac", values, control_rate_hz=100.0, limits=(0.3, 0.25))
+    sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+    sock.bind(("127.0.0.1", 0))
+    where = sock.getsockname()  # its streams to this station, none to the default ports
+    opts = AutopilotOptions(lockstep=False, signing_key=None, verbose=False, gcs=where, sitl=where)
+    ap = Autopilot(opts, law.config, PwmMap(), law=law, pwm2=PwmMap())
+    mav = M.MAVLink(None, 255, 190)
+    try:
+        for value in (25.0, -12.0, 7.5, float("nan")):
+            before = ap.gcs.rx_datagrams
+            sock.sendto(M.MAVLink_named_value_float_message(0, b"SSA_SP", value).pack(mav), ap.gcs.local)
+            while ap.gcs.rx_datagrams == before:
+                ap.gcs.poll(ap._gcs_handler)
+            if value == value:
+                expect = max(-10.0, min(10.0, value))
+                assert ap.setpoints2.at(0.0) == pytest.approx(math.radians(expect)), value
+        assert ap.events["sideslip_setpoints_clamped"] == 2 and ap.events["sideslip_setpoints"] == 3
+        assert ap.gcs.counters()["rejected"].get("nonfinite_setpoint") == 1
+    finally:
+        sock.close()
+        ap.close()
+
+
 def test_the_monte_carlo_flies_the_mimo_plant_with_its_controllers():
     from tools.experiment.study.flights import FlightOptions, simulate
 

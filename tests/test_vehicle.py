@@ -549,3 +549,95 @@ def test_launcher_png_events_and_a_second_ground_station(tmp_path):
     streams = payload_streams(str(out / "flight.tlog"))
     servo = A.MAVLINK_MSG_ID_SERVO_OUTPUT_RAW
     assert len(streams[(1, 140, servo)]) == 2000 and 0 < len(streams[(1, 1, servo)]) < 2000
+
+
+# ------------------------------------------------------- a ground station that takes the loop away for long (issue 35)
+def _hold(gcs: Gcs, seconds: float) -> None:
+    """Wait ``seconds`` as a ground station does: a HEARTBEAT a second, reading what comes."""
+    t_end = time.monotonic() + seconds
+    while time.monotonic() < t_end:
+        gcs.mav.heartbeat_send(A.MAV_TYPE_GCS, A.MAV_AUTOPILOT_INVALID, 0, 0, 0)
+        gcs.drain()
+        time.sleep(min(1.0, max(0.0, t_end - time.monotonic())))
+
+
+def _station_flight(tmp_path, duration: float, script) -> tuple:
+    """A real-time launch (unsigned, a pymavlink station on a --gcs-peer port): ``script(gcs)`` runs once the
+    station sees the vehicle; the flight's result and its series."""
+    from tools.flight import Flight
+
+    port = free_ports(1)[0]
+    gcs = Gcs(port)
+    out = tmp_path / "flight"
+    try:
+        with Flight(duration=duration, out=out, signing=False, quiet=True, gcs_peer=(f"127.0.0.1:{port}",)) as flight:
+            gcs.connect()
+            script(gcs)
+            res = flight.wait(timeout=duration + 120)
+    finally:
+        gcs.close()
+    assert res is not None, "the flight did not end"
+    return res, np.load(out / "autopilot_series.npz"), (out / "autopilot.log").read_text()
+
+
+def test_manual_for_21_s_then_clsac_again_flies_to_the_end(tmp_path):
+    """Must show: SET_MODE custom 0 (MANUAL), 21 s, COMMAND_INT DO_SET_MODE 101: the autopilot died 2 s later of a
+    ZeroDivisionError (its 20 s tracking windows with no step of the law).  Now it flies to the end: the launcher
+    exits 0 or 3, never 1, and the law flew again after the switch."""
+
+    def script(gcs):
+        _hold(gcs, 4.0)
+        gcs.mav.set_mode_send(1, A.MAV_MODE_FLAG_CUSTOM_MODE_ENABLED, Mode.MANUAL)
+        assert gcs.wait("HEARTBEAT", cond=lambda m: m.custom_mode == Mode.MANUAL)
+        _hold(gcs, 21.0)
+        gcs.drain()
+        gcs.mav.command_int_send(1, 1, 0, A.MAV_CMD_DO_SET_MODE, 0, 0, 1, Mode.CLSAC, 0, 0, 0, 0, 0)
+        ack = gcs.wait("COMMAND_ACK", cond=lambda m: m.command == A.MAV_CMD_DO_SET_MODE)
+        assert ack.result == A.MAV_RESULT_ACCEPTED
+        _hold(gcs, 3.0)
+
+    res, s, log = _station_flight(tmp_path, 40.0, script)
+    assert res.exit_code in (0, 3) and res.summary["exit_codes"]["autopilot"] == 0, (res.reason, log[-2000:])
+    assert "error" not in log.lower() and res.summary["flown"]["complete"], res.reason
+    mode = s["mode"].astype(int)
+    manual = np.flatnonzero(mode == Mode.MANUAL)
+    assert 20.5 <= len(manual) / 100.0 <= 22.0, len(manual)  # the station's 21 s, in control steps
+    after = np.flatnonzero(mode[manual[-1] + 1 :] == Mode.CLSAC)
+    assert len(after) >= 1000 and np.isfinite(s["u"][manual[-1] + 1 :]).all()  # the law flew again, to the end
+    assert res.summary["ground_station"]["manual_s"] == pytest.approx(len(manual) / 100.0, abs=0.011)
+
+
+def test_disarmed_for_26_s_then_armed_flies_to_the_end(tmp_path):
+    """Must show: DISARM, 26 s, ARM (MAVProxy's `disarm`, `arm throttle`): the autopilot flies to the end."""
+
+    def script(gcs):
+        _hold(gcs, 4.0)
+        assert gcs.command(A.MAV_CMD_COMPONENT_ARM_DISARM, 0).result == A.MAV_RESULT_ACCEPTED
+        _hold(gcs, 26.0)
+        assert gcs.command(A.MAV_CMD_COMPONENT_ARM_DISARM, 1).result == A.MAV_RESULT_ACCEPTED
+        _hold(gcs, 3.0)
+
+    res, s, log = _station_flight(tmp_path, 40.0, script)
+    assert res.exit_code in (0, 3) and res.summary["exit_codes"]["autopilot"] == 0, (res.reason, log[-2000:])
+    assert "error" not in log.lower() and res.summary["flown"]["complete"], res.reason
+    armed = s["armed"].astype(bool)
+    disarmed = np.flatnonzero(~armed & (s["t"] >= 0.0))
+    assert 25.5 <= len(disarmed) / 100.0 <= 27.0, len(disarmed)
+    assert armed[disarmed[-1] + 1 :].sum() >= 500 and (s["u"][disarmed] == 0.0).all()
+
+
+def test_a_flight_disarmed_5_s_in_and_never_armed_again_is_not_ok(tmp_path):
+    """Must show: a DISARM about 5 s into a 30 s flight, never re-armed: the law flew about a sixth of it, so the
+    flight is not OK (exit 3, OUT OF ENVELOPE, the reason says how much the law flew), however level it stayed."""
+
+    def script(gcs):
+        _hold(gcs, 5.0)
+        assert gcs.command(A.MAV_CMD_COMPONENT_ARM_DISARM, 0).result == A.MAV_RESULT_ACCEPTED
+
+    res, s, _log = _station_flight(tmp_path, 30.0, script)
+    gs = res.summary["ground_station"]
+    law = 1.0 - gs["disarmed_share"] - gs["manual_share"]
+    assert res.exit_code == 3 and not res.ok and res.summary["outcome"] == "OUT OF ENVELOPE", res.reason
+    assert 0.1 < law < 0.4 and gs["disarmed_s"] > 18.0, gs
+    reason = res.summary["controlled"]["reason"]
+    assert reason.startswith(f"the law flew only {100 * law:.1f} % of the flight (limit: more than 50 %"), reason

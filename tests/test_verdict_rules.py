@@ -61,6 +61,59 @@ def test_a_completed_profile_seen_exiting_first_is_not_blamed_for_the_autopilots
     assert "gcs" not in why and "flown 99.8 % (2995 of 3000 steps" in why
 
 
+# ------------------------------------------------------------------------- the blame follows peer_lost
+def _peer_chain(gcs_peer, ap_peer, sitl_peer=None):
+    """A flight 1200 of 3000 steps long whose three processes exited in the order GCS script (t = 20 s), autopilot
+    (21 s), SITL (22 s, killed), none of them silent for STALL_S on its own send clock (so no stall decides), each
+    saying whose silence ended it (``peer_lost``)."""
+    from tools.flight import FlightConfig
+
+    stats = {
+        "gcs": {"exit_reason": "vehicle lost (nothing for 5 s)", "peer_lost": gcs_peer, "sent": _sent(19.9)},
+        "autopilot": {
+            "steps": 1200,
+            "metric_samples": 1200,
+            "exit_reason": "SITL silent for 5.0 s after frame 1200",
+            "peer_lost": ap_peer,
+            "sent": _sent(20.9),
+        },
+        "sitl": {"frames": 1200, "exit_reason": "autopilot silent", "peer_lost": sitl_peer, "sent": _sent(21.9)},
+    }
+    children = {"gcs": _child("gcs", 1, 20.0), "autopilot": _child("autopilot", 1, 21.0), "sitl": _child("sitl", 1, 22)}
+    flown = flown_report(FlightConfig(duration=30.0, quiet=True), stats)
+    return verdict(children, stats, flown, 1, None, None, t_end=30.0)
+
+
+def test_the_blame_follows_peer_lost_to_the_end_of_the_chain():
+    """The GCS script exited first because the autopilot went silent, and the autopilot because the SITL did: the
+    SITL is blamed, with what the last one that noticed it said (mutations: peer_lost not followed, the GCS
+    blamed; followed one link only, the autopilot blamed)."""
+    code, failed, why = _peer_chain("autopilot", "sitl")
+    assert (code, failed) == (1, "sitl"), why
+    assert why.startswith("sitl stalled or died: autopilot reports: SITL silent for 5.0 s after frame 1200"), why
+    assert "flown 40 % (1200 of 3000 steps" in why
+
+
+@pytest.mark.parametrize(
+    ("gcs_peer", "ap_peer", "sitl_peer", "blamed", "blamer"),
+    [
+        ("autopilot", None, None, "autopilot", "gcs"),  # one link: the autopilot, which blamed nobody
+        ("autopilot", "sitl", "autopilot", "sitl", "autopilot"),  # a circle: followed once round, then stopped
+        ("autopilot", "nobody", None, "autopilot", "gcs"),  # a name that is no process of the flight: not followed
+        (None, "sitl", None, "gcs", None),  # the first to exit blamed nobody: it is named, whatever came after
+    ],
+)
+def test_the_chain_stops_where_no_process_is_named_or_one_comes_round_again(
+    gcs_peer, ap_peer, sitl_peer, blamed, blamer
+):
+    code, failed, why = _peer_chain(gcs_peer, ap_peer, sitl_peer)
+    assert (code, failed) == (1, blamed), why
+    if blamer is None:
+        assert why.startswith("gcs failed (exit code 1)"), why
+    else:
+        assert why.startswith(f"{blamed} stalled or died: {blamer} reports: "), why
+
+
 @pytest.mark.parametrize("received", [300, 0])
 def test_a_real_time_sitl_that_applied_no_command_fails_the_flight(received):
     """Every process ran to its end and the autopilot flew every step, but the SITL applied none of its commands

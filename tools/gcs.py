@@ -27,6 +27,7 @@ import sys
 import time
 from dataclasses import dataclass, fields, replace
 
+from autopilot.shared import crash
 from autopilot.shared.cli import (
     OneLineArgumentParser,
     add_cpu_argument,
@@ -615,7 +616,7 @@ def main(argv=None) -> int:
     try:
         code = gcs.run()
     except Exception as exc:  # noqa: BLE001
-        print(f"gcs: error: {type(exc).__name__}: {exc}", file=sys.stderr, flush=True)
+        crash.report("gcs", exc)  # one line; the traceback in gcs.log (autopilot.shared.crash)
         code = 1
     finally:
         stats = gcs.stats()
@@ -629,4 +630,5 @@ def main(argv=None) -> int:
 
 
 if __name__ == "__main__":
+    crash.install("gcs")
     sys.exit(main())

@@ -31,12 +31,14 @@ if __name__ == "__main__":
     EARLY_PNG_HELPER = PngHelper() if helper_wanted(sys.argv[1:]) else None
 
 import argparse
+import io
 import logging
 import os
 from pathlib import Path
 
 from autopilot import controllers
 from autopilot.flags import add_controller_arguments, add_envelope_arguments, rate_arg
+from autopilot.shared import crash
 from autopilot.shared.cli import (
     MAX_SIM_S,
     OneLineArgumentParser,
@@ -53,7 +55,7 @@ from autopilot.shared.cli import (
     timeout_s,
     viewer_url,
 )
-from autopilot.shared.process import EXIT_USAGE, install_stop_handlers, survive_closed_stdout
+from autopilot.shared.process import EXIT_FAILED, EXIT_USAGE, install_stop_handlers, survive_closed_stdout
 from sitl import damage, disturbances
 from tools.flight import (
     LIVE_RATE_HZ,
@@ -477,6 +479,10 @@ def main(argv=None, png_helper=None) -> int:
     except WebServerError as exc:  # a --web port taken: nothing was started
         print(f"launch: error: {exc}", file=sys.stderr)
         return EXIT_USAGE
+    except Exception as exc:  # noqa: BLE001  an internal error: one line, its traceback in DIR/launch.log
+        log = flight.out / "launch.log" if flight.out is not None and flight.out.is_dir() else None
+        print("FAILED: " + crash.report("launch", exc, log=log, file=io.StringIO()), flush=True)  # the one line
+        return EXIT_FAILED
     print_summary(res.summary)
     if not res.completed and not res.summary.get("diverged"):  # a plant that diverged is a result, not an error
         print(f"launch: error: {res.reason} (logs in {res.out})", file=sys.stderr, flush=True)
@@ -500,5 +506,6 @@ def exit_without_teardown(code: int) -> None:
 
 
 if __name__ == "__main__":
+    crash.install("launch")
     survive_closed_stdout()
     exit_without_teardown(main(png_helper=EARLY_PNG_HELPER))

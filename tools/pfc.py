@@ -256,7 +256,19 @@ def _plant(args, parser):
         lp = load(args.plant)
     except PlantFileError as exc:
         parser.error(str(exc))
-    return (lp.a_p, lp.b_p, lp.c_p), lp.name
+    mats = (lp.a_p, lp.b_p, lp.c_p)
+    if not lp.is_mimo:  # a surface that cannot move the plant (B = 1e-300): said as the design says it, exit 2
+        from tools import design as analysis
+        from tools.design.tuning import check_authority
+        from tools.experiment.scenario import PAPER
+
+        tn, td = analysis.tf_coefficients(analysis.plant_tf(mats))
+        u_limit = lp.limit_rad if lp.limit_rad is not None else math.radians(30.0)
+        try:
+            check_authority(tn, td, u_limit, PAPER.profile.amplitude, PAPER.profile.period)
+        except analysis.AnalysisError as exc:
+            parser.error(f"--plant {args.plant}: {exc}")
+    return mats, lp.name
 
 
 # ----------------------------------------------------------------------------- main
@@ -268,6 +280,7 @@ def main(argv: list[str] | None = None) -> int:
         return design_main(argv[1:])
     parser = build_parser()
     args = parser.parse_args(argv)
+    name = None
     try:
         name, num, den = _select_pfc(args, parser)
         if not math.isfinite(args.command_deg):
@@ -288,9 +301,9 @@ def main(argv: list[str] | None = None) -> int:
         )
     except analysis.PfcError as exc:
         parser.error(str(exc))
-    except analysis.AnalysisError as exc:
-        sys.stderr.write(f"{parser.prog}: analysis failed: {exc}\n")
-        return 1
+    except analysis.AnalysisError as exc:  # the input's own numbers (a plant, a PFC) defeat the analysis: exit 2
+        where = f"--plant {args.plant}" if args.plant not in (None, "kh2013a") else f"the PFC {name or ''}".rstrip()
+        parser.error(f"{where} cannot be analysed: {exc}")
     cl = analysis.paper_scenario_runs(num, den) if args.closed_loop else None
     if args.json:
         d = rep.to_dict()

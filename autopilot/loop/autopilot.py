@@ -155,6 +155,7 @@ class Autopilot(LinkHandlers, LockstepScheduler, RealtimeScheduler):
         self.last_setpoint_wall = None
         self.setpoint_lost = False
         self._last_clamp_report = -1e9
+        self._last_side_clamp_report = -1e9  # monotonic s of the last "sideslip setpoint clamped" status text
         # state
         self.steps = 0
         self.failsafe = Failsafe.NONE  # the attitude failsafe (setpoint loss is self.setpoint_lost)

@@ -25,6 +25,7 @@ from autopilot.loop.common import (
     M,
 )
 from autopilot.schedule import NEW, UNLINKED
+from autopilot.shared.cli import SIDESLIP_ENVELOPE_DEG
 from autopilot.shared.fastmav import AOA_SSA_ID
 from autopilot.shared.link import ANY_COMPONENT
 from autopilot.shared.mavlink import (
@@ -182,11 +183,20 @@ class LinkHandlers:
     def _on_sideslip_setpoint(self, msg) -> None:
         """A square MIMO plant's second setpoint (NAMED_VALUE_FLOAT ``SSA_SP``, deg, sent by the ground station just
         before the roll setpoint of the same ``time_boot_ms``): queued on sim time like the roll's (0: now), flown
-        as the sideslip command ``ctrl.um2`` from its time on."""
+        as the sideslip command ``ctrl.um2`` from its time on.  Past the sideslip envelope (+-SIDESLIP_ENVELOPE_DEG,
+        the verdict's limit) it is clamped to it, as a roll setpoint is to the roll limit: counted, and said at most
+        once a second."""
         value = float(msg.value)
-        if value - value != 0.0 or abs(value) > 30.0:
+        if value - value != 0.0:
             self.gcs.reject("nonfinite_setpoint")
             return
+        if abs(value) > SIDESLIP_ENVELOPE_DEG:
+            sent, value = value, math.copysign(SIDESLIP_ENVELOPE_DEG, value)
+            self.events["sideslip_setpoints_clamped"] += 1
+            now = time.monotonic()
+            if now - self._last_side_clamp_report > 1.0:
+                self._last_side_clamp_report = now
+                self._event(M.MAV_SEVERITY_WARNING, f"sideslip setpoint {sent:.1f} deg clamped to {value:.0f}")
         ms = msg.time_boot_ms if self.opts.setpoint_time == "sim" else 0
         now_us = self._now_sim_us()
         t_us = (now_us or 0.0) if ms == 0 else ms * 1000.0

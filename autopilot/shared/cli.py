@@ -139,6 +139,9 @@ def bounded(lo: float, hi: float, unit: str, *, lo_open: bool = False, hi_open: 
 
 
 MAX_SIM_S = 86_400.0  # one day of sim time: the longest flight and the latest start clock
+# A square MIMO plant's sideslip envelope, |beta| <= this (deg): a coordinated flight stays within it (autopilot.mimo's
+# verdict), so a sideslip setpoint is bounded by it too (refused on a command line or in a CSV, clamped over MAVLink)
+SIDESLIP_ENVELOPE_DEG = 10.0
 MAX_PHYSICS_RATE_HZ = 100_000.0
 MAX_SENSOR_RATE_HZ = 1_000.0
 MAX_GAIN = 10_000.0  # L_v, sigma: beyond this the discretised law is meaningless at any control rate

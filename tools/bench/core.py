@@ -110,6 +110,30 @@ def bench_cli_cold() -> float:
     return dt
 
 
+TARGET_BAD_PLANT_FILE_S = 1.0  # docs/plants.md: a bad plant file is refused in one line, exit 2, within a second
+
+
+def bench_bad_plant_file(repeats: int) -> float:
+    """Median seconds of ``python -m tools.pfc --plant FILE`` refusing a 100 MB plant file (sparse) from its size
+    alone, one line, exit 2 (the interpreter's start included).  tests/test_plant_files.py checks only that it is
+    not read (no speed asserted in a test)."""
+    root = Path(__file__).resolve().parents[2]
+    times = []
+    with tempfile.TemporaryDirectory(prefix="bench-plant-") as tmp:
+        f = Path(tmp) / "big.toml"
+        with open(f, "wb") as fh:
+            fh.truncate(100 * 1024 * 1024)
+        for _ in range(repeats):
+            t0 = time.perf_counter()
+            proc = subprocess.run(
+                [sys.executable, "-m", "tools.pfc", "--plant", str(f)], cwd=root, capture_output=True, text=True
+            )
+            times.append(time.perf_counter() - t0)
+            if proc.returncode != 2 or len(proc.stderr.strip().splitlines()) != 1:
+                raise RuntimeError(f"the 100 MB plant file was not refused in one line: {proc.stderr[-300:]!r}")
+    return sorted(times)[len(times) // 2]
+
+
 def bench_figure() -> float:
     from tools.view.plots import save_paper_figure
 
@@ -153,6 +177,9 @@ def main(argv: list[str] | None = None) -> dict:
     if not args.no_extras:
         figs["paper_experiment_cli_cold"] = figure(bench_cli_cold(), "s", None, note="fresh process, --no-plot")
         figs["paper_figure"] = figure(bench_figure(), "s", None, note="save paper.png")
+        figs["bad_plant_file_refused"] = figure(
+            bench_bad_plant_file(repeats), "s", TARGET_BAD_PLANT_FILE_S, note="100 MB file, python -m tools.pfc"
+        )
 
     print_table("core benchmarks (per-call times: median, p90 and min over batches of calls)", figs)
     warning = load_warning()

@@ -29,6 +29,12 @@ Figures, all measured in this one benchmark run:
   ``FAULT_SPECS`` flown from 10 s (tools.experiment.study.faults; the faulted plants' ZOH included), medians of
   ``--fault-repeats`` (default 5) batches alternated with fault-free ones, and the median ratio to the fault-free
   rate measured in the same run (``faults_fault_free_runs_per_s``).  ``--faults-only``: just these.
+* ``sigint_stop_s_one_process`` and ``sigint_stop_s_two_processes`` (target <= 1 s, docs/experiments.md promises
+  0.1 s to stop and 0.15-0.2 s to the exit): from SIGINT to the study's exit, the documented maximum ``--runs
+  10000000`` on this process and ``--runs 1000 --workers 2 --long-runs 0``, each signalled once its progress bar
+  shows and half a second more, medians of ``--sigint-repeats`` (default 3).  The tests check only that the study
+  stops and keeps what it did (tests/test_study_never_hangs.py), bounded by a generous timeout: a load of 10 on 2
+  cores took 2.08 s once.
 """
 
 from __future__ import annotations
@@ -38,6 +44,7 @@ import json
 import math
 import os
 import re
+import signal
 import statistics
 import subprocess
 import sys
@@ -177,6 +184,63 @@ def fault_figures(runs: int, repeats: int) -> dict[str, dict]:
     return figs
 
 
+SIGINT_CASES = {
+    "one_process": (["--runs", "10000000"], b"/270017100 runs"),
+    "two_processes": (["--runs", "1000", "--workers", "2", "--long-runs", "0"], b"/44100 runs"),
+}
+TARGET_SIGINT_S = 1.0
+
+
+def bench_sigint(argv: list[str], shows: bytes, after: float = 0.5) -> float:
+    """Seconds from SIGINT to the exit of ``python -m tools.experiment robustness ARGV``, signalled once its stderr
+    shows ``shows`` (the progress bar) and ``after`` seconds more; raises if it does not exit 130."""
+    env = dict(os.environ)
+    root = str(Path(__file__).resolve().parents[2])
+    env["PYTHONPATH"] = root + (os.pathsep + env["PYTHONPATH"] if env.get("PYTHONPATH") else "")
+    with tempfile.TemporaryDirectory(prefix="bench-sigint-") as tmp:
+        cmd = [sys.executable, "-m", "tools.experiment", "robustness", *argv, "--out", str(Path(tmp) / "s")]
+        p = subprocess.Popen(cmd, env=env, cwd=root, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE)
+        try:
+            seen, deadline = b"", time.monotonic() + 300
+            os.set_blocking(p.stderr.fileno(), False)
+            while shows not in seen:
+                if time.monotonic() > deadline or p.poll() is not None:
+                    raise RuntimeError(f"the study never showed {shows!r}: {seen[-300:]!r}")
+                seen += p.stderr.read() or b""
+                time.sleep(0.02)
+            t_signal = time.monotonic() + after
+            while time.monotonic() < t_signal:  # the pipe drained, so that the study never blocks writing to it
+                p.stderr.read()
+                time.sleep(0.02)
+            t0 = time.perf_counter()
+            p.send_signal(signal.SIGINT)
+            while (code := p.poll()) is None:
+                p.stderr.read()
+                if time.perf_counter() - t0 > 120:
+                    raise RuntimeError("the study did not stop within 120 s of SIGINT")
+                time.sleep(0.005)
+            took = time.perf_counter() - t0
+        finally:
+            if p.poll() is None:
+                p.kill()
+                p.wait()
+    if code != 130:
+        raise RuntimeError(f"the study exited {code} on SIGINT, not 130")
+    return took
+
+
+def sigint_figures(repeats: int) -> dict[str, dict]:
+    """``sigint_stop_s_*``: medians of ``repeats`` SIGINTs of each ``SIGINT_CASES`` study."""
+    figs = {}
+    for name, (argv, shows) in SIGINT_CASES.items():
+        took = [bench_sigint(argv, shows) for _ in range(repeats)]
+        cmd = "python -m tools.experiment robustness " + " ".join(argv)
+        figs[f"sigint_stop_s_{name}"] = figure(
+            statistics.median(took), "s", TARGET_SIGINT_S, command=cmd, repeats=repeats, max=max(took)
+        )
+    return figs
+
+
 def main(argv: list[str] | None = None) -> dict:
     p = argparse.ArgumentParser(prog="python -m tools.bench study", description=__doc__.split("\n\n")[0])
     p.add_argument("--quick", action="store_true", help="2,000 runs instead of 10,000 (target scaled)")
@@ -189,10 +253,16 @@ def main(argv: list[str] | None = None) -> dict:
     p.add_argument("--fault-runs", type=int, default=None, help="runs per batch of the fault figures (default 1000)")
     p.add_argument("--fault-repeats", type=int, default=None, help="batches per fault figure (default 5)")
     p.add_argument("--faults-only", action="store_true", help="only the KH2013A fault figures")
+    p.add_argument("--sigint-repeats", type=int, default=None, help="SIGINTs per stop figure (default 3)")
+    p.add_argument("--sigint-only", action="store_true", help="only the SIGINT stop figures")
     args = p.parse_args(argv)
     if args.faults_only:
         figs = fault_figures(args.fault_runs or (200 if args.quick else 1000), args.fault_repeats or 5)
         print_table("study benchmarks: KH2013A faults in the C kernel (tools.experiment.study.faults)", figs)
+        return figs
+    if args.sigint_only:
+        figs = sigint_figures(args.sigint_repeats or (1 if args.quick else 3))
+        print_table("study benchmarks: from SIGINT to the exit", figs)
         return figs
     runs = args.runs or (2000 if args.quick else 10_000)
     plain_runs = args.plain_runs or (5 if args.quick else 20)
@@ -227,6 +297,7 @@ def main(argv: list[str] | None = None) -> dict:
         if args.with_numpy:
             figs.update(study_figures(1, numpy=True))
     figs.update(fault_figures(args.fault_runs or (200 if args.quick else 1000), args.fault_repeats or 5))
+    figs.update(sigint_figures(args.sigint_repeats or (1 if args.quick else 3)))
     print_table("study benchmarks (vectorised Monte Carlo, tools.experiment.study)", figs)
     warning = load_warning()
     if warning:

@@ -16,6 +16,7 @@ launcher gives the autopilot by default.
 from __future__ import annotations
 
 import dataclasses
+import math
 import os
 import sys
 from pathlib import Path
@@ -69,6 +70,26 @@ def shown_path(path: Path) -> str:
 def design_command(plant: str) -> str:
     """The command that designs ``plant`` into the file the launcher finds."""
     return f"python -m tools.pfc design {plant} --out {shown_path(design_path(plant))}"
+
+
+def design_advice(plant: str) -> str:
+    """What a refusal of ``plant`` for want of a design tells the user to do: run ``design_command``, unless JSBSim's
+    linearisation of its model is known to take longer than the design's limit (``SLOW_LINEARISATION_S``): then
+    that, since a design that would stop on the clock is not one to recommend."""
+    slow = slow_linearisation_s(plant)
+    if slow is None:
+        return f"make it with `{design_command(plant)}`"
+    return (
+        f"JSBSim's linearisation of it takes about {slow:g} s, beyond the design's {LINEARISE_TIMEOUT_S:g} s limit, so "
+        f"`python -m tools.pfc design` makes none by default"
+    )
+
+
+def slow_linearisation_s(plant: str) -> float | None:
+    """The measured FGLinearization time of ``plant``'s JSBSim model if it is in ``SLOW_LINEARISATION_S``, else None."""
+    if not plant.startswith("jsbsim:"):
+        return None
+    return SLOW_LINEARISATION_S.get(plant.split(":")[1])
 
 
 PID_PARAMS = ("CLSAC_PID_KP", "CLSAC_PID_KI", "CLSAC_PID_KD")  # the baseline's gains in a parameter file
@@ -222,6 +243,10 @@ def _linearise_mimo(jsbsim, fdm, spec) -> dict:
 
 
 LINEARISE_TIMEOUT_S = 60.0  # JSBSim's FGLinearization of one model: c172x takes 1.3 s, pa28 3.7 s, Boeing314 340 s
+# Models whose FGLinearization takes far longer than LINEARISE_TIMEOUT_S (measured on the 2-core development VM, one
+# C++ call that no iteration count bounds): their design is refused at once, not after the limit's wall clock (a
+# result that depended on the machine's load), unless --linearise-timeout covers the time; no refusal recommends it.
+SLOW_LINEARISATION_S = {"Boeing314": 340.0}
 
 
 def linearise_bounded(spec, timeout_s: float = LINEARISE_TIMEOUT_S, physics_rate_hz: float = 1000.0) -> dict:
@@ -235,6 +260,13 @@ def linearise_bounded(spec, timeout_s: float = LINEARISE_TIMEOUT_S, physics_rate
 
     from sitl.jsbsim_plant import JsbsimPlantError
 
+    slow = SLOW_LINEARISATION_S.get(spec.model)
+    if slow is not None and timeout_s < slow:  # decided by the measured time, not by this machine's clock
+        raise LinearisationError(
+            f"JSBSim's linearisation (FGLinearization) of {spec.model} takes about {slow:g} s, longer than the "
+            f"{timeout_s:g} s limit (--linearise-timeout): not started; give --linearise-timeout "
+            f"{math.ceil(2 * slow / 100) * 100:g} to wait for it"
+        )
     root = str(Path(__file__).resolve().parents[2])  # the folder holding tools/ and sitl/
     env = {**os.environ, "PYTHONPATH": os.pathsep.join(p for p in (root, os.environ.get("PYTHONPATH")) if p)}
     with tempfile.TemporaryDirectory(prefix="linearise-") as tmp:

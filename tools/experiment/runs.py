@@ -330,14 +330,14 @@ def require_design(scenario: Scenario, pfc: str | None = None) -> None:
     """ExperimentError when the scenario's plant (other than the KH2013A) has no design (``tools.pfc design``) and
     neither a parameter file nor a PFC was given: its runs would fly another plant's values (as the launcher)."""
     from sitl import plant as plants
-    from tools.design.linearise import design_command, design_path, designed_params, shown_path
+    from tools.design.linearise import design_advice, design_path, designed_params, shown_path
 
     if plants.kind(scenario.plant) == "kh2013a" or scenario.params is not None or pfc is not None:
         return
     if designed_params(scenario.plant) is None:
         raise ExperimentError(
-            f"--plant: {scenario.plant} has no design (no {shown_path(design_path(scenario.plant))}): make it with "
-            f"`{design_command(scenario.plant)}`, or give --pfc paper|robust to fly the KH2013A's"
+            f"--plant: {scenario.plant} has no design (no {shown_path(design_path(scenario.plant))}): "
+            f"{design_advice(scenario.plant)}, or give --pfc paper|robust to fly the KH2013A's"
         )
 
 

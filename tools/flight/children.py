@@ -14,6 +14,8 @@ import threading
 import time
 from pathlib import Path
 
+from autopilot.shared import crash
+
 STOP_GRACE_S = 5.0  # after SIGINT, how long the children get to write their files before they are killed
 
 # One OpenBLAS thread for the flight's processes unless the environment says otherwise: their matrices are a few rows
@@ -46,7 +48,8 @@ class Child:
             stdin=subprocess.DEVNULL,
             stdout=subprocess.PIPE,
             stderr=subprocess.STDOUT,
-            env=child_env(PYTHONUNBUFFERED="1", MAVLINK20="1"),
+            # its internal error's traceback comes as lines for the log only (autopilot.shared.crash)
+            env=child_env(PYTHONUNBUFFERED="1", MAVLINK20="1", **{crash.LOG_ENV: str(log_path)}),
             start_new_session=True,
             text=True,
             bufsize=1,
@@ -65,6 +68,8 @@ class Child:
     def _read(self):
         for line in self.proc.stdout:
             self._log.write(line)
+            if crash.is_traceback_line(line, self.name):
+                continue  # the log's alone: the console and the reason get the error's one line after it
             line = line.rstrip("\n")
             self.tail.append(line)
             if len(self.tail) > 40:

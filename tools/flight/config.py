@@ -8,7 +8,7 @@ import functools
 import math
 import os
 import sys
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, fields
 from pathlib import Path
 
 from autopilot import controllers, flags
@@ -160,6 +160,10 @@ class FlightConfig:
 
         def put(name, value):
             object.__setattr__(self, name, value)
+
+        for f in fields(self):  # a switch is True or False: "no", 0 or None would be taken as on or off by truth
+            if f.type == "bool" and not isinstance(value := getattr(self, f.name), bool):
+                raise FlightConfigError(f.name, f"{f.name} must be True or False, got {value!r}")
 
         for name, check in (  # the launcher's own argument types: values that cannot be flown are rejected here
             ("rate", flags.rate_arg),  # the parameter table's bounds (autopilot.params.PARAMS), as the flags

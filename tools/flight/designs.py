@@ -17,7 +17,7 @@ def refusal(cfg) -> tuple[str, str] | None:
     stop.  ``cfg``: a ``FlightConfig``; returns (its keyword, the one-line reason) or None."""
     from autopilot.params import load_file
     from sitl import plant as plants
-    from tools.design.linearise import PFC_PARAMS, PID_PARAMS, design_command, design_path, shown_path
+    from tools.design.linearise import PFC_PARAMS, PID_PARAMS, design_advice, design_path, shown_path
 
     c = controllers.get(cfg.controller)
     path = cfg.params_file
@@ -26,8 +26,8 @@ def refusal(cfg) -> tuple[str, str] | None:
         if plants.kind(cfg.plant) != "kh2013a" and not explicit:
             return (
                 "plant",
-                f"plant: {cfg.plant} has no design (no {shown_path(design_path(cfg.plant))}): make it with "
-                f"`{design_command(cfg.plant)}`, or fly a parameter file of your own (--params FILE)",
+                f"plant: {cfg.plant} has no design (no {shown_path(design_path(cfg.plant))}): "
+                f"{design_advice(cfg.plant)}, or fly a parameter file of your own (--params FILE)",
             )
         return None
     values = load_file(path)

@@ -167,6 +167,18 @@ def parameters(stats: dict) -> dict:
     return {"start": start, "end": end, "changes": changes}
 
 
+def failure_injection_in_force(cfg: FlightConfig, stats: dict) -> bool:
+    """Whether SYS_FAILURE_EN was 1 at any time of the flight: as it started (the flag or a --params file, the
+    autopilot's ``params_start``) or set by a ground station in flight (its ``param_changes``); the flag alone when
+    the autopilot left no stats."""
+    p = parameters(stats)
+    if not p["start"]:
+        return bool(cfg.failure_injection)
+    return p["start"].get("SYS_FAILURE_EN") == 1.0 or any(
+        c["name"] == "SYS_FAILURE_EN" and c["to"] == 1.0 for c in p["changes"]
+    )
+
+
 def build_summary(
     cfg: FlightConfig,
     out: Path,
@@ -198,7 +210,9 @@ def build_summary(
         "transport": "mavlink",
         "mode": "lockstep" if cfg.lockstep else "realtime",
         "signing": cfg.signing,  # MAVLink 2 signing on every link (docs/design.md, "Trust model")
-        "failure_injection": cfg.failure_injection,  # MAV_CMD_INJECT_FAILURE taken from a ground station
+        # MAV_CMD_INJECT_FAILURE taken from a ground station at any time of the flight: the flag, a --params file or
+        # a PARAM_SET of SYS_FAILURE_EN (what was in force, not only what the launcher was told)
+        "failure_injection": failure_injection_in_force(cfg, stats),
         "controller": cfg.controller,
         # the Lv that flew, as the flight started and as it ended (a ground station may change CLSAC_LV: the
         # changes are in "parameters"); a --params file (CLSAC_LV) may set another than the flags; SAC flies 0

@@ -10,9 +10,10 @@ import math
 from bisect import bisect_right
 from dataclasses import dataclass
 
-from autopilot.shared.cli import MAX_SIM_S
+from autopilot.shared.cli import MAX_SIM_S, SIDESLIP_ENVELOPE_DEG
 
 KINDS = ("square", "step", "sine", "csv")
+SIDE_RANGE = f"must be in [-{SIDESLIP_ENVELOPE_DEG:g}, {SIDESLIP_ENVELOPE_DEG:g}] deg (the sideslip envelope)"
 
 
 def square(t: float, amplitude: float, period: float) -> float:
@@ -77,8 +78,8 @@ def read_csv(path: str) -> tuple[list[float], list[float], list[float] | None]:
                 b = float(parts[2])
             except ValueError:
                 raise ValueError(f"{path}:{lineno}: sideslip_deg must be a number, got {parts[2]!r}") from None
-            if not (math.isfinite(b) and -30.0 <= b <= 30.0):
-                raise ValueError(f"{path}:{lineno}: sideslip must be in [-30, 30] deg, got {parts[2]!r}")
+            if not (math.isfinite(b) and abs(b) <= SIDESLIP_ENVELOPE_DEG):
+                raise ValueError(f"{path}:{lineno}: sideslip {SIDE_RANGE}, got {parts[2]!r}")
             third = True
         times.append(t)
         rolls.append(math.radians(r))
@@ -143,8 +144,8 @@ class Profile:
         if self.sideslips and len(self.sideslips) != len(self.times):
             raise ProfileError("sideslips", "sideslips must be one per time")
         c = self.sideslip_const
-        if c is not None and not (math.isfinite(c) and abs(c) <= math.radians(30.0)):
-            raise ProfileError("sideslip", f"the sideslip command must be in [-30, 30] deg, got {math.degrees(c)!r}")
+        if c is not None and not (math.isfinite(c) and abs(math.degrees(c)) <= SIDESLIP_ENVELOPE_DEG + 1e-9):
+            raise ProfileError("sideslip", f"the sideslip command {SIDE_RANGE}, got {math.degrees(c):g}")
         if self.kind == "csv":
             self._check_table()
 

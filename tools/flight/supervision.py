@@ -361,6 +361,8 @@ class Flight:
                 else:
                     self.stop()
         finally:
+            if self.result is None:  # ending it failed (an internal error): no process of it outlives the flight
+                stop_children(self._children.values())
             self._stop_web()  # whatever happened above
             self._stop_png()
         return False
