@@ -67,7 +67,7 @@ def test_the_tlog_the_rrd_and_the_picture_show_the_fault(flights):
     log = mavutil.mavlink_connection(str(eff.out / "flight.tlog"), dialect="common", robust_parsing=True)
     while (m := log.recv_match(type="STATUSTEXT")) is not None:
         texts.append((m.get_srcComponent(), m.text))
-    want = "fault start t=10.000: effectiveness=0.3 (command line)"
+    want = "fault start t=10.000: effectiveness=0.3 on the rudder (command line)"
     assert (200, want[:50]) in texts  # from the SITL (two chunks: the first 50 characters)
     assert any(c == 1 and t.startswith("SITL: fault start t=10.000") for c, t in texts)  # relayed to the GCS
     signals = rrd.load(eff.summary["files"]["rrd"])

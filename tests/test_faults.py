@@ -83,20 +83,37 @@ def test_a_spec_gives_its_kind_si_value_and_times(spec, kind, value, start, end)
 @pytest.mark.parametrize(
     "spec,needle",
     [
-        ("effectiveness=-1@10", "effectiveness must be > 0, got -1"),
+        ("effectiveness=-1@10", "effectiveness must be > 0 and at most 10, got -1"),
         ("effectiveness=0@10", "effectiveness must be > 0"),
+        ("effectiveness=10.5@10", "effectiveness must be > 0 and at most 10, got 10.5"),
+        ("effectiveness=1e308@10", "at most 10"),
+        ("damping=11@1", "damping must be > 0 and at most 10"),
+        ("inertia=10.01@1", "inertia must be at most 10"),
+        ("stuck=1000@1", "stuck must be within +-90 deg, got 1000"),
+        ("stuck=-90.5@1", "stuck must be within +-90 deg"),
+        ("rate=1000.5@1", "rate must be > 0 and at most 1000 deg/s"),
+        ("airspeed=1e6@1", "airspeed must be > 0 and at most 5000 kt"),
+        ("delay=10.001@1", "delay must be in [0, 10] s"),
+        ("stuck@1e308", "START must be at most 1e+06 s, got 1e308"),
+        ("stuck@1:1e308", "END must be at most 1e+06 s"),
+        ("stuck=1e309@1", "must be finite"),
+        ("effectiveness=0.3@\uff11\uff10", "START must be a number in ASCII digits"),  # fullwidth 10
+        ("effectiveness=0.3@\u0661\u0660", "START must be a number in ASCII digits"),  # Arabic-Indic 10
+        ("effectiveness=0.3@1_0", "START must be a number in ASCII digits"),
+        ("effectiveness=0.\uff13@1", "value must be a number in ASCII digits"),
+        ("stuck@1:\uff12", "END must be a number in ASCII digits"),
         ("effectiveness=inf@10", "must be finite"),
         ("effectiveness=nan@10", "must be finite"),
         ("bogus@1", "unknown kind 'bogus'"),
         ("effectiveness=0.3@nan", "START must be finite"),
         ("stuck@-5", "START must be >= 0 s, got -5"),
-        ("rate=0@1", "rate must be > 0, got 0"),
+        ("rate=0@1", "rate must be > 0 and at most 1000 deg/s, got 0"),
         ("effectiveness=0.3", "missing @START"),
         ("rate@1", "rate needs a value"),
         ("off=3@1", "off takes no value"),
         ("stuck@10:10", "END must be after START"),
         ("stuck@10:nan", "END must be finite"),
-        ("delay=-0.1@1", "delay must be in [0, 60] s"),
+        ("delay=-0.1@1", "delay must be in [0, 10] s"),
         ("inertia=0.5@1", "must be >= 1"),
         ("damping=x@1", "must be a number"),
     ],
@@ -150,8 +167,8 @@ def test_the_schedule_cuts_at_starts_and_ends_on_the_physics_grid():
     assert g.clear(damage.GROUND_STATION, 250) == 1
     assert g.effect(249) == Effect(damping=2.0, off=True) and g.effect(250) == Effect(damping=2.0)
     assert g.records(300)[1] | {} == {
-        "kind": "off", "value": None, "unit": None, "start": 0.1, "end": 0.25, "source": "ground station",
-        "spec": "off@0.1:0.25", "started": True,
+        "kind": "off", "surface": None, "value": None, "unit": None, "start": 0.1, "end": 0.25,
+        "source": "ground station", "spec": "off@0.1:0.25", "started": True,
     }  # fmt: skip
 
 
@@ -362,8 +379,11 @@ def _acks(sock, sitl, wait=0.3):
         for msg in parser.parse_buffer(data) or []:
             if msg.get_type() == "COMMAND_ACK":
                 acks.append((msg.command, msg.result))
-            elif msg.get_type() == "STATUSTEXT":
-                texts.append(msg.text)
+            elif msg.get_type() == "STATUSTEXT":  # a text longer than 50 characters comes in chunks of one id
+                if getattr(msg, "chunk_seq", 0) > 0 and texts:
+                    texts[-1] += msg.text
+                else:
+                    texts.append(msg.text)
     return acks, texts
 
 
@@ -386,7 +406,8 @@ def test_a_ground_station_failure_is_applied_once_acknowledged_and_recorded():
         held = float(sitl.aircraft.truth[4])
         sitl._advance(math.radians(-5), 500)
         _a, texts = _acks(sock, sitl, 0.1)
-        assert float(sitl.aircraft.truth[4]) == held and texts == ["fault start t=1.000: stuck (ground station)"]
+        assert float(sitl.aircraft.truth[4]) == held
+        assert texts == ["fault start t=1.000: stuck on the rudder (ground station)"]
         for unit, ftype, inst in ((101, 1, 0), (102, 3, 0), (102, 1, 9)):
             _inject(sock, ap, target, ftype, unit=unit, instance=inst)
         _inject(sock, ap, target, 5.0, param5=-3.0)
@@ -399,7 +420,7 @@ def test_a_ground_station_failure_is_applied_once_acknowledged_and_recorded():
         acks, _ = _acks(sock, sitl)
         sitl._advance(math.radians(-5), 500)
         _a, texts = _acks(sock, sitl, 0.1)
-        assert acks == [(420, M.MAV_RESULT_ACCEPTED)] and texts == ["fault end t=1.500: stuck"]
+        assert acks == [(420, M.MAV_RESULT_ACCEPTED)] and texts == ["fault end t=1.500: stuck on the rudder"]
         assert float(sitl.aircraft.truth[4]) < held - 0.05  # the servo drives it again
         faults = sitl.stats()["faults"]
         assert [(f["kind"], f["start"], f["end"], f["source"], f["started"]) for f in faults] == [
