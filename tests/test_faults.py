@@ -172,6 +172,71 @@ def test_the_schedule_cuts_at_starts_and_ends_on_the_physics_grid():
     }  # fmt: skip
 
 
+def test_a_clear_ends_a_fault_whose_end_is_ahead_and_one_not_yet_started():
+    g = damage.Schedule([], 0.0, DT)
+    g.add(damage.Fault("stuck", math.radians(3), 0.1, 2.0, damage.GROUND_STATION), 100)  # ends at 2 s
+    g.add(damage.Fault("rate", math.radians(20), 0.5, None, damage.GROUND_STATION), 500)  # starts at 0.5 s
+    g.add(damage.Fault("off", None, 0.05, 0.12, damage.GROUND_STATION), 50)  # already over
+    assert g.clear(damage.GROUND_STATION, 300) == 2
+    assert g.effect(299) == Effect(stuck=True, stuck_at=math.radians(3))
+    assert g.effect(300) == damage.NOMINAL and g.effect(600) == damage.NOMINAL  # neither is active after it
+    assert [(r["start"], r["end"], r["started"]) for r in g.records(400)] == [
+        (0.1, 0.3, True), (0.5, 0.5, False), (0.05, 0.12, True)
+    ]  # fmt: skip
+
+
+def test_a_rejam_at_a_new_angle_takes_the_new_angle():
+    s = damage.Schedule([damage.parse("stuck=3@0.1"), damage.parse("stuck=7@0.2:0.3")], 0.0, DT)
+    assert s.effect(150).stuck_at == math.radians(3) and s.effect(250).stuck_at == math.radians(7)
+    assert s.effect(300).stuck_at == math.radians(3)  # the second ends: the first's angle is the newest active
+    assert damage.jammed(s.effect(150), s.effect(250), math.radians(3)) == math.radians(7)
+    # the plant flown through the schedule: the surface at each angle from the step each jam starts
+    ac = Aircraft()
+    fly = damage.ScheduledEffects(ac, s)
+    for k, want in ((100, None), (100, 3.0), (100, 7.0), (100, 3.0)):
+        fly.advance(math.radians(-10), k)
+        if want is not None:
+            assert ac.truth[4] == pytest.approx(math.radians(want), abs=1e-12)
+
+
+@pytest.mark.parametrize(
+    "delay,dt,steps", [(0.03, 0.01, 3), (0.29, 0.01, 29), (0.043, 0.001, 43), (0.059, 0.001, 59), (0.0006, 0.001, 1)]
+)
+def test_a_delay_is_rounded_to_the_nearest_whole_step(delay, dt, steps):
+    # 0.29 / 0.01 is 28.999999999999996 in floating point, 0.043 / 0.001 42.99999999999999: floored, one step short
+    act = damage.Actuator(Effect(delay=delay), dt, u_last=-1.0)
+    assert act.delay_steps == steps
+    out = [act.command(float(k)) for k in range(steps + 2)]
+    assert out == [-1.0] * steps + [0.0, 1.0]  # the command of `steps` steps before, the held one first
+
+
+def test_the_study_rounds_a_delay_to_whole_control_periods():
+    from tools.experiment.study import faults as study_faults
+
+    for spec, steps in (("delay=0.03@0.5", 3), ("delay=0.29@0.5", 29), ("delay=0.57@0.5", 57)):  # 0.57/0.01: 56.99..
+        plan = study_faults.plan([damage.parse(spec)], 100, 0.01)
+        assert [(p.start, p.delay) for p in plan.phases] == [(50, steps)]
+
+
+def test_the_faults_of_two_surfaces_by_name():
+    names = ("aileron", "rudder")
+    gs = damage.GROUND_STATION
+    s = damage.Schedule([damage.parse("effectiveness=0.5@0"), damage.parse("delay=0.02@0")], 0.0, DT, names)
+    s.add(damage.Fault("stuck", math.radians(5), 0.1, None, gs, "rudder"), 100)
+    s.add(damage.Fault("off", None, 0.2, None, gs, damage.ALL), 200)
+    e = s.effect(150)
+    assert (e.effectiveness, e.delay, e.stuck) == (0.5, 0.02, False)  # the command line's: the first surface's
+    assert e.second == Effect(stuck=True, stuck_at=math.radians(5))
+    e = s.effect(250)
+    assert e.off and e.second == Effect(stuck=True, stuck_at=math.radians(5), off=True)
+    assert [r["surface"] for r in s.records(300)] == ["aileron", "aileron", "rudder", "aileron+rudder"]
+    assert s.clear(gs, 300, 0) == 1  # the aileron's (the one on all): the rudder's own stays
+    assert s.effect(300).second == Effect(stuck=True, stuck_at=math.radians(5)) and not s.effect(300).off
+    assert damage.Schedule([damage.parse("damping=2@0")], 0.0, DT, names).records(1)[0]["surface"] is None
+    text = damage.status_text(damage.Fault("stuck", math.radians(5), 0.1, None, gs, "rudder"), True, 0.1, "rudder")
+    assert text == "fault start t=0.100: stuck=5 on the rudder (ground station)"
+
+
 def test_faults_active_together_combine():
     fs = [damage.parse(s) for s in ("effectiveness=0.5@0", "effectiveness=0.5@0", "rate=30@0", "rate=20@0")]
     fs += [damage.parse(s) for s in ("delay=0.02@0", "delay=0.03@0", "stuck@0", "stuck=3@0", "cg=0.1@0", "cg=0.05@0")]
