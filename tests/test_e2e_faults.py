@@ -44,6 +44,7 @@ def test_effectiveness_changes_the_flight_from_its_start_and_not_before(flights)
     assert eff.summary["faults"] == [
         {
             "kind": "effectiveness",
+            "surface": "rudder",  # the KH2013A's one surface
             "value": 0.3,
             "unit": None,
             "start": 10.0,
