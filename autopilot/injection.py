@@ -1,7 +1,9 @@
 """MAV_CMD_INJECT_FAILURE from a ground station, the way PX4 takes it (docs/design.md, "Faults from a ground station").
 
 :class:`FailureRelay` is a part of the vehicle (``autopilot.vehicle``).  A ground station's COMMAND_LONG is refused
-with MAV_RESULT_DENIED unless failure injection is on (``--failure-injection``, or the parameter SYS_FAILURE_EN = 1);
+with MAV_RESULT_DENIED unless failure injection is on (``--failure-injection``, or the parameter SYS_FAILURE_EN = 1),
+but for a clear (FAILURE_TYPE_OK), which is taken either way: a station can always end the faults it gave.  The
+instance names a surface by its SERVO_OUTPUT_RAW channel (a square MIMO plant's two: ``pwm`` and ``pwm2``), 0 all;
 on a signed GCS link only a station with the vehicle's key gets this far (the link drops every other packet before it
 is decoded).  The failure is checked against the table both processes share (``autopilot.shared.servo_failures``):
 what is not implemented is answered MAV_RESULT_UNSUPPORTED, a value out of range MAV_RESULT_DENIED.  An implemented
@@ -73,6 +75,8 @@ class FailureRelay:
     def __init__(self, ap):
         self.ap = ap
         self.target = vehicle_ids(ap.opts.sysid)[2]  # the SITL, N:200
+        pwm2 = getattr(ap, "pwm2", None)  # a square MIMO plant's second surface: its own instance
+        self.channels = (ap.pwm.channel,) + ((pwm2.channel,) if pwm2 is not None else ())
         self.pending: _Command | None = None
         self.last: _Command | None = None
         self.records: list[dict] = []
@@ -94,7 +98,7 @@ class FailureRelay:
         if last is not None and last.key == cmd.key and now - last.answered < DUPLICATE_S:
             ap.events["failure_duplicates"] += 1  # its answer was lost: the same answer, not a second injection
             return last.result
-        if not self.enabled:
+        if not self.enabled and not sf.is_clear(msg.param1, msg.param2):  # a clear is taken either way
             ap.events["failure_refused"] += 1
             ap._event(
                 M.MAV_SEVERITY_WARNING,
@@ -102,7 +106,7 @@ class FailureRelay:
             )
             return M.MAV_RESULT_DENIED
         try:
-            cmd.spec = sf.servo_failure(msg.param1, msg.param2, msg.param3, msg.param5, ap.pwm.channel)
+            cmd.spec = sf.servo_failure(msg.param1, msg.param2, msg.param3, msg.param5, self.channels)
         except (sf.FailureUnsupported, sf.FailureDenied) as exc:
             ap.events["failure_refused"] += 1
             ap._event(M.MAV_SEVERITY_WARNING, f"INJECT_FAILURE from {who} refused: {exc}")

@@ -1,17 +1,18 @@
 """The autopilot's parameter table: every controller value as a named MAVLink parameter (docs/design.md, "MAVLink").
 
 Names are at most 16 characters (PARAM_VALUE.param_id), all ``CLSAC_*`` but PX4's ``SYS_FAILURE_EN``, values SI
-(rad, s, Hz) and sent as REAL32.  :class:`ParamTable` holds the values, validates a set (a rejected set leaves the
-value unchanged and raises :class:`ParamError` with a one-line reason) and builds the
-:class:`~autopilot.config.ClSacConfig` the law flies.  :func:`load_file` / :func:`save_file` read and write the two
-parameter-file formats of the ground stations: MAVProxy's ``NAME VALUE`` lines and QGroundControl's tab-separated
-``SYS COMP NAME VALUE TYPE``.
+(rad, s, Hz) and sent as REAL32, but for SYS_FAILURE_EN, an INT32 as PX4's (``encode``, ``decode``).
+:class:`ParamTable` holds the values, validates a set (a rejected set leaves the value unchanged and raises
+:class:`ParamError` with a one-line reason) and builds the :class:`~autopilot.config.ClSacConfig` the law flies.
+:func:`load_file` / :func:`save_file` read and write the two parameter-file formats of the ground stations:
+MAVProxy's ``NAME VALUE`` lines and QGroundControl's tab-separated ``SYS COMP NAME VALUE TYPE``.
 """
 
 from __future__ import annotations
 
 import argparse
 import math
+import struct
 from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING
@@ -51,6 +52,7 @@ class Param:
     low_open: bool = False
     high_open: bool = False
     flying_read_only: bool = False
+    mav_type: int = mavlink.MAV_PARAM_TYPE_REAL32  # PARAM_VALUE.param_type (INT32: sent bytewise, ``encode``)
 
     def bounds(self, per: float = 1.0, unit: str | None = None) -> str:
         """The allowed range as an error message gives it, in units of ``per`` SI units (``unit``)."""
@@ -129,6 +131,7 @@ PARAMS: tuple[Param, ...] = (
         option="failure_injection",
         low=0,
         high=1,
+        mav_type=mavlink.MAV_PARAM_TYPE_INT32,  # PX4's type: MAVSDK's set_param_int / get_param_int
     ),
 )
 # The fixed-gain baseline's gains (``autopilot.baseline.BaselineConfig``): its table is the options and these.
@@ -152,6 +155,39 @@ BY_NAME = {p.name: p for p in PARAMS + BASELINE_PARAMS + MIMO_PARAMS}
 BINARY = ("CLSAC_ANTIWINDUP", "SYS_FAILURE_EN")  # 0 or 1, nothing between
 # The options a caller of ParamTable may leave out (every other option has no default: the caller's flags give it)
 OPTION_DEFAULTS = {"failure_injection": 0.0}
+
+
+# The integer types of PARAM_VALUE / PARAM_SET; their value travels in the float field's four bytes (PX4's
+# "bytewise" encoding, MAV_PROTOCOL_CAPABILITY_PARAM_ENCODE_BYTEWISE, which AUTOPILOT_VERSION states).
+INT_TYPES = {
+    mavlink.MAV_PARAM_TYPE_UINT8: "<B3x",
+    mavlink.MAV_PARAM_TYPE_INT8: "<b3x",
+    mavlink.MAV_PARAM_TYPE_UINT16: "<H2x",
+    mavlink.MAV_PARAM_TYPE_INT16: "<h2x",
+    mavlink.MAV_PARAM_TYPE_UINT32: "<I",
+    mavlink.MAV_PARAM_TYPE_INT32: "<i",
+}
+FLT_MIN = 1.1754943508222875e-38  # the smallest normal float32: an integer below 2^23 sent bytewise is below it
+
+
+def encode(value: float, mav_type: int) -> float:
+    """The PARAM_VALUE.param_value that carries ``value`` as ``mav_type``: the value itself for REAL32, else the
+    integer's bytes read as a float32 (bytewise, as PX4 sends it)."""
+    fmt = INT_TYPES.get(mav_type)
+    if fmt is None:
+        return float(value)
+    return struct.unpack("<f", struct.pack(fmt, int(value)))[0]
+
+
+def decode(param_value: float, mav_type: int) -> float:
+    """The value a PARAM_SET carries as ``mav_type``: REAL32 (MAVProxy's and pymavlink's default) the float itself;
+    an integer type bytewise (MAVSDK, PX4's ground stations), or cast (a station that sends the integer as a float:
+    any finite value from the smallest normal float32 up, which no small integer sent bytewise is)."""
+    fmt = INT_TYPES.get(mav_type)
+    v = float(param_value)
+    if fmt is None or not math.isfinite(v) or abs(v) >= FLT_MIN:
+        return v
+    return float(struct.unpack(fmt, struct.pack("<f", v))[0])
 
 
 def arg_type(name: str, per: float = 1.0, unit: str | None = None):
@@ -323,7 +359,8 @@ def save_file(path, items, *, qgc: bool = False, ids: tuple[int, int] = (1, 1)) 
     QGroundControl's."""
     if qgc:
         lines = ["# Onboard parameters for Vehicle 1", "#", "# Vehicle-Id Component-Id Name Value Type"]
-        lines += [f"{ids[0]}\t{ids[1]}\t{n}\t{float(v)!r}\t{mavlink.MAV_PARAM_TYPE_REAL32}" for n, v in items]
+        types = {n: (BY_NAME[n].mav_type if n in BY_NAME else mavlink.MAV_PARAM_TYPE_REAL32) for n, _v in items}
+        lines += [f"{ids[0]}\t{ids[1]}\t{n}\t{float(v)!r}\t{types[n]}" for n, v in items]
     else:
         lines = [f"{n:<16s} {float(v)!r}" for n, v in items]  # repr: the exact value back
     Path(path).write_text("\n".join(lines) + "\n")

@@ -26,7 +26,7 @@ from pymavlink.dialects.v20 import all as _all
 
 from autopilot.controllers import law_of
 from autopilot.injection import FailureRelay
-from autopilot.params import PARAM_ID_LEN, PARAMS, ParamError, ParamTable
+from autopilot.params import PARAM_ID_LEN, PARAMS, ParamError, ParamTable, decode, encode
 from autopilot.shared.mavlink import mavlink
 from autopilot.step import Failsafe
 
@@ -275,14 +275,15 @@ class Vehicle:
         if not self._for_us(msg):
             return
         name = _text(msg.param_id)
+        value = decode(msg.param_value, msg.param_type)  # an INT32 (SYS_FAILURE_EN) bytewise or cast
         try:
             old = self.params.get(name) if name in self.params else None
-            self.params.set(name, msg.param_value)
+            self.params.set(name, value)
         except ParamError as exc:
             self.ap.events["param_rejected"] += 1
-            self.ap._event(M.MAV_SEVERITY_WARNING, refusal_text(name, msg.param_value, exc), kind="refused PARAM_SET")
+            self.ap._event(M.MAV_SEVERITY_WARNING, refusal_text(name, value, exc), kind="refused PARAM_SET")
             for hook in self.param_hooks:
-                hook(name, float(msg.param_value), False)
+                hook(name, float(value), False)
             if name not in self.params:
                 self.reply(self._param_error(msg, name, -1, M.MAV_PARAM_ERROR_DOES_NOT_EXIST))
                 return
@@ -299,7 +300,12 @@ class Vehicle:
             self.param_changes.append(
                 {"t_s": None if now is None else now * 1e-6, "name": name, "from": old, "to": new}
             )
-        self.send_all(self._param_value(name, self.params.get(name)))
+        # answered in the type it was set in when that is REAL32: MAVProxy, which reads an integer type bytewise only
+        # from a PX4 autopilot, sets SYS_FAILURE_EN as REAL32 and shows the answer as it comes
+        as_float = msg.param_type == M.MAV_PARAM_TYPE_REAL32
+        self.send_all(
+            self._param_value(name, self.params.get(name), mav_type=M.MAV_PARAM_TYPE_REAL32 if as_float else None)
+        )
         for hook in self.param_hooks:
             hook(name, float(self.params.get(name)), True)
 
@@ -498,9 +504,12 @@ class Vehicle:
         elif self.selected is not Mode.MANUAL:  # MANUAL: the law's next mode flies it (_apply_mode)
             self.control.reconfigure(self._law_config(self.selected))
 
-    def _param_value(self, name: str, value: float, index: int | None = None):
+    def _param_value(self, name: str, value: float, index: int | None = None, mav_type: int | None = None):
+        """PARAM_VALUE of ``name`` in its own type (SYS_FAILURE_EN: INT32, bytewise as PX4's: ``params.encode``), or
+        in ``mav_type``."""
         i = self.params.index(name) if index is None else index
-        return M.MAVLink_param_value_message(name.encode(), float(value), M.MAV_PARAM_TYPE_REAL32, len(self.params), i)
+        t = self.params.params[self.params.index(name)].mav_type if mav_type is None else mav_type
+        return M.MAVLink_param_value_message(name.encode(), encode(value, t), t, len(self.params), i)
 
     def _param_error(self, msg, name: str, index: int, code: int):
         return M.MAVLink_param_error_message(
@@ -543,6 +552,7 @@ class Vehicle:
     def _autopilot_version(self):
         caps = (
             M.MAV_PROTOCOL_CAPABILITY_PARAM_FLOAT
+            | M.MAV_PROTOCOL_CAPABILITY_PARAM_ENCODE_BYTEWISE  # SYS_FAILURE_EN, an INT32 (autopilot.params.encode)
             | M.MAV_PROTOCOL_CAPABILITY_COMMAND_INT
             | M.MAV_PROTOCOL_CAPABILITY_SET_ATTITUDE_TARGET
             | M.MAV_PROTOCOL_CAPABILITY_MAVLINK2

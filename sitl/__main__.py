@@ -193,7 +193,7 @@ def main(argv=None) -> int:
     given = {k: v for k, v in vars(args).items() if k in disturbances.FLAGS and v is not None}
     try:
         plants.check_disturbances(args.plant, given)
-        plants.check_faults(args.plant, args.fault or ())
+        plants.check_faults(args.plant, args.fault or (), pwm.rudder_max_rad)  # a stuck angle: within the servo's span
     except plants.PlantError as exc:
         parser.error(str(exc))
     if set(given) - {"seed"}:

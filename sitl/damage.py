@@ -16,18 +16,31 @@ from __future__ import annotations
 
 import argparse
 import math
+import re
 from collections import deque
 from dataclasses import dataclass, replace
 
 import numpy as np
 
-from autopilot.shared.servo_failures import FAULT_PREFIX
+from autopilot.shared.servo_failures import FAULT_PREFIX, LIMITS
 
 KT = 1852.0 / 3600.0  # m/s per kt
 COMMAND_LINE = "command line"
 GROUND_STATION = "ground station"
-MAX_DELAY_S = 60.0
+ALL = "all"  # Fault.surface: every surface of the plant (a ground station's instance 0)
+# The bounds every fault value is held to, on the command line, for ground stations (the same table,
+# ``autopilot.shared.servo_failures.LIMITS``), in Flight and in both studies; a plant's own are narrower (its
+# surface's travel for a stuck angle, its trim range for an airspeed: ``sitl.plant.check_faults``).
+MAX_DELAY_S = LIMITS["delay"]  # s
+MAX_STUCK_DEG = LIMITS["stuck"]  # deg: no surface travels further (a plant's own travel is checked with the plant)
+MAX_RATE_DEG_S = LIMITS["rate"]  # deg/s
+MAX_FACTOR = 10.0  # effectiveness, damping, inertia
+MAX_AIRSPEED_KT = 5000.0  # the JSBSim spec's airspeed_kt range (a plant's own: its trim range)
+MAX_TIME_S = 1e6  # START and END, sim seconds (11.6 days: longer than any flight; a flight's own end is narrower)
 MAX_CG_M = 5.0
+# A number as the command line takes it: ASCII digits only (float() would also take fullwidth and Arabic-Indic
+# digits, "1_0", "inf" and "nan"), an optional sign, fraction and exponent.
+NUMBER = re.compile(r"[+-]?(?:[0-9]+(?:\.[0-9]*)?|\.[0-9]+)(?:[eE][+-]?[0-9]+)?")
 
 
 class FaultSpecError(ValueError):
@@ -48,16 +61,30 @@ class Kind:
     help: str
 
 
-def _positive(v: float) -> str | None:
-    return None if v > 0 else "must be > 0"
+def _factor(v: float) -> str | None:
+    return None if 0.0 < v <= MAX_FACTOR else f"must be > 0 and at most {MAX_FACTOR:g}"
+
+
+def _rate(v: float) -> str | None:
+    return None if 0.0 < v <= MAX_RATE_DEG_S else f"must be > 0 and at most {MAX_RATE_DEG_S:g} deg/s"
+
+
+def _airspeed(v: float) -> str | None:
+    return None if 0.0 < v <= MAX_AIRSPEED_KT else f"must be > 0 and at most {MAX_AIRSPEED_KT:g} kt"
 
 
 def _at_least_one(v: float) -> str | None:
-    return None if v >= 1.0 else "must be >= 1 (ballast can only add inertia)"
+    if v < 1.0:
+        return "must be >= 1 (ballast can only add inertia)"
+    return None if v <= MAX_FACTOR else f"must be at most {MAX_FACTOR:g}"
 
 
 def _delay(v: float) -> str | None:
     return None if 0.0 <= v <= MAX_DELAY_S else f"must be in [0, {MAX_DELAY_S:g}] s"
+
+
+def _stuck(v: float) -> str | None:
+    return None if abs(v) <= MAX_STUCK_DEG else f"must be within +-{MAX_STUCK_DEG:g} deg"
 
 
 def _cg(v: float) -> str | None:
@@ -71,18 +98,20 @@ def _any(_v: float) -> str | None:
 KINDS = {
     k.name: k
     for k in (
-        Kind("effectiveness", "required", "", "", 1.0, _positive, "the surface moves the aircraft F times as much"),
-        Kind("stuck", "optional", "deg", "rad", math.pi / 180.0, _any, "the surface jams where it is, or at DEG"),
+        Kind("effectiveness", "required", "", "", 1.0, _factor, "the surface moves the aircraft F times as much"),
+        Kind("stuck", "optional", "deg", "rad", math.pi / 180.0, _stuck, "the surface jams where it is, or at DEG"),
         Kind("off", "none", "", "", 1.0, _any, "the surface floats to neutral: no authority"),
-        Kind("rate", "required", "deg/s", "rad/s", math.pi / 180.0, _positive, "slews no faster than DEG_PER_S"),
+        Kind("rate", "required", "deg/s", "rad/s", math.pi / 180.0, _rate, "slews no faster than DEG_PER_S"),
         Kind("delay", "required", "s", "s", 1.0, _delay, "S of extra actuator delay (whole physics steps)"),
-        Kind("damping", "required", "", "", 1.0, _positive, "the roll damping (L_p, Clp) times F"),
+        Kind("damping", "required", "", "", 1.0, _factor, "the roll damping (L_p, Clp) times F"),
         Kind("inertia", "required", "", "", 1.0, _at_least_one, "JSBSim: the roll inertia Ixx times F (tip ballast)"),
         Kind("cg", "required", "m", "m", 1.0, _cg, "JSBSim: the CG M metres to the right (wing-tip ballast)"),
-        Kind("airspeed", "required", "kt", "m/s", KT, _positive, "JSBSim: the safety pilot holds KT knots"),
+        Kind("airspeed", "required", "kt", "m/s", KT, _airspeed, "JSBSim: the safety pilot holds KT knots"),
     )
 }
 SERVO_KINDS = frozenset({"stuck", "off", "rate", "delay"})  # on the servo's path: every plant has them
+# The kinds that act on one surface (the servo's, or the surface's coefficients): a fault record names it
+SURFACE_KINDS = SERVO_KINDS | {"effectiveness"}
 LINEAR_KINDS = frozenset({"effectiveness", "damping"}) | SERVO_KINDS
 JSBSIM_KINDS = frozenset(KINDS)
 SYNTAX = "KIND[=VALUE]@START[:END]"
@@ -98,6 +127,9 @@ class Fault:
     start: float
     end: float | None = None
     source: str = COMMAND_LINE
+    # the surface it hits: None the plant's first (the command's: the only one of a SISO plant, a MIMO plant's
+    # aileron), ALL every surface (a ground station's instance 0), or a surface's name (``Schedule.surfaces``)
+    surface: str | None = None
 
     @property
     def label(self) -> str:
@@ -113,10 +145,12 @@ class Fault:
         end = "" if self.end is None else f":{self.end:.9g}"
         return f"{self.label}@{self.start:.9g}{end}"
 
-    def record(self, started: bool) -> dict:
-        """Its entry in ``summary.json`` ``faults`` (SI; ``unit`` is the value's)."""
+    def record(self, started: bool, surface: str | None = None) -> dict:
+        """Its entry in ``summary.json`` ``faults`` (SI; ``unit`` is the value's; ``surface``: the name of the surface
+        it hits, ``Schedule.surface_name``, None for a fault of the whole aircraft)."""
         return {
             "kind": self.kind,
+            "surface": surface,
             "value": self.value,
             "unit": (KINDS[self.kind].si_unit or None) if self.value is not None else None,
             "start": self.start,
@@ -127,11 +161,22 @@ class Fault:
         }
 
 
+def number(text: str) -> float | None:
+    """``text`` as a finite float if it is a number in ASCII digits (``NUMBER``), else None."""
+    t = str(text).strip()
+    if not NUMBER.fullmatch(t):
+        return None
+    v = float(t)
+    return v if math.isfinite(v) else None
+
+
 def _number(spec: str, what: str, text: str) -> float:
-    try:
-        v = float(text)
-    except ValueError:
-        raise FaultSpecError(f"fault {spec!r}: {what} must be a number, got {text!r}") from None
+    t = str(text).strip()
+    if t.lower().lstrip("+-") in ("inf", "infinity", "nan"):
+        raise FaultSpecError(f"fault {spec!r}: {what} must be finite, got {text!r}")
+    if not NUMBER.fullmatch(t):
+        raise FaultSpecError(f"fault {spec!r}: {what} must be a number in ASCII digits (e.g. 10, 1e-3), got {text!r}")
+    v = float(t)
     if not math.isfinite(v):
         raise FaultSpecError(f"fault {spec!r}: {what} must be finite, got {text!r}")
     return v
@@ -169,9 +214,13 @@ def parse(text: str, source: str = COMMAND_LINE) -> Fault:
     start = _number(spec, "START", start_text)
     if start < 0:
         raise FaultSpecError(f"fault {spec!r}: START must be >= 0 s, got {start_text}")
+    if start > MAX_TIME_S:
+        raise FaultSpecError(f"fault {spec!r}: START must be at most {MAX_TIME_S:g} s, got {start_text}")
     end = None
     if colon:
         end = _number(spec, "END", end_text)
+        if end > MAX_TIME_S:
+            raise FaultSpecError(f"fault {spec!r}: END must be at most {MAX_TIME_S:g} s, got {end_text}")
         if end <= start:
             raise FaultSpecError(f"fault {spec!r}: END must be after START, got {start_text}:{end_text}")
     return Fault(kind, value, start, end, source)
@@ -231,6 +280,9 @@ class Effect:
     inertia: float = 1.0
     cg: float = 0.0  # m, to the right
     airspeed: float | None = None  # m/s
+    # a square MIMO plant's second surface (the rudder): the servo faults on it (stuck, off, rate, delay), None when
+    # it has none; every other field is the first surface's or the whole aircraft's
+    second: Effect | None = None
 
     @property
     def nominal(self) -> bool:
@@ -283,11 +335,32 @@ class Schedule:
     that start and end there; ``effect(step)`` is what is active at a step.  A fault from a ground station is
     added while flying (``add(fault, step)``); ``clear(source, step)`` ends every active fault of a source."""
 
-    def __init__(self, faults=(), t0: float = 0.0, dt: float = 1e-3):
+    def __init__(self, faults=(), t0: float = 0.0, dt: float = 1e-3, surfaces: tuple = ()):
         self.t0, self.dt = float(t0), float(dt)
+        self.surfaces = tuple(surfaces)  # the plant's surfaces in its order (sitl.plant.surfaces_of); () unnamed
         self.entries: list[list] = []  # [fault, start step, end step or None]
         for f in faults:
             self.add(f)
+
+    def surface_name(self, fault: Fault) -> str | None:
+        """The surface ``fault`` hits, by name (``aileron+rudder`` for all of a MIMO plant's), None for a fault of
+        the whole aircraft (damping, inertia, cg, airspeed)."""
+        if fault.kind not in SURFACE_KINDS:
+            return None
+        if fault.surface == ALL:
+            return "+".join(self.surfaces) or ALL
+        if fault.surface is None:
+            return self.surfaces[0] if self.surfaces else None
+        return fault.surface
+
+    def _on(self, fault: Fault, i: int) -> bool:
+        """Whether ``fault`` acts on surface ``i`` (the airframe's faults: on the first, the Effect's own fields)."""
+        if fault.kind not in SERVO_KINDS or fault.surface is None:
+            return i == 0
+        if fault.surface == ALL:
+            return True
+        names = self.surfaces or (None,)
+        return i < len(names) and fault.surface == names[i]
 
     def step_of(self, t: float) -> int:
         """The first physics step whose time is >= t (0 for any t before the flight's start)."""
@@ -303,11 +376,14 @@ class Schedule:
         self.entries.append([fault, start, end])
         return fault
 
-    def clear(self, source: str, step: int) -> int:
-        """End, at ``step``, every fault of ``source`` active then or still to come; how many."""
+    def clear(self, source: str, step: int, surface: int | None = None) -> int:
+        """End, at ``step``, every fault of ``source`` active then or still to come (``surface``: only those that
+        act on the surface of that index); how many."""
         n = 0
         for e in self.entries:
             f, start, end = e
+            if surface is not None and not self._on(f, surface):
+                continue
             if f.source == source and (end is None or end > step):
                 e[2] = max(start, step)
                 e[0] = replace(f, end=max(f.start, self.time_of(step)))
@@ -318,7 +394,15 @@ class Schedule:
         return [f for f, s, e in self.entries if s <= step and (e is None or step < e)]
 
     def effect(self, step: int) -> Effect:
-        return combine(self.active(step))
+        """What is active at ``step``: the first surface's and the whole aircraft's faults; on a plant of two
+        surfaces, the second's servo faults as ``Effect.second``."""
+        active = self.active(step)
+        e = combine(f for f in active if self._on(f, 0))
+        if len(self.surfaces) > 1:
+            e2 = combine(f for f in active if self._on(f, 1))
+            if e2 != NOMINAL:
+                e = replace(e, second=e2)
+        return e
 
     def segments(self, step: int, n: int) -> list[tuple[int, list[tuple[Fault, bool]]]]:
         """[(steps, [(fault, started?), ...]), ...] covering steps ``step`` .. ``step + n - 1``: each piece begins
@@ -340,7 +424,7 @@ class Schedule:
 
     def records(self, step: int) -> list[dict]:
         """The ``summary.json`` entries, ``started`` for those whose start step was reached by ``step``."""
-        return [f.record(s < step) for f, s, _e in self.entries]
+        return [f.record(s < step, self.surface_name(f)) for f, s, _e in self.entries]
 
 
 def advance_scheduled(schedule: Schedule, plant, advance, u: float, n: int, change) -> object:
@@ -389,11 +473,13 @@ class ScheduledEffects:
         return x
 
 
-def status_text(fault: Fault, started: bool, t: float) -> str:
-    """The SITL's STATUSTEXT when a fault starts or ends (``FAULT_PREFIX``: the autopilot's telemetry marks it)."""
+def status_text(fault: Fault, started: bool, t: float, surface: str | None = None) -> str:
+    """The SITL's STATUSTEXT when a fault starts or ends (``FAULT_PREFIX``: the autopilot's telemetry marks it);
+    ``surface``: the surface it hits (``Schedule.surface_name``), named after the fault."""
+    on = f" on the {surface}" if surface else ""
     if started:
-        return f"{FAULT_PREFIX}start t={t:.3f}: {fault.label} ({fault.source})"
-    return f"{FAULT_PREFIX}end t={t:.3f}: {fault.label}"
+        return f"{FAULT_PREFIX}start t={t:.3f}: {fault.label}{on} ({fault.source})"
+    return f"{FAULT_PREFIX}end t={t:.3f}: {fault.label}{on}"
 
 
 # ---------------------------------------------------------------------------------------------- the linear plant
@@ -509,6 +595,7 @@ class InjectionFilter:
 
 
 __all__ = [
+    "ALL",
     "COMMAND_LINE",
     "GROUND_STATION",
     "KINDS",

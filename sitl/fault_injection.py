@@ -25,6 +25,7 @@ from autopilot.shared.servo_failures import (
     FailureDenied,
     FailureUnsupported,
     servo_failure,
+    servo_instance,
 )
 from sitl import damage
 from sitl import plant as plants
@@ -39,7 +40,10 @@ class FaultInjection:
         self.dt = 1.0 / opts.physics_rate_hz
         k0 = int(round(opts.start_time_s * opts.rate_hz))
         self.t0 = k0 / opts.rate_hz if opts.lockstep else opts.start_time_s  # sim time of physics step 0
-        self.schedule = damage.Schedule(faults, self.t0, self.dt) if faults else None
+        self.surfaces = plants.surfaces_of(opts.plant)  # a fault record names the surface it hits
+        pwm2 = getattr(sitl, "pwm2", None)
+        self.channels = (sitl.pwm.channel,) + ((pwm2.channel,) if pwm2 is not None else ())  # instance of each
+        self.schedule = damage.Schedule(faults, self.t0, self.dt, self.surfaces) if faults else None
         self.effect = damage.NOMINAL
         self.filter = damage.InjectionFilter(DUPLICATE_WINDOW_S)
         self._refusals = None  # the plant's fault refusals (sitl.plant.fault_refusals), read on the first command
@@ -61,7 +65,7 @@ class FaultInjection:
         for fault, started in changes:
             severity = M.MAV_SEVERITY_WARNING if started else M.MAV_SEVERITY_NOTICE
             self.sitl.events["faults_started" if started else "faults_ended"] += 1
-            self.sitl.say(severity, damage.status_text(fault, started, t))
+            self.sitl.say(severity, damage.status_text(fault, started, t, self.schedule.surface_name(fault)))
 
     def records(self) -> list[dict]:
         """``summary.json`` ``faults``: every fault scheduled or injected, SI, with its source."""
@@ -98,26 +102,37 @@ class FaultInjection:
         ev["inject_failure_accepted" if result == M.MAV_RESULT_ACCEPTED else "inject_failure_refused"] += 1
         self._ack(msg, result)
 
+    def _refuse(self, result: int, why: str) -> int:
+        """``result`` (DENIED, UNSUPPORTED), with its reason said to the ground stations as a STATUSTEXT."""
+        self.sitl.say(M.MAV_SEVERITY_WARNING, f"INJECT_FAILURE refused: {why}")
+        return result
+
     def _inject(self, params: tuple, t_rx: float) -> int:
         try:
-            spec = servo_failure(params[0], params[1], params[2], params[4], channel=self.sitl.pwm.channel)
+            spec = servo_failure(params[0], params[1], params[2], params[4], channel=self.channels)
+            index = servo_instance(params[2], self.channels)  # None: all the surfaces (instance 0)
         except (FailureUnsupported, FailureDenied) as exc:
-            return exc.result
+            return self._refuse(exc.result, str(exc))
+        opts = self.sitl.opts
         if self._refusals is None:
-            self._refusals = plants.fault_refusals(self.sitl.opts.plant)
+            self._refusals = plants.fault_refusals(opts.plant)
         step = self._now_step(t_rx)
         if self.schedule is None:
-            self.schedule = damage.Schedule((), self.t0, self.dt)
-        if spec is None:  # FAILURE_TYPE_OK: every ground-station fault ends now
-            self.schedule.clear(damage.GROUND_STATION, step)
+            self.schedule = damage.Schedule((), self.t0, self.dt, self.surfaces)
+        if spec is None:  # FAILURE_TYPE_OK: the ground station's faults on that surface (instance 0: all) end now
+            self.schedule.clear(damage.GROUND_STATION, step, index)
             return M.MAV_RESULT_ACCEPTED
         try:
             kind, value = damage.parse_kind(spec, spec)
-        except damage.FaultSpecError:
-            return M.MAV_RESULT_DENIED
+        except damage.FaultSpecError as exc:
+            return self._refuse(M.MAV_RESULT_DENIED, str(exc))
         if kind in self._refusals:
-            return M.MAV_RESULT_DENIED
-        fault = damage.Fault(kind, value, self.schedule.time_of(step), None, damage.GROUND_STATION)
+            return self._refuse(M.MAV_RESULT_DENIED, f"{kind}: {self._refusals[kind]}")
+        surface = damage.ALL if index is None else self.surfaces[index]
+        fault = damage.Fault(kind, value, self.schedule.time_of(step), None, damage.GROUND_STATION, surface)
+        why = plants.fault_value_refusal(opts.plant, fault, self.sitl.pwm.rudder_max_rad, index)
+        if why is not None:
+            return self._refuse(M.MAV_RESULT_DENIED, f"{fault.label}: {why}")
         self.schedule.add(fault, step)
         return M.MAV_RESULT_ACCEPTED
 

@@ -382,6 +382,7 @@ class JsbsimPlant:
         self.n = 6
         self._effect = damage.NOMINAL  # the faults' effect flown (set_effect)
         self._act: damage.Actuator | None = None  # the servo's path under a servo fault
+        self._act2: damage.Actuator | None = None  # the MIMO plant's second servo's
         self._u_last = 0.0
         self._damaged = damaged
         self._v0 = self.pilot.v0
@@ -474,7 +475,7 @@ class JsbsimPlant:
 
             raise NonFiniteCommandError(f"servo command must be finite, got {delta_command!r}")
         self._u_last = u
-        if self._act is not None:
+        if self._act is not None or self._act2 is not None:
             return self._advance_servo_fault(u, n)
         if self.mimo:
             return self._advance_mimo(u, n)
@@ -536,19 +537,29 @@ class JsbsimPlant:
         elif effect.airframe or effect.inertia != 1.0 or effect.cg != 0.0:
             raise JsbsimPlantError("jsbsim plant: a fault on the airframe needs the plant built with damaged=True")
         self.pilot.v0 = self._v0 if effect.airspeed is None else effect.airspeed
-        if not effect.servo:
-            self._act = None
-            return
-        servo = ("stuck", "stuck_at", "off", "rate", "delay")
-        if self._act is None or any(getattr(effect, k) != getattr(self._act.effect, k) for k in servo):
-            self._act = damage.Actuator(effect, self.config.dt, self._u_last)
-        self._act.effect = effect
-        jump = damage.jammed(old, effect, self.delta)
-        if jump is not None:
-            self.delta, self.delta_dot = jump, 0.0
-        if effect.rate is not None:
-            self.delta_dot = min(effect.rate, max(-effect.rate, self.delta_dot))
+        self._act, self.delta, self.delta_dot = self._servo_effect(self._act, old, effect, self.delta, self.delta_dot)
+        if self.mimo:  # the second surface's servo faults (sitl.damage.Effect.second: a ground station's instance)
+            old2, new2 = old.second or damage.NOMINAL, effect.second or damage.NOMINAL
+            self._act2, self.delta2, self.delta2_dot = self._servo_effect(
+                self._act2, old2, new2, self.delta2, self.delta2_dot, self.u2
+            )
         self._read()
+
+    def _servo_effect(self, act, old, effect, d_, dd, u_last=None):
+        """One surface's servo under ``effect`` (after ``old``): its ``damage.Actuator`` (None: no servo fault, a new
+        one when the servo faults change), and its (delta, delta_dot) after the jam's jump and the rate's clip."""
+        if not effect.servo:
+            return None, d_, dd
+        servo = ("stuck", "stuck_at", "off", "rate", "delay")
+        if act is None or any(getattr(effect, k) != getattr(act.effect, k) for k in servo):
+            act = damage.Actuator(effect, self.config.dt, self._u_last if u_last is None else u_last)
+        act.effect = effect
+        jump = damage.jammed(old, effect, d_)
+        if jump is not None:
+            d_, dd = jump, 0.0
+        if effect.rate is not None:
+            dd = min(effect.rate, max(-effect.rate, dd))
+        return act, d_, dd
 
     def _set_ballast(self, effect: damage.Effect) -> None:
         """The wing-tip ballast of the inertia and cg faults, sized from the trimmed aircraft's mass properties.
@@ -569,24 +580,40 @@ class JsbsimPlant:
             f[f"inertia/pointmass-weight-lbs[{i0 + i}]"] = w
 
     def _advance_servo_fault(self, u: float, n: int) -> np.ndarray:
-        """``n`` steps with a servo fault: the servo driven with ``Actuator.command(u)``, the surface coasting when
-        stuck or at its rate limit (``Actuator.surface``), else the free step with its rate clipped."""
-        act = self._act
-        a00, a01, a10, a11, b0, b1 = self._servo
-        d_, dd = self.delta, self.delta_dot
-        run, cmd, norm = self.fdm.run, self._cmd.set_double_value, self._to_norm
-        dt = self.config.dt
+        """``n`` steps with a servo fault on a surface: its servo driven with ``Actuator.command(u)``, the surface
+        coasting when stuck or at its rate limit (``Actuator.surface``), else the free step with its rate clipped;
+        a surface without one (a MIMO plant's other) flies its servo as ``advance`` does."""
+        servo, dt = self._servo, self.config.dt
+        run = self.fdm.run
+        one = (self._act, self.delta, self.delta_dot, self._cmd.set_double_value, self._to_norm, u)
+        surfaces = [list(one)]
+        if self.mimo:
+            surfaces.append([self._act2, self.delta2, self.delta2_dot, self._cmd2.set_double_value, self._to_norm2])
+            surfaces[1].append(float(self.u2))
         steps = self.steps
         for _ in range(n):
-            ue = act.command(u)
-            df, ddf = a00 * d_ + a01 * dd + b0 * ue, a10 * d_ + a11 * dd + b1 * ue  # exact ZOH of eq. (65)
-            coast, rate = act.surface(d_, df, ddf)
-            d_, dd = (d_ + rate * dt, rate) if coast else (df, rate)
-            cmd(norm(d_))
+            for s in surfaces:
+                s[1], s[2] = _servo_step(servo, dt, *s[:3], s[5])
+                s[3](s[4](s[1]))
             if steps % PILOT_EVERY == 0:
                 self.pilot()
             run()
             steps += 1
-        self.delta, self.delta_dot, self.steps = d_, dd, steps
+        self.delta, self.delta_dot = surfaces[0][1], surfaces[0][2]
+        if self.mimo:
+            self.delta2, self.delta2_dot = surfaces[1][1], surfaces[1][2]
+        self.steps = steps
         self._read()
         return self.x
+
+
+def _servo_step(servo: tuple, dt: float, act, d_: float, dd: float, u: float) -> tuple[float, float]:
+    """One physics step of a servo (eq. (65), its exact ZOH ``servo``) from (d_, dd) with the command ``u``, through
+    ``act`` (``damage.Actuator``; None: no fault)."""
+    a00, a01, a10, a11, b0, b1 = servo
+    if act is None:
+        return a00 * d_ + a01 * dd + b0 * u, a10 * d_ + a11 * dd + b1 * u
+    ue = act.command(u)
+    df, ddf = a00 * d_ + a01 * dd + b0 * ue, a10 * d_ + a11 * dd + b1 * ue  # exact ZOH of eq. (65)
+    coast, rate = act.surface(d_, df, ddf)
+    return (d_ + rate * dt, rate) if coast else (df, rate)

@@ -11,6 +11,7 @@ disturbance d, if any, per step), ``truth`` ([v, p, r, phi, delta, delta_dot], `
 
 from __future__ import annotations
 
+import functools
 import math
 from dataclasses import replace
 from importlib import resources
@@ -179,8 +180,87 @@ def fault_refusals(text: str) -> dict[str, str]:
     return why
 
 
-def check_faults(text: str, faults) -> None:
-    """PlantError if a fault (``sitl.damage.Fault``) cannot fly on this plant: its kind, or (cg) its size."""
+SERVO_SPAN_RAD = math.radians(30.0)  # the servo's +-30 deg at PWM 1000..2000 us (autopilot.shared.pwm)
+
+
+def surfaces_of(text: str) -> tuple[str, ...]:
+    """The plant's surfaces in its order: ``("rudder",)`` on the KH2013A, a square MIMO plant's
+    ``("aileron", "rudder")``."""
+    if kind(text) == "jsbsim":
+        from sitl.jsbsim_plant import parse_spec
+
+        return parse_spec(text).surfaces
+    return (surface_of(text),)
+
+
+def surface_travel_rad(text: str, span_rad: float = SERVO_SPAN_RAD) -> tuple[float, ...]:
+    """How far each surface can move from neutral (rad, in ``surfaces_of``'s order): its stop (a plant file's
+    ``limit``, a JSBSim surface's), else what the servo can be commanded to (``span_rad``, the PWM's +-30 deg: the
+    KH2013A's rudder)."""
+    k = kind(text)
+    if k == "jsbsim":
+        from sitl.jsbsim_plant import parse_spec
+
+        return tuple(min(lim, span_rad) if span_rad else lim for lim in parse_spec(text).surface_limits_rad)
+    lim = _load(text).limit_rad if k == "file" else None
+    return (span_rad if lim is None else min(lim, span_rad),)
+
+
+def fault_value_refusal(text: str, fault, span_rad: float = SERVO_SPAN_RAD, surface: int | None = None) -> str | None:
+    """Why this plant cannot fly ``fault``'s value (None: it can): a stuck position beyond the travel of the surface
+    it hits (``surface``: its index, None for all of them), a JSBSim airspeed outside the aircraft's trim range (it
+    does not trim there at its altitude), a cg shift beyond half the half span."""
+    if fault.value is None:
+        return None
+    if fault.kind == "stuck":
+        travel = surface_travel_rad(text, span_rad)
+        names = surfaces_of(text)
+        idx = range(len(travel)) if surface is None else (surface,)
+        for i in idx:
+            if abs(fault.value) > travel[i] * (1.0 + 1e-12):
+                return (
+                    f"{math.degrees(fault.value):.6g} deg is beyond the {names[i]}'s travel, "
+                    f"+-{math.degrees(travel[i]):.6g} deg"
+                )
+        return None
+    if kind(text) != "jsbsim" or fault.kind not in ("airspeed", "cg"):
+        return None
+    from sitl.jsbsim_plant import parse_spec
+
+    spec = parse_spec(text)
+    if fault.kind == "airspeed":
+        kt = fault.value / (1852.0 / 3600.0)
+        if not _trims(spec.model, round(kt, 9), spec.altitude_m):
+            return f"{spec.model} does not trim in level flight at {kt:.6g} kt, {spec.altitude_m:g} m (its trim range)"
+        return None
+    from sitl.jsbsim_damage import anatomy
+    from sitl.jsbsim_plant import _root
+
+    span = anatomy(_root() / "aircraft" / spec.model / f"{spec.model}.xml", spec.surfaces[0]).span_ft
+    most = 0.25 * span * 0.3048 if span else None  # half the half span: a tip ballast as heavy as the aircraft
+    if most and abs(fault.value) > most:
+        return f"beyond {most:.2f} m (half the half span) the wing-tip ballast would weigh more than the aircraft"
+    return None
+
+
+@functools.lru_cache(maxsize=64)
+def _trims(model: str, kt: float, altitude_m: float) -> bool:
+    """Whether JSBSim's ``model`` trims in level flight at ``kt`` knots and ``altitude_m`` (one trim)."""
+    from sitl.jsbsim_models import quiet_stdio
+    from sitl.jsbsim_plant import JsbsimPlantError, JsbsimSpec, trimmed_fdm
+
+    with quiet_stdio():  # JSBSim's chatter ("Sorry, udot doesn't appear to be trimmable")
+        try:
+            trimmed_fdm(JsbsimSpec(model, airspeed_kt=kt, altitude_m=altitude_m), 0.01, suggest=False)
+        except JsbsimPlantError:
+            return False
+    return True
+
+
+def check_faults(text: str, faults, span_rad: float = SERVO_SPAN_RAD) -> None:
+    """PlantError if a fault (``sitl.damage.Fault``) cannot fly on this plant: its kind, or its value
+    (``fault_value_refusal``: a stuck angle beyond the surface's travel, an airspeed it does not trim at, a cg
+    shift too large)."""
     from sitl import damage
 
     why = fault_refusals(text)
@@ -188,19 +268,10 @@ def check_faults(text: str, faults) -> None:
         damage.check_kinds(faults, frozenset(damage.KINDS) - set(why), text, why)
     except damage.FaultSpecError as exc:
         raise PlantError(str(exc)) from None
-    if kind(text) == "jsbsim":
-        from sitl.jsbsim_damage import anatomy
-        from sitl.jsbsim_plant import _root, parse_spec
-
-        spec = parse_spec(text)
-        span = anatomy(_root() / "aircraft" / spec.model / f"{spec.model}.xml", spec.surfaces[0]).span_ft
-        most = 0.25 * span * 0.3048 if span else None  # half the half span: a tip ballast as heavy as the aircraft
-        for f in faults:
-            if f.kind == "cg" and most and abs(f.value) > most:
-                raise PlantError(
-                    f"--fault {f.spec} cannot fly on --plant {text}: beyond {most:.2f} m (half the half span) the "
-                    "wing-tip ballast would weigh more than the aircraft"
-                )
+    for f in faults:
+        reason = fault_value_refusal(text, f, span_rad)
+        if reason is not None:
+            raise PlantError(f"--fault {f.spec} cannot fly on --plant {text}: {reason}")
 
 
 def needs_damaged_model(faults) -> bool:
@@ -309,10 +380,13 @@ __all__ = [
     "check",
     "check_disturbances",
     "divergence",
+    "fault_value_refusal",
     "injected",
     "kind",
     "name_of",
     "shipped",
     "surface_limit_rad",
     "surface_of",
+    "surface_travel_rad",
+    "surfaces_of",
 ]

@@ -185,3 +185,51 @@ def test_rrd_verify_fails_an_empty_or_truncated_file(tmp_path, recording, keep, 
     assert r.returncode == 1 and len(lines) == 1 and "Traceback" not in r.stderr, r.stdout + r.stderr
     assert lines[0].startswith(f"{cut}: FAILED: ")
     assert ("empty file" if keep == 0 else "decode") in lines[0]
+
+
+# ---------------------------------------------------------------------------------------------- faults
+FAULT_CLIS = {
+    "tools.launch": ["tools.launch", "--lockstep", "--duration", "5"],
+    "sitl": ["sitl"],
+    "robustness": ["tools.experiment", "robustness", "--runs", "2", "--long-runs", "0"],
+    "replay": ["tools.experiment", "replay", "--controller", "clsac", "--condition", "severe", "--seed", "0"]
+    + ["--run", "1"],
+}
+
+
+@pytest.mark.parametrize("cli", sorted(FAULT_CLIS))
+@pytest.mark.parametrize(
+    "spec,needle",
+    [
+        ("stuck=1000@1", "stuck must be within +-90 deg, got 1000"),  # was taken
+        ("stuck@1e308", "START must be at most 1e+06 s, got 1e308"),  # was an OverflowError traceback
+        ("effectiveness=0.3@\uff11\uff10", "START must be a number in ASCII digits"),  # fullwidth 10: was taken
+        ("effectiveness=0.3@\u0661\u0660", "START must be a number in ASCII digits"),  # Arabic-Indic 10
+        ("delay=0.05@1_0", "START must be a number in ASCII digits"),
+        ("airspeed=1e6@1", "airspeed must be > 0 and at most 5000 kt"),
+        ("effectiveness=1e308@10", "effectiveness must be > 0 and at most 10"),
+        ("stuck=45@1", "45 deg is beyond the rudder's travel, +-30 deg"),  # the KH2013A's own bound
+    ],
+)
+def test_a_fault_beyond_the_aircraft_is_one_line_on_every_command_line(tmp_path, cli, spec, needle):
+    module, *args = FAULT_CLIS[cli]
+    if spec.startswith("airspeed") and cli in ("robustness", "replay"):
+        needle = "airspeed must be > 0"  # refused as a value before the study says it flies no airspeed
+    out = ["--out", str(tmp_path / "out")] if cli in ("tools.launch", "robustness") else []
+    _one_line_refusal(run_cli(module, *args, *out, "--fault", spec, timeout=60), needle)
+
+
+@pytest.mark.parametrize(
+    "severity,needle",
+    [
+        ("stuck=45", "--severity stuck=45 on --plant kh2013a: 45 deg is beyond the rudder's travel, +-30 deg"),
+        ("stuck=\uff15", "is not a finite number in ASCII digits"),
+        ("effectiveness=1e308", "effectiveness must be > 0 and at most 10"),
+        ("delay=1_0", "is not a finite number in ASCII digits"),
+    ],
+)
+def test_a_damage_severity_beyond_the_aircraft_is_one_line(tmp_path, severity, needle):
+    r = run_cli(
+        "tools.experiment", "damage", "--plant", "kh2013a", "--severity", severity, "--out", str(tmp_path / "o")
+    )
+    _one_line_refusal(r, needle)

@@ -117,9 +117,13 @@ def _check_refusal_reason(vehicle: Vehicle, shown: list[str]) -> str:
 
 
 def _check_mavsdk_session(out: dict, vehicle: Vehicle) -> None:
-    for name in ("connect", "all_params", "get_lv", "set_lv", "get_lv_after", "mode_manual", "mode_clsac", "arm"):
+    steps = ("connect", "all_params", "get_lv", "set_lv", "get_lv_after", "mode_manual", "mode_clsac", "arm")
+    for name in (*steps, "set_failure_en", "get_failure_en", "reset_failure_en"):
         assert not (isinstance(out[name], dict) and "error" in out[name]), (name, out[name])
-    assert sorted(out["all_params"]["float"]) == sorted(p.name for p in PARAMS)
+    # SYS_FAILURE_EN is an INT32 as PX4's (MAVSDK reads it bytewise and sets it with set_param_int), the rest REAL32
+    assert out["all_params"]["int"] == {"SYS_FAILURE_EN": 0}
+    assert sorted(out["all_params"]["float"]) == sorted(p.name for p in PARAMS if p.name != "SYS_FAILURE_EN")
+    assert out["get_failure_en"] == 1
     assert out["all_params"]["float"]["CLSAC_LV"] == 20.0 and out["get_lv"] == 20.0  # the paper's L_v (sec. 5)
     assert out["get_lv_after"] == LV_SET
     assert "VALUE_OUT_OF_RANGE" in out["set_am_refused"]["error"]  # PARAM_ERROR's code, as MAVSDK reports it
@@ -133,7 +137,7 @@ def _check_mavsdk_session(out: dict, vehicle: Vehicle) -> None:
     assert "wrong_id" not in gcs["rejected"], gcs["rejected"]  # 245:190 is a ground station by default
     assert gcs["rx_by_type"].get("SET_ATTITUDE_TARGET", 0) > 50  # Offboard.set_attitude's setpoints were flown
     assert "future_setpoint" not in gcs["rejected"]
-    assert stats["events"]["param_sets"] == 1
+    assert stats["events"]["param_sets"] == 3  # CLSAC_LV, SYS_FAILURE_EN 1 and back to 0
 
 
 def _run_session(py: str, script: str, args: list, tmp_path: Path, timeout: float = 120) -> dict:

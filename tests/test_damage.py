@@ -62,7 +62,9 @@ def test_severities_and_onsets_are_checked_as_faults():
     assert grid.parse_severity("stuck=here,-5") == ("stuck", (None, -5.0))
     for text, needle in (
         ("rate=0", "rate must be > 0"),
-        ("effectiveness=abc", "not a list of numbers"),
+        ("effectiveness=abc", "not a finite number in ASCII digits"),
+        ("effectiveness=\uff10.5", "not a finite number in ASCII digits"),
+        ("delay=0_1", "not a finite number in ASCII digits"),
         ("bogus=1", "KIND=V1,V2"),
         ("off=1", "no severity"),
         ("delay=", "no values"),

@@ -44,6 +44,7 @@ def test_effectiveness_changes_the_flight_from_its_start_and_not_before(flights)
     assert eff.summary["faults"] == [
         {
             "kind": "effectiveness",
+            "surface": "rudder",  # the KH2013A's one surface
             "value": 0.3,
             "unit": None,
             "start": 10.0,
@@ -67,7 +68,7 @@ def test_the_tlog_the_rrd_and_the_picture_show_the_fault(flights):
     log = mavutil.mavlink_connection(str(eff.out / "flight.tlog"), dialect="common", robust_parsing=True)
     while (m := log.recv_match(type="STATUSTEXT")) is not None:
         texts.append((m.get_srcComponent(), m.text))
-    want = "fault start t=10.000: effectiveness=0.3 (command line)"
+    want = "fault start t=10.000: effectiveness=0.3 on the rudder (command line)"
     assert (200, want[:50]) in texts  # from the SITL (two chunks: the first 50 characters)
     assert any(c == 1 and t.startswith("SITL: fault start t=10.000") for c, t in texts)  # relayed to the GCS
     signals = rrd.load(eff.summary["files"]["rrd"])

@@ -201,10 +201,11 @@ def test_refused_unless_enabled_then_enabled_by_the_parameter(vehicle_factory):
     assert gcs.text("failure injected by GCS 255:230") is not None
     gcs.conn.mav.param_set_send(1, 1, b"SYS_FAILURE_EN", 0.0, M.MAV_PARAM_TYPE_REAL32)
     assert gcs.wait("PARAM_VALUE", cond=lambda m: m.param_id == "SYS_FAILURE_EN" and m.param_value == 0.0)
-    assert gcs.inject(M.FAILURE_TYPE_OK) == M.MAV_RESULT_DENIED
+    assert gcs.inject(M.FAILURE_TYPE_STUCK, 4, 6.0) == M.MAV_RESULT_DENIED  # off again: no new fault
+    assert gcs.inject(M.FAILURE_TYPE_OK, 4) == M.MAV_RESULT_ACCEPTED  # but a clear is taken: the station ends its own
     stats = v.stop()
-    assert len(v.sitl.relays) == 1  # the refused ones never reached the SITL
-    assert stats["events"]["failure_refused"] == 2 and stats["events"]["failures_injected"] == 1
+    assert [m.param2 for _, m in v.sitl.relays] == [M.FAILURE_TYPE_STUCK, M.FAILURE_TYPE_OK]  # refused: not relayed
+    assert stats["events"]["failure_refused"] == 2 and stats["events"]["failures_injected"] == 2
 
 
 def test_a_relayed_failure_carries_the_ground_stations_params_and_the_sitls_answer(vehicle_factory):
@@ -248,8 +249,10 @@ def test_what_the_table_does_not_implement_is_answered_without_a_relay(vehicle_f
         ((M.FAILURE_TYPE_INTERMITTENT,), M.MAV_RESULT_UNSUPPORTED, "failure type 7 is not implemented"),
         ((M.FAILURE_TYPE_STUCK, 2), M.MAV_RESULT_UNSUPPORTED, "servo instance 2:"),
         ((M.FAILURE_TYPE_STUCK, 4.5), M.MAV_RESULT_UNSUPPORTED, "servo instance 4.5:"),
-        ((M.FAILURE_TYPE_SLOW, 0, -5.0), M.MAV_RESULT_DENIED, "SLOW: the rate (param5) must be > 0 deg/s"),
+        ((M.FAILURE_TYPE_SLOW, 0, -5.0), M.MAV_RESULT_DENIED, "SLOW: the rate (param5) must be in (0, 1000] deg/s"),
         ((M.FAILURE_TYPE_SLOW, 0, math.inf), M.MAV_RESULT_DENIED, "SLOW: the rate"),
+        ((M.FAILURE_TYPE_STUCK, 4, 1e30), M.MAV_RESULT_DENIED, "STUCK: the position (param5) must be within +-90 deg"),
+        ((M.FAILURE_TYPE_STUCK, 0, -math.inf), M.MAV_RESULT_DENIED, "got -inf"),
         ((M.FAILURE_TYPE_DELAYED, 0, -0.1), M.MAV_RESULT_DENIED, "DELAYED: the delay (param5) must be in (0,"),
         ((M.FAILURE_TYPE_DELAYED, 0, 1e9), M.MAV_RESULT_DENIED, "DELAYED: the delay"),
     ):

@@ -83,20 +83,37 @@ def test_a_spec_gives_its_kind_si_value_and_times(spec, kind, value, start, end)
 @pytest.mark.parametrize(
     "spec,needle",
     [
-        ("effectiveness=-1@10", "effectiveness must be > 0, got -1"),
+        ("effectiveness=-1@10", "effectiveness must be > 0 and at most 10, got -1"),
         ("effectiveness=0@10", "effectiveness must be > 0"),
+        ("effectiveness=10.5@10", "effectiveness must be > 0 and at most 10, got 10.5"),
+        ("effectiveness=1e308@10", "at most 10"),
+        ("damping=11@1", "damping must be > 0 and at most 10"),
+        ("inertia=10.01@1", "inertia must be at most 10"),
+        ("stuck=1000@1", "stuck must be within +-90 deg, got 1000"),
+        ("stuck=-90.5@1", "stuck must be within +-90 deg"),
+        ("rate=1000.5@1", "rate must be > 0 and at most 1000 deg/s"),
+        ("airspeed=1e6@1", "airspeed must be > 0 and at most 5000 kt"),
+        ("delay=10.001@1", "delay must be in [0, 10] s"),
+        ("stuck@1e308", "START must be at most 1e+06 s, got 1e308"),
+        ("stuck@1:1e308", "END must be at most 1e+06 s"),
+        ("stuck=1e309@1", "must be finite"),
+        ("effectiveness=0.3@\uff11\uff10", "START must be a number in ASCII digits"),  # fullwidth 10
+        ("effectiveness=0.3@\u0661\u0660", "START must be a number in ASCII digits"),  # Arabic-Indic 10
+        ("effectiveness=0.3@1_0", "START must be a number in ASCII digits"),
+        ("effectiveness=0.\uff13@1", "value must be a number in ASCII digits"),
+        ("stuck@1:\uff12", "END must be a number in ASCII digits"),
         ("effectiveness=inf@10", "must be finite"),
         ("effectiveness=nan@10", "must be finite"),
         ("bogus@1", "unknown kind 'bogus'"),
         ("effectiveness=0.3@nan", "START must be finite"),
         ("stuck@-5", "START must be >= 0 s, got -5"),
-        ("rate=0@1", "rate must be > 0, got 0"),
+        ("rate=0@1", "rate must be > 0 and at most 1000 deg/s, got 0"),
         ("effectiveness=0.3", "missing @START"),
         ("rate@1", "rate needs a value"),
         ("off=3@1", "off takes no value"),
         ("stuck@10:10", "END must be after START"),
         ("stuck@10:nan", "END must be finite"),
-        ("delay=-0.1@1", "delay must be in [0, 60] s"),
+        ("delay=-0.1@1", "delay must be in [0, 10] s"),
         ("inertia=0.5@1", "must be >= 1"),
         ("damping=x@1", "must be a number"),
     ],
@@ -150,9 +167,74 @@ def test_the_schedule_cuts_at_starts_and_ends_on_the_physics_grid():
     assert g.clear(damage.GROUND_STATION, 250) == 1
     assert g.effect(249) == Effect(damping=2.0, off=True) and g.effect(250) == Effect(damping=2.0)
     assert g.records(300)[1] | {} == {
-        "kind": "off", "value": None, "unit": None, "start": 0.1, "end": 0.25, "source": "ground station",
-        "spec": "off@0.1:0.25", "started": True,
+        "kind": "off", "surface": None, "value": None, "unit": None, "start": 0.1, "end": 0.25,
+        "source": "ground station", "spec": "off@0.1:0.25", "started": True,
     }  # fmt: skip
+
+
+def test_a_clear_ends_a_fault_whose_end_is_ahead_and_one_not_yet_started():
+    g = damage.Schedule([], 0.0, DT)
+    g.add(damage.Fault("stuck", math.radians(3), 0.1, 2.0, damage.GROUND_STATION), 100)  # ends at 2 s
+    g.add(damage.Fault("rate", math.radians(20), 0.5, None, damage.GROUND_STATION), 500)  # starts at 0.5 s
+    g.add(damage.Fault("off", None, 0.05, 0.12, damage.GROUND_STATION), 50)  # already over
+    assert g.clear(damage.GROUND_STATION, 300) == 2
+    assert g.effect(299) == Effect(stuck=True, stuck_at=math.radians(3))
+    assert g.effect(300) == damage.NOMINAL and g.effect(600) == damage.NOMINAL  # neither is active after it
+    assert [(r["start"], r["end"], r["started"]) for r in g.records(400)] == [
+        (0.1, 0.3, True), (0.5, 0.5, False), (0.05, 0.12, True)
+    ]  # fmt: skip
+
+
+def test_a_rejam_at_a_new_angle_takes_the_new_angle():
+    s = damage.Schedule([damage.parse("stuck=3@0.1"), damage.parse("stuck=7@0.2:0.3")], 0.0, DT)
+    assert s.effect(150).stuck_at == math.radians(3) and s.effect(250).stuck_at == math.radians(7)
+    assert s.effect(300).stuck_at == math.radians(3)  # the second ends: the first's angle is the newest active
+    assert damage.jammed(s.effect(150), s.effect(250), math.radians(3)) == math.radians(7)
+    # the plant flown through the schedule: the surface at each angle from the step each jam starts
+    ac = Aircraft()
+    fly = damage.ScheduledEffects(ac, s)
+    for k, want in ((100, None), (100, 3.0), (100, 7.0), (100, 3.0)):
+        fly.advance(math.radians(-10), k)
+        if want is not None:
+            assert ac.truth[4] == pytest.approx(math.radians(want), abs=1e-12)
+
+
+@pytest.mark.parametrize(
+    "delay,dt,steps", [(0.03, 0.01, 3), (0.29, 0.01, 29), (0.043, 0.001, 43), (0.059, 0.001, 59), (0.0006, 0.001, 1)]
+)
+def test_a_delay_is_rounded_to_the_nearest_whole_step(delay, dt, steps):
+    # 0.29 / 0.01 is 28.999999999999996 in floating point, 0.043 / 0.001 42.99999999999999: floored, one step short
+    act = damage.Actuator(Effect(delay=delay), dt, u_last=-1.0)
+    assert act.delay_steps == steps
+    out = [act.command(float(k)) for k in range(steps + 2)]
+    assert out == [-1.0] * steps + [0.0, 1.0]  # the command of `steps` steps before, the held one first
+
+
+def test_the_study_rounds_a_delay_to_whole_control_periods():
+    from tools.experiment.study import faults as study_faults
+
+    for spec, steps in (("delay=0.03@0.5", 3), ("delay=0.29@0.5", 29), ("delay=0.57@0.5", 57)):  # 0.57/0.01: 56.99..
+        plan = study_faults.plan([damage.parse(spec)], 100, 0.01)
+        assert [(p.start, p.delay) for p in plan.phases] == [(50, steps)]
+
+
+def test_the_faults_of_two_surfaces_by_name():
+    names = ("aileron", "rudder")
+    gs = damage.GROUND_STATION
+    s = damage.Schedule([damage.parse("effectiveness=0.5@0"), damage.parse("delay=0.02@0")], 0.0, DT, names)
+    s.add(damage.Fault("stuck", math.radians(5), 0.1, None, gs, "rudder"), 100)
+    s.add(damage.Fault("off", None, 0.2, None, gs, damage.ALL), 200)
+    e = s.effect(150)
+    assert (e.effectiveness, e.delay, e.stuck) == (0.5, 0.02, False)  # the command line's: the first surface's
+    assert e.second == Effect(stuck=True, stuck_at=math.radians(5))
+    e = s.effect(250)
+    assert e.off and e.second == Effect(stuck=True, stuck_at=math.radians(5), off=True)
+    assert [r["surface"] for r in s.records(300)] == ["aileron", "aileron", "rudder", "aileron+rudder"]
+    assert s.clear(gs, 300, 0) == 1  # the aileron's (the one on all): the rudder's own stays
+    assert s.effect(300).second == Effect(stuck=True, stuck_at=math.radians(5)) and not s.effect(300).off
+    assert damage.Schedule([damage.parse("damping=2@0")], 0.0, DT, names).records(1)[0]["surface"] is None
+    text = damage.status_text(damage.Fault("stuck", math.radians(5), 0.1, None, gs, "rudder"), True, 0.1, "rudder")
+    assert text == "fault start t=0.100: stuck=5 on the rudder (ground station)"
 
 
 def test_faults_active_together_combine():
@@ -362,8 +444,11 @@ def _acks(sock, sitl, wait=0.3):
         for msg in parser.parse_buffer(data) or []:
             if msg.get_type() == "COMMAND_ACK":
                 acks.append((msg.command, msg.result))
-            elif msg.get_type() == "STATUSTEXT":
-                texts.append(msg.text)
+            elif msg.get_type() == "STATUSTEXT":  # a text longer than 50 characters comes in chunks of one id
+                if getattr(msg, "chunk_seq", 0) > 0 and texts:
+                    texts[-1] += msg.text
+                else:
+                    texts.append(msg.text)
     return acks, texts
 
 
@@ -386,7 +471,8 @@ def test_a_ground_station_failure_is_applied_once_acknowledged_and_recorded():
         held = float(sitl.aircraft.truth[4])
         sitl._advance(math.radians(-5), 500)
         _a, texts = _acks(sock, sitl, 0.1)
-        assert float(sitl.aircraft.truth[4]) == held and texts == ["fault start t=1.000: stuck (ground station)"]
+        assert float(sitl.aircraft.truth[4]) == held
+        assert texts == ["fault start t=1.000: stuck on the rudder (ground station)"]
         for unit, ftype, inst in ((101, 1, 0), (102, 3, 0), (102, 1, 9)):
             _inject(sock, ap, target, ftype, unit=unit, instance=inst)
         _inject(sock, ap, target, 5.0, param5=-3.0)
@@ -399,7 +485,7 @@ def test_a_ground_station_failure_is_applied_once_acknowledged_and_recorded():
         acks, _ = _acks(sock, sitl)
         sitl._advance(math.radians(-5), 500)
         _a, texts = _acks(sock, sitl, 0.1)
-        assert acks == [(420, M.MAV_RESULT_ACCEPTED)] and texts == ["fault end t=1.500: stuck"]
+        assert acks == [(420, M.MAV_RESULT_ACCEPTED)] and texts == ["fault end t=1.500: stuck on the rudder"]
         assert float(sitl.aircraft.truth[4]) < held - 0.05  # the servo drives it again
         faults = sitl.stats()["faults"]
         assert [(f["kind"], f["start"], f["end"], f["source"], f["started"]) for f in faults] == [

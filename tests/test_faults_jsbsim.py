@@ -126,3 +126,24 @@ def test_a_model_without_the_coefficients_cannot_take_those_faults(tmp_path):
     why = refusals(xml, "aileron")
     assert set(why) == {"effectiveness", "damping"} and "aileron's position" in why["effectiveness"]
     assert refusals(XML, "aileron") == {} and refusals(XML, "rudder") == {}
+
+
+def test_a_mimo_plant_flies_its_other_surface_through_a_servo_fault_on_one():
+    """A servo fault on one surface of the square MIMO plant leaves the other on its own servo (eq. (65)), which
+    follows its command as in a fault-free flight: the aileron jammed, the rudder still flown, and the reverse."""
+    spec = parse_spec("jsbsim:c172x:surface=aileron+rudder")
+    free = JsbsimPlant(spec)
+    jam1 = JsbsimPlant(spec)
+    jam1.set_effect(damage.Effect(stuck=True, stuck_at=math.radians(5)))  # the aileron (a --fault's surface)
+    jam2 = JsbsimPlant(spec)
+    jam2.set_effect(damage.Effect(second=damage.Effect(stuck=True, stuck_at=math.radians(-3))))  # the rudder's
+    for p in (free, jam1, jam2):
+        p.u2 = math.radians(-8.0)
+        for _ in range(30):
+            p.advance(math.radians(4.0), 10)
+    assert jam1.delta == math.radians(5) and jam2.delta2 == math.radians(-3)
+    # the other surface: its servo's response to its own command, as without the fault (0.3 s: settled)
+    assert jam1.delta2 == pytest.approx(free.delta2, abs=1e-12) and free.delta2 == pytest.approx(
+        math.radians(-8), abs=1e-3
+    )
+    assert jam2.delta == pytest.approx(free.delta, abs=1e-12) and free.delta == pytest.approx(math.radians(4), abs=1e-3)

@@ -182,6 +182,11 @@ def test_experiment_transport_flies_the_scenario_like_the_wire_model(tmp_path):
         (dict(sensor_rate=1e9), "sensor_rate", "(0, 1000] Hz"),
         (dict(out="/etc/passwd"), "out", "not a folder"),
         (dict(signing_key="/nonexistent.key"), "signing_key", "no such file"),
+        # faults: the bounds of the command line's --fault, the plant's own travel
+        (dict(fault=["stuck=1000@1"]), "fault", "stuck must be within +-90 deg, got 1000"),
+        (dict(fault=["stuck@1e308"]), "fault", "START must be at most 1e+06 s"),
+        (dict(fault=["effectiveness=0.3@\uff11\uff10"]), "fault", "START must be a number in ASCII digits"),
+        (dict(fault=["stuck=-31@1"]), "plant", "-31 deg is beyond the rudder's travel, +-30 deg"),
     ],
 )
 def test_bad_keywords_raise_flight_config_error(kwargs, field, needle):

@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import math
 import os
+import struct
 import time
 
 import numpy as np
@@ -144,6 +145,36 @@ def test_full_parameter_download_and_reads(vehicle):
     gcs.mav.param_request_read_send(1, 1, b"NO_SUCH_PARAM", -1)
     e = gcs.wait("PARAM_ERROR")
     assert e.error == A.MAV_PARAM_ERROR_DOES_NOT_EXIST
+
+
+def _int32(x: float) -> int:
+    """The integer a PARAM_VALUE carries bytewise (PX4's encoding) in its float field."""
+    return struct.unpack("<i", struct.pack("<f", x))[0]
+
+
+def test_sys_failure_en_is_an_int32_sent_bytewise_and_set_either_way(vehicle):
+    gcs, _ = vehicle
+    gcs.mav.param_request_read_send(1, 1, b"SYS_FAILURE_EN", -1)
+    m = gcs.wait("PARAM_VALUE", cond=lambda m: m.param_id == "SYS_FAILURE_EN")
+    assert m.param_type == A.MAV_PARAM_TYPE_INT32 and _int32(m.param_value) == 0
+    one = struct.unpack("<f", struct.pack("<i", 1))[0]  # 1.4e-45: MAVSDK's set_param_int("SYS_FAILURE_EN", 1)
+    for value, mav_type, want_type, want in (
+        (one, A.MAV_PARAM_TYPE_INT32, A.MAV_PARAM_TYPE_INT32, one),  # bytewise, answered bytewise
+        (0.0, A.MAV_PARAM_TYPE_REAL32, A.MAV_PARAM_TYPE_REAL32, 0.0),  # MAVProxy's REAL32, answered as it came
+        (1.0, A.MAV_PARAM_TYPE_INT32, A.MAV_PARAM_TYPE_INT32, one),  # the integer cast to a float: 1
+    ):
+        gcs.drain()
+        gcs.mav.param_set_send(1, 1, b"SYS_FAILURE_EN", value, mav_type)
+        m = gcs.wait("PARAM_VALUE", cond=lambda m: m.param_id == "SYS_FAILURE_EN")
+        assert m is not None and (m.param_type, m.param_value) == (want_type, want), (value, m)
+    gcs.drain()
+    gcs.mav.param_set_send(
+        1, 1, b"SYS_FAILURE_EN", struct.unpack("<f", struct.pack("<i", 2))[0], A.MAV_PARAM_TYPE_INT32
+    )
+    assert gcs.wait("PARAM_ERROR") is not None  # 2, bytewise: neither 0 nor 1
+    gcs.mav.param_request_read_send(1, 1, b"SYS_FAILURE_EN", -1)
+    m = gcs.wait("PARAM_VALUE", cond=lambda m: m.param_id == "SYS_FAILURE_EN")
+    assert _int32(m.param_value) == 1  # unchanged
 
 
 def test_accepted_and_rejected_sets(vehicle):

@@ -71,6 +71,14 @@ async def session(port: int, grpc_port: int, path: str) -> None:
     await step(out, "get_lv", drone.param.get_param_float("CLSAC_LV"))
     await step(out, "set_lv", set_lv())
     await step(out, "get_lv_after", drone.param.get_param_float("CLSAC_LV"))
+
+    async def set_failure_en(v: int):
+        await drone.param.set_param_int("SYS_FAILURE_EN", v)  # PX4's type: INT32
+        return "ok"
+
+    await step(out, "set_failure_en", set_failure_en(1))
+    await step(out, "get_failure_en", drone.param.get_param_int("SYS_FAILURE_EN"))
+    await step(out, "reset_failure_en", set_failure_en(0))
     for _ in range(3):  # the STATUSTEXT stream may not be subscribed yet in mavsdk_server: refuse again then
         await step(out, "set_am_refused", set_am())
         await asyncio.sleep(1.0)

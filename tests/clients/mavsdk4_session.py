@@ -68,6 +68,9 @@ def main(port: int, path: str) -> None:
     step(out, "get_lv", lambda: param.get_param_float("CLSAC_LV"))
     step(out, "set_lv", lambda: str(param.set_param_float("CLSAC_LV", 12.5)))
     step(out, "get_lv_after", lambda: param.get_param_float("CLSAC_LV"))
+    step(out, "set_failure_en", lambda: str(param.set_param_int("SYS_FAILURE_EN", 1)))  # PX4's type: INT32
+    step(out, "get_failure_en", lambda: param.get_param_int("SYS_FAILURE_EN"))
+    step(out, "reset_failure_en", lambda: str(param.set_param_int("SYS_FAILURE_EN", 0)))
     for _ in range(3):  # as mavsdk3_session.py: refuse again if the STATUSTEXT did not arrive
         step(out, "set_am_refused", lambda: str(param.set_param_float("CLSAC_AM", 3.0)))
         time.sleep(1.0)

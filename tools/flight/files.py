@@ -265,7 +265,7 @@ def build_summary(
         "events": {"autopilot": ap.get("events") if ap else None, "sitl": sitl.get("events") if sitl else None},
         "disturbances": sitl.get("disturbances") if sitl else None,  # what the SITL injected (sitl.disturbances)
         # mid-flight faults (sitl.damage): the SITL's record (command line and ground station), else those asked
-        "faults": sitl.get("faults", []) if sitl else [f.record(None) for f in cfg.fault],
+        "faults": sitl.get("faults", []) if sitl else _asked_faults(cfg),
         "counters": {
             "autopilot": ap.get("links") if ap else None,
             "sitl": sitl.get("link") if sitl else None,
@@ -355,3 +355,12 @@ def write_refusal(out: str | os.PathLike, process: str, reason: str) -> Path | N
     except OSError:
         return None
     return path
+
+
+def _asked_faults(cfg) -> list[dict]:
+    """The faults asked for (the SITL wrote no record): each named with the surface it would hit."""
+    from sitl import damage
+    from sitl import plant as plants
+
+    sched = damage.Schedule((), 0.0, 1e-3, plants.surfaces_of(cfg.plant))
+    return [f.record(None, sched.surface_name(f)) for f in cfg.fault]

@@ -149,15 +149,24 @@ def seeds(seed: int, runs: int) -> list[int]:
     return [seed + j for j in range(runs)]
 
 
-def fault_cells(kinds, severities: dict, refusals: dict) -> tuple[list[tuple], dict]:
+def fault_cells(kinds, severities: dict, refusals: dict, plant: str | None = None) -> tuple[list[tuple], dict]:
     """[(kind, value), ...] a plant flies, and {kind: why} for the kinds it cannot (``refusals``:
-    ``sitl.plant.fault_refusals``)."""
+    ``sitl.plant.fault_refusals``).  ``plant``: each value is held to its bounds too (a stuck angle within its
+    surface's travel, an airspeed it trims at: ``sitl.plant.fault_value_refusal``, the SITL's own check); DamageError
+    for the first it cannot fly."""
+    from sitl import plant as plants
+
     cells, skipped = [], {}
     for k in kinds:
         if k in refusals:
             skipped[k] = refusals[k]
             continue
-        cells += [(k, v) for v in severities[k]]
+        for v in severities[k]:
+            if plant is not None:
+                why = plants.fault_value_refusal(plant, fault_of(k, v, 0.0))
+                if why is not None:
+                    raise DamageError(f"--severity {k}={'here' if v is None else f'{v:g}'} on --plant {plant}: {why}")
+            cells.append((k, v))
     return cells, skipped
 
 
@@ -246,14 +255,16 @@ def parse_severity(text: str) -> tuple[str, tuple]:
     def one(v: str):
         if kind == "stuck" and v == "here":
             return None
-        x = float(v)
+        x = damage.number(v)  # ASCII digits only (float() takes fullwidth digits and "1_0")
+        if x is None:
+            raise ValueError(f"{v!r} is not a finite number in ASCII digits")
         damage.parse(f"{kind}={x!r}@0")
         return x
 
     try:
         vals = tuple(one(v.strip()) for v in values.split(",") if v.strip())
     except ValueError as exc:
-        why = str(exc) if isinstance(exc, damage.FaultSpecError) else f"{values!r} is not a list of numbers"
+        why = str(exc)
         raise DamageError(f"--severity {text}: {why}") from None
     if not vals:
         raise DamageError(f"--severity {text}: no values")

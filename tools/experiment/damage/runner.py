@@ -32,7 +32,7 @@ class Study:
 
         cells, skipped = {}, {}
         for p in self.plants:
-            cells[p], skipped[p] = grid.fault_cells(self.kinds, self.severities, plants.fault_refusals(p))
+            cells[p], skipped[p] = grid.fault_cells(self.kinds, self.severities, plants.fault_refusals(p), p)
         return cells, skipped
 
     def flights(self) -> list[grid.Flight]:

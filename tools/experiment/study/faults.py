@@ -73,8 +73,14 @@ class Faults:
 
 
 def check(faults, dt: float = 0.01) -> None:
-    """StudyError (one line) for a fault the study cannot fly exactly."""
+    """StudyError (one line) for a fault the study cannot fly exactly, or whose value the KH2013A cannot do (a
+    stuck angle beyond the rudder's +-30 deg travel: ``sitl.plant.fault_value_refusal``, the SITL's own bound)."""
+    from sitl import plant as plants
+
     for f in faults:
+        why = plants.fault_value_refusal(plants.KH2013A, f)
+        if why is not None:
+            raise StudyError(f"--fault {f.spec}: {why}")
         if f.kind in REFUSED:
             raise StudyError(f"--fault {f.spec}: not in the KH2013A study: {REFUSED[f.kind]}")
         if f.kind not in KINDS:

@@ -220,8 +220,8 @@ def study_summary(opts: StudyOptions, tally: Tally, sweeps, long_ctrls, long_flo
         "study": "robustness",
         "plant": "kh2013a",
         "seed": opts.seed,
-        **({"faults": [f.record(f.start <= 30.0 - 0.01) for f in opts.faults]} if opts.faults else {}),  # started:
-        # within the 30 s runs (their last control step is t = 29.99 s)
+        # started: within the 30 s runs (their last control step is t = 29.99 s); the surface: the KH2013A's rudder
+        **({"faults": [f.record(f.start <= 30.0 - 0.01, _surface(f)) for f in opts.faults]} if opts.faults else {}),
         "runs_per_condition": opts.runs,
         "sweep_runs": opts.sweep_runs,
         "scheduler": opts.scheduler or "local",
@@ -315,3 +315,10 @@ def _phase(runs: int, duration_s: float, wall_s: float) -> dict:
         "wall_s": wall_s,
         "us_per_aircraft_s": 1e6 * wall_s / aircraft_s if aircraft_s else None,
     }
+
+
+def _surface(fault) -> str | None:
+    """The surface a fault of the KH2013A study hits (``sitl.damage.Schedule.surface_name``)."""
+    from sitl import damage
+
+    return damage.Schedule((), 0.0, 0.01, ("rudder",)).surface_name(fault)
