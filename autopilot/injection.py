@@ -106,7 +106,14 @@ class FailureRelay:
             )
             return M.MAV_RESULT_DENIED
         try:
-            cmd.spec = sf.servo_failure(msg.param1, msg.param2, msg.param3, msg.param5, self.channels)
+            cmd.spec = sf.servo_failure(
+                msg.param1,
+                msg.param2,
+                msg.param3,
+                msg.param5,
+                self.channels,
+                others=(msg.param4, msg.param6, msg.param7),
+            )
         except (sf.FailureUnsupported, sf.FailureDenied) as exc:
             ap.events["failure_refused"] += 1
             ap._event(M.MAV_SEVERITY_WARNING, f"INJECT_FAILURE from {who} refused: {exc}")

@@ -109,7 +109,9 @@ class FaultInjection:
 
     def _inject(self, params: tuple, t_rx: float) -> int:
         try:
-            spec = servo_failure(params[0], params[1], params[2], params[4], channel=self.channels)
+            spec = servo_failure(
+                params[0], params[1], params[2], params[4], channel=self.channels, others=(params[3], *params[5:])
+            )
             index = servo_instance(params[2], self.channels)  # None: all the surfaces (instance 0)
         except (FailureUnsupported, FailureDenied) as exc:
             return self._refuse(exc.result, str(exc))

@@ -119,7 +119,7 @@ def _set_failure_en(gcs, value: int) -> None:
 
 
 def test_a_ground_station_out_of_bounds_is_denied_and_it_clears_its_faults_with_injection_off(tmp_path):
-    """Issue 35's must-show: STUCK at 1e30 and at 45 deg on the KH2013A's +-30 deg rudder are DENIED (the SITL says
+    """Issue 35's must-show: STUCK at 1e30, at NaN (params 6 and 7 set) and at 45 deg on the KH2013A's +-30 deg rudder are DENIED (the SITL says
     why); after SYS_FAILURE_EN goes back to 0, a clear is accepted on instance 0 and 4, and no fault is left."""
     port = free_ports(1)[0]
     gcs = mavutil.mavlink_connection(f"udpin:127.0.0.1:{port}", source_system=255, source_component=230)
@@ -160,6 +160,7 @@ def test_a_ground_station_out_of_bounds_is_denied_and_it_clears_its_faults_with_
         assert ask(M.FAILURE_TYPE_STUCK, 4, 1e30) == M.MAV_RESULT_DENIED  # beyond any surface: the autopilot's table
         assert ask(M.FAILURE_TYPE_STUCK, 4, 45.0) == M.MAV_RESULT_DENIED  # beyond this rudder: the SITL's bound
         assert ask(M.FAILURE_TYPE_STUCK, 0, -31.0) == M.MAV_RESULT_DENIED
+        assert ask(M.FAILURE_TYPE_STUCK, 4, NAN) == M.MAV_RESULT_DENIED  # NaN beside set params 6, 7: no position
         _set_failure_en(gcs, 0)
         assert ask(M.FAILURE_TYPE_OK, 0, NAN) == M.MAV_RESULT_ACCEPTED
         assert ask(M.FAILURE_TYPE_OK, 4, NAN) == M.MAV_RESULT_ACCEPTED

@@ -404,6 +404,21 @@ def test_the_servo_failure_table(params, spec):
         damage.parse_kind(spec, spec)  # what the table gives, the SITL's parser takes
 
 
+def test_a_nan_param5_is_unset_only_when_every_unused_param_is():
+    """MAVLink's NaN is "optional/default": MAVSDK's Failure plugin leaves params 4 to 7 all NaN, and a STUCK from it
+    jams the surface where it is; a NaN param5 beside a number in param 4, 6 or 7 is a value, and no angle: DENIED."""
+    nan = math.nan
+    assert sf.servo_failure(102, 2, 4, nan, others=(nan, nan, nan)) == "stuck"
+    assert sf.servo_failure(102, 6, 4, nan, others=(nan, nan, nan)) == "delay=0.1"
+    for others in ((nan, 0.0, 0.0), (0.0, nan, nan), (nan, nan, 0.0)):
+        for kind in (2, 5, 6):
+            with pytest.raises(sf.FailureDenied, match="param5 is NaN"):
+                sf.servo_failure(102, kind, 4, nan, others=others)
+    assert sf.servo_failure(102, 2, 4, -3.0, others=(0.0, 0.0, 0.0)) == "stuck=-3.0"  # a number is a number
+    assert sf.servo_failure(102, 0, 4, nan, others=(0.0, 0.0, 0.0)) is None  # a clear needs no value
+    assert sf.servo_failure(102, 1, 4, nan, others=(0.0, 0.0, 0.0)) == "off"
+
+
 @pytest.mark.parametrize(
     "params,error",
     [

@@ -68,6 +68,19 @@ def _given(v: float) -> bool:
     return not (v == 0.0 or math.isnan(v))
 
 
+def _nan_unset(param5: float, others) -> None:
+    """A NaN param5 means "not used" only from a sender that left every unused param unset, as MAVSDK does (NaN in
+    params 4 to 7: MAVLink's "optional/default value"); beside a number in param 4, 6 or 7 it is a value, and NaN is
+    no position, rate or delay: FailureDenied.  ``others``: params 4, 6 and 7 (None: not known, NaN taken as unset)."""
+    if others is None or not math.isnan(param5):
+        return
+    if not all(isinstance(v, float) and math.isnan(v) for v in others):
+        raise FailureDenied(
+            "param5 is NaN while params 4, 6 and 7 are set: give a finite value, or leave params 4 to 7 all unset "
+            "(NaN) for the default"
+        )
+
+
 def is_clear(unit: float, failure_type: float) -> bool:
     """A servo FAILURE_TYPE_OK: the ground station's faults end (taken whether injection is on or off)."""
     return unit == FAILURE_UNIT_SYSTEM_SERVO and failure_type == FAILURE_TYPE_OK
@@ -87,11 +100,14 @@ def servo_instance(instance: float, channels) -> int | None:
     raise FailureUnsupported(f"servo instance {instance:g}: the vehicle has {one}, instance 0 (all) or {ok}")
 
 
-def servo_failure(unit: float, failure_type: float, instance: float, param5: float, channel=4) -> str | None:
+def servo_failure(
+    unit: float, failure_type: float, instance: float, param5: float, channel=4, others=None
+) -> str | None:
     """The ``--fault`` spec (``KIND[=VALUE]``, without ``@START``: the fault starts when it is applied) of a
     MAV_CMD_INJECT_FAILURE's params, or None for FAILURE_TYPE_OK (clear the ground-station faults).
 
-    ``channel``: the surface's SERVO_OUTPUT_RAW channel, or a tuple of each surface's (``servo_instance``).  Raises
+    ``channel``: the surface's SERVO_OUTPUT_RAW channel, or a tuple of each surface's (``servo_instance``);
+    ``others``: params 4, 6 and 7, which say whether a NaN param5 is "unset" (``_nan_unset``).  Raises
     FailureUnsupported (unit, type, instance) or FailureDenied (param5)."""
     if unit != FAILURE_UNIT_SYSTEM_SERVO:
         raise FailureUnsupported(f"failure unit {unit:g} is not implemented (only FAILURE_UNIT_SYSTEM_SERVO, 102)")
@@ -104,6 +120,7 @@ def servo_failure(unit: float, failure_type: float, instance: float, param5: flo
         return None
     if failure_type == FAILURE_TYPE_OFF:
         return "off"
+    _nan_unset(float(param5), others)
     if failure_type == FAILURE_TYPE_STUCK:
         if not _given(param5):
             return "stuck"
