@@ -14,6 +14,7 @@ from autopilot.envelope import (
     DEVIATION_RATIO,
     FOLLOW_GAIN_MIN,
     HIT_REARM,
+    OSC_SWINGS_MIN,
     REF_FLOOR_DEG,
     STOP_HITS_MIN,
     TRACK_WINDOW_S,
@@ -44,14 +45,29 @@ def _pulses(t: np.ndarray, times) -> np.ndarray:
     return u
 
 
-def _flight(seconds=20.0, a_dev=0.0, f_dev=2.0, gain=1.0, lag_deg=0.0, hits=0, ref_amp=A_REF, dev_from=0.0):
+def _lobes(t: np.ndarray) -> np.ndarray:
+    """Half-sine lobes of alternating sign lasting 0.05, 0.15 and 0.3 s in turn (the pattern repeats every 1 s):
+    mean square 1/2 over whole lobes, as a sinusoid's (sum of sin^2(pi k / N), k < N, is N / 2), but never a
+    regular swing: the times between extremes (0.1, 0.225, 0.175 s) each differ from the last by more than 15 %."""
+    edges = np.array([0.0, 0.05, 0.2, 0.5, 0.55, 0.7, 1.0])
+    tm = np.mod(np.round(t * RATE), 100) / RATE
+    j = np.searchsorted(edges, tm + 1e-9, side="right") - 1
+    start, length = edges[j], np.diff(edges)[j]
+    return np.where(j % 2 == 0, 1.0, -1.0) * np.sin(np.pi * (tm - start) / length)
+
+
+def _flight(
+    seconds=20.0, a_dev=0.0, f_dev=2.0, gain=1.0, lag_deg=0.0, hits=0, ref_amp=A_REF, dev_from=0.0, regular=True
+):
     """(t, roll, u, ref): ref = ref_amp sin(2 pi t / 10 s); roll = gain ref shifted by ``lag_deg``, plus a deviation
-    a_dev sin(2 pi f_dev t) from ``dev_from``; ``hits`` stop hits spread over the flight."""
+    a_dev sin(2 pi f_dev t) from ``dev_from`` (``regular`` False: a_dev ``_lobes``, as large but irregular);
+    ``hits`` stop hits spread over the flight."""
     t = _t(seconds)
     w = 2 * np.pi / 10.0
     ref = ref_amp * np.sin(w * t)
     roll = gain * ref_amp * np.sin(w * t - math.radians(lag_deg))
-    roll = roll + np.where(t >= dev_from - 1e-9, a_dev * np.sin(2 * np.pi * f_dev * (t - dev_from)), 0.0)
+    dev = np.sin(2 * np.pi * f_dev * (t - dev_from)) if regular else _lobes(t - dev_from)
+    roll = roll + np.where(t >= dev_from - 1e-9, a_dev * dev, 0.0)
     u = _pulses(t, np.linspace(0.5, seconds - 0.5, hits)) if hits else np.zeros_like(t)
     return t, roll, u, ref
 
@@ -63,26 +79,23 @@ def _judge(*series):
 
 # ------------------------------------------------------------------------------------------- the oscillation
 @pytest.mark.parametrize(("ratio", "oscillating"), [(0.99, False), (1.01, True)])
-def test_an_oscillation_as_large_as_the_command_is_out_just_past_it(ratio, oscillating):
-    """rms(d) / rms(y_r) = a / A_REF for two sinusoids over whole periods: out at DEVIATION_RATIO (1), with the
-    rudder on its stops STOP_HITS_MIN times."""
-    c = _judge(*_flight(a_dev=ratio * A_REF * DEVIATION_RATIO, hits=STOP_HITS_MIN))
+def test_an_irregular_deviation_as_large_as_the_command_banging_the_stops_is_out_just_past_it(ratio, oscillating):
+    """rms(d) / rms(y_r) = a / A_REF for irregular lobes and a sinusoid over whole periods: out at DEVIATION_RATIO
+    (1), with the rudder on its stops STOP_HITS_MIN times (the rule of issue 29; no regular swing here)."""
+    c = _judge(*_flight(a_dev=ratio * A_REF * DEVIATION_RATIO, hits=STOP_HITS_MIN, regular=False))
     tr = c.tracking
     assert tr.judged and tr.windows == 1 and c.ok is (not oscillating)
     assert (tr.oscillating_windows == 1) is oscillating and tr.not_following_windows == 0
     w = tr.last_window
     assert w.deviation_ratio == pytest.approx(ratio, rel=1e-9)
     assert w.amplitude_deg == pytest.approx(math.degrees(ratio * A_REF), rel=1e-9)  # sqrt(2) std of a sinusoid
-    # Rice's formula with the sampling inverted: exact but for the window's one derivative sample fewer (1999 of
-    # 2000: the sum of cos^2 over 1999 samples differs from 1999/2 by at most 1 / (2 sin(4 pi T)), 2e-3 relative)
-    assert w.frequency_hz == pytest.approx(2.0, rel=1e-3)
-    assert w.stop_hits == STOP_HITS_MIN and w.on_stops == pytest.approx(STOP_HITS_MIN / 2000)
+    assert w.swings == 0 and w.stop_hits == STOP_HITS_MIN and w.on_stops == pytest.approx(STOP_HITS_MIN / 2000)
     assert (w.start_s, w.end_s, w.samples) == (0.0, 20.0, 2000)
 
 
 @pytest.mark.parametrize(("hits", "oscillating"), [(STOP_HITS_MIN - 1, False), (STOP_HITS_MIN, True)])
 def test_a_large_deviation_is_an_oscillation_only_if_the_rudder_hits_its_stops(hits, oscillating):
-    c = _judge(*_flight(a_dev=2 * A_REF, hits=hits))
+    c = _judge(*_flight(a_dev=2 * A_REF, hits=hits, regular=False))
     assert c.tracking.last_window.stop_hits == hits and (c.tracking.oscillating_windows == 1) is oscillating
 
 
@@ -104,7 +117,7 @@ def test_a_stop_hit_needs_the_command_back_within_half_the_limit():
 def test_about_a_level_command_the_floor_is_two_degrees_rms(amp_deg, oscillating):
     """y_r = 0: the deviation is judged against REF_FLOOR_DEG RMS, i.e. a sinusoid of 2 sqrt(2) = 2.83 deg; and
     nothing is judged for following (no command to follow)."""
-    c = _judge(*_flight(a_dev=math.radians(amp_deg), ref_amp=0.0, hits=STOP_HITS_MIN))
+    c = _judge(*_flight(a_dev=math.radians(amp_deg), ref_amp=0.0, hits=STOP_HITS_MIN, regular=False))
     assert REF_FLOOR_DEG == 2.0 and (c.tracking.oscillating_windows == 1) is oscillating
     assert c.tracking.not_following_windows == 0 and math.isnan(c.tracking.last_window.gain)
 
@@ -118,10 +131,12 @@ def test_window_flags_at_their_exact_boundaries_and_on_a_batch():
         np.array([rr, rr, 0.5 * rr, 0.4999 * rr, 0.0, np.nan]),
         np.array([rr, 0.9999 * rr, 0.0, 0.0, math.radians(2.0) ** 2 * n, np.nan]),
         np.array([10, 10, 10, 10, 10, 10]),
+        np.array([15, 15, 16, 15, 15, 16]),
     )
-    assert osc.tolist() == [True, False, False, False, True, False]
+    assert osc.tolist() == [True, False, True, False, True, True]
     assert lag.tolist() == [False, False, False, True, False, False]
-    assert window_flags(n, rr, rr, rr, 9) == (False, False)  # plain floats too (the monitor)
+    assert window_flags(n, rr, rr, rr, 9, 15) == (False, False)  # plain floats too (the monitor)
+    assert window_flags(n, rr, rr, 0.0, 0, OSC_SWINGS_MIN) == (True, False)
 
 
 # ------------------------------------------------------------------------------------------- following
