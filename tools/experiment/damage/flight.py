@@ -113,12 +113,17 @@ def record(
 
 def recovery_of(t, phi, ym, um, onset: float) -> dict:
     """The recovery after the onset (``autopilot.recovery.recovery``, as the launcher reports it: the roll's
-    settled 1 s RMS deviation from y_m,ol back within twice the flight's own before the onset, and staying there):
+    settled 1 s RMS deviation from y_m,ol back within the command's band, staying there and following the command):
     ``recovered`` (True, False, None when not measured), ``recovery_s``, ``recovery_reason``."""
     from autopilot.recovery import recovery
 
     r = recovery(t, phi, ym, onset, raw_command=um)
-    return {"recovered": r.recovered, "recovery_s": r.time_s, "recovery_reason": r.reason}
+    return {
+        "recovered": r.recovered,
+        "recovery_s": r.time_s,
+        "recovery_band_deg": r.band_deg,
+        "recovery_reason": r.reason,
+    }
 
 
 def _roll_surface(plant: str) -> str:
