@@ -647,6 +647,19 @@ class EnvelopeMonitor:
         )
 
 
+def verdict(t, roll, u, u_limit_rad: float, envelope: Envelope = Envelope(), ref=None, *, sideslip=None) -> dict:
+    """The one verdict of a recorded flight, as ``summary.json``'s ``controlled`` (the launcher's, the experiments',
+    the robustness study's flights and the damage study's): :func:`judge_series`, and on a square MIMO plant its
+    second channel (``sideslip``: ``autopilot.mimo.ChannelMetrics.result()``: the rudder's saturation and the
+    sideslip against their limits) through ``autopilot.mimo.with_sideslip``, as the autopilot adds it."""
+    out = judge_series(t, roll, u, u_limit_rad, envelope, ref).to_dict()
+    if sideslip is not None:
+        from autopilot.mimo import with_sideslip
+
+        out = with_sideslip(out, sideslip)
+    return out
+
+
 def judge_series(t, roll, u, u_limit_rad: float, envelope: Envelope = Envelope(), ref=None) -> Controlled:
     """The verdict on a recorded flight: its sim times (s), roll and rudder command series (rad), one sample per
     control step, the rudder limit (rad) and the commanded response y_r (rad; None: not judged on tracking), fed
