@@ -160,6 +160,24 @@ def test_a_full_size_roll_lagging_past_60_deg_does_not_follow(lag_deg, follows):
         assert "of the commanded (limit 0.5) in the 20 s window 0-20 s, 1 of 1 windows" in c.reason
 
 
+@pytest.mark.parametrize(("ratio", "out"), [(1.49, False), (1.51, True)])
+def test_a_deviation_half_as_bad_again_as_holding_the_wings_level_is_not_following(ratio, out):
+    """Irregular lobes (no regular swing) and no stop hit: only DEVIATION_MAX (1.5) x rms(y_r) decides; the OK
+    line prints the worst ratio beside its limit, never above it."""
+    from autopilot.envelope import DEVIATION_MAX
+
+    c = _judge(*_flight(a_dev=ratio * A_REF, regular=False))
+    w = c.tracking.last_window
+    assert DEVIATION_MAX == 1.5 and w.deviation_ratio == pytest.approx(ratio, rel=1e-9) and w.swings == 0
+    assert c.ok is not out and (c.tracking.not_following_windows == 1) is out and c.tracking.oscillating_windows == 0
+    if out:
+        assert f"the roll did not follow the command: deviation {ratio:.2f} x the command's (limit 1.5)" in c.reason
+    else:
+        assert f"deviation <= {ratio:.2f} x the command's, limit 1.5)" in c.reason
+    assert window_flags(1.0, 1.0, 1.0, 2.25, 0, 0) == (False, True)
+    assert window_flags(1.0, 1.0, 1.0, 2.2499, 0, 0) == (False, False)
+
+
 # ------------------------------------------------------------------------------------------- windows in time
 def test_an_oscillation_from_30_s_is_out_from_the_first_window_it_fills_enough():
     """a = 2.5 A_REF from t = 30 s of a 60 s flight: a window [s, s + 20] has rms(d)^2 = (a^2/2) L / 20 with L = s +

@@ -59,7 +59,7 @@ typedef struct {
     int64_t tblock, tblocks;
     double dev_ratio2, dev_floor2, ref_floor2, follow_min, hits_min, rearm_lim, nw;
     double *tblk, *tring, *track, *hit_armed;
-    double swing_h, swing_tol, swings_min;
+    double swing_h, swing_tol, swings_min, dev_max2;
     double *swing;
     /* faults (tools/experiment/study/faults.py): nphase phases, each from step ph_start on with the matrix set
      * ph_mat (mphi (nmat * 36, n), mgam (nmat * 24, n); set 0 the plant as built), the surface's jump (0 none,
@@ -348,7 +348,8 @@ void study_steps(const Batch *b, int64_t k0, int64_t m, const double *z_all) {
                         const int bang = (s_dd >= b->dev_ratio2 * s_rr) & (s_dd >= b->dev_floor2 * b->nw) &
                                          (s_hits >= b->hits_min);
                         const int osc = (s_sw >= b->swings_min) | bang;
-                        const int lag = (s_rr >= b->ref_floor2 * b->nw) & (s_pr < b->follow_min * s_rr);
+                        const int lag = (s_rr >= b->ref_floor2 * b->nw) &
+                                        ((s_pr < b->follow_min * s_rr) | (s_dd >= b->dev_max2 * s_rr));
                         if (osc) f_osc = 1.0;
                         if (lag) f_lag = 1.0;
                     }

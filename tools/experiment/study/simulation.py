@@ -11,6 +11,7 @@ import numpy as np
 
 from autopilot.envelope import (
     DEV_FLOOR2,
+    DEV_MAX2,
     DEV_RATIO2,
     FOLLOW_GAIN_MIN,
     HIT_REARM,
@@ -409,6 +410,7 @@ def _fly_kernel(lib, b) -> tuple[dict, np.ndarray, np.ndarray, dict | None]:
         swing_h=OSC_SWING_RAD,  # autopilot.swings' constants
         swing_tol=OSC_REGULAR_TOL,
         swings_min=float(OSC_SWINGS_MIN),
+        dev_max2=DEV_MAX2,
         nw=float(TRACK_BLOCKS * tblock),
         nphase=0 if b.fplan is None else len(b.fplan.phases),
         ring_len=keep["ring"].shape[0],
