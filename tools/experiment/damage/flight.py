@@ -89,7 +89,7 @@ def record(
     """A flight's record from its series (``t``, ``phi``, ``u``, ``ym_ol``; rad, one sample per control step);
     ``surface``: the roll's surface, as the verdict's reason names it (the plant's: ``sitl.plant.surface_of``);
     ``sideslip``: a square MIMO plant's second channel (``autopilot.mimo.ChannelMetrics.result()``), judged too."""
-    from autopilot.envelope import Envelope, verdict
+    from autopilot.envelope import Envelope, saturated, verdict
 
     t, phi, u, ym, um = (np.asarray(series[k], dtype=float) for k in ("t", "phi", "u", "ym_ol", "um"))
     d2 = (phi - ym) ** 2  # the tracking error of autopilot.metrics' ise_ref, per sample
@@ -101,7 +101,7 @@ def record(
     periods = [
         float(np.sum(d2[(t >= i * period - 1e-9) & (t < (i + 1) * period - 1e-9)]) * dt) for i in range(n_periods)
     ]
-    sat = np.abs(u) >= u_limit * (1.0 - 1e-9)
+    sat = saturated(u, u_limit)  # autopilot.envelope's one definition: at the stop, or not finite
     return {
         "controlled": bool(judged["ok"]),
         "reason": judged["reason"],

@@ -26,7 +26,7 @@ from dataclasses import dataclass, replace
 import numpy as np
 
 from autopilot import controllers
-from autopilot.envelope import verdict
+from autopilot.envelope import saturated, verdict
 from tools.experiment.study.accumulate import wilson
 from tools.experiment.study.execution import Progress, stream
 from tools.experiment.study.sampling import BOUND_ROLL_RAD, BOUND_SAT_FRACTION, DEG, StudyError
@@ -71,7 +71,7 @@ def simulate(task: Flight) -> dict:
     u, phi = res.series["u"], res.series["phi"]
     out = dict(res.metrics)
     out["max_abs_roll"] = float(np.max(np.abs(phi)))
-    out["sat_fraction"] = float(np.mean(np.abs(u) >= limit * (1 - 1e-9)))
+    out["sat_fraction"] = float(np.mean(saturated(u, limit)))
     # inside the envelope (autopilot.envelope, the launcher's "controlled"): |roll|, saturation and tracking
     return _judged(out, verdict(res.series["t"], phi, u, limit, ref=res.series["ym_ol"]))
 
@@ -104,7 +104,7 @@ def _simulate_mimo(task: Flight, dist, limit: float) -> dict:
     s = r["series"]
     out = dict(r["metrics"])
     out["max_abs_roll"] = float(np.max(np.abs(s["phi"])))
-    out["sat_fraction"] = float(np.mean(np.abs(s["u"]) >= limit * (1 - 1e-9)))
+    out["sat_fraction"] = float(np.mean(saturated(s["u"], limit)))
     out["max_abs_sideslip"] = float(np.max(np.abs(s["beta"])))
     out["rudder_sat_fraction"] = r["sideslip"]["saturated_fraction"]["rudder"]
     # judged as the launcher judges it: the roll channel, the rudder's saturation and the sideslip
