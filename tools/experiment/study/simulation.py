@@ -9,14 +9,13 @@ import math
 
 import numpy as np
 
+from autopilot import swings as sw  # the oscillation rule's swing counter
 from autopilot.envelope import (
     DEV_FLOOR2,
     DEV_MAX2,
     DEV_RATIO2,
     FOLLOW_GAIN_MIN,
     HIT_REARM,
-    OSC_REGULAR_TOL,
-    OSC_SWINGS_MIN,
     REF_FLOOR2,
     SAT_RTOL,
     STOP_HITS_MIN,
@@ -24,12 +23,9 @@ from autopilot.envelope import (
     TRACK_BLOCKS,
     saturated,
     stop_hit,
-    swing_start,
-    swing_step,
     window_flags,
     within,
 )
-from autopilot.swings import OSC_SWING_RAD
 from tools.experiment.study import faults as study_faults
 from tools.experiment.study import native
 from tools.experiment.study.sampling import (
@@ -407,9 +403,9 @@ def _fly_kernel(lib, b) -> tuple[dict, np.ndarray, np.ndarray, dict | None]:
         follow_min=FOLLOW_GAIN_MIN,
         hits_min=float(STOP_HITS_MIN),
         rearm_lim=HIT_REARM * b.umax,
-        swing_h=OSC_SWING_RAD,  # autopilot.swings' constants
-        swing_tol=OSC_REGULAR_TOL,
-        swings_min=float(OSC_SWINGS_MIN),
+        swing_h=sw.OSC_SWING_RAD,  # autopilot.swings' constants
+        swing_tol=sw.OSC_REGULAR_TOL,
+        swings_min=float(sw.OSC_SWINGS_MIN),
         dev_max2=DEV_MAX2,
         nw=float(TRACK_BLOCKS * tblock),
         nphase=0 if b.fplan is None else len(b.fplan.phases),
@@ -550,9 +546,8 @@ def _fly_numpy(b) -> tuple[dict, np.ndarray, np.ndarray, dict | None]:
             blk[0] = blk[0] + ref * ref
             blk[1] = blk[1] + phi_true * ref
             blk[2] = blk[2] + dv * dv
-            if swing is None:
-                swing = swing_start(dv)
-            blk[4] = blk[4] + swing_step(swing, dv, float(k))
+            swing = sw.swing_start(dv) if swing is None else swing
+            blk[4] = blk[4] + sw.swing_step(swing, dv, float(k))
             if (k + 1) % tblock == 0:
                 _close_block(blk, ring, track, (k + 1) // tblock, nw)
                 blk = [np.zeros(n) for _ in range(5)]
