@@ -384,6 +384,16 @@ def test_a_non_finite_roll_is_outside_the_band_for_every_window_that_holds_it():
     assert recovery(t, nan_at, ref, 10.0).recovered is False
 
 
+def test_a_deviation_exactly_on_the_band_is_inside_it():
+    """The band is inclusive: a constant deviation of 2^-6 rad has a 1 s RMS of exactly 2^-6 (sums of 2^-12 are
+    exact in binary), equal to a band of 2^-6: recovered, never out; a hair wider, outside."""
+    t, _, _, ref = _flight(30.0)
+    c = 2.0**-6
+    on = recovery(t, ref + c, ref, 10.0, c)
+    assert on.recovered and on.time_s == 0.0 and on.worst_deg == pytest.approx(math.degrees(c))
+    assert recovery(t, ref + c * (1 + 2**-40), ref, 10.0, c).recovered is False
+
+
 def test_fault_recoveries_of_summary_faults():
     from tools.flight import fault_recoveries, recovery_text
 
