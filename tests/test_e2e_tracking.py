@@ -60,7 +60,7 @@ def _stop_hits(u) -> int:
 
 @pytest.mark.parametrize(
     ("args", "onset_s"),
-    [(("--duration", "300"), 185.0), (("--turbulence", "severe", "--seed", "1", "--duration", "60"), 25.0)],
+    [(("--duration", "300"), 190.0), (("--turbulence", "severe", "--seed", "1", "--duration", "60"), 25.0)],
     ids=["300s", "severe-60s"],
 )
 def test_a_flight_that_settles_into_a_limit_cycle_is_out_of_the_envelope(tmp_path, args, onset_s):
