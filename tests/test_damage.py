@@ -115,6 +115,33 @@ def test_a_record_names_the_surface_that_rolls_the_plant():
     assert "rudder" not in r["reason"]
 
 
+def test_a_record_counts_commands_exactly_on_the_stop_and_not_finite_ones_as_saturated():
+    """The envelope's one definition (autopilot.envelope.saturated): |u| >= (1 - 1e-9) u_limit or not finite.
+    A hand count: 300 samples clipped to exactly +-u_limit, 1 NaN, 200 a hair inside (1 - 2e-9): 301 of 3000."""
+    lim = math.radians(30)
+    s = _series()
+    u = np.zeros(3000)
+    u[:150], u[150:300], u[300] = lim, -lim, math.nan
+    u[301:501] = lim * (1 - 2e-9)
+    s["u"] = u
+    r = record(s, {"ise_ref": 1.0, "energy": 2.0}, 10.0, 10.0, lim, 0.01)
+    assert r["saturated_share"] == pytest.approx(301 / 3000, abs=1e-12)
+    assert "rudder saturated 10.0 % of the flight" in r["reason"]
+
+
+def test_a_records_recovery_is_judged_in_the_commands_band():
+    """The record's recovery (autopilot.recovery): the band from the command (a +-10 deg square: 3 deg), printed in
+    the record, and a NaN second after the onset never counted inside it."""
+    t = np.arange(3000) * 0.01
+    um = np.where(np.floor(t / 5.0) % 2 == 0, 1.0, -1.0) * math.radians(10.0)
+    s = {"t": t, "phi": um.copy(), "ym_ol": um, "um": um, "u": np.zeros(3000)}
+    r = record(s, {"ise_ref": 1.0, "energy": 2.0}, 10.0, 10.0, math.radians(30), 0.01)
+    assert r["recovered"] is True and r["recovery_s"] == 0.0 and r["recovery_band_deg"] == pytest.approx(3.0)
+    s["phi"] = np.where(t >= 28.5, math.nan, um)
+    r = record(s, {"ise_ref": 1.0, "energy": 2.0}, 10.0, 10.0, math.radians(30), 0.01)
+    assert r["recovered"] is False and r["recovery_s"] is None
+
+
 def test_cells_aggregate_their_seeds():
     recs = [
         {

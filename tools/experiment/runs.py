@@ -150,10 +150,10 @@ def controlled(result: RunResult, u_limit_rad: float, surface: str = "rudder") -
     s = result.series or {}
     if s.get("t") is None or not len(s["t"]):
         return None
-    from autopilot.envelope import Envelope, judge_series
+    from autopilot.envelope import Envelope, verdict
 
     u = s["u_cmd"] if s.get("u_cmd") is not None else s["u"]
-    return judge_series(s["t"], s["phi"], u, u_limit_rad, Envelope(surface=surface), ref=s.get("ym_ol")).to_dict()
+    return verdict(s["t"], s["phi"], u, u_limit_rad, Envelope(surface=surface), ref=s.get("ym_ol"))
 
 
 def paper_checks(results: Sequence[RunResult]) -> dict[str, dict]:

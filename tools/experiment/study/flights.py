@@ -26,7 +26,7 @@ from dataclasses import dataclass, replace
 import numpy as np
 
 from autopilot import controllers
-from autopilot.envelope import judge_series
+from autopilot.envelope import saturated, verdict
 from tools.experiment.study.accumulate import wilson
 from tools.experiment.study.execution import Progress, stream
 from tools.experiment.study.sampling import BOUND_ROLL_RAD, BOUND_SAT_FRACTION, DEG, StudyError
@@ -71,12 +71,18 @@ def simulate(task: Flight) -> dict:
     u, phi = res.series["u"], res.series["phi"]
     out = dict(res.metrics)
     out["max_abs_roll"] = float(np.max(np.abs(phi)))
-    out["sat_fraction"] = float(np.mean(np.abs(u) >= limit * (1 - 1e-9)))
+    out["sat_fraction"] = float(np.mean(saturated(u, limit)))
     # inside the envelope (autopilot.envelope, the launcher's "controlled"): |roll|, saturation and tracking
-    c = judge_series(res.series["t"], phi, u, limit, ref=res.series["ym_ol"])
-    out["bounded"] = bool(c.ok)
-    out["oscillating"] = bool(c.tracking is not None and c.tracking.oscillating_windows)
-    out["not_following"] = bool(c.tracking is not None and c.tracking.not_following_windows)
+    return _judged(out, verdict(res.series["t"], phi, u, limit, ref=res.series["ym_ol"]))
+
+
+def _judged(out: dict, c: dict) -> dict:
+    """``out`` with the verdict's ``bounded``, ``oscillating`` and ``not_following`` (``c``: the launcher's
+    ``controlled``, ``autopilot.envelope.verdict``)."""
+    tr = c.get("tracking")
+    out["bounded"] = bool(c["ok"])
+    out["oscillating"] = bool(tr is not None and tr["oscillating_windows"])
+    out["not_following"] = bool(tr is not None and tr["not_following_windows"])
     return out
 
 
@@ -90,21 +96,19 @@ MIMO_CONTROLLERS = ("sac", "clsac", "baseline")  # the controllers a square MIMO
 
 def _simulate_mimo(task: Flight, dist, limit: float) -> dict:
     """``simulate`` on a square MIMO plant: ``tools.experiment.mimo_inprocess.run_mimo`` (bit for bit its lockstep
-    flight), the roll channel judged as a SISO flight's, the sideslip's max |beta| (rad) beside."""
+    flight), judged as the launcher judges it (the roll channel, the rudder's saturation, the sideslip), the
+    sideslip's max |beta| (rad) beside."""
     from tools.experiment.mimo_inprocess import run_mimo
 
     r = run_mimo(task.plant, task.controller, disturbances=dist)
     s = r["series"]
     out = dict(r["metrics"])
     out["max_abs_roll"] = float(np.max(np.abs(s["phi"])))
-    out["sat_fraction"] = float(np.mean(np.abs(s["u"]) >= limit * (1 - 1e-9)))
+    out["sat_fraction"] = float(np.mean(saturated(s["u"], limit)))
     out["max_abs_sideslip"] = float(np.max(np.abs(s["beta"])))
     out["rudder_sat_fraction"] = r["sideslip"]["saturated_fraction"]["rudder"]
-    c = judge_series(s["t"], s["phi"], s["u"], limit, ref=s["ym_ol"])
-    out["bounded"] = bool(c.ok)
-    out["oscillating"] = bool(c.tracking is not None and c.tracking.oscillating_windows)
-    out["not_following"] = bool(c.tracking is not None and c.tracking.not_following_windows)
-    return out
+    # judged as the launcher judges it: the roll channel, the rudder's saturation and the sideslip
+    return _judged(out, verdict(s["t"], s["phi"], s["u"], limit, ref=s["ym_ol"], sideslip=r["sideslip"]))
 
 
 def with_airspeed(plant: str, airspeed_kt: float) -> str:
