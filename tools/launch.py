@@ -53,7 +53,7 @@ from autopilot.shared.cli import (
     timeout_s,
     viewer_url,
 )
-from autopilot.shared.process import EXIT_USAGE, install_stop_handlers, survive_closed_stdout
+from autopilot.shared.process import EXIT_FAILED, EXIT_USAGE, install_stop_handlers, survive_closed_stdout
 from sitl import damage, disturbances
 from tools.flight import (
     LIVE_RATE_HZ,
@@ -65,6 +65,7 @@ from tools.flight import (
     VEHICLE_TIMEOUT_S,
     Flight,
     FlightConfigError,
+    OutputError,
     recovery_text,
     write_refusal,
 )
@@ -477,6 +478,9 @@ def main(argv=None, png_helper=None) -> int:
     except WebServerError as exc:  # a --web port taken: nothing was started
         print(f"launch: error: {exc}", file=sys.stderr)
         return EXIT_USAGE
+    except OutputError as exc:  # the folder cannot take even the provisional summary (a full disk)
+        print(f"FAILED: launch: {exc}; nothing was flown", flush=True)
+        return EXIT_FAILED
     print_summary(res.summary)
     if not res.completed and not res.summary.get("diverged"):  # a plant that diverged is a result, not an error
         print(f"launch: error: {res.reason} (logs in {res.out})", file=sys.stderr, flush=True)

@@ -19,6 +19,7 @@ from autopilot.shared.process import (
     EXIT_FAILED,
     EXIT_INTERRUPTED,
     EXIT_OK,
+    reserve_for,
     write_json_atomic,
 )
 from tools.flight.children import Child, cpu_times, free_udp_ports, machine_load, new_run_dir, stop_children
@@ -34,6 +35,7 @@ from tools.flight.config import (
 )
 from tools.flight.files import (
     STALE_FILES,
+    SUMMARY_RESERVE_BYTES,
     _join_telemetry,
     _load,
     build_summary,
@@ -41,9 +43,11 @@ from tools.flight.files import (
     load_series,
     png_request,
     provisional_summary,
+    remove_leftovers,
     start_recorder_import,
     write_flight_png,
     write_refusal,
+    write_summary,
 )
 from tools.flight.outcome import (
     _ended_normally,
@@ -63,6 +67,10 @@ def _run_metrics(ap_stats: dict | None) -> dict:
     ap = ap_stats or {}
     m = ap.get("metrics") if ap.get("metric_samples") else None
     return {k: m.get(k) for k in METRIC_NAMES} if m is not None else dict.fromkeys(METRIC_NAMES)
+
+
+class OutputError(OSError):
+    """The flight's folder cannot be written (a full disk before the start): nothing was flown."""
 
 
 @dataclass(frozen=True)
@@ -295,6 +303,7 @@ class Flight:
         self._t0: float | None = None
         self._cpu0 = None  # the machine's CPU times when the flight started (children.cpu_times)
         self._interrupt = threading.Event()
+        self._reserve = None  # disk space held for summary.json (autopilot.shared.process.SpaceReserve)
 
     @classmethod
     def for_scenario(cls, scenario, run, out, **options) -> Flight:
@@ -415,9 +424,15 @@ class Flight:
         self.out.mkdir(parents=True, exist_ok=True)
         for f in (*STALE_FILES, "summary.json"):
             (self.out / f).unlink(missing_ok=True)
+        remove_leftovers(self.out)
         # Until the flight ends the verdict is "not OK": a launcher killed outright (SIGKILL) leaves this, never
         # an earlier flight's "ok: true" in a reused folder.
-        write_json_atomic(self.out / "summary.json", provisional_summary(os.getpid()))
+        try:
+            write_json_atomic(self.out / "summary.json", provisional_summary(os.getpid()))
+        except OSError as exc:  # a full disk before anything flew: one line, exit 1 (tools.launch)
+            self._stop_png()
+            raise OutputError(f"could not write {self.out / 'summary.json'}: {exc.strerror or exc}") from None
+        self._reserve = reserve_for(self.out / "summary.json", SUMMARY_RESERVE_BYTES)  # the verdict fits a full disk
         web_url = self._start_web() if cfg.web else None
         try:
             early, self._early_png = self._early_png, None
@@ -583,9 +598,15 @@ class Flight:
         summary["flown"] = flown
         summary["recovery"] = flight_recovery(self.out, summary.get("faults"))  # per fault: back to tracking?
         summary["machine"] = machine
+        if rrd_error:  # also when the flight failed for another reason (a full disk: DIR/.parts keeps the spools)
+            summary["output_errors"] = [rrd_error]
         png = self._png_result(drawing, metrics)
         summary["files"]["png"] = str(png) if png else None
-        write_json_atomic(self.out / "summary.json", summary)
+        summary = write_summary(self.out, summary, self._reserve)  # the most complete that fits (a full disk)
+        exit_code, error = summary["exit_code"], summary["error"]
+        if self._reserve is not None:
+            self._reserve.release()
+        remove_leftovers(self.out)
         controlled = (summary["controlled"] or {}).get("ok")
         self.result = FlightResult(
             exit_code == EXIT_OK, exit_code, error, metrics, self.out, summary, summary["completed"], controlled
