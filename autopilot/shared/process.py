@@ -145,11 +145,13 @@ def _write_replace(path: str, text: str) -> None:
         with open(tmp, "w") as f:
             f.write(text)
         os.replace(tmp, path)
-    except BaseException:
+    except BaseException as exc:
         try:
             os.unlink(tmp)
         except OSError:
             pass
+        if isinstance(exc, OSError) and exc.errno is not None:  # a failed write() names no file: this one does
+            raise OSError(exc.errno, exc.strerror, path) from exc
         raise
 
 

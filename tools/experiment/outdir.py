@@ -68,9 +68,9 @@ def hold_space(out: Path, nbytes: int = SUMMARY_RESERVE_BYTES):
     return reserve_for(Path(out) / "summary.json", nbytes)
 
 
-def write_problem(path: str | os.PathLike, exc: OSError) -> str:
+def write_problem(path: str | os.PathLike, exc: Exception) -> str:
     """The line for an output that could not be written: ``could not write PATH: reason``."""
-    return f"could not write {os.fspath(path)}: {exc.strerror or one_line(exc)}"
+    return f"could not write {os.fspath(path)}: {getattr(exc, 'strerror', None) or one_line(exc)}"
 
 
 def one_line(exc: BaseException) -> str:
