@@ -79,6 +79,11 @@ def json_safe(doc):
     return doc
 
 
+def standard_json(doc, **kwargs) -> str:
+    """``json.dumps`` of ``doc`` as standard JSON: non-finite numbers as null (``json_safe``), never NaN."""
+    return json.dumps(json_safe(doc), allow_nan=False, **kwargs)
+
+
 class SpaceReserve:
     """Disk space held back for a process's last write: ``nbytes`` written to ``path`` at start (as many as fit,
     never an error), deleted when a write fails for want of space, so that the write can be tried again
@@ -130,7 +135,7 @@ def write_json_atomic(
     what = not_regular(path)
     if what:
         raise NotRegularFileError(f"{path} is {what}, not a regular file: not replaced")
-    text = json.dumps(json_safe(doc), indent=indent, allow_nan=False)
+    text = standard_json(doc, indent=indent)
     try:
         _write_replace(path, text)
     except OSError as exc:
