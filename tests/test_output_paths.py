@@ -114,3 +114,79 @@ def test_a_disk_full_in_mid_flight_fails_the_flight_naming_the_file_and_keeps_wh
     assert (tmp_path / "flight.tlog").stat().st_size == limit
     stats = json.loads((tmp_path / "autopilot.json").read_text())
     assert stats["steps"] == 3000 and any("flight.tlog" in e for e in stats["output_errors"])
+
+
+# ---------------------------------------------------------------------------------------- a real full disk (issue 35)
+def test_json_is_standard_and_a_write_that_does_not_fit_leaves_no_temporary_file(tmp_path):
+    """On a real 64 kB tmpfs: NaN and Infinity are written as null (a strict parser reads the file); a write that
+    does not fit raises naming the file and leaves no ``.tmp``; with a reserve made before the disk filled, the
+    same write fits and the reserve is gone."""
+    from _small_disk import fill, leftovers, small_disk
+
+    from autopilot.shared.process import SpaceReserve
+
+    def strict(text):
+        return json.loads(text, parse_constant=lambda c: pytest.fail(f"non-standard JSON constant {c}"))
+
+    with small_disk(tmp_path / "disk", 64) as disk:
+        write_json_atomic(disk / "a.json", {"x": float("inf"), "y": [float("nan"), -float("inf"), 1.5]})
+        assert strict((disk / "a.json").read_text()) == {"x": None, "y": [None, None, 1.5]}
+        reserve = SpaceReserve(disk / ".r.reserve", 16 * 1024)
+        assert reserve.held == 16 * 1024
+        fill(disk)
+        doc = {"values": list(range(1000))}  # about 6 kB, more than a full disk takes
+        with pytest.raises(OSError) as exc:
+            write_json_atomic(disk / "b.json", doc)
+        assert exc.value.filename == str(disk / "b.json") and exc.value.strerror == "No space left on device"
+        assert not (disk / "b.json").exists() and leftovers(disk) == [str(disk / ".r.reserve")]
+        write_json_atomic(disk / "b.json", doc, reserve=reserve)
+        assert strict((disk / "b.json").read_text()) == doc and leftovers(disk) == []
+
+
+@pytest.mark.e2e
+def test_a_full_disk_ends_the_launch_failed_with_the_whole_summary_and_no_temporary_file(tmp_path):
+    """`tools.launch --lockstep --duration 30` into a real 200 kB tmpfs (issue 35, item 6): the tlog fills the disk
+    in mid-flight.  The flight flies on; the launcher ends with the documented FAILED line naming the file, exit 1,
+    no traceback; summary.json is the whole verdict (not the start stub), the stats files are written, and no
+    temporary file or space reserve is left."""
+    from _small_disk import leftovers, small_disk
+
+    with small_disk(tmp_path / "disk", 200) as disk:
+        out = disk / "run"
+        r = subprocess.run(
+            [sys.executable, "-m", "tools.launch", "--lockstep", "--duration", "30", "--out", str(out)],
+            capture_output=True, text=True, timeout=300, stdin=subprocess.DEVNULL,
+        )  # fmt: skip
+        both = r.stdout + r.stderr
+        assert r.returncode == 1 and "Traceback" not in both, both[-3000:]
+        last = r.stdout.strip().splitlines()[-1]
+        assert last.startswith("FAILED: autopilot failed (exit code 1): autopilot: error: could not write "), last
+        assert "No space left on device" in last and "flown 100 % (3000 of 3000 steps, 30 of 30 s)" in last
+        summary = json.loads((out / "summary.json").read_text())
+        assert "running" not in summary and summary["exit_code"] == 1 and summary["ok"] is False
+        assert summary["failed"] == "autopilot" and summary["error"] in last
+        assert summary["flown"]["steps"] == 30 * 100 and summary["flown"]["fraction"] == 1.0  # 30 s at 100 Hz
+        assert summary["runs"][0]["steps"] == 3000 and "cut" not in summary  # the whole summary, not the verdict only
+        stats = json.loads((out / "autopilot.json").read_text())
+        assert stats["steps"] == 3000 and any("No space left on device" in e for e in stats["output_errors"])
+        assert json.loads((out / "sitl.json").read_text())["frames"] == 3000
+        assert leftovers(out) == [], leftovers(out)
+        assert not (out / "autopilot_series.npz").exists()  # not written at all rather than half an archive
+
+
+@pytest.mark.e2e
+def test_a_disk_full_before_the_flight_is_one_failed_line(tmp_path):
+    """Not even the start stub fits: one FAILED line, exit 1, nothing flown, nothing left behind."""
+    from _small_disk import fill, leftovers, small_disk
+
+    with small_disk(tmp_path / "disk", 64) as disk:
+        (disk / "run").mkdir()
+        fill(disk)
+        r = run_cli("tools.launch", "--lockstep", "--duration", "2", "--out", str(disk / "run"), timeout=120)
+        lines = (r.stdout + r.stderr).strip().splitlines()
+        assert r.returncode == 1 and "Traceback" not in r.stdout + r.stderr, r.stdout + r.stderr
+        assert lines[-1] == (
+            f"FAILED: launch: could not write {disk / 'run' / 'summary.json'}: No space left on device; "
+            "nothing was flown"
+        ), lines
+        assert leftovers(disk) == [] and not (disk / "run" / "summary.json").exists()
