@@ -190,3 +190,30 @@ def test_a_disk_full_before_the_flight_is_one_failed_line(tmp_path):
             "nothing was flown"
         ), lines
         assert leftovers(disk) == [] and not (disk / "run" / "summary.json").exists()
+
+
+@pytest.mark.e2e
+@pytest.mark.parametrize("study", ["robustness", "paper"])
+def test_a_full_disk_keeps_a_study_s_summary_and_names_each_file_it_could_not_write(tmp_path, study):
+    """The robustness study and the paper experiment on a real tmpfs with 40 kB free: summary.json is written first
+    and whole; the picture and the recording that do not fit are one line each, exit 1, no traceback, no half file
+    and no temporary file."""
+    from _small_disk import fill, leftovers, small_disk
+
+    args = {
+        "robustness": ["robustness", "--runs", "4", "--sweep-runs", "0", "--long-runs", "0", "--controllers",
+                       "clsac,baseline", "--no-progress"],
+        "paper": ["paper", "--runs", "clsac"],
+    }[study]  # fmt: skip
+    with small_disk(tmp_path / "disk", 300) as disk:
+        fill(disk, leave_kb=40)
+        out = disk / "out"
+        r = run_cli("tools.experiment", *args, "--out", str(out), timeout=300)
+        assert r.returncode == 1 and "Traceback" not in r.stdout + r.stderr, r.stdout[-2000:] + r.stderr[-2000:]
+        summary = json.loads((out / "summary.json").read_text())
+        assert summary["runs"] if study == "paper" else summary["results"]["clsac"]["nominal"]["runs"] == 4
+        errors = [line for line in r.stderr.splitlines() if "error: could not write" in line]
+        picture = out / ("robustness.png" if study == "robustness" else "paper.png")
+        assert errors and any(str(picture) in e for e in errors), r.stderr
+        assert not picture.exists() and leftovers(disk) == []
+        assert {p.name for p in out.iterdir()} <= {"summary.json", "table.md"}
