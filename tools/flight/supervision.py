@@ -379,6 +379,8 @@ class Flight:
             return serve_web(self._web)
         except WebServerError as exc:
             write_refusal(self.out, "web", str(exc))
+            if self._reserve is not None:  # nothing flies: no space is held
+                self._reserve.release()
             raise
 
     def _stop_web(self) -> None:
