@@ -217,3 +217,34 @@ def test_a_full_disk_keeps_a_study_s_summary_and_names_each_file_it_could_not_wr
         assert errors and any(str(picture) in e for e in errors), r.stderr
         assert not picture.exists() and leftovers(disk) == []
         assert {p.name for p in out.iterdir()} <= {"summary.json", "table.md"}
+
+
+def test_a_summary_that_does_not_fit_is_cut_to_its_verdict_and_the_flight_is_not_ok(tmp_path):
+    """``tools.flight.files.write_summary`` on a real 64 kB tmpfs with 8 kB free: a summary of about 30 kB does not
+    fit, so the file holds its verdict only (``cut``), and an OK flight whose summary was cut is FAILED, exit 1,
+    naming the file.  With nothing free, the file before (the provisional one) stays."""
+    from _small_disk import fill, leftovers, small_disk
+
+    from tools.flight.files import provisional_summary, write_summary
+
+    ok = {"ok": True, "outcome": "OK", "exit_code": 0, "failed": None, "error": None, "completed": True,
+          "flown": {"fraction": 1.0}, "events": ["x" * 100] * 300}  # fmt: skip
+    with small_disk(tmp_path / "disk", 64) as disk:
+        write_json_atomic(disk / "summary.json", provisional_summary(1))
+        fill(disk, leave_kb=8)
+        s = write_summary(disk, dict(ok))
+        written = json.loads((disk / "summary.json").read_text())
+        assert s["exit_code"] == written["exit_code"] == 1 and s["outcome"] == written["outcome"] == "FAILED"
+        assert (
+            s["error"]
+            == written["error"]
+            == (f"launch: could not write {disk / 'summary.json'}: No space left on device (the flight itself: OK)")
+        )
+        assert "events" not in written and written["flown"] == {"fraction": 1.0} and "did not fit" in written["cut"]
+        assert leftovers(disk) == []
+        (disk / "summary.json").unlink()
+        write_json_atomic(disk / "summary.json", provisional_summary(1))
+        fill(disk)
+        s = write_summary(disk, dict(ok))
+        assert s["exit_code"] == 1 and json.loads((disk / "summary.json").read_text())["running"] is True
+        assert leftovers(disk) == []
