@@ -94,7 +94,7 @@ class SpaceReserve:
         self.held = 0
         try:
             with open(self.path, "wb") as f:
-                block = b"\0" * 4096
+                block = os.urandom(4096)  # not zeros: a compressing file system would store those in no space
                 while self.held < nbytes:
                     f.write(block)
                     f.flush()
