@@ -302,6 +302,11 @@ def main_run(args, prog: str) -> int:
         print(f"{prog}: error: {line}", file=sys.stderr)
     if summary.get("output_errors"):
         return 1
+    errors = [s["error"] for s in sections_of(summary).values() if s.get("error")]
+    if errors:  # an error after the first runs: what was flown is kept
+        print(f"{prog}: error: {errors[0]}; kept what was done in {(out / 'summary.json').resolve()} (partial)",
+              file=sys.stderr)  # fmt: skip
+        return 1
     if summary.get("partial"):
         print(
             f"{prog}: interrupted: kept what was done in {(out / 'summary.json').resolve()} (partial)", file=sys.stderr

@@ -68,6 +68,8 @@ def run_plants(
             else:
                 section = flights.fly(opts, log=log, progress=progress, stop=stop, client=client)
             sections[text] = section
+            if section.get("error"):  # an error stopped it: the plants after it are not flown
+                break
     finally:
         if client is not None:
             client.close(timeout=10)

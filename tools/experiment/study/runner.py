@@ -39,6 +39,7 @@ from tools.experiment.study.sampling import (
     get_condition,
     sweep_conditions,
 )
+from tools.experiment.study.simulation import simulate
 
 PILOT_RUNS = 200  # runs flown and timed for the estimate, before the study
 
@@ -184,9 +185,17 @@ def finish(out: Path, summary: dict, problems: list[str], log=print) -> None:
 
 
 def fly_study(
-    opts: StudyOptions, *, log=print, progress: bool = True, stop: threading.Event | None = None, client=None
+    opts: StudyOptions,
+    *,
+    log=print,
+    progress: bool = True,
+    stop: threading.Event | None = None,
+    client=None,
+    simulate=simulate,
 ):
-    """Fly the study: (summary without ``timing``, the ``Tally`` of every run, each phase's ``_phase``)."""
+    """Fly the study: (summary without ``timing``, the ``Tally`` of every run, each phase's ``_phase``).  An error
+    after the first runs keeps them: ``partial``, ``done`` and ``error`` (its line).  ``simulate``: the batch
+    function (``tools.experiment.study.simulation.simulate``)."""
     sweeps = list(sweep_conditions()) if opts.sweep_runs else []
     plan = Plan([(c, opts.runs) for c in opts.conditions] + [(c, opts.sweep_runs) for c in sweeps])
     long_ctrls = [c for c in LONG_CONTROLLERS if c in opts.controllers] if opts.long_runs else []
@@ -204,6 +213,7 @@ def fly_study(
 
         client = connect(opts.scheduler)  # bounded: one line if it is not a Dask scheduler
     phases: dict = {}
+    error = None
     try:
         rate = _pilot(opts.controllers[0], plan, opts.seed, stop, opts.faults)
         if rate is not None:
@@ -216,7 +226,7 @@ def fly_study(
         t0 = time.perf_counter()
         bar = Progress(total, "30 s runs", enabled=progress)
         rest = _tasks(opts.controllers, plan, opts.seed, opts.chunk, 30.0, opts.faults)
-        for t, r in stream(rest, opts.scheduler, opts.workers, stop=stop, client=client):
+        for t, r in stream(rest, opts.scheduler, opts.workers, simulate, stop=stop, client=client):
             tally.add(t, r)
             bar.add(len(t.runs))
         bar.close()
@@ -226,11 +236,16 @@ def fly_study(
             t0, before = time.perf_counter(), tally.runs
             bar = Progress(n_long, "600 s runs", enabled=progress)
             long_tasks = _tasks(long_ctrls, long_plan, opts.seed, opts.chunk, LONG_DURATION_S, opts.faults)
-            for t, r in stream(long_tasks, opts.scheduler, opts.workers, stop=stop, client=client):
+            for t, r in stream(long_tasks, opts.scheduler, opts.workers, simulate, stop=stop, client=client):
                 tally.add(t, r)
                 bar.add(len(t.runs))
             bar.close()
             phases["runs_600s"] = _phase(tally.runs - before, LONG_DURATION_S, time.perf_counter() - t0)
+    except Exception as exc:  # after the first runs, what was flown is kept (partial, with the error's line)
+        if not tally.runs:
+            raise
+        error = one_line(exc)
+        phases.setdefault("runs_30s", _phase(tally.runs, 30.0, time.perf_counter() - t0))
     finally:
         if own:
             client.close(timeout=10)
@@ -239,6 +254,8 @@ def fly_study(
     summary["partial"] = partial
     if partial:
         summary["done"] = {"runs": tally.runs, "of": total + n_long}
+    if error:
+        summary["error"] = error
     return summary, tally, phases
 
 
