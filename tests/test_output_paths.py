@@ -248,3 +248,45 @@ def test_a_summary_that_does_not_fit_is_cut_to_its_verdict_and_the_flight_is_not
         s = write_summary(disk, dict(ok))
         assert s["exit_code"] == 1 and json.loads((disk / "summary.json").read_text())["running"] is True
         assert leftovers(disk) == []
+
+
+@pytest.mark.e2e
+def test_a_disk_with_no_room_for_the_logs_ends_the_flight_and_names_them(tmp_path):
+    """40 kB free: the provisional summary, the launcher's 32 kB reserve and the signing key (a 4 kB page each) take
+    it all, so not even the first line of a process's log fits.  A log that cannot be written must never stop the
+    launcher reading the process's output (the process would block on its next print and the flight hang, as it
+    did): the flight ends, FAILED, exit 1, each log named in summary.json.  With 36 kB free the key does not fit
+    either: one line, nothing started, no empty key file left."""
+    from _small_disk import fill, leftovers, small_disk
+
+    def launch(out):
+        return subprocess.run(
+            [sys.executable, "-m", "tools.launch", "--lockstep", "--duration", "10", "--out", str(out)],
+            capture_output=True, text=True, timeout=300, stdin=subprocess.DEVNULL,
+        )  # fmt: skip
+
+    with small_disk(tmp_path / "disk", 200) as disk:
+        out = disk / "run"
+        out.mkdir()
+        fill(disk, leave_kb=40)
+        r = launch(out)
+        both = r.stdout + r.stderr
+        assert r.returncode == 1 and "Traceback" not in both, both[-3000:]
+        assert r.stdout.strip().splitlines()[-1].startswith("FAILED: "), both[-2000:]
+        summary = json.loads((out / "summary.json").read_text())
+        assert summary["exit_code"] == 1 and "running" not in summary
+        logged = " ".join(summary.get("output_errors") or [])
+        assert all(f"{out / name}.log: No space left on device" in logged for name in ("sitl", "gcs", "autopilot"))
+        assert leftovers(out) == []
+    with small_disk(tmp_path / "disk2", 200) as disk:
+        out = disk / "run"
+        out.mkdir()
+        fill(disk, leave_kb=36)
+        r = launch(out)
+        assert r.returncode == 1 and "Traceback" not in r.stdout + r.stderr, r.stdout + r.stderr
+        assert r.stdout.strip().splitlines()[-1] == (
+            f"FAILED: launch: could not write in {out}: No space left on device; nothing was flown"
+        )
+        summary = json.loads((out / "summary.json").read_text())
+        assert summary["exit_code"] == 1 and summary["flown"]["steps"] == 0 and summary["failed"] == "launch"
+        assert sorted(p.name for p in out.iterdir()) == ["summary.json"]  # no empty signing.key, no .parts

@@ -349,6 +349,33 @@ def write_summary(out: Path, summary: dict, reserve=None) -> dict:
     return summary
 
 
+def write_unstarted(out: Path, exit_code: int, error: str, reserve=None) -> None:
+    """summary.json of a flight that ended before any process started (a folder the disk cannot take, Ctrl-C): not
+    OK, nothing flown; if even that does not fit, the provisional one stays.  The reserve and leftovers go."""
+    path = out / "summary.json"
+    summary = {
+        "ok": False,
+        "exit_code": exit_code,
+        "outcome": outcome_of(exit_code),
+        "failed": "launch" if exit_code == EXIT_FAILED else None,
+        "error": error,
+        "flown": {"steps": 0, "steps_asked": None, "fraction": 0.0, "frames": 0, "sim_time_s": 0.0, "complete": False},
+        "files": {"summary": str(path)},
+    }
+    try:
+        write_json_atomic(path, summary, reserve=reserve)
+    except OSError:
+        pass
+    finally:
+        if reserve is not None:
+            reserve.release()
+        remove_leftovers(out)
+        try:
+            (out / ".parts").rmdir()  # made for the telemetry, empty: nothing flew
+        except OSError:
+            pass
+
+
 def provisional_summary(pid: int) -> dict:
     """DIR/summary.json while a flight runs: not OK until the launcher writes the verdict."""
     return {

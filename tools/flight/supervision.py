@@ -48,6 +48,7 @@ from tools.flight.files import (
     write_flight_png,
     write_refusal,
     write_summary,
+    write_unstarted,
 )
 from tools.flight.outcome import (
     _ended_normally,
@@ -470,6 +471,14 @@ class Flight:
                 break
         except BaseException as exc:
             interrupted = isinstance(exc, KeyboardInterrupt)
+            if not self._children:  # nothing started (e.g. the key did not fit on a full disk): no verdict to make
+                self._stop_png()
+                self._stop_web()
+                why = "interrupted (Ctrl-C)" if interrupted else f"start-up failed: {type(exc).__name__}: {exc}"
+                write_unstarted(self.out, EXIT_INTERRUPTED if interrupted else EXIT_FAILED, why, self._reserve)
+                if isinstance(exc, OSError):
+                    raise OutputError(f"could not write in {self.out}: {exc.strerror or exc}") from None
+                raise
             self._end(
                 EXIT_INTERRUPTED if interrupted else EXIT_FAILED,
                 None if interrupted else "launch",
@@ -574,6 +583,12 @@ class Flight:
         )
         if rrd_error and exit_code == EXIT_OK:
             exit_code, failed, error = EXIT_FAILED, "telemetry", rrd_error
+        # a log the disk could not take (the children's output was still read: none blocked on it)
+        log_errors = [
+            f"{c.log_error} (what was written before is kept)" for c in self._children.values() if c.log_error
+        ]
+        if log_errors and exit_code == EXIT_OK:
+            exit_code, failed, error = EXIT_FAILED, "launch", f"launch: could not write {log_errors[0]}"
         flown = flown_report(cfg, stats)
         machine = machine_load(self._cpu0)  # how busy every CPU of the machine was while it flew
         if stopped:
@@ -600,8 +615,8 @@ class Flight:
         summary["flown"] = flown
         summary["recovery"] = flight_recovery(self.out, summary.get("faults"))  # per fault: back to tracking?
         summary["machine"] = machine
-        if rrd_error:  # also when the flight failed for another reason (a full disk: DIR/.parts keeps the spools)
-            summary["output_errors"] = [rrd_error]
+        if rrd_error or log_errors:  # also when the flight failed otherwise (a full disk: DIR/.parts keeps the spools)
+            summary["output_errors"] = [*filter(None, [rrd_error]), *log_errors]
         png = self._png_result(drawing, metrics)
         summary["files"]["png"] = str(png) if png else None
         summary = write_summary(self.out, summary, self._reserve)  # the most complete that fits (a full disk)
