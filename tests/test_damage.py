@@ -4,6 +4,7 @@ its flags (one line, exit 2).  Fast: the end-to-end runs are in tests/test_e2e_d
 
 from __future__ import annotations
 
+import json
 import math
 import subprocess
 import sys
@@ -282,3 +283,122 @@ def test_the_printed_tables_rank_and_show_each_cell():
         md[0] == "| fault | CL-SAC | PID (as designed) |"
         and md[3] == "| `rate=5` | 50 % / 3 / 0.5 | 100 % / 0.3 / 0.5 |"
     )
+
+
+def _study(*flags):
+    from tools.experiment.damage.cli import build_parser, study_of
+
+    return study_of(build_parser().parse_args(list(flags)))
+
+
+def test_the_grid_flies_each_value_once_and_counts_its_flights_by_hand():
+    """5000 equal severities, a plant, a kind and a controller given twice are one each (issue 35, item 7): a plant
+    and a controller fly per seed one fault-free flight and one per (severity, onset), so 1 plant x 2 controllers x
+    2 seeds x (1 + 2 severities x 1 onset) = 12 flights, counted here by hand."""
+    study = _study(
+        "--plant", "kh2013a,kh2013a", "--kinds", "effectiveness,effectiveness", "--controllers", "clsac,baseline,clsac",
+        "--severity", "effectiveness=" + ",".join(["0.3"] * 5000 + ["0.30", "0.6"]), "--runs", "2", "--onsets", "10,10",
+    )  # fmt: skip
+    assert study.plants == ("kh2013a",) and study.controllers == ("clsac", "baseline")
+    assert study.severities["effectiveness"] == (0.3, 0.6) and study.onsets == (10.0,)
+    assert study.count() == len(study.flights()) == 1 * 2 * 2 * (1 + 2 * 1)
+    # a MIMO plant flies 3 of the 6 controllers: 3 x 1 seed x (1 + 3 default effectiveness severities) = 12 flights
+    mimo = _study("--plant", "jsbsim:c172x:surface=aileron+rudder", "--kinds", "effectiveness", "--runs", "1")
+    assert mimo.count() == len(mimo.flights()) == 3 * 1 * (1 + 3)
+
+
+def test_a_grid_above_the_cap_is_refused_in_one_line_naming_the_cap():
+    def damage(*flags):
+        return subprocess.run(
+            [sys.executable, "-m", "tools.experiment", "damage", "--plant", "kh2013a", *flags],
+            capture_output=True, text=True, timeout=60,
+        )  # fmt: skip
+
+    # the defaults on one plant: 6 controllers x 1000 seeds x (1 + 4 kinds x 3 severities) = 78,000 > 20,000
+    r = damage("--runs", "1000")
+    assert r.returncode == 2 and len(r.stderr.strip().splitlines()) == 1 and "Traceback" not in r.stderr, r.stderr
+    assert "78,000 flights" in r.stderr and "cap of 20,000" in r.stderr and "--max-flights N" in r.stderr
+    r = damage("--kinds", "rate", "--severity", "rate=5", "--controllers", "clsac", "--max-flights", "3")
+    assert r.returncode == 2 and "the grid has 4 flights, more than the cap of 3" in r.stderr, r.stderr
+
+
+def test_the_first_line_names_only_the_designs_asked_for():
+    from tools.experiment.damage.runner import plan_line
+
+    plain = _study("--plant", "kh2013a", "--kinds", "effectiveness,rate", "--controllers", "clsac,baseline")
+    flights = plain.flights()
+    assert plan_line(flights, grid.designs_needed(flights), "1 local process(es)") == (
+        f"{len(flights)} flights on 1 local process(es)"
+    )
+    retuned = _study("--plant", "kh2013a", "--kinds", "effectiveness,rate", "--severity", "effectiveness=0.3",
+                     "--controllers", "clsac,pid-retuned")  # fmt: skip
+    flights = retuned.flights()
+    line = plan_line(flights, grid.designs_needed(flights), "here")
+    # the PID as built and retuned for effectiveness 0.3 (rate is no linear plant): 2 designs, no energy calibration
+    assert line.startswith(f"{len(flights)} flights and 2 design(s) (2 for pid-retuned") and "energy" not in line
+
+
+def test_column_headers_are_whole_names_with_a_legend():
+    from tools.experiment.damage.aggregate import period_table, table
+    from tools.experiment.damage.cli import legend
+
+    names = list(grid.CONTROLLERS)
+    cells = [
+        {"plant": "kh2013a", "controller": c, "kind": grid.NONE, "severity": None, "onset_s": None,
+         "share_controlled": 1.0, "ise_ref_after_p50": 0.1, "ise_ref_periods_p50": [0.1, 0.1]}
+        for c in names
+    ]  # fmt: skip
+    for text in (table(cells, "kh2013a", names), period_table(cells, "kh2013a", names)):
+        head = next(line for line in text.splitlines() if line.startswith("fault"))
+        assert head.split() == ["fault", *names], head
+    assert legend(names) == "columns: " + "; ".join(f"{c} = {grid.LABELS[c]}" for c in names)
+    assert "pid-retuned = PID retuned for the fault" in legend(names)
+
+
+def test_an_error_after_the_first_flight_keeps_the_flights_flown(tmp_path):
+    """A study stopped by an error at its third flight: the two flights flown are kept, in a summary that says it is
+    partial, how many of how many and why; an error before any flight is raised as it was."""
+    from tools.experiment.damage.flight import simulate
+    from tools.experiment.damage.runner import run, write
+
+    study = _study("--plant", "kh2013a", "--kinds", "effectiveness", "--severity", "effectiveness=0.3",
+                   "--controllers", "clsac,baseline", "--runs", "1", "--duration", "12")  # fmt: skip
+    calls = []
+
+    def third_fails(task):
+        calls.append(task)
+        if len(calls) == 3:
+            raise ValueError("the third flight failed")
+        return simulate(task)
+
+    quiet = dict(workers=1, progress=False, log=lambda *_: None)
+    doc = run(study, simulate=third_fails, **quiet)
+    assert doc["partial"] and doc["done"] == {"flights": 2, "of": 4} and doc["flights"] == 2
+    assert doc["error"] == "ValueError: the third flight failed"
+    assert sum(c["flights"] for c in doc["cells"]) == 2
+    assert [(c["controller"], c["kind"]) for c in doc["cells"]] == [(f.controller, f.kind) for f in calls[:2]]
+    written, problems = write(doc, tmp_path, plot=False)
+    assert problems == [] and json.loads((tmp_path / "summary.json").read_text())["done"] == {"flights": 2, "of": 4}
+
+    def first_fails(task):
+        raise ValueError("no flight flies")
+
+    with pytest.raises(ValueError, match="no flight flies"):
+        run(study, simulate=first_fails, **quiet)
+
+
+def test_the_summary_is_standard_json_whatever_its_numbers(tmp_path):
+    """A cell's recovery that never came was written as a bare Infinity: now null, which a strict parser reads."""
+    from tools.experiment.damage.runner import write
+
+    doc = {
+        "cells": [],
+        "plants": [],
+        "kinds": [],
+        "controllers": [],
+        "labels": {},
+        "x": [math.inf, -math.inf, math.nan],
+    }
+    write(doc, tmp_path, plot=True)
+    text = (tmp_path / "summary.json").read_text()
+    assert json.loads(text, parse_constant=lambda c: pytest.fail(c))["x"] == [None, None, None]

@@ -100,3 +100,59 @@ def test_an_in_process_faulted_flight_is_the_lockstep_flight_with_the_fault(tmp_
     assert summary["runs"][0]["metrics"] == res.metrics
     free = run_inprocess(replace(PAPER, duration_s=20.0), PAPER_RUNS[1], wire=PwmMap()).series["phi"]
     assert np.abs(free - phi)[t > 10.5].max() > math.radians(0.5)  # and the fault did change the flight
+
+
+def test_ctrl_c_keeps_the_flights_flown_in_a_partial_summary(tmp_path):
+    """SIGINT to a real damage study once some flights are done (issue 35, item 7): exit 130, one line saying what
+    was kept, and a summary.json that says it is partial with the flights flown: as many as its cells hold."""
+    import re
+    import signal
+
+    out = tmp_path / "d"
+    p = subprocess.Popen(
+        [sys.executable, "-m", "tools.experiment", "damage", "--plant", "kh2013a", "--kinds", "effectiveness,rate",
+         "--controllers", "clsac,baseline", "--runs", "3", "--duration", "20", "--workers", "1", "--out", str(out)],
+        stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+    )  # fmt: skip
+    seen = ""
+    deadline = time.monotonic() + 240
+    while time.monotonic() < deadline:  # the progress bar: "damage [###...] N/42 ..."
+        ch = p.stderr.read(1)
+        if not ch:
+            break
+        seen += ch
+        m = re.findall(r"\] (\d+)/(\d+) ", seen)
+        if m and int(m[-1][0]) >= 3:
+            break
+    p.send_signal(signal.SIGINT)
+    rest_out, rest_err = p.communicate(timeout=120)
+    err = seen + rest_err
+    assert p.returncode == 130 and "Traceback" not in err, err[-2000:]
+    assert "interrupted: kept " in err and "(partial)" in err
+    doc = json.loads((out / "summary.json").read_text())
+    total = 2 * 3 * (1 + 3 + 3)  # controllers x seeds x (the fault-free flight + 3 effectiveness + 3 rate severities)
+    assert doc["partial"] is True and doc["done"]["of"] == total and 3 <= doc["done"]["flights"] < total
+    assert doc["flights"] == doc["done"]["flights"] == sum(c["flights"] for c in doc["cells"])
+    assert f"kept {doc['flights']} of {total} flights" in err
+
+
+def test_a_full_disk_keeps_the_summary_and_names_the_picture(tmp_path):
+    """A real tmpfs with 24 kB free: the summary (about 13 kB) is written, damage.png does not fit: one line naming
+    it, exit 1, no half picture and no temporary file."""
+    from _small_disk import fill, leftovers, small_disk
+
+    with small_disk(tmp_path / "disk", 300) as disk:
+        fill(disk, leave_kb=24)
+        out = disk / "d"
+        r = subprocess.run(
+            [sys.executable, "-m", "tools.experiment", "damage", "--plant", "kh2013a", "--kinds", "effectiveness",
+             "--controllers", "clsac,baseline", "--runs", "1", "--duration", "20", "--out", str(out), "--quiet"],
+            capture_output=True, text=True, timeout=300,
+        )  # fmt: skip
+        assert r.returncode == 1 and "Traceback" not in r.stdout + r.stderr, r.stdout + r.stderr
+        assert r.stderr.strip().splitlines() == [
+            f"python -m tools.experiment damage: error: could not write {out / 'damage.png'}: No space left on device"
+        ]
+        doc = json.loads((out / "summary.json").read_text())
+        assert doc["flights"] == 2 * 1 * (1 + 3) and doc["partial"] is False
+        assert not (out / "damage.png").exists() and leftovers(disk) == []

@@ -27,6 +27,7 @@ import numpy as np
 
 from autopilot import controllers
 from autopilot.envelope import saturated, verdict
+from tools.experiment.outdir import one_line
 from tools.experiment.study.accumulate import wilson
 from tools.experiment.study.execution import Progress, stream
 from tools.experiment.study.sampling import BOUND_ROLL_RAD, BOUND_SAT_FRACTION, DEG, StudyError
@@ -242,26 +243,32 @@ def fly(opts: FlightOptions, *, log=print, progress: bool = True, stop: threadin
     bar = Progress(len(flights), "30 s flights", enabled=progress, unit="flights")
     done: list[tuple[Flight, dict]] = []
     t0 = time.perf_counter()
-    for f, r in stream(flights[:1], simulate=simulate, stop=stop):
-        done.append((f, r))
-        bar.add(1)
-    if done:
-        first = time.perf_counter() - t0
-        parallel = min(opts.workers, os.cpu_count() or 1)
-        if client is not None:
-            from tools.experiment.study.scheduler import threads
-
-            parallel = threads(client)
-        from tools.experiment.study.runner import _mb, _rss_bytes
-
-        log(
-            f"estimate: {len(flights):,} flights, about {first * len(flights) / parallel:,.0f} s on {where} "
-            f"({first:.2f} s for the first flight); memory about {_mb(_rss_bytes() + RECORD_BYTES * len(flights))} "
-            "here; Ctrl-C stops and keeps what is done"
-        )
-        for f, r in stream(flights[1:], opts.scheduler, opts.workers, simulate, stop=stop, client=client):
+    error = None
+    try:  # an error after the first flight keeps the flights flown (partial, with the error's line)
+        for f, r in stream(flights[:1], simulate=simulate, stop=stop):
             done.append((f, r))
             bar.add(1)
+        if done:
+            first = time.perf_counter() - t0
+            parallel = min(opts.workers, os.cpu_count() or 1)
+            if client is not None:
+                from tools.experiment.study.scheduler import threads
+
+                parallel = threads(client)
+            from tools.experiment.study.runner import _mb, _rss_bytes
+
+            log(
+                f"estimate: {len(flights):,} flights, about {first * len(flights) / parallel:,.0f} s on {where} "
+                f"({first:.2f} s for the first flight); memory about "
+                f"{_mb(_rss_bytes() + RECORD_BYTES * len(flights))} here; Ctrl-C stops and keeps what is done"
+            )
+            for f, r in stream(flights[1:], opts.scheduler, opts.workers, simulate, stop=stop, client=client):
+                done.append((f, r))
+                bar.add(1)
+    except Exception as exc:
+        if not done:
+            raise
+        error = one_line(exc)
     bar.close()
     wall = time.perf_counter() - t0
     table = summarise([f for f, _ in done], [r for _, r in done])
@@ -290,6 +297,8 @@ def fly(opts: FlightOptions, *, log=print, progress: bool = True, stop: threadin
     section["units"].update(max_abs_u="rad", max_abs_roll="rad", sat_fraction="1")
     if section["partial"]:
         section["done"] = {"runs": len(done), "of": len(flights)}
+    if error:
+        section["error"] = error
     section["timing"] = {"wall_s": wall, "runs": len(done), "runs_per_s": len(done) / wall if wall > 0 else None}
     return section
 
