@@ -30,7 +30,12 @@ def build_parser() -> argparse.ArgumentParser:
         metavar="P1,P2",
         help="plants: kh2013a, FILE.toml, jsbsim:MODEL[:KEY=VALUE,...] (default kh2013a,jsbsim:c172x)",
     )
-    p.add_argument("--runs", type=cli.count(1, 10**6, name="runs"), default=2, help="seeds per cell (default 2)")
+    p.add_argument(
+        "--runs",
+        type=cli.count(1, 10**6, name="runs"),
+        default=grid.DEFAULT_RUNS,
+        help=f"seeds per cell (default {grid.DEFAULT_RUNS}: the least for a 95 %% paired interval)",
+    )
     p.add_argument("--seed", type=cli.seed, default=1, help="flight j of a cell flies with seed SEED + j (default 1)")
     p.add_argument("--out", metavar="DIR", help="output folder (default: a new runs/damage-<timestamp>/)")
     p.add_argument(
@@ -141,7 +146,7 @@ def study_of(args) -> object:
 
 def main(argv: Sequence[str] | None = None) -> int:
     from sitl import plant as plants
-    from tools.experiment.damage.aggregate import period_table, sideslip_table, table
+    from tools.experiment.damage.aggregate import paired_table, period_table, sideslip_table, table
     from tools.experiment.damage.runner import run, write
     from tools.experiment.outdir import OutDirError, check_out_dir, default_out_dir, prepare_out_dir
     from tools.experiment.study import StudyError
@@ -179,6 +184,9 @@ def main(argv: Sequence[str] | None = None) -> int:
         print()
         flown = [c for c in study.controllers if c not in grid.controller_refusals(p, study.controllers)]
         print(table(doc["cells"], p, flown))
+        if len(flown) > 1:
+            print()
+            print(paired_table(doc["cells"], p, flown))
         if grid.is_mimo(p):
             print()
             print(sideslip_table(doc["cells"], p, flown))

@@ -27,6 +27,7 @@ from tools.experiment.damage.grid import (
     MIMO_CONTROLLERS,
     NONE,
     RETUNED,
+    ROBUST,
     Calibration,
     Design,
     Flight,
@@ -49,8 +50,12 @@ def _scenario(plant: str, duration: float = 30.0, dist: tuple = (), **kw):
 
 
 def _run(controller: str):
+    """The scenario's run of a study controller: SAC and CL-SAC with the robust PFC are the registered laws with
+    ``pfc="robust"`` (applied after the plant's design file, as the launcher's ``--pfc robust``)."""
     from tools.experiment.scenario import run_of
 
+    if controller in ROBUST:
+        return replace(run_of(ROBUST[controller]), name=controller, pfc="robust")
     return run_of("baseline" if controller in (RETUNED, ENERGY) else controller)
 
 
