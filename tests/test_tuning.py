@@ -58,6 +58,8 @@ def test_no_point_of_a_brute_force_search_beats_the_bound(c172x_damping, bound):
     rng = np.random.default_rng(36)
     pts = list(zip(10 ** rng.uniform(-2, 1, 300), rng.uniform(0, TD_MAX, 300)))
     pts += [(kp, td) for kp in np.linspace(0.5, 1.0, 11) for td in np.linspace(0.25, td_bound, 8)]
+    # and along the cap: for each T_d the K_p whose |L| is 1 at 5 rad/s (the crossover is checked below)
+    pts += [(loop.kp_at(5.0 * (1 - 1e-7), td), td) for td in np.linspace(0.0, TD_MAX, 41)]
     feasible = 0
     for kp, td in pts:
         m = loop.margins(kp, td)
