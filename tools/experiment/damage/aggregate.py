@@ -406,6 +406,51 @@ def markdown_paired_table(cells: Sequence[dict], plant: str, controllers: Sequen
                 continue
             lo, hi = d["interval"]
             text = f"{d['median_diff']:+.2g} [{lo:+.2g}, {hi:+.2g}]"
-            out.append(text + ("" if d["shown"] else " no difference shown") + f", E {_ratio(per.get(n))}")
+            why = "" if d["confidence"] >= stats.LEVEL else f" ({100 * d['confidence']:.4g} %)"
+            out.append(text + ("" if d["shown"] else f" no difference shown{why}") + f", E {_ratio(per.get(n))}")
         lines.append(f"| {_name(kind, sev, True)} | " + " | ".join(out) + " |")
     return "\n".join(lines)
+
+
+def markdown_period_table(cells: Sequence[dict], plants: Sequence[str], controllers: Sequence[str]) -> str:
+    """A docs table of the long flights: a row per plant and fault, per controller "% controlled / mean ise_ref of
+    the first period after the onset → mean per period over the last window [95 % bootstrap interval]"."""
+    head = "| plant | fault | " + " | ".join(LABELS.get(n, n) for n in controllers) + " |"
+    lines = [head, "|---|---|" + "---:|" * len(controllers)]
+    for plant in plants:
+        _onset, rows = _rows(cells, plant, None)
+        for (kind, sev), per in rows.items():
+            out = []
+            for n in controllers:
+                c = per.get(n)
+                if c is None or "long" not in c:
+                    out.append("-")
+                    continue
+                a, b = c["long"]["first_period"], c["long"]["last_window"]
+                lo, hi = b["interval"]
+                share = 100 * c["share_controlled"]
+                out.append(f"{share:.0f} % / {a['mean']:.2g} → {b['mean']:.2g} [{lo:.2g}, {hi:.2g}]")
+            name = "none" if kind == NONE else f"`{_name(kind, sev)}@{_fmt(_onset, 'g')}`"
+            lines.append(f"| {plant} | {name} | " + " | ".join(out) + " |")
+    return "\n".join(lines)
+
+
+def markdown_tables(doc: dict, energy: Sequence[str] = ("clsac", "pid-energy", "baseline")) -> str:
+    """Every docs table of a ``summary.json`` document, as docs/damage.md publishes them: per plant the table as
+    designed, the paired differences to CL-SAC and (when flown) the table at equal effort; the long flights' table
+    when the flights are >= 60 s."""
+    cells = doc["cells"]
+    out = []
+    for plant in doc["plants"]:
+        refused = doc.get("not_flown", {}).get(plant, {}).get("controllers", {})
+        flown = [c for c in doc["controllers"] if c not in refused]
+        out += [f"{plant}:", "", markdown_table(cells, plant, flown), ""]
+        if len(flown) > 1:
+            out += [markdown_paired_table(cells, plant, flown), ""]
+        eq = [c for c in energy if c in flown]
+        if len(eq) == len(energy):
+            out += [markdown_table(cells, plant, eq, energy=True), ""]
+    if doc.get("duration_s", 0) >= 60:
+        flown = list(doc["controllers"])
+        out += [markdown_period_table(cells, doc["plants"], flown), ""]
+    return "\n".join(out)

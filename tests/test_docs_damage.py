@@ -1,0 +1,106 @@
+"""docs/damage.md's tables are what the damage study prints for their commands: each block of tables on the page
+sits between ``<!-- damage-tables: ARGS -->`` and ``<!-- /damage-tables -->``, ARGS its command's flags; a row of
+each is flown again with the block's seeds, turbulence and length, for two of its laws (the PID as designed and
+CL-SAC, whose cells do not depend on the other laws flown), and every printed digit compared with the page
+(``tools.experiment.damage.aggregate.markdown_tables``).  A flight depends on its task only, so the tolerance is
+none: a stale table fails."""
+
+from __future__ import annotations
+
+import json
+import os
+import re
+import shlex
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+ROOT = Path(__file__).resolve().parents[1]
+PAGE = ROOT / "docs" / "damage.md"
+BLOCK = re.compile(r"<!-- damage-tables: (.*?) -->\n(.*?)<!-- /damage-tables -->", re.S)
+COLUMNS = ("PID (as designed)", "CL-SAC", "PID (as designed) - CL-SAC")
+
+
+def _blocks() -> list[tuple[list[str], str]]:
+    return [(shlex.split(m.group(1)), m.group(2)) for m in BLOCK.finditer(PAGE.read_text(encoding="utf-8"))]
+
+
+def _flag(args: list[str], name: str, default: str) -> str:
+    return args[args.index(name) + 1] if name in args else default
+
+
+def _tables(text: str) -> list[dict]:
+    """Each markdown table of ``text``: {(row name, column name): entry}."""
+    out, rows = [], []
+    for line in [*text.splitlines(), ""]:
+        if line.startswith("|"):
+            rows.append([c.strip() for c in line.strip().strip("|").split("|")])
+            continue
+        if rows:
+            head, body = rows[0], rows[2:]
+            first = 2 if head[:2] == ["plant", "fault"] else 1
+            out.append({(" ".join(r[:first]), h): v for r in body for h, v in zip(head[first:], r[first:])})
+            rows = []
+    return out
+
+
+def _fresh(tmp_path: Path, args: list[str], plant: str, kind: str, value: str) -> str:
+    from tools.experiment.damage.aggregate import markdown_tables
+
+    out = tmp_path / "out"
+    cmd = [sys.executable, "-m", "tools.experiment", "damage", "--plant", plant, "--controllers", "baseline,clsac"]
+    cmd += ["--kinds", kind, "--severity", f"{kind}={value}", "--quiet", "--no-plot", "--out", str(out)]
+    for flag, default in (("--runs", "6"), ("--seed", "1"), ("--turbulence", "light"), ("--duration", "30")):
+        cmd += [flag, _flag(args, flag, default)]
+    r = subprocess.run(
+        cmd, capture_output=True, text=True, cwd=ROOT, env={**os.environ, "PYTHONPATH": str(ROOT)}, timeout=900
+    )
+    assert r.returncode == 0, r.stderr
+    return markdown_tables(json.loads((out / "summary.json").read_text(encoding="utf-8")))
+
+
+def _check(tmp_path: Path, index: int, plant: str, kind: str, value: str) -> None:
+    args, page = _blocks()[index]
+    fresh = _fresh(tmp_path, args, plant, kind, value)
+    row = f"`{kind}={value}`"
+    want = [t for t in _tables(page) if any(k[0].endswith(row) for k in t)]
+    got = [t for t in _tables(fresh) if any(k[0].endswith(row) for k in t)]
+    compared = 0
+    for g in got:
+        for (name, col), entry in g.items():
+            if col not in COLUMNS or not (name.endswith(row) or name.endswith("none")):
+                continue
+            if plant not in name and " " in name:
+                continue
+            hits = [t[(name, col)] for t in want if (name, col) in t]
+            assert entry in hits, (name, col, entry, hits)
+            compared += 1
+    assert compared >= 4, fresh
+
+
+def test_every_table_block_names_its_command():
+    blocks = _blocks()
+    assert len(blocks) >= 3
+    for args, text in blocks:
+        assert "|---|" in text and all(not a.startswith("--out") for a in args)
+
+
+def test_the_main_tables_kh2013a_row_is_a_fresh_run(tmp_path):
+    """The KH2013A at effectiveness 0.3 (and fault-free), the page's 6 seeds in light turbulence: 24 flights."""
+    _check(tmp_path, 0, "kh2013a", "effectiveness", "0.3")
+
+
+@pytest.mark.e2e  # 24 JSBSim flights
+def test_the_main_tables_c172x_row_is_a_fresh_run(tmp_path):
+    _check(tmp_path, 0, "jsbsim:c172x", "effectiveness", "0.3")
+
+
+def test_the_still_air_tables_row_is_a_fresh_run(tmp_path):
+    _check(tmp_path, 1, "kh2013a", "delay", "0.05")
+
+
+@pytest.mark.e2e  # 8 flights of 300 s
+def test_the_long_flights_row_is_a_fresh_run(tmp_path):
+    _check(tmp_path, 2, "kh2013a", "effectiveness", "0.3")
