@@ -60,7 +60,13 @@ def main(argv=None) -> int:
     p = argparse.ArgumentParser(prog="python -m tools.experiment.damage.docs", description=__doc__.splitlines()[0])
     p.add_argument("--page", type=Path, default=PAGE, help="the page to rewrite (default docs/damage.md)")
     p.add_argument("--blocks", default=None, metavar="I,J", help="only these blocks (0 = the first; default all)")
-    p.add_argument("--summary", action="append", default=[], metavar="N=PATH", help="block N from this summary.json (repeat N for one plant per file)")
+    p.add_argument(
+        "--summary",
+        action="append",
+        default=[],
+        metavar="N=PATH",
+        help="block N from this summary.json (repeat N for one plant per file)",
+    )
     args = p.parse_args(argv)
     text = args.page.read_text(encoding="utf-8")
     blocks = [shlex.split(m.group(2)) for m in BLOCK.finditer(text)]
