@@ -19,7 +19,7 @@ import sys
 import tempfile
 from pathlib import Path
 
-BLOCK = re.compile(r"(<!-- damage-tables: (.*?) -->\n)(.*?)(<!-- /damage-tables -->)", re.S)
+BLOCK = re.compile(r"(<!-- damage-tables: ([^\n]*?) -->\n)(.*?)(<!-- /damage-tables -->)", re.S)
 PAGE = Path(__file__).resolve().parents[3] / "docs" / "damage.md"
 
 
