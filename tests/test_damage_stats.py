@@ -75,6 +75,21 @@ def test_the_bootstrap_mean_is_the_mean_and_repeats():
 def test_wilson_interval_of_three_in_ten():
     # (p + z^2/2n -+ z sqrt(p(1-p)/n + z^2/4n^2)) / (1 + z^2/n), p = 0.3, n = 10, z = 1.96: 0.1078, 0.6032
     assert wilson(3, 10) == pytest.approx((0.1078, 0.6032), abs=1e-4)
+    # at 0/n and n/n the bound is the share exactly: (1 + z^2/n - z^2/n) / (1 + z^2/n) rounds to 2.8e-17 at 0/6
+    for n in range(1, 13):
+        assert wilson(0, n)[0] == 0.0 and wilson(n, n)[1] == 1.0
+
+
+def test_damage_png_draws_cells_kept_and_lost_by_every_seed(tmp_path):
+    from tools.view.damage_png import draw
+
+    cells = _cells()
+    for c in cells:  # every flight of CL-SAC's lost, every one of the PID's kept: the Wilson bounds at 0 and 1
+        c["controlled"] = c["flights"] if c["controller"] == "baseline" else 0
+        c["share_controlled"] = c["controlled"] / c["flights"]
+        c["wilson95"] = list(wilson(c["controlled"], c["flights"]))
+    path = draw(cells, ["kh2013a"], ["rate"], ["clsac", "baseline"], {}, tmp_path / "damage.png")
+    assert path.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
 
 
 def _rec(seed=1, controlled=True, after=0.1, recovered=True, recovery_s=2.0, periods=(0.1, 0.2, 0.3), energy=1.0):

@@ -74,8 +74,9 @@ def draw(cells, plants, kinds, controllers, labels: dict, path, onset: float | N
                     continue
                 colour = COLOURS.get(name)
                 share = [100 * c["share_controlled"] for _, c in pts]
-                lo = [100 * (c["share_controlled"] - c["wilson95"][0]) for _, c in pts]
-                hi = [100 * (c["wilson95"][1] - c["share_controlled"]) for _, c in pts]
+                # max(0, .): Wilson's bound of k = n (or 0) is the share itself up to rounding (1 - 1e-16)
+                lo = [max(0.0, 100 * (c["share_controlled"] - c["wilson95"][0])) for _, c in pts]
+                hi = [max(0.0, 100 * (c["wilson95"][1] - c["share_controlled"])) for _, c in pts]
                 share_ax.errorbar(
                     [x + dx for x, _ in pts],
                     share,

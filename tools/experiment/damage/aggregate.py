@@ -36,7 +36,8 @@ def wilson(k: int, n: int, z: float = Z95) -> tuple[float, float]:
     d = 1.0 + z * z / n
     centre = (p + z * z / (2 * n)) / d
     half = z * math.sqrt(p * (1 - p) / n + z * z / (4 * n * n)) / d
-    return max(0.0, centre - half), min(1.0, centre + half)
+    # k = 0 and k = n: the bound is the share itself (the formula's exact value, not its rounding: 2.8e-17 at 0/6)
+    return (0.0 if k == 0 else max(0.0, centre - half)), (1.0 if k == n else min(1.0, centre + half))
 
 
 def _median(values) -> float | None:
