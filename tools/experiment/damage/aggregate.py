@@ -446,7 +446,7 @@ def markdown_tables(doc: dict, energy: Sequence[str] = ("clsac", "pid-energy", "
         refused = doc.get("not_flown", {}).get(plant, {}).get("controllers", {})
         flown = [c for c in doc["controllers"] if c not in refused]
         out += [f"{plant}:", "", markdown_table(cells, plant, flown), ""]
-        if len(flown) > 1:
+        if len(flown) > 1 and doc.get("runs", 2) > 1:  # one seed pairs nothing
             out += [markdown_paired_table(cells, plant, flown), ""]
         eq = [c for c in energy if c in flown]
         if len(eq) == len(energy):

@@ -184,7 +184,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         print()
         flown = [c for c in study.controllers if c not in grid.controller_refusals(p, study.controllers)]
         print(table(doc["cells"], p, flown))
-        if len(flown) > 1:
+        if len(flown) > 1 and study.runs > 1:  # one seed pairs nothing
             print()
             print(paired_table(doc["cells"], p, flown))
         if grid.is_mimo(p):
