@@ -260,3 +260,16 @@ def test_the_printed_tables_rank_and_show_each_cell():
         md[0] == "| fault | CL-SAC | PID (as designed) |"
         and md[3] == "| `rate=5` | 50 % / 3 / 0.5 | 100 % / 0.3 / 0.5 |"
     )
+
+
+def test_sac_and_cl_sac_fly_the_robust_pfc_as_named_controllers():
+    from autopilot.config import PFC_PRESETS
+    from tools.experiment.damage.flight import _run, _scenario
+    from tools.experiment.scenario import controller_config
+
+    scen = _scenario("kh2013a")
+    for name, lv in (("sac-robust", 0.0), ("clsac-robust", 20.0), ("sac", 0.0), ("clsac", 20.0)):
+        cfg = controller_config(scen, _run(name))
+        want = PFC_PRESETS["robust" if name.endswith("-robust") else "paper"]
+        assert (tuple(cfg.pfc_num), tuple(cfg.pfc_den)) == want and cfg.lv == lv, name
+    assert grid.LABELS["sac-robust"] == "SAC, robust PFC" and "clsac-robust" in grid.CONTROLLERS
