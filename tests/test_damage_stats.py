@@ -70,6 +70,7 @@ def test_the_bootstrap_mean_is_the_mean_and_repeats():
     assert m == pytest.approx(0.4) and lo < m < hi and lo >= 0.1 and hi <= 1.0
     assert stats.bootstrap_mean(vals) == (m, lo, hi)  # a fixed generator: the same interval on every run
     assert stats.bootstrap_mean([0.3] * 7) == pytest.approx((0.3, 0.3, 0.3))
+    assert stats.bootstrap_mean([math.nan]) == (None, None, None)  # no NaN for summary.json
 
 
 def test_wilson_interval_of_three_in_ten():

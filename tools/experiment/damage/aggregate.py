@@ -188,7 +188,7 @@ def pair(a: dict, b: dict, window: float = WINDOW_S, period: float = PERIOD_S) -
     ua = _last_units(a["runs"], window, period, a["onset_s"])
     ub = _last_units(b["runs"], window, period, b["onset_s"])
     d = [ub[u] - ua[u] for u in ua if u in ub]
-    if d:
+    if any(v is not None and math.isfinite(v) for v in d):
         m, lo, hi = stats.bootstrap_mean(d)
         shown = lo > 0.0 or hi < 0.0
         vs["last_window"] = {
@@ -349,7 +349,7 @@ def period_table(cells: Sequence[dict], plant: str, controllers: Sequence[str], 
             vals[n] = None if lg is None else (lg["first_period"], lg["last_window"])
         rank = {}
         for i in (0, 1):
-            ok = sorted((v[i]["mean"], n) for n, v in vals.items() if v is not None and math.isfinite(v[i]["mean"]))
+            ok = sorted((v[i]["mean"], n) for n, v in vals.items() if v is not None and v[i]["mean"] is not None)
             for r, (_v, n) in enumerate(ok, 1):
                 rank[(n, i)] = r
         row = f"{_name(kind, sev):<22}"
@@ -360,7 +360,8 @@ def period_table(cells: Sequence[dict], plant: str, controllers: Sequence[str], 
             a, b = vals[n]
             lo, hi = b["interval"]
             r1, r2 = rank.get((n, 0), "-"), rank.get((n, 1), "-")
-            text = f"{a['mean']:.2g}({r1})/{b['mean']:.2g} [{lo:.2g}, {hi:.2g}]({r2})"
+            m1, m2, lo, hi = (_fmt(v, ".2g") for v in (a["mean"], b["mean"], lo, hi))
+            text = f"{m1}({r1})/{m2} [{lo}, {hi}]({r2})"
             row += text.rjust(width)
         lines.append(row)
     return "\n".join(lines)
@@ -430,7 +431,8 @@ def markdown_period_table(cells: Sequence[dict], plants: Sequence[str], controll
                 a, b = c["long"]["first_period"], c["long"]["last_window"]
                 lo, hi = b["interval"]
                 share = 100 * c["share_controlled"]
-                out.append(f"{share:.0f} % / {a['mean']:.2g} → {b['mean']:.2g} [{lo:.2g}, {hi:.2g}]")
+                m1, m2, lo, hi = (_fmt(v, ".2g") for v in (a["mean"], b["mean"], lo, hi))
+                out.append(f"{share:.0f} % / {m1} → {m2} [{lo}, {hi}]")
             name = "none" if kind == NONE else f"`{_name(kind, sev)}@{_fmt(_onset, 'g')}`"
             lines.append(f"| {plant} | {name} | " + " | ".join(out) + " |")
     return "\n".join(lines)

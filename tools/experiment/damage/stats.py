@@ -128,11 +128,12 @@ def paired_share(a: dict, b: dict) -> dict:
     return {"n": len(common), "b_only": b_only, "a_only": a_only, "p_value": p, "shown": p < 1.0 - LEVEL}
 
 
-def bootstrap_mean(values: Sequence[float], boot: int = BOOT, seed: int = BOOT_SEED) -> tuple[float, float, float]:
-    """(mean, lo, hi): the mean of ``values`` and its 95 % percentile bootstrap interval."""
+def bootstrap_mean(values: Sequence[float], boot: int = BOOT, seed: int = BOOT_SEED) -> tuple:
+    """(mean, lo, hi): the mean of ``values`` and its 95 % percentile bootstrap interval; (None, None, None) for no
+    finite value (``summary.json`` holds no NaN)."""
     x = np.asarray([v for v in values if v is not None and math.isfinite(v)], dtype=float)
     if x.size == 0:
-        return math.nan, math.nan, math.nan
+        return None, None, None
     rng = np.random.default_rng(seed)
     means = x[rng.integers(0, x.size, size=(boot, x.size))].mean(axis=1)
     lo, hi = np.quantile(means, [(1 - LEVEL) / 2, (1 + LEVEL) / 2])
