@@ -108,3 +108,13 @@ def test_the_still_air_tables_kh2013a_row_is_a_fresh_run(tmp_path):
 @pytest.mark.e2e  # 12 JSBSim flights
 def test_the_still_air_tables_c172x_row_is_a_fresh_run(tmp_path):
     _check(tmp_path, _block("jsbsim:c172x", "none"), "jsbsim:c172x", "damping", "0.3")
+
+
+@pytest.mark.e2e  # 24 JSBSim flights
+def test_the_main_tables_c172x_row_is_a_fresh_run(tmp_path):
+    _check(tmp_path, _block("jsbsim:c172x"), "jsbsim:c172x", "effectiveness", "0.3")
+
+
+@pytest.mark.e2e  # 8 KH2013A flights of 300 s
+def test_the_long_flights_kh2013a_row_is_a_fresh_run(tmp_path):
+    _check(tmp_path, _block("kh2013a", long=True), "kh2013a", "effectiveness", "0.3")
