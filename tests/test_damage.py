@@ -217,8 +217,10 @@ def test_a_mimo_plant_flies_the_mimo_laws_and_names_the_others_it_does_not():
     flights = grid.make_flights(["kh2013a", mimo], list(grid.CONTROLLERS), cells, [10.0], 1, 1, 30.0, "light")
     assert {f.controller for f in flights if f.plant == mimo} == {"baseline", "sac", "clsac"}
     assert {f.controller for f in flights if f.plant == "kh2013a"} == set(grid.CONTROLLERS)
-    assert set(grid.controller_refusals(mimo, grid.CONTROLLERS)) == {"pid-ff", grid.RETUNED, grid.ENERGY}
-    assert grid.controller_refusals("jsbsim:c172x", grid.CONTROLLERS) == {}
+    assert set(grid.controller_refusals(mimo, grid.CONTROLLERS)) == {"pid-ff", grid.RETUNED, grid.ENERGY, *grid.ROBUST}
+    # the c172x's design file sets the PFC (and overrides --pfc): the robust preset is not what it flies
+    assert set(grid.controller_refusals("jsbsim:c172x", grid.CONTROLLERS)) == set(grid.ROBUST)
+    assert grid.controller_refusals("kh2013a", grid.CONTROLLERS) == {}
     assert grid.designs_needed([f for f in flights if f.plant == mimo]) == []  # nothing SISO designed for it
     from tools.experiment.damage.runner import Study, not_flown
 
@@ -274,10 +276,15 @@ def test_the_printed_tables_rank_and_show_each_cell():
     ]
     text = table(cells, "kh2013a", ["clsac", "baseline"])
     assert "rate=5" in text and "50 %" in text and "onset 10 s" in text
-    # the first period after the onset (10-20 s): baseline first; the last: CL-SAC first
+    # the first period after the onset (10-20 s): baseline first; the last window: CL-SAC first
+    for c, first, last in zip(cells, (0.04, 0.06, 2.0, 0.1), (0.03, 0.07, 0.01, 0.2)):
+        c["long"] = {
+            "first_period": {"start_s": 10.0, "mean": first},
+            "last_window": {"from_s": 20.0, "to_s": 30.0, "mean": last, "interval": [last, last]},
+        }
     rows = period_table(cells, "kh2013a", ["clsac", "baseline"]).splitlines()
     rate = next(r for r in rows if r.startswith("rate=5"))
-    assert "2(2)/0.01(1)" in rate and "0.1(1)/0.2(2)" in rate
+    assert "2(2)/0.01 [0.01, 0.01](1)" in rate and "0.1(1)/0.2 [0.2, 0.2](2)" in rate, rate
     md = markdown_table(cells, "kh2013a", ["clsac", "baseline"], energy=True).splitlines()
     assert (
         md[0] == "| fault | CL-SAC | PID (as designed) |"
@@ -402,3 +409,16 @@ def test_the_summary_is_standard_json_whatever_its_numbers(tmp_path):
     write(doc, tmp_path, plot=True)
     text = (tmp_path / "summary.json").read_text()
     assert json.loads(text, parse_constant=lambda c: pytest.fail(c))["x"] == [None, None, None]
+
+
+def test_sac_and_cl_sac_fly_the_robust_pfc_as_named_controllers():
+    from autopilot.config import PFC_PRESETS
+    from tools.experiment.damage.flight import _run, _scenario
+    from tools.experiment.scenario import controller_config
+
+    scen = _scenario("kh2013a")
+    for name, lv in (("sac-robust", 0.0), ("clsac-robust", 20.0), ("sac", 0.0), ("clsac", 20.0)):
+        cfg = controller_config(scen, _run(name))
+        want = PFC_PRESETS["robust" if name.endswith("-robust") else "paper"]
+        assert (tuple(cfg.pfc_num), tuple(cfg.pfc_den)) == want and cfg.lv == lv, name
+    assert grid.LABELS["sac-robust"] == "SAC, robust PFC" and "clsac-robust" in grid.CONTROLLERS

@@ -32,7 +32,12 @@ def build_parser() -> argparse.ArgumentParser:
         metavar="P1,P2",
         help="plants: kh2013a, FILE.toml, jsbsim:MODEL[:KEY=VALUE,...] (default kh2013a,jsbsim:c172x)",
     )
-    p.add_argument("--runs", type=cli.count(1, 10**6, name="runs"), default=2, help="seeds per cell (default 2)")
+    p.add_argument(
+        "--runs",
+        type=cli.count(1, 10**6, name="runs"),
+        default=grid.DEFAULT_RUNS,
+        help=f"seeds per cell (default {grid.DEFAULT_RUNS}: the least for a 95 %% paired interval)",
+    )
     p.add_argument("--seed", type=cli.seed, default=1, help="flight j of a cell flies with seed SEED + j (default 1)")
     p.add_argument("--out", metavar="DIR", help="output folder (default: a new runs/damage-<timestamp>/)")
     p.add_argument(
@@ -216,12 +221,15 @@ def legend(controllers) -> str:
 
 
 def print_tables(doc: dict, study) -> None:
-    from tools.experiment.damage.aggregate import period_table, sideslip_table, table
+    from tools.experiment.damage.aggregate import paired_table, period_table, sideslip_table, table
 
     for p in study.plants:
         print()
         flown = [c for c in study.controllers if c not in grid.controller_refusals(p, study.controllers)]
         print(table(doc["cells"], p, flown))
+        if len(flown) > 1 and study.runs > 1:  # one seed pairs nothing
+            print()
+            print(paired_table(doc["cells"], p, flown))
         if grid.is_mimo(p):
             print()
             print(sideslip_table(doc["cells"], p, flown))

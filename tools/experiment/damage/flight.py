@@ -8,10 +8,11 @@ with the commanded response y_m,ol: the one definition of a controlled flight, |
 a limit cycle is out), the tracking error after the onset, per period of the square wave, the effort, and the
 recovery after the onset (``autopilot.recovery``, as the launcher reports it).
 
-A :class:`~tools.experiment.damage.grid.Design` is ``tools.design.tuning.design_baseline`` on the plant's linear
-model (``tools.design.linearise.linear_model``) changed as the fault changes it (``tools.design.tuning.
-faulted_plant``).  A :class:`~tools.experiment.damage.grid.Calibration` finds the factor s on the plant's PID gains
-whose energy (``autopilot.metrics``: sum u^2 dt) on the fault-free reference scenario (30 s, still air) equals
+A :class:`~tools.experiment.damage.grid.Design` is ``tools.design.tuning.design_pid_bound`` (the rule of
+``design_baseline`` over continuous gains) on the plant's linear model (``tools.design.linearise.linear_model``)
+changed as the fault changes it (``tools.design.tuning.faulted_plant``), with the fault's delay in the loop.
+A :class:`~tools.experiment.damage.grid.Calibration` finds the factor s on the plant's PID gains whose energy
+(``autopilot.metrics``: sum u^2 dt) on the fault-free reference scenario (30 s, still air) equals
 CL-SAC's there: Brent's method on log E(s) - log E_CL-SAC over s in [1/30, 30].
 """
 
@@ -27,6 +28,7 @@ from tools.experiment.damage.grid import (
     MIMO_CONTROLLERS,
     NONE,
     RETUNED,
+    ROBUST,
     Calibration,
     Design,
     Flight,
@@ -49,8 +51,12 @@ def _scenario(plant: str, duration: float = 30.0, dist: tuple = (), **kw):
 
 
 def _run(controller: str):
+    """The scenario's run of a study controller: SAC and CL-SAC with the robust PFC are the registered laws with
+    ``pfc="robust"`` (applied after the plant's design file, as the launcher's ``--pfc robust``)."""
     from tools.experiment.scenario import run_of
 
+    if controller in ROBUST:
+        return replace(run_of(ROBUST[controller]), name=controller, pfc="robust")
     return run_of("baseline" if controller in (RETUNED, ENERGY) else controller)
 
 
@@ -186,9 +192,10 @@ def fly_record_mimo(task: Flight) -> dict:
 
 
 def design(task: Design) -> dict:
-    """The retuned PID's gains and margins on the plant's linear model under the fault."""
+    """The retuned PID's gains and margins on the plant's linear model under the fault, the fault's delay (rounded
+    to control steps) in the loop."""
     from tools.design.linearise import linear_model
-    from tools.design.tuning import design_baseline, faulted_plant
+    from tools.design.tuning import design_pid_bound, faulted_plant
 
     model = linear_model(task.plant)
     if model is None:
@@ -196,8 +203,9 @@ def design(task: Design) -> dict:
     effect = effect_of(task.kind, task.value)
     plant = faulted_plant(model[:3], model[3], effect)
     rate = PAPER_RATE_HZ
-    d = design_baseline(plant, rate_hz=rate, delay_steps=int(round(effect.delay * rate)))
-    return {"gains": (float(d.kp), float(d.ki), float(d.kd)), "margins": d.margins}
+    delay_steps = int(round(effect.delay * rate))  # the fault's delay is in the loop it is designed on
+    d = design_pid_bound(plant, rate_hz=rate, delay_steps=delay_steps)
+    return {"gains": (float(d.kp), float(d.ki), float(d.kd)), "margins": d.margins, "delay_steps": delay_steps}
 
 
 def _energy(plant: str, controller: str, gains=None) -> float:
