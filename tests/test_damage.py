@@ -309,7 +309,7 @@ def test_the_grid_flies_each_value_once_and_counts_its_flights_by_hand():
     assert study.plants == ("kh2013a",) and study.controllers == ("clsac", "baseline")
     assert study.severities["effectiveness"] == (0.3, 0.6) and study.onsets == (10.0,)
     assert study.count() == len(study.flights()) == 1 * 2 * 2 * (1 + 2 * 1)
-    # a MIMO plant flies 3 of the 6 controllers: 3 x 1 seed x (1 + 3 default effectiveness severities) = 12 flights
+    # a MIMO plant flies 3 of the 8 controllers: 3 x 1 seed x (1 + 3 default effectiveness severities) = 12 flights
     mimo = _study("--plant", "jsbsim:c172x:surface=aileron+rudder", "--kinds", "effectiveness", "--runs", "1")
     assert mimo.count() == len(mimo.flights()) == 3 * 1 * (1 + 3)
 
@@ -321,12 +321,14 @@ def test_a_grid_above_the_cap_is_refused_in_one_line_naming_the_cap():
             capture_output=True, text=True, timeout=60,
         )  # fmt: skip
 
-    # the defaults on one plant: 6 controllers x 1000 seeds x (1 + 4 kinds x 3 severities) = 78,000 > 20,000
+    # the defaults on one plant: 8 controllers x 1000 seeds x (1 + 4 kinds x 3 severities) = 104,000 > 20,000
     r = damage("--runs", "1000")
     assert r.returncode == 2 and len(r.stderr.strip().splitlines()) == 1 and "Traceback" not in r.stderr, r.stderr
-    assert "78,000 flights" in r.stderr and "cap of 20,000" in r.stderr and "--max-flights N" in r.stderr
+    assert "104,000 flights" in r.stderr and "cap of 20,000" in r.stderr and "--max-flights N" in r.stderr
     r = damage("--kinds", "rate", "--severity", "rate=5", "--controllers", "clsac", "--max-flights", "3")
-    assert r.returncode == 2 and "the grid has 4 flights, more than the cap of 3" in r.stderr, r.stderr
+    assert r.returncode == 2 and "the grid has 12 flights, more than the cap of 3" in r.stderr, (
+        r.stderr
+    )  # 6 seeds x (1 + 1)
 
 
 def test_the_first_line_names_only_the_designs_asked_for():
