@@ -336,6 +336,19 @@ def table(results: Sequence[dict], plants: Sequence[str]) -> str:
     return "\n".join(lines)
 
 
+def markdown(results: Sequence[dict], plants: Sequence[str], labels: dict | None = None) -> str:
+    """The margins as docs/delay-margin.md shows them: a row per law, a column pair per plant."""
+    labels = labels or {}
+    by = {(r["plant"], r["controller"], r["case"]): r for r in results}
+    laws = list(dict.fromkeys(r["controller"] for r in results))
+    head = "| law | " + " | ".join(f"{p}: as built | {p}: effectiveness 0.3 at 10 s" for p in plants) + " |"
+    lines = [head, "|---|" + "---:|---:|" * len(plants)]
+    for c in laws:
+        cols = [_fmt(by.get((p, c, k))) if (p, c, k) in by else "not flown" for p in plants for k in CASES]
+        lines.append(f"| {labels.get(c, label(c))} (`{c}`) | " + " | ".join(cols) + " |")
+    return "\n".join(lines)
+
+
 def main(argv: Sequence[str] | None = None) -> int:
     from autopilot.shared.process import write_json_atomic
     from sitl import plant as plants
