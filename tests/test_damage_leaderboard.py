@@ -71,6 +71,7 @@ def test_rows_are_the_hand_count(cells):
     assert c["ise_vs_energy_pid"] == pytest.approx(0.2 / 0.5) and c["energy_vs_energy_pid"] == pytest.approx(2 / 4)
     assert rs["pid-energy"]["ise_vs_energy_pid"] is None and rs["pid-energy"]["wilson95"][1] == 1.0
     assert rs["baseline"]["recovery_s_p50"] == pytest.approx(3.0)
+    assert (c["recovered"], c["recovery_measured"]) == (2, 3)
 
 
 def test_the_winner_is_the_highest_share_then_the_least_error_and_never_the_bound(cells):
@@ -80,6 +81,17 @@ def test_the_winner_is_the_highest_share_then_the_least_error_and_never_the_boun
     assert "| `effectiveness=0.3` | **PID (as designed)** | 3/3 |" in md
     assert "PID retuned for the fault (bound)" in md
     assert "- CL-SAC wins 0: none" in md and "- PID (as designed) wins 1: `effectiveness=0.3`" in md
+
+
+def test_a_fault_no_law_keeps_has_no_winner():
+    flights, results = [], []
+    for c, err in (("clsac", 5.0), ("baseline", 9.0)):
+        for seed in (1, 2):
+            flights.append(Flight("kh2013a", c, "stuck", 5.0, 10.0, seed))
+            results.append(_rec(False, err, 1.0, None))
+    cells = summarise(flights, results)
+    assert winners(cells, "kh2013a") == {"stuck=5": []}
+    assert "- no law keeps a flight: `stuck=5`" in markdown(cells, "kh2013a")
 
 
 def test_the_command_prints_a_summarys_leaderboard(cells, tmp_path):

@@ -61,6 +61,8 @@ def rows(cells: Sequence[dict], plant: str, onset: float | None = None) -> list[
                     "share": c["share_controlled"],
                     "wilson95": list(c["wilson95"]),
                     "recovery_s_p50": c.get("recovery_s_p50"),
+                    "recovered": sum(bool(r.get("recovered")) for r in c.get("runs", ())),
+                    "recovery_measured": sum(r.get("recovered") is not None for r in c.get("runs", ())),
                     "ise_ref_after_p50": c.get("ise_ref_after_p50"),
                     "energy_after_p50": c.get("energy_after_p50"),
                     "ise_vs_energy_pid": None
@@ -81,7 +83,8 @@ def _key(r: dict) -> tuple:
 
 def winners(cells: Sequence[dict], plant: str, onset: float | None = None) -> dict[str, list[str]]:
     """{fault: [the laws that win it]}: the highest share controlled, then the least median error after the onset
-    (several on an exact tie); ``NOT_RANKED`` never wins."""
+    (several on an exact tie); ``NOT_RANKED`` never wins, and a fault no law keeps in any flight has no winner
+    (an empty list: the least error of lost flights ranks nothing)."""
     out: dict[str, list[str]] = {}
     for r in rows(cells, plant, onset):
         if r["controller"] in NOT_RANKED:
@@ -93,7 +96,7 @@ def winners(cells: Sequence[dict], plant: str, onset: float | None = None) -> di
             best[:] = [r]
         elif _key(r) == _key(best[0]):
             best.append(r)
-    return {f: [r["controller"] for r in rs] for f, rs in out.items()}
+    return {f: [r["controller"] for r in rs] if rs and rs[0]["share"] else [] for f, rs in out.items()}
 
 
 def _g(v, spec: str = ".3g") -> str:
@@ -107,8 +110,8 @@ def markdown(cells: Sequence[dict], plant: str, onset: float | None = None, labe
     rs = rows(cells, plant, onset)
     wins = winners(cells, plant, onset)
     lines = [
-        "| fault | law | controlled | 95 % Wilson | recovery, s | error after onset, rad²s | energy after | "
-        "error / PID at equal effort | energy / PID at equal effort |",
+        "| fault | law | controlled | 95 % Wilson | recovery, s (recovered) | error after onset, rad²s | "
+        "energy after | error / PID at equal effort | energy / PID at equal effort |",
         "|---|---|---:|---|---:|---:|---:|---:|---:|",
     ]
     for r in rs:
@@ -120,8 +123,9 @@ def markdown(cells: Sequence[dict], plant: str, onset: float | None = None, labe
         lo, hi = r["wilson95"]
         lines.append(
             f"| `{r['fault']}` | {name} | {r['controlled']}/{r['flights']} | {lo:.2f}-{hi:.2f} | "
-            f"{_g(r['recovery_s_p50'], '.1f')} | {_g(r['ise_ref_after_p50'])} | {_g(r['energy_after_p50'])} | "
-            f"{_g(r['ise_vs_energy_pid'], '.2f')} | {_g(r['energy_vs_energy_pid'], '.2f')} |"
+            f"{_g(r['recovery_s_p50'], '.1f')} ({r['recovered']}/{r['recovery_measured']}) | "
+            f"{_g(r['ise_ref_after_p50'])} | {_g(r['energy_after_p50'])} | "
+            f"{_g(r['ise_vs_energy_pid'])} | {_g(r['energy_vs_energy_pid'])} |"
         )
     by_law: dict[str, list[str]] = {}
     for fault, laws in wins.items():
@@ -133,6 +137,9 @@ def markdown(cells: Sequence[dict], plant: str, onset: float | None = None, labe
             continue
         won = by_law.get(c, [])
         lines.append(f"- {labels.get(c, c)} wins {len(won)}: {', '.join(f'`{f}`' for f in won) or 'none'}")
+    lost = [f for f, laws in wins.items() if not laws]
+    if lost:
+        lines.append(f"- no law keeps a flight: {', '.join(f'`{f}`' for f in lost)}")
     return "\n".join(lines)
 
 
