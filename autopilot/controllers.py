@@ -270,6 +270,23 @@ def get(name: str) -> Controller:
     raise ValueError(f"unknown controller {name!r} (known: {', '.join(NAMES)}, FILE.py:Class, module:Class)")
 
 
+def describe(name: str) -> dict:
+    """What summary.json says of the law a controller flies: ``controller`` (the --controller given), ``name``,
+    ``label``, ``mode``, its own ``parameters`` (names) and ``telemetry`` (its TELEMETRY_FIELDS)."""
+    c = get(name)
+    law = c.kind
+    cls = law.cls
+    return {
+        "controller": c.name,
+        "name": str(getattr(cls, "NAME", "") or c.name) if cls is not None else c.name,
+        "label": c.label,
+        "class": law.law if cls is None else f"{cls.__qualname__} ({c.name})",
+        "mode": c.mode,
+        "parameters": [row[0] for row in law.rows()],
+        "telemetry": list(law.telemetry_fields()),
+    }
+
+
 def law_of(obj) -> Law:
     """The law of a configuration or a law object (by its class, without importing the others).  An MRAC
     configuration with a closed-loop reference model (``crm_l`` > 0) is CRM-MRAC's."""

@@ -246,7 +246,8 @@ class Autopilot(LinkHandlers, LockstepScheduler, RealtimeScheduler):
         ev.update(failsafe_entries_ms=[a * 1e3 for a in self.failsafe_entries], recoveries=self.recoveries)
         return {
             "name": self.opts.name,
-            "Lv": float(self.ctrl.config.lv) if isinstance(self.ctrl.config.lv, (int, float)) else None,
+            "Lv": float(lv) if isinstance(lv := getattr(self.ctrl.config, "lv", None), (int, float)) else None,
+            "law": getattr(self.ctrl, "name", None),  # a law on autopilot.law's interface: its registered name
             "mode": "lockstep" if self.opts.lockstep else "realtime",
             "rate_hz": self.rate,
             "steps": self.steps,

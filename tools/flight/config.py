@@ -13,7 +13,7 @@ from pathlib import Path
 
 from autopilot import controllers, flags
 from autopilot.envelope import MAX_ROLL_DEG, MAX_SATURATED_SHARE, Envelope
-from autopilot.flags import CONTROLLERS, default_lv, envelope_roll_deg, envelope_saturated_pct
+from autopilot.flags import default_lv, envelope_roll_deg, envelope_saturated_pct
 from autopilot.shared import cli
 from autopilot.shared.process import rt_throttling
 from tools.flight.profiles import Profile, ProfileError
@@ -196,11 +196,10 @@ class FlightConfig:
         ):
             if getattr(self, name) is not None:
                 put(name, _checked(name, check, getattr(self, name)))
-        _require(
-            self.controller in CONTROLLERS,
-            "controller",
-            f"controller must be one of {', '.join(CONTROLLERS)}, got {self.controller!r}",
-        )
+        try:  # a registered name, or a user's law (FILE.py:Class, module:Class: loaded and checked, autopilot.law)
+            controllers.get(self.controller)
+        except ValueError as exc:
+            raise FlightConfigError("controller", f"controller: {exc}") from None
         _require(
             self.pfc is None or self.pfc in PFC_PRESETS,
             "pfc",
@@ -368,6 +367,12 @@ class FlightConfig:
         baseline when its gains are given (they fly instead of the design's)."""
         if self.params is not None:
             return str(self.params)
+        law = controllers.get(self.controller).kind
+        if law.generic:  # a law on autopilot.law's interface: its design beside the plant's (PLANT-laws.params)
+            from tools.design.linearise import designed_law_params
+
+            path = designed_law_params(self.plant, law.design) if law.design else None
+            return None if path is None else str(path)
         if not controllers.get(self.controller).adaptive and self.baseline_gains is not None:
             return None
         from tools.design.linearise import designed_params

@@ -21,6 +21,8 @@ def refusal(cfg) -> tuple[str, str] | None:
 
     c = controllers.get(cfg.controller)
     path = cfg.params_file
+    if c.kind.generic:  # a law on autopilot.law's interface flies its own design, or its defaults
+        return None
     if path is None:
         explicit = cfg.pfc is not None if c.adaptive else cfg.baseline_gains is not None
         if plants.kind(cfg.plant) != "kh2013a" and not explicit:
