@@ -449,11 +449,11 @@ def _mimo_law(parser, args, controller):
     from autopilot.config import ConfigError
     from autopilot.params import ParamError, load_file
 
+    if controller.kind.mimo:  # a law without a square-MIMO form, with its reason (autopilot.controllers.Law.mimo)
+        parser.error(f"--controller {controller.name} is not flown on a square MIMO plant: {controller.kind.mimo}")
     if not args.params:
         parser.error("--channel2 (a square MIMO plant) flies a MIMO design: give its --params FILE")
     kind = "baseline" if controller.law == "baseline" else ("sac" if controller.lv_fixed == 0.0 else "clsac")
-    if controller.kind.mimo:  # a law without a square-MIMO form, with its reason (autopilot.controllers.Law.mimo)
-        parser.error(f"--controller {controller.name} is not flown on a square MIMO plant: {controller.kind.mimo}")
     if controller.options:
         parser.error(f"--controller {controller.name} is not flown on a square MIMO plant (clsac, sac, baseline)")
     lim1 = math.radians(args.u_limit_deg)

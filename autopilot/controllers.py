@@ -83,6 +83,7 @@ class Controller:
     help: str  # its words in --controller's help
     lv_fixed: float | None = None  # the L_v it flies whatever --lv says (SAC: 0); None: the configured one
     options: tuple = ()  # (name, value) pairs its law's build takes on top of the command line's (pid-ff's)
+    study_label: str = ""  # the damage study's words, where they differ from ``label`` (its tables name the PIDs)
 
     @property
     def kind(self) -> Law:
@@ -215,6 +216,7 @@ CONTROLLERS: dict[str, Controller] = {
             lv=0.0,  # no reference-model feedback
             mode="BASELINE",
             label="fixed-gain PID",
+            study_label="PID (as designed)",
             help="baseline (fixed-gain PID; --lv, --pfc and the adaptation's options are refused)",
         ),
         Controller(
@@ -223,6 +225,7 @@ CONTROLLERS: dict[str, Controller] = {
             lv=0.0,
             mode="BASELINE",
             label="PID, feed-forward",
+            study_label="PID + feed-forward, D on roll",
             help="pid-ff (the PID with the reference model's rate fed forward and the derivative on the roll)",
             options=(("feedforward", True),),
         ),

@@ -54,3 +54,25 @@ def refusal(cfg) -> tuple[str, str] | None:
             f"{stop:.4g} deg: the command cannot go past the stop",
         )
     return None
+
+
+def is_mimo(cfg) -> bool:
+    """``cfg.mimo``, False for a plant that does not parse (refused later with its own reason)."""
+    try:
+        return cfg.mimo
+    except Exception:  # noqa: BLE001
+        return False
+
+
+def check_params(values: dict[str, float], controller: str) -> None:
+    """A parameter file's values against the one table of bounds and ``controller``'s law
+    (``autopilot.params.ParamTable``, as the autopilot loads it: another law's values are not its to fly):
+    ``ParamError`` naming the first one refused, before anything starts."""
+    from autopilot.loop import AutopilotOptions
+    from autopilot.params import ParamTable
+
+    defaults = AutopilotOptions()  # the options the autopilot starts from (the file's values replace them)
+    options = {k: getattr(defaults, k) for k in ("attitude_timeout_s", "setpoint_timeout_s", "max_roll_rad")}
+    cfg = controllers.get(controller).config(control_rate_hz=100.0, u_limit_rad=math.radians(30.0))
+    table = ParamTable(cfg, options)
+    table.update(table.split(values)[0])

@@ -13,7 +13,7 @@ import math
 import statistics
 from collections.abc import Sequence
 
-from tools.experiment.damage.grid import LABELS, NONE
+from tools.experiment.damage.grid import NONE, label
 
 Z95 = 1.959963984540054  # the standard normal's 97.5 % quantile
 
@@ -116,7 +116,7 @@ def _fault_table(cells, plant: str, controllers, onset, title: str, entry) -> st
         if c["kind"] == NONE or c["onset_s"] == onset:
             rows.setdefault((c["kind"], c["severity"]), {})[c["controller"]] = c
     width = 22
-    head = f"{'fault':<22}" + "".join(f"{LABELS.get(n, n)[: width - 1]:>{width}}" for n in controllers)
+    head = f"{'fault':<22}" + "".join(f"{label(n)[: width - 1]:>{width}}" for n in controllers)
     lines = [f"{plant}: {title}, onset {_fmt(onset, 'g')} s", head]
     for (kind, sev), per in rows.items():
         name = kind if kind == NONE else f"{kind}={'here' if sev is None else format(sev, 'g')}"
@@ -167,7 +167,7 @@ def period_table(cells: Sequence[dict], plant: str, controllers: Sequence[str], 
         "period, and the rank of each (1: least error)"
     ]
     width = 22
-    lines.append(f"{'fault':<22}" + "".join(f"{LABELS.get(n, n)[: width - 1]:>{width}}" for n in controllers))
+    lines.append(f"{'fault':<22}" + "".join(f"{label(n)[: width - 1]:>{width}}" for n in controllers))
     for (kind, sev), per in rows.items():
         vals = {}
         for n in controllers:
@@ -197,7 +197,7 @@ def markdown_table(cells: Sequence[dict], plant: str, controllers: Sequence[str]
     for c in mine:
         if c["kind"] == NONE or c["onset_s"] == onset:
             rows.setdefault((c["kind"], c["severity"]), {})[c["controller"]] = c
-    head = "| fault | " + " | ".join(LABELS.get(n, n) for n in controllers) + " |"
+    head = "| fault | " + " | ".join(label(n) for n in controllers) + " |"
     lines = [head, "|---|" + "---:|" * len(controllers)]
     for (kind, sev), per in rows.items():
         name = "none" if kind == NONE else f"`{kind}={'here' if sev is None else format(sev, 'g')}`"

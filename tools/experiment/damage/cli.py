@@ -69,7 +69,8 @@ def build_parser() -> argparse.ArgumentParser:
         "--controllers",
         default=",".join(grid.CONTROLLERS),
         metavar="C1,C2",
-        help=f"subset of {','.join(grid.CONTROLLERS)} (default all)",
+        help=f"subset of {','.join(grid.ALL)}, or all (every one of these), or a law of your own: FILE.py:Class, "
+        f"module:Class (docs/adding-a-law.md) (default {','.join(grid.CONTROLLERS)})",
     )
     p.add_argument(
         "--turbulence",
@@ -101,9 +102,12 @@ def study_of(args) -> object:
         k, vals = grid.parse_severity(text)
         severities[k] = vals
     ctrls = grid.parse_list(args.controllers, "controllers")
-    bad = [c for c in ctrls if c not in grid.CONTROLLERS]
-    if bad:
-        raise grid.DamageError(f"--controllers: unknown controller {bad[0]!r} (known: {', '.join(grid.CONTROLLERS)})")
+    ctrls = [x for c in ctrls for x in (grid.ALL if c == "all" else (c,))]
+    for c in ctrls:
+        try:
+            grid.known(c)
+        except ValueError as exc:  # autopilot.law.LawSpecError: what the user's law lacks
+            raise grid.DamageError(f"--controllers: {exc}") from None
     onsets = grid.parse_list(args.onsets, "onsets in s", float)
     grid.check_onsets(onsets, args.duration)
     if args.scheduler is not None and not args.scheduler.startswith(("tcp://", "tls://", "inproc://")):

@@ -11,21 +11,40 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 
+from autopilot import controllers as registry
 from sitl import damage
 
-# The controllers of the study: the registry's (autopilot.controllers) and two fixed-gain PIDs made here.
+# The controllers of the study: the registry's (autopilot.controllers: every built-in law, and a user's own law
+# FILE.py:Class or module:Class, flown through the generic loop, tools.experiment.scenario.run_inprocess) and two
+# fixed-gain PIDs made here.  The default set is today's; ``all`` flies every registered law too.
 REGISTERED = ("baseline", "sac", "clsac", "pid-ff")
 RETUNED = "pid-retuned"  # tools.design.tuning.design_baseline on the plant as it is, switched at the fault's onset
 ENERGY = "pid-energy"  # the plant's PID with its gains scaled to CL-SAC's energy on the fault-free scenario
 CONTROLLERS = (*REGISTERED, RETUNED, ENERGY)
+ALL = (*registry.BUILT_IN, RETUNED, ENERGY)  # --controllers all
+# The study's words for each (the registry's study_label, else its label), and for its own two PIDs
 LABELS = {
-    "baseline": "PID (as designed)",
-    "sac": "SAC",
-    "clsac": "CL-SAC",
-    "pid-ff": "PID + feed-forward, D on roll",
+    **{c.name: c.study_label or c.label for c in registry.CONTROLLERS.values()},
     RETUNED: "PID retuned for the fault",
     ENERGY: "PID at CL-SAC's energy",
 }
+
+
+def label(controller: str) -> str:
+    """The study's words for a controller (a user's law: its LABEL, autopilot.controllers.register)."""
+    if controller in LABELS:
+        return LABELS[controller]
+    return registry.get(controller).label
+
+
+def known(controller: str) -> bool:
+    """A controller the study flies: one of ``ALL``, or a user's law that loads (autopilot.law.LawSpecError, one
+    line, if it does not)."""
+    if controller in ALL:
+        return True
+    registry.get(controller)  # ValueError / LawSpecError naming what is missing
+    return True
+
 
 NONE = "none"  # the fault-free flight of a cell's controller and seed: the reference every severity is read against
 # Severities in the command line's units (sitl.damage.KINDS: deg, deg/s, s, kt, m, or a factor).
@@ -66,7 +85,11 @@ def controller_refusals(plant: str, controllers) -> dict[str, str]:
     ``MIMO_REFUSALS``)."""
     if not is_mimo(plant):
         return {}
-    return {c: MIMO_REFUSALS[c] for c in controllers if c not in MIMO_CONTROLLERS}
+    return {
+        c: MIMO_REFUSALS.get(c) or registry.get(c).kind.mimo or f"{c} is not flown on a square MIMO plant"
+        for c in controllers
+        if c not in MIMO_CONTROLLERS
+    }
 
 
 class DamageError(ValueError):
