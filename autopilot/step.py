@@ -157,8 +157,9 @@ class ControlStep:
         self.law = law
         self.pwm = pwm
         self.setpoints = SetpointQueue() if setpoints is None else setpoints
-        self.metrics = MetricsAccumulator(self.config.dt)
-        self.metrics_commanded = MetricsAccumulator(self.config.dt) if pwm is not None else self.metrics
+        dt = 1.0 / float(self.config.control_rate_hz)  # a user's Config need not have ``dt`` (autopilot.law)
+        self.metrics = MetricsAccumulator(dt)
+        self.metrics_commanded = MetricsAccumulator(dt) if pwm is not None else self.metrics
         self.k = 0
         self.nonfinite_inputs = 0  # steps whose measurement or command was NaN/Inf: flown as a hold
         # Ground-station modes (autopilot.vehicle): disarmed = rudder neutral; ``manual`` (rad, None = the law)
@@ -166,7 +167,7 @@ class ControlStep:
         self.armed = True
         self.manual: float | None = None
         self._offset = 0.0  # bumpless transfer: added to the new source's command, decays with TRANSFER_TAU_S
-        self._decay = math.exp(-self.config.dt / TRANSFER_TAU_S)
+        self._decay = math.exp(-dt / TRANSFER_TAU_S)
         self._transfer = False
         self.u_last = 0.0  # the last command flown (rad): where a transfer starts
         self._split = callable(getattr(law, "command", None))  # ClSac.command/advance; others step whole

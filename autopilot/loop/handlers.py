@@ -400,18 +400,16 @@ class LinkHandlers:
         """The law raised or returned NaN/inf (``ControlStep.law_failure``): said once, as a critical event and one
         line in the log, with the traceback after it in the log (never on a console: the launcher's is the verdict);
         the flight goes on with the rudder neutral and ends not controlled (``stats``)."""
-        import traceback
+        from autopilot.shared import crash
 
         self._law_failure_said = True
         control = self.control
         text = f"FAILSAFE {control.law_failure} at {control.law_failure_t:.3f} s: rudder neutral from then on"
         self.events["law_failures"] += 1
-        self._event(M.MAV_SEVERITY_CRITICAL, text)
-        print(f"autopilot: {text}", file=self.out, flush=True)
+        self._event(M.MAV_SEVERITY_CRITICAL, text)  # also its line in the log
         exc = control.law_exception
-        if exc is not None and exc.__cause__ is not None:
-            traceback.print_exception(exc.__cause__, file=self.out)
-            self.out.flush()
+        if exc is not None and exc.__cause__ is not None:  # the law raised: its traceback in the log only
+            crash.keep("autopilot", exc.__cause__, file=self.out)
 
     def _enter_failsafe(self, age: float):
         self._status_state = M.MAV_STATE_CRITICAL
