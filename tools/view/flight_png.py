@@ -661,14 +661,10 @@ def _clip_spikes(t: np.ndarray, panel: Panel) -> None:
 def law_panel(t: np.ndarray, series: dict, label: str) -> Panel:
     """A law's own telemetry (``autopilot.law``: the series' ``law_<field>`` columns, in its own units), by name."""
     panel = Panel(f"{label}: its own telemetry", "[SI]", legend_cols=3)
-    colors = tuple(C_GAINS.values()) + (C_CMD, C_OL, C_CRM)
-    keys = [k for k in series if k.startswith("law_")]
-    for i, key in enumerate(keys):
-        y = _column(series, key)
-        if y is not None and len(y) == len(t):
-            panel.lines.append(Line(y, colors[i % len(colors)], 1.0, label=key[4:].replace("_", " ")))
-    if not keys:
-        panel.missing.append("law telemetry")
+    colors, keys = (*C_GAINS.values(), C_CMD, C_OL, C_CRM), [k for k in series if k.startswith("law_")]
+    ys = [(k, _column(series, k)) for k in keys]
+    panel.lines = [Line(y, colors[i % len(colors)], 1.0, label=k[4:]) for i, (k, y) in enumerate(ys) if y is not None]
+    panel.missing = [] if keys else ["law telemetry"]
     _clip_spikes(t, panel)
     return panel
 
