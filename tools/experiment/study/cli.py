@@ -10,6 +10,7 @@ import sys
 from collections.abc import Sequence
 from pathlib import Path
 
+from autopilot import controllers
 from autopilot.shared import cli
 from autopilot.shared.cli import OneLineArgumentParser
 from tools.experiment.outdir import check_out_dir, default_out_dir, prepare_out_dir
@@ -60,7 +61,9 @@ def add_run_arguments(r: argparse.ArgumentParser) -> None:
         "--controllers",
         metavar="A,B",
         help=f"kh2013a: a subset of {','.join(CONTROLLERS)}; a JSBSim aircraft or plant file: of "
-        f"{','.join(flights.CONTROLLERS)} (default: all of each)",
+        f"{','.join(flights.CONTROLLERS)} (default: all of each); either: also any registered law "
+        f"({','.join(n for n in controllers.NAMES if n not in flights.CONTROLLERS)}) or one of your own, FILE.py:Class "
+        "(docs/adding-a-law.md), flown one in-process flight at a time",
     )
     r.add_argument(
         "--seed",
