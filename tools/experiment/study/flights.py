@@ -297,10 +297,17 @@ def check(opts: FlightOptions) -> None:
     from sitl import plant as plants
 
     for c in opts.controllers:
+        from autopilot.law import LawSpecError
+
         try:  # a registered controller, or a user's law (FILE.py:Class, module:Class: autopilot.law)
             controllers.get(c)
-        except ValueError as exc:
-            raise StudyError(f"--controllers: {exc} (on --plant {opts.plant})") from None
+        except LawSpecError as exc:
+            raise StudyError(f"--controllers: {exc}") from None
+        except ValueError:
+            raise StudyError(
+                f"--controllers {c!r} does not fly on --plant {opts.plant} (a JSBSim aircraft or plant file flies "
+                f"{', '.join(controllers.NAMES)}, or a law of your own, FILE.py:Class)"
+            ) from None
     for t in opts.turbulence:
         if t not in TURBULENCE:
             raise StudyError(f"unknown turbulence {t!r} (known: {', '.join(TURBULENCE)})")
