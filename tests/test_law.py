@@ -364,3 +364,16 @@ def test_a_ground_station_sees_the_laws_mode_and_sets_its_parameters_live(tmp_pa
 def test_a_law_without_a_mimo_form_is_refused_on_a_square_mimo_plant(tmp_path):
     r = _launch(tmp_path / "f", "--controller", "l1", "--plant", "jsbsim:c172x:surface=aileron+rudder", timeout=60)
     assert r.returncode == 2 and "l1 has no square-MIMO form" in r.stderr, r.stderr
+
+
+@pytest.mark.e2e
+def test_the_docs_law_flies_in_real_time_and_through_flight(tmp_path, law_file):
+    r = _run("-m", "tools.launch", "--quiet", "--duration", "5", "--controller", law_file, "--out", str(tmp_path / "rt"))[0]
+    assert r.returncode == 0, r.stdout + r.stderr
+    s = json.loads((tmp_path / "rt" / "summary.json").read_text())
+    assert s["mode"] == "realtime" and s["law"]["name"] == "p-ff"
+    from tools.flight import Flight
+
+    result = Flight(lockstep=True, duration=3, controller=law_file, out=str(tmp_path / "api"), quiet=True).run()
+    assert result.ok
+    assert json.loads((tmp_path / "api" / "summary.json").read_text())["law"]["label"] == "P + feed-forward"
