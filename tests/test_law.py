@@ -368,7 +368,8 @@ def test_a_law_without_a_mimo_form_is_refused_on_a_square_mimo_plant(tmp_path):
 
 @pytest.mark.e2e
 def test_the_docs_law_flies_in_real_time_and_through_flight(tmp_path, law_file):
-    r = _run("-m", "tools.launch", "--quiet", "--duration", "5", "--controller", law_file, "--out", str(tmp_path / "rt"))[0]
+    out = str(tmp_path / "rt")
+    r = _run("-m", "tools.launch", "--quiet", "--duration", "5", "--controller", law_file, "--out", out)[0]
     assert r.returncode == 0, r.stdout + r.stderr
     s = json.loads((tmp_path / "rt" / "summary.json").read_text())
     assert s["mode"] == "realtime" and s["law"]["name"] == "p-ff"
