@@ -378,3 +378,19 @@ def test_the_docs_law_flies_in_real_time_and_through_flight(tmp_path, law_file):
     result = Flight(lockstep=True, duration=3, controller=law_file, out=str(tmp_path / "api"), quiet=True).run()
     assert result.ok
     assert json.loads((tmp_path / "api" / "summary.json").read_text())["law"]["label"] == "P + feed-forward"
+
+
+@pytest.mark.e2e
+def test_a_bench_law_in_turbulence_is_its_lockstep_flight_to_the_last_bit_in_the_generic_loop(tmp_path):
+    """MRAC on the KH2013A in light turbulence (seed 1): the damage study's loop (``run_inprocess``, the SITL's own
+    injector) and the lockstep flight over MAVLink give the same metrics, bit for bit."""
+    from dataclasses import replace
+
+    from autopilot.shared.pwm import PwmMap
+    from tools.experiment.scenario import PAPER, run_inprocess, run_of
+
+    r = _launch(tmp_path / "f", "--duration", "10", "--controller", "mrac", "--turbulence", "light", "--seed", "1")
+    assert r.returncode in (0, 3), r.stdout + r.stderr
+    flown = json.loads((tmp_path / "f" / "summary.json").read_text())["runs"][0]["metrics"]
+    scen = replace(PAPER, duration_s=10.0, disturbances=(("seed", 1), ("turbulence", "light")))
+    assert flown == run_inprocess(scen, run_of("mrac"), atmosphere=True, wire=PwmMap()).metrics
