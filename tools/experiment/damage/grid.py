@@ -15,16 +15,20 @@ from autopilot import controllers as registry
 from sitl import damage
 
 # The controllers of the study: the registry's (autopilot.controllers: every built-in law, and a user's own law
-# FILE.py:Class or module:Class, flown through the generic loop, tools.experiment.scenario.run_inprocess) and two
-# fixed-gain PIDs made here.  The default set is today's; ``all`` flies every registered law too.
+# FILE.py:Class or module:Class, flown through the generic loop, tools.experiment.scenario.run_inprocess), SAC and
+# CL-SAC with the robust PFC (the launcher's --pfc robust) and two fixed-gain PIDs made here.  The default set is
+# the published tables'; ``all`` flies every registered law too.
 REGISTERED = ("baseline", "sac", "clsac", "pid-ff")
+ROBUST = {"sac-robust": "sac", "clsac-robust": "clsac"}  # the law flown with autopilot.config.PFC_PRESETS["robust"]
 RETUNED = "pid-retuned"  # tools.design.tuning.design_baseline on the plant as it is, switched at the fault's onset
 ENERGY = "pid-energy"  # the plant's PID with its gains scaled to CL-SAC's energy on the fault-free scenario
-CONTROLLERS = (*REGISTERED, RETUNED, ENERGY)
-ALL = (*registry.BUILT_IN, RETUNED, ENERGY)  # --controllers all
-# The study's words for each (the registry's study_label, else its label), and for its own two PIDs
+CONTROLLERS = (*REGISTERED, *ROBUST, RETUNED, ENERGY)
+ALL = (*registry.BUILT_IN, *ROBUST, RETUNED, ENERGY)  # --controllers all
+# The study's words for each (the registry's study_label, else its label), and for its own
 LABELS = {
     **{c.name: c.study_label or c.label for c in registry.CONTROLLERS.values()},
+    "sac-robust": "SAC, robust PFC",
+    "clsac-robust": "CL-SAC, robust PFC",
     RETUNED: "PID retuned for the fault",
     ENERGY: "PID at CL-SAC's energy",
 }
@@ -62,6 +66,7 @@ SEVERITIES = {
 DEFAULT_KINDS = ("effectiveness", "stuck", "rate", "delay")
 DEFAULT_PLANTS = ("kh2013a", "jsbsim:c172x")
 DEFAULT_ONSETS = (10.0,)
+DEFAULT_RUNS = 6  # the least seeds whose paired sign-test interval reaches 95 % (tools.experiment.damage.stats)
 DEFAULT_DURATION_S = 30.0
 DEFAULT_TURBULENCE = "light"
 TURBULENCE = ("none", "light", "moderate", "severe")
@@ -70,6 +75,8 @@ LINEAR_KINDS = ("effectiveness", "damping", "delay")  # a retuned PID is designe
 MIMO_CONTROLLERS = ("baseline", "sac", "clsac")
 MIMO_REFUSALS = {
     "pid-ff": "autopilot.mimo flies clsac, sac and baseline only (the launcher refuses --controller pid-ff on it)",
+    "sac-robust": "the robust PFC is a single-input PFC: the MIMO laws fly their design file's PFC matrix",
+    "clsac-robust": "the robust PFC is a single-input PFC: the MIMO laws fly their design file's PFC matrix",
     RETUNED: "its PID is retuned on a single-input linear model (tools.design.tuning.design_baseline): no MIMO retune",
     ENERGY: "its gain factor is calibrated on the single-input PID's energy: no MIMO calibration",
 }
@@ -82,14 +89,24 @@ def is_mimo(plant: str) -> bool:
 
 def controller_refusals(plant: str, controllers) -> dict[str, str]:
     """{controller: why not} for the study's controllers ``plant`` does not fly (a square MIMO plant:
-    ``MIMO_REFUSALS``)."""
-    if not is_mimo(plant):
-        return {}
-    return {
-        c: MIMO_REFUSALS.get(c) or registry.get(c).kind.mimo or f"{c} is not flown on a square MIMO plant"
-        for c in controllers
-        if c not in MIMO_CONTROLLERS
-    }
+    ``MIMO_REFUSALS``, or a law's own reason; SAC and CL-SAC with the robust PFC on a plant whose design file sets
+    the PFC)."""
+    if is_mimo(plant):
+        return {
+            c: MIMO_REFUSALS.get(c) or registry.get(c).kind.mimo or f"{c} is not flown on a square MIMO plant"
+            for c in controllers
+            if c not in MIMO_CONTROLLERS
+        }
+    if any(c in ROBUST for c in controllers):
+        from tools.design.linearise import designed_params
+
+        if designed_params(plant) is not None:
+            why = (
+                "the plant's design file sets SAC's and CL-SAC's PFC and overrides --pfc (the launcher flies the "
+                "file's); the robust preset is the KH2013A's"
+            )
+            return {c: why for c in controllers if c in ROBUST}
+    return {}
 
 
 class DamageError(ValueError):

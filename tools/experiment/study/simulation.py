@@ -9,8 +9,10 @@ import math
 
 import numpy as np
 
+from autopilot import swings as sw  # the oscillation rule's swing counter
 from autopilot.envelope import (
     DEV_FLOOR2,
+    DEV_MAX2,
     DEV_RATIO2,
     FOLLOW_GAIN_MIN,
     HIT_REARM,
@@ -362,10 +364,11 @@ def _fly_kernel(lib, b) -> tuple[dict, np.ndarray, np.ndarray, dict | None]:
         "wmax": np.zeros(n),
         "peaks": np.zeros((n, npeaks)),
         "rec": np.zeros((len(_SERIES), steps, n)) if b.record else None,
-        "tblk": np.zeros((4, n)),
-        "tring": np.zeros((TRACK_BLOCKS * 4, n)),
+        "tblk": np.zeros((5, n)),
+        "tring": np.zeros((TRACK_BLOCKS * 5, n)),
         "track": np.zeros((2, n)),
         "hit_armed": np.ones(n),
+        "swing": np.zeros((7, n)),  # autopilot.swings' state, set at step 0
         **_fault_arrays(b),
     }
     tblock = int(round(TRACK_BLOCK_S * b.rate))
@@ -400,6 +403,10 @@ def _fly_kernel(lib, b) -> tuple[dict, np.ndarray, np.ndarray, dict | None]:
         follow_min=FOLLOW_GAIN_MIN,
         hits_min=float(STOP_HITS_MIN),
         rearm_lim=HIT_REARM * b.umax,
+        swing_h=sw.OSC_SWING_RAD,  # autopilot.swings' constants
+        swing_tol=sw.OSC_REGULAR_TOL,
+        swings_min=float(sw.OSC_SWINGS_MIN),
+        dev_max2=DEV_MAX2,
         nw=float(TRACK_BLOCKS * tblock),
         nphase=0 if b.fplan is None else len(b.fplan.phases),
         ring_len=keep["ring"].shape[0],
@@ -463,8 +470,9 @@ def _fly_numpy(b) -> tuple[dict, np.ndarray, np.ndarray, dict | None]:
     # tracking (autopilot.envelope.window_flags) over windows of TRACK_BLOCKS blocks: the open block's sums of
     # y_r^2, phi y_r, (phi - y_r)^2 and the stop hits (phi the truth, y_r the law's y_m,ol), the last blocks'
     tblock = int(round(TRACK_BLOCK_S * rate))
-    blk = [np.zeros(n) for _ in range(4)]
-    ring = np.zeros((TRACK_BLOCKS, 4, n))
+    blk = [np.zeros(n) for _ in range(5)]
+    ring = np.zeros((TRACK_BLOCKS, 5, n))
+    swing = None  # the swing counter of phi - y_r (autopilot.swings), from the first step
     track = np.zeros((2, n), dtype=bool)  # oscillating, not following (in any window)
     hit_armed = np.ones(n, dtype=bool)
     nw = float(TRACK_BLOCKS * tblock)
@@ -538,9 +546,11 @@ def _fly_numpy(b) -> tuple[dict, np.ndarray, np.ndarray, dict | None]:
             blk[0] = blk[0] + ref * ref
             blk[1] = blk[1] + phi_true * ref
             blk[2] = blk[2] + dv * dv
+            swing = sw.swing_start(dv) if swing is None else swing
+            blk[4] = blk[4] + sw.swing_step(swing, dv, float(k))
             if (k + 1) % tblock == 0:
                 _close_block(blk, ring, track, (k + 1) // tblock, nw)
-                blk = [np.zeros(n) for _ in range(4)]
+                blk = [np.zeros(n) for _ in range(5)]
             if rec is not None:
                 _record(rec, k * dt, um, y, law, u, x)
             u_s = u_fly  # what drives the servo: u_fly, through the delay line, 0 when off
@@ -642,15 +652,15 @@ def _close_block(blk: list, ring: np.ndarray, track: np.ndarray, closed: int, nw
     the TRACK_BLOCKS-th block on, the window of the last TRACK_BLOCKS blocks is judged (``window_flags``; the
     ring summed slot by slot from slot 0, as kernel.c sums it)."""
     slot = (closed - 1) % TRACK_BLOCKS
-    for q in range(4):
+    for q in range(5):
         ring[slot, q] = blk[q]
     if closed < TRACK_BLOCKS:
         return
-    tot = [ring[0, q].copy() for q in range(4)]
+    tot = [ring[0, q].copy() for q in range(5)]
     for j in range(1, TRACK_BLOCKS):
-        for q in range(4):
+        for q in range(5):
             tot[q] = tot[q] + ring[j, q]
-    osc, lag = window_flags(nw, tot[0], tot[1], tot[2], tot[3])
+    osc, lag = window_flags(nw, tot[0], tot[1], tot[2], tot[3], tot[4])
     track[0] |= osc
     track[1] |= lag
 
