@@ -211,9 +211,10 @@ AM, BM, CM = -5.0, 5.0, 1.0
 class Flown:
     """A law on the interface as the control step flies it: ``u = flown(y, um, p, r)`` (rad in, rad out, limited).
 
-    It keeps what the step, the metrics, the envelope and the CL-SAC-shaped telemetry read of any law: ``um``,
-    ``y``, ``ym_ol`` (= ``ym``), ``e`` = y_m,ol - y, ``u_raw``, ``u``, ``saturated``, ``config``; ``law_row()`` is
-    the law's own telemetry, by its ``TELEMETRY_FIELDS``."""
+    It keeps what the step, the metrics, the envelope and the recording's common row read of any law: ``um``,
+    ``y`` (= ``ya``), ``ym_ol`` (= ``ym``: no closed-loop reference model), ``e`` = y_m,ol - y, ``u_raw``, ``u``,
+    ``saturated``, ``config``; CL-SAC's PFC output and gains are NaN (not drawn); ``law_row()`` is the law's own
+    telemetry, by its ``TELEMETRY_FIELDS``."""
 
     MEASURES = True  # ControlStep passes the rates
 
@@ -232,10 +233,12 @@ class Flown:
         self.steps = 0
         self.xm = 0.0
         self.frozen = False
-        self.um = self.y = self.ym = self.ym_ol = self.ya = self.y_pfc = self.e = 0.0
+        self.um = self.y = self.ym = self.ym_ol = self.ya = self.e = 0.0
         self.u_raw = self.u = 0.0
         self.saturated = False
-        self.kpe = self.kie = self.ke = self.kpx = self.kix = self.kx = self.kpu = self.kiu = self.ku = 0.0
+        # CL-SAC's own fields of the recording's row: not this law's, NaN (not drawn), never a faked 0
+        nan = math.nan
+        self.y_pfc = self.kpe = self.kie = self.ke = self.kpx = self.kix = self.kx = self.kpu = self.kiu = self.ku = nan
 
     def reset(self) -> None:
         self.inner.reset()

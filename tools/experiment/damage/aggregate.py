@@ -254,7 +254,7 @@ def _fault_table(cells, plant: str, controllers, onset, title: str, entry, width
     """A plant's printed table: a row per fault (kind and severity, at ``onset``: the first one by default), per
     controller ``entry(cell)`` (``width`` characters) or "-" where the cell is missing."""
     onset, rows = _rows(cells, plant, onset)
-    head = f"{'fault':<22}" + "".join(f"{n:>{width}}" for n in controllers)  # whole names (legend: cli.legend)
+    head = f"{'fault':<22}" + "".join(f" {n:>{width - 1}}" for n in controllers)  # whole names (legend: cli.legend)
     lines = [f"{plant}: {title}, onset {_fmt(onset, 'g')} s", head]
     for (kind, sev), per in rows.items():
         lines.append(
@@ -341,7 +341,7 @@ def period_table(cells: Sequence[dict], plant: str, controllers: Sequence[str], 
         "of each (1: least error)"
     ]
     width = 34
-    lines.append(f"{'fault':<22}" + "".join(f"{n:>{width}}" for n in controllers))
+    lines.append(f"{'fault':<22}" + "".join(f" {n:>{width - 1}}" for n in controllers))
     for (kind, sev), per in rows.items():
         vals = {}
         for n in controllers:
