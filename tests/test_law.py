@@ -259,6 +259,14 @@ def test_a_law_without_a_batch_form_flies_the_robustness_study_and_the_damage_st
     s = json.loads((tmp_path / "robust" / "summary.json").read_text())
     assert "kh2013a (one flight at a time)" in s["plants"] and "kh2013a" in s["plants"]
     assert "P + feed-forward" in r.stdout
+    # a law without a batch form alone: its flights, and the batched study's flags refused with why
+    r, _ = _run(
+        "-m", "tools.experiment", "robustness", "--controllers", "l1", "--seeds", "1", "--turbulence", "none",
+        "--no-progress", "--out", str(tmp_path / "l1"), timeout=300,
+    )  # fmt: skip
+    assert r.returncode == 0 and "L1 adaptive bounded" in r.stdout, r.stdout + r.stderr
+    r, _ = _run("-m", "tools.experiment", "robustness", "--controllers", "l1", "--runs", "5", "--out", str(tmp_path / "x"))
+    assert r.returncode == 2 and "l1 (no batch form) fly --seeds flights" in r.stderr, r.stderr
 
 
 # ------------------------------------------------------------------------------------------------ end to end

@@ -209,6 +209,11 @@ def plan_from_args(args) -> list[tuple[str, object]]:
     scalar = [t for t in texts if t != "kh2013a"]
     given = {k for k in (*KH2013A_FLAGS, *FLIGHT_FLAGS) if getattr(args, k) is not None}
     for k in KH2013A_FLAGS:
+        if k in given and "kh2013a" not in texts and GENERIC in texts:
+            raise StudyError(
+                f"--{k.replace('_', '-')} applies to the KH2013A's batched study: {', '.join(unbatched)} "
+                "(no batch form) fly --seeds flights per --turbulence level, one in-process flight at a time"
+            )
         if k in given and "kh2013a" not in texts:
             raise StudyError(
                 f"--{k.replace('_', '-')} applies to --plant kh2013a only (a JSBSim aircraft or plant file flies "
