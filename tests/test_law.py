@@ -265,7 +265,8 @@ def test_a_law_without_a_batch_form_flies_the_robustness_study_and_the_damage_st
         "--no-progress", "--out", str(tmp_path / "l1"), timeout=300,
     )  # fmt: skip
     assert r.returncode == 0 and "L1 adaptive bounded" in r.stdout, r.stdout + r.stderr
-    r, _ = _run("-m", "tools.experiment", "robustness", "--controllers", "l1", "--runs", "5", "--out", str(tmp_path / "x"))
+    out = str(tmp_path / "x")
+    r, _ = _run("-m", "tools.experiment", "robustness", "--controllers", "l1", "--runs", "5", "--out", out)
     assert r.returncode == 2 and "l1 (no batch form) fly --seeds flights" in r.stderr, r.stderr
 
 
