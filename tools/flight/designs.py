@@ -21,7 +21,18 @@ def refusal(cfg) -> tuple[str, str] | None:
 
     c = controllers.get(cfg.controller)
     path = cfg.params_file
-    if c.kind.generic:  # a law on autopilot.law's interface flies its own design, or its defaults
+    if c.kind.generic:  # a law on autopilot.law's interface flies its design for the plant (a user's: its defaults)
+        if c.kind.design and path is None and plants.kind(cfg.plant) != "kh2013a":
+            from tools.design.linearise import design_path
+
+            base = design_path(cfg.plant)
+            law_file = None if base is None else base.with_name(base.stem + c.kind.design + ".params")
+            where = "its laws' design" if law_file is None else shown_path(law_file)
+            return (
+                "plant",
+                f"plant: {cfg.plant} has no design of {c.name} (no {where}): python -m tools.design.laws "
+                f"{cfg.plant} --out {where}, or fly a parameter file of your own (--params FILE)",
+            )
         return None
     if path is None:
         explicit = cfg.pfc is not None if c.adaptive else cfg.baseline_gains is not None

@@ -97,6 +97,14 @@ def controller_refusals(plant: str, controllers) -> dict[str, str]:
             for c in controllers
             if c not in MIMO_CONTROLLERS
         }
+    out = {}
+    for c in controllers:  # a bench law without its design for the plant (tools.design.laws)
+        law = None if c in ROBUST or c in (RETUNED, ENERGY) else registry.get(c).kind
+        if law is not None and law.generic and law.design and plant != "kh2013a":
+            from tools.design.linearise import designed_law_params
+
+            if designed_law_params(plant, law.design) is None:
+                out[c] = f"{plant} has no design of {c} (python -m tools.design.laws {plant})"
     if any(c in ROBUST for c in controllers):
         from tools.design.linearise import designed_params
 
@@ -105,8 +113,8 @@ def controller_refusals(plant: str, controllers) -> dict[str, str]:
                 "the plant's design file sets SAC's and CL-SAC's PFC and overrides --pfc (the launcher flies the "
                 "file's); the robust preset is the KH2013A's"
             )
-            return {c: why for c in controllers if c in ROBUST}
-    return {}
+            out.update({c: why for c in controllers if c in ROBUST})
+    return out
 
 
 class DamageError(ValueError):

@@ -321,6 +321,12 @@ def check(opts: FlightOptions) -> None:
                 f"--controllers {c!r} does not fly on --plant {opts.plant} (a JSBSim aircraft or plant file flies "
                 f"{', '.join(controllers.NAMES)}, or a law of your own, FILE.py:Class)"
             ) from None
+        law = controllers.get(c).kind
+        if law.generic and law.design and opts.plant != "kh2013a" and not is_mimo(opts.plant):
+            from tools.design.linearise import designed_law_params
+
+            if designed_law_params(opts.plant, law.design) is None:
+                raise StudyError(f"--controllers {c}: {opts.plant} has no design of it (python -m tools.design.laws)")
     for t in opts.turbulence:
         if t not in TURBULENCE:
             raise StudyError(f"unknown turbulence {t!r} (known: {', '.join(TURBULENCE)})")
