@@ -403,3 +403,13 @@ def test_a_bench_law_in_turbulence_is_its_lockstep_flight_to_the_last_bit_in_the
     flown = json.loads((tmp_path / "f" / "summary.json").read_text())["runs"][0]["metrics"]
     scen = replace(PAPER, duration_s=10.0, disturbances=(("seed", 1), ("turbulence", "light")))
     assert flown == run_inprocess(scen, run_of("mrac"), atmosphere=True, wire=PwmMap()).metrics
+
+
+def test_a_bench_law_without_its_design_for_the_plant_is_refused_with_the_command(tmp_path):
+    r = _launch(tmp_path / "f", "--controller", "l1", "--plant", "jsbsim:pa28", timeout=60)
+    assert r.returncode == 2 and "jsbsim:pa28 has no design of l1" in r.stderr, r.stderr
+    assert "python -m tools.design.laws jsbsim:pa28" in r.stderr
+    from tools.experiment.damage import grid
+
+    assert "no design of mrac" in grid.controller_refusals("jsbsim:pa28", ("baseline", "mrac"))["mrac"]
+    assert grid.controller_refusals("jsbsim:c172x", ("baseline", "mrac")) == {}
