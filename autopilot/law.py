@@ -15,6 +15,8 @@ A law is a class with (the :class:`Law` protocol)::
     reconfigure(config)    optional: fly ``config`` from the next step (a ground station's PARAM_SET); without it
                            the law's ``config`` attribute is replaced, and a law that reads ``self.config`` each
                            step flies the new values
+    configure(**options)   optional classmethod: its configuration from the command line's options (control_rate_hz,
+                           u_limit_rad, gains, ...; SI); without it Config(control_rate_hz=, u_limit_rad=)
 
 Optional class attributes: ``NAME`` (its name in headers and summary.json; default the spec), ``LABEL`` (its
 words in pictures; default NAME), ``MIMO`` (False: refused on a square MIMO plant, the default).
@@ -197,6 +199,9 @@ def configure(cls, **options):
     from autopilot.config import ConfigError
 
     try:
+        own = getattr(cls, "configure", None)  # optional: the law reads the options it wants (every flag's value)
+        if callable(own):
+            return own(**options)
         return cls.Config(control_rate_hz=options["control_rate_hz"], u_limit_rad=options["u_limit_rad"])
     except ConfigError:
         raise

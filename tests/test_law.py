@@ -281,6 +281,7 @@ def test_the_docs_law_flies_lockstep_with_its_parameters_and_telemetry_and_bit_f
     assert r.returncode == 0, r.stdout + r.stderr
     s = json.loads((tmp_path / "f" / "summary.json").read_text())
     assert s["ok"] and s["law"]["name"] == "p-ff" and s["law"]["controller"] == law_file
+    assert isinstance(s["law"]["telemetry_end"]["error"], float)  # its own telemetry by name, as the flight ended
     # its parameters in the tlog's PARAM_VALUE messages (the launcher's ground station reads them on connect)
     os.environ.setdefault("MAVLINK20", "1")
     from pymavlink import mavutil

@@ -5,6 +5,7 @@ its stats and its shutdown.
 from __future__ import annotations
 
 import gc
+import math
 import select
 import sys
 import time
@@ -248,6 +249,12 @@ class Autopilot(LinkHandlers, LockstepScheduler, RealtimeScheduler):
             "name": self.opts.name,
             "Lv": float(lv) if isinstance(lv := getattr(self.ctrl.config, "lv", None), (int, float)) else None,
             "law": getattr(self.ctrl, "name", None),  # a law on autopilot.law's interface: its registered name
+            # ... and its own telemetry after the last step, by name (None where not finite)
+            "law_telemetry": {
+                f: (v if math.isfinite(v) else None) for f, v in zip(self.ctrl.fields, self.ctrl.law_row())
+            }
+            if hasattr(self.ctrl, "law_row")
+            else None,
             "mode": "lockstep" if self.opts.lockstep else "realtime",
             "rate_hz": self.rate,
             "steps": self.steps,

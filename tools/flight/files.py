@@ -217,7 +217,8 @@ def build_summary(
         # a PARAM_SET of SYS_FAILURE_EN (what was in force, not only what the launcher was told)
         "failure_injection": failure_injection_in_force(cfg, stats),
         "controller": cfg.controller,
-        "law": controllers.describe(cfg.controller),  # the law flown: its name, label, parameters, telemetry fields
+        # the law flown: its name, label, parameters, telemetry fields and their values at the end
+        "law": {**controllers.describe(cfg.controller), "telemetry_end": (ap or {}).get("law_telemetry")},
         # the Lv that flew, as the flight started and as it ended (a ground station may change CLSAC_LV: the
         # changes are in "parameters"); a --params file (CLSAC_LV) may set another than the flags; SAC flies 0
         "Lv": _flown_lv(cfg, stats),
