@@ -280,13 +280,14 @@ class Flown:
         return u
 
     def hold(self, u_applied=0.0) -> None:
-        """Someone else's command flew: the law's own hold; the reference model stands still (as the baseline's)."""
+        """Someone else's command flew: the law's own hold; the reference model stands still (as the baseline's).
+        LawFailure if the law's hold raises."""
         self.u = self.u_raw = float(u_applied)
         self.frozen = True
         try:
             self.inner.hold(float(u_applied))
-        except Exception:  # noqa: BLE001  (a failed law is not flown again: ControlStep.law_failure)
-            pass
+        except Exception as exc:  # noqa: BLE001  (any error of the law is its failure, never the loop's)
+            raise LawFailure(f"law {self.name} raised {_why(exc)} in hold") from exc
 
     def telemetry(self) -> tuple:
         """The CL-SAC-shaped row of every flight recording (``autopilot.clsac.TELEMETRY_FIELDS``)."""

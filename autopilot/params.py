@@ -325,7 +325,12 @@ class ParamTable:
         else:
             change = {p.field: value}
         try:
-            self._config = dataclasses.replace(cfg, **change) if self._generic else cfg.with_(**change)
+            new = dataclasses.replace(cfg, **change) if self._generic else cfg.with_(**change)
+            if self._generic:  # a law that its own constructor refuses (an unstable reference model) is not flown
+                from autopilot.controllers import make_law
+
+                make_law(new)
+            self._config = new
         except ConfigError as exc:
             raise ParamError(f"{name}={value:g} rejected: {exc}") from None
         except Exception as exc:  # noqa: BLE001  (a user's Config may raise anything: the set is refused)

@@ -306,8 +306,13 @@ class ControlStep:
 
     def _hold_step(self, t, phi, um, u_cmd: float, failsafe: Failsafe = Failsafe.NONE) -> StepResult:
         """A step flown by someone else's command ``u_cmd`` (failsafe, disarmed, MANUAL): the PFC follows it,
-        adaptation frozen (``ClSac.hold``), no metrics."""
-        self.law.hold(u_cmd)
+        adaptation frozen (``ClSac.hold``), no metrics.  A law whose hold raises has failed (``law_failure``: not
+        called again, the command given flies all the same, a ground station's in MANUAL included)."""
+        if self.law_failure is None:
+            try:
+                self.law.hold(u_cmd)
+            except LawFailure as exc:
+                self.law_failure, self.law_failure_t, self.law_exception = str(exc), t, exc
         self.k += 1
         pwm_map = self.pwm
         if pwm_map is None:

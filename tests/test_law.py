@@ -198,7 +198,7 @@ def test_a_law_that_returns_nan_or_raises_trips_the_failsafe_and_is_not_flown_ag
         assert a.failsafe is b.failsafe is Failsafe.NONE and a.u != 0.0
         c, d = step(0.02, 0.0), step(0.03, 0.0)
         assert c.failsafe is d.failsafe is Failsafe.LAW_ERROR and c.u == d.u == 0.0
-        assert len(inner.seen) == 3 and inner.held == [0.0, 0.0]  # called once more, never again; its hold is told
+        assert len(inner.seen) == 3 and inner.held == []  # called once more, never again, nor its hold
         assert step.law_failure.startswith(f"law mine {why}") and step.law_failure_t == 0.02
     # a NaN measurement is not the law's failure: a hold, the law flown again on the next good one (as before)
     inner = Recorder(_cfg())
@@ -207,6 +207,15 @@ def test_a_law_that_returns_nan_or_raises_trips_the_failsafe_and_is_not_flown_ag
     assert step(0.01, 0.0).failsafe is Failsafe.NONE and step.nonfinite_inputs == 1
     with pytest.raises(NonFiniteInputError):
         Flown(Recorder(_cfg()), "x")(0.0, 0.0, math.inf, 0.0)
+    # a hold that raises (in MANUAL, say): the law has failed; the ground station's command flies all the same
+    inner = Recorder(_cfg())
+    inner.hold = lambda u: 1 / 0
+    step = ControlStep(law=Flown(inner, "mine"), setpoints=ProfileSetpoints(lambda t: 0.1))
+    step.manual = 0.05
+    assert step(0.0, 0.0).u == 0.05
+    assert step.law_failure == "law mine raised ZeroDivisionError: division by zero in hold"
+    step.manual = None
+    assert step(0.01, 0.0).failsafe is Failsafe.LAW_ERROR and inner.seen == []
 
 
 def test_the_laws_parameters_are_its_own_table_set_within_bounds_and_flown_from_the_next_step(law_file):
@@ -223,6 +232,13 @@ def test_the_laws_parameters_are_its_own_table_set_within_bounds_and_flown_from_
     assert table.set("PFF_KP", 0.2) == 0.2
     step.reconfigure(table.config)  # as a ground station's PARAM_SET does (autopilot.vehicle)
     assert step(0.01, 0.02).u == pytest.approx(0.2 * 0.08 + 0.0065 * 0.1, rel=1e-15)
+    # a set the law's own constructor refuses (MRAC without roll feedback: its reference model A_ref - l I unstable)
+    # is refused, the value unchanged: the loop never builds a law that raises
+    cfg = controllers.get("mrac").config(control_rate_hz=100.0, u_limit_rad=0.5)
+    mrac = ParamTable(cfg, OPTIONS)
+    with pytest.raises(ParamError, match="MRAC_KPHI=0 rejected: the reference model A_ref - l I is not stable"):
+        mrac.set("MRAC_KPHI", 0.0)
+    assert mrac.get("MRAC_KPHI") == cfg.k_phi
     # another law's values in a design file are not flown (the file the bench's designs are in)
     mine, other = table.split({"PFF_KFF": 0.01, "MRAC_KP": 1.0, "NOBODYS": 1.0})
     assert mine == {"PFF_KFF": 0.01, "NOBODYS": 1.0} and other == ["MRAC_KP"]
