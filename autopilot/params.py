@@ -293,7 +293,7 @@ class ParamTable:
     def items(self) -> list[tuple[str, float]]:
         return [(p.name, self.get(p.name)) for p in self.params]
 
-    def set(self, name: str, value: float) -> float:
+    def set(self, name: str, value: float, *, build: bool = True) -> float:
         """Set ``name`` to ``value`` (validated); returns the value now held.  Raises :class:`ParamError`
         (value unchanged) for an unknown name, a non-finite value, a read-only parameter or an invalid law."""
         p = self._names.get(name)
@@ -326,7 +326,7 @@ class ParamTable:
             change = {p.field: value}
         try:
             new = dataclasses.replace(cfg, **change) if self._generic else cfg.with_(**change)
-            if self._generic:  # a law that its own constructor refuses (an unstable reference model) is not flown
+            if self._generic and build:  # a law its own constructor refuses (an unstable reference model): not flown
                 from autopilot.controllers import make_law
 
                 make_law(new)
@@ -348,8 +348,15 @@ class ParamTable:
         """Set several (a loaded file) in one go; the first rejected one raises and nothing is changed."""
         saved = (self._config, dict(self._options))
         try:
-            for name, value in values.items():
-                self.set(name, value)
+            for name, value in values.items():  # a law's values are checked together (a design file's): at the end
+                self.set(name, value, build=False)
+            if self._generic and values:
+                from autopilot.controllers import make_law
+
+                try:
+                    make_law(self._config)
+                except Exception as exc:  # noqa: BLE001  (ConfigError, or anything a user's law raises)
+                    raise ParamError(f"{', '.join(values)}: the law refuses them: {exc}") from None
         except ParamError:
             self._config, self._options = saved
             raise

@@ -239,6 +239,12 @@ def test_the_laws_parameters_are_its_own_table_set_within_bounds_and_flown_from_
     with pytest.raises(ParamError, match="MRAC_KPHI=0 rejected: the reference model A_ref - l I is not stable"):
         mrac.set("MRAC_KPHI", 0.0)
     assert mrac.get("MRAC_KPHI") == cfg.k_phi
+    # a design file's values are checked together, not one by one (the c172x's gains on the KH2013A's model are not)
+    from autopilot.params import load_file
+
+    mine, _ = mrac.split(load_file(ROOT / "sitl" / "plants" / "jsbsim-c172x-laws.params"))
+    mrac.update(mine)
+    assert mrac.get("MRAC_KPHI") == mine["MRAC_KPHI"] and isinstance(ControlStep(mrac.config).law, Flown)
     # another law's values in a design file are not flown (the file the bench's designs are in)
     mine, other = table.split({"PFF_KFF": 0.01, "MRAC_KP": 1.0, "NOBODYS": 1.0})
     assert mine == {"PFF_KFF": 0.01, "NOBODYS": 1.0} and other == ["MRAC_KP"]
