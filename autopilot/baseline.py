@@ -153,11 +153,13 @@ class Baseline:
         self.frozen = False
         self.xm_ol = self.xi = self.e_prev = 0.0
         self.y_prev = None
-        self.um = self.y = self.ym = self.ym_ol = self.ya = self.y_pfc = self.e = 0.0
+        self.um = self.y = self.ym = self.ym_ol = self.ya = self.e = 0.0
+        self.y_pfc = math.nan  # no PFC: not drawn (autopilot.law: no faked field of another law)
         self.u_raw = self.u = 0.0
         self.saturated = False
         self.kpe = self.ke = self._kp
-        self.kie = self.kpx = self.kix = self.kx = self.kpu = self.kiu = self.ku = 0.0
+        # K_p is its K_e (what a PARAM_SET marker sits on); CL-SAC's other gains are not its own: NaN, not drawn
+        self.kie = self.kpx = self.kix = self.kx = self.kpu = self.kiu = self.ku = math.nan
 
     def telemetry(self) -> tuple:
         """The internals after the last step, ordered like ``autopilot.clsac.TELEMETRY_FIELDS``."""

@@ -11,6 +11,7 @@ from collections.abc import Sequence
 from pathlib import Path
 
 from autopilot import controllers
+from autopilot import controllers as registry
 from autopilot.shared import cli
 from autopilot.shared.cli import OneLineArgumentParser
 from tools.experiment.outdir import check_out_dir, default_out_dir, hold_space, prepare_out_dir
@@ -196,16 +197,19 @@ def plan_from_args(args) -> list[tuple[str, object]]:
             except plants.PlantError as exc:
                 raise StudyError(str(exc)) from None
     controllers = _names(args.controllers, "controllers")
+    controllers_of = registry.CONTROLLERS
     seed = 0 if args.seed is None else args.seed
     plan: list[tuple[str, object]] = []
-    unbatched = tuple(c for c in controllers or () if c not in CONTROLLERS)  # laws without a batch form
+    # laws without a batch form: a registered one, or a user's (FILE.py:Class, module:Class); an unknown name is
+    # the batched study's to refuse
+    unbatched = tuple(c for c in controllers or () if c not in CONTROLLERS and (c in controllers_of or ":" in c))
     if unbatched and "kh2013a" in texts:
         # The KH2013A's batched study flies the laws of its kernel; any other law (mrac, l1, indi, a user's own)
         # flies the generic loop, one in-process flight at a time, bit for bit its lockstep flight
         # (tools.experiment.scenario.run_inprocess), as a JSBSim aircraft's or a plant file's study does.
         i = texts.index("kh2013a")
         texts = [*texts[:i], *(["kh2013a"] if len(unbatched) < len(controllers) else []), GENERIC, *texts[i + 1 :]]
-    batched = None if controllers is None else tuple(c for c in controllers if c in CONTROLLERS)
+    batched = None if controllers is None else tuple(c for c in controllers if c not in unbatched)
     scalar = [t for t in texts if t != "kh2013a"]
     given = {k for k in (*KH2013A_FLAGS, *FLIGHT_FLAGS) if getattr(args, k) is not None}
     for k in KH2013A_FLAGS:
