@@ -35,8 +35,9 @@ schedule: the damage study's PID retuned for the faulted plant, ``tools.experime
 
 ``Baseline`` quacks like ``autopilot.clsac.ClSac`` wherever ``autopilot.step.ControlStep``, the metrics and
 the telemetry use a law: ``__call__(y, um)``, ``hold(u)``, ``reset()``, ``telemetry()`` and the attributes of
-``TELEMETRY_FIELDS`` (``ym`` = ``ym_ol``, ``ya`` = y, ``y_pfc`` = 0, the gain fields constant: ``kpe`` = ``ke``
-= K_p, the rest 0).  Its ``e`` is y_m,ol - y, so its ``ise_crm`` equals its ``ise_ref``.
+``TELEMETRY_FIELDS`` (``ym`` = ``ym_ol``, ``ya`` = y, ``kpe`` = ``ke`` = K_p; ``y_pfc`` and CL-SAC's other gains,
+which it does not have, NaN: not drawn, never a faked 0).  Its ``e`` is y_m,ol - y, so its ``ise_crm`` equals its
+``ise_ref``.
 """
 
 from __future__ import annotations

@@ -621,7 +621,7 @@ def flight_image(
         rudder.lines.append(Line(mimo["u2"] * DEG, C_GAINS["kx"], 1.0, label="rudder command u_{2}"))
         rudder.lines.append(Line(mimo["beta"] * DEG, C_GAINS["ku"], 1.2, label="sideslip β"))
 
-    # The adaptive gains; the baseline adapts nothing (its telemetry records K_p as K_e, the rest 0)
+    # The adaptive gains; the baseline adapts nothing (its telemetry records K_p as K_e, the rest NaN)
     if generic:
         return render(t, [tracking, rudder, law_panel(t, series, law)], mode_switches(t, col["mode"]), title, faults)
     if baseline:
