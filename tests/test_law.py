@@ -262,6 +262,9 @@ def test_a_law_without_step_or_that_does_not_import_is_one_line_exit_2_before_an
     nostep = _write(tmp_path, "nostep.py", docs_law().replace("def step(", "def stop("))
     broken = _write(tmp_path, "broken.py", "raise ImportError('no such thing')\n")
     cases = ((f"{nostep}:ProportionalFF", "the law has no step"), (f"{broken}:X", "ImportError: no such thing"))
+    if module == "tools.launch":  # the launcher builds a user's law once: its constructor's error before anything
+        bad_init = docs_law().replace("        self.config = config\n", "        raise RuntimeError('bad gains')\n")
+        cases += ((f"{_write(tmp_path, 'bad_init.py', bad_init)}:ProportionalFF", "RuntimeError: bad gains"),)
     for spec, why in cases:
         extra = ["--lockstep", "--duration", "10", "--out", str(tmp_path / "out")] if module == "tools.launch" else []
         r, took = _run("-m", module, "--controller", spec, *extra, timeout=60)
