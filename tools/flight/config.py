@@ -201,7 +201,9 @@ class FlightConfig:
             controllers.get(self.controller)
         except ValueError as exc:
             raise FlightConfigError("controller", f"controller: {exc}") from None
-        designs.check_law(self.controller)  # a user's law is built once here: its constructor's error, one line
+        refused = designs.law_refusal(self.controller)  # a user's law is built once here: its constructor's error
+        if refused is not None:
+            raise FlightConfigError("controller", refused)
         _require(
             self.pfc is None or self.pfc in PFC_PRESETS,
             "pfc",

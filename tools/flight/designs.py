@@ -67,19 +67,17 @@ def refusal(cfg) -> tuple[str, str] | None:
     return None
 
 
-def check_law(controller: str) -> None:
-    """A user's law (``autopilot.law``) built once, at its defaults: FlightConfigError (one line) if its Config or its
-    constructor raises, before any process starts."""
+def law_refusal(controller: str) -> str | None:
+    """A user's law (``autopilot.law``) built once, at its defaults: the one line of what its Config or its
+    constructor raised, None if it builds (checked before any process starts)."""
     c = controllers.get(controller)
     if c.kind.cls is None:
-        return
-    from tools.flight.config import FlightConfigError
-
+        return None
     try:
         controllers.make_law(c.config(control_rate_hz=100.0, u_limit_rad=math.radians(30.0)))
     except Exception as exc:  # noqa: BLE001  (a user's code may raise anything)
-        text = " ".join(str(exc).split())
-        raise FlightConfigError("controller", f"controller {controller}: {type(exc).__name__}: {text}") from None
+        return f"controller {controller}: {type(exc).__name__}: {' '.join(str(exc).split())}"
+    return None
 
 
 def is_mimo(cfg) -> bool:
