@@ -253,7 +253,7 @@ def register(spec: str) -> Controller:
     name = str(getattr(cls, "NAME", "") or spec)
     where = f"{cls.__module__}:{cls.__qualname__}"
     config = f"{cls.Config.__module__}:{cls.Config.__qualname__}"
-    mimo = None if getattr(cls, "MIMO", False) else f"{name} has no square-MIMO form"
+    mimo = f"{name} has no square-MIMO form (a law on autopilot.law's interface flies one surface)"
     LAWS[spec] = Law(spec, config, where, "", False, False, ("LAW",), generic=True, mimo=mimo, cls=cls)
     c = Controller(spec, spec, lv=0.0, mode="LAW", label=str(getattr(cls, "LABEL", "") or name), help="")
     CONTROLLERS[spec] = c

@@ -19,7 +19,7 @@ A law is a class with (the :class:`Law` protocol)::
                            u_limit_rad, gains, ...; SI); without it Config(control_rate_hz=, u_limit_rad=)
 
 Optional class attributes: ``NAME`` (its name in headers and summary.json; default the spec), ``LABEL`` (its
-words in pictures; default NAME), ``MIMO`` (False: refused on a square MIMO plant, the default).
+words in pictures; default NAME).  A square MIMO plant refuses such a law, with the reason (one surface only).
 
 :func:`load` loads ``FILE.py:Class``, ``module:Class`` or an entry point of the group :data:`ENTRY_POINT_GROUP`
 (``[project.entry-points."clsac_autopilot.laws"] NAME = "package.module:Class"``) and :func:`check` says, in one
