@@ -5,7 +5,9 @@ equal effort (``pid-energy``: the ratio of the law's median error, and of its me
 same cell).  The winner of a fault is the law with the highest share controlled, ties broken by the least median
 error after the onset; ``pid-retuned`` (the PID retuned knowing the fault, a bound) is shown, never ranked.
 
-    python -m tools.experiment.damage.leaderboard OUT/summary.json [--plant P]   (markdown on stdout)
+    python -m tools.experiment.damage.leaderboard OUT/summary.json [MORE.json ...] [--plant P]   (markdown)
+
+Several summaries are read as one study (their cells together: runs of other laws on the same seeds).
 
 No I/O but that command's.
 """
@@ -146,17 +148,21 @@ def markdown(cells: Sequence[dict], plant: str, onset: float | None = None, labe
 def main(argv: Sequence[str] | None = None) -> int:
     prog = "python -m tools.experiment.damage.leaderboard"
     p = argparse.ArgumentParser(prog=prog, description=__doc__.split("\n")[0])
-    p.add_argument("summary", help="a damage study's summary.json")
+    p.add_argument("summary", nargs="+", help="a damage study's summary.json (several: their cells as one study)")
     p.add_argument("--plant", default=None, help="one plant (default: each)")
     args = p.parse_args(argv)
-    try:
-        with open(args.summary, encoding="utf-8") as fh:
-            doc = json.load(fh)
-        plants = [args.plant] if args.plant else doc["plants"]
-        cells, labels = doc["cells"], doc.get("labels", {})
-    except (OSError, ValueError, KeyError, TypeError) as exc:
-        print(f"{p.prog}: error: cannot read {args.summary}: {exc}".splitlines()[0], file=sys.stderr)
-        return 2
+    cells, labels, plants = [], {}, []
+    for path in args.summary:
+        try:
+            with open(path, encoding="utf-8") as fh:
+                doc = json.load(fh)
+            cells += list(doc["cells"])
+            labels.update(doc.get("labels", {}))
+            plants += [x for x in doc["plants"] if x not in plants]
+        except (OSError, ValueError, KeyError, TypeError) as exc:
+            print(f"{p.prog}: error: cannot read {path}: {exc}".splitlines()[0], file=sys.stderr)
+            return 2
+    plants = [args.plant] if args.plant else plants
     for plant in plants:
         print(f"### {plant}\n")
         print(markdown(cells, plant, labels=labels))
