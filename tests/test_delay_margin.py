@@ -88,3 +88,14 @@ def test_the_baseline_margin_on_the_kh2013a_against_flights_flown_separately(tmp
 
     assert controlled(ms - 1) and controlled(ms)
     assert not controlled(ms + 1)
+
+
+def test_the_default_laws_are_every_registered_one_the_plant_flies():
+    from autopilot import controllers as registry
+    from tools.experiment.delay_margin import controllers_for
+
+    flown, refused = controllers_for("kh2013a", None)
+    assert set(registry.NAMES) <= set(flown)
+    assert {"baseline", "pid-ff", "mrac", "crm-mrac", "l1", "indi"} <= set(flown) and not refused
+    flown, refused = controllers_for("jsbsim:c172x", ["clsac", "clsac-robust", "pid-retuned"])
+    assert flown == ["clsac"] and set(refused) == {"clsac-robust", "pid-retuned"}
