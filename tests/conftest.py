@@ -57,21 +57,21 @@ SERIAL = "real time, alone"  # the last unit's name
 
 # Started first, in this order (modules; measured with --durations=0), in the parallel phase.
 LONGEST_FIRST = (
-    "tests/test_e2e_damage.py",
-    "tests/test_e2e_every_plant.py",
-    "tests/test_study_faults.py",
-    "tests/test_e2e_damage_mimo.py",
-    "tests/test_mimo_design.py",
-    "tests/test_e2e_mimo_sensors.py",
-    "tests/test_readme_robustness.py",
-    "tests/test_study.py",
-    "tests/test_plants.py",
-    "tests/test_e2e_lockstep.py",
-    "tests/test_bad_input.py",
-    "tests/test_pfc_design.py",
-    "tests/test_mavlink_cli.py",
-    "tests/test_docs_jsbsim.py",
-    "tests/test_failure_clients.py",
+    "tests/tools/experiment/damage/test_e2e_damage.py",
+    "tests/tools/flight/test_e2e_every_plant.py",
+    "tests/tools/experiment/study/test_study_faults.py",
+    "tests/tools/experiment/damage/test_e2e_damage_mimo.py",
+    "tests/tools/design/test_mimo_design.py",
+    "tests/tools/flight/test_e2e_mimo_sensors.py",
+    "tests/project/test_readme_robustness.py",
+    "tests/tools/experiment/study/test_study.py",
+    "tests/sitl/test_plants.py",
+    "tests/tools/flight/test_e2e_lockstep.py",
+    "tests/tools/test_bad_input.py",
+    "tests/tools/design/test_pfc_design.py",
+    "tests/tools/test_mavlink_cli.py",
+    "tests/project/test_docs_jsbsim.py",
+    "tests/tools/test_failure_clients.py",
 )
 
 
