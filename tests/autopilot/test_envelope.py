@@ -264,3 +264,37 @@ def test_tracking_not_judged_says_how_long_the_law_flew_when_the_flight_was_long
     assert c.ok and not c.tracking.judged
     why = "tracking not judged (the law flew 16.0 s of the 30.0 s flight, less than a 20 s window)"
     assert c.reason.endswith("; " + why)
+
+
+# ------------------------------------------------------------------------------------------- bounded, twice
+DEG = math.pi / 180.0
+
+
+@pytest.mark.parametrize(
+    "roll_deg, sat, ok",
+    [(59.99, 0.1999, True), (60.0, 0.1, False), (59.99, 0.2, False), (61.0, 0.3, False), (10.0, 0.0, True)],
+)
+def test_the_per_flight_study_needs_both_bounds_strictly(roll_deg, sat, ok):
+    """The per-flight study's (JSBSim aircraft, plant files: ``tools.experiment.study.flights``) bounded is
+    ``autopilot.envelope.judge_series``'s ``ok``: max |roll| < 60 deg AND saturated < 20 %, both strict (mutations:
+    ``and`` -> ``or``; ``<`` -> ``<=``), here on a 10 000-step series built with exactly that peak and share."""
+    from autopilot.envelope import judge_series
+
+    n, lim = 10_000, math.radians(30.0)
+    t = np.arange(n) / 100.0
+    roll = np.full(n, 10.0 * DEG)
+    roll[n // 2] = roll_deg * DEG
+    u = np.zeros(n)
+    u[: round(sat * n)] = lim  # the command at its limit on exactly this share of the steps
+    assert judge_series(t, roll, u, lim).ok is ok
+
+
+@pytest.mark.parametrize(
+    "roll_deg, sat, ok", [(59.99, 0.1999, True), (60.0, 0.1, False), (59.99, 0.2, False), (61.0, 0.1, False)]
+)
+def test_the_envelope_inequalities_elementwise(roll_deg, sat, ok):
+    """``autopilot.envelope.within``, which the study's ``bounded`` is, at its edges, on arrays as on floats."""
+    from autopilot.envelope import within
+
+    assert bool(within(roll_deg * DEG, sat)) is ok
+    assert within(np.array([roll_deg * DEG, 1.0 * DEG]), np.array([sat, 0.0])).tolist() == [ok, True]

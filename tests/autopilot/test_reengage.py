@@ -16,8 +16,10 @@ from __future__ import annotations
 
 import math
 import os
+import re
 import socket
 import time
+from pathlib import Path
 
 import pytest
 
@@ -233,3 +235,27 @@ def test_law_to_law_after_a_long_time(controller):
         assert verdict.tracking.windows == 65 - TRACK_BLOCKS + 1 and verdict.ground_station["note"] is None
     finally:
         b.close()
+
+
+ROOT = Path(__file__).resolve().parents[2]
+
+
+# -------------------------------------------------------------------------------------------- mode numbers
+def test_mode_numbers_are_the_documented_ones():
+    """HEARTBEAT.custom_mode: MANUAL = 0 (ArduPlane's MANUAL too), SAC 100, CLSAC 101, FAILSAFE 102, BASELINE 103,
+    as docs/design.md and the manual (docs/ground-stations.md) say; none of 100..103 has a name in ArduPlane's table."""
+    from pymavlink import mavutil
+
+    from autopilot.vehicle import Mode
+
+    documented = {}
+    for doc in ("docs/design.md", "docs/ground-stations.md"):
+        text = (ROOT / doc).read_text()
+        found = dict(re.findall(r"`?\b(MANUAL|SAC|CLSAC|FAILSAFE|BASELINE)`? = (\d+)", text))
+        documented[doc] = {k: int(v) for k, v in found.items()}
+    assert documented["docs/design.md"] == {"MANUAL": 0, "SAC": 100, "CLSAC": 101, "FAILSAFE": 102, "BASELINE": 103}
+    assert {m.name: m.value for m in Mode} == documented["docs/design.md"]
+    assert documented["docs/ground-stations.md"]  # the manual names the modes it lets a user select
+    assert documented["docs/ground-stations.md"].items() <= documented["docs/design.md"].items()
+    plane = mavutil.mode_mapping_apm  # ArduPlane: number -> name
+    assert plane[Mode.MANUAL] == "MANUAL" and not {100, 101, 102, 103} & set(plane)

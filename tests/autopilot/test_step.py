@@ -7,7 +7,7 @@ import math
 import pytest
 
 from autopilot import ClSac, ClSacConfig, ControlStep, Failsafe, PwmMap, SetpointQueue
-from autopilot.step import ProfileSetpoints
+from autopilot.step import TRANSFER_TAU_S, ProfileSetpoints
 from sitl import Aircraft
 
 
@@ -90,3 +90,32 @@ def test_hold_is_neutral_and_unscored():
     assert (r.k, r.u, r.pwm, r.failsafe, step.metrics.n) == (2, 0.0, 1520, Failsafe.NO_ATTITUDE, 1)
     step.reset()
     assert step.k == 0 and step.metrics.n == 0 and not step.law.frozen
+
+
+# ------------------------------------------------------------------------------------- bumpless transfer clamp
+@pytest.mark.parametrize("sign", [1.0, -1.0])
+def test_bumpless_transfer_is_clamped_at_the_rudder_limit(sign):
+    """MANUAL at full rudder, then the law: the command starts at the limit and joins the law's own command
+    exponentially (offset * exp(-dt / TRANSFER_TAU_S) per step), never beyond +-u_limit, while the law's command
+    plus the offset would pass the limit (the clamp is exercised, not only allowed)."""
+    step = ControlStep(ClSacConfig(), setpoints=ProfileSetpoints(lambda t: sign * 0.4))
+    lim = step.config.u_limit_rad
+    step.manual = sign * lim
+    for k in range(20):  # the ground station's full rudder
+        assert step(k * 0.01, 0.0).u == sign * lim
+    step.manual = None
+    step.transfer()
+    decay = math.exp(-0.01 / TRANSFER_TAU_S)
+    offset = None
+    clamped = 0
+    for j in range(60):
+        r = step((20 + j) * 0.01, 0.0)
+        law_u = step.law.u  # the law's own command this step (what flew is r.u)
+        if offset is None:
+            offset = sign * lim - law_u  # the first command is the last one flown
+        unclamped = law_u + offset * decay**j
+        clamped += abs(unclamped) > lim
+        assert r.u == pytest.approx(max(-lim, min(lim, unclamped)), abs=1e-12), j
+        assert abs(r.u) <= lim
+    assert clamped >= 1  # the law's command plus the offset went past the limit at least once
+    assert abs(r.u - step.law.u) < 0.1 * lim  # and the transfer has nearly joined the law

@@ -96,6 +96,32 @@ def test_fault_config_rejects():
 
 
 # ---------------------------------------------------------------------------------------------- uncertainty
+# ------------------------------------------------------------------------------------ fault injector: loss
+def _lost_indices(loss: float, duplicate: float, n: int, seed: int = 7) -> tuple[set[int], int]:
+    """Push packets 0..n-1 through one channel; the indices that never arrive (from what is delivered, not the
+    channel's counters) and the number of copies delivered."""
+    ch = FaultChannel(FaultConfig(loss=loss, duplicate=duplicate), np.random.default_rng(seed), delay=0)
+    delivered = []
+    for k in range(n):
+        ch.push(k, k)
+        delivered += ch.due(k)
+    return set(range(n)) - set(delivered), len(delivered)
+
+
+def test_loss_is_independent_of_the_duplicate_draw():
+    n, p = 20_000, 0.2
+    bound = 4.0 * math.sqrt(p * (1 - p) / n)  # 4 sigma of a binomial share: fails by chance ~6e-5 of the time
+    lost_0, copies_0 = _lost_indices(p, 0.0, n)
+    lost_5, copies_5 = _lost_indices(p, 0.5, n)
+    assert abs(len(lost_0) / n - p) < bound and abs(len(lost_5) / n - p) < bound
+    # the same packets are lost whatever the duplicate probability: each packet's loss draw is its own
+    assert lost_0 == lost_5
+    # among the packets that arrive, half arrive twice (duplication does not depend on the loss draw either)
+    arrived = n - len(lost_5)
+    assert abs((copies_5 - arrived) / arrived - 0.5) < 4.0 * math.sqrt(0.25 / arrived)
+    assert copies_0 == n - len(lost_0)
+
+
 def test_plant_scales_matrices():
     s = PlantScales(control=0.5, roll_damping=2.0, dihedral=3.0, yaw_coupling=0.25, servo_wn=2.0, servo_zeta=0.5)
     a, b = s.matrices()

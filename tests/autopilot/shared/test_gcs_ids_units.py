@@ -4,6 +4,12 @@ from a MAVLink 2 payload whose trailing zeros are trimmed."""
 
 from __future__ import annotations
 
+import os
+import socket
+import time
+
+import pytest
+
 from autopilot.shared.link import (
     ANY_COMPONENT,
     REFUSED_GCS_KEYS,
@@ -109,3 +115,49 @@ def test_refusal_text_names_the_reason_and_the_way_in():
     for reason, opts, why in cases:
         text = refusal_text(reason, 42, 190, ADDR, opts)
         assert text.startswith(head + why), text
+
+
+# ------------------------------------------------------------------------------------ the admission cap (8)
+def _signed_packet(key: bytes, port: int) -> tuple[socket.socket, bytes]:
+    m = M.MAVLink(None, 255, 230)
+    m.signing.secret_key, m.signing.link_id, m.signing.sign_outgoing = key, 1, True
+    m.signing.timestamp = int((time.time() - 1420070400) * 1e5)
+    s = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+    s.bind(("127.0.0.1", 0))
+    return s, M.MAVLink_heartbeat_message(M.MAV_TYPE_GCS, M.MAV_AUTOPILOT_INVALID, 0, 0, 0, 3).pack(m)
+
+
+@pytest.mark.parametrize("fixed", [0, 1])
+def test_exactly_eight_ground_stations_are_admitted_the_ninth_is_not_peer(fixed):
+    """Real sockets, real MAVLink 2 signatures: with ``admit=8`` (``fixed`` of them listed peers), the eighth
+    address is admitted, the ninth is refused ``not_peer`` (mutation: ``>=`` -> ``>`` in the cap, which admits 9)."""
+    from autopilot.shared.link import UdpLink
+    from autopilot.shared.signing import SIGNING_LINK_GCS, Signing
+
+    key = os.urandom(32)
+    socks = [_signed_packet(key, 0) for _ in range(9)]
+    listed = [s.getsockname() for s, _ in socks[:fixed]]
+    link = UdpLink(
+        "gcs",
+        (1, 1),
+        ("127.0.0.1", 0),
+        ("127.0.0.1", 9),
+        peers=[(255, None)],
+        msgids=[M.MAVLINK_MSG_ID_HEARTBEAT],
+        admit=8,
+        peer_addrs=listed,
+        signing=Signing(key, SIGNING_LINK_GCS),
+    )
+    try:
+        for s, pkt in socks:
+            s.sendto(pkt, link.local)
+        got = 0
+        t0 = time.monotonic()
+        while link.rx_datagrams < 9 and time.monotonic() - t0 < 5:
+            got += link.poll(lambda msg, t: None)
+        assert len(link.admitted) == 8 and socks[8][0].getsockname() not in link.admitted
+        assert link.rejected == {"not_peer": 1} and link.rx_accepted == 8
+    finally:
+        link.close()
+        for s, _ in socks:
+            s.close()

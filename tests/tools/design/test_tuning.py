@@ -90,3 +90,27 @@ def test_the_retuned_pid_is_designed_with_the_fault_s_delay():
     # z^-5 takes w_c 5 T of phase at the crossover: 5 rad/s x 0.05 s = 14 deg, below the 60 deg floor
     assert baseline_margins(cfg, plant=plant, delay_steps=5)["phase_margin_deg"] < 60.0 - math.degrees(0.2)
     assert (kp, kd) != pytest.approx((blind.kp, blind.kd), rel=1e-3)
+
+
+# ----------------------------------------------------------------------------------- the PFC corner chosen
+def test_the_design_picks_the_corner_of_least_offset_by_a_routh_table():
+    """T(s) = 1/((s+1)(s+2)(s+3)), C = g (s + a): 1 + C T has the characteristic polynomial
+    s^3 + 6 s^2 + (11 + g) s + (6 + g a), stable (Routh) while 6 (11 + g) > 6 + g a, so the critical gain is
+    g* = 60/(a - 6) for a > 6: 60 at a = 7, 10 at a = 12.  With the margin 3, k = 3/g* and D(0) = k/a: the offset at
+    10 deg, 10 D(0)/(T(0) + D(0)) with T(0) = 1/6, is 0.41096 deg at a = 7 and 1.30435 deg at a = 12.  The design
+    must take a = 7, in either order of the grid (mutation: the comparison reversed, which takes the worst)."""
+    from tools.design.tuning import design_pfc
+
+    a_mat = np.array([[0.0, 1.0, 0.0], [0.0, 0.0, 1.0], [-6.0, -11.0, -6.0]])
+    b_mat, c_mat = np.array([[0.0], [0.0], [1.0]]), np.array([[1.0, 0.0, 0.0]])
+
+    def offset(a):
+        d0 = (3.0 / (60.0 / (a - 6.0))) / a
+        return 10.0 * d0 / (1.0 / 6.0 + d0)
+
+    assert offset(7.0) == pytest.approx(0.410958904, rel=1e-8) and offset(12.0) == pytest.approx(1.304347826, rel=1e-8)
+    for grid in ((7.0, 12.0), (12.0, 7.0)):
+        d = design_pfc((a_mat, b_mat, c_mat), corners=grid)
+        assert d.accepted == 2 and d.a == 7.0, grid
+        assert d.critical_gain == pytest.approx(60.0, rel=1e-9) and d.k == pytest.approx(0.05, rel=1e-9)
+        assert d.offset_deg == pytest.approx(offset(7.0), rel=1e-9)

@@ -17,6 +17,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from tests._mavlink_procs import run_cli
 from tools.experiment.runs import ExperimentError, run_experiment, write_summary
 from tools.experiment.scenario import PAPER, RunSpec, run_inprocess
 
@@ -257,3 +258,12 @@ def test_pfc_and_leakage_options_change_the_runs(tmp_path):
         assert run["metrics"] == pytest.approx(ref, rel=1e-12)
     # With the robust PFC, SAC no longer saturates (paper PFC: 79 % of samples at the limit).
     assert doc["runs"][0]["metrics"]["max_abs_u"] < 0.2
+
+
+def test_the_paper_experiment_over_mavlink_flies_sac_out_of_the_envelope_and_exits_0(tmp_path):
+    """SAC with the paper's PFC leaves the envelope (the paper's finding): a run of the comparison, not a failure."""
+    out = tmp_path / "paper"
+    r = run_cli("tools.experiment", "paper", "--transport", "mavlink", "--runs", "sac", "--out", str(out), "--no-plot")
+    assert r.returncode == 0, r.stdout[-2000:] + r.stderr[-2000:]
+    run = json.loads((out / "summary.json").read_text())["runs"][0]
+    assert run["name"] == "sac" and run["controlled"]["ok"] is False and run["metrics"]["ise_ref"] > 1.0

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import math
 import os
 import shutil
 import socket
@@ -298,3 +299,52 @@ def test_an_error_after_the_first_runs_keeps_them_in_a_partial_summary():
 
     with pytest.raises(ValueError, match="no batch flies"):
         fly_study(opts, log=lambda *_: None, progress=False, simulate=fails)
+
+
+# ------------------------------------------------------------------------------------ the study's bounded share
+def test_study_bounded_is_roll_below_60_deg_and_saturation_below_20_percent():
+    """README "Robustness": a run is bounded when |roll| < 60 deg over the whole flight, the rudder is saturated
+    less than 20 % of the steps and no 20 s window oscillates or fails to follow (autopilot.envelope; the flags
+    themselves against the monitor in tests/autopilot/test_tracking.py); the share is the bounded runs over all."""
+    from tools.experiment.study import Task, aggregate, merge, simulate
+
+    task = Task("clsac", tuple(("severe", i) for i in range(16)), 5)
+    runs = simulate(task)
+    roll, sat = runs["max_abs_roll"], runs["sat_fraction"]
+    inside = (roll < math.radians(60.0)) & (sat < 0.2)
+    bounded = inside & ~runs["oscillating"] & ~runs["not_following"]
+    assert runs["bounded"].tolist() == bounded.tolist()
+    assert 0 < bounded.sum() < 16  # both kinds among these runs
+    assert np.any((roll >= math.radians(60.0)) & (sat < 0.2))  # one fails on the roll alone
+    assert np.any(inside & runs["oscillating"])  # and one on its limit cycle alone
+    share = aggregate(merge([task], [runs])["clsac"], "severe", "clsac", 5)["bounded_share"]
+    assert share == pytest.approx(bounded.sum() / 16, abs=1e-15)
+
+
+def test_study_saturated_share_is_the_share_of_steps_at_the_limit():
+    from tools.experiment.study import Task, simulate
+
+    r = simulate(Task("clsac", (("severe", 9),), 5, 30.0, True))
+    u = np.array(r["series"]["u"])[:, 0]
+    at_limit = float(np.mean(np.abs(u) >= math.radians(30.0) - 1e-12))
+    assert float(r["sat_fraction"][0]) == pytest.approx(at_limit, abs=1e-12) and at_limit > 0
+
+
+@pytest.mark.parametrize("engine", ["numpy", "kernel"])
+def test_the_study_counts_the_steps_its_command_was_clipped_at_the_limit(engine):
+    """Four CL-SAC runs under severe turbulence, 10 s, in both engines: the saturated share is the number of steps
+    whose recorded command is exactly +-30 deg (the laws clip to the limit) over the steps, counted here, and
+    ``bounded`` is max |roll| < 60 deg and that share < 20 % (mutation: the kernel's or numpy's saturation test
+    inverted or its bound moved past the limit)."""
+    from tools.experiment.study import Task, native, simulate
+
+    if engine == "kernel" and native.load() is None:
+        pytest.skip(f"no C kernel here: {native.reason()}")
+    r = simulate(Task("clsac", tuple(("severe", i) for i in range(4)), 3, 10.0, record=True), engine)
+    u = r["series"]["u"]
+    clipped = (np.abs(u) == math.radians(30.0)).sum(axis=0) / u.shape[0]
+    assert np.array_equal(r["sat_fraction"], clipped) and clipped.max() > 0 and clipped.min() < 0.2
+    # and tracking in every 20 s window (autopilot.envelope: neither oscillating nor not following)
+    tracked = ~(np.asarray(r["oscillating"]) | np.asarray(r["not_following"]))
+    want = [bool(m < math.radians(60.0) and s < 0.2 and k) for m, s, k in zip(r["max_abs_roll"], clipped, tracked)]
+    assert r["bounded"].tolist() == want

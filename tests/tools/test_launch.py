@@ -1,6 +1,6 @@
-"""What a new user's review of the merged product found, each pinned: the experiment over MAVLink flies SAC out of
-the envelope as a result, the Lv a parameter file sets is the Lv reported, a --timeout is quoted as given, and a
-child killed by a signal is named by that signal, not by its last log line."""
+"""The launcher's command line (``python -m tools.launch``) as a user reads it: the Lv a parameter file sets is the Lv
+reported, a --timeout is quoted as given, a child killed by a signal is named by that signal, not by its last log
+line, and a reader that closes the pipe early does not end the flight in a traceback."""
 
 from __future__ import annotations
 
@@ -14,15 +14,6 @@ from tests._mavlink_procs import run_cli
 from tools.flight.children import Child
 
 pytestmark = pytest.mark.e2e  # real processes
-
-
-def test_the_paper_experiment_over_mavlink_flies_sac_out_of_the_envelope_and_exits_0(tmp_path):
-    """SAC with the paper's PFC leaves the envelope (the paper's finding): a run of the comparison, not a failure."""
-    out = tmp_path / "paper"
-    r = run_cli("tools.experiment", "paper", "--transport", "mavlink", "--runs", "sac", "--out", str(out), "--no-plot")
-    assert r.returncode == 0, r.stdout[-2000:] + r.stderr[-2000:]
-    run = json.loads((out / "summary.json").read_text())["runs"][0]
-    assert run["name"] == "sac" and run["controlled"]["ok"] is False and run["metrics"]["ise_ref"] > 1.0
 
 
 def test_the_lv_a_parameter_file_sets_is_the_lv_reported(tmp_path):
