@@ -27,7 +27,7 @@ def test_the_manual_loop_is_ten_lines_with_two_imports():
 
 def test_the_manual_loop_flies_the_paper_law(capsys):
     """Run the manual's block as written: it tracks the square wave, and it is exactly the in-process runner
-    (the runner's own numbers are checked against independent computations in test_closed_loop.py)."""
+    (the runner's own numbers are checked against independent computations in tests/autopilot/test_closed_loop.py)."""
     ns: dict = {}
     exec(compile(_ten_line_loop(), "docs/python-api.md", "exec"), ns)  # noqa: S102
     ac = ns["ac"]

@@ -267,7 +267,8 @@ def test_a_bad_linearise_spec_is_one_line_exit_2(tmp_path):
 def test_jsbsim_flies_the_paper_scenario_in_process():
     res = run_inprocess(replace(PAPER, plant="jsbsim:c172x", duration_s=10.0), PAPER_RUNS[1])
     phi = res.series["phi"]
-    # the +10 deg step then the -10 deg one are followed (closely: with the PFC designed for it, tests/test_pfc_design)
+    # the +10 deg step then the -10 deg one are followed (closely: with the PFC designed for it,
+    # tests/tools/design/test_pfc_design.py)
     assert math.radians(5.0) < phi[400:500].mean() < math.radians(20.0)
     assert -math.radians(20.0) < phi[900:1000].mean() < -math.radians(5.0)
     assert Path(KH_FILE).is_file()
