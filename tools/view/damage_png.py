@@ -13,6 +13,8 @@ from pathlib import Path
 from matplotlib.backends.backend_agg import FigureCanvasAgg
 from matplotlib.figure import Figure
 
+from sitl import fault_kinds
+
 COLOURS = {
     "baseline": "#7f7f7f",
     "sac": "#d62728",
@@ -22,7 +24,7 @@ COLOURS = {
     "pid-energy": "#ff7f0e",
 }
 DODGE = 0.07  # x offset between controllers (categories are 1 apart)
-WORSE_LOWER = ("effectiveness", "rate", "damping", "airspeed")  # the worst severity is the lowest value
+WORSE_LOWER = fault_kinds.WORSE_LOWER  # the worst severity is the lowest value (sitl.fault_kinds.FaultKind.worse)
 
 
 def _order(kind: str, values) -> list:

@@ -134,7 +134,7 @@ def study_of(args) -> object:
         from tools.design.linearise import linear_model
 
         for p in plant_list:
-            if not grid.is_mimo(p) and linear_model(p) is None:
+            if not plants.spec(p).mimo and linear_model(p) is None:
                 raise grid.DamageError(f"{grid.RETUNED} needs a linear model of {p} (tools.design.linearise)")
     return study
 
@@ -179,7 +179,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         print()
         flown = [c for c in study.controllers if c not in grid.controller_refusals(p, study.controllers)]
         print(table(doc["cells"], p, flown))
-        if grid.is_mimo(p):
+        if plants.spec(p).mimo:
             print()
             print(sideslip_table(doc["cells"], p, flown))
         if study.duration >= LONG_S:

@@ -12,6 +12,8 @@ import math
 from dataclasses import dataclass
 
 from sitl import damage
+from sitl import plant as plants
+from sitl.fault_kinds import DESIGN_KINDS
 
 # The controllers of the study: the registry's (autopilot.controllers) and two fixed-gain PIDs made here.
 REGISTERED = ("baseline", "sac", "clsac", "pid-ff")
@@ -28,17 +30,11 @@ LABELS = {
 }
 
 NONE = "none"  # the fault-free flight of a cell's controller and seed: the reference every severity is read against
-# Severities in the command line's units (sitl.damage.KINDS: deg, deg/s, s, kt, m, or a factor).
+# Severities in the command line's units (deg, deg/s, s, kt, m, or a factor): each kind's record's
+# (sitl.fault_kinds.FaultKind.severities), in the order the study's help has always listed them.
 SEVERITIES = {
-    "effectiveness": (0.1, 0.3, 0.6),
-    "stuck": (-5.0, 0.0, 5.0),
-    "rate": (5.0, 20.0, 60.0),
-    "delay": (0.02, 0.05, 0.1),
-    "damping": (0.3, 0.6),
-    "off": (None,),
-    "inertia": (1.3, 1.6),
-    "cg": (0.05, 0.1),
-    "airspeed": (63.0, 117.0),
+    k: damage.KINDS[k].severities
+    for k in ("effectiveness", "stuck", "rate", "delay", "damping", "off", "inertia", "cg", "airspeed")
 }
 DEFAULT_KINDS = ("effectiveness", "stuck", "rate", "delay")
 DEFAULT_PLANTS = ("kh2013a", "jsbsim:c172x")
@@ -46,7 +42,7 @@ DEFAULT_ONSETS = (10.0,)
 DEFAULT_DURATION_S = 30.0
 DEFAULT_TURBULENCE = "light"
 TURBULENCE = ("none", "light", "moderate", "severe")
-LINEAR_KINDS = ("effectiveness", "damping", "delay")  # a retuned PID is designed on the faulted linear plant
+LINEAR_KINDS = DESIGN_KINDS  # a retuned PID is designed on the faulted linear plant (FaultKind.design)
 # A square MIMO plant (jsbsim:MODEL:surface=aileron+rudder) flies the laws autopilot.mimo builds, nothing else.
 MIMO_CONTROLLERS = ("baseline", "sac", "clsac")
 MIMO_REFUSALS = {
@@ -56,15 +52,10 @@ MIMO_REFUSALS = {
 }
 
 
-def is_mimo(plant: str) -> bool:
-    """A square MIMO JSBSim plant (``jsbsim:MODEL:surface=aileron+rudder``)."""
-    return plant.startswith("jsbsim:") and "+" in plant.split(":", 2)[-1]
-
-
 def controller_refusals(plant: str, controllers) -> dict[str, str]:
     """{controller: why not} for the study's controllers ``plant`` does not fly (a square MIMO plant:
     ``MIMO_REFUSALS``)."""
-    if not is_mimo(plant):
+    if not plants.spec(plant).mimo:
         return {}
     return {c: MIMO_REFUSALS[c] for c in controllers if c not in MIMO_CONTROLLERS}
 

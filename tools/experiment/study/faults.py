@@ -115,8 +115,7 @@ def plan(faults, steps: int, dt: float) -> Faults | None:
         key = (new.effectiveness, new.damping, new.stuck)
         if key not in keys:
             keys.append(key)
-        servo = ("stuck", "stuck_at", "off", "rate", "delay")
-        reset = new.servo and (not old.servo or any(getattr(new, a) != getattr(old, a) for a in servo))
+        reset = new.servo and (not old.servo or new.servo_differs(old))
         jump, at = JUMP_NONE, 0.0
         if new.stuck and not old.stuck:
             jump, at = (JUMP_WHERE, 0.0) if new.stuck_at is None else (JUMP_AT, new.stuck_at)

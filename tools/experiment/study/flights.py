@@ -27,6 +27,7 @@ import numpy as np
 
 from autopilot import controllers
 from autopilot.envelope import judge_series
+from sitl import plant as plants
 from tools.experiment.study.accumulate import wilson
 from tools.experiment.study.execution import Progress, stream
 from tools.experiment.study.sampling import BOUND_ROLL_RAD, BOUND_SAT_FRACTION, DEG, StudyError
@@ -64,7 +65,7 @@ def simulate(task: Flight) -> dict:
 
     dist = (("seed", task.seed),) + ((("turbulence", task.turbulence),) if task.turbulence != "none" else ())
     limit = min(PAPER.u_limit_rad, plants.surface_limit_rad(task.plant) or float("inf"))
-    if is_mimo(task.plant):
+    if plants.spec(task.plant).mimo:
         return _simulate_mimo(task, dist, limit)
     scenario = replace(PAPER, plant=task.plant, u_limit_rad=limit, disturbances=dist)
     res = run_inprocess(scenario, run_of(task.controller), atmosphere=True)
@@ -78,11 +79,6 @@ def simulate(task: Flight) -> dict:
     out["oscillating"] = bool(c.tracking is not None and c.tracking.oscillating_windows)
     out["not_following"] = bool(c.tracking is not None and c.tracking.not_following_windows)
     return out
-
-
-def is_mimo(plant: str) -> bool:
-    """A square MIMO JSBSim plant (``jsbsim:MODEL:surface=aileron+rudder``)."""
-    return plant.startswith("jsbsim:") and "+" in plant.split(":", 2)[-1]
 
 
 MIMO_CONTROLLERS = ("sac", "clsac", "baseline")  # the controllers a square MIMO plant flies (autopilot.mimo)
@@ -127,7 +123,8 @@ class FlightOptions:
 
     @property
     def jsbsim(self) -> bool:
-        return self.plant.startswith("jsbsim:")
+        """A JSBSim aircraft (its own atmosphere, flown at airspeeds), else a plant file."""
+        return plants.spec(self.plant).jsbsim is not None
 
     def conditions(self) -> list[tuple[str, float | None, str]]:
         """(plant text flown, airspeed or None, turbulence) of each condition, airspeed by airspeed."""
@@ -144,7 +141,8 @@ class FlightOptions:
     def flights(self) -> list[Flight]:
         """Every flight, controller by controller, condition by condition, seed by seed (a square MIMO plant: the
         controllers it flies, ``MIMO_CONTROLLERS``)."""
-        names = [c for c in self.controllers if not is_mimo(self.plant) or c in MIMO_CONTROLLERS]
+        mimo = plants.spec(self.plant).mimo
+        names = [c for c in self.controllers if not mimo or c in MIMO_CONTROLLERS]
         return [
             Flight(c, text, t, self.seed * SEED_STRIDE + i, v)
             for c in names

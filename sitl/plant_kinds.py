@@ -1,0 +1,335 @@
+"""The plant kinds, one record each (``KINDS``), as ArduPilot's SITL builds each aircraft from one table
+(``model_constructors[]``): the interface every plant has (:class:`Plant`), what a kind is (:class:`PlantKind`: how
+its spec is recognised and parsed, how it is built, what it flies), and a ``--plant`` value parsed once into a
+:class:`PlantSpec` that every consumer reads.  No I/O but the plant file.
+
+Every test of a plant's kind happens here; elsewhere the code reads a spec's fields (``mimo``, ``surfaces``,
+``own_atmosphere``, ...) or its kind's.  Adding a kind is one record in ``KINDS`` (docs/plants.md).
+"""
+
+from __future__ import annotations
+
+import functools
+import os
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from importlib import resources
+from pathlib import Path
+from typing import Any, Protocol, runtime_checkable
+
+import numpy as np
+
+
+class PlantError(ValueError):
+    """A --plant value is unusable (a bad file, a bad JSBSim spec or model, a disturbance it cannot fly)."""
+
+
+@runtime_checkable
+class Plant(Protocol):
+    """What the SITL flies (``sitl.plant.build``'s result), like ArduPilot's SIM_Aircraft.
+
+    ``advance(delta_command, n, d=None)`` flies n physics steps with the servo command held and the disturbance d
+    (one row per step), if any, and returns ``truth``; ``truth`` is [v, p, r, phi, delta, delta_dot]
+    (``sitl.model.STATE_NAMES``); ``attitude()`` is (roll, pitch, yaw or None, p, q, r); ``steps`` the physics steps
+    flown, ``time`` the sim time (s), ``config.dt`` the physics step (s); ``set_effect`` takes the active faults'
+    ``sitl.damage.Effect``."""
+
+    config: Any
+    steps: int
+
+    @property
+    def time(self) -> float: ...
+
+    @property
+    def truth(self) -> np.ndarray: ...
+
+    def advance(self, delta_command: float, n: int, d=None) -> np.ndarray: ...
+
+    def attitude(self) -> tuple: ...
+
+    def set_effect(self, effect) -> None: ...
+
+
+SCALE = "--scale names KH2013A coefficients"
+
+
+@dataclass(frozen=True, eq=False, repr=False)
+class PlantKind:
+    """One kind of plant: its ``name``; ``matches(text)``: whether a --plant value is of this kind (the table is tried
+    in order, the last kind takes anything); ``parse(text)``: the kind's own parsed form (None, a
+    ``sitl.linear_plant.LinearPlant``, a ``sitl.jsbsim_plant.JsbsimSpec``), raising PlantError; ``check(text,
+    physics_rate_hz)``: PlantError unless it can fly (a plant file's physics step at that rate unless None, a JSBSim
+    model found with its surfaces and safety pilot); ``construct(spec,
+    physics_rate_hz, params, dist, damaged)``: the :class:`Plant`; what the parsed form says (``surfaces``,
+    ``surface``: the one the command drives, ``aileron+rudder`` on a MIMO JSBSim plant,
+    ``travel``: each surface's stop in rad or None, ``label``: the short name, ``mimo``); the disturbance flags it
+    cannot fly, with why (``unsupported``); ``own_atmosphere``: it flies its own (JSBSim); ``batched``: the
+    batched robustness study (numpy and C) flies it; ``euler``: its attitude has pitch and yaw; ``faults``: the
+    ``sitl.fault_kinds.FaultKind.group`` s it flies (``servo``, ``airframe``, ``mass``)."""
+
+    name: str
+    syntax: str
+    matches: Callable[[str], bool]
+    parse: Callable[[str], Any]
+    check: Callable[[str, float | None], None]
+    construct: Callable[..., Plant]
+    surfaces: Callable[[Any], tuple[str, ...]]
+    surface: Callable[[Any], str]
+    travel: Callable[[Any], tuple[float | None, ...]]
+    label: Callable[[str, Any], str]
+    mimo: Callable[[Any], bool] = lambda _m: False
+    unsupported: dict = field(default_factory=dict)
+    own_atmosphere: bool = False
+    batched: bool = False
+    euler: bool = False
+    faults: frozenset = frozenset({"servo", "airframe"})
+
+    def __repr__(self) -> str:
+        return f"PlantKind({self.name!r})"
+
+
+@dataclass(frozen=True)
+class PlantSpec:
+    """A --plant value parsed once: ``text`` as given, its :class:`PlantKind`, and ``model``, the kind's parsed form."""
+
+    text: str
+    kind: PlantKind
+    model: Any = field(compare=False, repr=False)
+
+    @property
+    def name(self) -> str:
+        """The plant's short name (headers, titles, run folders): ``KH2013A``, the JSBSim model (``c172x``, with
+        ``-rudder`` on its rudder), a plant file's ``name`` (else its file name)."""
+        return self.kind.label(self.text, self.model)
+
+    @property
+    def surfaces(self) -> tuple[str, ...]:
+        """The surfaces, one per input, in the plant's order (``("rudder",)`` on the KH2013A)."""
+        return self.kind.surfaces(self.model)
+
+    @property
+    def surface(self) -> str:
+        """The surface the plant's command drives: ``rudder`` (the KH2013A), a plant file's ``[input] surface``, a
+        JSBSim spec's ``surface`` (aileron by default; ``aileron+rudder`` on a MIMO plant)."""
+        return self.kind.surface(self.model)
+
+    @property
+    def travel(self) -> tuple[float | None, ...]:
+        """Each surface's stop from neutral (rad), None where the plant has none."""
+        return self.kind.travel(self.model)
+
+    @property
+    def mimo(self) -> bool:
+        """A square plant of more than one input (``jsbsim:MODEL:surface=aileron+rudder``, a plant file of m > 1)."""
+        return self.kind.mimo(self.model)
+
+    @property
+    def own_atmosphere(self) -> bool:
+        return self.kind.own_atmosphere
+
+    @property
+    def batched(self) -> bool:
+        return self.kind.batched
+
+    @property
+    def euler(self) -> bool:
+        return self.kind.euler
+
+    @property
+    def jsbsim(self):
+        """The ``sitl.jsbsim_plant.JsbsimSpec`` of a JSBSim aircraft, else None."""
+        return self.model if self.kind.own_atmosphere else None
+
+    @property
+    def linear(self):
+        """The ``sitl.linear_plant.LinearPlant`` of a plant file, else None."""
+        from sitl.linear_plant import LinearPlant
+
+        return self.model if isinstance(self.model, LinearPlant) else None
+
+
+# ---------------------------------------------------------------------------------------------- the KH2013A
+KH2013A = "kh2013a"
+
+
+def _kh_build(spec: PlantSpec, physics_rate_hz: float, params=None, dist=None, damaged=False) -> Plant:  # noqa: ARG001
+    from sitl.aircraft import Aircraft, AircraftConfig
+
+    return Aircraft(AircraftConfig(physics_rate_hz=physics_rate_hz), params=params)
+
+
+# ---------------------------------------------------------------------------------------------- a plant file
+def _file_parse(text: str, physics_rate_hz: float | None = None):
+    from sitl.linear_plant import PlantFileError, load
+
+    try:
+        return load(text, physics_rate_hz)
+    except PlantFileError as exc:
+        raise PlantError(str(exc)) from None
+
+
+def _file_build(spec: PlantSpec, physics_rate_hz: float, params=None, dist=None, damaged=False) -> Plant:  # noqa: ARG001
+    from sitl.aircraft import Aircraft, AircraftConfig
+
+    lp = _file_parse(spec.text, physics_rate_hz)  # its physics step checked at the rate it flies
+    if lp.is_mimo:
+        raise PlantError(
+            f"{spec.text}: a plant file of {lp.m} inputs is designed (python -m tools.pfc design) but not flown by the "
+            "SITL: fly the JSBSim aircraft it was linearised from (jsbsim:MODEL:surface=aileron+rudder)"
+        )
+    cfg = AircraftConfig(
+        physics_rate_hz=physics_rate_hz, rudder_limit_rad=lp.limit_rad, rudder_rate_limit_rad_s=lp.rate_limit_rad_s
+    )
+    return Aircraft(cfg, params=lp.aircraft_params())
+
+
+# ---------------------------------------------------------------------------------------------- a JSBSim aircraft
+JSBSIM = "jsbsim:"
+
+
+def _jsbsim_parse(text: str):
+    from sitl.jsbsim_plant import JsbsimPlantError, parse_spec
+
+    try:
+        return parse_spec(text)
+    except JsbsimPlantError as exc:
+        raise PlantError(str(exc)) from None
+
+
+def _jsbsim_check(text: str, _physics_rate_hz: float | None) -> None:
+    """The spec parsed, its model found, its surfaces mapped and its safety pilot's gains there."""
+    from sitl.jsbsim_models import pilot_gains
+    from sitl.jsbsim_plant import JsbsimPlantError, available_models
+
+    spec = _jsbsim_parse(text)
+    try:
+        if spec.model not in available_models():
+            raise JsbsimPlantError(f"jsbsim plant: no model {spec.model!r}; available: {', '.join(available_models())}")
+        _ = spec.surface_maps  # the model's own command -> deflection, or why it has none in rad
+        pilot_gains(spec.model)  # the safety pilot holds it, or says why not
+    except JsbsimPlantError as exc:
+        raise PlantError(str(exc)) from None
+
+
+def _turbulence_name(dist) -> str | None:
+    """The --turbulence intensity behind ``dist`` (JSBSim plants take only the intensity, see ``unsupported``)."""
+    from sitl.atmosphere import ALTITUDE, DrydenConfig
+
+    turb = None if dist is None else dist.atmosphere.turbulence
+    if turb is None:
+        return None
+    for name in ("light", "moderate", "severe"):
+        if DrydenConfig.intensity(name, ALTITUDE) == turb:
+            return name
+    raise PlantError("JSBSim's MIL-F-8785C turbulence takes an intensity only (--turbulence)")
+
+
+def _jsbsim_build(spec: PlantSpec, physics_rate_hz: float, params=None, dist=None, damaged=False) -> Plant:  # noqa: ARG001
+    from sitl.jsbsim_plant import JsbsimPlant, JsbsimPlantError
+
+    try:
+        return JsbsimPlant(
+            spec.model,
+            physics_rate_hz,
+            turbulence=_turbulence_name(dist),
+            seed=0 if dist is None else dist.seed,
+            crosswind=0.0 if dist is None else dist.atmosphere.crosswind,
+            damaged=damaged,
+        )
+    except JsbsimPlantError as exc:
+        raise PlantError(str(exc)) from None
+
+
+# ---------------------------------------------------------------------------------------------- the table
+KINDS: dict[str, PlantKind] = {
+    k.name: k
+    for k in (
+        PlantKind(
+            name=KH2013A,
+            syntax=KH2013A,
+            matches=lambda text: text == KH2013A,
+            parse=lambda _text: None,
+            check=lambda _text, _rate: None,
+            construct=_kh_build,
+            surfaces=lambda _m: ("rudder",),
+            surface=lambda _m: "rudder",
+            travel=lambda _m: (None,),
+            label=lambda _text, _m: "KH2013A",
+            batched=True,
+        ),
+        PlantKind(
+            name="jsbsim",
+            syntax="jsbsim:MODEL[:KEY=VALUE,...]",
+            matches=lambda text: text.startswith(JSBSIM),
+            parse=_jsbsim_parse,
+            check=_jsbsim_check,
+            construct=_jsbsim_build,
+            surfaces=lambda m: m.surfaces,
+            surface=lambda m: m.surface,
+            travel=lambda m: m.surface_limits_rad,
+            label=lambda _text, m: m.model + ("" if m.surface == "aileron" else f"-{m.surface}"),
+            mimo=lambda m: m.is_mimo,
+            unsupported={
+                "scale": SCALE,
+                "gust": "--gust is a KH2013A side-gust model (JSBSim flies its own atmosphere: use --turbulence)",
+                "turbulence_sigma": "JSBSim's MIL-F-8785C turbulence takes an intensity only (--turbulence)",
+                "turbulence_length": "JSBSim's MIL-F-8785C turbulence takes an intensity only (--turbulence)",
+                "altitude": "the JSBSim altitude is the plant's own: jsbsim:MODEL:altitude_m=M",
+            },
+            own_atmosphere=True,
+            euler=True,
+            faults=frozenset({"servo", "airframe", "mass"}),
+        ),
+        PlantKind(  # last: any other value is a plant file's path
+            name="file",
+            syntax="FILE.toml",
+            matches=lambda _text: True,
+            parse=_file_parse,
+            check=lambda text, rate: _file_parse(text, rate) and None,
+            construct=_file_build,
+            surfaces=lambda lp: lp.surfaces or (lp.surface,),
+            surface=lambda lp: lp.surface,
+            travel=lambda lp: lp.limits_rad or (lp.limit_rad,),
+            label=lambda text, lp: lp.name or Path(text).stem,
+            mimo=lambda lp: lp.is_mimo,
+            unsupported={"scale": SCALE},
+        ),
+    )
+}
+
+
+def kind_of(text: str) -> PlantKind:
+    """The kind of a --plant value (never raises: an unknown value is a plant file's path)."""
+    return next(k for k in KINDS.values() if k.matches(text))
+
+
+def _stamp(text: str) -> tuple:
+    """What makes a cached parse stale: a plant file's size and modification time (nothing for the others)."""
+    try:
+        st = os.stat(text)
+    except (OSError, ValueError):
+        return ()
+    return (st.st_mtime_ns, st.st_size)
+
+
+@functools.lru_cache(maxsize=128)
+def _parsed(text: str, stamp: tuple) -> PlantSpec:  # noqa: ARG001 (the stamp is the cache key)
+    k = kind_of(text)
+    return PlantSpec(text, k, k.parse(text))
+
+
+def spec(text) -> PlantSpec:
+    """The --plant value ``text`` parsed once (cached; a plant file again when it changed on disk); PlantError with
+    a one-line reason.  A PlantSpec is returned as it is."""
+    if isinstance(text, PlantSpec):
+        return text
+    text = str(text)
+    return _parsed(text, _stamp(text))
+
+
+def shipped(name: str) -> Path:
+    """A plant file shipped with the package (``sitl/plants/NAME``)."""
+    return Path(str(resources.files("sitl") / "plants" / name))
+
+
+__all__ = ["JSBSIM", "KH2013A", "KINDS", "Plant", "PlantError", "PlantKind", "PlantSpec", "kind_of", "shipped", "spec"]
