@@ -63,9 +63,12 @@ class PlantKind:
     physics_rate_hz, params, dist, damaged)``: the :class:`Plant`; what the parsed form says (``surfaces``,
     ``surface``: the one the command drives, ``aileron+rudder`` on a MIMO JSBSim plant,
     ``travel``: each surface's stop in rad or None, ``label``: the short name, ``mimo``); the disturbance flags it
-    cannot fly, with why (``unsupported``); ``own_atmosphere``: it flies its own (JSBSim); ``batched``: the
-    batched robustness study (numpy and C) flies it; ``euler``: its attitude has pitch and yaw; ``faults``: the
-    ``sitl.fault_kinds.FaultKind.group`` s it flies (``servo``, ``airframe``, ``mass``)."""
+    cannot fly, with why (``unsupported``); ``design(text, model)``: where the design of it is found
+    (``tools.pfc design``; None: the paper's values are its design, ``paper``); ``linear(text, model)``: the linear
+    model it is designed on, (A_p, B_p, C_p) with the servo last and the index of its roll-rate state, None if none;
+    ``keyed``: its spec takes comma-separated KEY=VALUE pairs; ``own_atmosphere``: it flies its own (JSBSim);
+    ``batched``: the batched robustness study (numpy and C) flies it; ``euler``: its attitude has pitch and yaw;
+    ``faults``: the ``sitl.fault_kinds.FaultKind.group`` s it flies (``servo``, ``airframe``, ``mass``)."""
 
     name: str
     syntax: str
@@ -77,7 +80,11 @@ class PlantKind:
     surface: Callable[[Any], str]
     travel: Callable[[Any], tuple[float | None, ...]]
     label: Callable[[str, Any], str]
+    design: Callable[[str, Any], Path | None] = lambda _text, _m: None
+    linear: Callable[[str, Any], tuple | None] = lambda _text, _m: None
     mimo: Callable[[Any], bool] = lambda _m: False
+    paper: bool = False
+    keyed: bool = False
     unsupported: dict = field(default_factory=dict)
     own_atmosphere: bool = False
     batched: bool = False
@@ -124,6 +131,21 @@ class PlantSpec:
         return self.kind.mimo(self.model)
 
     @property
+    def paper(self) -> bool:
+        """The paper's own aircraft (the KH2013A): its design is the paper's values."""
+        return self.kind.paper
+
+    @property
+    def design_file(self) -> Path | None:
+        """Where its design is looked for (docs/plants.md, "Where a design is found"), None for the paper's."""
+        return self.kind.design(self.text, self.model)
+
+    @property
+    def linear_model(self) -> tuple | None:
+        """(A_p, B_p, C_p, roll-rate state index or None) it is designed on, None if there is none."""
+        return self.kind.linear(self.text, self.model)
+
+    @property
     def own_atmosphere(self) -> bool:
         return self.kind.own_atmosphere
 
@@ -158,7 +180,19 @@ def _kh_build(spec: PlantSpec, physics_rate_hz: float, params=None, dist=None, d
     return Aircraft(AircraftConfig(physics_rate_hz=physics_rate_hz), params=params)
 
 
+def _kh_linear(_text: str, _m) -> tuple:
+    from sitl import model
+
+    return model.A_P, model.B_P, model.C_P, model.P
+
+
 # ---------------------------------------------------------------------------------------------- a plant file
+def _linear_of(lp) -> tuple:
+    from sitl.damage import roll_rate_index
+
+    return lp.a_p, lp.b_p, lp.c_p, roll_rate_index(lp.truth)
+
+
 def _file_parse(text: str, physics_rate_hz: float | None = None):
     from sitl.linear_plant import PlantFileError, load
 
@@ -240,6 +274,20 @@ def _jsbsim_build(spec: PlantSpec, physics_rate_hz: float, params=None, dist=Non
         raise PlantError(str(exc)) from None
 
 
+def _jsbsim_design(_text: str, m) -> Path:
+    suffix = "" if m.surface == "aileron" else f"-{m.surface}"
+    return shipped(f"jsbsim-{m.model}{suffix}.params")
+
+
+def _jsbsim_linear(text: str, m) -> tuple | None:
+    """Its linearised file shipped beside its designed parameter file (``sitl/plants/jsbsim-MODEL.toml``, at its
+    design point, whatever the airspeed flown), None if none."""
+    path = _jsbsim_design(text, m).with_suffix(".toml")
+    if not _jsbsim_design(text, m).is_file() or not path.is_file():
+        return None
+    return _linear_of(_file_parse(str(path)))
+
+
 # ---------------------------------------------------------------------------------------------- the table
 KINDS: dict[str, PlantKind] = {
     k.name: k
@@ -255,6 +303,8 @@ KINDS: dict[str, PlantKind] = {
             surface=lambda _m: "rudder",
             travel=lambda _m: (None,),
             label=lambda _text, _m: "KH2013A",
+            linear=_kh_linear,
+            paper=True,
             batched=True,
         ),
         PlantKind(
@@ -268,7 +318,10 @@ KINDS: dict[str, PlantKind] = {
             surface=lambda m: m.surface,
             travel=lambda m: m.surface_limits_rad,
             label=lambda _text, m: m.model + ("" if m.surface == "aileron" else f"-{m.surface}"),
+            design=_jsbsim_design,
+            linear=_jsbsim_linear,
             mimo=lambda m: m.is_mimo,
+            keyed=True,
             unsupported={
                 "scale": SCALE,
                 "gust": "--gust is a KH2013A side-gust model (JSBSim flies its own atmosphere: use --turbulence)",
@@ -291,6 +344,8 @@ KINDS: dict[str, PlantKind] = {
             surface=lambda lp: lp.surface,
             travel=lambda lp: lp.limits_rad or (lp.limit_rad,),
             label=lambda text, lp: lp.name or Path(text).stem,
+            design=lambda text, _lp: Path(text).with_suffix(".params"),
+            linear=lambda _text, lp: _linear_of(lp),
             mimo=lambda lp: lp.is_mimo,
             unsupported={"scale": SCALE},
         ),

@@ -326,7 +326,7 @@ class FlightConfig:
             plants.check(self.plant, self.physics_rate)
             plants.check_disturbances(self.plant, {k: getattr(self, k) for k in disturbances.FLAGS})
             plants.check_faults(self.plant, self.fault)
-            if plants.kind(self.plant) == "jsbsim":
+            if plants.spec(self.plant).jsbsim is not None:
                 _trims(self.plant)  # a JSBSim aircraft that does not trim there is refused before anything starts
         except plants.PlantError as exc:
             raise FlightConfigError("plant", f"plant: {exc}") from None

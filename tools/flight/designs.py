@@ -23,7 +23,7 @@ def refusal(cfg) -> tuple[str, str] | None:
     path = cfg.params_file
     if path is None:
         explicit = cfg.pfc is not None if c.adaptive else cfg.baseline_gains is not None
-        if plants.kind(cfg.plant) != "kh2013a" and not explicit:
+        if not plants.spec(cfg.plant).paper and not explicit:
             return (
                 "plant",
                 f"plant: {cfg.plant} has no design (no {shown_path(design_path(cfg.plant))}): "

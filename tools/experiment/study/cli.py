@@ -12,6 +12,7 @@ from pathlib import Path
 
 from autopilot.shared import cli
 from autopilot.shared.cli import OneLineArgumentParser
+from sitl import plant as plants
 from tools.experiment.outdir import check_out_dir, default_out_dir, prepare_out_dir
 from tools.experiment.study import faults as study_faults
 from tools.experiment.study import flights
@@ -158,7 +159,7 @@ def split_plants(text: str | None) -> list[str]:
         return ["kh2013a"]
     out: list[str] = []
     for piece in _names(text, "plant"):
-        if out and out[-1].startswith("jsbsim:") and re.fullmatch(r"[a-z_]+=[^:]*", piece):
+        if out and plants.kind_of(out[-1]).keyed and re.fullmatch(r"[a-z_]+=[^:]*", piece):
             out[-1] += "," + piece
         else:
             out.append(piece)
@@ -183,19 +184,19 @@ def _airspeeds(text: str | None) -> tuple[float, ...] | None:
 
 def plan_from_args(args) -> list[tuple[str, object]]:
     """(plant, its study's options) for each --plant, every flag checked against the plants it applies to."""
-    from sitl import plant as plants
-
     texts = split_plants(args.plant)
+    batched = {}  # the plants the batched study flies (sitl.plant_kinds.PlantKind.batched: the KH2013A)
     for text in texts:
-        if text != "kh2013a":
+        batched[text] = plants.kind_of(text).batched
+        if not batched[text]:
             try:
                 plants.check(text)
             except plants.PlantError as exc:
                 raise StudyError(str(exc)) from None
-    scalar = [t for t in texts if t != "kh2013a"]
+    scalar = [t for t in texts if not batched[t]]
     given = {k for k in (*KH2013A_FLAGS, *FLIGHT_FLAGS) if getattr(args, k) is not None}
     for k in KH2013A_FLAGS:
-        if k in given and "kh2013a" not in texts:
+        if k in given and not any(batched.values()):
             raise StudyError(
                 f"--{k.replace('_', '-')} applies to --plant kh2013a only (a JSBSim aircraft or plant file flies "
                 "--seeds flights per --turbulence level and airspeed)"
@@ -211,13 +212,13 @@ def plan_from_args(args) -> list[tuple[str, object]]:
             "--fault in the robustness study flies on --plant kh2013a alone (on a JSBSim aircraft or plant file: "
             "python -m tools.experiment damage)"
         )
-    if "airspeeds" in given and not any(t.startswith("jsbsim:") for t in texts):
+    if "airspeeds" in given and not any(plants.spec(t).jsbsim is not None for t in scalar):
         raise StudyError("--airspeeds applies to a JSBSim aircraft (--plant jsbsim:MODEL) only")
     controllers = _names(args.controllers, "controllers")
     seed = 0 if args.seed is None else args.seed
     plan: list[tuple[str, object]] = []
     for text in texts:
-        if text == "kh2013a":
+        if batched[text]:
             kw = {k: getattr(args, k) for k in ("runs", "sweep_runs", "long_runs", "chunk") if k in given}
             if args.fault:
                 study_faults.check(args.fault)
@@ -228,7 +229,7 @@ def plan_from_args(args) -> list[tuple[str, object]]:
                 kw["conditions"] = _names(args.conditions, "conditions")
             plan.append((text, StudyOptions(seed=seed, scheduler=args.scheduler, workers=args.workers, **kw)))
             continue
-        airspeeds = _airspeeds(args.airspeeds) if text.startswith("jsbsim:") else None
+        airspeeds = _airspeeds(args.airspeeds) if plants.spec(text).jsbsim is not None else None
         turbulence = _names(args.turbulence, "turbulence")
         if turbulence is None:
             turbulence = ("none", "moderate")
@@ -259,7 +260,7 @@ def plan_from_args(args) -> list[tuple[str, object]]:
 def options_from_args(args) -> StudyOptions:
     """The KH2013A study's options (``--plant kh2013a``)."""
     for text, opts in plan_from_args(args):
-        if text == "kh2013a":
+        if plants.kind_of(text).batched:
             return opts
     raise StudyError("--plant does not name kh2013a")
 

@@ -33,9 +33,10 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from sitl.fault_kinds import STUDY_KINDS
 from tools.experiment.study.sampling import StudyError
 
-KINDS = ("effectiveness", "damping", "stuck", "off", "delay", "rate")
+KINDS = STUDY_KINDS  # the kinds whose record says how the study flies them (sitl.fault_kinds.FaultKind.study)
 REFUSED: dict = {}
 SUBSTEPS = 10  # physics steps per control step under a rate limit (the SITL's 1 kHz at the study's 100 Hz)
 JUMP_NONE, JUMP_WHERE, JUMP_AT = 0, 1, 2

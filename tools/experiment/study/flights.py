@@ -262,7 +262,7 @@ def fly(opts: FlightOptions, *, log=print, progress: bool = True, stop: threadin
     section = {
         "study": "robustness",
         "plant": opts.plant,
-        "kind": "jsbsim" if opts.jsbsim else "file",
+        "kind": plants.spec(opts.plant).kind.name,
         "flights": "the reference scenario flown in-process (tools.experiment.scenario.run_inprocess)",
         "seed": opts.seed,
         "seeds": opts.seeds,
