@@ -604,6 +604,16 @@ def _fly_numpy(b) -> tuple[dict, np.ndarray, np.ndarray, dict | None]:
     return acc, peaks, track, series
 
 
+def slew(delta, delta_free, rate_free, move_max: float, rate: float):
+    """The rate limit's rule on arrays, ``sitl.damage.Actuator.surface``'s (and kernel.c's ``rate_limited``): the free
+    step's move ``delta_free - delta`` beyond ``move_max`` (rate * h) coasts at +-rate, else the free step is taken
+    with its rate clipped to +-rate.  Returns (coast, the coasting rate, the clipped free rate); tests/test_faults.py
+    holds it to the Actuator's bit for bit."""
+    move = delta_free - delta
+    up, down = move > move_max, move < -move_max
+    return up | down, np.where(up, rate, -rate), np.minimum(rate, np.maximum(-rate, rate_free))
+
+
 def _rate_limited(x: list, u_s, dd, fine, rate: float, dt: float) -> list:
     """One control step under a rate limit, as ``sitl.aircraft.Aircraft._advance_servo_fault`` flies it
     (``faults.SUBSTEPS`` physics steps of dt / SUBSTEPS): the free step, its move against rate * h; beyond it the
@@ -622,15 +632,11 @@ def _rate_limited(x: list, u_s, dd, fine, rate: float, dt: float) -> list:
             + g1[r][0] * u_s
             for r in range(6)
         ]
-        move = xf[4] - x[4]
-        up, down = move > move_max, move < -move_max
-        at = np.where(up, rate, -rate)  # the coasting rate
+        coast, at, xf[5] = slew(x[4], xf[4], xf[5], move_max, rate)
         xc = [
             pc[r][0] * x[0] + pc[r][1] * x[1] + pc[r][2] * x[2] + pc[r][3] * x[3] + pc[r][4] * x[4] + pc[r][5] * at
             for r in range(6)
         ]
-        xf[5] = np.minimum(rate, np.maximum(-rate, xf[5]))
-        coast = up | down
         x = [np.where(coast, xc[r], xf[r]) for r in range(6)]
         if dd is not None:
             x = [x[r] + (g1[r][1] * dd[0] + g1[r][2] * dd[1] + g1[r][3] * dd[2]) for r in range(6)]
