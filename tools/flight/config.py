@@ -381,14 +381,14 @@ class FlightConfig:
         a square MIMO plant's first (the aileron: the roll channel the loop's verdict and messages name)."""
         from sitl import plant as plants
 
-        return plants.surface_of(self.plant).split("+")[0]
+        return plants.spec(self.plant).surfaces[0]
 
     @property
     def mimo(self) -> bool:
         """A square MIMO plant (``jsbsim:MODEL:surface=aileron+rudder``): two surfaces, roll and sideslip."""
         from sitl import plant as plants
 
-        return "+" in plants.surface_of(self.plant)
+        return plants.spec(self.plant).mimo
 
     @property
     def surface2_limit_deg(self) -> float | None:

@@ -193,7 +193,7 @@ class Lane:
         self.k = 0
         self.u = 0.0
         self.metrics = MetricsAccumulator(self.dt)
-        self.monitor = EnvelopeMonitor(Envelope(surface=plants.surface_of(ep.plant).split("+")[0]))
+        self.monitor = EnvelopeMonitor(Envelope(surface=plants.spec(ep.plant).surfaces[0]))
         self.exit: str | None = None
         self._block = -1
         self.measure()
