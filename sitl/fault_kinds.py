@@ -197,14 +197,6 @@ WORSE_LOWER = tuple(k.name for k in KINDS.values() if k.worse == "lower")  # the
 SEVERITIES = {k.name: k.severities for k in KINDS.values()}  # the damage study's, in the command line's units
 
 
-def plants_flying(name: str) -> tuple[str, ...]:
-    """The plant kinds (``sitl.plant_kinds.KINDS``) whose group list has this kind's (a plant may still refuse it:
-    ``sitl.plant.fault_refusals``)."""
-    from sitl.plant_kinds import KINDS as PLANT_KINDS
-
-    return tuple(p for p, pk in PLANT_KINDS.items() if KINDS[name].group in pk.faults)
-
-
 def help_text() -> str:
     """The kinds as ``--fault``'s help lists them: every plant's, then the JSBSim-only ones."""
     every = ", ".join(k.syntax for k in KINDS.values() if k.group != "mass")
@@ -225,5 +217,4 @@ __all__ = [
     "WORSE_LOWER",
     "FaultKind",
     "help_text",
-    "plants_flying",
 ]

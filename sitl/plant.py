@@ -128,6 +128,14 @@ def fault_refusals(text: str) -> dict[str, str]:
     return why
 
 
+def plants_flying(fault_kind: str) -> tuple[str, ...]:
+    """The plant kinds (``sitl.plant_kinds.KINDS``) that fly a fault kind: those whose ``faults`` list its record's
+    group (a plant may still refuse it: ``fault_refusals``)."""
+    from sitl.fault_kinds import KINDS as FAULT_KINDS
+
+    return tuple(p for p, pk in KINDS.items() if FAULT_KINDS[fault_kind].group in pk.faults)
+
+
 SERVO_SPAN_RAD = math.radians(30.0)  # the servo's +-30 deg at PWM 1000..2000 us (autopilot.shared.pwm)
 
 
@@ -279,6 +287,7 @@ __all__ = [
     "injected",
     "kind",
     "name_of",
+    "plants_flying",
     "shipped",
     "spec",
     "surface_limit_rad",

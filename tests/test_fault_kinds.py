@@ -52,7 +52,7 @@ def test_every_kind_is_in_the_users_table_of_faults_md_with_its_plants():
     rows = _rows(ROOT / "docs" / "faults.md", "| kind | what it does | plants |")
     assert list(rows) == list(fault_kinds.KINDS)
     for name in fault_kinds.KINDS:
-        flown = fault_kinds.plants_flying(name)
+        flown = plants.plants_flying(name)
         assert (rows[name][-1] == "JSBSim") == (flown == ("jsbsim",)), name
 
 
@@ -89,8 +89,8 @@ def test_the_sets_every_reader_uses_come_from_the_records():
     assert damage_png._order("delay", [0.1, 0.02, 0.05]) == [0.02, 0.05, 0.1]
     # the plants: every kind's group is flown by the kinds of plant the records say, the KH2013A refuses the rest
     assert set(plants.fault_refusals("kh2013a")) == {"inertia", "cg", "airspeed"}
-    assert fault_kinds.plants_flying("cg") == ("jsbsim",)
-    assert set(fault_kinds.plants_flying("stuck")) == set(plants.KINDS)
+    assert plants.plants_flying("cg") == ("jsbsim",)
+    assert set(plants.plants_flying("stuck")) == set(plants.KINDS)
 
 
 def test_a_retuned_design_refuses_exactly_the_kinds_without_a_design():
