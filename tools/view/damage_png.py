@@ -98,7 +98,7 @@ def draw(cells, plants, kinds, controllers, labels: dict, path, onset: float | N
                 ax.grid(True, alpha=0.3)
             share_ax.set_ylim(-5, 105)
             err_ax.set_yscale("log")
-            unit = {"stuck": " deg", "rate": " deg/s", "delay": " s", "cg": " m", "airspeed": " kt"}.get(kind, "")
+            unit = f" {fault_kinds.KINDS[kind].unit}" if fault_kinds.KINDS[kind].unit else ""  # the record's
             share_ax.set_title(f"{plant}: {kind}{unit}", fontsize=9)
             err_ax.set_xlabel(f"{kind}{unit}", fontsize=8)
             if ki == 0:
