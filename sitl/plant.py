@@ -14,12 +14,20 @@ A --plant value is parsed once into a ``PlantSpec`` (``spec(text)``); the functi
 
 from __future__ import annotations
 
-import functools
 import math
-from dataclasses import replace
 
 from sitl.linear_plant import PHYSICS_RATE_HZ
-from sitl.plant_kinds import JSBSIM, KH2013A, KINDS, Plant, PlantError, PlantSpec, kind_of, shipped, spec
+from sitl.plant_kinds import (
+    JSBSIM,
+    KH2013A,
+    KINDS,
+    Plant,
+    PlantError,
+    PlantSpec,
+    kind_of,
+    shipped,
+    spec,
+)
 
 # Disturbance flags (sitl.disturbances.FLAGS) a plant kind cannot apply, and why (``PlantKind.unsupported``).
 UNSUPPORTED = {name: k.unsupported for name, k in KINDS.items() if k.unsupported}
@@ -28,12 +36,6 @@ UNSUPPORTED = {name: k.unsupported for name, k in KINDS.items() if k.unsupported
 def kind(text: str) -> str:
     """The name of the plant's kind (``sitl.plant_kinds.KINDS``: ``kh2013a``, ``jsbsim`` or ``file``)."""
     return kind_of(text).name
-
-
-def _load(text: str, physics_rate_hz: float | None = None):
-    """The plant file ``text`` (``sitl.linear_plant.load``), its physics step checked at ``physics_rate_hz`` (None: not
-    checked); PlantError with the one-line reason."""
-    return spec(text).model if physics_rate_hz is None else KINDS["file"].parse(text, physics_rate_hz)
 
 
 def check(text: str, physics_rate_hz: float | None = PHYSICS_RATE_HZ) -> str:
@@ -51,81 +53,31 @@ def check_disturbances(text: str, given: dict) -> None:
     for dest, why in kind_of(text).unsupported.items():
         if given.get(dest) is not None:
             raise PlantError(f"--{dest.replace('_', '-')} cannot fly on --plant {text}: {why}")
-    air = [d for d in ATMOSPHERE if given.get(d) is not None]
-    lp = spec(text).linear if air else None
-    if lp is not None and lp.truth is not None:
-        # the gusts enter through the aerodynamic columns of v, p, r (sitl.atmosphere.disturbance_matrix)
-        raise PlantError(
-            f"--{air[0].replace('_', '-')} cannot fly on --plant {text}: the atmosphere needs the airframe states "
-            "[v, p, r, phi], in that order"
-        )
-    scaled = [d for d in air if d != "crosswind"]  # a steady crosswind is a side velocity: no scale to it
-    if scaled and lp is not None and lp.airspeed_m_s is None:
-        raise PlantError(
-            f"--{scaled[0].replace('_', '-')} cannot fly on --plant {text}: the Dryden turbulence and the gusts are "
-            "scaled to the aircraft, and the file does not say which: give [atmosphere] airspeed = M/S and span = M "
-            "(and altitude = M) in it"
-        )
-    alt = lp.altitude_m if scaled and lp is not None else None
-    if alt is not None and given.get("turbulence") is not None and not 3.048 <= alt <= 304.8:
-        raise PlantError(
-            f"--turbulence cannot fly on --plant {text}: its [atmosphere] altitude {alt:g} m is outside the "
-            "low-altitude Dryden model (3.05..304.8 m, 10..1000 ft)"
-        )
+    ps = spec(text)
+    ps.kind.disturbances(text, ps.model, [d for d in ATMOSPHERE if given.get(d) is not None], given)
 
 
 def injected(text: str, dist):
-    """What ``sitl.disturbances.Injector`` applies on this plant: everything but the atmosphere for JSBSim (it flies
-    its own, at the aircraft's airspeed and altitude); on a plant file the atmosphere scaled to its ``[atmosphere]``
-    airspeed, span and altitude (``scaled_atmosphere``); all of it, as given, on the KH2013A."""
+    """What ``sitl.disturbances.Injector`` applies on this plant (its kind's ``atmosphere``): everything but the
+    atmosphere for JSBSim (it flies its own, at the aircraft's airspeed and altitude); on a plant file the atmosphere
+    scaled to its ``[atmosphere]`` airspeed, span and altitude (``scaled_atmosphere``); all of it, as given, on the
+    KH2013A."""
     if dist is None:
         return dist
     ps = spec(text)
-    if ps.own_atmosphere:
-        from sitl.atmosphere import AtmosphereConfig
-
-        return replace(dist, atmosphere=AtmosphereConfig())
-    if ps.linear is not None:
-        return replace(dist, atmosphere=scaled_atmosphere(ps.linear, dist.atmosphere))
-    return dist
-
-
-def scaled_atmosphere(lp, atm):
-    """``atm`` (``sitl.atmosphere.AtmosphereConfig``) for the aircraft of plant file ``lp``: the Dryden filters and
-    the gusts at its airspeed and span; a --turbulence intensity at its altitude too, unless --altitude, the sigmas
-    or the scale lengths were given.  Unchanged without ``[atmosphere]`` (only a crosswind is then allowed)."""
-    if lp.airspeed_m_s is None:
-        return atm
-    from sitl.atmosphere import ALTITUDE, DrydenConfig
-
-    turb = atm.turbulence
-    if turb is not None:
-        name = next((n for n in ("light", "moderate", "severe") if DrydenConfig.intensity(n, ALTITUDE) == turb), None)
-        if name is not None and lp.altitude_m is not None:
-            turb = DrydenConfig.intensity(name, lp.altitude_m)
-        turb = replace(turb, airspeed=lp.airspeed_m_s, span=lp.span_m)
-    gusts = tuple(replace(g, airspeed=lp.airspeed_m_s) for g in atm.gusts)
-    return replace(atm, turbulence=turb, gusts=gusts)
+    return ps.kind.atmosphere(ps.model, dist)
 
 
 def fault_refusals(text: str) -> dict[str, str]:
     """The fault kinds (``sitl.fault_kinds.KINDS``) this plant cannot fly, each with the reason: a kind of a group
-    its kind does not fly (``PlantKind.faults``), a JSBSim model's own (``sitl.jsbsim_damage.refusals``), damping on
-    a plant file whose roll rate is no state."""
-    from sitl import damage
+    its kind does not fly (``PlantKind.faults``), and the plant's own (``PlantKind.refusals``: a JSBSim model's,
+    ``sitl.jsbsim_damage.refusals``; damping on a plant file whose roll rate is no state)."""
     from sitl.fault_kinds import GROUP_REASONS
+    from sitl.fault_kinds import KINDS as FAULT_KINDS
 
     ps = spec(text)
-    if ps.jsbsim is not None:
-        from sitl.jsbsim_damage import refusals
-        from sitl.jsbsim_plant import _root
-
-        m = ps.jsbsim
-        return refusals(_root() / "aircraft" / m.model / f"{m.model}.xml", m.surfaces[0])
-    why = {kd.name: GROUP_REASONS[kd.group] for kd in damage.KINDS.values() if kd.group not in ps.kind.faults}
-    if ps.linear is not None and damage.roll_rate_index(ps.linear.truth) is None:
-        why["damping"] = "the plant file's roll rate is not one of its states (a transfer function)"
-    return why
+    why = {kd.name: GROUP_REASONS[kd.group] for kd in FAULT_KINDS.values() if kd.group not in ps.kind.faults}
+    return why | ps.kind.refusals(ps.model)
 
 
 def plants_flying(fault_kind: str) -> tuple[str, ...]:
@@ -169,36 +121,8 @@ def fault_value_refusal(text: str, fault, span_rad: float = SERVO_SPAN_RAD, surf
                     f"+-{math.degrees(travel[i]):.6g} deg"
                 )
         return None
-    js = spec(text).jsbsim
-    if js is None or fault.kind not in ("airspeed", "cg"):
-        return None
-    if fault.kind == "airspeed":
-        kt = fault.value / (1852.0 / 3600.0)
-        if not _trims(js.model, round(kt, 9), js.altitude_m):
-            return f"{js.model} does not trim in level flight at {kt:.6g} kt, {js.altitude_m:g} m (its trim range)"
-        return None
-    from sitl.jsbsim_damage import anatomy
-    from sitl.jsbsim_plant import _root
-
-    span = anatomy(_root() / "aircraft" / js.model / f"{js.model}.xml", js.surfaces[0]).span_ft
-    most = 0.25 * span * 0.3048 if span else None  # half the half span: a tip ballast as heavy as the aircraft
-    if most and abs(fault.value) > most:
-        return f"beyond {most:.2f} m (half the half span) the wing-tip ballast would weigh more than the aircraft"
-    return None
-
-
-@functools.lru_cache(maxsize=64)
-def _trims(model: str, kt: float, altitude_m: float) -> bool:
-    """Whether JSBSim's ``model`` trims in level flight at ``kt`` knots and ``altitude_m`` (one trim)."""
-    from sitl.jsbsim_models import quiet_stdio
-    from sitl.jsbsim_plant import JsbsimPlantError, JsbsimSpec, trimmed_fdm
-
-    with quiet_stdio():  # JSBSim's chatter ("Sorry, udot doesn't appear to be trimmable")
-        try:
-            trimmed_fdm(JsbsimSpec(model, airspeed_kt=kt, altitude_m=altitude_m), 0.01, suggest=False)
-        except JsbsimPlantError:
-            return False
-    return True
+    ps = spec(text)
+    return ps.kind.value_refusal(ps.model, fault)
 
 
 def check_faults(text: str, faults, span_rad: float = SERVO_SPAN_RAD) -> None:

@@ -12,7 +12,7 @@ from __future__ import annotations
 import functools
 import os
 from collections.abc import Callable
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from importlib import resources
 from pathlib import Path
 from typing import Any, Protocol, runtime_checkable
@@ -66,7 +66,11 @@ class PlantKind:
     cannot fly, with why (``unsupported``); ``design(text, model)``: where the design of it is found
     (``tools.pfc design``; None: the paper's values are its design, ``paper``); ``linear(text, model)``: the linear
     model it is designed on, (A_p, B_p, C_p) with the servo last and the index of its roll-rate state, None if none;
-    ``keyed``: its spec takes comma-separated KEY=VALUE pairs; ``own_atmosphere``: it flies its own (JSBSim);
+    ``disturbances(text, model, atmosphere_flags, given)``: PlantError for an atmosphere it cannot carry (beyond
+    ``unsupported``); ``atmosphere(model, dist)``: the disturbances ``sitl.disturbances.Injector`` applies on it;
+    ``refusals(model)``: the fault kinds it refuses of its own, with why; ``value_refusal(model, fault)``: why it
+    cannot fly a fault's value (beyond a surface's travel, checked for every kind); ``keyed``: its spec takes
+    comma-separated KEY=VALUE pairs; ``own_atmosphere``: it flies its own (JSBSim);
     ``batched``: the batched robustness study (numpy and C) flies it; ``euler``: its attitude has pitch and yaw;
     ``faults``: the ``sitl.fault_kinds.FaultKind.group`` s it flies (``servo``, ``airframe``, ``mass``)."""
 
@@ -83,6 +87,10 @@ class PlantKind:
     design: Callable[[str, Any], Path | None] = lambda _text, _m: None
     linear: Callable[[str, Any], tuple | None] = lambda _text, _m: None
     mimo: Callable[[Any], bool] = lambda _m: False
+    disturbances: Callable[[str, Any, list, dict], None] = lambda _text, _m, _air, _given: None
+    atmosphere: Callable[[Any, Any], Any] = lambda _m, dist: dist
+    refusals: Callable[[Any], dict] = lambda _m: {}
+    value_refusal: Callable[[Any, Any], str | None] = lambda _m, _fault: None
     paper: bool = False
     keyed: bool = False
     unsupported: dict = field(default_factory=dict)
@@ -202,6 +210,58 @@ def _file_parse(text: str, physics_rate_hz: float | None = None):
         raise PlantError(str(exc)) from None
 
 
+def _file_disturbances(text: str, lp, air: list, given: dict) -> None:
+    """A plant file carries the atmosphere only on the airframe states [v, p, r, phi], scaled to its
+    ``[atmosphere]`` (a crosswind needs no scale), the turbulence at an altitude of the low-altitude Dryden model."""
+    if not air:
+        return
+    if lp.truth is not None:
+        # the gusts enter through the aerodynamic columns of v, p, r (sitl.atmosphere.disturbance_matrix)
+        raise PlantError(
+            f"--{air[0].replace('_', '-')} cannot fly on --plant {text}: the atmosphere needs the airframe states "
+            "[v, p, r, phi], in that order"
+        )
+    scaled = [d for d in air if d != "crosswind"]  # a steady crosswind is a side velocity: no scale to it
+    if scaled and lp.airspeed_m_s is None:
+        raise PlantError(
+            f"--{scaled[0].replace('_', '-')} cannot fly on --plant {text}: the Dryden turbulence and the gusts are "
+            "scaled to the aircraft, and the file does not say which: give [atmosphere] airspeed = M/S and span = M "
+            "(and altitude = M) in it"
+        )
+    alt = lp.altitude_m if scaled else None
+    if alt is not None and given.get("turbulence") is not None and not 3.048 <= alt <= 304.8:
+        raise PlantError(
+            f"--turbulence cannot fly on --plant {text}: its [atmosphere] altitude {alt:g} m is outside the "
+            "low-altitude Dryden model (3.05..304.8 m, 10..1000 ft)"
+        )
+
+
+def scaled_atmosphere(lp, atm):
+    """``atm`` (``sitl.atmosphere.AtmosphereConfig``) for the aircraft of plant file ``lp``: the Dryden filters and
+    the gusts at its airspeed and span; a --turbulence intensity at its altitude too, unless --altitude, the sigmas
+    or the scale lengths were given.  Unchanged without ``[atmosphere]`` (only a crosswind is then allowed)."""
+    if lp.airspeed_m_s is None:
+        return atm
+    from sitl.atmosphere import ALTITUDE, DrydenConfig
+
+    turb = atm.turbulence
+    if turb is not None:
+        name = next((n for n in ("light", "moderate", "severe") if DrydenConfig.intensity(n, ALTITUDE) == turb), None)
+        if name is not None and lp.altitude_m is not None:
+            turb = DrydenConfig.intensity(name, lp.altitude_m)
+        turb = replace(turb, airspeed=lp.airspeed_m_s, span=lp.span_m)
+    gusts = tuple(replace(g, airspeed=lp.airspeed_m_s) for g in atm.gusts)
+    return replace(atm, turbulence=turb, gusts=gusts)
+
+
+def _file_refusals(lp) -> dict:
+    from sitl.damage import roll_rate_index
+
+    if roll_rate_index(lp.truth) is None:
+        return {"damping": "the plant file's roll rate is not one of its states (a transfer function)"}
+    return {}
+
+
 def _file_build(spec: PlantSpec, physics_rate_hz: float, params=None, dist=None, damaged=False) -> Plant:  # noqa: ARG001
     from sitl.aircraft import Aircraft, AircraftConfig
 
@@ -256,6 +316,58 @@ def _turbulence_name(dist) -> str | None:
         if DrydenConfig.intensity(name, ALTITUDE) == turb:
             return name
     raise PlantError("JSBSim's MIL-F-8785C turbulence takes an intensity only (--turbulence)")
+
+
+def _jsbsim_atmosphere(_m, dist):
+    """Everything but the atmosphere: JSBSim flies its own, at the aircraft's airspeed and altitude."""
+    from sitl.atmosphere import AtmosphereConfig
+
+    return replace(dist, atmosphere=AtmosphereConfig())
+
+
+def _jsbsim_xml(m) -> Path:
+    from sitl.jsbsim_plant import _root
+
+    return _root() / "aircraft" / m.model / f"{m.model}.xml"
+
+
+def _jsbsim_refusals(m) -> dict:
+    from sitl.jsbsim_damage import refusals
+
+    return refusals(_jsbsim_xml(m), m.surfaces[0])
+
+
+def _jsbsim_value_refusal(m, fault) -> str | None:
+    """A JSBSim airspeed outside the aircraft's trim range (it does not trim there at its altitude), a cg shift
+    beyond half the half span."""
+    if fault.kind == "airspeed":
+        kt = fault.value / (1852.0 / 3600.0)
+        if not _trims(m.model, round(kt, 9), m.altitude_m):
+            return f"{m.model} does not trim in level flight at {kt:.6g} kt, {m.altitude_m:g} m (its trim range)"
+        return None
+    if fault.kind != "cg":
+        return None
+    from sitl.jsbsim_damage import anatomy
+
+    span = anatomy(_jsbsim_xml(m), m.surfaces[0]).span_ft
+    most = 0.25 * span * 0.3048 if span else None  # half the half span: a tip ballast as heavy as the aircraft
+    if most and abs(fault.value) > most:
+        return f"beyond {most:.2f} m (half the half span) the wing-tip ballast would weigh more than the aircraft"
+    return None
+
+
+@functools.lru_cache(maxsize=64)
+def _trims(model: str, kt: float, altitude_m: float) -> bool:
+    """Whether JSBSim's ``model`` trims in level flight at ``kt`` knots and ``altitude_m`` (one trim)."""
+    from sitl.jsbsim_models import quiet_stdio
+    from sitl.jsbsim_plant import JsbsimPlantError, JsbsimSpec, trimmed_fdm
+
+    with quiet_stdio():  # JSBSim's chatter ("Sorry, udot doesn't appear to be trimmable")
+        try:
+            trimmed_fdm(JsbsimSpec(model, airspeed_kt=kt, altitude_m=altitude_m), 0.01, suggest=False)
+        except JsbsimPlantError:
+            return False
+    return True
 
 
 def _jsbsim_build(spec: PlantSpec, physics_rate_hz: float, params=None, dist=None, damaged=False) -> Plant:  # noqa: ARG001
@@ -321,6 +433,9 @@ KINDS: dict[str, PlantKind] = {
             design=_jsbsim_design,
             linear=_jsbsim_linear,
             mimo=lambda m: m.is_mimo,
+            atmosphere=_jsbsim_atmosphere,
+            refusals=_jsbsim_refusals,
+            value_refusal=_jsbsim_value_refusal,
             keyed=True,
             unsupported={
                 "scale": SCALE,
@@ -347,6 +462,9 @@ KINDS: dict[str, PlantKind] = {
             design=lambda text, _lp: Path(text).with_suffix(".params"),
             linear=lambda _text, lp: _linear_of(lp),
             mimo=lambda lp: lp.is_mimo,
+            disturbances=_file_disturbances,
+            atmosphere=lambda lp, dist: replace(dist, atmosphere=scaled_atmosphere(lp, dist.atmosphere)),
+            refusals=_file_refusals,
             unsupported={"scale": SCALE},
         ),
     )
