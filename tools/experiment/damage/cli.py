@@ -50,8 +50,7 @@ def build_parser() -> argparse.ArgumentParser:
         "--kinds",
         default=",".join(grid.DEFAULT_KINDS),
         metavar="K1,K2",
-        help=f"fault kinds (default {','.join(grid.DEFAULT_KINDS)}; also damping, off and on JSBSim inertia, cg, "
-        "airspeed)",
+        help=f"fault kinds (default {','.join(grid.DEFAULT_KINDS)}; also {_other_kinds()})",
     )
     p.add_argument(
         "--severity",
@@ -80,6 +79,15 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--no-plot", action="store_true", help="do not write damage.png")
     p.add_argument("--quiet", action="store_true", help="no progress bars")
     return p
+
+
+def _other_kinds() -> str:
+    """The kinds beyond the defaults, from their records: every plant's, then the JSBSim aircraft's."""
+    from sitl.fault_kinds import KINDS
+
+    rest = [k for k in KINDS.values() if k.name not in grid.DEFAULT_KINDS]
+    every = ", ".join(k.name for k in rest if k.group != "mass")
+    return f"{every} and on JSBSim {', '.join(k.name for k in rest if k.group == 'mass')}"
 
 
 def study_of(args) -> object:
