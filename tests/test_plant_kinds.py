@@ -78,7 +78,7 @@ def test_what_the_record_says_of_each_kind():
 # MIMO plant told by its text.
 KIND_TEST = re.compile(
     r"""kind\([^)]*\)\s*[!=]=|\.kind\s*[!=]=\s*["'](file|jsbsim|kh2013a)["']|startswith\(\s*["']jsbsim:["']\s*\)"""
-    r"""|^def is_mimo\(|["']\+["']\s+in\s+\w*plant"""
+    r"""|^def is_mimo\(|["']\+["']\s+in\s+\w*plant|\(["'](jsbsim|file)["'],\s*["'](jsbsim|file)["']\)"""
 )
 
 
@@ -95,5 +95,11 @@ def test_no_module_tests_a_plant_kind_outside_the_table():
 
 
 def test_the_kind_test_finds_what_it_is_for():
-    for line in ('if plants.kind(t) == "jsbsim":', 'x = t.startswith("jsbsim:")', "def is_mimo(plant):"):
+    lines = (
+        'if plants.kind(t) == "jsbsim":',
+        'x = t.startswith("jsbsim:")',
+        "def is_mimo(plant):",
+        'k in ("jsbsim", "file")',
+    )
+    for line in lines:
         assert KIND_TEST.search(line), line

@@ -85,6 +85,15 @@ def sections_of(summary: dict) -> dict[str, dict]:
     return summary["plants"] if "plants" in summary else {summary.get("plant", "kh2013a"): summary}
 
 
+def _flown_one_by_one(section: dict) -> bool:
+    """A section of a plant flown flight by flight (``flights``), not in the batched study: its ``kind`` is a plant
+    kind's (``sitl.plant_kinds.KINDS``) that the batched study does not fly."""
+    from sitl.plant_kinds import KINDS
+
+    kind = KINDS.get(section.get("kind"))
+    return kind is not None and not kind.batched
+
+
 def report(sections: dict[str, dict], headings: bool = False, full: bool = True) -> str:
     """The tables of every section (Markdown; table.md), under a heading per plant when ``headings``; not ``full``:
     the KH2013A's main table only (the command prints the others with ``notes``)."""
@@ -92,7 +101,7 @@ def report(sections: dict[str, dict], headings: bool = False, full: bool = True)
     for text, s in sections.items():
         if headings:
             parts.append(f"## {text}" + (" (partial)" if s.get("partial") else ""))
-        if s.get("kind") in ("jsbsim", "file"):
+        if _flown_one_by_one(s):
             parts += [flights.format_table(s["results"]), flights.format_bounded(s["results"])]
         else:
             parts += study_tables(s) if full else [format_table(s)]
@@ -105,7 +114,7 @@ def final_line(summary: dict, out: Path) -> str:
     if "plants" not in summary:
         s = next(iter(secs.values()))
         t = s["timing"]
-        if s.get("kind") in ("jsbsim", "file"):
+        if _flown_one_by_one(s):
             return (
                 f"{t['runs']} flights in {t['wall_s']:.1f} s ({(t['runs_per_s'] or 0):.2f} flights/s) on "
                 f"{s['where']}; files in {out.resolve()}"
