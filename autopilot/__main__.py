@@ -51,6 +51,7 @@ from autopilot.shared.process import (
     install_stop_handlers,
     move_other_threads,
     report_write_failures,
+    reserve_for,
     rt_throttling,
     write_failure,
     write_stats_json,
@@ -414,6 +415,7 @@ def main(argv=None) -> int:
         + (f"; {args.params}: {len(not_flown)} value(s) of another law not flown" if not_flown else ""),
         flush=True,
     )
+    reserve = reserve_for(args.stats_json) if args.stats_json else None  # the stats fit on a full disk
     code = 0
     try:
         code = ap.run()
@@ -439,7 +441,10 @@ def main(argv=None) -> int:
     stats["output_errors"] = list(failed)
     _print_summary(stats)
     if args.stats_json:
-        failed += filter(None, [write_failure(args.stats_json, lambda: write_stats_json(args.stats_json, stats))])
+        write = lambda: write_stats_json(args.stats_json, stats, reserve)  # noqa: E731
+        failed += filter(None, [write_failure(args.stats_json, write)])
+    if reserve is not None:
+        reserve.release()
     return report_write_failures("autopilot", failed, code)
 
 

@@ -17,18 +17,12 @@ The laws clip their command to exactly +-u_limit (``autopilot.clsac``: u = sat(u
 tolerance of 1e-9 this is the laws' own flag ``|u_raw| > u_limit`` (a command closer than 1e-9 u_limit to the limit
 without being clipped counts too); a NaN command counts as saturated, as ``u != u_raw`` does.
 
-One definition, three forms, all calling the same code:
+One definition, three forms on the same code: :func:`within` (accumulated statistics, elementwise: the robustness
+study's ``bounded``), :class:`EnvelopeMonitor` (one sample per control step, constant memory: the autopilot, which
+announces each excursion once) and :func:`judge_series` / :func:`verdict` (a recorded flight: every other route).
 
-* :func:`within`: the inequalities on accumulated statistics, elementwise on numpy arrays (the robustness study's
-  ``bounded``, ``tools.experiment.study``);
-* :class:`EnvelopeMonitor`: one sample per control step, in constant memory (the autopilot while flying, which
-  announces each excursion once: ``add`` returns its text);
-* :func:`judge_series`: a recorded flight's roll and command series fed through the monitor (``tools.experiment``).
-
-Each returns, or :func:`judge` builds, a :class:`Controlled`: ``ok``, ``max_abs_roll_deg``, ``saturated_share``,
-``first_exit_s`` (flight time of the first excursion that decided the verdict, None when controlled), a one-line
-``reason`` with the numbers, ``tracking`` (the windows' verdict and numbers) and ``ground_station`` (the time flown
-disarmed or in MANUAL).
+Each gives a :class:`Controlled` (``ok``, the numbers, ``first_exit_s``, a one-line ``reason``, ``tracking``,
+``ground_station``).
 
 **Tracking** (docs/design.md, section 4, "Three outcomes").  The deviation d = phi - y_r from the commanded
 response y_r (the law's reference model y_m,ol driven by the command: the response the loop was designed to give,
@@ -36,25 +30,24 @@ the reference of the ise_ref metric, so a step's designed rise is not an error) 
 ``TRACK_WINDOW_S`` = 20 s (two periods of the reference square wave, four of its steps: a sustained oscillation
 must last that long), sliding by ``TRACK_BLOCK_S`` = 1 s, from its sums (:func:`window_flags`):
 
-* **sustained oscillation** (a limit cycle): rms(d) >= ``DEVIATION_RATIO`` (1) x max(rms(y_r), ``REF_FLOOR_DEG``)
-  *and* the rudder command hit its stops at least ``STOP_HITS_MIN`` (10) times (a hit: the command reaching a
-  stop after it was back within ``HIT_REARM`` (half) of the limit since the last hit).  The first inequality:
-  holding the wings level (phi = 0) gives exactly rms(d) = rms(y_r), so a loop at or past 1 tracks no better than
-  not moving at all.  The second tells a loop that drives the oscillation from one pushed about by the air: a
-  limit cycle of a loop with a saturating surface is held at the amplitude where the stops limit its gain, so its
-  surface swings onto a stop every cycle; a loop following the window's 4 command steps, saturating at each,
-  hits at most 4 times; 10 is 2.5 times that.  Half swings of noise (a PID's derivative on a noisy roll) never
-  reach a stop from within half the limit.  Measured for issue 29: 0 hits in every window of the flights that
-  track (every plant and law, the baseline in severe turbulence too), 12-59 in the limit cycles.  The floor
-  (2 deg RMS) stands for a command near level, where rms(y_r) says nothing.
+* **sustained oscillation**, judged on the response itself, whether or not the surface reaches its stops: at
+  least ``OSC_SWINGS_MIN`` (16) **regular swings** of d in the window.  A swing is d moving at least
+  ``OSC_SWING_DEG`` (4 deg peak to peak) back from its last extreme (a hysteresis, so noise and ripple below 4 deg
+  count nothing, and an oscillation about an offset counts); it is regular when its size and duration are each
+  within ``OSC_REGULAR_TOL`` (15 %) of the previous swing's (``autopilot.swings``; the measured counts that set the
+  limits are in docs/design.md, section 4).  Also (the rule of issue 29, kept): rms(d) >= ``DEVIATION_RATIO`` (1) x
+  max(rms(y_r), ``REF_FLOOR_DEG``) *and* the command hit its stops at least ``STOP_HITS_MIN`` (10) times (a hit:
+  the command reaching a stop after it was back within ``HIT_REARM`` (half) of the limit since the last hit): a
+  loop no better than holding the wings level (phi = 0 gives rms(d) = rms(y_r)) that bangs its surface from stop
+  to stop.  The floor (2 deg RMS) stands for a command near level, where rms(y_r) says nothing.
 * **not following**: where rms(y_r) >= ``REF_FLOOR_DEG``, the roll's in-phase response g = sum(phi y_r) /
   sum(y_r^2) (the least-squares gain of y_r in phi: 1 when phi follows y_r, 0 when it ignores it or lags it by
-  90 deg) is below ``FOLLOW_GAIN_MIN`` = 0.5 (half the commanded response, or a 60 deg lag at full size).
+  90 deg) is below ``FOLLOW_GAIN_MIN`` = 0.5 (half the commanded response, or a 60 deg lag at full size), or the
+  deviation is at least ``DEVIATION_MAX`` (1.5) x rms(y_r): half as bad again as holding the wings level,
+  whatever its shape (a slow swing or a drift makes neither 16 regular swings nor 10 stop hits).
 
-Flights shorter than one window are not judged on tracking (the reason says so).  The numbers of a window
-(:class:`TrackWindow`): its amplitude sqrt(2) std(d) (of a sinusoid with that spread), its mean frequency by
-Rice's formula f = rms(d')/(2 pi std(d)) (exact for a sinusoid, with the sampling's finite differences inverted),
-the stop hits, the share of samples on the stops and the gain.
+Flights shorter than one window are not judged on tracking (the reason says so).  A window's numbers are
+:class:`TrackWindow`'s (amplitude sqrt(2) std(d); mean frequency by Rice's formula).
 
 **Recovery** after a fault is ``autopilot.recovery``.  No I/O.
 """
@@ -63,6 +56,14 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+
+from autopilot.swings import (  # the swing counter of the oscillation rule (module docstring, "Tracking")
+    OSC_REGULAR_TOL,
+    OSC_SWING_DEG,
+    OSC_SWINGS_MIN,
+    swing_start,
+    swing_step,
+)
 
 MAX_ROLL_DEG = 60.0  # default roll limit of the envelope
 MAX_SATURATED_SHARE = 0.20  # default share of the flight's control steps with the rudder at its limit
@@ -81,6 +82,8 @@ REF_FLOOR_DEG = 2.0  # RMS of the commanded response below which the command cou
 STOP_HITS_MIN = 10  # hits of the rudder's stops in a window that make a deviation an oscillation
 HIT_REARM = 0.5  # a hit counts again only after the command came back within this fraction of the limit
 FOLLOW_GAIN_MIN = 0.5  # the roll's in-phase response below this fraction of the commanded one: not following
+DEVIATION_MAX = 1.5  # rms(phi - y_r) >= this x rms(y_r) (a command not level): not following, whatever its shape
+DEV_MAX2 = DEVIATION_MAX * DEVIATION_MAX
 REF_FLOOR2 = math.radians(REF_FLOOR_DEG) ** 2  # per sample, rad^2
 DEV_RATIO2 = DEVIATION_RATIO * DEVIATION_RATIO
 DEV_FLOOR2 = DEV_RATIO2 * REF_FLOOR2  # per sample, rad^2
@@ -128,19 +131,20 @@ def within(max_abs_roll_rad, saturated_share, envelope: Envelope = Envelope()):
     return (max_abs_roll_rad < envelope.max_roll_rad) & (saturated_share < envelope.max_saturated_share)
 
 
-def window_flags(n, s_rr, s_pr, s_dd, hits):
+def window_flags(n, s_rr, s_pr, s_dd, hits, swings):
     """(oscillating, not_following) of windows from their sums over ``n`` samples (module docstring, "Tracking"):
     ``s_rr`` = sum y_r^2, ``s_pr`` = sum phi y_r, ``s_dd`` = sum (phi - y_r)^2 (rad^2), ``hits`` = the rudder
-    command's stop hits (:func:`stop_hit`).  Elementwise on numpy arrays (the study's batch; its C kernel
-    evaluates the same inequalities in the same order); NaN sums are neither (a diverged run leaves the envelope
-    by its roll)::
+    command's stop hits (:func:`stop_hit`), ``swings`` = the regular swings of phi - y_r (:func:`swing_step`).
+    Elementwise on numpy arrays (the study's batch; its C kernel evaluates the same inequalities in the same
+    order); NaN sums are neither (a diverged run leaves the envelope by its roll)::
 
-        oscillating   = s_dd >= DEVIATION_RATIO^2 s_rr  and  s_dd >= DEVIATION_RATIO^2 REF_FLOOR^2 n
-                        and  hits >= STOP_HITS_MIN
-        not_following = s_rr >= REF_FLOOR^2 n  and  s_pr < FOLLOW_GAIN_MIN s_rr
+        oscillating   = swings >= OSC_SWINGS_MIN  or  (s_dd >= DEVIATION_RATIO^2 s_rr
+                        and  s_dd >= DEVIATION_RATIO^2 REF_FLOOR^2 n  and  hits >= STOP_HITS_MIN)
+        not_following = s_rr >= REF_FLOOR^2 n  and  (s_pr < FOLLOW_GAIN_MIN s_rr  or  s_dd >= DEVIATION_MAX^2 s_rr)
     """
-    oscillating = (s_dd >= DEV_RATIO2 * s_rr) & (s_dd >= DEV_FLOOR2 * n) & (hits >= STOP_HITS_MIN)
-    not_following = (s_rr >= REF_FLOOR2 * n) & (s_pr < FOLLOW_GAIN_MIN * s_rr)
+    banging = (s_dd >= DEV_RATIO2 * s_rr) & (s_dd >= DEV_FLOOR2 * n) & (hits >= STOP_HITS_MIN)
+    oscillating = (swings >= OSC_SWINGS_MIN) | banging
+    not_following = (s_rr >= REF_FLOOR2 * n) & ((s_pr < FOLLOW_GAIN_MIN * s_rr) | (s_dd >= DEV_MAX2 * s_rr))
     return oscillating, not_following
 
 
@@ -154,24 +158,20 @@ def stop_hit(sat, u, u_limit_rad, armed):
 
 def tracking_limits() -> dict:
     """The tracking definition's constants, as ``summary.json`` gives them."""
-    return {
-        "window_s": TRACK_WINDOW_S,
-        "step_s": TRACK_BLOCK_S,
-        "deviation_ratio": DEVIATION_RATIO,
-        "ref_floor_deg": REF_FLOOR_DEG,
-        "stop_hits_min": STOP_HITS_MIN,
-        "hit_rearm": HIT_REARM,
-        "follow_gain_min": FOLLOW_GAIN_MIN,
-    }
+    return dict(
+        window_s=TRACK_WINDOW_S, step_s=TRACK_BLOCK_S, deviation_ratio=DEVIATION_RATIO, ref_floor_deg=REF_FLOOR_DEG,
+        stop_hits_min=STOP_HITS_MIN, hit_rearm=HIT_REARM, follow_gain_min=FOLLOW_GAIN_MIN, deviation_max=DEVIATION_MAX,
+        swing_deg=OSC_SWING_DEG, regular_tol=OSC_REGULAR_TOL, swings_min=OSC_SWINGS_MIN,
+    )  # fmt: skip
 
 
 # A block's sums, in this order: samples, y_r^2, phi y_r, d^2, d, (d')^2, derivative samples, stop hits, saturated,
-# and the flight time of its first and last sample.
-_N, _RR, _PR, _DD, _D, _DOT2, _NDOT, _HITS, _SAT, _T0, _T1 = range(11)
+# the flight time of its first and last sample, and the regular swings.
+_N, _RR, _PR, _DD, _D, _DOT2, _NDOT, _HITS, _SAT, _T0, _T1, _SW = range(12)
 
 
 def _empty_block() -> list:
-    return [0, 0.0, 0.0, 0.0, 0.0, 0.0, 0, 0, 0, math.nan, math.nan]
+    return [0, 0.0, 0.0, 0.0, 0.0, 0.0, 0, 0, 0, math.nan, math.nan, 0]
 
 
 @dataclass(frozen=True)
@@ -189,6 +189,7 @@ class TrackWindow:
     gain: float  # sum(phi y_r) / sum(y_r^2) (nan when the command is level)
     stop_hits: int  # the rudder command's hits of its stops (``stop_hit``)
     on_stops: float  # share of the window's samples with the command saturated
+    swings: int = 0  # regular swings of phi - y_r (``swing_step``)
 
     def to_dict(self) -> dict:
         return {k: _finite_or_none(v) if isinstance(v, float) else v for k, v in self.__dict__.items()}
@@ -206,7 +207,8 @@ def _window(blocks: list, end_s: float) -> TrackWindow:
         for j in range(9):
             tot[j] += b[j]
     n, rr, pr, dd, ds, dot2, ndot, hits, sat = tot
-    osc, lag = window_flags(n, rr, pr, dd, hits)
+    swings = sum(b[_SW] for b in blocks)
+    osc, lag = window_flags(n, rr, pr, dd, hits, swings)
     mean = ds / n
     var = max(dd / n - mean * mean, 0.0)
     sd = math.sqrt(var)
@@ -222,7 +224,7 @@ def _window(blocks: list, end_s: float) -> TrackWindow:
     start = end_s - len(blocks) * TRACK_BLOCK_S
     return TrackWindow(
         max(start, 0.0), end_s, n, bool(osc), bool(lag), ratio, math.degrees(math.sqrt(2.0) * sd), freq, gain,
-        hits, sat / n if n else math.nan,
+        hits, sat / n if n else math.nan, swings,
     )  # fmt: skip
 
 
@@ -243,6 +245,8 @@ class Tracking:
     worst_deviation_ratio: float
     min_gain: float
     flown_s: float
+    max_swings: int = 0  # the most regular swings of phi - y_r in one window
+    worst_following_ratio: float = math.nan  # the largest deviation ratio of a window whose command is not level
     law_s: float = math.nan  # the time the law flew (steps with a reference response), s
 
     @property
@@ -269,19 +273,28 @@ class Tracking:
                 if lw is not None and lw.oscillating
                 else f"; the last oscillating window ended at {last.end_s:.0f} s"
             )
+            if w.swings >= OSC_SWINGS_MIN:
+                why = f"{w.swings} regular {OSC_SWING_DEG:g} deg swings, limit {OSC_SWINGS_MIN}"
+            else:
+                why = (
+                    f"deviation {w.deviation_ratio:.2f} x the command's, limit {DEVIATION_RATIO:g}; rudder on its "
+                    f"stops {w.stop_hits} times, limit {STOP_HITS_MIN}, there {100 * w.on_stops:.0f} % of the window"
+                )
             out.append(
                 f"sustained oscillation {w.oscillation_text()} about the commanded response in the "
-                f"{TRACK_WINDOW_S:g} s window {w.start_s:.0f}-{w.end_s:.0f} s (deviation {w.deviation_ratio:.2f} x "
-                f"the command's, limit {DEVIATION_RATIO:g}; rudder on its stops {w.stop_hits} times, limit "
-                f"{STOP_HITS_MIN}, there {100 * w.on_stops:.0f} % of the window){tail}"
+                f"{TRACK_WINDOW_S:g} s window {w.start_s:.0f}-{w.end_s:.0f} s ({why}){tail}"
             )
         w = self.first_not_following
         if w is not None:
             gain = round(w.gain, 2) + 0.0  # no "-0.00"
+            what = (
+                f"in-phase response {gain:.2f} of the commanded (limit {FOLLOW_GAIN_MIN:g})"
+                if w.gain < FOLLOW_GAIN_MIN
+                else f"deviation {w.deviation_ratio:.2f} x the command's (limit {DEVIATION_MAX:g})"
+            )
             out.append(
-                f"the roll did not follow the command: in-phase response {gain:.2f} of the commanded (limit "
-                f"{FOLLOW_GAIN_MIN:g}) in the {TRACK_WINDOW_S:g} s window {w.start_s:.0f}-{w.end_s:.0f} s, "
-                f"{self.not_following_windows} of {self.windows} windows"
+                f"the roll did not follow the command: {what} in the {TRACK_WINDOW_S:g} s window "
+                f"{w.start_s:.0f}-{w.end_s:.0f} s, {self.not_following_windows} of {self.windows} windows"
             )
         return out
 
@@ -294,10 +307,16 @@ class Tracking:
                 f"tracking not judged (the law flew {self.law_s:.1f} s of the {self.flown_s:.1f} s flight, less than "
                 f"a {TRACK_WINDOW_S:g} s window)"
             )
-        gain = f", in-phase response >= {self.min_gain:.2f}" if math.isfinite(self.min_gain) else ""
+        # every number printed here is on the OK side of the limit printed beside it
+        gain = (
+            f"; in-phase response >= {self.min_gain:.2f}, limit {FOLLOW_GAIN_MIN:g}; deviation <= "
+            f"{self.worst_following_ratio:.2f} x the command's, limit {DEVIATION_MAX:g}"
+            if math.isfinite(self.min_gain)
+            else ""
+        )
         return (
-            f"tracked in every {TRACK_WINDOW_S:g} s window (deviation <= {self.worst_deviation_ratio:.2f} x the "
-            f"command's{gain}; limits {DEVIATION_RATIO:g}, {FOLLOW_GAIN_MIN:g})"
+            f"tracked in every {TRACK_WINDOW_S:g} s window (regular {OSC_SWING_DEG:g} deg swings about the "
+            f"commanded response <= {self.max_swings}, limit {OSC_SWINGS_MIN}{gain})"
         )
 
 
@@ -460,7 +479,11 @@ class EnvelopeMonitor:
         self._first_osc = self._last_osc = self._first_lag = self._last_window = None
         self._worst_ratio = 0.0
         self._min_gain = math.inf
+        self._max_swings = 0
+        self._worst_follow = 0.0
         self._track_out = False
+        self._swing: list | None = None  # the swing counter (swing_step), from the first tracked sample
+        self._k = 0  # tracked samples so far
 
     def add(
         self, t: float, roll: float, u: float, u_limit_rad: float, ref: float | None = None, *, armed=True, manual=False
@@ -534,6 +557,10 @@ class EnvelopeMonitor:
             b[_NDOT] += 1
         hit, self._hit_armed = stop_hit(bool(sat), u, u_limit, self._hit_armed)
         b[_HITS] += hit
+        if self._swing is None:
+            self._swing = swing_start(float(d))
+        b[_SW] += bool(swing_step(self._swing, float(d), float(self._k)))
+        self._k += 1
         b[_SAT] += bool(sat)
         if b[_N] == 1:
             b[_T0] = ft
@@ -568,6 +595,8 @@ class EnvelopeMonitor:
                 if w.oscillating:
                     f = f" {w.frequency_hz:.1f} Hz" if math.isfinite(w.frequency_hz) else ""
                     return f"ENVELOPE: oscillation +-{w.amplitude_deg:.0f} deg{f} at {w.end_s:.0f} s"  # <= 50
+                if w.gain >= FOLLOW_GAIN_MIN:
+                    return f"ENVELOPE: roll deviation {w.deviation_ratio:.2f} x at {w.end_s:.0f} s"
                 return f"ENVELOPE: roll not following ({round(w.gain, 2) + 0.0:.2f}) at {w.end_s:.0f} s"
         else:
             self._track_out = False
@@ -587,6 +616,10 @@ class EnvelopeMonitor:
             self._worst_ratio = w.deviation_ratio
         if w.gain < self._min_gain:
             self._min_gain = w.gain
+        if math.isfinite(w.gain) and not w.deviation_ratio <= self._worst_follow:
+            self._worst_follow = w.deviation_ratio
+        if w.swings > self._max_swings:
+            self._max_swings = w.swings
 
     def tracking(self) -> Tracking | None:
         """The tracking verdict so far: the windows closed, and the one ending with the open block (the flight's
@@ -594,7 +627,7 @@ class EnvelopeMonitor:
         if self._block is None:
             return None
         saved = (self._windows, self._n_osc, self._n_lag, self._first_osc, self._last_osc, self._first_lag)
-        saved += (self._last_window, self._worst_ratio, self._min_gain)
+        saved += (self._last_window, self._worst_ratio, self._min_gain, self._max_swings, self._worst_follow)
         try:
             ring = (self._ring + [self._block])[-TRACK_BLOCKS:]
             if len(ring) == TRACK_BLOCKS and self._block[_N]:
@@ -606,11 +639,12 @@ class EnvelopeMonitor:
             return Tracking(
                 self._windows > 0, self._windows, self._n_osc, self._n_lag, self._first_osc, self._last_osc,
                 self._first_lag, self._last_window, self._worst_ratio if self._windows else math.nan,
-                self._min_gain if math.isfinite(self._min_gain) else math.nan, flown, law_s,
+                self._min_gain if math.isfinite(self._min_gain) else math.nan, flown, self._max_swings,
+                self._worst_follow if math.isfinite(self._min_gain) else math.nan, law_s,
             )  # fmt: skip
         finally:
             (self._windows, self._n_osc, self._n_lag, self._first_osc, self._last_osc, self._first_lag) = saved[:6]
-            self._last_window, self._worst_ratio, self._min_gain = saved[6:]
+            self._last_window, self._worst_ratio, self._min_gain, self._max_swings, self._worst_follow = saved[6:]
 
     # ------------------------------------------------------------------------------------------- the verdict
     @property
@@ -632,6 +666,19 @@ class EnvelopeMonitor:
             tracking=self.tracking(),
             ground_station=ground_station_time(self.n_disarmed, self.n_manual, self.n, period),
         )
+
+
+def verdict(t, roll, u, u_limit_rad: float, envelope: Envelope = Envelope(), ref=None, *, sideslip=None) -> dict:
+    """The one verdict of a recorded flight, as ``summary.json``'s ``controlled`` (the launcher's, the experiments',
+    the robustness study's flights and the damage study's): :func:`judge_series`, and on a square MIMO plant its
+    second channel (``sideslip``: ``autopilot.mimo.ChannelMetrics.result()``: the rudder's saturation and the
+    sideslip against their limits) through ``autopilot.mimo.with_sideslip``, as the autopilot adds it."""
+    out = judge_series(t, roll, u, u_limit_rad, envelope, ref).to_dict()
+    if sideslip is not None:
+        from autopilot.mimo import with_sideslip
+
+        out = with_sideslip(out, sideslip)
+    return out
 
 
 def judge_series(t, roll, u, u_limit_rad: float, envelope: Envelope = Envelope(), ref=None) -> Controlled:

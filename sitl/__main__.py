@@ -41,6 +41,7 @@ from autopilot.shared.process import (
     exit_code_for,
     install_stop_handlers,
     report_write_failures,
+    reserve_for,
     write_failure,
     write_stats_json,
 )
@@ -249,6 +250,7 @@ def main(argv=None) -> int:
         f"start t={args.start_time:g} s{rt_note}",
         flush=True,
     )
+    reserve = reserve_for(args.stats_json) if args.stats_json else None  # the stats fit on a full disk
     code = 0
     try:
         code = sitl.run()
@@ -281,7 +283,10 @@ def main(argv=None) -> int:
     )
     print(format_counters("sitl link", stats["link"]), flush=True)
     if args.stats_json:
-        failed += filter(None, [write_failure(args.stats_json, lambda: write_stats_json(args.stats_json, stats))])
+        write = lambda: write_stats_json(args.stats_json, stats, reserve)  # noqa: E731
+        failed += filter(None, [write_failure(args.stats_json, write)])
+    if reserve is not None:
+        reserve.release()
     return report_write_failures("sitl", failed, code)
 
 

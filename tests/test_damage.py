@@ -4,6 +4,7 @@ its flags (one line, exit 2).  Fast: the end-to-end runs are in tests/test_e2e_d
 
 from __future__ import annotations
 
+import json
 import math
 import subprocess
 import sys
@@ -115,6 +116,33 @@ def test_a_record_names_the_surface_that_rolls_the_plant():
     assert "rudder" not in r["reason"]
 
 
+def test_a_record_counts_commands_exactly_on_the_stop_and_not_finite_ones_as_saturated():
+    """The envelope's one definition (autopilot.envelope.saturated): |u| >= (1 - 1e-9) u_limit or not finite.
+    A hand count: 300 samples clipped to exactly +-u_limit, 1 NaN, 200 a hair inside (1 - 2e-9): 301 of 3000."""
+    lim = math.radians(30)
+    s = _series()
+    u = np.zeros(3000)
+    u[:150], u[150:300], u[300] = lim, -lim, math.nan
+    u[301:501] = lim * (1 - 2e-9)
+    s["u"] = u
+    r = record(s, {"ise_ref": 1.0, "energy": 2.0}, 10.0, 10.0, lim, 0.01)
+    assert r["saturated_share"] == pytest.approx(301 / 3000, abs=1e-12)
+    assert "rudder saturated 10.0 % of the flight" in r["reason"]
+
+
+def test_a_records_recovery_is_judged_in_the_commands_band():
+    """The record's recovery (autopilot.recovery): the band from the command (a +-10 deg square: 3 deg), printed in
+    the record, and a NaN second after the onset never counted inside it."""
+    t = np.arange(3000) * 0.01
+    um = np.where(np.floor(t / 5.0) % 2 == 0, 1.0, -1.0) * math.radians(10.0)
+    s = {"t": t, "phi": um.copy(), "ym_ol": um, "um": um, "u": np.zeros(3000)}
+    r = record(s, {"ise_ref": 1.0, "energy": 2.0}, 10.0, 10.0, math.radians(30), 0.01)
+    assert r["recovered"] is True and r["recovery_s"] == 0.0 and r["recovery_band_deg"] == pytest.approx(3.0)
+    s["phi"] = np.where(t >= 28.5, math.nan, um)
+    r = record(s, {"ise_ref": 1.0, "energy": 2.0}, 10.0, 10.0, math.radians(30), 0.01)
+    assert r["recovered"] is False and r["recovery_s"] is None
+
+
 def test_cells_aggregate_their_seeds():
     recs = [
         {
@@ -189,8 +217,10 @@ def test_a_mimo_plant_flies_the_mimo_laws_and_names_the_others_it_does_not():
     flights = grid.make_flights(["kh2013a", mimo], list(grid.CONTROLLERS), cells, [10.0], 1, 1, 30.0, "light")
     assert {f.controller for f in flights if f.plant == mimo} == {"baseline", "sac", "clsac"}
     assert {f.controller for f in flights if f.plant == "kh2013a"} == set(grid.CONTROLLERS)
-    assert set(grid.controller_refusals(mimo, grid.CONTROLLERS)) == {"pid-ff", grid.RETUNED, grid.ENERGY}
-    assert grid.controller_refusals("jsbsim:c172x", grid.CONTROLLERS) == {}
+    assert set(grid.controller_refusals(mimo, grid.CONTROLLERS)) == {"pid-ff", grid.RETUNED, grid.ENERGY, *grid.ROBUST}
+    # the c172x's design file sets the PFC (and overrides --pfc): the robust preset is not what it flies
+    assert set(grid.controller_refusals("jsbsim:c172x", grid.CONTROLLERS)) == set(grid.ROBUST)
+    assert grid.controller_refusals("kh2013a", grid.CONTROLLERS) == {}
     assert grid.designs_needed([f for f in flights if f.plant == mimo]) == []  # nothing SISO designed for it
     from tools.experiment.damage.runner import Study, not_flown
 
@@ -246,12 +276,151 @@ def test_the_printed_tables_rank_and_show_each_cell():
     ]
     text = table(cells, "kh2013a", ["clsac", "baseline"])
     assert "rate=5" in text and "50 %" in text and "onset 10 s" in text
-    # the first period after the onset (10-20 s): baseline first; the last: CL-SAC first
+    # the first period after the onset (10-20 s): baseline first; the last window: CL-SAC first
+    for c, first, last in zip(cells, (0.04, 0.06, 2.0, 0.1), (0.03, 0.07, 0.01, 0.2)):
+        c["long"] = {
+            "first_period": {"start_s": 10.0, "mean": first},
+            "last_window": {"from_s": 20.0, "to_s": 30.0, "mean": last, "interval": [last, last]},
+        }
     rows = period_table(cells, "kh2013a", ["clsac", "baseline"]).splitlines()
     rate = next(r for r in rows if r.startswith("rate=5"))
-    assert "2(2)/0.01(1)" in rate and "0.1(1)/0.2(2)" in rate
+    assert "2(2)/0.01 [0.01, 0.01](1)" in rate and "0.1(1)/0.2 [0.2, 0.2](2)" in rate, rate
     md = markdown_table(cells, "kh2013a", ["clsac", "baseline"], energy=True).splitlines()
     assert (
         md[0] == "| fault | CL-SAC | PID (as designed) |"
         and md[3] == "| `rate=5` | 50 % / 3 / 0.5 | 100 % / 0.3 / 0.5 |"
     )
+
+
+def _study(*flags):
+    from tools.experiment.damage.cli import build_parser, study_of
+
+    return study_of(build_parser().parse_args(list(flags)))
+
+
+def test_the_grid_flies_each_value_once_and_counts_its_flights_by_hand():
+    """5000 equal severities, a plant, a kind and a controller given twice are one each (issue 35, item 7): a plant
+    and a controller fly per seed one fault-free flight and one per (severity, onset), so 1 plant x 2 controllers x
+    2 seeds x (1 + 2 severities x 1 onset) = 12 flights, counted here by hand."""
+    study = _study(
+        "--plant", "kh2013a,kh2013a", "--kinds", "effectiveness,effectiveness", "--controllers", "clsac,baseline,clsac",
+        "--severity", "effectiveness=" + ",".join(["0.3"] * 5000 + ["0.30", "0.6"]), "--runs", "2", "--onsets", "10,10",
+    )  # fmt: skip
+    assert study.plants == ("kh2013a",) and study.controllers == ("clsac", "baseline")
+    assert study.severities["effectiveness"] == (0.3, 0.6) and study.onsets == (10.0,)
+    assert study.count() == len(study.flights()) == 1 * 2 * 2 * (1 + 2 * 1)
+    # a MIMO plant flies 3 of the 8 controllers: 3 x 1 seed x (1 + 3 default effectiveness severities) = 12 flights
+    mimo = _study("--plant", "jsbsim:c172x:surface=aileron+rudder", "--kinds", "effectiveness", "--runs", "1")
+    assert mimo.count() == len(mimo.flights()) == 3 * 1 * (1 + 3)
+
+
+def test_a_grid_above_the_cap_is_refused_in_one_line_naming_the_cap():
+    def damage(*flags):
+        return subprocess.run(
+            [sys.executable, "-m", "tools.experiment", "damage", "--plant", "kh2013a", *flags],
+            capture_output=True, text=True, timeout=60,
+        )  # fmt: skip
+
+    # the defaults on one plant: 8 controllers x 1000 seeds x (1 + 4 kinds x 3 severities) = 104,000 > 20,000
+    r = damage("--runs", "1000")
+    assert r.returncode == 2 and len(r.stderr.strip().splitlines()) == 1 and "Traceback" not in r.stderr, r.stderr
+    assert "104,000 flights" in r.stderr and "cap of 20,000" in r.stderr and "--max-flights N" in r.stderr
+    r = damage("--kinds", "rate", "--severity", "rate=5", "--controllers", "clsac", "--max-flights", "3")
+    assert r.returncode == 2 and "the grid has 12 flights, more than the cap of 3" in r.stderr, (
+        r.stderr
+    )  # 6 seeds x (1 + 1)
+
+
+def test_the_first_line_names_only_the_designs_asked_for():
+    from tools.experiment.damage.runner import plan_line
+
+    plain = _study("--plant", "kh2013a", "--kinds", "effectiveness,rate", "--controllers", "clsac,baseline")
+    flights = plain.flights()
+    assert plan_line(flights, grid.designs_needed(flights), "1 local process(es)") == (
+        f"{len(flights)} flights on 1 local process(es)"
+    )
+    retuned = _study("--plant", "kh2013a", "--kinds", "effectiveness,rate", "--severity", "effectiveness=0.3",
+                     "--controllers", "clsac,pid-retuned")  # fmt: skip
+    flights = retuned.flights()
+    line = plan_line(flights, grid.designs_needed(flights), "here")
+    # the PID as built and retuned for effectiveness 0.3 (rate is no linear plant): 2 designs, no energy calibration
+    assert line.startswith(f"{len(flights)} flights and 2 design(s) (2 for pid-retuned") and "energy" not in line
+
+
+def test_column_headers_are_whole_names_with_a_legend():
+    from tools.experiment.damage.aggregate import period_table, table
+    from tools.experiment.damage.cli import legend
+
+    names = list(grid.CONTROLLERS)
+    cells = [
+        {"plant": "kh2013a", "controller": c, "kind": grid.NONE, "severity": None, "onset_s": None,
+         "share_controlled": 1.0, "ise_ref_after_p50": 0.1, "ise_ref_periods_p50": [0.1, 0.1]}
+        for c in names
+    ]  # fmt: skip
+    for text in (table(cells, "kh2013a", names), period_table(cells, "kh2013a", names)):
+        head = next(line for line in text.splitlines() if line.startswith("fault"))
+        assert head.split() == ["fault", *names], head
+    assert legend(names) == "columns: " + "; ".join(f"{c} = {grid.LABELS[c]}" for c in names)
+    assert "pid-retuned = PID retuned for the fault" in legend(names)
+
+
+def test_an_error_after_the_first_flight_keeps_the_flights_flown(tmp_path):
+    """A study stopped by an error at its third flight: the two flights flown are kept, in a summary that says it is
+    partial, how many of how many and why; an error before any flight is raised as it was."""
+    from tools.experiment.damage.flight import simulate
+    from tools.experiment.damage.runner import run, write
+
+    study = _study("--plant", "kh2013a", "--kinds", "effectiveness", "--severity", "effectiveness=0.3",
+                   "--controllers", "clsac,baseline", "--runs", "1", "--duration", "12")  # fmt: skip
+    calls = []
+
+    def third_fails(task):
+        calls.append(task)
+        if len(calls) == 3:
+            raise ValueError("the third flight failed")
+        return simulate(task)
+
+    quiet = dict(workers=1, progress=False, log=lambda *_: None)
+    doc = run(study, simulate=third_fails, **quiet)
+    assert doc["partial"] and doc["done"] == {"flights": 2, "of": 4} and doc["flights"] == 2
+    assert doc["error"] == "ValueError: the third flight failed"
+    assert sum(c["flights"] for c in doc["cells"]) == 2
+    assert [(c["controller"], c["kind"]) for c in doc["cells"]] == [(f.controller, f.kind) for f in calls[:2]]
+    written, problems = write(doc, tmp_path, plot=False)
+    assert problems == [] and json.loads((tmp_path / "summary.json").read_text())["done"] == {"flights": 2, "of": 4}
+
+    def first_fails(task):
+        raise ValueError("no flight flies")
+
+    with pytest.raises(ValueError, match="no flight flies"):
+        run(study, simulate=first_fails, **quiet)
+
+
+def test_the_summary_is_standard_json_whatever_its_numbers(tmp_path):
+    """A cell's recovery that never came was written as a bare Infinity: now null, which a strict parser reads."""
+    from tools.experiment.damage.runner import write
+
+    doc = {
+        "cells": [],
+        "plants": [],
+        "kinds": [],
+        "controllers": [],
+        "labels": {},
+        "x": [math.inf, -math.inf, math.nan],
+    }
+    write(doc, tmp_path, plot=True)
+    text = (tmp_path / "summary.json").read_text()
+    assert json.loads(text, parse_constant=lambda c: pytest.fail(c))["x"] == [None, None, None]
+
+
+def test_sac_and_cl_sac_fly_the_robust_pfc_as_named_controllers():
+    from autopilot.config import PFC_PRESETS
+    from tools.experiment.damage.flight import _run, _scenario
+    from tools.experiment.scenario import controller_config
+
+    scen = _scenario("kh2013a")
+    for name, lv in (("sac-robust", 0.0), ("clsac-robust", 20.0), ("sac", 0.0), ("clsac", 20.0)):
+        cfg = controller_config(scen, _run(name))
+        want = PFC_PRESETS["robust" if name.endswith("-robust") else "paper"]
+        assert (tuple(cfg.pfc_num), tuple(cfg.pfc_den)) == want and cfg.lv == lv, name
+    assert grid.LABELS["sac-robust"] == "SAC, robust PFC" and "clsac-robust" in grid.CONTROLLERS

@@ -60,11 +60,12 @@ def _stop_hits(u) -> int:
 
 @pytest.mark.parametrize(
     ("args", "onset_s"),
-    [(("--duration", "300"), 205.0), (("--turbulence", "severe", "--seed", "1", "--duration", "60"), 25.0)],
+    [(("--duration", "300"), 190.0), (("--turbulence", "severe", "--seed", "1", "--duration", "60"), 25.0)],
     ids=["300s", "severe-60s"],
 )
 def test_a_flight_that_settles_into_a_limit_cycle_is_out_of_the_envelope(tmp_path, args, onset_s):
-    """The two flights of issue 29: OK before, although the last 20 s swing far beyond 20 deg of level."""
+    """The two flights of issue 29: OK before, although the last 20 s swing far beyond 20 deg of level.  The 300 s
+    flight's spread grows from about 170 s (issue 36): out from its 16th regular 4 deg swing, near 200 s."""
     code, last, s = _fly(tmp_path, *args)
     t, phi, ym, u = _last_20_s(tmp_path)
     assert np.max(np.abs(np.degrees(phi))) > 20.0  # so the verdict may not be OK
@@ -88,7 +89,7 @@ def test_a_flight_that_settles_into_a_limit_cycle_is_out_of_the_envelope(tmp_pat
     # Rice's mean frequency: a sinusoid's own; of a limit cycle with harmonics and the command's steps, near the
     # fundamental (measured: 2.0 Hz against the FFT's 2.2 Hz peak in the 300 s flight)
     assert w["frequency_hz"] == pytest.approx(_dominant_hz(t, d), rel=0.15) and 1.5 < w["frequency_hz"] < 2.5
-    assert w["stop_hits"] == _stop_hits(u) >= 10
+    assert w["stop_hits"] == _stop_hits(u) and w["swings"] >= 16
     assert w["on_stops"] == pytest.approx(np.mean(np.abs(u) >= LIM * (1 - 1e-9)))
     # announced while flying (the autopilot's events), once
     assert s["events"]["autopilot"]["envelope_exits"] >= 1

@@ -244,3 +244,57 @@ def test_study_matrices_are_the_same_bits_under_every_blas_kernel():
     assert len(native) > 2 * 20 * 60  # 2 x 20 plants [Phi (6x6), Gamma (6x4)], the Dryden filter, the law
     for coretype in ("Haswell", "Sandybridge", "Prescott"):
         assert bits(coretype) == native, coretype
+
+
+def test_the_figure_of_a_study_whose_runs_all_diverged_is_drawn_and_never_loses_the_summary(tmp_path):
+    """Every run diverged (``robustness --fault effectiveness=1e308@10``): no metric has a value above zero, which a
+    log scale cannot show (matplotlib: "Data cannot be log-scaled"), and the study exited 2 without summary.json.
+    The figure is drawn (those rows on a linear scale), and a figure that fails anyway is one line, never an error:
+    the summary is written first (issue 35, item 7)."""
+    from tools.experiment.study.accumulate import Cell, Tally
+    from tools.experiment.study.report import save_figure
+    from tools.experiment.study.runner import write_study_files
+    from tools.experiment.study.sampling import StudyOptions
+
+    opts = StudyOptions(runs=2, controllers=("clsac", "baseline"), conditions=("nominal",), sweep_runs=0, long_runs=0)
+    tally = Tally(exact=True)
+    for ctrl in opts.controllers:
+        cell = tally.cells.setdefault(ctrl, {})["nominal"] = Cell(True)
+        for sample in cell.samples.values():
+            sample.add(np.array([np.inf, np.nan]))
+    png = save_figure(tally, opts, tmp_path / "robustness.png")
+    assert png.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+    lines = []
+    tally.cells["clsac"]["nominal"] = object()  # a cell the figure cannot read: its own error, not the study's
+    summary = {"partial": False, "sweep_runs": 0, "results": {c: {"nominal": {}} for c in opts.controllers}}
+    assert write_study_files(summary, tally, opts, tmp_path, log=lines.append, table=False) == []
+    assert len(lines) == 1 and lines[0].startswith("no figure: ") and not (tmp_path / "robustness.png").exists()
+
+
+def test_an_error_after_the_first_runs_keeps_them_in_a_partial_summary():
+    """A batch that fails after two batches of 2 runs were flown: the 4 runs are kept (partial, 4 of 8, the error's
+    line); a batch that fails first is the error, as before (issue 35, item 7)."""
+    from tools.experiment.study.runner import fly_study
+    from tools.experiment.study.sampling import StudyOptions
+    from tools.experiment.study.simulation import simulate
+
+    opts = StudyOptions(runs=4, chunk=2, controllers=("clsac", "baseline"), conditions=("nominal",), sweep_runs=0,
+                        long_runs=0)  # fmt: skip
+    calls = []
+
+    def third_fails(task):
+        calls.append(task)
+        if len(calls) == 3:
+            raise ValueError("the third batch failed")
+        return simulate(task)
+
+    summary, tally, _ = fly_study(opts, log=lambda *_: None, progress=False, simulate=third_fails)
+    assert summary["partial"] and summary["done"] == {"runs": 4, "of": 2 * 4} and tally.runs == 4
+    assert summary["error"] == "ValueError: the third batch failed"
+    assert summary["results"]["clsac"]["nominal"]["runs"] == 4 and not summary["results"]["baseline"]["nominal"]
+
+    def fails(task):
+        raise ValueError("no batch flies")
+
+    with pytest.raises(ValueError, match="no batch flies"):
+        fly_study(opts, log=lambda *_: None, progress=False, simulate=fails)

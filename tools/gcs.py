@@ -59,6 +59,7 @@ from autopilot.shared.process import (
     exit_code_for,
     install_stop_handlers,
     report_write_failures,
+    reserve_for,
     write_failure,
     write_stats_json,
 )
@@ -612,6 +613,7 @@ def main(argv=None) -> int:
         gcs.stop_requested = True
 
     install_stop_handlers(stop)
+    reserve = reserve_for(args.stats_json) if args.stats_json else None  # the stats fit on a full disk
     code = 1
     try:
         code = gcs.run()
@@ -624,7 +626,8 @@ def main(argv=None) -> int:
     print(f"gcs: {stats['points_sent']} setpoints sent", flush=True)
     print(format_counters("gcs link", stats["link"]), flush=True)
     if args.stats_json:
-        failure = write_failure(args.stats_json, lambda: write_stats_json(args.stats_json, stats))
+        failure = write_failure(args.stats_json, lambda: write_stats_json(args.stats_json, stats, reserve))
+        reserve.release()
         return report_write_failures("gcs", [failure] if failure else [], code)
     return code
 

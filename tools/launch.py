@@ -67,6 +67,7 @@ from tools.flight import (
     VEHICLE_TIMEOUT_S,
     Flight,
     FlightConfigError,
+    OutputError,
     recovery_text,
     write_refusal,
 )
@@ -479,6 +480,8 @@ def main(argv=None, png_helper=None) -> int:
     except WebServerError as exc:  # a --web port taken: nothing was started
         print(f"launch: error: {exc}", file=sys.stderr)
         return EXIT_USAGE
+    except OutputError as exc:  # the folder cannot take even the provisional summary (a full disk)
+        print(f"FAILED: launch: {exc}; nothing was flown", flush=True)
     except Exception as exc:  # noqa: BLE001  an internal error: one line, its traceback in DIR/launch.log
         log = flight.out / "launch.log" if flight.out is not None and flight.out.is_dir() else None
         print("FAILED: " + crash.report("launch", exc, log=log, file=io.StringIO()), flush=True)  # the one line

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import errno
 import json
+import math
 import os
 import signal
 import stat
@@ -60,20 +61,103 @@ class NotRegularFileError(OSError):
     """An output path that exists and is not a regular file: never replaced, never written into."""
 
 
-def write_json_atomic(path: str | os.PathLike, doc: dict, *, indent: int = 1, allow_nan: bool = True) -> None:
+NO_SPACE = (errno.ENOSPC, errno.EDQUOT, errno.EFBIG)  # a full disk, a quota, a file-size limit
+
+
+def json_safe(doc):
+    """``doc`` with every non-finite float (NaN, +-Infinity) made None, in dicts, lists and tuples at any depth:
+    what the product writes is standard JSON (RFC 8259 has no NaN or Infinity; ``null`` stands for a number that
+    has no finite value, e.g. a recovery time never reached)."""
+    if isinstance(doc, float):
+        return doc if math.isfinite(doc) else None
+    if isinstance(doc, dict):
+        return {k: json_safe(v) for k, v in doc.items()}
+    if isinstance(doc, (list, tuple)):
+        return [json_safe(v) for v in doc]
+    if type(doc).__module__ == "numpy" and hasattr(doc, "item"):  # a numpy scalar
+        return json_safe(doc.item())
+    return doc
+
+
+def standard_json(doc, **kwargs) -> str:
+    """``json.dumps`` of ``doc`` as standard JSON: non-finite numbers as null (``json_safe``), never NaN."""
+    return json.dumps(json_safe(doc), allow_nan=False, **kwargs)
+
+
+class SpaceReserve:
+    """Disk space held back for a process's last write: ``nbytes`` written to ``path`` at start (as many as fit,
+    never an error), deleted when a write fails for want of space, so that the write can be tried again
+    (``write_json_atomic(..., reserve=...)``), and deleted at the end (``release``) whatever happened."""
+
+    def __init__(self, path: str | os.PathLike, nbytes: int = 64 * 1024):
+        self.path = os.fspath(path)
+        self.held = 0
+        try:
+            with open(self.path, "wb") as f:
+                block = os.urandom(4096)  # not zeros: a compressing file system would store those in no space
+                while self.held < nbytes:
+                    f.write(block)
+                    f.flush()
+                    self.held += len(block)
+        except OSError:  # the disk is full already: what was held is kept
+            pass
+
+    def release(self) -> bool:
+        """Delete the reserve; True if it held space."""
+        held, self.held = self.held, 0
+        try:
+            os.unlink(self.path)
+        except OSError:
+            return False
+        return held > 0
+
+
+def reserve_for(path: str | os.PathLike, nbytes: int = 16 * 1024) -> SpaceReserve:
+    """The reserve for output ``path``: a hidden file beside it, ``.NAME.reserve``."""
+    head, name = os.path.split(os.fspath(path))
+    return SpaceReserve(os.path.join(head, f".{name}.reserve"), nbytes)
+
+
+def write_json_atomic(
+    path: str | os.PathLike, doc: dict, *, indent: int = 1, allow_nan: bool = False, reserve: SpaceReserve | None = None
+) -> None:
     """Write ``doc`` as JSON to ``path`` via a temporary file and a rename, so readers never see half a file.
+
+    Standard JSON: non-finite numbers are written as ``null`` (``json_safe``; ``allow_nan`` is kept for callers
+    and has no effect).  A write that fails leaves no temporary file behind; one that fails for want of space
+    (ENOSPC, EDQUOT, EFBIG) is tried once more after ``reserve`` (``SpaceReserve``) is deleted.
 
     A ``path`` that exists and is not a regular file (``/dev/null``, a FIFO) raises :class:`NotRegularFileError`:
     the rename would replace a device with a regular file (the command lines refuse such a path before anything
     runs, ``autopilot.shared.cli.output_file_problem``)."""
+    del allow_nan
     path = os.fspath(path)
     what = not_regular(path)
     if what:
         raise NotRegularFileError(f"{path} is {what}, not a regular file: not replaced")
+    text = standard_json(doc, indent=indent)
+    try:
+        _write_replace(path, text)
+    except OSError as exc:
+        if exc.errno not in NO_SPACE or reserve is None or not reserve.release():
+            raise
+        _write_replace(path, text)
+
+
+def _write_replace(path: str, text: str) -> None:
     tmp = path + ".tmp"
-    with open(tmp, "w") as f:
-        json.dump(doc, f, indent=indent, allow_nan=allow_nan)
-    os.replace(tmp, path)
+    try:
+        with open(tmp, "w") as f:
+            f.write(text)
+        os.replace(tmp, path)
+    except BaseException as exc:
+        try:
+            os.unlink(tmp)
+        except OSError:
+            pass
+        if isinstance(exc, OSError) and exc.errno is not None:  # a failed write() names no file: this one does
+            raise OSError(exc.errno, exc.strerror, path) from exc
+        raise
 
 
 def write_failure(path: str | os.PathLike, write) -> str | None:
@@ -93,11 +177,11 @@ def report_write_failures(who: str, failures: list[str], code: int) -> int:
     return code or (EXIT_FAILED if failures else EXIT_OK)
 
 
-def write_stats_json(path: str | os.PathLike, stats: dict) -> None:
+def write_stats_json(path: str | os.PathLike, stats: dict, reserve: SpaceReserve | None = None) -> None:
     """A process's stats file (``--stats-json``): ``stats`` and ``cpu_s``, the CPU seconds (user plus system, every
     thread) this process has used so far, its start-up and imports included (``tools.bench launch`` reports them
     per process: on a shared machine the CPU says where the time goes, the wall clock says how busy it was)."""
-    write_json_atomic(path, {**stats, "cpu_s": round(time.process_time(), 4)})
+    write_json_atomic(path, {**stats, "cpu_s": round(time.process_time(), 4)}, reserve=reserve)
 
 
 def apply_cpu(parser, cpu: int | None) -> None:

@@ -8,6 +8,7 @@ from the spill, a chunk at a time (docs/design.md, "Bounded memory").
 from __future__ import annotations
 
 import math
+import os
 import tempfile
 from array import array
 from collections.abc import Callable, Sequence
@@ -75,10 +76,19 @@ class SeriesRecorder:
         if not path.endswith(".npz"):
             path += ".npz"
         n = len(self)
-        with zipfile.ZipFile(path, "w", zipfile.ZIP_STORED, allowZip64=True) as zf:
-            for i, key in enumerate(self.keys):
-                with zf.open(f"{key}.npy", "w", force_zip64=True) as f:
-                    header = {"descr": np.dtype(np.float64).str, "fortran_order": False, "shape": (n,)}
-                    np.lib.format.write_array_header_1_0(f, header)
-                    for chunk in self._chunks():
-                        f.write(np.ascontiguousarray(chunk[:, i]).tobytes())
+        tmp = path + ".tmp"  # renamed when whole: a full disk leaves no half archive (and no temporary file)
+        try:
+            with zipfile.ZipFile(tmp, "w", zipfile.ZIP_STORED, allowZip64=True) as zf:
+                for i, key in enumerate(self.keys):
+                    with zf.open(f"{key}.npy", "w", force_zip64=True) as f:
+                        header = {"descr": np.dtype(np.float64).str, "fortran_order": False, "shape": (n,)}
+                        np.lib.format.write_array_header_1_0(f, header)
+                        for chunk in self._chunks():
+                            f.write(np.ascontiguousarray(chunk[:, i]).tobytes())
+            os.replace(tmp, path)
+        except BaseException:
+            try:
+                os.unlink(tmp)
+            except OSError:
+                pass
+            raise

@@ -83,8 +83,12 @@ def write_key(path: str | os.PathLike, key: bytes | None = None) -> bytes:
     if len(key) != KEY_BYTES:
         raise KeyFileError(f"a signing key has {KEY_BYTES} bytes, got {len(key)}")
     fd = os.open(os.fspath(path), os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o600)
-    with os.fdopen(fd, "w") as f:
-        f.write(key.hex() + "\n")
+    try:
+        with os.fdopen(fd, "w") as f:
+            f.write(key.hex() + "\n")
+    except OSError:  # a full disk: no empty or half key file is left to be read later
+        os.unlink(path)
+        raise
     return key
 
 

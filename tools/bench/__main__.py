@@ -6,13 +6,13 @@ area present runs; an area whose module cannot be imported is skipped with its r
 
 from __future__ import annotations
 
-import json
 import platform
 import sys
 import time
 from pathlib import Path
 
 from autopilot.shared.cli import OneLineArgumentParser
+from autopilot.shared.process import standard_json
 from tools import bench
 
 
@@ -115,7 +115,7 @@ def main(argv: list[str] | None = None) -> int:
             },
             "created": time.strftime("%Y-%m-%dT%H:%M:%S%z"),
         }
-        Path(args.json).write_text(json.dumps(doc, indent=2) + "\n", encoding="utf-8")
+        Path(args.json).write_text(standard_json(doc, indent=2) + "\n", encoding="utf-8")
         print(f"wrote {Path(args.json).resolve()}")
     if errors:
         return 1

@@ -11,7 +11,6 @@ over the batches.  The inputs are a recorded closed-loop run, so the controller 
 from __future__ import annotations
 
 import argparse
-import json
 import statistics
 import subprocess
 import sys
@@ -21,6 +20,7 @@ from pathlib import Path
 
 from autopilot.clsac import ClSac
 from autopilot.config import ClSacConfig
+from autopilot.shared.process import standard_json
 from sitl.aircraft import Aircraft, AircraftConfig
 from tools.bench import figure, load_warning, print_table, summarise_us, timed_batches
 from tools.experiment.scenario import PAPER, PAPER_RUNS, controller_config, run_inprocess
@@ -186,7 +186,7 @@ def main(argv: list[str] | None = None) -> dict:
     if warning:
         print(warning)
     if args.json:
-        Path(args.json).write_text(json.dumps({"core": figs}, indent=2) + "\n", encoding="utf-8")
+        Path(args.json).write_text(standard_json({"core": figs}, indent=2) + "\n", encoding="utf-8")
         print(f"wrote {Path(args.json).resolve()}")
     return figs
 

@@ -35,12 +35,12 @@ average and the hypervisor's steal time are printed).
 from __future__ import annotations
 
 import argparse
-import json
 import statistics
 import sys
 import tempfile
 from pathlib import Path
 
+from autopilot.shared.process import standard_json
 from tools.bench import figure, load_warning, machine_load, print_table
 from tools.flight import Flight
 
@@ -639,7 +639,7 @@ def main(argv: list[str] | None = None) -> dict:
     if warn:
         print(warn)
     if args.json:
-        Path(args.json).write_text(json.dumps(figs, indent=1))
+        Path(args.json).write_text(standard_json(figs, indent=1))
     return figs
 
 

@@ -23,7 +23,6 @@ Figures (``main(argv)`` returns them as a dict and prints a table against the ta
 from __future__ import annotations
 
 import argparse
-import json
 import math
 import os
 import shutil
@@ -34,6 +33,8 @@ import time
 from pathlib import Path
 
 import numpy as np
+
+from autopilot.shared.process import standard_json
 
 TARGET_MEDIAN_OVERHEAD = 0.10
 TARGET_MEMORY_GROWTH_MB = 50.0
@@ -492,7 +493,7 @@ def main(argv: list[str] | None = None) -> dict:
             shutil.rmtree(tmp, ignore_errors=True)
     figures = to_figures(raw)
     if args.json:
-        print(json.dumps(raw, indent=2))
+        print(standard_json(raw, indent=2))
     print_table(
         f"telemetry: control loop at {args.rate:g} Hz with and without telemetry, .rrd size, memory "
         f"({args.minutes:g} min real time); Python {sys.version.split()[0]}, {os.cpu_count()} CPUs",

@@ -21,7 +21,6 @@ processes write their parts with rerun and stream every row to the viewer, as be
 from __future__ import annotations
 
 import argparse
-import json
 import math
 import os
 import statistics
@@ -30,6 +29,8 @@ import sys
 import tempfile
 import time
 from pathlib import Path
+
+from autopilot.shared.process import standard_json
 
 ROOT = Path(__file__).resolve().parents[2]
 CONFIGS = {"every-row": ["--rrd-live", "--live-rate", "0", "--live-window", "0"], "thinned": []}
@@ -132,7 +133,7 @@ def main(argv: list[str] | None = None) -> dict:
     if warning:
         print(warning)
     if args.json:
-        print(json.dumps(raw, indent=1))
+        print(standard_json(raw, indent=1))
     return figures
 
 

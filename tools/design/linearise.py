@@ -23,6 +23,8 @@ from pathlib import Path
 
 import numpy as np
 
+from autopilot.shared.process import standard_json
+
 LATERAL = ("Beta", "Phi", "P", "R")  # JSBSim's names of the states kept
 STATES = ("beta", "phi", "p", "r")
 UNITS = ("rad", "rad", "rad/s", "rad/s")
@@ -298,7 +300,6 @@ def linearise_bounded(spec, timeout_s: float = LINEARISE_TIMEOUT_S, physics_rate
 def _linearise_child(argv: list[str]) -> int:
     """The child of :func:`linearise_bounded`: SPEC RATE_HZ OUT.json; exit 3 on a JsbsimPlantError, 4 on a
     LinearisationError (the reason the last stderr line)."""
-    import json
 
     from sitl.jsbsim_plant import JsbsimPlantError, parse_spec
 
@@ -319,7 +320,7 @@ def _linearise_child(argv: list[str]) -> int:
             return [plain(x) for x in v]
         return dataclasses.asdict(v) if dataclasses.is_dataclass(v) else v
 
-    Path(out).write_text(json.dumps({k: plain(v) for k, v in lin.items()}))
+    Path(out).write_text(standard_json({k: plain(v) for k, v in lin.items()}))
     return 0
 
 

@@ -358,3 +358,170 @@ def faulted_plant(plant, roll_rate: int | None, effect):
         raise ValueError("stuck, off and rate faults are not a linear plant: nothing to design on")
     a_p, b_p, c_p = (np.asarray(m, dtype=float) for m in plant)
     return damage.airframe_matrix(a_p, effect, roll_rate), b_p, c_p
+
+
+# ------------------------------------------------------------------------------- the PID bound (continuous gains)
+TD_MAX = 1.0  # s: the derivative time K_d/K_p searched, 0..TD_MAX (the grid's stops at 0.3)
+KP_RANGE = (1e-2, 10.0)  # the grid's K_p range
+FREQ_POINTS = 3000  # the fast margins' frequency grid (log-spaced to Nyquist); each crossing refined by Brent
+
+
+class _Loop:
+    """The sampled PID loop L(z) = K_p L1(z; T_d) on a ZOH-sampled plant with z^-d, K_i = K_p/10 (the rule's),
+    evaluated with numpy: its margins as ``tools.design.margins.baseline_margins`` gives them (python-control's
+    ``stability_margins``: the phase crossing nearest |L| = 1, the gain crossing of least |PM|), faster."""
+
+    def __init__(self, plant, rate_hz: float, delay_steps: int):
+        control = ct()
+        self.T = 1.0 / rate_hz
+        sampled = control.c2d(plant_tf(plant), self.T, "zoh")
+        self.pn = np.asarray(sampled.num[0][0], dtype=float)
+        self.pd = np.polymul(np.asarray(sampled.den[0][0], dtype=float), [1.0] + [0.0] * int(delay_steps))
+        self.den = np.polymul([self.T, -self.T, 0.0], self.pd)  # C's (T z^2 - T z) times the plant's and z^d
+        self.w = np.logspace(-3, math.log10(0.999 * math.pi * rate_hz), FREQ_POINTS)
+
+    def num(self, kp: float, td: float) -> np.ndarray:
+        T, ki, kd = self.T, kp / 10.0, kp * td
+        return np.polymul([kd + kp * T + ki * T * T, -(kp * T + 2 * kd), kd], self.pn)
+
+    def response(self, num: np.ndarray, w) -> np.ndarray:
+        z = np.exp(1j * np.asarray(w) * self.T)
+        return np.polyval(num, z) / np.polyval(self.den, z)
+
+    def margins(self, kp: float, td: float) -> dict:
+        """``baseline_margins``' dict for the PID (kp, kp/10, kp td) on this loop."""
+        from scipy.optimize import brentq
+
+        num = self.num(kp, td)
+        resp = self.response(num, self.w)
+
+        def mod(w):
+            return abs(self.response(num, w)) - 1.0
+
+        def arg(w):
+            return float(np.angle(-self.response(num, w)))
+
+        a = np.angle(-resp)
+        idx = np.flatnonzero(np.diff(np.sign(a)))
+        idx = idx[np.real(resp[idx]) <= 0]
+        w180 = np.array([brentq(arg, self.w[i], self.w[i + 1]) for i in idx])
+        m = np.abs(resp) - 1.0
+        wc = np.array([brentq(mod, self.w[i], self.w[i + 1]) for i in np.flatnonzero(np.diff(np.sign(m)))])
+        with np.errstate(all="ignore"):
+            gm_all = 1.0 / np.abs(self.response(num, w180)) if w180.size else np.array([])
+        pm_all = np.remainder(np.angle(self.response(num, wc), deg=True), 360.0) - 180.0 if wc.size else np.array([])
+        if gm_all.size and not np.isinf(gm_all).all():
+            with np.errstate(all="ignore"):
+                g = int(np.flatnonzero(np.abs(np.log(gm_all)) == np.min(np.abs(np.log(gm_all))))[0])
+            gm, wg = float(gm_all[g]), float(w180[g])
+        else:
+            gm, wg = math.inf, math.nan
+        if pm_all.size:
+            p = int(np.flatnonzero(np.abs(pm_all) == np.min(np.abs(pm_all)))[0])
+            pm, wp = float(pm_all[p]), float(wc[p])
+        else:
+            pm, wp = math.inf, math.nan
+        poles = np.roots(np.polyadd(self.den, num))
+        return {
+            "gain_margin_db": 20.0 * math.log10(gm) if gm > 0 and math.isfinite(gm) else math.inf,
+            "phase_margin_deg": pm,
+            "phase_crossover_rad_s": wg,
+            "gain_crossover_rad_s": wp,
+            "closed_loop_stable": bool(np.max(np.abs(poles)) < 1.0),
+        }
+
+    def kp_at(self, w: float, td: float) -> float:
+        """The K_p that puts |L| = 1 at ``w`` (L is linear in K_p for a fixed T_d)."""
+        return 1.0 / abs(self.response(self.num(1.0, td), w))
+
+
+def meets(m: dict) -> bool:
+    """The design rule's constraints: closed loop stable, PM >= 60 deg, GM >= 10 dB, crossover <= 5 rad/s."""
+    return bool(
+        m["closed_loop_stable"]
+        and m["phase_margin_deg"] >= PM_MIN_DEG
+        and m["gain_margin_db"] >= GM_MIN_DB
+        and m["gain_crossover_rad_s"] <= CROSSOVER_MAX
+    )
+
+
+def _score(m: dict, td: float) -> tuple:
+    """The rule's objective, to maximise: the crossover (to 1e-4 rad/s), then the least derivative time T_d (ties:
+    the crossover's 5 rad/s cap is reached along a curve of gains; the least derivative action amplifies the
+    turbulence least, and in the flights it tracks best)."""
+    return (round(m["gain_crossover_rad_s"], 4), -td)
+
+
+def _best_at(loop: _Loop, td: float) -> tuple | None:
+    """(score, kp, margins) of the largest crossover meeting the rule at derivative time ``td``: K_p = 1/|L1(w)|
+    for w scanned down from 5 rad/s by 10 % steps, the first that meets the rule refined by bisection against the
+    step above it; None if no w down to 0.05 rad/s does."""
+
+    def at(w):
+        kp = loop.kp_at(w, td)
+        if not KP_RANGE[0] <= kp <= KP_RANGE[1]:
+            return kp, None
+        m = loop.margins(kp, td)
+        return kp, (m if meets(m) else None)
+
+    w_hi, w = None, CROSSOVER_MAX * (1.0 - 1e-7)  # the cap, a hair inside (|L| = 1 is solved to ~1e-8)
+    while w >= 0.05:
+        kp, m = at(w)
+        if m is not None:
+            break
+        w_hi, w = w, w * 0.9
+    else:
+        return None
+    lo = (w, kp, m)
+    if w_hi is not None:
+        a, b = w, w_hi
+        for _ in range(16):  # 10 % / 2^16: 2e-6 relative
+            mid = 0.5 * (a + b)
+            kp_m, m_m = at(mid)
+            if m_m is not None:
+                a, lo = mid, (mid, kp_m, m_m)
+            else:
+                b = mid
+    _, kp, m = lo
+    return _score(m, td), kp, m
+
+
+def design_pid_bound(plant, *, rate_hz: float = 100.0, delay_steps: int = 0, td_max: float = TD_MAX) -> BaselineDesign:
+    """The rule of ``design_baseline`` (the largest crossover <= 5 rad/s at PM >= 60 deg, GM >= 10 dB, K_i = K_p/10)
+    over continuous gains: K_p in ``KP_RANGE`` and T_d = K_d/K_p in [0, ``td_max``] s, ties at the 5 rad/s cap
+    broken by the least T_d; ``delay_steps`` control periods of delay in the loop (z^-d).
+
+    For each T_d the crossover fixes K_p (|L| = 1 there and L is linear in K_p), so the search is over (w, T_d):
+    w by a 10 % scan down from the cap then bisection, T_d on a grid of 21 refined three times around the best
+    (7 points each: T_d to 1e-3 s).  The winner's margins are checked with python-control (``baseline_margins``);
+    ``tests/test_damage.py`` checks it against a brute-force search over (K_p, T_d)."""
+    from autopilot.baseline import BaselineConfig
+    from tools.design.margins import baseline_margins
+
+    loop = _Loop(plant, rate_hz, delay_steps)
+    found = []
+    tds = np.linspace(0.0, td_max, 21)
+    step = tds[1] - tds[0]
+    for _round in range(4):
+        for td in tds:
+            r = _best_at(loop, float(td))
+            if r is not None:
+                found.append((r[0], float(td), r[1], r[2]))
+        if not found:
+            break
+        best_td = max(found)[1]
+        tds = np.clip(np.linspace(best_td - step, best_td + step, 7), 0.0, td_max)
+        step = tds[1] - tds[0]
+    if not found:
+        raise PfcDesignError(
+            f"no PID with K_p in {KP_RANGE} and K_d/K_p <= {td_max:g} s gives PM >= {PM_MIN_DEG:g} deg and GM >= "
+            f"{GM_MIN_DB:g} dB below {CROSSOVER_MAX:g} rad/s"
+        )
+    _score_, td, kp, _m = max(found)
+    for _ in range(20):  # python-control's margins on the winner: the rule as design_baseline checks it
+        cfg = BaselineConfig(control_rate_hz=rate_hz, kp=kp, ki=kp / 10.0, kd=kp * td)
+        m = baseline_margins(cfg, plant=plant, delay_steps=delay_steps)
+        if meets(m):
+            return BaselineDesign(cfg.kp, cfg.ki, cfg.kd, m)
+        kp *= 0.999  # on the constraint's edge: a hair inside
+    raise PfcDesignError(f"the PID bound ({kp:.6g}, T_d {td:.6g} s) fails python-control's margins")

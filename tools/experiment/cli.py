@@ -145,6 +145,8 @@ def main(argv: Sequence[str] | None = None) -> int:
         return 2
     except (RuntimeError, OSError) as exc:  # a transport's run failed, or the disk did
         first = (str(exc).strip().splitlines() or [type(exc).__name__])[0]
+        if isinstance(exc, OSError) and exc.filename:
+            first = f"could not write {exc.filename}: {exc.strerror}"
         print(f"python -m tools.experiment: error: {first}", file=sys.stderr)
         return 1
     except KeyboardInterrupt:

@@ -26,6 +26,8 @@ from pathlib import Path
 
 import numpy as np
 
+from autopilot.shared.process import standard_json
+
 MIMO = "jsbsim:c172x:surface=aileron+rudder"
 SISO = "jsbsim:c172x"
 CASES = (
@@ -116,7 +118,7 @@ def main(argv=None) -> int:
             tag = re.sub(r"[^a-z0-9]+", "-", f"{case}-{name}".lower())
             row = fly(plant, controller, fault, out / tag)
             rows.append((case, name, row))
-            print(json.dumps({"case": case, "controller": name, **row}), flush=True)
+            print(standard_json({"case": case, "controller": name, **row}), flush=True)
     print()
     print(
         "| case | controller | roll ise_ref (rad^2 s) | max \\|roll\\| (deg) | controlled | max \\|sideslip\\| (deg) |"

@@ -10,6 +10,8 @@ import os
 import tempfile
 from pathlib import Path
 
+SUMMARY_RESERVE_BYTES = 1024 * 1024  # held while a study flies, for its summary.json on a full disk
+
 
 class OutDirError(ValueError):
     """An output folder that cannot be created or written; the message is one line and names the path."""
@@ -56,3 +58,22 @@ def default_out_dir(scenario: str = "paper", root: str | os.PathLike = "runs") -
         path = base.with_name(f"{base.name}-{n}")
         n += 1
     return path
+
+
+def hold_space(out: Path, nbytes: int = SUMMARY_RESERVE_BYTES):
+    """Disk space held in ``out`` for its summary.json (``autopilot.shared.process.SpaceReserve``, a hidden file):
+    pass it to ``write_json_atomic(reserve=...)`` and ``release()`` it at the end, whatever happened."""
+    from autopilot.shared.process import reserve_for
+
+    return reserve_for(Path(out) / "summary.json", nbytes)
+
+
+def write_problem(path: str | os.PathLike, exc: Exception) -> str:
+    """The line for an output that could not be written: ``could not write PATH: reason``."""
+    return f"could not write {os.fspath(path)}: {getattr(exc, 'strerror', None) or one_line(exc)}"
+
+
+def one_line(exc: BaseException) -> str:
+    """An error's first line, with its type: ``ValueError: ...``."""
+    text = str(exc).strip()
+    return f"{type(exc).__name__}: {text.splitlines()[0]}" if text else type(exc).__name__

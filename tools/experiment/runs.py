@@ -28,7 +28,7 @@ from typing import TYPE_CHECKING, Callable, Iterable, Sequence
 from autopilot.metrics import METRIC_NAMES
 from autopilot.shared.process import write_json_atomic
 from sitl import plant as plants
-from tools.experiment.outdir import prepare_out_dir
+from tools.experiment.outdir import hold_space, one_line, prepare_out_dir, write_problem
 
 if TYPE_CHECKING:
     from tools.experiment.scenario import RunResult, RunSpec, Scenario
@@ -39,6 +39,11 @@ if TYPE_CHECKING:
 DEG = 180.0 / math.pi
 
 Runner = Callable[["Scenario", "RunSpec", Path], "RunResult"]
+
+
+class OutputError(RuntimeError):
+    """An output file that could not be written (a full disk): one line naming each; summary.json is written if
+    it fitted."""
 
 
 class ExperimentError(ValueError):
@@ -151,10 +156,10 @@ def controlled(result: RunResult, u_limit_rad: float, surface: str = "rudder") -
     s = result.series or {}
     if s.get("t") is None or not len(s["t"]):
         return None
-    from autopilot.envelope import Envelope, judge_series
+    from autopilot.envelope import Envelope, verdict
 
     u = s["u_cmd"] if s.get("u_cmd") is not None else s["u"]
-    return judge_series(s["t"], s["phi"], u, u_limit_rad, Envelope(surface=surface), ref=s.get("ym_ol")).to_dict()
+    return verdict(s["t"], s["phi"], u, u_limit_rad, Envelope(surface=surface), ref=s.get("ym_ol"))
 
 
 def paper_checks(results: Sequence[RunResult]) -> dict[str, dict]:
@@ -229,8 +234,10 @@ def write_summary(
     scenario: Scenario | None = None,
     transport: str | None = None,
     extra: dict | None = None,
+    reserve=None,
 ) -> Path:
-    """Write ``summary.json``: ``{"scenario": ..., "runs": [{"name", "Lv", "metrics": {...}}, ...]}``.
+    """Write ``summary.json``: ``{"scenario": ..., "runs": [{"name", "Lv", "metrics": {...}}, ...]}``; on a full
+    disk the space ``reserve`` holds (``tools.experiment.outdir.hold_space``) is released and the write tried again.
 
     Extra top-level keys (never inside ``runs``): ``units``, ``settings``, ``transport``, ``saturation``,
     ``paper_checks``, ``versions``, ``created`` and whatever ``extra`` holds.  Non-finite metrics are
@@ -272,7 +279,7 @@ def write_summary(
             if key in ("scenario", "runs"):
                 raise ValueError(f"extra must not override {key!r}")
         doc.update(extra)
-    write_json_atomic(path, doc, indent=2, allow_nan=False)
+    write_json_atomic(path, doc, indent=2, reserve=reserve)
     return path
 
 
@@ -420,11 +427,16 @@ def run_experiment(
         scen = with_disturbances(scen, disturbances, transport)
     runner = get_transport(transport)
     out = prepare_out_dir(out_dir)
+    reserve = hold_space(out, 256 * 1024)  # summary.json fits a disk that fills while the runs fly (~10 kB)
     results: list[RunResult] = []
     for i, spec in enumerate(specs, start=1):
         t0 = time.perf_counter()
         say(f"[{i}/{len(specs)}] {spec.name} (Lv={spec.lv:g}) via {transport} ...")
-        res = runner(scen, spec, out / spec.name)
+        try:
+            res = runner(scen, spec, out / spec.name)
+        except BaseException:
+            reserve.release()
+            raise
         results.append(res)
         sat = saturation(res, scen.u_limit_rad)
         say(
@@ -438,27 +450,50 @@ def run_experiment(
 
         designed = None if pfc is not None else designed_params(scen.plant)
         controller.update(plant=scen.plant, params=None if designed is None else str(designed))
-    summary = write_summary(
-        results,
-        out / "summary.json",
-        scenario=scen,
-        transport=transport,
-        extra={"controller": controller, "disturbances": dict(scen.disturbances)},
-    )
-    say(f"wrote {summary.resolve()}")
+    problems: list[str] = []
+    try:
+        summary = write_summary(
+            results,
+            out / "summary.json",
+            scenario=scen,
+            transport=transport,
+            extra={"controller": controller, "disturbances": dict(scen.disturbances)},
+            reserve=reserve,
+        )
+        say(f"wrote {summary.resolve()}")
+    except OSError as exc:
+        problems.append(write_problem(out / "summary.json", exc))
+    finally:
+        reserve.release()
     if rrd:
         t0 = time.perf_counter()
         from tools.view.recording import log_experiment  # lazy: rerun costs ~1 s to import
 
-        path = log_experiment(results, out / f"{scen.name}.rrd")
-        say(
-            f"wrote {Path(path).resolve()} ({time.perf_counter() - t0:.1f} s; "
-            f"open it with: rerun {Path(path).resolve()})"
-        )
+        target = out / f"{scen.name}.rrd"
+        try:
+            path = log_experiment(results, target)
+            say(
+                f"wrote {Path(path).resolve()} ({time.perf_counter() - t0:.1f} s; "
+                f"open it with: rerun {Path(path).resolve()})"
+            )
+        except (OSError, RuntimeError) as exc:  # a full disk (rerun's writer says RuntimeError): no half file left
+            for p in (target, target.with_name(target.name + ".sha256")):
+                p.unlink(missing_ok=True)
+            problems.append(write_problem(target, exc))
     if plot:
         t0 = time.perf_counter()
         from tools.view.plots import save_paper_figure  # lazy: matplotlib costs ~1 s to import
 
-        png = save_paper_figure(results, out / f"{scen.name}.png", scen, notes=_check_lines(paper_checks(results)))
-        say(f"wrote {png.resolve()} ({time.perf_counter() - t0:.1f} s)")
+        target = out / f"{scen.name}.png"
+        try:
+            png = save_paper_figure(results, target, scen, notes=_check_lines(paper_checks(results)))
+            say(f"wrote {png.resolve()} ({time.perf_counter() - t0:.1f} s)")
+        except OSError as exc:
+            target.unlink(missing_ok=True)
+            problems.append(write_problem(target, exc))
+        except Exception as exc:  # noqa: BLE001  (the figure's own error: the numbers are written)
+            target.unlink(missing_ok=True)
+            say(f"{target.name} not drawn: {one_line(exc)}")
+    if problems:
+        raise OutputError("; ".join(problems))
     return results

@@ -132,15 +132,14 @@ def params_config(path: str, cfg: ClSacConfig) -> ClSacConfig:
 def controller_config(scenario: Scenario, run: RunSpec, base: ClSacConfig | None = None) -> ClSacConfig:
     from tools.design.linearise import designed_params, flown_baseline_gains
 
+    # every law clips at the surface's stop, as the launcher and the studies fly it (sitl.plant.surface_limit_rad)
+    limit = min(scenario.u_limit_rad, plants.surface_limit_rad(scenario.plant) or math.inf)
     if run.controller is not None and not controllers.get(run.controller).adaptive:  # the fixed-gain PID
         flown = flown_baseline_gains(run.controller, scenario.plant, scenario.baseline_gains)
-        limit = min(scenario.u_limit_rad, plants.surface_limit_rad(scenario.plant) or math.inf)  # the surface's stop
         return controllers.get(run.controller).config(
             control_rate_hz=scenario.control_rate_hz, u_limit_rad=limit, gains=flown
         )
-    cfg = (base or ClSacConfig()).with_(
-        lv=run.lv, control_rate_hz=scenario.control_rate_hz, u_limit_rad=scenario.u_limit_rad
-    )
+    cfg = (base or ClSacConfig()).with_(lv=run.lv, control_rate_hz=scenario.control_rate_hz, u_limit_rad=limit)
     params = scenario.params or designed_params(scenario.plant)  # as tools.flight.FlightConfig.params_file
     if base is None and params is not None:
         cfg = params_config(str(params), cfg)

@@ -61,6 +61,7 @@ _WHERE = {  # public name -> its module, imported on first use (PEP 562): import
     "verdict": "tools.flight.outcome",
     "Flight": "tools.flight.supervision",
     "FlightResult": "tools.flight.supervision",
+    "OutputError": "tools.flight.supervision",
     "run_lockstep": "tools.flight.supervision",
     "serve_web": "tools.flight.supervision",
 }
@@ -75,6 +76,7 @@ __all__ = [
     "HEARD_BY",
     "LOCKSTEP_IDLE_EXIT_S",
     "MERGE_MAX_MB",
+    "OutputError",
     "LIVE_RATE_HZ",
     "LIVE_WINDOW_S",
     "PNG_MAX_POINTS",

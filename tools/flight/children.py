@@ -41,8 +41,9 @@ class Child:
         self.ready = threading.Event()
         self.ready_marker = ready_marker
         self.tail: list[str] = []
+        self.log_error: str | None = None  # the log could not be written (a full disk): the output is still read
         self._log = open(log_path, "w", buffering=1)
-        self._log.write("$ " + " ".join(argv) + "\n")
+        self._write_log("$ " + " ".join(argv) + "\n")
         self.proc = subprocess.Popen(
             argv,
             stdin=subprocess.DEVNULL,
@@ -65,9 +66,19 @@ class Child:
         self._reader = threading.Thread(target=self._read, name=f"read-{name}", daemon=True)
         self._reader.start()
 
+    def _write_log(self, line: str) -> None:
+        """One line to the log; a full disk stops the log there (said once, ``log_error``), never the reading: a
+        child whose output is not read blocks on its next print."""
+        if self.log_error is not None:
+            return
+        try:
+            self._log.write(line)
+        except OSError as exc:
+            self.log_error = f"{self.log_path}: {exc.strerror or exc}"
+
     def _read(self):
         for line in self.proc.stdout:
-            self._log.write(line)
+            self._write_log(line)
             if crash.is_traceback_line(line, self.name):
                 continue  # the log's alone: the console and the reason get the error's one line after it
             line = line.rstrip("\n")
@@ -122,7 +133,10 @@ class Child:
 
     def finish(self):
         self._reader.join(timeout=5)
-        self._log.close()
+        try:
+            self._log.close()
+        except OSError as exc:  # its last buffered bytes did not fit
+            self.log_error = self.log_error or f"{self.log_path}: {exc.strerror or exc}"
         self._close_pidfd()
 
     def reason(self) -> str:

@@ -10,6 +10,7 @@ from pathlib import Path
 
 from autopilot import controllers
 from autopilot.shared.process import (
+    EXIT_FAILED,
     EXIT_OK,
     EXIT_OUT_OF_ENVELOPE,
     EXIT_USAGE,
@@ -320,6 +321,84 @@ STALE_FILES = (
     "flight.rrd.sha256",
     "flight.png",
 )
+
+
+# What a process killed in mid-write leaves (a temporary file, a space reserve): removed at a flight's start and end.
+LEFTOVERS = (
+    *(f"{n}.json.tmp" for n in (*PROCESSES, "summary")),
+    *(f".{n}.json.reserve" for n in (*PROCESSES, "summary")),
+    "autopilot_series.npz.tmp",
+    "sitl_series.npz.tmp",
+)
+SUMMARY_RESERVE_BYTES = 32 * 1024  # held from the start for the verdict (a summary is about 9 kB)
+# What summary.json keeps when the whole one does not fit on the disk: the verdict and what was flown.
+VERDICT_KEYS = ("ok", "outcome", "exit_code", "completed", "diverged", "controlled", "failed", "error", "exit_codes")
+VERDICT_KEYS += ("flown", "duration_s", "mode", "controller", "plant", "files")
+
+
+def remove_leftovers(out: Path) -> None:
+    for name in LEFTOVERS:
+        (out / name).unlink(missing_ok=True)
+
+
+def write_summary(out: Path, summary: dict, reserve=None) -> dict:
+    """Write ``out``/summary.json, the most complete that fits: the whole summary (the space ``reserve`` holds
+    released if the disk is full), else only its verdict (``VERDICT_KEYS``, ``"cut": reason``), else nothing (the
+    provisional one stays).  A summary that could not be written whole is not OK: exit status 1, its ``error``
+    says so (``output_errors`` has the line).  Returns the summary as the launcher reports it."""
+    path = out / "summary.json"
+    try:
+        write_json_atomic(path, summary, reserve=reserve)
+        return summary
+    except OSError as exc:
+        problem = f"{path}: {exc.strerror or exc}"
+    if summary.get("exit_code") in (EXIT_OK, EXIT_OUT_OF_ENVELOPE):
+        error = f"launch: could not write {problem} (the flight itself: {summary.get('outcome')})"
+    else:  # failed already: that reason first
+        error = f"{summary.get('error')}; launch: could not write {problem}"
+    summary = {
+        **summary,
+        "ok": False,
+        "exit_code": EXIT_FAILED,
+        "outcome": outcome_of(EXIT_FAILED),
+        "failed": summary.get("failed") or "launch",
+        "error": error,
+        "output_errors": [*summary.get("output_errors", []), problem],
+    }
+    cut = {k: summary[k] for k in (*VERDICT_KEYS, "output_errors") if k in summary}
+    cut["cut"] = f"only the verdict: the whole summary did not fit ({problem})"
+    try:
+        write_json_atomic(path, cut)
+    except OSError:
+        pass  # nothing fits: the provisional summary stays (not OK), and the console says why
+    return summary
+
+
+def write_unstarted(out: Path, exit_code: int, error: str, reserve=None) -> None:
+    """summary.json of a flight that ended before any process started (a folder the disk cannot take, Ctrl-C): not
+    OK, nothing flown; if even that does not fit, the provisional one stays.  The reserve and leftovers go."""
+    path = out / "summary.json"
+    summary = {
+        "ok": False,
+        "exit_code": exit_code,
+        "outcome": outcome_of(exit_code),
+        "failed": "launch" if exit_code == EXIT_FAILED else None,
+        "error": error,
+        "flown": {"steps": 0, "steps_asked": None, "fraction": 0.0, "frames": 0, "sim_time_s": 0.0, "complete": False},
+        "files": {"summary": str(path)},
+    }
+    try:
+        write_json_atomic(path, summary, reserve=reserve)
+    except OSError:
+        pass
+    finally:
+        if reserve is not None:
+            reserve.release()
+        remove_leftovers(out)
+        try:
+            (out / ".parts").rmdir()  # made for the telemetry, empty: nothing flew
+        except OSError:
+            pass
 
 
 def provisional_summary(pid: int) -> dict:

@@ -350,7 +350,7 @@ def envelope_verdict(
 def fault_recoveries(faults: list | None, t, roll, ref, um=None) -> list[dict]:
     """Per fault that started (``summary.json`` ``faults``: kind, value, start, end, source), the recovery of the
     roll after its onset (``autopilot.recovery.recovery``: its deviation from the commanded response ``ref``, the
-    law's y_m,ol, back inside the band from the fault-free flight before, and staying there), judged up to the next
+    law's y_m,ol, back inside the command's band, staying there and following the command), judged up to the next
     fault's onset.  ``t``, ``roll``, ``ref``, ``um`` (the raw command: only settled seconds are judged): the
     autopilot's series (sim s, rad) of the steps it flew; None
     (no series): each fault "not measured".  No I/O."""
@@ -380,7 +380,8 @@ def recovery_text(entry: dict) -> str:
         value = "" if entry.get("value") is None else f" {entry['value']:g}"
         head = f"{entry.get('kind')}{value} at {entry.get('start'):g} s"
     if entry.get("recovered"):
-        return f"{head}: recovered in {entry['time_s']:.1f} s (band {entry['band_deg']:.1f} deg)"
-    if entry.get("recovered") is False:
-        return f"{head}: not recovered (band {entry['band_deg']:.1f} deg)"
+        return f"{head}: recovered in {entry['time_s']:.2f} s (band {entry['band_deg']:.1f} deg)"
+    if entry.get("recovered") is False:  # the words never say "recovered" (autopilot.recovery's reasons neither)
+        why = "; back in it, but not shown following the command" if "not shown" in (entry.get("reason") or "") else ""
+        return f"{head}: no recovery (band {entry['band_deg']:.1f} deg{why})"
     return f"{head}: recovery {entry.get('reason')}"

@@ -19,6 +19,7 @@ from autopilot.shared.process import (
     EXIT_FAILED,
     EXIT_INTERRUPTED,
     EXIT_OK,
+    reserve_for,
     write_json_atomic,
 )
 from tools.flight.children import Child, cpu_times, free_udp_ports, machine_load, new_run_dir, stop_children
@@ -34,6 +35,7 @@ from tools.flight.config import (
 )
 from tools.flight.files import (
     STALE_FILES,
+    SUMMARY_RESERVE_BYTES,
     _join_telemetry,
     _load,
     build_summary,
@@ -41,9 +43,12 @@ from tools.flight.files import (
     load_series,
     png_request,
     provisional_summary,
+    remove_leftovers,
     start_recorder_import,
     write_flight_png,
     write_refusal,
+    write_summary,
+    write_unstarted,
 )
 from tools.flight.outcome import (
     _ended_normally,
@@ -63,6 +68,10 @@ def _run_metrics(ap_stats: dict | None) -> dict:
     ap = ap_stats or {}
     m = ap.get("metrics") if ap.get("metric_samples") else None
     return {k: m.get(k) for k in METRIC_NAMES} if m is not None else dict.fromkeys(METRIC_NAMES)
+
+
+class OutputError(OSError):
+    """The flight's folder cannot be written (a full disk before the start): nothing was flown."""
 
 
 @dataclass(frozen=True)
@@ -301,6 +310,7 @@ class Flight:
         self._t0: float | None = None
         self._cpu0 = None  # the machine's CPU times when the flight started (children.cpu_times)
         self._interrupt = threading.Event()
+        self._reserve = None  # disk space held for summary.json (autopilot.shared.process.SpaceReserve)
 
     @classmethod
     def for_scenario(cls, scenario, run, out, **options) -> Flight:
@@ -378,6 +388,8 @@ class Flight:
             return serve_web(self._web)
         except WebServerError as exc:
             write_refusal(self.out, "web", str(exc))
+            if self._reserve is not None:  # nothing flies: no space is held
+                self._reserve.release()
             raise
 
     def _stop_web(self) -> None:
@@ -419,9 +431,15 @@ class Flight:
         self.out.mkdir(parents=True, exist_ok=True)
         for f in (*STALE_FILES, "summary.json"):
             (self.out / f).unlink(missing_ok=True)
+        remove_leftovers(self.out)
         # Until the flight ends the verdict is "not OK": a launcher killed outright (SIGKILL) leaves this, never
         # an earlier flight's "ok: true" in a reused folder.
-        write_json_atomic(self.out / "summary.json", provisional_summary(os.getpid()))
+        try:
+            write_json_atomic(self.out / "summary.json", provisional_summary(os.getpid()))
+        except OSError as exc:  # a full disk before anything flew: one line, exit 1 (tools.launch)
+            self._stop_png()
+            raise OutputError(f"could not write {self.out / 'summary.json'}: {exc.strerror or exc}") from None
+        self._reserve = reserve_for(self.out / "summary.json", SUMMARY_RESERVE_BYTES)  # the verdict fits a full disk
         web_url = self._start_web() if cfg.web else None
         try:
             early, self._early_png = self._early_png, None
@@ -457,6 +475,14 @@ class Flight:
                 break
         except BaseException as exc:
             interrupted = isinstance(exc, KeyboardInterrupt)
+            if not self._children:  # nothing started (e.g. the key did not fit on a full disk): no verdict to make
+                self._stop_png()
+                self._stop_web()
+                why = "interrupted (Ctrl-C)" if interrupted else f"start-up failed: {type(exc).__name__}: {exc}"
+                write_unstarted(self.out, EXIT_INTERRUPTED if interrupted else EXIT_FAILED, why, self._reserve)
+                if isinstance(exc, OSError):
+                    raise OutputError(f"could not write in {self.out}: {exc.strerror or exc}") from None
+                raise
             self._end(
                 EXIT_INTERRUPTED if interrupted else EXIT_FAILED,
                 None if interrupted else "launch",
@@ -566,6 +592,12 @@ class Flight:
         )
         if rrd_error and exit_code == EXIT_OK:
             exit_code, failed, error = EXIT_FAILED, "telemetry", rrd_error
+        # a log the disk could not take (the children's output was still read: none blocked on it)
+        log_errors = [
+            f"{c.log_error} (what was written before is kept)" for c in self._children.values() if c.log_error
+        ]
+        if log_errors and exit_code == EXIT_OK:
+            exit_code, failed, error = EXIT_FAILED, "launch", f"launch: could not write {log_errors[0]}"
         flown = flown_report(cfg, stats)
         machine = machine_load(self._cpu0)  # how busy every CPU of the machine was while it flew
         if stopped:
@@ -592,9 +624,15 @@ class Flight:
         summary["flown"] = flown
         summary["recovery"] = flight_recovery(self.out, summary.get("faults"))  # per fault: back to tracking?
         summary["machine"] = machine
+        if rrd_error or log_errors:  # also when the flight failed otherwise (a full disk: DIR/.parts keeps the spools)
+            summary["output_errors"] = [*filter(None, [rrd_error]), *log_errors]
         png = self._png_result(drawing, metrics)
         summary["files"]["png"] = str(png) if png else None
-        write_json_atomic(self.out / "summary.json", summary)
+        summary = write_summary(self.out, summary, self._reserve)  # the most complete that fits (a full disk)
+        exit_code, error = summary["exit_code"], summary["error"]
+        if self._reserve is not None:
+            self._reserve.release()
+        remove_leftovers(self.out)
         controlled = (summary["controlled"] or {}).get("ok")
         self.result = FlightResult(
             exit_code == EXIT_OK, exit_code, error, metrics, self.out, summary, summary["completed"], controlled

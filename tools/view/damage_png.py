@@ -1,6 +1,7 @@
 """``damage.png`` of the damage study (``python -m tools.experiment damage``): per plant, against each fault's
 severity, the share of flights still controlled (with its 95 % Wilson interval) and the median tracking error after
-the onset, one line per controller.
+the onset with its interval over the seeds (the sign test's, ``tools.experiment.damage.stats``; under 6 seeds the
+seeds' range), one line per controller.
 
 matplotlib's Agg canvas directly (no pyplot), as ``tools.view.plots``.  The severities are categories on the x axis,
 ordered from the fault-free flight ("none") to the worst: a lower factor or rate is worse, a longer delay is worse.
@@ -22,6 +23,8 @@ COLOURS = {
     "pid-ff": "#2ca02c",
     "pid-retuned": "#9467bd",
     "pid-energy": "#ff7f0e",
+    "sac-robust": "#e377c2",
+    "clsac-robust": "#17becf",
 }
 DODGE = 0.07  # x offset between controllers (categories are 1 apart)
 WORSE_LOWER = fault_kinds.WORSE_LOWER  # the worst severity is the lowest value (sitl.fault_kinds.FaultKind.worse)
@@ -73,8 +76,9 @@ def draw(cells, plants, kinds, controllers, labels: dict, path, onset: float | N
                     continue
                 colour = COLOURS.get(name)
                 share = [100 * c["share_controlled"] for _, c in pts]
-                lo = [100 * (c["share_controlled"] - c["wilson95"][0]) for _, c in pts]
-                hi = [100 * (c["wilson95"][1] - c["share_controlled"]) for _, c in pts]
+                # max(0, .): Wilson's bound of k = n (or 0) is the share itself up to rounding (1 - 1e-16)
+                lo = [max(0.0, 100 * (c["share_controlled"] - c["wilson95"][0])) for _, c in pts]
+                hi = [max(0.0, 100 * (c["wilson95"][1] - c["share_controlled"])) for _, c in pts]
                 share_ax.errorbar(
                     [x + dx for x, _ in pts],
                     share,
@@ -87,11 +91,24 @@ def draw(cells, plants, kinds, controllers, labels: dict, path, onset: float | N
                     elinewidth=0.6,
                     label=labels.get(name, name),
                 )
-                err = [
-                    (x, c["ise_ref_after_p50"]) for x, c in pts if c["ise_ref_after_p50"] and c["ise_ref_after_p50"] > 0
-                ]
+                err = [(x + dx, c) for x, c in pts if c["ise_ref_after_p50"] and c["ise_ref_after_p50"] > 0]
                 if err:
-                    err_ax.plot([x for x, _ in err], [v for _, v in err], color=colour, marker="o", ms=3, lw=1.2)
+                    mid = [c["ise_ref_after_p50"] for _, c in err]
+                    band = [c.get("ise_ref_after_interval") or [m, m] for m, (_, c) in zip(mid, err)]
+                    err_ax.errorbar(
+                        [x for x, _ in err],
+                        mid,
+                        yerr=[
+                            [max(0.0, m - b[0]) for m, b in zip(mid, band)],
+                            [max(0.0, b[1] - m) for m, b in zip(mid, band)],
+                        ],
+                        color=colour,
+                        marker="o",
+                        ms=3,
+                        lw=1.2,
+                        capsize=2,
+                        elinewidth=0.6,
+                    )
             for ax in (share_ax, err_ax):
                 ax.set_xticks(xs)
                 ax.set_xticklabels(ticks, fontsize=8)
@@ -103,7 +120,7 @@ def draw(cells, plants, kinds, controllers, labels: dict, path, onset: float | N
             err_ax.set_xlabel(f"{kind}{unit}", fontsize=8)
             if ki == 0:
                 share_ax.set_ylabel("% still controlled", fontsize=8)
-                err_ax.set_ylabel("median ise_ref after onset (rad² s)", fontsize=8)
+                err_ax.set_ylabel("median ise_ref after onset (rad² s),\ninterval over the seeds", fontsize=8)
         if pi == 0:
             handles, names = fig.axes[0].get_legend_handles_labels()
             fig.legend(

@@ -32,6 +32,8 @@ import tempfile
 from importlib.util import find_spec
 from pathlib import Path
 
+from autopilot.shared.process import standard_json
+
 ROOT = Path(__file__).resolve().parents[2]  # the checkout: autopilot/, sitl/, tools/
 _FORMAT = 3  # bump when the meaning of the JSON changes (2: the span; 3: the rudder's limit)
 MAX_LAYOUTS = 16  # layouts kept per checkout (one per flight span)
@@ -181,7 +183,7 @@ def flight_blueprint_file(application_id: str | None = None, span=None, rudder_l
             "sources": _project_sources(),
         }
         _write_atomic(rbl, data)
-        _write_atomic(meta_path, json.dumps(meta, indent=1).encode())
+        _write_atomic(meta_path, standard_json(meta, indent=1).encode())
     except OSError:
         return None
     _prune(rbl)

@@ -16,6 +16,8 @@ from tools.experiment.damage import grid
 
 PROG = "python -m tools.experiment damage"
 LONG_S = 60.0  # from this duration on, the per-period table is printed too
+RESERVE_PER_FLIGHT = 2048  # bytes held for summary.json per flight (a flight's record and its cell's share: ~1.7 kB)
+MAX_FLIGHTS = 20_000  # the largest grid flown without --max-flights (the docs' largest study is 720 flights)
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -30,7 +32,12 @@ def build_parser() -> argparse.ArgumentParser:
         metavar="P1,P2",
         help="plants: kh2013a, FILE.toml, jsbsim:MODEL[:KEY=VALUE,...] (default kh2013a,jsbsim:c172x)",
     )
-    p.add_argument("--runs", type=cli.count(1, 10**6, name="runs"), default=2, help="seeds per cell (default 2)")
+    p.add_argument(
+        "--runs",
+        type=cli.count(1, 10**6, name="runs"),
+        default=grid.DEFAULT_RUNS,
+        help=f"seeds per cell (default {grid.DEFAULT_RUNS}: the least for a 95 %% paired interval)",
+    )
     p.add_argument("--seed", type=cli.seed, default=1, help="flight j of a cell flies with seed SEED + j (default 1)")
     p.add_argument("--out", metavar="DIR", help="output folder (default: a new runs/damage-<timestamp>/)")
     p.add_argument(
@@ -76,6 +83,14 @@ def build_parser() -> argparse.ArgumentParser:
         default=grid.DEFAULT_TURBULENCE,
         help=f"the turbulence each seed draws (default {grid.DEFAULT_TURBULENCE})",
     )
+    p.add_argument(
+        "--max-flights",
+        type=cli.count(1, 10**9, name="max-flights"),
+        default=MAX_FLIGHTS,
+        metavar="N",
+        help=f"refuse a grid of more flights than N (default {MAX_FLIGHTS:,}; the grid's repeated values are "
+        "flown once)",
+    )
     p.add_argument("--no-plot", action="store_true", help="do not write damage.png")
     p.add_argument("--quiet", action="store_true", help="no progress bars")
     return p
@@ -95,7 +110,7 @@ def study_of(args) -> object:
     from sitl import plant as plants
     from tools.experiment.damage.runner import Study
 
-    plant_list = grid.parse_list(args.plant, "plants")
+    plant_list = list(dict.fromkeys(grid.parse_list(args.plant, "plants")))  # a value given twice is flown once
     for p in plant_list:
         plants.check(p)
     kinds = grid.parse_list(args.kinds, "fault kinds")
@@ -107,7 +122,7 @@ def study_of(args) -> object:
     severities = dict(grid.SEVERITIES)
     for text in args.severity:
         k, vals = grid.parse_severity(text)
-        severities[k] = vals
+        severities[k] = tuple(dict.fromkeys(vals))  # 5000 equal severities are one (and -0.0 is 0.0)
     ctrls = grid.parse_list(args.controllers, "controllers")
     bad = [c for c in ctrls if c not in grid.CONTROLLERS]
     if bad:
@@ -132,6 +147,11 @@ def study_of(args) -> object:
     cells, _ = study.cells()
     if not any(cells.values()):
         raise grid.DamageError("no plant flies any of the fault kinds asked for")
+    if study.count() > args.max_flights:
+        raise grid.DamageError(
+            f"the grid has {study.count():,} flights, more than the cap of {args.max_flights:,} (--max-flights N "
+            "raises it; fewer --runs, severities, onsets or controllers make it smaller)"
+        )
     if not study.flights():
         raise grid.DamageError(
             "no plant flies any of the controllers asked for (a square MIMO plant flies "
@@ -149,10 +169,10 @@ def study_of(args) -> object:
 
 def main(argv: Sequence[str] | None = None) -> int:
     from sitl import plant as plants
-    from tools.experiment.damage.aggregate import period_table, sideslip_table, table
     from tools.experiment.damage.runner import run, write
-    from tools.experiment.outdir import OutDirError, check_out_dir, default_out_dir, prepare_out_dir
+    from tools.experiment.outdir import OutDirError, check_out_dir, default_out_dir, hold_space, prepare_out_dir
     from tools.experiment.study import StudyError
+    from tools.experiment.study.execution import interruptible
 
     parser = build_parser()
     args = parser.parse_args(argv)
@@ -166,8 +186,10 @@ def main(argv: Sequence[str] | None = None) -> int:
         parser.error("--duration must be finite")
     workers = args.workers or os.cpu_count() or 1
     t0 = time.perf_counter()
+    reserve = None
     try:
         out = prepare_out_dir(out)
+        reserve = hold_space(out, RESERVE_PER_FLIGHT * study.count() + 64 * 1024)  # summary.json fits a full disk
         _, skipped = study.cells()
         for p, why in skipped.items():
             for k, reason in why.items():
@@ -175,32 +197,72 @@ def main(argv: Sequence[str] | None = None) -> int:
         for p in study.plants:
             for c, reason in grid.controller_refusals(p, study.controllers).items():
                 print(f"not flown on {p}: controller {c} ({reason})")
-        doc = run(study, workers=workers, scheduler=args.scheduler, progress=not args.quiet)
-        written = write(doc, out, plot=not args.no_plot)
+        with interruptible() as stop:
+            doc = run(study, workers=workers, scheduler=args.scheduler, progress=not args.quiet, stop=stop)
+        written, problems = write(doc, out, plot=not args.no_plot, reserve=reserve)
     except (StudyError, OutDirError) as exc:
         print(f"{PROG}: error: {exc}", file=sys.stderr)
         return 2
     except KeyboardInterrupt:
         print(f"{PROG}: interrupted", file=sys.stderr)
         return 130
+    finally:
+        if reserve is not None:
+            reserve.release()
+    print_tables(doc, study)
+    print()
+    designs = f" and {len(doc['designs'])} design(s)" if doc["designs"] else ""
+    print(
+        f"{doc['flights']} flights{designs} in {doc['wall_s']:.1f} s "
+        f"({(doc['flights_per_s'] or 0):.2f} flights/s{' with the designs' if designs else ''}), "
+        f"{time.perf_counter() - t0:.1f} s in all on "
+        f"{doc['executor']}"
+    )
+    if written:
+        print("wrote " + ", ".join(str(w) for w in written))
+    return _ending(doc, problems, out)
+
+
+def legend(controllers) -> str:
+    """What each column's controller is (the tables name them by their short, stable names)."""
+    return "columns: " + "; ".join(f"{c} = {grid.LABELS.get(c, c)}" for c in controllers)
+
+
+def print_tables(doc: dict, study) -> None:
+    from sitl import plant as plants
+    from tools.experiment.damage.aggregate import paired_table, period_table, sideslip_table, table
+
     for p in study.plants:
         print()
         flown = [c for c in study.controllers if c not in grid.controller_refusals(p, study.controllers)]
         print(table(doc["cells"], p, flown))
+        if len(flown) > 1 and study.runs > 1:  # one seed pairs nothing
+            print()
+            print(paired_table(doc["cells"], p, flown))
         if plants.spec(p).mimo:
             print()
             print(sideslip_table(doc["cells"], p, flown))
         if study.duration >= LONG_S:
             print()
             print(period_table(doc["cells"], p, flown))
-    print()
-    print(
-        f"{doc['flights']} flights and {len(doc['designs'])} design(s) in {doc['wall_s']:.1f} s "
-        f"({doc['flights_per_s']:.2f} flights/s with the designs), {time.perf_counter() - t0:.1f} s in all on "
-        f"{doc['executor']}"
-    )
-    print("wrote " + ", ".join(str(w) for w in written))
-    return 0
+    print(legend(study.controllers))
+
+
+def _ending(doc: dict, problems: list[str], out: Path) -> int:
+    """The exit status and its lines: 1 for a file not written (a full disk) or an error that stopped the study
+    (its partial summary kept), 130 for Ctrl-C (likewise), else 0."""
+    for line in problems:
+        print(f"{PROG}: error: {line}", file=sys.stderr)
+    kept = "kept" if not any("summary.json" in p for p in problems) else "could not keep"
+    if doc.get("partial"):
+        done = doc["done"]
+        what = f"{kept} {done['flights']} of {done['of']} flights in {out / 'summary.json'} (partial)"
+        if doc.get("error"):
+            print(f"{PROG}: error: {doc['error']}; {what}", file=sys.stderr)
+            return 1
+        print(f"{PROG}: interrupted: {what}", file=sys.stderr)
+        return 130
+    return 1 if problems else 0
 
 
 if __name__ == "__main__":

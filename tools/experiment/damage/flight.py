@@ -8,10 +8,11 @@ with the commanded response y_m,ol: the one definition of a controlled flight, |
 a limit cycle is out), the tracking error after the onset, per period of the square wave, the effort, and the
 recovery after the onset (``autopilot.recovery``, as the launcher reports it).
 
-A :class:`~tools.experiment.damage.grid.Design` is ``tools.design.tuning.design_baseline`` on the plant's linear
-model (``tools.design.linearise.linear_model``) changed as the fault changes it (``tools.design.tuning.
-faulted_plant``).  A :class:`~tools.experiment.damage.grid.Calibration` finds the factor s on the plant's PID gains
-whose energy (``autopilot.metrics``: sum u^2 dt) on the fault-free reference scenario (30 s, still air) equals
+A :class:`~tools.experiment.damage.grid.Design` is ``tools.design.tuning.design_pid_bound`` (the rule of
+``design_baseline`` over continuous gains) on the plant's linear model (``tools.design.linearise.linear_model``)
+changed as the fault changes it (``tools.design.tuning.faulted_plant``), with the fault's delay in the loop.
+A :class:`~tools.experiment.damage.grid.Calibration` finds the factor s on the plant's PID gains whose energy
+(``autopilot.metrics``: sum u^2 dt) on the fault-free reference scenario (30 s, still air) equals
 CL-SAC's there: Brent's method on log E(s) - log E_CL-SAC over s in [1/30, 30].
 """
 
@@ -28,6 +29,7 @@ from tools.experiment.damage.grid import (
     MIMO_CONTROLLERS,
     NONE,
     RETUNED,
+    ROBUST,
     Calibration,
     Design,
     Flight,
@@ -49,8 +51,12 @@ def _scenario(plant: str, duration: float = 30.0, dist: tuple = (), **kw):
 
 
 def _run(controller: str):
+    """The scenario's run of a study controller: SAC and CL-SAC with the robust PFC are the registered laws with
+    ``pfc="robust"`` (applied after the plant's design file, as the launcher's ``--pfc robust``)."""
     from tools.experiment.scenario import run_of
 
+    if controller in ROBUST:
+        return replace(run_of(ROBUST[controller]), name=controller, pfc="robust")
     return run_of("baseline" if controller in (RETUNED, ENERGY) else controller)
 
 
@@ -77,28 +83,37 @@ def fly(task: Flight):
 
 
 def record(
-    series: dict, metrics: dict, onset: float, period: float, u_limit: float, dt: float, surface: str = "rudder"
+    series: dict,
+    metrics: dict,
+    onset: float,
+    period: float,
+    u_limit: float,
+    dt: float,
+    surface: str = "rudder",
+    sideslip: dict | None = None,
 ) -> dict:
     """A flight's record from its series (``t``, ``phi``, ``u``, ``ym_ol``; rad, one sample per control step);
-    ``surface``: the roll's surface, as the verdict's reason names it (the plant's: ``sitl.plant.surface_of``)."""
-    from autopilot.envelope import Envelope, judge_series
+    ``surface``: the roll's surface, as the verdict's reason names it (the plant's: ``sitl.plant.surface_of``);
+    ``sideslip``: a square MIMO plant's second channel (``autopilot.mimo.ChannelMetrics.result()``), judged too."""
+    from autopilot.envelope import Envelope, saturated, verdict
 
     t, phi, u, ym, um = (np.asarray(series[k], dtype=float) for k in ("t", "phi", "u", "ym_ol", "um"))
     d2 = (phi - ym) ** 2  # the tracking error of autopilot.metrics' ise_ref, per sample
     after = t >= onset - 1e-9
-    verdict = judge_series(t, phi, u, u_limit, Envelope(surface=surface), ref=ym)  # |roll|, saturation, tracking
-    tracking = verdict.tracking
+    # the launcher's verdict: |roll|, saturation, tracking, and a MIMO plant's rudder and sideslip
+    judged = verdict(t, phi, u, u_limit, Envelope(surface=surface), ref=ym, sideslip=sideslip)
+    tracking = judged["tracking"]
     n_periods = int(math.ceil(round(len(t) * dt / period, 9)))
     periods = [
         float(np.sum(d2[(t >= i * period - 1e-9) & (t < (i + 1) * period - 1e-9)]) * dt) for i in range(n_periods)
     ]
-    sat = np.abs(u) >= u_limit * (1.0 - 1e-9)
+    sat = saturated(u, u_limit)  # autopilot.envelope's one definition: at the stop, or not finite
     return {
-        "controlled": bool(verdict.ok),
-        "reason": verdict.reason,
-        "first_exit_s": verdict.first_exit_s,
-        "oscillating": bool(tracking is not None and tracking.oscillating_windows),
-        "not_following": bool(tracking is not None and tracking.not_following_windows),
+        "controlled": bool(judged["ok"]),
+        "reason": judged["reason"],
+        "first_exit_s": judged["first_exit_s"],
+        "oscillating": bool(tracking is not None and tracking["oscillating_windows"]),
+        "not_following": bool(tracking is not None and tracking["not_following_windows"]),
         "max_abs_roll_deg": float(np.degrees(np.max(np.abs(phi)))),
         "saturated_share": float(np.mean(sat)),
         "ise_ref": float(metrics["ise_ref"]),
@@ -113,12 +128,17 @@ def record(
 
 def recovery_of(t, phi, ym, um, onset: float) -> dict:
     """The recovery after the onset (``autopilot.recovery.recovery``, as the launcher reports it: the roll's
-    settled 1 s RMS deviation from y_m,ol back within twice the flight's own before the onset, and staying there):
+    settled 1 s RMS deviation from y_m,ol back within the command's band, staying there and following the command):
     ``recovered`` (True, False, None when not measured), ``recovery_s``, ``recovery_reason``."""
     from autopilot.recovery import recovery
 
     r = recovery(t, phi, ym, onset, raw_command=um)
-    return {"recovered": r.recovered, "recovery_s": r.time_s, "recovery_reason": r.reason}
+    return {
+        "recovered": r.recovered,
+        "recovery_s": r.time_s,
+        "recovery_band_deg": r.band_deg,
+        "recovery_reason": r.reason,
+    }
 
 
 def _roll_surface(plant: str) -> str:
@@ -140,7 +160,8 @@ def fly_record_mimo(task: Flight) -> dict:
     """A square MIMO plant's flight (``tools.experiment.mimo_inprocess.run_mimo``, bit for bit the lockstep MAVLink
     flight): the same square wave, fault, onset and turbulence; the fault acts on the first surface, the aileron
     (``sitl.damage.ScheduledEffects`` on the aileron's command, effectiveness on its control derivatives), the
-    rudder flies as designed.  The record is a SISO flight's, judged on the roll channel, with the sideslip beside:
+    rudder flies as designed.  The record is a SISO flight's, judged as the launcher judges it (the roll channel, the
+    rudder's saturation and the sideslip, ``autopilot.envelope.verdict``), with the sideslip's numbers beside:
     ``max_abs_sideslip_deg`` (|beta| as AOA_SSA carries it) and ``rudder_saturated_share``."""
     from tools.experiment.mimo_inprocess import run_mimo
     from tools.experiment.scenario import PAPER
@@ -161,7 +182,7 @@ def fly_record_mimo(task: Flight) -> dict:
     scen = _scenario(task.plant, task.duration)
     out = record(
         r["series"], r["metrics"], task.onset, scen.period_s, scen.u_limit_rad, 1.0 / scen.control_rate_hz,
-        _roll_surface(task.plant),
+        _roll_surface(task.plant), r["sideslip"],
     )  # fmt: skip
     out["max_abs_sideslip_deg"] = float(np.degrees(np.max(np.abs(r["series"]["beta"]))))
     out["rudder_saturated_share"] = float(r["sideslip"]["saturated_fraction"]["rudder"])
@@ -169,9 +190,10 @@ def fly_record_mimo(task: Flight) -> dict:
 
 
 def design(task: Design) -> dict:
-    """The retuned PID's gains and margins on the plant's linear model under the fault."""
+    """The retuned PID's gains and margins on the plant's linear model under the fault, the fault's delay (rounded
+    to control steps) in the loop."""
     from tools.design.linearise import linear_model
-    from tools.design.tuning import design_baseline, faulted_plant
+    from tools.design.tuning import design_pid_bound, faulted_plant
 
     model = linear_model(task.plant)
     if model is None:
@@ -179,8 +201,9 @@ def design(task: Design) -> dict:
     effect = effect_of(task.kind, task.value)
     plant = faulted_plant(model[:3], model[3], effect)
     rate = PAPER_RATE_HZ
-    d = design_baseline(plant, rate_hz=rate, delay_steps=int(round(effect.delay * rate)))
-    return {"gains": (float(d.kp), float(d.ki), float(d.kd)), "margins": d.margins}
+    delay_steps = int(round(effect.delay * rate))  # the fault's delay is in the loop it is designed on
+    d = design_pid_bound(plant, rate_hz=rate, delay_steps=delay_steps)
+    return {"gains": (float(d.kp), float(d.ki), float(d.kd)), "margins": d.margins, "delay_steps": delay_steps}
 
 
 def _energy(plant: str, controller: str, gains=None) -> float:

@@ -15,15 +15,19 @@ from sitl import damage
 from sitl import plant as plants
 from sitl.fault_kinds import DESIGN_KINDS
 
-# The controllers of the study: the registry's (autopilot.controllers) and two fixed-gain PIDs made here.
+# The controllers of the study: the registry's (autopilot.controllers), SAC and CL-SAC with the robust PFC (the
+# launcher's --pfc robust) and two fixed-gain PIDs made here.
 REGISTERED = ("baseline", "sac", "clsac", "pid-ff")
+ROBUST = {"sac-robust": "sac", "clsac-robust": "clsac"}  # the law flown with autopilot.config.PFC_PRESETS["robust"]
 RETUNED = "pid-retuned"  # tools.design.tuning.design_baseline on the plant as it is, switched at the fault's onset
 ENERGY = "pid-energy"  # the plant's PID with its gains scaled to CL-SAC's energy on the fault-free scenario
-CONTROLLERS = (*REGISTERED, RETUNED, ENERGY)
+CONTROLLERS = (*REGISTERED, *ROBUST, RETUNED, ENERGY)
 LABELS = {
     "baseline": "PID (as designed)",
     "sac": "SAC",
     "clsac": "CL-SAC",
+    "sac-robust": "SAC, robust PFC",
+    "clsac-robust": "CL-SAC, robust PFC",
     "pid-ff": "PID + feed-forward, D on roll",
     RETUNED: "PID retuned for the fault",
     ENERGY: "PID at CL-SAC's energy",
@@ -39,6 +43,7 @@ SEVERITIES = {
 DEFAULT_KINDS = ("effectiveness", "stuck", "rate", "delay")
 DEFAULT_PLANTS = ("kh2013a", "jsbsim:c172x")
 DEFAULT_ONSETS = (10.0,)
+DEFAULT_RUNS = 6  # the least seeds whose paired sign-test interval reaches 95 % (tools.experiment.damage.stats)
 DEFAULT_DURATION_S = 30.0
 DEFAULT_TURBULENCE = "light"
 TURBULENCE = ("none", "light", "moderate", "severe")
@@ -47,6 +52,8 @@ LINEAR_KINDS = DESIGN_KINDS  # a retuned PID is designed on the faulted linear p
 MIMO_CONTROLLERS = ("baseline", "sac", "clsac")
 MIMO_REFUSALS = {
     "pid-ff": "autopilot.mimo flies clsac, sac and baseline only (the launcher refuses --controller pid-ff on it)",
+    "sac-robust": "the robust PFC is a single-input PFC: the MIMO laws fly their design file's PFC matrix",
+    "clsac-robust": "the robust PFC is a single-input PFC: the MIMO laws fly their design file's PFC matrix",
     RETUNED: "its PID is retuned on a single-input linear model (tools.design.tuning.design_baseline): no MIMO retune",
     ENERGY: "its gain factor is calibrated on the single-input PID's energy: no MIMO calibration",
 }
@@ -54,10 +61,19 @@ MIMO_REFUSALS = {
 
 def controller_refusals(plant: str, controllers) -> dict[str, str]:
     """{controller: why not} for the study's controllers ``plant`` does not fly (a square MIMO plant:
-    ``MIMO_REFUSALS``)."""
-    if not plants.spec(plant).mimo:
-        return {}
-    return {c: MIMO_REFUSALS[c] for c in controllers if c not in MIMO_CONTROLLERS}
+    ``MIMO_REFUSALS``; SAC and CL-SAC with the robust PFC on a plant whose design file sets the PFC)."""
+    if plants.spec(plant).mimo:
+        return {c: MIMO_REFUSALS[c] for c in controllers if c not in MIMO_CONTROLLERS}
+    if any(c in ROBUST for c in controllers):
+        from tools.design.linearise import designed_params
+
+        if designed_params(plant) is not None:
+            why = (
+                "the plant's design file sets SAC's and CL-SAC's PFC and overrides --pfc (the launcher flies the "
+                "file's); the robust preset is the KH2013A's"
+            )
+            return {c: why for c in controllers if c in ROBUST}
+    return {}
 
 
 class DamageError(ValueError):

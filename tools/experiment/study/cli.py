@@ -13,7 +13,7 @@ from pathlib import Path
 from autopilot.shared import cli
 from autopilot.shared.cli import OneLineArgumentParser
 from sitl import plant as plants
-from tools.experiment.outdir import check_out_dir, default_out_dir, prepare_out_dir
+from tools.experiment.outdir import check_out_dir, default_out_dir, hold_space, prepare_out_dir
 from tools.experiment.study import faults as study_faults
 from tools.experiment.study import flights
 from tools.experiment.study.execution import interruptible
@@ -275,8 +275,14 @@ def main_run(args, prog: str) -> int:
 
             probe(args.scheduler)  # bounded: one line if it is not a Dask scheduler, before any folder
         out = prepare_out_dir(out)
-        with interruptible() as stop:
-            summary = run_plants(plan, out, progress=not args.no_progress, stop=stop, scheduler=args.scheduler)
+        reserve = hold_space(out)  # summary.json fits a disk that fills while the study flies
+        try:
+            with interruptible() as stop:
+                summary = run_plants(
+                    plan, out, progress=not args.no_progress, stop=stop, scheduler=args.scheduler, reserve=reserve
+                )
+        finally:
+            reserve.release()
     except (StudyError, ValueError) as exc:
         print(
             f"{prog}: error: {str(exc).strip().splitlines()[0] if str(exc).strip() else type(exc).__name__}",
@@ -293,6 +299,15 @@ def main_run(args, prog: str) -> int:
         print()
         print("\n".join(lines))
     print(f"\n{final_line(summary, out)}")
+    for line in summary.get("output_errors") or ():  # a full disk: every file that could not be written
+        print(f"{prog}: error: {line}", file=sys.stderr)
+    if summary.get("output_errors"):
+        return 1
+    errors = [s["error"] for s in sections_of(summary).values() if s.get("error")]
+    if errors:  # an error after the first runs: what was flown is kept
+        print(f"{prog}: error: {errors[0]}; kept what was done in {(out / 'summary.json').resolve()} (partial)",
+              file=sys.stderr)  # fmt: skip
+        return 1
     if summary.get("partial"):
         print(
             f"{prog}: interrupted: kept what was done in {(out / 'summary.json').resolve()} (partial)", file=sys.stderr

@@ -26,8 +26,9 @@ from dataclasses import dataclass, replace
 import numpy as np
 
 from autopilot import controllers
-from autopilot.envelope import judge_series
+from autopilot.envelope import saturated, verdict
 from sitl import plant as plants
+from tools.experiment.outdir import one_line
 from tools.experiment.study.accumulate import wilson
 from tools.experiment.study.execution import Progress, stream
 from tools.experiment.study.sampling import BOUND_ROLL_RAD, BOUND_SAT_FRACTION, DEG, StudyError
@@ -72,12 +73,18 @@ def simulate(task: Flight) -> dict:
     u, phi = res.series["u"], res.series["phi"]
     out = dict(res.metrics)
     out["max_abs_roll"] = float(np.max(np.abs(phi)))
-    out["sat_fraction"] = float(np.mean(np.abs(u) >= limit * (1 - 1e-9)))
+    out["sat_fraction"] = float(np.mean(saturated(u, limit)))
     # inside the envelope (autopilot.envelope, the launcher's "controlled"): |roll|, saturation and tracking
-    c = judge_series(res.series["t"], phi, u, limit, ref=res.series["ym_ol"])
-    out["bounded"] = bool(c.ok)
-    out["oscillating"] = bool(c.tracking is not None and c.tracking.oscillating_windows)
-    out["not_following"] = bool(c.tracking is not None and c.tracking.not_following_windows)
+    return _judged(out, verdict(res.series["t"], phi, u, limit, ref=res.series["ym_ol"]))
+
+
+def _judged(out: dict, c: dict) -> dict:
+    """``out`` with the verdict's ``bounded``, ``oscillating`` and ``not_following`` (``c``: the launcher's
+    ``controlled``, ``autopilot.envelope.verdict``)."""
+    tr = c.get("tracking")
+    out["bounded"] = bool(c["ok"])
+    out["oscillating"] = bool(tr is not None and tr["oscillating_windows"])
+    out["not_following"] = bool(tr is not None and tr["not_following_windows"])
     return out
 
 
@@ -86,21 +93,19 @@ MIMO_CONTROLLERS = ("sac", "clsac", "baseline")  # the controllers a square MIMO
 
 def _simulate_mimo(task: Flight, dist, limit: float) -> dict:
     """``simulate`` on a square MIMO plant: ``tools.experiment.mimo_inprocess.run_mimo`` (bit for bit its lockstep
-    flight), the roll channel judged as a SISO flight's, the sideslip's max |beta| (rad) beside."""
+    flight), judged as the launcher judges it (the roll channel, the rudder's saturation, the sideslip), the
+    sideslip's max |beta| (rad) beside."""
     from tools.experiment.mimo_inprocess import run_mimo
 
     r = run_mimo(task.plant, task.controller, disturbances=dist)
     s = r["series"]
     out = dict(r["metrics"])
     out["max_abs_roll"] = float(np.max(np.abs(s["phi"])))
-    out["sat_fraction"] = float(np.mean(np.abs(s["u"]) >= limit * (1 - 1e-9)))
+    out["sat_fraction"] = float(np.mean(saturated(s["u"], limit)))
     out["max_abs_sideslip"] = float(np.max(np.abs(s["beta"])))
     out["rudder_sat_fraction"] = r["sideslip"]["saturated_fraction"]["rudder"]
-    c = judge_series(s["t"], s["phi"], s["u"], limit, ref=s["ym_ol"])
-    out["bounded"] = bool(c.ok)
-    out["oscillating"] = bool(c.tracking is not None and c.tracking.oscillating_windows)
-    out["not_following"] = bool(c.tracking is not None and c.tracking.not_following_windows)
-    return out
+    # judged as the launcher judges it: the roll channel, the rudder's saturation and the sideslip
+    return _judged(out, verdict(s["t"], s["phi"], s["u"], limit, ref=s["ym_ol"], sideslip=r["sideslip"]))
 
 
 def with_airspeed(plant: str, airspeed_kt: float) -> str:
@@ -236,26 +241,32 @@ def fly(opts: FlightOptions, *, log=print, progress: bool = True, stop: threadin
     bar = Progress(len(flights), "30 s flights", enabled=progress, unit="flights")
     done: list[tuple[Flight, dict]] = []
     t0 = time.perf_counter()
-    for f, r in stream(flights[:1], simulate=simulate, stop=stop):
-        done.append((f, r))
-        bar.add(1)
-    if done:
-        first = time.perf_counter() - t0
-        parallel = min(opts.workers, os.cpu_count() or 1)
-        if client is not None:
-            from tools.experiment.study.scheduler import threads
-
-            parallel = threads(client)
-        from tools.experiment.study.runner import _mb, _rss_bytes
-
-        log(
-            f"estimate: {len(flights):,} flights, about {first * len(flights) / parallel:,.0f} s on {where} "
-            f"({first:.2f} s for the first flight); memory about {_mb(_rss_bytes() + RECORD_BYTES * len(flights))} "
-            "here; Ctrl-C stops and keeps what is done"
-        )
-        for f, r in stream(flights[1:], opts.scheduler, opts.workers, simulate, stop=stop, client=client):
+    error = None
+    try:  # an error after the first flight keeps the flights flown (partial, with the error's line)
+        for f, r in stream(flights[:1], simulate=simulate, stop=stop):
             done.append((f, r))
             bar.add(1)
+        if done:
+            first = time.perf_counter() - t0
+            parallel = min(opts.workers, os.cpu_count() or 1)
+            if client is not None:
+                from tools.experiment.study.scheduler import threads
+
+                parallel = threads(client)
+            from tools.experiment.study.runner import _mb, _rss_bytes
+
+            log(
+                f"estimate: {len(flights):,} flights, about {first * len(flights) / parallel:,.0f} s on {where} "
+                f"({first:.2f} s for the first flight); memory about "
+                f"{_mb(_rss_bytes() + RECORD_BYTES * len(flights))} here; Ctrl-C stops and keeps what is done"
+            )
+            for f, r in stream(flights[1:], opts.scheduler, opts.workers, simulate, stop=stop, client=client):
+                done.append((f, r))
+                bar.add(1)
+    except Exception as exc:
+        if not done:
+            raise
+        error = one_line(exc)
     bar.close()
     wall = time.perf_counter() - t0
     table = summarise([f for f, _ in done], [r for _, r in done])
@@ -284,6 +295,8 @@ def fly(opts: FlightOptions, *, log=print, progress: bool = True, stop: threadin
     section["units"].update(max_abs_u="rad", max_abs_roll="rad", sat_fraction="1")
     if section["partial"]:
         section["done"] = {"runs": len(done), "of": len(flights)}
+    if error:
+        section["error"] = error
     section["timing"] = {"wall_s": wall, "runs": len(done), "runs_per_s": len(done) / wall if wall > 0 else None}
     return section
 

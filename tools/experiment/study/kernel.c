@@ -4,7 +4,8 @@
  * One call flies steps k0 .. k0 + m - 1 of every run of a batch: the sensor (delay, bias, noise), the link
  * (ATTITUDE and SERVO_OUTPUT_RAW lost with probability p), the law (CL-SAC: ClSac._step_siso, paper eqs. (6),
  * (18)-(21), as autopilot.batch.BatchClSac; or the fixed-gain baseline: Baseline.step, as BatchBaseline), the
- * metrics (MetricsAccumulator's sums in its order), the tracking windows (autopilot.envelope.window_flags), the
+ * metrics (MetricsAccumulator's sums in its order), the tracking windows (autopilot.envelope.window_flags and the
+ * swing counter of autopilot.swings), the
  * disturbance (Dryden filter, 1-cosine gust, crosswind)
  * and the plant x[k+1] = Phi x[k] + Gamma [u, v_g, p_g, r_g]^T (the exact ZOH of (A_p, [B_p, E])).
  *
@@ -51,12 +52,15 @@ typedef struct {
     /* the series (record), or NULL: (22, steps, n) in simulation._record's order */
     double *rec;
     /* tracking (autopilot.envelope.window_flags): blocks of tblock steps, windows of tblocks blocks; the open
-     * block's sums of y_r^2, phi y_r, (phi - y_r)^2 and stop hits (4, n), the ring of the last blocks' (tblocks *
-     * 4, n: slot * 4 + sum), the flags oscillating / not following in any window (2, n: 0.0 or 1.0), whether a
-     * stop hit counts (autopilot.envelope.stop_hit; n: 0.0 or 1.0) */
+     * block's sums of y_r^2, phi y_r, (phi - y_r)^2, stop hits and regular swings (5, n), the ring of the last
+     * blocks' (tblocks * 5, n: slot * 5 + sum), the flags oscillating / not following in any window (2, n: 0.0 or
+     * 1.0), whether a stop hit counts (autopilot.envelope.stop_hit; n: 0.0 or 1.0); the swing counter
+     * (autopilot.swings.swing_step: its constants, its state (7, n) in swing_start's order) */
     int64_t tblock, tblocks;
     double dev_ratio2, dev_floor2, ref_floor2, follow_min, hits_min, rearm_lim, nw;
     double *tblk, *tring, *track, *hit_armed;
+    double swing_h, swing_tol, swings_min, dev_max2;
+    double *swing;
     /* faults (tools/experiment/study/faults.py): nphase phases, each from step ph_start on with the matrix set
      * ph_mat (mphi (nmat * 36, n), mgam (nmat * 24, n); set 0 the plant as built), the surface's jump (0 none,
      * 1 where it is, 2 at ph_at; delta_dot = 0), the servo driven with 0 (ph_off), a delay line of ph_delay steps
@@ -66,7 +70,7 @@ typedef struct {
     const int64_t *ph_start, *ph_mat, *ph_jump, *ph_off, *ph_delay, *ph_reset;
     const double *ph_at, *mphi, *mgam;
     double *ring, *ring_pos;
-    /* a rate limit (faults.py, simulation._rate_limited): ph_rate rad/s (0: none), flown in nsub physics steps of
+    /* a rate limit (faults.py, faults.rate_limited): ph_rate rad/s (0: none), flown in nsub physics steps of
      * sub_h with the physics-step set ph_fine: mphi1 (nfine * 36, n), mgam1 (nfine * 24, n), mphic1 (coasting) */
     int64_t nsub;
     double sub_h;
@@ -90,7 +94,7 @@ enum { B_PHI_OL, B_G_OL, B_CM, B_KP, B_KI_T, B_KD_T };
 enum { R_T, R_UM, R_PHI, R_YM, R_YM_OL, R_YA, R_Y_PFC, R_E, R_U, R_KPE, R_KIE, R_KE, R_KPX, R_KIX, R_KX, R_KPU,
        R_KIU, R_KU, R_V, R_P, R_R, R_DELTA_R, R_COUNT };
 
-/* One control step under a rate limit (simulation._rate_limited; sitl.aircraft.Aircraft._advance_servo_fault):
+/* One control step under a rate limit (faults.rate_limited; sitl.aircraft.Aircraft._advance_servo_fault):
  * nsub physics steps, each the free step, its move against rate * h; beyond it the coasting step at +-rate, else
  * the free step with delta_dot clipped; the held disturbance dd (or none) added on each.  x in, xn out. */
 static void rate_limited(const double *x0, double *xn, double u_s, const double *dd, const double *p1,
@@ -168,7 +172,10 @@ void study_steps(const Batch *b, int64_t k0, int64_t m, const double *z_all) {
         double a_tv = b->acc[3 * n + i], a_max_u = b->acc[4 * n + i], a_max_roll = b->acc[5 * n + i];
         double a_sat = b->acc[6 * n + i];
         double t_rr = b->tblk[0 * n + i], t_pr = b->tblk[1 * n + i], t_dd = b->tblk[2 * n + i];
-        double t_hits = b->tblk[3 * n + i];
+        double t_hits = b->tblk[3 * n + i], t_sw = b->tblk[4 * n + i];
+        double w_up = b->swing[0 * n + i], w_ext = b->swing[1 * n + i], w_kext = b->swing[2 * n + i];
+        double w_last = b->swing[3 * n + i], w_klast = b->swing[4 * n + i], w_size = b->swing[5 * n + i];
+        double w_dur = b->swing[6 * n + i];
         double f_osc = b->track[0 * n + i], f_lag = b->track[1 * n + i];
         int armed = b->hit_armed[i] != 0.0;
         const double turb = b->turb[i], bias = b->bias[i], noise = b->noise[i], thr = b->thr[i];
@@ -304,25 +311,49 @@ void study_steps(const Batch *b, int64_t k0, int64_t m, const double *z_all) {
                 t_rr = t_rr + ym_ol * ym_ol;
                 t_pr = t_pr + phi_true * ym_ol;
                 t_dd = t_dd + dv * dv;
+                { /* autopilot.swings.swing_step on dv at step k (swing_start at step 0) */
+                    if (k == 0) w_up = 1.0, w_ext = dv, w_kext = 0.0, w_last = dv, w_klast = 0.0, w_size = 0.0,
+                                w_dur = 0.0;
+                    const int upb = w_up != 0.0;
+                    const double kd = (double)k;
+                    const int grow = upb ? (dv > w_ext) : (dv < w_ext);
+                    const int back = upb ? (dv <= w_ext - b->swing_h) : (dv >= w_ext + b->swing_h);
+                    const double ext = grow ? dv : w_ext, kext = grow ? kd : w_kext;
+                    const double sz = fabs(ext - w_last), du = kext - w_klast;
+                    int reg = back && (w_size > 0.0);
+                    reg = reg && (fabs(sz - w_size) <= b->swing_tol * np_max(sz, w_size));
+                    reg = reg && (fabs(du - w_dur) <= b->swing_tol * np_max(du, w_dur));
+                    if (back) {
+                        w_size = sz, w_dur = du, w_last = ext, w_klast = kext, w_up = 1.0 - w_up;
+                        w_ext = dv, w_kext = kd;
+                    } else {
+                        w_ext = ext, w_kext = kext;
+                    }
+                    t_sw = t_sw + (reg ? 1.0 : 0.0);
+                }
                 if ((k + 1) % b->tblock == 0) {
                     const int64_t closed = (k + 1) / b->tblock, slot = (closed - 1) % b->tblocks;
                     double *rg = b->tring;
-                    rg[(slot * 4 + 0) * n + i] = t_rr, rg[(slot * 4 + 1) * n + i] = t_pr;
-                    rg[(slot * 4 + 2) * n + i] = t_dd, rg[(slot * 4 + 3) * n + i] = t_hits;
+                    rg[(slot * 5 + 0) * n + i] = t_rr, rg[(slot * 5 + 1) * n + i] = t_pr;
+                    rg[(slot * 5 + 2) * n + i] = t_dd, rg[(slot * 5 + 3) * n + i] = t_hits;
+                    rg[(slot * 5 + 4) * n + i] = t_sw;
                     if (closed >= b->tblocks) {
                         double s_rr = rg[0 * n + i], s_pr = rg[1 * n + i], s_dd = rg[2 * n + i];
-                        double s_hits = rg[3 * n + i];
+                        double s_hits = rg[3 * n + i], s_sw = rg[4 * n + i];
                         for (int64_t j = 1; j < b->tblocks; j++) {
-                            s_rr = s_rr + rg[(j * 4 + 0) * n + i], s_pr = s_pr + rg[(j * 4 + 1) * n + i];
-                            s_dd = s_dd + rg[(j * 4 + 2) * n + i], s_hits = s_hits + rg[(j * 4 + 3) * n + i];
+                            s_rr = s_rr + rg[(j * 5 + 0) * n + i], s_pr = s_pr + rg[(j * 5 + 1) * n + i];
+                            s_dd = s_dd + rg[(j * 5 + 2) * n + i], s_hits = s_hits + rg[(j * 5 + 3) * n + i];
+                            s_sw = s_sw + rg[(j * 5 + 4) * n + i];
                         }
-                        const int osc = (s_dd >= b->dev_ratio2 * s_rr) & (s_dd >= b->dev_floor2 * b->nw) &
-                                        (s_hits >= b->hits_min);
-                        const int lag = (s_rr >= b->ref_floor2 * b->nw) & (s_pr < b->follow_min * s_rr);
+                        const int bang = (s_dd >= b->dev_ratio2 * s_rr) & (s_dd >= b->dev_floor2 * b->nw) &
+                                         (s_hits >= b->hits_min);
+                        const int osc = (s_sw >= b->swings_min) | bang;
+                        const int lag = (s_rr >= b->ref_floor2 * b->nw) &
+                                        ((s_pr < b->follow_min * s_rr) | (s_dd >= b->dev_max2 * s_rr));
                         if (osc) f_osc = 1.0;
                         if (lag) f_lag = 1.0;
                     }
-                    t_rr = 0.0, t_pr = 0.0, t_dd = 0.0, t_hits = 0.0;
+                    t_rr = 0.0, t_pr = 0.0, t_dd = 0.0, t_hits = 0.0, t_sw = 0.0;
                 }
             }
             if (b->rec) {
@@ -388,6 +419,10 @@ void study_steps(const Batch *b, int64_t k0, int64_t m, const double *z_all) {
         b->acc[3 * n + i] = a_tv, b->acc[4 * n + i] = a_max_u, b->acc[5 * n + i] = a_max_roll;
         b->acc[6 * n + i] = a_sat;
         b->tblk[0 * n + i] = t_rr, b->tblk[1 * n + i] = t_pr, b->tblk[2 * n + i] = t_dd, b->tblk[3 * n + i] = t_hits;
+        b->tblk[4 * n + i] = t_sw;
+        b->swing[0 * n + i] = w_up, b->swing[1 * n + i] = w_ext, b->swing[2 * n + i] = w_kext;
+        b->swing[3 * n + i] = w_last, b->swing[4 * n + i] = w_klast, b->swing[5 * n + i] = w_size;
+        b->swing[6 * n + i] = w_dur;
         b->track[0 * n + i] = f_osc, b->track[1 * n + i] = f_lag, b->hit_armed[i] = armed ? 1.0 : 0.0;
 #undef CO
 #undef PHI

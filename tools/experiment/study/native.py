@@ -64,6 +64,8 @@ class Batch(ctypes.Structure):
         *((name, _d) for name in ("dev_ratio2", "dev_floor2", "ref_floor2", "follow_min", "hits_min", "rearm_lim")),
         ("nw", _d),
         *((name, _p) for name in ("tblk", "tring", "track", "hit_armed")),
+        *((name, _d) for name in ("swing_h", "swing_tol", "swings_min", "dev_max2")),
+        ("swing", _p),
         *((name, _i) for name in ("nphase", "ring_len")),
         *((name, _q) for name in ("ph_start", "ph_mat", "ph_jump", "ph_off", "ph_delay", "ph_reset")),
         *((name, _p) for name in ("ph_at", "mphi", "mgam", "ring", "ring_pos")),

@@ -94,18 +94,27 @@ def save_figure(tally, opts: StudyOptions, path: Path) -> Path:
 
     conds = list(opts.conditions)
     fig, axes = plt.subplots(2, len(conds), figsize=(4.2 * len(conds), 7), squeeze=False, sharey="row")
+    boxes = {}  # (row, column): a box per controller, from the finite positive values only
     for j, cond in enumerate(conds):
         for i, metric in enumerate(("ise_ref", "energy")):
-            ax = axes[i][j]
             stats = []
             for ctrl in opts.controllers:
                 cell = tally.cells.get(ctrl, {}).get(cond)
                 q = cell.samples[metric].quantiles((5, 25, 50, 75, 95)) if cell else None
-                q = q or [math.nan] * 5
+                q = [v if v is not None and math.isfinite(v) and v > 0 else math.nan for v in (q or [math.nan] * 5)]
                 stats.append({"whislo": q[0], "q1": q[1], "med": q[2], "q3": q[3], "whishi": q[4], "fliers": []})
-            ax.bxp(stats, showfliers=False)
+            boxes[i, j] = stats
+    # a log scale needs a value above zero: a row without one (every run diverged) is drawn empty, on a linear scale
+    log_rows = {i for (i, _), st in boxes.items() if any(b["med"] == b["med"] for b in st)}
+    for j, cond in enumerate(conds):
+        for i, metric in enumerate(("ise_ref", "energy")):
+            ax = axes[i][j]
+            ax.bxp(boxes[i, j], showfliers=False)
             ax.set_xticks(range(1, len(opts.controllers) + 1), opts.controllers, rotation=60, fontsize=7)
-            ax.set_yscale("log")
+            if i in log_rows:
+                ax.set_yscale("log")
+            else:
+                ax.text(0.5, 0.5, "no finite value", transform=ax.transAxes, ha="center")
             ax.grid(True, alpha=0.3)
             if i == 0:
                 ax.set_title(cond)

@@ -13,11 +13,19 @@ import threading
 import time
 from pathlib import Path
 
-from autopilot.shared.process import write_json_atomic
+from tools.experiment.outdir import write_problem
 from tools.experiment.study import flights
 from tools.experiment.study.aggregation import LONG_DURATION_S
 from tools.experiment.study.report import format_table
-from tools.experiment.study.runner import fly_study, run_study, study_tables, timing, write_study_files
+from tools.experiment.study.runner import (
+    finish,
+    fly_study,
+    run_study,
+    study_tables,
+    timing,
+    write_study_files,
+    write_summary,
+)
 from tools.experiment.study.sampling import StudyOptions
 
 
@@ -33,12 +41,13 @@ def run_plants(
     progress: bool = True,
     stop: threading.Event | None = None,
     scheduler: str | None = None,
+    reserve=None,
 ) -> dict:
     """Fly each (plant, options) of ``plan`` in turn (``StudyOptions`` for the KH2013A, ``flights.FlightOptions``
     otherwise); write ``out``/summary.json and table.md (and the KH2013A's robustness.png and worst.rrd); return
     the summary."""
     if len(plan) == 1 and is_kh2013a(plan[0][1]):
-        return run_study(plan[0][1], out, log=log, progress=progress, stop=stop)
+        return run_study(plan[0][1], out, log=log, progress=progress, stop=stop, reserve=reserve)
     t_start = time.perf_counter()
     client = None
     if scheduler is not None:
@@ -59,13 +68,12 @@ def run_plants(
             else:
                 section = flights.fly(opts, log=log, progress=progress, stop=stop, client=client)
             sections[text] = section
+            if section.get("error"):  # an error stopped it: the plants after it are not flown
+                break
     finally:
         if client is not None:
             client.close(timeout=10)
     out.mkdir(parents=True, exist_ok=True)
-    (out / "table.md").write_text(report(sections, headings=len(plan) > 1) + "\n", encoding="utf-8")
-    if kh is not None:
-        write_study_files(*kh, out, log=log, table=False)
     not_flown = [text for text, _ in plan if text not in sections]
     partial = bool(not_flown) or any(s["partial"] for s in sections.values())
     if len(plan) == 1:
@@ -75,8 +83,18 @@ def run_plants(
         if not_flown:
             summary["not_flown"] = not_flown
         summary["timing"] = {"wall_s": time.perf_counter() - t_start}
-    write_json_atomic(out / "summary.json", summary, indent=2, allow_nan=False)
-    log(f"wrote {(out / 'summary.json').resolve()} and table.md")
+    problems: list[str] = []
+    write_summary(out, summary, problems, reserve)  # first: no other file can lose it
+    try:
+        (out / "table.md").write_text(report(sections, headings=len(plan) > 1) + "\n", encoding="utf-8")
+    except OSError as exc:
+        (out / "table.md").unlink(missing_ok=True)
+        problems.append(write_problem(out / "table.md", exc))
+    if kh is not None:
+        problems += write_study_files(*kh, out, log=log, table=False)
+    if "plants" in summary:
+        summary["timing"] = {"wall_s": time.perf_counter() - t_start}
+    finish(out, summary, problems, log)
     return summary
 
 

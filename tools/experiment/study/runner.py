@@ -15,6 +15,7 @@ from pathlib import Path
 
 from autopilot.envelope import tracking_limits
 from autopilot.shared.process import write_json_atomic
+from tools.experiment.outdir import one_line, write_problem
 from tools.experiment.study import native
 from tools.experiment.study.accumulate import BIN_WIDTH, EXACT_BYTES, Tally, value_bytes
 from tools.experiment.study.aggregation import (
@@ -38,6 +39,7 @@ from tools.experiment.study.sampling import (
     get_condition,
     sweep_conditions,
 )
+from tools.experiment.study.simulation import simulate
 
 PILOT_RUNS = 200  # runs flown and timed for the estimate, before the study
 
@@ -140,25 +142,60 @@ def run_study(
     log=print,
     progress: bool = True,
     stop: threading.Event | None = None,
+    reserve=None,
 ):
     """The whole study; returns the summary dict (also written to ``out_dir/summary.json`` with the table,
     the figure and the worst runs' ``.rrd`` when ``out_dir`` is given).  ``stop`` set (``execution.interruptible``):
-    the runs done so far, ``summary["partial"]`` True, no figure and no recording."""
+    the runs done so far, ``summary["partial"]`` True, no figure and no recording.  summary.json is written first
+    (the space ``reserve`` holds released if the disk is full), so no other file can lose it, then again last with
+    the timing of them all; a file that could not be written is a line of ``summary["output_errors"]``."""
     t_start = time.perf_counter()
     summary, tally, phases = fly_study(opts, log=log, progress=progress, stop=stop)
-    if out_dir is not None:
-        write_study_files(summary, tally, opts, Path(out_dir), log=log)
-    summary["timing"] = timing(phases, t_start)
-    if out_dir is not None:  # summary.json last: its timing covers every other file
-        write_json_atomic(Path(out_dir) / "summary.json", summary, indent=2, allow_nan=False)
-        log(f"wrote {(Path(out_dir) / 'summary.json').resolve()} and table.md")
+    if out_dir is None:
+        summary["timing"] = timing(phases, t_start)
+        return summary
+    out, problems = Path(out_dir), []
+    summary["timing"] = timing(phases, t_start)  # the flights' (rewritten below with the files')
+    write_summary(out, summary, problems, reserve)
+    problems += write_study_files(summary, tally, opts, out, log=log)
+    summary["timing"] = timing(phases, t_start)  # from the call to the last file
+    finish(out, summary, problems, log)
     return summary
 
 
+def write_summary(out: Path, summary: dict, problems: list[str], reserve=None) -> bool:
+    """``out``/summary.json (standard JSON); a line in ``problems`` if it cannot be written."""
+    try:
+        write_json_atomic(out / "summary.json", summary, indent=2, reserve=reserve)
+        return True
+    except OSError as exc:
+        problems.append(write_problem(out / "summary.json", exc))
+        return False
+
+
+def finish(out: Path, summary: dict, problems: list[str], log=print) -> None:
+    """summary.json once more, last, with the timing of every file and ``output_errors`` (a line per file that could
+    not be written, also kept in the returned summary)."""
+    if problems:
+        summary["output_errors"] = list(dict.fromkeys(problems))
+    if write_summary(out, summary, problems) and not problems:
+        log(f"wrote {(out / 'summary.json').resolve()} and table.md")
+    if problems:
+        summary["output_errors"] = list(dict.fromkeys(problems))
+
+
 def fly_study(
-    opts: StudyOptions, *, log=print, progress: bool = True, stop: threading.Event | None = None, client=None
+    opts: StudyOptions,
+    *,
+    log=print,
+    progress: bool = True,
+    stop: threading.Event | None = None,
+    client=None,
+    simulate=simulate,
 ):
-    """Fly the study: (summary without ``timing``, the ``Tally`` of every run, each phase's ``_phase``)."""
+    """Fly the study: (summary without ``timing``, the ``Tally`` of every run, each phase's ``_phase``).  An error
+    after the first runs keeps them: ``partial``, ``done`` and ``error`` (its line).  ``simulate``: the batch
+    function (``tools.experiment.study.simulation.simulate``)."""
     sweeps = list(sweep_conditions()) if opts.sweep_runs else []
     plan = Plan([(c, opts.runs) for c in opts.conditions] + [(c, opts.sweep_runs) for c in sweeps])
     long_ctrls = [c for c in LONG_CONTROLLERS if c in opts.controllers] if opts.long_runs else []
@@ -176,6 +213,7 @@ def fly_study(
 
         client = connect(opts.scheduler)  # bounded: one line if it is not a Dask scheduler
     phases: dict = {}
+    error = None
     try:
         rate = _pilot(opts.controllers[0], plan, opts.seed, stop, opts.faults)
         if rate is not None:
@@ -188,7 +226,7 @@ def fly_study(
         t0 = time.perf_counter()
         bar = Progress(total, "30 s runs", enabled=progress)
         rest = _tasks(opts.controllers, plan, opts.seed, opts.chunk, 30.0, opts.faults)
-        for t, r in stream(rest, opts.scheduler, opts.workers, stop=stop, client=client):
+        for t, r in stream(rest, opts.scheduler, opts.workers, simulate, stop=stop, client=client):
             tally.add(t, r)
             bar.add(len(t.runs))
         bar.close()
@@ -198,11 +236,16 @@ def fly_study(
             t0, before = time.perf_counter(), tally.runs
             bar = Progress(n_long, "600 s runs", enabled=progress)
             long_tasks = _tasks(long_ctrls, long_plan, opts.seed, opts.chunk, LONG_DURATION_S, opts.faults)
-            for t, r in stream(long_tasks, opts.scheduler, opts.workers, stop=stop, client=client):
+            for t, r in stream(long_tasks, opts.scheduler, opts.workers, simulate, stop=stop, client=client):
                 tally.add(t, r)
                 bar.add(len(t.runs))
             bar.close()
             phases["runs_600s"] = _phase(tally.runs - before, LONG_DURATION_S, time.perf_counter() - t0)
+    except Exception as exc:  # after the first runs, what was flown is kept (partial, with the error's line)
+        if not tally.runs:
+            raise
+        error = one_line(exc)
+        phases.setdefault("runs_30s", _phase(tally.runs, 30.0, time.perf_counter() - t0))
     finally:
         if own:
             client.close(timeout=10)
@@ -211,6 +254,8 @@ def fly_study(
     summary["partial"] = partial
     if partial:
         summary["done"] = {"runs": tally.runs, "of": total + n_long}
+    if error:
+        summary["error"] = error
     return summary, tally, phases
 
 
@@ -289,21 +334,46 @@ def study_tables(summary: dict) -> list[str]:
     return tables
 
 
-def write_study_files(summary: dict, tally: Tally, opts: StudyOptions, out: Path, *, log=print, table=True) -> None:
-    """table.md (``table``), and unless the study was stopped, robustness.png and worst.rrd."""
+def write_study_files(
+    summary: dict, tally: Tally, opts: StudyOptions, out: Path, *, log=print, table=True
+) -> list[str]:
+    """table.md (``table``), and unless the study was stopped, robustness.png and worst.rrd; a line per file that
+    could not be written (a full disk: no half file is left).  A figure that cannot be drawn is skipped with a line:
+    it never fails the study."""
     out.mkdir(parents=True, exist_ok=True)
+    problems: list[str] = []
     if table:
-        (out / "table.md").write_text("\n\n".join(study_tables(summary)) + "\n", encoding="utf-8")
+        path = out / "table.md"
+        try:
+            path.write_text("\n\n".join(study_tables(summary)) + "\n", encoding="utf-8")
+        except OSError as exc:
+            path.unlink(missing_ok=True)
+            problems.append(write_problem(path, exc))
     if summary.get("partial"):
-        return
+        return problems
+    png = out / "robustness.png"
     try:
-        png = save_figure(tally, opts, out / "robustness.png")
+        save_figure(tally, opts, png)
         log(f"wrote {png.resolve()}")
     except ImportError as exc:
         log(f"no figure: {exc}")
-    rrd = save_worst_rrd(summary, opts, out / "worst.rrd")
-    if rrd is not None:
-        log(f"wrote {rrd.resolve()} (open it with: rerun {rrd.resolve()})")
+    except OSError as exc:
+        png.unlink(missing_ok=True)
+        problems.append(write_problem(png, exc))
+    except Exception as exc:  # noqa: BLE001  (the figure's own error: the numbers are written)
+        png.unlink(missing_ok=True)
+        log(f"no figure: {one_line(exc)}")
+    path = out / "worst.rrd"
+    try:
+        rrd = save_worst_rrd(summary, opts, path)
+    except (OSError, RuntimeError) as exc:  # a full disk (rerun's writer says RuntimeError): no half file left
+        for p in (path, path.with_name(path.name + ".sha256")):
+            p.unlink(missing_ok=True)
+        problems.append(write_problem(path, exc))
+    else:
+        if rrd is not None:
+            log(f"wrote {rrd.resolve()} (open it with: rerun {rrd.resolve()})")
+    return problems
 
 
 def _phase(runs: int, duration_s: float, wall_s: float) -> dict:

@@ -9,8 +9,10 @@ import math
 
 import numpy as np
 
+from autopilot import swings as sw  # the oscillation rule's swing counter
 from autopilot.envelope import (
     DEV_FLOOR2,
+    DEV_MAX2,
     DEV_RATIO2,
     FOLLOW_GAIN_MIN,
     HIT_REARM,
@@ -362,10 +364,11 @@ def _fly_kernel(lib, b) -> tuple[dict, np.ndarray, np.ndarray, dict | None]:
         "wmax": np.zeros(n),
         "peaks": np.zeros((n, npeaks)),
         "rec": np.zeros((len(_SERIES), steps, n)) if b.record else None,
-        "tblk": np.zeros((4, n)),
-        "tring": np.zeros((TRACK_BLOCKS * 4, n)),
+        "tblk": np.zeros((5, n)),
+        "tring": np.zeros((TRACK_BLOCKS * 5, n)),
         "track": np.zeros((2, n)),
         "hit_armed": np.ones(n),
+        "swing": np.zeros((7, n)),  # autopilot.swings' state, set at step 0
         **_fault_arrays(b),
     }
     tblock = int(round(TRACK_BLOCK_S * b.rate))
@@ -400,6 +403,10 @@ def _fly_kernel(lib, b) -> tuple[dict, np.ndarray, np.ndarray, dict | None]:
         follow_min=FOLLOW_GAIN_MIN,
         hits_min=float(STOP_HITS_MIN),
         rearm_lim=HIT_REARM * b.umax,
+        swing_h=sw.OSC_SWING_RAD,  # autopilot.swings' constants
+        swing_tol=sw.OSC_REGULAR_TOL,
+        swings_min=float(sw.OSC_SWINGS_MIN),
+        dev_max2=DEV_MAX2,
         nw=float(TRACK_BLOCKS * tblock),
         nphase=0 if b.fplan is None else len(b.fplan.phases),
         ring_len=keep["ring"].shape[0],
@@ -463,8 +470,9 @@ def _fly_numpy(b) -> tuple[dict, np.ndarray, np.ndarray, dict | None]:
     # tracking (autopilot.envelope.window_flags) over windows of TRACK_BLOCKS blocks: the open block's sums of
     # y_r^2, phi y_r, (phi - y_r)^2 and the stop hits (phi the truth, y_r the law's y_m,ol), the last blocks'
     tblock = int(round(TRACK_BLOCK_S * rate))
-    blk = [np.zeros(n) for _ in range(4)]
-    ring = np.zeros((TRACK_BLOCKS, 4, n))
+    blk = [np.zeros(n) for _ in range(5)]
+    ring = np.zeros((TRACK_BLOCKS, 5, n))
+    swing = None  # the swing counter of phi - y_r (autopilot.swings), from the first step
     track = np.zeros((2, n), dtype=bool)  # oscillating, not following (in any window)
     hit_armed = np.ones(n, dtype=bool)
     nw = float(TRACK_BLOCKS * tblock)
@@ -538,9 +546,11 @@ def _fly_numpy(b) -> tuple[dict, np.ndarray, np.ndarray, dict | None]:
             blk[0] = blk[0] + ref * ref
             blk[1] = blk[1] + phi_true * ref
             blk[2] = blk[2] + dv * dv
+            swing = sw.swing_start(dv) if swing is None else swing
+            blk[4] = blk[4] + sw.swing_step(swing, dv, float(k))
             if (k + 1) % tblock == 0:
                 _close_block(blk, ring, track, (k + 1) // tblock, nw)
-                blk = [np.zeros(n) for _ in range(4)]
+                blk = [np.zeros(n) for _ in range(5)]
             if rec is not None:
                 _record(rec, k * dt, um, y, law, u, x)
             u_s = u_fly  # what drives the servo: u_fly, through the delay line, 0 when off
@@ -574,7 +584,7 @@ def _fly_numpy(b) -> tuple[dict, np.ndarray, np.ndarray, dict | None]:
                     dd[0] = dd[0] + np.where(inside, gust_k[cols, np.clip(j, 0, gust_k.shape[1] - 1)], 0.0)
                 dd[0] = dd[0] + crosswind
                 if fine is not None:
-                    x = _rate_limited(x, u_s, dd, fine, rate, dt)
+                    x = study_faults.rate_limited(x, u_s, dd, fine, rate, dt)
                 else:
                     x = [
                         PHI[r][0] * x[0]
@@ -588,7 +598,7 @@ def _fly_numpy(b) -> tuple[dict, np.ndarray, np.ndarray, dict | None]:
                         for r in range(6)
                     ]
             elif fine is not None:
-                x = _rate_limited(x, u_s, None, fine, rate, dt)
+                x = study_faults.rate_limited(x, u_s, None, fine, rate, dt)
             else:
                 x = [
                     PHI[r][0] * x[0]
@@ -604,59 +614,20 @@ def _fly_numpy(b) -> tuple[dict, np.ndarray, np.ndarray, dict | None]:
     return acc, peaks, track, series
 
 
-def slew(delta, delta_free, rate_free, move_max: float, rate: float):
-    """The rate limit's rule on arrays, ``sitl.damage.Actuator.surface``'s (and kernel.c's ``rate_limited``): the free
-    step's move ``delta_free - delta`` beyond ``move_max`` (rate * h) coasts at +-rate, else the free step is taken
-    with its rate clipped to +-rate.  Returns (coast, the coasting rate, the clipped free rate); tests/test_faults.py
-    holds it to the Actuator's bit for bit."""
-    move = delta_free - delta
-    up, down = move > move_max, move < -move_max
-    return up | down, np.where(up, rate, -rate), np.minimum(rate, np.maximum(-rate, rate_free))
-
-
-def _rate_limited(x: list, u_s, dd, fine, rate: float, dt: float) -> list:
-    """One control step under a rate limit, as ``sitl.aircraft.Aircraft._advance_servo_fault`` flies it
-    (``faults.SUBSTEPS`` physics steps of dt / SUBSTEPS): the free step, its move against rate * h; beyond it the
-    coasting step at +-rate (``damage.coasting_matrix``'s ZOH), else the free step with delta_dot clipped; the
-    disturbance ``dd`` (held) added on each step."""
-    p1, g1, pc = fine
-    move_max = rate * (dt / study_faults.SUBSTEPS)  # damage.Actuator's max move
-    for _ in range(study_faults.SUBSTEPS):
-        xf = [
-            p1[r][0] * x[0]
-            + p1[r][1] * x[1]
-            + p1[r][2] * x[2]
-            + p1[r][3] * x[3]
-            + p1[r][4] * x[4]
-            + p1[r][5] * x[5]
-            + g1[r][0] * u_s
-            for r in range(6)
-        ]
-        coast, at, xf[5] = slew(x[4], xf[4], xf[5], move_max, rate)
-        xc = [
-            pc[r][0] * x[0] + pc[r][1] * x[1] + pc[r][2] * x[2] + pc[r][3] * x[3] + pc[r][4] * x[4] + pc[r][5] * at
-            for r in range(6)
-        ]
-        x = [np.where(coast, xc[r], xf[r]) for r in range(6)]
-        if dd is not None:
-            x = [x[r] + (g1[r][1] * dd[0] + g1[r][2] * dd[1] + g1[r][3] * dd[2]) for r in range(6)]
-    return x
-
-
 def _close_block(blk: list, ring: np.ndarray, track: np.ndarray, closed: int, nw: float) -> None:
     """Block ``closed`` (counted from 1) ends: its sums go to the ring (slot (closed - 1) % TRACK_BLOCKS) and, from
     the TRACK_BLOCKS-th block on, the window of the last TRACK_BLOCKS blocks is judged (``window_flags``; the
     ring summed slot by slot from slot 0, as kernel.c sums it)."""
     slot = (closed - 1) % TRACK_BLOCKS
-    for q in range(4):
+    for q in range(5):
         ring[slot, q] = blk[q]
     if closed < TRACK_BLOCKS:
         return
-    tot = [ring[0, q].copy() for q in range(4)]
+    tot = [ring[0, q].copy() for q in range(5)]
     for j in range(1, TRACK_BLOCKS):
-        for q in range(4):
+        for q in range(5):
             tot[q] = tot[q] + ring[j, q]
-    osc, lag = window_flags(nw, tot[0], tot[1], tot[2], tot[3])
+    osc, lag = window_flags(nw, tot[0], tot[1], tot[2], tot[3], tot[4])
     track[0] |= osc
     track[1] |= lag
 
