@@ -11,9 +11,8 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 
-from sitl import damage
+from sitl import damage, fault_kinds
 from sitl import plant as plants
-from sitl.fault_kinds import DESIGN_KINDS
 
 # The controllers of the study: the registry's (autopilot.controllers), SAC and CL-SAC with the robust PFC (the
 # launcher's --pfc robust) and two fixed-gain PIDs made here.
@@ -35,11 +34,8 @@ LABELS = {
 
 NONE = "none"  # the fault-free flight of a cell's controller and seed: the reference every severity is read against
 # Severities in the command line's units (deg, deg/s, s, kt, m, or a factor): each kind's record's
-# (sitl.fault_kinds.FaultKind.severities), in the order the study's help has always listed them.
-SEVERITIES = {
-    k: damage.KINDS[k].severities
-    for k in ("effectiveness", "stuck", "rate", "delay", "damping", "off", "inertia", "cg", "airspeed")
-}
+# (sitl.fault_kinds.FaultKind.severities).
+SEVERITIES = dict(fault_kinds.SEVERITIES)
 DEFAULT_KINDS = ("effectiveness", "stuck", "rate", "delay")
 DEFAULT_PLANTS = ("kh2013a", "jsbsim:c172x")
 DEFAULT_ONSETS = (10.0,)
@@ -47,7 +43,7 @@ DEFAULT_RUNS = 6  # the least seeds whose paired sign-test interval reaches 95 %
 DEFAULT_DURATION_S = 30.0
 DEFAULT_TURBULENCE = "light"
 TURBULENCE = ("none", "light", "moderate", "severe")
-LINEAR_KINDS = DESIGN_KINDS  # a retuned PID is designed on the faulted linear plant (FaultKind.design)
+LINEAR_KINDS = fault_kinds.DESIGN_KINDS  # a retuned PID is designed on the faulted linear plant (FaultKind.design)
 # A square MIMO plant (jsbsim:MODEL:surface=aileron+rudder) flies the laws autopilot.mimo builds, nothing else.
 MIMO_CONTROLLERS = ("baseline", "sac", "clsac")
 MIMO_REFUSALS = {
