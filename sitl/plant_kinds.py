@@ -477,12 +477,13 @@ def kind_of(text: str) -> PlantKind:
 
 
 def _stamp(text: str) -> tuple:
-    """What makes a cached parse stale: a plant file's size and modification time (nothing for the others)."""
+    """What makes a cached parse stale: which file a plant file's path names from here, its size and modification
+    time (nothing for the others)."""
     try:
         st = os.stat(text)
     except (OSError, ValueError):
         return ()
-    return (st.st_mtime_ns, st.st_size)
+    return (os.path.abspath(text), st.st_mtime_ns, st.st_size)
 
 
 @functools.lru_cache(maxsize=128)
