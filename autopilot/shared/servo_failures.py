@@ -18,9 +18,9 @@ instance, any other unit or type is MAV_RESULT_UNSUPPORTED (:class:`FailureUnsup
 usable value (a negative rate, an infinite delay, a position beyond any surface's travel) is MAV_RESULT_DENIED
 (:class:`FailureDenied`).  NaN is MAVLink's "not used" (MAVSDK's Failure plugin sends it), 0 the same; an infinite
 value is no value and is DENIED.  The SITL then holds the value to its plant's own bounds (the surface's travel:
-``sitl.plant.check_faults``).  The same bounds hold on the command line (the fault kinds' records, ``sitl.fault_kinds``, read ``LIMITS``).  Pure:
-the autopilot validates with this table before it relays the command, the SITL maps with it when it applies it,
-neither imports the other.
+``sitl.plant.check_faults``).  The same bounds hold on the command line (the fault kinds' records,
+``sitl.fault_kinds``, read ``LIMITS``).  Pure: the autopilot validates with this table before it relays the
+command, the SITL maps with it when it applies it, neither imports the other.
 """
 
 from __future__ import annotations
