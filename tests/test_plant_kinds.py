@@ -40,6 +40,14 @@ def test_the_kh2013a_and_a_plant_file_build_a_plant_of_the_interface():
     np.testing.assert_allclose(a, b, rtol=1e-9, atol=1e-12)
 
 
+def test_a_jsbsim_aircraft_is_a_plant_of_the_interface():
+    pytest.importorskip("jsbsim")
+    p = plants.build("jsbsim:c172x", 1000.0)
+    assert isinstance(p, plant_kinds.Plant)
+    x = p.advance(0.0, 10)
+    assert x.shape == (6,) and p.steps == 10 and len(p.attitude()) == 6
+
+
 def test_a_spec_is_parsed_once_and_again_when_its_file_changes(tmp_path):
     src = plants.shipped("kh2013a.toml").read_text(encoding="utf-8")
     path = tmp_path / "mine.toml"
