@@ -42,8 +42,9 @@ class FaultKind:
     ``value``: ``none`` (no value), ``optional`` or ``required``; ``unit``: the command line's (``metavar`` its
     name in ``--help``), ``si_unit`` and ``to_si`` the held value's; ``bound``: the largest magnitude, in the command
     line's unit, and ``check(v)`` the reason a value is refused (None: taken); ``group``: what it needs of the plant
-    (``GROUPS``); ``surface``: it hits one surface (a fault record names which); ``field``: the
-    ``sitl.damage.Effect`` field it sets and ``fold(effect, value)`` how it joins the faults already active;
+    (``GROUPS``; the plant kinds that fly it: ``sitl.plant.plants_flying``); ``surface``: it hits one surface (a
+    fault record names which); ``field``: the ``sitl.damage.Effect`` field it sets and ``fold(effect, value)`` how it
+    joins the faults already active;
     ``jsbsim_property``: a JSBSim aircraft flies it through the model copy's fault properties
     (``sitl.jsbsim_damage``); ``severities``: the damage study's defaults (command-line units; None: no value);
     ``worse``: ``lower`` when a lower value is the worse fault, else ``higher``; ``study``, ``design``: how the
