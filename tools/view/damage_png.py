@@ -38,7 +38,8 @@ def _order(kind: str, values) -> list:
 
 def _label(kind: str, v) -> str:
     if v is None:
-        return "here" if kind == "stuck" else kind
+        # no value: where it is for a kind whose value is optional (stuck), the kind itself for one without (off)
+        return "here" if kind in fault_kinds.KINDS and fault_kinds.KINDS[kind].value == "optional" else kind
     return f"{v:g}"
 
 
