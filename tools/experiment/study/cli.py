@@ -10,6 +10,8 @@ import sys
 from collections.abc import Sequence
 from pathlib import Path
 
+from autopilot import controllers
+from autopilot import controllers as registry
 from autopilot.shared import cli
 from autopilot.shared.cli import OneLineArgumentParser
 from sitl import plant as plants
@@ -61,7 +63,9 @@ def add_run_arguments(r: argparse.ArgumentParser) -> None:
         "--controllers",
         metavar="A,B",
         help=f"kh2013a: a subset of {','.join(CONTROLLERS)}; a JSBSim aircraft or plant file: of "
-        f"{','.join(flights.CONTROLLERS)} (default: all of each)",
+        f"{','.join(flights.CONTROLLERS)} (default: all of each); either: also any registered law "
+        f"({','.join(n for n in controllers.NAMES if n not in flights.CONTROLLERS)}) or one of your own, FILE.py:Class "
+        "(docs/adding-a-law.md), flown one in-process flight at a time",
     )
     r.add_argument(
         "--seed",
@@ -185,18 +189,35 @@ def _airspeeds(text: str | None) -> tuple[float, ...] | None:
 def plan_from_args(args) -> list[tuple[str, object]]:
     """(plant, its study's options) for each --plant, every flag checked against the plants it applies to."""
     texts = split_plants(args.plant)
-    batched = {}  # the plants the batched study flies (sitl.plant_kinds.PlantKind.batched: the KH2013A)
     for text in texts:
-        batched[text] = plants.kind_of(text).batched
-        if not batched[text]:
+        if text != "kh2013a":
             try:
                 plants.check(text)
             except plants.PlantError as exc:
                 raise StudyError(str(exc)) from None
-    scalar = [t for t in texts if not batched[t]]
+    controllers = _names(args.controllers, "controllers")
+    controllers_of = registry.CONTROLLERS
+    seed = 0 if args.seed is None else args.seed
+    plan: list[tuple[str, object]] = []
+    # laws without a batch form: a registered one, or a user's (FILE.py:Class, module:Class); an unknown name is
+    # the batched study's to refuse
+    unbatched = tuple(c for c in controllers or () if c not in CONTROLLERS and (c in controllers_of or ":" in c))
+    if unbatched and "kh2013a" in texts:
+        # The KH2013A's batched study flies the laws of its kernel; any other law (mrac, l1, indi, a user's own)
+        # flies the generic loop, one in-process flight at a time, bit for bit its lockstep flight
+        # (tools.experiment.scenario.run_inprocess), as a JSBSim aircraft's or a plant file's study does.
+        i = texts.index("kh2013a")
+        texts = [*texts[:i], *(["kh2013a"] if len(unbatched) < len(controllers) else []), GENERIC, *texts[i + 1 :]]
+    batched = None if controllers is None else tuple(c for c in controllers if c not in unbatched)
+    scalar = [t for t in texts if t != "kh2013a"]
     given = {k for k in (*KH2013A_FLAGS, *FLIGHT_FLAGS) if getattr(args, k) is not None}
     for k in KH2013A_FLAGS:
-        if k in given and not any(batched.values()):
+        if k in given and "kh2013a" not in texts and GENERIC in texts:
+            raise StudyError(
+                f"--{k.replace('_', '-')} applies to the KH2013A's batched study: {', '.join(unbatched)} "
+                "(no batch form) fly --seeds flights per --turbulence level, one in-process flight at a time"
+            )
+        if k in given and "kh2013a" not in texts:
             raise StudyError(
                 f"--{k.replace('_', '-')} applies to --plant kh2013a only (a JSBSim aircraft or plant file flies "
                 "--seeds flights per --turbulence level and airspeed)"
@@ -212,24 +233,24 @@ def plan_from_args(args) -> list[tuple[str, object]]:
             "--fault in the robustness study flies on --plant kh2013a alone (on a JSBSim aircraft or plant file: "
             "python -m tools.experiment damage)"
         )
-    if "airspeeds" in given and not any(plants.spec(t).jsbsim is not None for t in scalar):
+    if "airspeeds" in given and not any(plants.kind_of(t).own_atmosphere for t in texts):
         raise StudyError("--airspeeds applies to a JSBSim aircraft (--plant jsbsim:MODEL) only")
-    controllers = _names(args.controllers, "controllers")
-    seed = 0 if args.seed is None else args.seed
-    plan: list[tuple[str, object]] = []
     for text in texts:
-        if batched[text]:
+        if text == "kh2013a":
             kw = {k: getattr(args, k) for k in ("runs", "sweep_runs", "long_runs", "chunk") if k in given}
             if args.fault:
                 study_faults.check(args.fault)
                 kw["faults"] = tuple(args.fault)
-            if controllers is not None:
-                kw["controllers"] = controllers
+            if batched is not None:
+                kw["controllers"] = batched
             if "conditions" in given:
                 kw["conditions"] = _names(args.conditions, "conditions")
             plan.append((text, StudyOptions(seed=seed, scheduler=args.scheduler, workers=args.workers, **kw)))
             continue
-        airspeeds = _airspeeds(args.airspeeds) if plants.spec(text).jsbsim is not None else None
+        if text == GENERIC:
+            _generic_plan(args, unbatched, seed, plan)
+            continue
+        airspeeds = _airspeeds(args.airspeeds) if plants.kind_of(text).own_atmosphere else None
         turbulence = _names(args.turbulence, "turbulence")
         if turbulence is None:
             turbulence = ("none", "moderate")
@@ -257,10 +278,24 @@ def plan_from_args(args) -> list[tuple[str, object]]:
     return plan
 
 
+GENERIC = "kh2013a (one flight at a time)"  # the KH2013A's section of the laws without a batch form
+
+
+def _generic_plan(args, names: tuple[str, ...], seed: int, plan: list) -> None:
+    """The KH2013A flown by the laws without a batch form: ``flights.FlightOptions`` on kh2013a (the turbulence
+    levels of --turbulence, default none and moderate; --seeds flights each, default 3)."""
+    turbulence = _names(args.turbulence, "turbulence") or ("none", "moderate")
+    opts = flights.FlightOptions(
+        "kh2013a", names, turbulence, 3 if args.seeds is None else args.seeds, seed, None, args.workers, args.scheduler
+    )
+    flights.check(opts)
+    plan.append((GENERIC, opts))
+
+
 def options_from_args(args) -> StudyOptions:
     """The KH2013A study's options (``--plant kh2013a``)."""
     for text, opts in plan_from_args(args):
-        if plants.kind_of(text).batched:
+        if text == "kh2013a":
             return opts
     raise StudyError("--plant does not name kh2013a")
 
