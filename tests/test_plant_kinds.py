@@ -86,7 +86,7 @@ def test_what_the_record_says_of_each_kind():
 # MIMO plant told by its text.
 KIND_TEST = re.compile(
     r"""kind\([^)]*\)\s*[!=]=|\.kind\s*[!=]=\s*["'](file|jsbsim|kh2013a)["']|startswith\(\s*["']jsbsim:["']\s*\)"""
-    r"""|^def is_mimo\(|["']\+["']\s+in\s+\w*plant|\(["'](jsbsim|file)["'],\s*["'](jsbsim|file)["']\)"""
+    r"""|^def is_mimo\(plant|["']\+["']\s+in\s+\w*plant|\(["'](jsbsim|file)["'],\s*["'](jsbsim|file)["']\)"""
 )
 
 
