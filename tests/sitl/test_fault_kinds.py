@@ -116,8 +116,8 @@ def _actuator_rule(delta, delta_free, rate_free, rate, dt):
 
 def test_the_studys_rate_limit_is_the_actuators_bit_for_bit():
     """faults.slew (the numpy loop; kernel.c's rate_limited is held to the numpy loop by
-    tests/tools/experiment/study/test_study_faults.py) against sitl.damage.Actuator.surface, case by case, on both sides of the limit and
-    exactly on it."""
+    tests/tools/experiment/study/test_study_faults.py) against sitl.damage.Actuator.surface, case by case, on both
+    sides of the limit and exactly on it."""
     from tools.experiment.study.faults import slew
 
     rng = np.random.default_rng(7)
