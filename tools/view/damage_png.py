@@ -134,7 +134,12 @@ def draw(cells, plants, kinds, controllers, labels: dict, path, onset: float | N
     fig.suptitle(
         f"Faults in mid-flight: share still controlled and error after the onset{at_text}", y=0.999, fontsize=10
     )
-    fig.subplots_adjust(top=1.0 - 0.85 / fig.get_figheight(), bottom=0.4 / fig.get_figheight(), left=0.06, right=0.99)
+    fig.subplots_adjust(
+        top=1.0 - 0.85 / fig.get_figheight(),
+        bottom=0.4 / fig.get_figheight(),
+        left=0.6 / fig.get_figwidth(),
+        right=0.99,
+    )
     path = Path(path)
     fig.savefig(path, format="png")
     return path
