@@ -376,7 +376,7 @@ def main(argv=None) -> int:
 
     recorder = None
     if args.series:
-        recorder = series_recorder(mimo=mimo_law is not None)
+        recorder = series_recorder(mimo=mimo_law is not None, law_fields=getattr(ap.ctrl, "fields", ()))
         ap.hooks.append(recorder)
     channels = None
     if mimo_law is not None:  # per channel: metrics, saturation per surface, max |sideslip| (summary.json)
@@ -454,6 +454,8 @@ def _mimo_law(parser, args, controller):
     from autopilot.config import ConfigError
     from autopilot.params import ParamError, load_file
 
+    if controller.kind.mimo:  # a law without a square-MIMO form, with its reason (autopilot.controllers.Law.mimo)
+        parser.error(f"--controller {controller.name} is not flown on a square MIMO plant: {controller.kind.mimo}")
     if not args.params:
         parser.error("--channel2 (a square MIMO plant) flies a MIMO design: give its --params FILE")
     kind = "baseline" if controller.law == "baseline" else ("sac" if controller.lv_fixed == 0.0 else "clsac")

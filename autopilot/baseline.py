@@ -35,8 +35,9 @@ schedule: the damage study's PID retuned for the faulted plant, ``tools.experime
 
 ``Baseline`` quacks like ``autopilot.clsac.ClSac`` wherever ``autopilot.step.ControlStep``, the metrics and
 the telemetry use a law: ``__call__(y, um)``, ``hold(u)``, ``reset()``, ``telemetry()`` and the attributes of
-``TELEMETRY_FIELDS`` (``ym`` = ``ym_ol``, ``ya`` = y, ``y_pfc`` = 0, the gain fields constant: ``kpe`` = ``ke``
-= K_p, the rest 0).  Its ``e`` is y_m,ol - y, so its ``ise_crm`` equals its ``ise_ref``.
+``TELEMETRY_FIELDS`` (``ym`` = ``ym_ol``, ``ya`` = y, ``kpe`` = ``ke`` = K_p; ``y_pfc`` and CL-SAC's other gains,
+which it does not have, NaN: not drawn, never a faked 0).  Its ``e`` is y_m,ol - y, so its ``ise_crm`` equals its
+``ise_ref``.
 """
 
 from __future__ import annotations
@@ -153,11 +154,13 @@ class Baseline:
         self.frozen = False
         self.xm_ol = self.xi = self.e_prev = 0.0
         self.y_prev = None
-        self.um = self.y = self.ym = self.ym_ol = self.ya = self.y_pfc = self.e = 0.0
+        self.um = self.y = self.ym = self.ym_ol = self.ya = self.e = 0.0
+        self.y_pfc = math.nan  # no PFC: not drawn (autopilot.law: no faked field of another law)
         self.u_raw = self.u = 0.0
         self.saturated = False
         self.kpe = self.ke = self._kp
-        self.kie = self.kpx = self.kix = self.kx = self.kpu = self.kiu = self.ku = 0.0
+        # K_p is its K_e (what a PARAM_SET marker sits on); CL-SAC's other gains are not its own: NaN, not drawn
+        self.kie = self.kpx = self.kix = self.kx = self.kpu = self.kiu = self.ku = math.nan
 
     def telemetry(self) -> tuple:
         """The internals after the last step, ordered like ``autopilot.clsac.TELEMETRY_FIELDS``."""

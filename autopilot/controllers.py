@@ -17,7 +17,7 @@ the experiments and pictures read these tables; the study (``tools.experiment.st
 from __future__ import annotations
 
 import importlib
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 
 def _load(where: str):
@@ -37,16 +37,38 @@ class Law:
     parameters: bool  # its values are the CLSAC_* parameters of autopilot.params (else the table has options only)
     modes: tuple[str, ...]  # the autopilot.vehicle.Mode names a ground station may select while it flies
     lv: float = 0.0  # the configured L_v of its parameter table when no --lv is given (CLSAC_LV)
+    # A law on the interface of autopilot.law (step(roll, roll_rate, yaw_rate, command), reset, hold, telemetry),
+    # flown through autopilot.law.Flown; its parameter table is ``parameter_rows`` (its PARAMETERS), its telemetry
+    # ``TELEMETRY_FIELDS``; ``mimo``: why it is refused on a square MIMO plant (None: it flies there)
+    generic: bool = False
+    parameter_rows: str = ""  # "module:NAME" of its PARAMETERS rows (generic laws)
+    mimo: str | None = None
+    design: str = ""  # the suffix of its design file beside a plant's (sitl/plants/PLANT-laws.params: "-laws")
+    cls: object = field(default=None, compare=False, repr=False)  # a user's law: its class, loaded (autopilot.law)
 
     def config_class(self):
-        return _load(self.config)
+        return self.cls.Config if self.cls is not None else _load(self.config)
 
     def law_class(self):
-        return _load(self.law)
+        return self.cls if self.cls is not None else _load(self.law)
 
     def configure(self, **options):
         """Its configuration from keyword options (see ``Controller.config``)."""
+        if self.cls is not None:
+            from autopilot.law import configure
+
+            return configure(self.cls, **options)
         return _load(self.build)(**options)
+
+    def rows(self) -> tuple:
+        """Its PARAMETERS rows (NAME, field, unit, lower, upper, description); () for a law without a table."""
+        if self.cls is not None:
+            return tuple(getattr(self.cls, "PARAMETERS", ()))
+        return tuple(_load(self.parameter_rows)) if self.parameter_rows else ()
+
+    def telemetry_fields(self) -> tuple[str, ...]:
+        """Its own telemetry's names (generic laws)."""
+        return tuple(getattr(self.law_class(), "TELEMETRY_FIELDS", ())) if self.generic else ()
 
 
 @dataclass(frozen=True)
@@ -61,6 +83,7 @@ class Controller:
     help: str  # its words in --controller's help
     lv_fixed: float | None = None  # the L_v it flies whatever --lv says (SAC: 0); None: the configured one
     options: tuple = ()  # (name, value) pairs its law's build takes on top of the command line's (pid-ff's)
+    study_label: str = ""  # the damage study's words, where they differ from ``label`` (its tables name the PIDs)
 
     @property
     def kind(self) -> Law:
@@ -120,6 +143,37 @@ def baseline_config(*, control_rate_hz: float, u_limit_rad: float, gains=None, f
     return BaselineConfig(control_rate_hz=control_rate_hz, u_limit_rad=u_limit_rad, **kw)
 
 
+def _generic(where: str, **fixed):
+    def build(*, control_rate_hz: float, u_limit_rad: float, **_ignored):
+        return _load(where)(control_rate_hz=control_rate_hz, u_limit_rad=u_limit_rad, **fixed)
+
+    return build
+
+
+mrac_config = _generic("autopilot.mrac:MracConfig")  # the KH2013A design; a plant's from its -laws.params
+crm_mrac_config = _generic("autopilot.mrac:crm_config")
+l1_config = _generic("autopilot.l1:L1Config")
+indi_config = _generic("autopilot.indi:IndiConfig")
+_NO_MIMO = "{} has no square-MIMO form (autopilot.mimo flies clsac, sac and baseline)"
+
+
+def _bench(name: str, module: str, cls: str, config: str, rows: str, mode: str, build: str) -> Law:
+    """One of the adaptive-law bench's laws (issue 38): on the law interface, designed per plant."""
+    return Law(
+        name,
+        config=f"{module}:{config}",
+        law=f"{module}:{cls}",
+        build=f"autopilot.controllers:{build}",
+        adaptive=False,
+        parameters=False,
+        modes=(mode,),
+        generic=True,
+        parameter_rows=f"{module}:{rows}",
+        mimo=_NO_MIMO.format(name),
+        design="-laws",
+    )
+
+
 LAWS: dict[str, Law] = {
     law.name: law
     for law in (
@@ -142,6 +196,10 @@ LAWS: dict[str, Law] = {
             parameters=False,
             modes=("BASELINE",),
         ),
+        _bench("mrac", "autopilot.mrac", "Mrac", "MracConfig", "PARAMETERS", "MRAC", "mrac_config"),
+        _bench("crm-mrac", "autopilot.mrac", "Mrac", "MracConfig", "CRM_PARAMETERS", "CRM_MRAC", "crm_mrac_config"),
+        _bench("l1", "autopilot.l1", "L1", "L1Config", "PARAMETERS", "L1", "l1_config"),
+        _bench("indi", "autopilot.indi", "Indi", "IndiConfig", "PARAMETERS", "INDI", "indi_config"),
     )
 }
 
@@ -158,6 +216,7 @@ CONTROLLERS: dict[str, Controller] = {
             lv=0.0,  # no reference-model feedback
             mode="BASELINE",
             label="fixed-gain PID",
+            study_label="PID (as designed)",
             help="baseline (fixed-gain PID; --lv, --pfc and the adaptation's options are refused)",
         ),
         Controller(
@@ -166,29 +225,80 @@ CONTROLLERS: dict[str, Controller] = {
             lv=0.0,
             mode="BASELINE",
             label="PID, feed-forward",
+            study_label="PID + feed-forward, D on roll",
             help="pid-ff (the PID with the reference model's rate fed forward and the derivative on the roll)",
             options=(("feedforward", True),),
         ),
+        Controller("mrac", "mrac", lv=0.0, mode="MRAC", label="MRAC", help="mrac (MRAC, open-loop reference model)"),
+        Controller(
+            "crm-mrac", "crm-mrac", lv=0.0, mode="CRM_MRAC", label="CRM-MRAC", help="crm-mrac (closed-loop ref. model)"
+        ),
+        Controller("l1", "l1", lv=0.0, mode="L1", label="L1 adaptive", help="l1 (L1 adaptive control)"),
+        Controller("indi", "indi", lv=0.0, mode="INDI", label="adaptive INDI", help="indi (adaptive INDI)"),
     )
 }
-NAMES = tuple(CONTROLLERS)  # the --controller choices
+NAMES = tuple(CONTROLLERS)  # the built-in --controller choices
 DEFAULT = "clsac"
+BUILT_IN = NAMES
+
+
+def register(spec: str) -> Controller:
+    """A user's law (``FILE.py:Class``, ``module:Class``, an installed entry point: ``autopilot.law.load``) added to
+    the registry under ``spec``; autopilot.law.LawSpecError (one line) if it cannot be flown."""
+    from autopilot.law import load
+
+    if spec in CONTROLLERS:
+        return CONTROLLERS[spec]
+    cls = load(spec)
+    name = str(getattr(cls, "NAME", "") or spec)
+    where = f"{cls.__module__}:{cls.__qualname__}"
+    config = f"{cls.Config.__module__}:{cls.Config.__qualname__}"
+    mimo = f"{name} has no square-MIMO form (a law on autopilot.law's interface flies one surface)"
+    LAWS[spec] = Law(spec, config, where, "", False, False, ("LAW",), generic=True, mimo=mimo, cls=cls)
+    c = Controller(spec, spec, lv=0.0, mode="LAW", label=str(getattr(cls, "LABEL", "") or name), help="")
+    CONTROLLERS[spec] = c
+    return c
 
 
 def get(name: str) -> Controller:
-    """The controller called ``name``; ValueError naming the known ones."""
-    try:
+    """The controller called ``name`` (a user's law is loaded and registered: ``register``); ValueError naming the
+    known ones, autopilot.law.LawSpecError for a user's law that cannot be flown."""
+    if isinstance(name, str) and name in CONTROLLERS:
         return CONTROLLERS[name]
-    except (KeyError, TypeError):
-        raise ValueError(f"unknown controller {name!r} (known: {', '.join(NAMES)})") from None
+    if isinstance(name, str) and name:
+        from autopilot import law
+
+        if law.is_spec(name) or law.entry_point(name) is not None:
+            return register(name)
+    raise ValueError(f"unknown controller {name!r} (known: {', '.join(NAMES)}, FILE.py:Class, module:Class)")
+
+
+def describe(name: str) -> dict:
+    """What summary.json says of the law a controller flies: ``controller`` (the --controller given), ``name``,
+    ``label``, ``mode``, its own ``parameters`` (names) and ``telemetry`` (its TELEMETRY_FIELDS)."""
+    c = get(name)
+    law = c.kind
+    cls = law.cls
+    return {
+        "controller": c.name,
+        "name": str(getattr(cls, "NAME", "") or c.name) if cls is not None else c.name,
+        "label": c.label,
+        "class": law.law if cls is None else f"{cls.__qualname__} ({c.name})",
+        "mode": c.mode,
+        "parameters": [row[0] for row in law.rows()],
+        "telemetry": list(law.telemetry_fields()),
+    }
 
 
 def law_of(obj) -> Law:
-    """The law of a configuration or a law object (by its class, without importing the others)."""
+    """The law of a configuration or a law object (by its class, without importing the others).  An MRAC
+    configuration with a closed-loop reference model (``crm_l`` > 0) is CRM-MRAC's."""
     registered = getattr(obj, "registered_law", None)  # a law flying another's interface (autopilot.mimo.MimoLaw)
     if registered in LAWS:
         return LAWS[registered]
     where = f"{type(obj).__module__}:{type(obj).__qualname__}"
+    if where == "autopilot.mrac:MracConfig":
+        return LAWS["crm-mrac" if obj.crm_l > 0 else "mrac"]
     for law in LAWS.values():
         if where in (law.config, law.law):
             return law
@@ -196,8 +306,14 @@ def law_of(obj) -> Law:
 
 
 def make_law(config):
-    """The law that flies ``config`` (``autopilot.step.ControlStep``)."""
-    return law_of(config).law_class()(config)
+    """The law that flies ``config`` (``autopilot.step.ControlStep``): a law on the interface of autopilot.law
+    through ``autopilot.law.Flown``."""
+    law = law_of(config)
+    if law.generic:
+        from autopilot.law import Flown
+
+        return Flown(law.law_class()(config), law.name)
+    return law.law_class()(config)
 
 
 def flown_lv(name: str, configured: float) -> float:

@@ -27,6 +27,15 @@ def default_lv(controller: str) -> float:
     return controllers.get(controller).lv
 
 
+def controller_arg(text: str) -> str:
+    """``--controller``: a registered name, ``FILE.py:Class``, ``module:Class`` or an installed law (the entry-point
+    group ``clsac_autopilot.laws``), loaded and checked here (``autopilot.law``): one line naming what is missing."""
+    try:
+        return controllers.get(str(text)).name
+    except ValueError as exc:  # autopilot.law.LawSpecError is one
+        raise argparse.ArgumentTypeError(str(exc)) from None
+
+
 def baseline_gains(text: str) -> tuple[float, ...]:
     """``KP,KI,KD[,KFF]``: three finite numbers (rad/rad, 1/s, s), the fixed-gain baseline's PID gains, and for
     pid-ff optionally a fourth, its feed-forward K_FF (s)."""
@@ -44,9 +53,12 @@ def add_controller_arguments(parser: argparse.ArgumentParser) -> None:
     g = parser.add_argument_group("controller")
     g.add_argument(
         "--controller",
-        choices=CONTROLLERS,
+        type=controller_arg,
         default=controllers.DEFAULT,
-        help=", ".join(c.help for c in controllers.CONTROLLERS.values()),
+        metavar="NAME|FILE.py:Class|module:Class",
+        help=", ".join(c.help for c in controllers.CONTROLLERS.values() if c.help)
+        + "; or a law of your own: FILE.py:Class, module:Class or an installed clsac_autopilot.laws entry point "
+        "(docs/adding-a-law.md)",
     )
     g.add_argument(
         "--lv",
@@ -139,6 +151,8 @@ def inapplicable(controller: str, given: dict) -> tuple[str, str] | None:
                 f"--controller clsac --lv {lv:g}"
             )
         return None
+    if c.kind.generic and given.get("baseline_gains") is not None:
+        return "baseline_gains", f"{c.name} is not a PID: its values are its own parameters (--params FILE)"
     for key, off in ADAPTIVE_ONLY.items():
         value = given.get(key, off)
         if value != off and not (key == "lv" and value == 0.0):

@@ -83,6 +83,8 @@ class Indi:
     """Adaptive INDI: ``u = law.step(phi, p, r, command)`` once per control step."""
 
     TELEMETRY_FIELDS = TELEMETRY_FIELDS
+    Config = IndiConfig  # the law interface (autopilot.law): its configuration and its parameter table
+    PARAMETERS = PARAMETERS
 
     def __init__(self, config: IndiConfig | None = None):
         self.config = cfg = config or IndiConfig()

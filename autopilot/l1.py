@@ -131,6 +131,8 @@ class L1:
     """The L1 adaptive controller: ``u = law.step(phi, p, r, command)`` once per control step."""
 
     TELEMETRY_FIELDS = TELEMETRY_FIELDS
+    Config = L1Config  # the law interface (autopilot.law): its configuration and its parameter table
+    PARAMETERS = PARAMETERS
 
     def __init__(self, config: L1Config | None = None):
         self.config = cfg = config or L1Config()

@@ -128,6 +128,8 @@ class Mrac:
     """MRAC with integral action (``crm_l`` = 0) or CRM-MRAC (``crm_l`` > 0): ``u = law.step(phi, p, r, command)``."""
 
     TELEMETRY_FIELDS = TELEMETRY_FIELDS
+    Config = MracConfig  # the law interface (autopilot.law): its configuration and its parameter table
+    PARAMETERS = PARAMETERS
 
     def __init__(self, config: MracConfig | None = None):
         self.config = cfg = config or MracConfig()

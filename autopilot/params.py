@@ -11,6 +11,7 @@ MAVProxy's ``NAME VALUE`` lines and QGroundControl's tab-separated ``SYS COMP NA
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import math
 import struct
 from dataclasses import dataclass
@@ -209,8 +210,29 @@ def arg_type(name: str, per: float = 1.0, unit: str | None = None):
     return check
 
 
-def _config_value(cfg: ClSacConfig, name: str) -> float:
-    p = BY_NAME[name]
+def law_params(law) -> tuple[Param, ...]:
+    """The parameters of a registered law (``autopilot.controllers.Law``): the fixed-gain PID's
+    (``BASELINE_PARAMS``), or a law's own table on the law interface (``autopilot.law``: its PARAMETERS rows,
+    NAME, field, unit, lower, upper, description)."""
+    if law.name in LAW_PARAMS:
+        return LAW_PARAMS[law.name]
+    return tuple(
+        Param(name, unit, doc, field=field, low=float(lo), high=float(hi))
+        for name, field, unit, lo, hi, doc in law.rows()
+    )
+
+
+def known(name: str) -> bool:
+    """A parameter of some law: the tables here, or a registered law's own (``law_params``)."""
+    if name in BY_NAME:
+        return True
+    from autopilot.controllers import LAWS
+
+    return any(name == row[0] for law in LAWS.values() if law.generic for row in law.rows())
+
+
+def _config_value(cfg: ClSacConfig, name: str, p: Param | None = None) -> float:
+    p = p or BY_NAME[name]
     if name == "CLSAC_PFC_NUM":
         num = cfg.pfc_num
         return float(num[-1]) if len(num) == 1 else math.nan
@@ -235,7 +257,8 @@ class ParamTable:
 
         law = law_of(config)
         clsac = law.parameters and config.is_siso and len(config.pfc_den) == 2  # autopilot.controllers
-        self.params = PARAMS if clsac else tuple(p for p in PARAMS if p.option) + LAW_PARAMS.get(law.name, ())
+        self.params = PARAMS if clsac else tuple(p for p in PARAMS if p.option) + law_params(law)
+        self._generic = law.generic  # a law on autopilot.law's interface: its Config may raise anything
         self._names = {p.name: p for p in self.params}
         self._config = config
         self._options = {
@@ -262,7 +285,7 @@ class ParamTable:
         p = self._names.get(name)
         if p is None:
             raise ParamError(f"unknown parameter {name!r}")
-        return self._options[p.option] if p.option else _config_value(self._config, name)
+        return self._options[p.option] if p.option else _config_value(self._config, name, p)
 
     def index(self, name: str) -> int:
         return self.params.index(self._names[name])
@@ -270,7 +293,7 @@ class ParamTable:
     def items(self) -> list[tuple[str, float]]:
         return [(p.name, self.get(p.name)) for p in self.params]
 
-    def set(self, name: str, value: float) -> float:
+    def set(self, name: str, value: float, *, build: bool = True) -> float:
         """Set ``name`` to ``value`` (validated); returns the value now held.  Raises :class:`ParamError`
         (value unchanged) for an unknown name, a non-finite value, a read-only parameter or an invalid law."""
         p = self._names.get(name)
@@ -302,24 +325,38 @@ class ParamTable:
         else:
             change = {p.field: value}
         try:
-            self._config = cfg.with_(**change)
+            new = dataclasses.replace(cfg, **change) if self._generic else cfg.with_(**change)
+            if self._generic and build:  # a law its own constructor refuses (an unstable reference model): not flown
+                from autopilot.controllers import make_law
+
+                make_law(new)
+            self._config = new
         except ConfigError as exc:
             raise ParamError(f"{name}={value:g} rejected: {exc}") from None
+        except Exception as exc:  # noqa: BLE001  (a user's Config may raise anything: the set is refused)
+            raise ParamError(f"{name}={value:g} rejected: {type(exc).__name__}: {exc}") from None
         return self.get(name)
 
     def split(self, values: dict[str, float]) -> tuple[dict[str, float], list[str]]:
         """A parameter file's values: (those for this table, the names of another law's, which it does not fly).
         A name of no law stays in the first: ``update`` refuses it.  So the file ``python -m tools.pfc design``
         writes, with every controller's values, flies each of them."""
-        mine = {n: v for n, v in values.items() if n in self._names or n not in BY_NAME}
+        mine = {n: v for n, v in values.items() if n in self._names or not known(n)}
         return mine, [n for n in values if n not in mine]
 
     def update(self, values: dict[str, float]) -> None:
         """Set several (a loaded file) in one go; the first rejected one raises and nothing is changed."""
         saved = (self._config, dict(self._options))
         try:
-            for name, value in values.items():
-                self.set(name, value)
+            for name, value in values.items():  # a law's values are checked together (a design file's): at the end
+                self.set(name, value, build=False)
+            if self._generic and values:
+                from autopilot.controllers import make_law
+
+                try:
+                    make_law(self._config)
+                except Exception as exc:  # noqa: BLE001  (ConfigError, or anything a user's law raises)
+                    raise ParamError(f"{', '.join(values)}: the law refuses them: {exc}") from None
         except ParamError:
             self._config, self._options = saved
             raise

@@ -31,6 +31,7 @@ from dataclasses import dataclass
 
 from autopilot.config import ClSacConfig, NonFiniteInputError
 from autopilot.controllers import make_law
+from autopilot.law import LawFailure
 from autopilot.metrics import MetricsAccumulator
 from autopilot.shared.pwm import PwmMap
 
@@ -43,6 +44,7 @@ class Failsafe(enum.Enum):
     NONE = "none"
     NO_ATTITUDE = "no attitude"
     NO_SETPOINT = "no setpoint"
+    LAW_ERROR = "law error"  # the law raised or returned NaN/inf (autopilot.law.LawFailure): neutral from then on
 
 
 @dataclass(slots=True)
@@ -155,8 +157,9 @@ class ControlStep:
         self.law = law
         self.pwm = pwm
         self.setpoints = SetpointQueue() if setpoints is None else setpoints
-        self.metrics = MetricsAccumulator(self.config.dt)
-        self.metrics_commanded = MetricsAccumulator(self.config.dt) if pwm is not None else self.metrics
+        dt = 1.0 / float(self.config.control_rate_hz)  # a user's Config need not have ``dt`` (autopilot.law)
+        self.metrics = MetricsAccumulator(dt)
+        self.metrics_commanded = MetricsAccumulator(dt) if pwm is not None else self.metrics
         self.k = 0
         self.nonfinite_inputs = 0  # steps whose measurement or command was NaN/Inf: flown as a hold
         # Ground-station modes (autopilot.vehicle): disarmed = rudder neutral; ``manual`` (rad, None = the law)
@@ -164,11 +167,17 @@ class ControlStep:
         self.armed = True
         self.manual: float | None = None
         self._offset = 0.0  # bumpless transfer: added to the new source's command, decays with TRANSFER_TAU_S
-        self._decay = math.exp(-self.config.dt / TRANSFER_TAU_S)
+        self._decay = math.exp(-dt / TRANSFER_TAU_S)
         self._transfer = False
         self.u_last = 0.0  # the last command flown (rad): where a transfer starts
         self._split = callable(getattr(law, "command", None))  # ClSac.command/advance; others step whole
+        self._measures = bool(getattr(law, "MEASURES", False))  # a law on autopilot.law's interface: the rates too
         self._pending = None  # between ``command`` and ``finish``
+        # A law that raised or returned NaN/inf (autopilot.law.LawFailure): its one-line reason and sim time; every
+        # step from then on is a hold (rudder neutral, Failsafe.LAW_ERROR): a failed law's states are not trusted
+        self.law_failure: str | None = None
+        self.law_failure_t: float | None = None
+        self.law_exception: BaseException | None = None
 
     def transfer(self) -> None:
         """A mode switch (or arming): the next command starts where the last one was and joins the new source
@@ -205,16 +214,18 @@ class ControlStep:
         self.u_last = self._offset = 0.0
         self._transfer = False
         self._pending = None
+        self.law_failure = self.law_failure_t = self.law_exception = None
 
-    def __call__(self, t: float, phi: float, *, wings_level: bool = False) -> StepResult:
-        """One step on the measured roll ``phi`` (rad) at sim time ``t`` (s).
+    def __call__(self, t: float, phi: float, *, wings_level: bool = False, p: float = 0.0, r: float = 0.0):
+        """One step on the measured roll ``phi`` (rad), roll rate ``p`` and yaw rate ``r`` (rad/s, ATTITUDE's
+        rollspeed and yawspeed: read by a law on autopilot.law's interface) at sim time ``t`` (s).
 
         ``wings_level``: the setpoint stream is lost, fly u_m = 0 (``Failsafe.NO_SETPOINT``).
         """
-        self.command(t, phi, wings_level=wings_level)
+        self.command(t, phi, wings_level=wings_level, p=p, r=r)
         return self.finish()
 
-    def command(self, t: float, phi: float, *, wings_level: bool = False):
+    def command(self, t: float, phi: float, *, wings_level: bool = False, p: float = 0.0, r: float = 0.0):
         """The first half of a step (``__call__`` is ``command`` then ``finish``): what flies, as soon as it is
         known, the pulse width (the command in rad without a PWM map).  ``finish()`` must follow before the next
         step: it completes the law's step (``ClSac.advance``) and the metrics and returns the ``StepResult``, with
@@ -231,9 +242,21 @@ class ControlStep:
                 self.u_last = self._offset = 0.0
             return self._done(self._hold_step(t, phi, um, self._source(self.manual) if self.armed else 0.0))
         split = self._split
+        if self.law_failure is not None:  # a failed law is not flown again
+            self.u_last = self._offset = 0.0
+            return self._done(self._hold_step(t, phi, um, 0.0, Failsafe.LAW_ERROR))
         try:
             # paper eqs. (6), (21), limited to +-u_limit (autopilot.clsac)
-            u_cmd = law.command(phi, um) if split else law(phi, um)
+            if split:
+                u_cmd = law.command(phi, um)
+            elif self._measures:
+                u_cmd = law(phi, um, p, r)
+            else:
+                u_cmd = law(phi, um)
+        except LawFailure as exc:
+            self.law_failure, self.law_failure_t, self.law_exception = str(exc), t, exc
+            self.u_last = self._offset = 0.0
+            return self._done(self._hold_step(t, phi, um, 0.0, Failsafe.LAW_ERROR))
         except NonFiniteInputError:
             # A NaN/Inf measurement or command never reaches the states or the metrics: a hold step instead.
             self.nonfinite_inputs += 1
@@ -283,8 +306,13 @@ class ControlStep:
 
     def _hold_step(self, t, phi, um, u_cmd: float, failsafe: Failsafe = Failsafe.NONE) -> StepResult:
         """A step flown by someone else's command ``u_cmd`` (failsafe, disarmed, MANUAL): the PFC follows it,
-        adaptation frozen (``ClSac.hold``), no metrics."""
-        self.law.hold(u_cmd)
+        adaptation frozen (``ClSac.hold``), no metrics.  A law whose hold raises has failed (``law_failure``: not
+        called again, the command given flies all the same, a ground station's in MANUAL included)."""
+        if self.law_failure is None:
+            try:
+                self.law.hold(u_cmd)
+            except LawFailure as exc:
+                self.law_failure, self.law_failure_t, self.law_exception = str(exc), t, exc
         self.k += 1
         pwm_map = self.pwm
         if pwm_map is None:

@@ -52,6 +52,12 @@ class Mode(enum.IntEnum):
     CLSAC = 101
     FAILSAFE = 102
     BASELINE = 103  # the fixed-gain baseline law (``--controller baseline``), instead of SAC and CLSAC
+    # the adaptive-law bench's laws (autopilot.controllers), each its own mode, and a user's own law (autopilot.law)
+    MRAC = 104
+    CRM_MRAC = 105
+    L1 = 106
+    INDI = 107
+    LAW = 108
 
 
 # Stream groups: what SET_MESSAGE_INTERVAL / REQUEST_DATA_STREAM set.  Per-step streams count control steps (sim
@@ -177,7 +183,7 @@ class Vehicle:
     def on_step(self, steps: int, t_ms: int) -> None:
         """After each control step: NAMED_VALUE_FLOAT Ke, Kx, Ku, e every ``every['gains']`` steps."""
         n = self.every["gains"]
-        if n and steps % n == 0 and self.selectable[1] is not Mode.BASELINE:
+        if n and steps % n == 0 and self.selectable[1] in (Mode.SAC, Mode.CLSAC):  # the adaptive gains of CL-SAC
             law = self.control.law
             g = self.link
             pk = self._pk_nvf
@@ -193,7 +199,7 @@ class Vehicle:
             base |= M.MAV_MODE_FLAG_SAFETY_ARMED
         if self.mode is Mode.MANUAL:
             base |= M.MAV_MODE_FLAG_MANUAL_INPUT_ENABLED
-        elif self.mode in (Mode.SAC, Mode.CLSAC, Mode.BASELINE):
+        elif self.mode not in (Mode.FAILSAFE,):
             base |= M.MAV_MODE_FLAG_STABILIZE_ENABLED
         mode = int(self.mode)
         return M.MAVLink_heartbeat_message(M.MAV_TYPE_FIXED_WING, M.MAV_AUTOPILOT_GENERIC, base, mode, status, 3)

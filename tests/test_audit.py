@@ -109,9 +109,20 @@ def test_mode_numbers_are_the_documented_ones():
     documented = {}
     for doc in ("docs/spec.md", "docs/ground-stations.md"):
         text = (ROOT / doc).read_text()
-        found = dict(re.findall(r"`?\b(MANUAL|SAC|CLSAC|FAILSAFE|BASELINE)`? = (\d+)", text))
+        found = dict(re.findall(r"`?\b(MANUAL|SAC|CLSAC|FAILSAFE|BASELINE|MRAC|CRM_MRAC|L1|INDI|LAW)`? = (\d+)", text))
         documented[doc] = {k: int(v) for k, v in found.items()}
-    assert documented["docs/spec.md"] == {"MANUAL": 0, "SAC": 100, "CLSAC": 101, "FAILSAFE": 102, "BASELINE": 103}
+    assert documented["docs/spec.md"] == {
+        "MANUAL": 0,
+        "SAC": 100,
+        "CLSAC": 101,
+        "FAILSAFE": 102,
+        "BASELINE": 103,
+        "MRAC": 104,
+        "CRM_MRAC": 105,
+        "L1": 106,
+        "INDI": 107,
+        "LAW": 108,
+    }
     assert {m.name: m.value for m in Mode} == documented["docs/spec.md"]
     assert documented["docs/ground-stations.md"]  # the manual names the modes it lets a user select
     assert documented["docs/ground-stations.md"].items() <= documented["docs/spec.md"].items()

@@ -58,9 +58,10 @@ def test_state_colours_are_exactly_the_states_emitted():
     assert set(L.FAILSAFE_COLORS) == {"OK", *(f.name for f in Failsafe if f is not Failsafe.NONE)}
     assert set(L.FAILSAFE_COLORS) == {L.failsafe_state(f) for f in Failsafe}
     assert L.failsafe_state(Failsafe.NONE) == "OK" and L.failsafe_state(Failsafe.NO_ATTITUDE) == "NO_ATTITUDE"
-    assert set(L.MODE_COLORS) == {"MANUAL", "SAC", "CLSAC", "BASELINE", "FAILSAFE"} == {m.name for m in Mode}
+    modes = {"MANUAL", "SAC", "CLSAC", "BASELINE", "MRAC", "CRM_MRAC", "L1", "INDI", "LAW", "FAILSAFE"}
+    assert set(L.MODE_COLORS) == modes == {m.name for m in Mode}
     assert L.MODE_WARN == {"FAILSAFE"}
-    assert L.FAILSAFE_WARN == {"NO_ATTITUDE", "NO_SETPOINT"}
+    assert L.FAILSAFE_WARN == {"NO_ATTITUDE", "NO_SETPOINT", "LAW_ERROR"}
 
 
 def test_roll_quaternions_put_the_right_wing_down_for_positive_roll():

@@ -130,6 +130,7 @@ class Gcs:
             M.MAVLINK_MSG_ID_SERVO_OUTPUT_RAW,
             M.MAVLINK_MSG_ID_STATUSTEXT,
             M.MAVLINK_MSG_ID_SYSTEM_TIME,
+            M.MAVLINK_MSG_ID_PARAM_VALUE,  # the answer to the PARAM_REQUEST_LIST sent on connect
         ]
         signing = Signing(opts.signing_key, SIGNING_LINK_GROUND) if opts.signing_key else None
         self.link = UdpLink(
@@ -169,6 +170,7 @@ class Gcs:
         self.clock_restarts = 0
         self.own_stalls = 0
         self.own_stall_max_s = 0.0
+        self.parameters: dict[str, float] = {}  # the vehicle's PARAM_VALUEs (name -> value as sent), read on connect
 
     def _on_msg(self, msg, t_rx):
         mid = msg.get_msgId()
@@ -183,6 +185,9 @@ class Gcs:
                     flush=True,
                 )
                 self._heartbeat()
+                # Read the vehicle's parameters, as MAVProxy and QGroundControl do on connect: the law's own table
+                # (autopilot.law) is then in the flight's tlog, each PARAM_VALUE as the vehicle sent it.
+                self.link.send(M.MAVLink_param_request_list_message(self.vehicle_id[0], self.vehicle_id[1]))
             self.vehicle_status = msg.system_status
             if msg.system_status == M.MAV_STATE_POWEROFF:
                 self.powered_off = True
@@ -190,6 +195,9 @@ class Gcs:
             if self._sim(msg.time_boot_ms, t_rx):
                 self.roll = msg.roll
                 self.flown_ms = max(self.flown_ms or 0, msg.time_boot_ms)  # the stream follows a step flown
+        elif mid == M.MAVLINK_MSG_ID_PARAM_VALUE:
+            name = msg.param_id.decode("ascii", "replace") if isinstance(msg.param_id, bytes) else msg.param_id
+            self.parameters[name.split("\x00", 1)[0]] = float(msg.param_value)
         elif mid == M.MAVLINK_MSG_ID_ATTITUDE_TARGET:
             self.target = quaternion_to_roll(msg.q)
         elif mid == M.MAVLINK_MSG_ID_SYSTEM_TIME:
@@ -471,6 +479,7 @@ class Gcs:
             "own_stall_max_s": self.own_stall_max_s,
             "sent": self.link.send_clock.summary(),  # monotonic clock of its sends (the verdict's evidence)
             "statustexts": self.statustexts[-50:],
+            "parameters": len(self.parameters),  # PARAM_VALUEs read on connect
             "link": self.link.counters(),
         }
 

@@ -5,6 +5,7 @@ its stats and its shutdown.
 from __future__ import annotations
 
 import gc
+import math
 import select
 import sys
 import time
@@ -128,6 +129,7 @@ class Autopilot(LinkHandlers, LockstepScheduler, RealtimeScheduler):
         )
         self.hooks: list = []  # callables(StepRecord), after each step
         self.events = Counter()  # autopilot-level counters (failsafes, setpoints, frames)
+        self._law_failure_said = False  # ControlStep.law_failure announced (handlers._law_failed)
         self._event = StatusEvents("autopilot", self.gcs, self.events, verbose=opts.verbose, out=self.out)
         self.event_hooks = self._event.hooks  # callables(severity, text), for each status event
         self.gcs.on_refused_gcs = self._on_refused_gcs
@@ -245,7 +247,14 @@ class Autopilot(LinkHandlers, LockstepScheduler, RealtimeScheduler):
         ev.update(failsafe_entries_ms=[a * 1e3 for a in self.failsafe_entries], recoveries=self.recoveries)
         return {
             "name": self.opts.name,
-            "Lv": float(self.ctrl.config.lv) if isinstance(self.ctrl.config.lv, (int, float)) else None,
+            "Lv": float(lv) if isinstance(lv := getattr(self.ctrl.config, "lv", None), (int, float)) else None,
+            "law": getattr(self.ctrl, "name", None),  # a law on autopilot.law's interface: its registered name
+            # ... and its own telemetry after the last step, by name (None where not finite)
+            "law_telemetry": {
+                f: (v if math.isfinite(v) else None) for f, v in zip(self.ctrl.fields, self.ctrl.law_row())
+            }
+            if hasattr(self.ctrl, "law_row")
+            else None,
             "mode": "lockstep" if self.opts.lockstep else "realtime",
             "rate_hz": self.rate,
             "steps": self.steps,
@@ -264,7 +273,7 @@ class Autopilot(LinkHandlers, LockstepScheduler, RealtimeScheduler):
             "peer_lost": self.peer_lost
             or ("gcs" if self._blocked_since is not None else None)
             or ("sitl" if self.hold_steps or not self.control.metrics.n else None),
-            "controlled": self.envelope.result().to_dict(),  # the envelope verdict (autopilot.envelope)
+            "controlled": self._controlled(),  # the envelope verdict (autopilot.envelope)
             # MAV_CMD_INJECT_FAILURE relayed to the SITL, each with its answer (autopilot.injection)
             "failure_injections": self.vehicle.failures.records,
             "params_start": self.vehicle.params_start,  # every parameter as the flight started
@@ -278,6 +287,16 @@ class Autopilot(LinkHandlers, LockstepScheduler, RealtimeScheduler):
             "setpoints_evicted": self.setpoints.evicted,
             "tlog_records": self.tlog.records if self.tlog is not None else 0,
         }
+
+    def _controlled(self) -> dict:
+        """The envelope's verdict; not controlled whatever it says when the law failed (``ControlStep.law_failure``):
+        the reason names the law and when."""
+        out = self.envelope.result().to_dict()
+        control = self.control
+        if control.law_failure is not None:
+            why = f"{control.law_failure} at {control.law_failure_t:.3f} s; the failsafe flew the rudder neutral"
+            out = {**out, "ok": False, "reason": why, "law_failure": control.law_failure}
+        return out
 
     def close(self):
         self.sitl.close()

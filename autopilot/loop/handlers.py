@@ -386,13 +386,30 @@ class LinkHandlers:
         had disarmed the vehicle or selected MANUAL.  Leaving it is announced once per excursion: a STATUSTEXT
         warning to the ground stations, the status event hooks (Rerun's ``/autopilot/events``) and the log."""
         control = self.control
+        if control.law_failure is not None and not self._law_failure_said:
+            self._law_failed()
         armed, manual = control.armed, control.manual is not None
-        law_flew = armed and not manual and res.failsafe is not Failsafe.NO_ATTITUDE
+        law_flew = armed and not manual and res.failsafe not in (Failsafe.NO_ATTITUDE, Failsafe.LAW_ERROR)
         ref = control.law.ym_ol if law_flew else None
         text = self.envelope.add(res.t, res.phi, res.u_cmd, control.config.u_limit_rad, ref, armed=armed, manual=manual)
         if text is not None:
             self.events["envelope_exits"] += 1
             self._event(M.MAV_SEVERITY_WARNING, text)
+
+    def _law_failed(self) -> None:
+        """The law raised or returned NaN/inf (``ControlStep.law_failure``): said once, as a critical event and one
+        line in the log, with the traceback after it in the log (never on a console: the launcher's is the verdict);
+        the flight goes on with the rudder neutral and ends not controlled (``stats``)."""
+        from autopilot.shared import crash
+
+        self._law_failure_said = True
+        control = self.control
+        text = f"FAILSAFE {control.law_failure} at {control.law_failure_t:.3f} s: rudder neutral from then on"
+        self.events["law_failures"] += 1
+        self._event(M.MAV_SEVERITY_CRITICAL, text)  # also its line in the log
+        exc = control.law_exception
+        if exc is not None and exc.__cause__ is not None:  # the law raised: its traceback in the log only
+            crash.keep("autopilot", exc.__cause__, file=self.out)
 
     def _enter_failsafe(self, age: float):
         self._status_state = M.MAV_STATE_CRITICAL

@@ -70,7 +70,7 @@ class LockstepScheduler:
         control = self.control
         if self.setpoints2 is not None:  # MIMO: the sideslip command in force
             self.ctrl.um2 = self.setpoints2.at(k / self.rate)
-        pwm = control.command(k / self.rate, att.roll)  # the pulse width that flies (autopilot.step)
+        pwm = control.command(k / self.rate, att.roll, p=att.p, r=att.r)  # the pulse width that flies (autopilot.step)
         us = self._usec_per_frame
         usec = (k * us) & 0xFFFFFFFF if us else frame_usec(k, self.rate)  # frame_usec, whole us per frame inline
         sitl = self.sitl

@@ -72,7 +72,7 @@ class RealtimeScheduler:
                     self._setpoint_stream(lost)
                 if self.setpoints2 is not None:  # MIMO: the sideslip command in force (0 with the setpoints lost)
                     self.ctrl.um2 = 0.0 if lost else self.setpoints2.at(att.ms * 1e-3)
-                res = control(att.ms * 1e-3, att.roll, wings_level=lost)
+                res = control(att.ms * 1e-3, att.roll, wings_level=lost, p=att.p, r=att.r)
                 wire = self._servo_wire(_wall_usec(), res.pwm)
                 sitl.send_raw(sitl.pack_fast(pk_servo, *wire), SERVO_OUTPUT_RAW)
                 t_sent = perf()

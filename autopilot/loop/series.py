@@ -45,9 +45,13 @@ def _series_row(rec: StepRecord) -> tuple:
     )
 
 
-def series_recorder(mimo: bool = False) -> SeriesRecorder:
+def series_recorder(mimo: bool = False, law_fields: tuple = ()) -> SeriesRecorder:
     """A step hook recording every control step (t, um, phi, p, r, u sent after PWM, the law's internals);
-    ``mimo``: a square MIMO law's second channel and K_e too (``autopilot.mimo.MIMO_FIELDS``)."""
+    ``mimo``: a square MIMO law's second channel and K_e too (``autopilot.mimo.MIMO_FIELDS``); ``law_fields``: a law
+    on autopilot.law's interface, its own telemetry too, as ``law_<field>`` (``autopilot.law.Flown.law_row``)."""
+    if law_fields:
+        keys = SERIES_KEYS + tuple(f"law_{f}" for f in law_fields)
+        return SeriesRecorder(keys, lambda rec: _series_row(rec) + rec.ctrl.law_row())
     if mimo:
         from autopilot.mimo import MIMO_FIELDS
 

@@ -38,6 +38,16 @@ def report(prog: str, exc: BaseException, *, log: str | os.PathLike | None = Non
     """Report the internal error ``exc`` of ``prog`` (see the module's docstring); returns the one line printed.
     ``log``: the process's own log file to append the traceback to; ``file``: the console (default stderr)."""
     file = sys.stderr if file is None else file
+    where = keep(prog, exc, log=log, file=file)
+    line = one_line(prog, exc) + (f" (traceback in {where})" if where else "")
+    print(line, file=file, flush=True)
+    return line
+
+
+def keep(prog: str, exc: BaseException, *, log: str | os.PathLike | None = None, file=None) -> str | None:
+    """Keep the traceback of ``exc`` where the module's docstring says (never on a console); returns where, None if
+    it could not be written.  (An error a process survives, a user's law that raised: ``autopilot.law``.)"""
+    file = sys.stderr if file is None else file
     text = "".join(traceback.format_exception(exc))
     where = None
     try:
@@ -55,9 +65,8 @@ def report(prog: str, exc: BaseException, *, log: str | os.PathLike | None = Non
             where = path
     except OSError:
         where = None  # nowhere to keep it (a full disk): the one line all the same
-    line = one_line(prog, exc) + (f" (traceback in {where})" if where else "")
-    print(line, file=file, flush=True)
-    return line
+    file.flush()
+    return where
 
 
 def install(prog: str) -> None:

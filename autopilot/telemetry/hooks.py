@@ -59,6 +59,7 @@ class AutopilotHook(ProcessHook):
         self._link_rows: dict = {}  # the last counters of each link: where a fault's markers sit on their plot
         self._marks: dict = {}  # the fault-marker tables, made at the first fault the SITL reports
         self._mimo = None  # a MIMO law's table (layout.MIMO), made at its first step
+        self._law = None  # a law's own telemetry (layout.law_layout), made at its first step
 
     def __call__(self, rec) -> None:
         wall = time.time()
@@ -81,6 +82,11 @@ class AutopilotHook(ProcessHook):
             if self._mimo is None:
                 self._mimo = self.tel.table(L.MIMO)
             self._mimo.push((t, wall, tuple(float(v) for v in mimo_row())))
+        law_row = getattr(ctrl, "law_row", None)
+        if law_row is not None and ctrl.fields:  # a law on the interface (autopilot.law.Flown): its own table
+            if self._law is None:
+                self._law = self.tel.table(L.law_layout(ctrl.fields))
+            self._law.push((t, wall, law_row()))
         mode = ap.vehicle.mode.name
         if mode != self.mode.last:
             self.mode.set(t, wall, mode)

@@ -100,6 +100,20 @@ AUTOPILOT = TableLayout(
     poses=(Pose(AP_REFERENCE_ATTITUDE, "ym", "reference ym (ghost)", (*ORANGE, 110)),),
 )
 
+AP_LAW = f"{AP}/law"  # /autopilot/law/<field>: a law's own telemetry (autopilot.law: its TELEMETRY_FIELDS)
+
+
+def law_layout(fields: tuple[str, ...]) -> TableLayout:
+    """A law's own telemetry (``autopilot.law.Flown.law_row``), one plot per field at ``/autopilot/law/<field>``, in
+    the law's own units (SI)."""
+    colors = (BLUE, ORANGE, GREEN, VERMILLION, PURPLE, SKY, YELLOW, WHITE, GREY)
+    return TableLayout(
+        "law",
+        tuple(fields),
+        tuple(Plot(f"{AP_LAW}/{f}", (f,), (f,), (colors[i % len(colors)],)) for i, f in enumerate(fields)),
+    )
+
+
 # A square MIMO flight's second channel and matrix gain (autopilot.mimo.MIMO_FIELDS, one row per step beside the
 # autopilot's): the sideslip, its references and error, the rudder command, and the entries of K_e.
 AP_MIMO = f"{AP}/mimo"
@@ -187,6 +201,11 @@ MODE_COLORS: dict[str, Rgb] = {
     Mode.SAC.name: SKY,
     Mode.CLSAC.name: GREEN,
     Mode.BASELINE.name: BLUE,
+    Mode.MRAC.name: PURPLE,
+    Mode.CRM_MRAC.name: ORANGE,
+    Mode.L1.name: YELLOW,
+    Mode.INDI.name: WHITE,
+    Mode.LAW.name: SKY,
     Mode.FAILSAFE.name: VERMILLION,
 }
 MODE_WARN = frozenset({Mode.FAILSAFE.name})  # logged at WARN in the event log
@@ -200,6 +219,7 @@ def failsafe_state(failsafe: Failsafe) -> str:
 
 FAILSAFE_COLORS: dict[str, Rgb] = {
     failsafe_state(Failsafe.NONE): GREEN,
+    failsafe_state(Failsafe.LAW_ERROR): PURPLE,
     failsafe_state(Failsafe.NO_ATTITUDE): VERMILLION,
     failsafe_state(Failsafe.NO_SETPOINT): ORANGE,
 }

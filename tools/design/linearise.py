@@ -61,6 +61,16 @@ def designed_params(plant: str) -> Path | None:
     return path if path is not None and path.is_file() else None
 
 
+def designed_law_params(plant: str, suffix: str = "-laws") -> Path | None:
+    """The adaptive-law bench's designs for ``plant`` (``python -m tools.design.laws``): the file beside the plant's
+    design (``sitl/plants/jsbsim-c172x-laws.params``, ``sitl/plants/kh2013a-laws.params``), None if there is none."""
+    from sitl import plant as plants
+
+    base = design_path(plant)
+    path = plants.shipped(f"kh2013a{suffix}.params") if base is None else base.with_name(base.stem + suffix + ".params")
+    return path if path is not None and Path(path).is_file() else None
+
+
 def shown_path(path: Path) -> str:
     """``path`` as a command line shows it: relative to the working folder when inside it."""
     try:

@@ -130,10 +130,15 @@ def params_config(path: str, cfg: ClSacConfig) -> ClSacConfig:
 
 
 def controller_config(scenario: Scenario, run: RunSpec, base: ClSacConfig | None = None) -> ClSacConfig:
-    from tools.design.linearise import designed_params, flown_baseline_gains
+    from tools.design.linearise import designed_law_params, designed_params, flown_baseline_gains
 
     # every law clips at the surface's stop, as the launcher and the studies fly it (sitl.plant.surface_limit_rad)
     limit = min(scenario.u_limit_rad, plants.surface_limit_rad(scenario.plant) or math.inf)
+    law = controllers.get(run.controller).kind if run.controller is not None else None
+    if law is not None and law.generic:  # a law on autopilot.law's interface: its design for the plant, if any
+        cfg = controllers.get(run.controller).config(control_rate_hz=scenario.control_rate_hz, u_limit_rad=limit)
+        path = scenario.params or (designed_law_params(scenario.plant, law.design) if law.design else None)
+        return cfg if path is None else params_config(str(path), cfg)
     if run.controller is not None and not controllers.get(run.controller).adaptive:  # the fixed-gain PID
         flown = flown_baseline_gains(run.controller, scenario.plant, scenario.baseline_gains)
         return controllers.get(run.controller).config(
@@ -253,7 +258,8 @@ def run_inprocess(
             law.set_gains(*retunes[k])
         x = ac.truth
         phi = float(x[3]) if wire is None else float(np.float32(x[3]))  # ATTITUDE.roll travels as float32
-        r = step(t, phi)
+        p, yaw = (float(x[1]), float(x[2])) if wire is None else (float(np.float32(x[1])), float(np.float32(x[2])))
+        r = step(t, phi, p=p, r=yaw)  # ATTITUDE's rollspeed and yawspeed (a law on autopilot.law's interface)
         out[k] = (
             t,
             r.um,

@@ -13,9 +13,10 @@ from pathlib import Path
 
 from autopilot import controllers, flags
 from autopilot.envelope import MAX_ROLL_DEG, MAX_SATURATED_SHARE, Envelope
-from autopilot.flags import CONTROLLERS, default_lv, envelope_roll_deg, envelope_saturated_pct
+from autopilot.flags import default_lv, envelope_roll_deg, envelope_saturated_pct
 from autopilot.shared import cli
 from autopilot.shared.process import rt_throttling
+from tools.flight import designs
 from tools.flight.profiles import Profile, ProfileError
 
 PROCESSES = ("sitl", "gcs", "autopilot")
@@ -196,16 +197,23 @@ class FlightConfig:
         ):
             if getattr(self, name) is not None:
                 put(name, _checked(name, check, getattr(self, name)))
-        _require(
-            self.controller in CONTROLLERS,
-            "controller",
-            f"controller must be one of {', '.join(CONTROLLERS)}, got {self.controller!r}",
-        )
+        try:  # a registered name, or a user's law (FILE.py:Class, module:Class: loaded and checked, autopilot.law)
+            controllers.get(self.controller)
+        except ValueError as exc:
+            raise FlightConfigError("controller", f"controller: {exc}") from None
+        refused = designs.law_refusal(self.controller)  # a user's law is built once here: its constructor's error
+        if refused is not None:
+            raise FlightConfigError("controller", refused)
         _require(
             self.pfc is None or self.pfc in PFC_PRESETS,
             "pfc",
             f"pfc must be one of {', '.join(PFC_PRESETS)}, got {self.pfc!r}",
         )
+        mimo_refusal = controllers.get(self.controller).kind.mimo  # a law without a square-MIMO form: why
+        if mimo_refusal and designs.is_mimo(self):
+            raise FlightConfigError(
+                "controller", f"controller {self.controller}: {self.plant} is a square MIMO plant: {mimo_refusal}"
+            )
         given = {k: getattr(self, k) for k in (*flags.ADAPTIVE_ONLY, "baseline_gains")}
         refused = flags.inapplicable(self.controller, given)
         if refused is not None:  # a value the law would not fly: refused, not ignored
@@ -346,7 +354,7 @@ class FlightConfig:
                 )
         if self.params is not None:
             try:
-                _check_params(load_file(self.params), self.controller)
+                designs.check_params(load_file(self.params), self.controller)
             except OSError as exc:
                 raise FlightConfigError("params", f"params: cannot read {self.params}: {exc.strerror or exc}") from None
             except ParamError as exc:
@@ -368,6 +376,12 @@ class FlightConfig:
         baseline when its gains are given (they fly instead of the design's)."""
         if self.params is not None:
             return str(self.params)
+        law = controllers.get(self.controller).kind
+        if law.generic:  # a law on autopilot.law's interface: its design beside the plant's (PLANT-laws.params)
+            from tools.design.linearise import designed_law_params
+
+            path = designed_law_params(self.plant, law.design) if law.design else None
+            return None if path is None else str(path)
         if not controllers.get(self.controller).adaptive and self.baseline_gains is not None:
             return None
         from tools.design.linearise import designed_params
@@ -494,20 +508,6 @@ def _faults(value) -> tuple:
 
 
 # ---------------------------------------------------------------------------------------- child processes
-def _check_params(values: dict[str, float], controller: str) -> None:
-    """A parameter file's values against the one table of bounds and ``controller``'s law
-    (``autopilot.params.ParamTable``, as the autopilot loads it: another law's values are not its to fly):
-    ``ParamError`` naming the first one refused, before anything starts."""
-    from autopilot.loop import AutopilotOptions
-    from autopilot.params import ParamTable
-
-    defaults = AutopilotOptions()  # the options the autopilot starts from (the file's values replace them)
-    options = {k: getattr(defaults, k) for k in ("attitude_timeout_s", "setpoint_timeout_s", "max_roll_rad")}
-    cfg = controllers.get(controller).config(control_rate_hz=100.0, u_limit_rad=math.radians(30.0))
-    table = ParamTable(cfg, options)
-    table.update(table.split(values)[0])
-
-
 @functools.cache
 def _trims(plant: str) -> None:
     """Build (and so trim) a JSBSim plant once per process: ``sitl.plant.PlantError`` if it cannot trim (an airspeed

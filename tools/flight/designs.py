@@ -21,6 +21,19 @@ def refusal(cfg) -> tuple[str, str] | None:
 
     c = controllers.get(cfg.controller)
     path = cfg.params_file
+    if c.kind.generic:  # a law on autopilot.law's interface flies its design for the plant (a user's: its defaults)
+        if c.kind.design and path is None and plants.kind(cfg.plant) != "kh2013a":
+            from tools.design.linearise import design_path
+
+            base = design_path(cfg.plant)
+            law_file = None if base is None else base.with_name(base.stem + c.kind.design + ".params")
+            where = "its laws' design" if law_file is None else shown_path(law_file)
+            return (
+                "plant",
+                f"plant: {cfg.plant} has no design of {c.name} (no {where}): python -m tools.design.laws "
+                f"{cfg.plant} --out {where}, or fly a parameter file of your own (--params FILE)",
+            )
+        return None
     if path is None:
         explicit = cfg.pfc is not None if c.adaptive else cfg.baseline_gains is not None
         if plants.kind(cfg.plant) != "kh2013a" and not explicit:
@@ -52,3 +65,38 @@ def refusal(cfg) -> tuple[str, str] | None:
             f"{stop:.4g} deg: the command cannot go past the stop",
         )
     return None
+
+
+def law_refusal(controller: str) -> str | None:
+    """A user's law (``autopilot.law``) built once, at its defaults: the one line of what its Config or its
+    constructor raised, None if it builds (checked before any process starts)."""
+    c = controllers.get(controller)
+    if c.kind.cls is None:
+        return None
+    try:
+        controllers.make_law(c.config(control_rate_hz=100.0, u_limit_rad=math.radians(30.0)))
+    except Exception as exc:  # noqa: BLE001  (a user's code may raise anything)
+        return f"controller {controller}: {type(exc).__name__}: {' '.join(str(exc).split())}"
+    return None
+
+
+def is_mimo(cfg) -> bool:
+    """``cfg.mimo``, False for a plant that does not parse (refused later with its own reason)."""
+    try:
+        return cfg.mimo
+    except Exception:  # noqa: BLE001
+        return False
+
+
+def check_params(values: dict[str, float], controller: str) -> None:
+    """A parameter file's values against the one table of bounds and ``controller``'s law
+    (``autopilot.params.ParamTable``, as the autopilot loads it: another law's values are not its to fly):
+    ``ParamError`` naming the first one refused, before anything starts."""
+    from autopilot.loop import AutopilotOptions
+    from autopilot.params import ParamTable
+
+    defaults = AutopilotOptions()  # the options the autopilot starts from (the file's values replace them)
+    options = {k: getattr(defaults, k) for k in ("attitude_timeout_s", "setpoint_timeout_s", "max_roll_rad")}
+    cfg = controllers.get(controller).config(control_rate_hz=100.0, u_limit_rad=math.radians(30.0))
+    table = ParamTable(cfg, options)
+    table.update(table.split(values)[0])

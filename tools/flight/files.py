@@ -32,6 +32,8 @@ def png_request(cfg: FlightConfig, out: Path, name: str, metrics: dict) -> dict:
         "name": name,
         "lv": controllers.flown_lv(cfg.controller, cfg.lv_value),
         "controller": cfg.controller,
+        # a law on autopilot.law's interface: its words (the picture's helper loads no law's code)
+        "law_label": controllers.get(cfg.controller).label if controllers.get(cfg.controller).kind.generic else None,
         "lockstep": cfg.lockstep,
         "rate": cfg.rate,
         "u_limit_deg": cfg.u_limit_deg,
@@ -215,6 +217,8 @@ def build_summary(
         # a PARAM_SET of SYS_FAILURE_EN (what was in force, not only what the launcher was told)
         "failure_injection": failure_injection_in_force(cfg, stats),
         "controller": cfg.controller,
+        # the law flown: its name, label, parameters, telemetry fields and their values at the end
+        "law": {**controllers.describe(cfg.controller), "telemetry_end": (ap or {}).get("law_telemetry")},
         # the Lv that flew, as the flight started and as it ended (a ground station may change CLSAC_LV: the
         # changes are in "parameters"); a --params file (CLSAC_LV) may set another than the flags; SAC flies 0
         "Lv": _flown_lv(cfg, stats),

@@ -21,7 +21,18 @@ nothing of the project, only MAVProxy and pymavlink, and those only when MAVProx
 from __future__ import annotations
 
 # HEARTBEAT.custom_mode -> name: autopilot.vehicle.Mode (tests/test_clients.py checks that they agree)
-MODES = {0: "MANUAL", 100: "SAC", 101: "CLSAC", 102: "FAILSAFE", 103: "BASELINE"}
+MODES = {
+    0: "MANUAL",
+    100: "SAC",
+    101: "CLSAC",
+    102: "FAILSAFE",
+    103: "BASELINE",
+    104: "MRAC",
+    105: "CRM_MRAC",
+    106: "L1",
+    107: "INDI",
+    108: "LAW",
+}
 NAME = "clsac_modes"
 
 

@@ -45,6 +45,7 @@ def draw_flight_png(
     plant: str = "KH2013A",
     surface: str = "rudder",
     surface2: str | None = None,
+    law_label: str | None = None,
 ) -> Path | None:
     """DIR/flight.png from the flight's series (``tools.view.flight_png``); None without series.  ``plant``,
     ``surface``: named in the title and the command's panel, with ``surface2``, a square MIMO plant's second (the
@@ -69,6 +70,7 @@ def draw_flight_png(
         u_limit_rad=math.radians(u_limit_deg),
         title=title,
         controller=controller,
+        law_label=law_label,
         faults=marks(faults, changes),
         surface=surface,
         gains=_start_gains(out),

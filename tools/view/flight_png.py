@@ -549,20 +549,25 @@ def flight_image(
     surface: str = "rudder",
     gains: tuple[float, float, float] | None = None,
     changes: list[dict] = (),
+    law_label: str | None = None,
 ) -> Image.Image:
     """The picture of one flight (``series``: ``tools.view.series_files.load_series``; ``t`` must be there): roll
     against the command and the reference models, the command of the ``surface``, the adaptive gains; mode switches
     marked.  ``controller``: "clsac", "sac" or "baseline" (the fixed-gain PID: its gains ``gains`` = K_p, K_i, K_d
     as flown from the start); None: CL-SAC if ``lv`` > 0, else SAC.  ``faults``: (time, text[, colour]) of each
     fault's start and end and each parameter change (``tools.view.flight_picture.marks``), marked; ``changes``: the
-    parameters a ground station changed (``summary.json`` ``param_changes``), for the PID's gains."""
+    parameters a ground station changed (``summary.json`` ``param_changes``), for the PID's gains.  ``law_label``: a
+    law on autopilot.law's interface (its words): its own telemetry (the series' ``law_*`` columns) is drawn."""
     t = _column(series, "t")
     if t is None:
         raise ValueError("flight_image: no time series 't'")
     col = {k: _column(series, k) for k in ("um", "phi", "ym_ol", "ym", "u", "mode", *C_GAINS)}
     col = {k: None if v is None or len(v) != len(t) else v for k, v in col.items()}  # a torn column: not drawn
-    baseline = controller is not None and not controllers.get(controller).adaptive  # autopilot.controllers
+    generic = law_label is not None  # a law on autopilot.law's interface
+    baseline = generic or (controller is not None and not controllers.get(controller).adaptive)
     color, law = (C_BASE, "baseline PID") if baseline else (C_CLSAC, "CL-SAC") if lv > 0 else (C_SAC, "SAC")
+    if generic:
+        law = law_label
 
     # Roll tracking.  When the roll goes far beyond the command (SAC oscillating), the references are drawn over
     # it so they stay visible; otherwise the roll goes on top.
@@ -616,7 +621,9 @@ def flight_image(
         rudder.lines.append(Line(mimo["u2"] * DEG, C_GAINS["kx"], 1.0, label="rudder command u_{2}"))
         rudder.lines.append(Line(mimo["beta"] * DEG, C_GAINS["ku"], 1.2, label="sideslip β"))
 
-    # The adaptive gains; the baseline adapts nothing (its telemetry records K_p as K_e, the rest 0)
+    # The adaptive gains; the baseline adapts nothing (its telemetry records K_p as K_e, the rest NaN)
+    if generic:
+        return render(t, [tracking, rudder, law_panel(t, series, law)], mode_switches(t, col["mode"]), title, faults)
     if baseline:
         return render(t, [tracking, rudder, pid_panel(t, gains, changes)], mode_switches(t, col["mode"]), title, faults)
     gains = Panel("Adaptive gains K = K_{p} + K_{I}", "[-]", legend_cols=3)
@@ -649,6 +656,17 @@ def _clip_spikes(t: np.ndarray, panel: Panel) -> None:
             v = ln.y[~np.isnan(ln.y)]
             name = re.sub(r"_\{([^}]*)\}", r"_\1", ln.label or "")
             panel.note.append(f"{name} clipped (▲▼): {v.min():.3g} to {v.max():.3g}")
+
+
+def law_panel(t: np.ndarray, series: dict, label: str) -> Panel:
+    """A law's own telemetry (``autopilot.law``: the series' ``law_<field>`` columns, in its own units), by name."""
+    panel = Panel(f"{label}: its own telemetry", "[SI]", legend_cols=3)
+    colors, keys = (*C_GAINS.values(), C_CMD, C_OL, C_CRM), [k for k in series if k.startswith("law_")]
+    ys = [(k, _column(series, k)) for k in keys]
+    panel.lines = [Line(y, colors[i % len(colors)], 1.0, label=k[4:]) for i, (k, y) in enumerate(ys) if y is not None]
+    panel.missing = [] if keys else ["law telemetry"]
+    _clip_spikes(t, panel)
+    return panel
 
 
 def pid_panel(t: np.ndarray, gains, changes) -> Panel:

@@ -18,7 +18,7 @@ import statistics
 from collections.abc import Sequence
 
 from tools.experiment.damage import stats
-from tools.experiment.damage.grid import LABELS, NONE
+from tools.experiment.damage.grid import NONE, label
 
 REFERENCE = "clsac"  # the law every other is paired with, when flown
 PERIOD_S = 10.0  # the square wave's period: the error per period
@@ -254,7 +254,7 @@ def _fault_table(cells, plant: str, controllers, onset, title: str, entry, width
     """A plant's printed table: a row per fault (kind and severity, at ``onset``: the first one by default), per
     controller ``entry(cell)`` (``width`` characters) or "-" where the cell is missing."""
     onset, rows = _rows(cells, plant, onset)
-    head = f"{'fault':<22}" + "".join(f"{n:>{width}}" for n in controllers)  # whole names (legend: cli.legend)
+    head = f"{'fault':<22}" + "".join(f" {n:>{width - 1}}" for n in controllers)  # whole names (legend: cli.legend)
     lines = [f"{plant}: {title}, onset {_fmt(onset, 'g')} s", head]
     for (kind, sev), per in rows.items():
         lines.append(
@@ -320,7 +320,7 @@ def paired_table(cells: Sequence[dict], plant: str, controllers: Sequence[str], 
         return None if d is None else f"{d} E {r}"
 
     title = (
-        f"paired difference to {LABELS.get(ref, ref)} of ise_ref after the onset (rad^2 s), median [95 % sign-test "
+        f"paired difference to {label(ref)} of ise_ref after the onset (rad^2 s), median [95 % sign-test "
         "interval] ('=': no difference shown) and energy ratio E"
     )
     return _fault_table(cells, plant, others, onset, title, entry, width=36)
@@ -341,7 +341,7 @@ def period_table(cells: Sequence[dict], plant: str, controllers: Sequence[str], 
         "of each (1: least error)"
     ]
     width = 34
-    lines.append(f"{'fault':<22}" + "".join(f"{n:>{width}}" for n in controllers))
+    lines.append(f"{'fault':<22}" + "".join(f" {n:>{width - 1}}" for n in controllers))
     for (kind, sev), per in rows.items():
         vals = {}
         for n in controllers:
@@ -372,7 +372,7 @@ def markdown_table(cells: Sequence[dict], plant: str, controllers: Sequence[str]
     controlled (%) / median ise_ref after the onset" (to the digits its interval supports); ``energy``: also the
     median energy after the onset and its paired ratio to the reference law's."""
     _onset, rows = _rows(cells, plant, None)
-    head = "| fault | " + " | ".join(LABELS.get(n, n) for n in controllers) + " |"
+    head = "| fault | " + " | ".join(label(n) for n in controllers) + " |"
     lines = [head, "|---|" + "---:|" * len(controllers)]
     for (kind, sev), per in rows.items():
         out = []
@@ -397,7 +397,7 @@ def markdown_paired_table(cells: Sequence[dict], plant: str, controllers: Sequen
     _onset, rows = _rows(cells, plant, None)
     ref = next((c["reference"] for c in cells if c["plant"] == plant and "reference" in c), None)
     others = [n for n in controllers if n != ref]
-    head = "| fault | " + " | ".join(f"{LABELS.get(n, n)} - {LABELS.get(ref, ref)}" for n in others) + " |"
+    head = "| fault | " + " | ".join(f"{label(n)} - {label(ref)}" for n in others) + " |"
     lines = [head, "|---|" + "---:|" * len(others)]
     for (kind, sev), per in rows.items():
         out = []
@@ -417,7 +417,7 @@ def markdown_paired_table(cells: Sequence[dict], plant: str, controllers: Sequen
 def markdown_period_table(cells: Sequence[dict], plants: Sequence[str], controllers: Sequence[str]) -> str:
     """A docs table of the long flights: a row per plant and fault, per controller "% controlled / mean ise_ref of
     the first period after the onset → mean per period over the last window [95 % bootstrap interval]"."""
-    head = "| plant | fault | " + " | ".join(LABELS.get(n, n) for n in controllers) + " |"
+    head = "| plant | fault | " + " | ".join(label(n) for n in controllers) + " |"
     lines = [head, "|---|---|" + "---:|" * len(controllers)]
     for plant in plants:
         _onset, rows = _rows(cells, plant, None)

@@ -76,7 +76,8 @@ def build_parser() -> argparse.ArgumentParser:
         "--controllers",
         default=",".join(grid.CONTROLLERS),
         metavar="C1,C2",
-        help=f"subset of {','.join(grid.CONTROLLERS)} (default all)",
+        help=f"subset of {','.join(grid.ALL)}, or all (every one of these), or a law of your own: FILE.py:Class, "
+        f"module:Class (docs/adding-a-law.md) (default {','.join(grid.CONTROLLERS)})",
     )
     p.add_argument(
         "--turbulence",
@@ -116,9 +117,12 @@ def study_of(args) -> object:
         k, vals = grid.parse_severity(text)
         severities[k] = tuple(dict.fromkeys(vals))  # 5000 equal severities are one (and -0.0 is 0.0)
     ctrls = grid.parse_list(args.controllers, "controllers")
-    bad = [c for c in ctrls if c not in grid.CONTROLLERS]
-    if bad:
-        raise grid.DamageError(f"--controllers: unknown controller {bad[0]!r} (known: {', '.join(grid.CONTROLLERS)})")
+    ctrls = [x for c in ctrls for x in (grid.ALL if c == "all" else (c,))]
+    for c in ctrls:
+        try:
+            grid.known(c)
+        except ValueError as exc:  # autopilot.law.LawSpecError: what the user's law lacks
+            raise grid.DamageError(f"--controllers: {exc}") from None
     onsets = grid.parse_list(args.onsets, "onsets in s", float)
     grid.check_onsets(onsets, args.duration)
     if args.scheduler is not None and not args.scheduler.startswith(("tcp://", "tls://", "inproc://")):
@@ -217,7 +221,7 @@ def main(argv: Sequence[str] | None = None) -> int:
 
 def legend(controllers) -> str:
     """What each column's controller is (the tables name them by their short, stable names)."""
-    return "columns: " + "; ".join(f"{c} = {grid.LABELS.get(c, c)}" for c in controllers)
+    return "columns: " + "; ".join(f"{c} = {grid.label(c)}" for c in controllers)
 
 
 def print_tables(doc: dict, study) -> None:

@@ -11,25 +11,44 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 
+from autopilot import controllers as registry
 from sitl import damage
 
-# The controllers of the study: the registry's (autopilot.controllers), SAC and CL-SAC with the robust PFC (the
-# launcher's --pfc robust) and two fixed-gain PIDs made here.
+# The controllers of the study: the registry's (autopilot.controllers: every built-in law, and a user's own law
+# FILE.py:Class or module:Class, flown through the generic loop, tools.experiment.scenario.run_inprocess), SAC and
+# CL-SAC with the robust PFC (the launcher's --pfc robust) and two fixed-gain PIDs made here.  The default set is
+# the published tables'; ``all`` flies every registered law too.
 REGISTERED = ("baseline", "sac", "clsac", "pid-ff")
 ROBUST = {"sac-robust": "sac", "clsac-robust": "clsac"}  # the law flown with autopilot.config.PFC_PRESETS["robust"]
 RETUNED = "pid-retuned"  # tools.design.tuning.design_baseline on the plant as it is, switched at the fault's onset
 ENERGY = "pid-energy"  # the plant's PID with its gains scaled to CL-SAC's energy on the fault-free scenario
 CONTROLLERS = (*REGISTERED, *ROBUST, RETUNED, ENERGY)
+ALL = (*registry.BUILT_IN, *ROBUST, RETUNED, ENERGY)  # --controllers all
+# The study's words for each (the registry's study_label, else its label), and for its own
 LABELS = {
-    "baseline": "PID (as designed)",
-    "sac": "SAC",
-    "clsac": "CL-SAC",
+    **{c.name: c.study_label or c.label for c in registry.CONTROLLERS.values()},
     "sac-robust": "SAC, robust PFC",
     "clsac-robust": "CL-SAC, robust PFC",
-    "pid-ff": "PID + feed-forward, D on roll",
     RETUNED: "PID retuned for the fault",
     ENERGY: "PID at CL-SAC's energy",
 }
+
+
+def label(controller: str) -> str:
+    """The study's words for a controller (a user's law: its LABEL, autopilot.controllers.register)."""
+    if controller in LABELS:
+        return LABELS[controller]
+    return registry.get(controller).label
+
+
+def known(controller: str) -> bool:
+    """A controller the study flies: one of ``ALL``, or a user's law that loads (autopilot.law.LawSpecError, one
+    line, if it does not)."""
+    if controller in ALL:
+        return True
+    registry.get(controller)  # ValueError / LawSpecError naming what is missing
+    return True
+
 
 NONE = "none"  # the fault-free flight of a cell's controller and seed: the reference every severity is read against
 # Severities in the command line's units (sitl.damage.KINDS: deg, deg/s, s, kt, m, or a factor).
@@ -70,9 +89,22 @@ def is_mimo(plant: str) -> bool:
 
 def controller_refusals(plant: str, controllers) -> dict[str, str]:
     """{controller: why not} for the study's controllers ``plant`` does not fly (a square MIMO plant:
-    ``MIMO_REFUSALS``; SAC and CL-SAC with the robust PFC on a plant whose design file sets the PFC)."""
+    ``MIMO_REFUSALS``, or a law's own reason; SAC and CL-SAC with the robust PFC on a plant whose design file sets
+    the PFC)."""
     if is_mimo(plant):
-        return {c: MIMO_REFUSALS[c] for c in controllers if c not in MIMO_CONTROLLERS}
+        return {
+            c: MIMO_REFUSALS.get(c) or registry.get(c).kind.mimo or f"{c} is not flown on a square MIMO plant"
+            for c in controllers
+            if c not in MIMO_CONTROLLERS
+        }
+    out = {}
+    for c in controllers:  # a bench law without its design for the plant (tools.design.laws)
+        law = None if c in ROBUST or c in (RETUNED, ENERGY) else registry.get(c).kind
+        if law is not None and law.generic and law.design and plant != "kh2013a":
+            from tools.design.linearise import designed_law_params
+
+            if designed_law_params(plant, law.design) is None:
+                out[c] = f"{plant} has no design of {c} (python -m tools.design.laws {plant})"
     if any(c in ROBUST for c in controllers):
         from tools.design.linearise import designed_params
 
@@ -81,8 +113,8 @@ def controller_refusals(plant: str, controllers) -> dict[str, str]:
                 "the plant's design file sets SAC's and CL-SAC's PFC and overrides --pfc (the launcher flies the "
                 "file's); the robust preset is the KH2013A's"
             )
-            return {c: why for c in controllers if c in ROBUST}
-    return {}
+            out.update({c: why for c in controllers if c in ROBUST})
+    return out
 
 
 class DamageError(ValueError):

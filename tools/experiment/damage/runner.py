@@ -124,7 +124,7 @@ def run(
         "partial": len(flown) < len(flights),
         "plants": list(study.plants),
         "controllers": list(study.controllers),
-        "labels": {c: grid.LABELS[c] for c in study.controllers},
+        "labels": {c: grid.label(c) for c in study.controllers},
         "kinds": list(study.kinds),
         "severities": {k: list(study.severities[k]) for k in study.kinds},
         "onsets_s": list(study.onsets),

@@ -10,6 +10,8 @@ import sys
 from collections.abc import Sequence
 from pathlib import Path
 
+from autopilot import controllers
+from autopilot import controllers as registry
 from autopilot.shared import cli
 from autopilot.shared.cli import OneLineArgumentParser
 from tools.experiment.outdir import check_out_dir, default_out_dir, hold_space, prepare_out_dir
@@ -60,7 +62,9 @@ def add_run_arguments(r: argparse.ArgumentParser) -> None:
         "--controllers",
         metavar="A,B",
         help=f"kh2013a: a subset of {','.join(CONTROLLERS)}; a JSBSim aircraft or plant file: of "
-        f"{','.join(flights.CONTROLLERS)} (default: all of each)",
+        f"{','.join(flights.CONTROLLERS)} (default: all of each); either: also any registered law "
+        f"({','.join(n for n in controllers.NAMES if n not in flights.CONTROLLERS)}) or one of your own, FILE.py:Class "
+        "(docs/adding-a-law.md), flown one in-process flight at a time",
     )
     r.add_argument(
         "--seed",
@@ -192,9 +196,28 @@ def plan_from_args(args) -> list[tuple[str, object]]:
                 plants.check(text)
             except plants.PlantError as exc:
                 raise StudyError(str(exc)) from None
+    controllers = _names(args.controllers, "controllers")
+    controllers_of = registry.CONTROLLERS
+    seed = 0 if args.seed is None else args.seed
+    plan: list[tuple[str, object]] = []
+    # laws without a batch form: a registered one, or a user's (FILE.py:Class, module:Class); an unknown name is
+    # the batched study's to refuse
+    unbatched = tuple(c for c in controllers or () if c not in CONTROLLERS and (c in controllers_of or ":" in c))
+    if unbatched and "kh2013a" in texts:
+        # The KH2013A's batched study flies the laws of its kernel; any other law (mrac, l1, indi, a user's own)
+        # flies the generic loop, one in-process flight at a time, bit for bit its lockstep flight
+        # (tools.experiment.scenario.run_inprocess), as a JSBSim aircraft's or a plant file's study does.
+        i = texts.index("kh2013a")
+        texts = [*texts[:i], *(["kh2013a"] if len(unbatched) < len(controllers) else []), GENERIC, *texts[i + 1 :]]
+    batched = None if controllers is None else tuple(c for c in controllers if c not in unbatched)
     scalar = [t for t in texts if t != "kh2013a"]
     given = {k for k in (*KH2013A_FLAGS, *FLIGHT_FLAGS) if getattr(args, k) is not None}
     for k in KH2013A_FLAGS:
+        if k in given and "kh2013a" not in texts and GENERIC in texts:
+            raise StudyError(
+                f"--{k.replace('_', '-')} applies to the KH2013A's batched study: {', '.join(unbatched)} "
+                "(no batch form) fly --seeds flights per --turbulence level, one in-process flight at a time"
+            )
         if k in given and "kh2013a" not in texts:
             raise StudyError(
                 f"--{k.replace('_', '-')} applies to --plant kh2013a only (a JSBSim aircraft or plant file flies "
@@ -213,20 +236,20 @@ def plan_from_args(args) -> list[tuple[str, object]]:
         )
     if "airspeeds" in given and not any(t.startswith("jsbsim:") for t in texts):
         raise StudyError("--airspeeds applies to a JSBSim aircraft (--plant jsbsim:MODEL) only")
-    controllers = _names(args.controllers, "controllers")
-    seed = 0 if args.seed is None else args.seed
-    plan: list[tuple[str, object]] = []
     for text in texts:
         if text == "kh2013a":
             kw = {k: getattr(args, k) for k in ("runs", "sweep_runs", "long_runs", "chunk") if k in given}
             if args.fault:
                 study_faults.check(args.fault)
                 kw["faults"] = tuple(args.fault)
-            if controllers is not None:
-                kw["controllers"] = controllers
+            if batched is not None:
+                kw["controllers"] = batched
             if "conditions" in given:
                 kw["conditions"] = _names(args.conditions, "conditions")
             plan.append((text, StudyOptions(seed=seed, scheduler=args.scheduler, workers=args.workers, **kw)))
+            continue
+        if text == GENERIC:
+            _generic_plan(args, unbatched, seed, plan)
             continue
         airspeeds = _airspeeds(args.airspeeds) if text.startswith("jsbsim:") else None
         turbulence = _names(args.turbulence, "turbulence")
@@ -254,6 +277,20 @@ def plan_from_args(args) -> list[tuple[str, object]]:
         flights.check(opts)
         plan.append((text, opts))
     return plan
+
+
+GENERIC = "kh2013a (one flight at a time)"  # the KH2013A's section of the laws without a batch form
+
+
+def _generic_plan(args, names: tuple[str, ...], seed: int, plan: list) -> None:
+    """The KH2013A flown by the laws without a batch form: ``flights.FlightOptions`` on kh2013a (the turbulence
+    levels of --turbulence, default none and moderate; --seeds flights each, default 3)."""
+    turbulence = _names(args.turbulence, "turbulence") or ("none", "moderate")
+    opts = flights.FlightOptions(
+        "kh2013a", names, turbulence, 3 if args.seeds is None else args.seeds, seed, None, args.workers, args.scheduler
+    )
+    flights.check(opts)
+    plan.append((GENERIC, opts))
 
 
 def options_from_args(args) -> StudyOptions:

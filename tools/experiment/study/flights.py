@@ -33,7 +33,9 @@ from tools.experiment.study.execution import Progress, stream
 from tools.experiment.study.sampling import BOUND_ROLL_RAD, BOUND_SAT_FRACTION, DEG, StudyError
 
 TURBULENCE = ("none", "light", "moderate", "severe")
-CONTROLLERS = controllers.NAMES  # every --controller of autopilot.controllers
+# The default controllers: every --controller of autopilot.controllers but the adaptive-law bench's (generic: the
+# published tables fly these); --controllers names any registered law, or a user's own (FILE.py:Class)
+CONTROLLERS = tuple(n for n in controllers.NAMES if not controllers.get(n).kind.generic)
 SEED_STRIDE = 1_000_000
 MAX_SEEDS = 10_000  # flights per controller and condition
 RECORD_BYTES = 2000  # a flight's record in summary.json's table, about
@@ -308,11 +310,23 @@ def check(opts: FlightOptions) -> None:
     from sitl import plant as plants
 
     for c in opts.controllers:
-        if c not in CONTROLLERS:
+        from autopilot.law import LawSpecError
+
+        try:  # a registered controller, or a user's law (FILE.py:Class, module:Class: autopilot.law)
+            controllers.get(c)
+        except LawSpecError as exc:
+            raise StudyError(f"--controllers: {exc}") from None
+        except ValueError:
             raise StudyError(
                 f"--controllers {c!r} does not fly on --plant {opts.plant} (a JSBSim aircraft or plant file flies "
-                f"{', '.join(CONTROLLERS)})"
-            )
+                f"{', '.join(controllers.NAMES)}, or a law of your own, FILE.py:Class)"
+            ) from None
+        law = controllers.get(c).kind
+        if law.generic and law.design and opts.plant != "kh2013a" and not is_mimo(opts.plant):
+            from tools.design.linearise import designed_law_params
+
+            if designed_law_params(opts.plant, law.design) is None:
+                raise StudyError(f"--controllers {c}: {opts.plant} has no design of it (python -m tools.design.laws)")
     for t in opts.turbulence:
         if t not in TURBULENCE:
             raise StudyError(f"unknown turbulence {t!r} (known: {', '.join(TURBULENCE)})")

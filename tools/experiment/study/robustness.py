@@ -146,7 +146,7 @@ def notes(summary: dict) -> list[str]:
 
     lines = []
     s = sections_of(summary).get("kh2013a")
-    if s is None:
+    if s is None or s.get("kind") in ("jsbsim", "file"):  # the laws without a batch form: one flight at a time
         return lines
     if s["sweep_runs"]:
         lines += ["where each controller stops being bounded (< 90 % of runs), one factor at a time from nominal:"]

@@ -9,6 +9,7 @@ import math
 from collections.abc import Sequence
 from dataclasses import dataclass
 
+from autopilot.controllers import CONTROLLERS as REGISTERED
 from autopilot.controllers import LAWS
 from autopilot.envelope import Envelope
 from autopilot.shared import cli
@@ -79,7 +80,7 @@ CONTROLLERS: dict[str, Controller] = {
         Controller("clsac_lv10", lv=10.0, label="CL-SAC Lv 10"),
         Controller("clsac", lv=20.0, label="CL-SAC Lv 20 (paper)"),
         Controller("clsac_lv50", lv=50.0, label="CL-SAC Lv 50"),
-        Controller("baseline", kind="baseline", lv=0.0, label="fixed-gain PID"),
+        Controller("baseline", kind="baseline", lv=0.0, label=REGISTERED["baseline"].label),  # "fixed-gain PID"
         Controller("clsac_leak", changes=(("sigma_x", 0.1), ("sigma_u", 0.1)), label="CL-SAC + leakage 0.1"),
         Controller("clsac_deadzone", changes=(("dead_zone_rad", DEAD_ZONE_RAD),), label="CL-SAC + dead-zone 0.25 deg"),
         Controller("clsac_projection", changes=(("ki_max", KI_MAX),), label="CL-SAC + projection |K_I| <= 0.2"),
