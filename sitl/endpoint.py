@@ -126,7 +126,7 @@ class Sitl:
             params = self.inj.params()
         damaged = plants.needs_damaged_model(opts.faults)
         self.aircraft = plants.build(opts.plant, opts.physics_rate_hz, params, opts.disturbances, damaged)
-        self._euler = plants.kind(opts.plant) == "jsbsim"  # ATTITUDE carries the plant's own pitch, yaw and q
+        self._euler = plants.spec(opts.plant).euler  # ATTITUDE carries the plant's own pitch, yaw and q
         self.mimo = bool(getattr(self.aircraft, "mimo", False))
         if self.mimo != (pwm2 is not None):
             raise plants.PlantError(

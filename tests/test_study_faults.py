@@ -72,6 +72,14 @@ def test_the_kernel_flies_each_fault_bit_for_bit_as_the_numpy_loop(kernel, contr
     assert _bits(a, b) == []
 
 
+def test_every_kind_the_study_flies_is_flown_bit_for_bit_above():
+    """A kind whose record gives it a study path (sitl.fault_kinds.FaultKind.study) is in SPECS: the C kernel is held
+    to the numpy loop for it (docs/adding-a-fault-kind.md)."""
+    from sitl.fault_kinds import STUDY_KINDS
+
+    assert {damage.parse(s).kind for s in SPECS} == set(STUDY_KINDS)
+
+
 def test_a_fault_changes_nothing_before_its_onset_and_something_after(kernel):
     clean = simulate(Task("clsac", RUNS, 7, 20.0, True), "kernel")
     hit = simulate(Task("clsac", RUNS, 7, 20.0, True, _faults("effectiveness=0.3@10")), "kernel")

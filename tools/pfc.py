@@ -246,7 +246,9 @@ def format_text(rep: analysis.WasprReport, cl: list[dict] | None = None, plant_n
 
 def _plant(args, parser):
     """(A_p, B_p, C_p) of --plant FILE.toml and its name, or (None, "KH2013A")."""
-    if args.plant is None or args.plant == "kh2013a":
+    from sitl import plant as plants
+
+    if args.plant is None or plants.kind_of(args.plant).paper:
         return None, "KH2013A"
     if args.closed_loop:
         parser.error("--closed-loop flies the KH2013A paper scenario: not with --plant")

@@ -349,10 +349,12 @@ def faulted_plant(plant, roll_rate: int | None, effect):
     """The linear plant ``plant`` = (A_p, B_p, C_p), servo last, under a ``sitl.damage.Effect``'s airframe change, as
     the SITL flies it (docs/faults.md): effectiveness scales the deflection's column of the airframe rows and
     damping the roll rate's own term (``sitl.damage.airframe_matrix``).  A delay is not a change of (A, B, C): give
-    it to ``design_baseline`` as ``delay_steps``.  Stuck, off and a rate limit are no linear plant (ValueError)."""
+    it to ``design_baseline`` as ``delay_steps``.  Stuck, off and a rate limit are no linear plant (ValueError): the
+    kinds whose record (``sitl.fault_kinds.FaultKind.design``) has no design."""
     from sitl import damage
+    from sitl.fault_kinds import KINDS
 
-    if effect.stuck or effect.off or effect.rate is not None:
+    if any(k.design is None and k.group == "servo" and k.active(effect) for k in KINDS.values()):
         raise ValueError("stuck, off and rate faults are not a linear plant: nothing to design on")
     a_p, b_p, c_p = (np.asarray(m, dtype=float) for m in plant)
     return damage.airframe_matrix(a_p, effect, roll_rate), b_p, c_p

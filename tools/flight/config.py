@@ -334,7 +334,7 @@ class FlightConfig:
             plants.check(self.plant, self.physics_rate)
             plants.check_disturbances(self.plant, {k: getattr(self, k) for k in disturbances.FLAGS})
             plants.check_faults(self.plant, self.fault)
-            if plants.kind(self.plant) == "jsbsim":
+            if plants.spec(self.plant).jsbsim is not None:
                 _trims(self.plant)  # a JSBSim aircraft that does not trim there is refused before anything starts
         except plants.PlantError as exc:
             raise FlightConfigError("plant", f"plant: {exc}") from None
@@ -395,14 +395,14 @@ class FlightConfig:
         a square MIMO plant's first (the aileron: the roll channel the loop's verdict and messages name)."""
         from sitl import plant as plants
 
-        return plants.surface_of(self.plant).split("+")[0]
+        return plants.spec(self.plant).surfaces[0]
 
     @property
     def mimo(self) -> bool:
         """A square MIMO plant (``jsbsim:MODEL:surface=aileron+rudder``): two surfaces, roll and sideslip."""
         from sitl import plant as plants
 
-        return "+" in plants.surface_of(self.plant)
+        return plants.spec(self.plant).mimo
 
     @property
     def surface2_limit_deg(self) -> float | None:

@@ -40,7 +40,7 @@ def png_request(cfg: FlightConfig, out: Path, name: str, metrics: dict) -> dict:
         "metrics": metrics,
         "plant": cfg.plant_name,
         "surface": cfg.surface,
-        "surface2": plants.surface_of(cfg.plant).split("+")[1] if cfg.mimo else None,
+        "surface2": plants.spec(cfg.plant).surfaces[1] if cfg.mimo else None,
     }
 
 
