@@ -1,4 +1,4 @@
-"""The autopilot as a MAVLink vehicle for ground stations (docs/design.md, "Ground stations").
+"""The autopilot as a MAVLink vehicle for ground stations (docs/spec.md, "Ground stations").
 
 :class:`Vehicle` answers everything a ground station (MAVProxy, QGroundControl, a pymavlink script) sends on
 the autopilot's GCS link and keeps its streams: identity (HEARTBEAT, AUTOPILOT_VERSION, PROTOCOL_VERSION), the

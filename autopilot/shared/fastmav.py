@@ -133,7 +133,7 @@ class HotDecoder:
 FAST_DECODE_IDS = (mavlink.MAVLINK_MSG_ID_ATTITUDE, mavlink.MAVLINK_MSG_ID_SERVO_OUTPUT_RAW)
 FAST_DECODERS = {mid: FastDecoder(mavlink.mavlink_map[mid]) for mid in FAST_DECODE_IDS}
 # ArduPilot's AOA_SSA (ardupilotmega dialect, id 11020: time_usec, AOA and SSA in deg): the sideslip a square MIMO
-# plant's SITL sends beside ATTITUDE (docs/design.md, "Square MIMO CL-SAC"); decoded here, since the links parse the
+# plant's SITL sends beside ATTITUDE (docs/spec.md, "Square MIMO CL-SAC"); decoded here, since the links parse the
 # common dialect
 from pymavlink.dialects.v20 import ardupilotmega as _apm  # noqa: E402
 

@@ -1,4 +1,4 @@
-"""The registry of controllers (``autopilot.controllers``; docs/design.md, "Adding a controller"): what the command
+"""The registry of controllers (``autopilot.controllers``; docs/architecture.md, "Laws"): what the command
 lines offer, what the autopilot builds and flies, and what the experiments and studies name all come from it."""
 
 from __future__ import annotations

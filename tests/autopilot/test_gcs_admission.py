@@ -1,4 +1,4 @@
-"""Which ground stations the autopilot talks to by default, and how it says why it refuses one (docs/design.md,
+"""Which ground stations the autopilot talks to by default, and how it says why it refuses one (docs/spec.md,
 "Which ground stations are admitted"): real autopilot processes and pymavlink stations on real UDP sockets.
 
 Systems 255 (QGroundControl, Mission Planner, MAVProxy) and 245 (MAVSDK) with any component are taken; any other

@@ -1,7 +1,7 @@
 """Each of the 23 parameters lands on its own field, and both bounds of each hold (issue 17, part 5).
 
 The expected field and bounds of every parameter are written out here, from the parameter table of
-docs/design.md ("Parameters"), not read from ``autopilot.params``: a parameter wired to the wrong field or a
+docs/spec.md ("Parameters"), not read from ``autopilot.params``: a parameter wired to the wrong field or a
 bound moved is caught.  The flags that set a parameter refuse exactly what a parameter file refuses.
 """
 

@@ -243,19 +243,30 @@ ROOT = Path(__file__).resolve().parents[2]
 # -------------------------------------------------------------------------------------------- mode numbers
 def test_mode_numbers_are_the_documented_ones():
     """HEARTBEAT.custom_mode: MANUAL = 0 (ArduPlane's MANUAL too), SAC 100, CLSAC 101, FAILSAFE 102, BASELINE 103,
-    as docs/design.md and the manual (docs/ground-stations.md) say; none of 100..103 has a name in ArduPlane's table."""
+    as docs/spec.md and the manual (docs/ground-stations.md) say; none of 100..103 has a name in ArduPlane's table."""
     from pymavlink import mavutil
 
     from autopilot.vehicle import Mode
 
     documented = {}
-    for doc in ("docs/design.md", "docs/ground-stations.md"):
+    for doc in ("docs/spec.md", "docs/ground-stations.md"):
         text = (ROOT / doc).read_text()
-        found = dict(re.findall(r"`?\b(MANUAL|SAC|CLSAC|FAILSAFE|BASELINE)`? = (\d+)", text))
+        found = dict(re.findall(r"`?\b(MANUAL|SAC|CLSAC|FAILSAFE|BASELINE|MRAC|CRM_MRAC|L1|INDI|LAW)`? = (\d+)", text))
         documented[doc] = {k: int(v) for k, v in found.items()}
-    assert documented["docs/design.md"] == {"MANUAL": 0, "SAC": 100, "CLSAC": 101, "FAILSAFE": 102, "BASELINE": 103}
-    assert {m.name: m.value for m in Mode} == documented["docs/design.md"]
+    assert documented["docs/spec.md"] == {
+        "MANUAL": 0,
+        "SAC": 100,
+        "CLSAC": 101,
+        "FAILSAFE": 102,
+        "BASELINE": 103,
+        "MRAC": 104,
+        "CRM_MRAC": 105,
+        "L1": 106,
+        "INDI": 107,
+        "LAW": 108,
+    }
+    assert {m.name: m.value for m in Mode} == documented["docs/spec.md"]
     assert documented["docs/ground-stations.md"]  # the manual names the modes it lets a user select
-    assert documented["docs/ground-stations.md"].items() <= documented["docs/design.md"].items()
+    assert documented["docs/ground-stations.md"].items() <= documented["docs/spec.md"].items()
     plane = mavutil.mode_mapping_apm  # ArduPlane: number -> name
     assert plane[Mode.MANUAL] == "MANUAL" and not {100, 101, 102, 103} & set(plane)

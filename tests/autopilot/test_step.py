@@ -17,7 +17,7 @@ def _square(t: float) -> float:
 
 @pytest.mark.parametrize("pwm", [None, PwmMap()])
 def test_step_equals_a_procedural_loop(pwm):
-    """Law, limit, PWM map and the five metrics (docs/design.md, "Metrics") recomputed by hand."""
+    """Law, limit, PWM map and the five metrics (docs/spec.md, "Metrics") recomputed by hand."""
     cfg = ClSacConfig()
     step = ControlStep(cfg, pwm, ProfileSetpoints(_square))
     law = ClSac(cfg)

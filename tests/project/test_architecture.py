@@ -1,4 +1,4 @@
-"""The dependency rule (docs/design.md, "Dependency rule"), checked on the source's imports.
+"""The dependency rule (docs/architecture.md, "Dependency rule"), checked on the source's imports.
 
 * ``autopilot.shared`` (the MAVLink wire contract, process plumbing, telemetry writer primitives) imports
   nothing of the project outside itself;
@@ -200,9 +200,9 @@ def test_an_import_circle_is_reported(tmp_path):
     assert import_cycles(tmp_path) == [["tools.a", "tools.b", "tools.c"]]
 
 
-# ---------------------------------------------------------------------------------------- the layout (docs/design.md)
+# ------------------------------------------------------------------------------- the layout (docs/architecture.md)
 MAX_MODULE_LINES = 700
-MAX_TOOLS_ENTRIES = 10  # tools/ grouped by job: the commands and the rooms (docs/design.md, "Package map")
+MAX_TOOLS_ENTRIES = 10  # tools/ grouped by job: the commands and the rooms (docs/architecture.md, "The rooms")
 MANUAL_PAGES = ("tests.md", "benchmarks.md")  # manuals, not lab notebooks: history is in git
 MAX_MANUAL_LINES = 150
 
@@ -259,6 +259,14 @@ def test_no_file_name_repeats_a_plant_or_design_module():
 def test_the_manual_pages_are_short(page):
     lines = (ROOT / "docs" / page).read_text().splitlines()
     assert len(lines) <= MAX_MANUAL_LINES, f"docs/{page}: {len(lines)} lines"
+
+
+MAX_ARCHITECTURE_LINES = 250  # the map a newcomer reads first (docs/architecture.md)
+
+
+def test_the_architecture_page_is_short():
+    lines = (ROOT / "docs" / "architecture.md").read_text().splitlines()
+    assert len(lines) <= MAX_ARCHITECTURE_LINES, f"docs/architecture.md: {len(lines)} lines"
 
 
 def _readme_commands() -> list[tuple[str, ...]]:

@@ -226,7 +226,7 @@ def mavproxy_python():
 
 
 def _quaternion_arg(roll_deg: float) -> str:
-    """SET_ATTITUDE_TARGET.q of a pure roll (docs/design.md, section 4), as MAVProxy's ``message`` command evals it."""
+    """SET_ATTITUDE_TARGET.q of a pure roll (docs/spec.md, section 3), as MAVProxy's ``message`` command evals it."""
     h = math.radians(roll_deg) / 2
     return f"[{math.cos(h):.6f},{math.sin(h):.6f},0,0]"
 

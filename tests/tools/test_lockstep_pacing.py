@@ -1,4 +1,4 @@
-"""What paces a lockstep flight besides the two processes' frames (docs/design.md, "Lockstep"): the GCS script's nap
+"""What paces a lockstep flight besides the two processes' frames (docs/spec.md, "Lockstep"): the GCS script's nap
 between two passes, which follows the sim rate it sees and keeps its schedule ahead."""
 
 from __future__ import annotations

@@ -3,8 +3,8 @@
     python -m tools.experiment paper --out DIR [--transport inprocess|mavlink] [--runs sac,clsac,...] [--no-plot]
                                            [--no-rrd] [--pfc paper|robust] [--sigma-xu SIGMA]
 
-writes ``DIR/summary.json`` (schema: docs/design.md, "summary.json") and ``DIR/paper.png``, and prints a table of
-the metrics of docs/design.md, "Metrics".  From Python::
+writes ``DIR/summary.json`` (schema: docs/spec.md, "summary.json") and ``DIR/paper.png``, and prints a table of
+the metrics of docs/spec.md, "Metrics".  From Python::
 
     from tools.experiment.runs import run_experiment, write_summary
     results = run_experiment("runs/x", transport="inprocess", runs=["sac", "clsac"], plot=False)

@@ -532,7 +532,7 @@ def child_argvs(
     ap_ports: tuple[int, int] | None = None,
 ) -> dict[str, list[str]]:
     """The command line of each process of the flight; ``ap_ports``: the autopilot's SITL-link and GCS-link ports,
-    given to all three so that every link is pinned to its peer from the start (docs/design.md, "Trust model")."""
+    given to all three so that every link is pinned to its peer from the start (docs/spec.md, "Trust model")."""
     py = [sys.executable, "-u", "-m"]
     pwm = ["--rudder-max-deg", repr(max(RUDDER_MAX_DEG, cfg.u_limit_deg))]
     if cfg.mimo:  # each surface on its own SERVO_OUTPUT_RAW channel, as ArduPilot Plane: aileron 1, rudder 4

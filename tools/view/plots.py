@@ -323,7 +323,7 @@ def _lv_control(fig, spec, sweep: list[RunResult]):
 
 def _table(ax, results: Sequence[RunResult], scenario: Scenario, notes: Sequence[str] = ()):
     ax.axis("off")
-    ax.set_title('Metrics (docs/design.md, "Metrics"; SI: rad, s)', fontsize=10)
+    ax.set_title('Metrics (docs/spec.md, "Metrics"; SI: rad, s)', fontsize=10)
     header = ["run", "Lv", "ise_ref", "ise_crm", "energy", "tv", "max|u| deg", "saturated"]
     rows = []
     for r in results:

@@ -1,4 +1,4 @@
-"""The lockstep critical path (docs/design.md, "Lockstep", the critical path): what moved off it loses nothing.
+"""The lockstep critical path (docs/spec.md, "Lockstep", the critical path): what moved off it loses nothing.
 
 * the link's hot path (``UdpLink.on_hot``) gives every datagram the verdict, the counters and the values of the
   checks it bypasses: the same datagrams over real UDP sockets to a link with the hot path and one without;

@@ -24,7 +24,7 @@ from tools.experiment.scenario import PAPER, RunSpec, run_inprocess
 pytestmark = pytest.mark.e2e  # real processes over loopback UDP
 
 ROOT = Path(__file__).resolve().parents[3]
-# docs/design.md, "Reference scenario": run names and L_v, in this order; "summary.json": the schema.
+# docs/spec.md, "Reference scenario": run names and L_v, in this order; "summary.json": the schema.
 DESIGN_RUNS = [("sac", 0.0), ("clsac", 20.0), ("clsac_lv10", 10.0), ("clsac_lv50", 50.0), ("clsac_lv100", 100.0)]
 METRICS = {"ise_ref", "ise_crm", "energy", "tv", "max_abs_u"}
 U_LIMIT = math.radians(30.0)
@@ -126,7 +126,7 @@ def test_printed_table_progress_and_paths(full):
         assert re.search(rf"^{name}\s+\d", stdout, re.M), name  # table row
     assert str((out_dir / "summary.json").resolve()) in stdout
     assert str((out_dir / "paper.png").resolve()) in stdout
-    # the table's max|u| column is in degrees (docs/design.md, "Units and sign conventions": degrees at the user's edge)
+    # the table's max|u| column is in degrees (docs/spec.md, "Units and sign conventions": degrees at the user's edge)
     row = re.search(r"^clsac\s+20\s+(\S+)\s+(\S+)\s+(\S+)\s+(\S+)\s+(\S+)$", stdout, re.M)
     assert row is not None
     clsac = doc["runs"][1]["metrics"]

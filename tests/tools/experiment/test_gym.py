@@ -286,7 +286,7 @@ def test_a_square_mimo_plant_observes_the_sideslip_and_flies_the_in_process_mimo
 
 
 def test_importing_sitl_gym_loads_gymnasium_and_nothing_of_the_autopilot_or_tools():
-    """sitl.gym only registers (docs/design.md, "Dependency rule"): the environment is loaded when one is made."""
+    """sitl.gym only registers (docs/architecture.md, "Dependency rule"): the environment is loaded when one is made."""
     import subprocess
     import sys
     import textwrap

@@ -1,6 +1,6 @@
 """End to end, lockstep: SITL + autopilot + GCS as real processes over loopback UDP (ephemeral ports).
 
-* metrics of a lockstep flight vs the in-process run of the same scenario (docs/design.md, "Reference scenario"):
+* metrics of a lockstep flight vs the in-process run of the same scenario (docs/spec.md, "Reference scenario"):
   equal to the last bit to the in-process run with the wire model, the same ControlStep on both sides;
 * two identical runs: identical summary.json metrics and identical tlog payloads;
 * a run across the 71.6-minute SERVO_OUTPUT_RAW.time_usec wrap.

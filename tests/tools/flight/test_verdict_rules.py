@@ -270,7 +270,7 @@ def test_peer_port_0_is_refused_at_parse_time(tmp_path):
 # ---------------------------------------------------------------------------------------- the give-ups passed on
 def test_the_give_ups_default_to_5_s_and_reach_the_processes(tmp_path):
     """The lockstep autopilot's give-up on a silent SITL and the GCS script's on a silent vehicle: 5 s unless asked
-    (docs/design.md, section 9), as ``--lockstep-idle-exit`` and ``--vehicle-timeout`` of those processes; a
+    (docs/spec.md, "Honest outcomes"), as ``--lockstep-idle-exit`` and ``--vehicle-timeout`` of those processes; a
     Flight keyword and a launcher flag each, refused in one line when not a positive time."""
     from tools import gcs
     from tools.flight import LOCKSTEP_IDLE_EXIT_S, VEHICLE_TIMEOUT_S, FlightConfig, FlightConfigError, child_argvs

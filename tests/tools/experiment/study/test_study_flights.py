@@ -75,7 +75,7 @@ def test_a_flight_of_the_monte_carlo_is_the_in_process_scenario():
 
 def test_a_plant_file_of_the_kh2013a_flies_the_studys_nominal_run():
     """In still air the KH2013A's plant file, flown in-process at 1 kHz, is the batched study's nominal run (its
-    exact ZOH at 100 Hz; docs/design.md: the same linear system, equal to ~1e-9): an independent solution."""
+    exact ZOH at 100 Hz; docs/spec.md: the same linear system, equal to ~1e-9): an independent solution."""
     flown = simulate(Flight("clsac", KH_FILE, "none", 0))
     run = next(i for i in range(20) if replay("clsac", "nominal", 0, i, record=False)["pfc_paper"][0])  # paper PFC
     batch = replay("clsac", "nominal", 0, run, record=False)
