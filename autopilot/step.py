@@ -7,7 +7,7 @@ Three users call :class:`ControlStep` once per control period and get a :class:`
 * the in-process runner (``tools.experiment.scenario.run_inprocess``), which adds the simulated aircraft.
 
 So the three can never drift apart: a lockstep flight over MAVLink and the in-process runner with the wire
-model give bit-identical metrics (``tests/test_e2e_lockstep.py``).  Example::
+model give bit-identical metrics (``tests/tools/flight/test_e2e_lockstep.py``).  Example::
 
     from autopilot import ClSacConfig, ControlStep, PwmMap
     from autopilot.step import ProfileSetpoints

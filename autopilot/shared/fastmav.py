@@ -3,7 +3,7 @@
 pymavlink's generic ``pack``/``decode`` cost about 11-12 us each in Python; the lockstep loop sends and
 receives a handful per frame.  These helpers use the same dialect data (the message class's
 ``unpacker`` struct, ``crc_extra``, field ``orders``) and the same CRC (fastcrc's MCRF4XX, what
-pymavlink uses), and produce byte-identical packets (``tests/test_mavlink_units.py`` checks this
+pymavlink uses), and produce byte-identical packets (``tests/autopilot/shared/test_mavlink_units.py`` checks this
 against ``msg.pack(mav)`` and ``mav.decode``).  Anything else goes through pymavlink unchanged.
 
 ``HotDecoder`` goes one step further for the two messages of a lockstep frame (``HOT_IDS``: ATTITUDE and

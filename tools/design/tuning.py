@@ -266,7 +266,7 @@ def design_baseline(plant, *, rate_hz: float = 100.0, delay_steps: int = 0) -> B
     margin computations: each point's gain crossovers are bracketed by a scan of |L| (``crossover_range``); a point
     all of whose crossovers lie above 5 rad/s cannot qualify, and the points are taken by their highest bracket, so
     once one qualifies with crossover W, a point bracketed below W cannot beat it (python-control's crossover is one
-    of the loop's).  ``tests/test_pfc_design.py`` checks it against the brute force."""
+    of the loop's).  ``tests/tools/design/test_pfc_design.py`` checks it against the brute force."""
     from autopilot.baseline import BaselineConfig
     from tools.design.aspr import plant_tf
     from tools.design.margins import baseline_margins, sampled_loop
@@ -494,7 +494,7 @@ def design_pid_bound(plant, *, rate_hz: float = 100.0, delay_steps: int = 0, td_
     For each T_d the crossover fixes K_p (|L| = 1 there and L is linear in K_p), so the search is over (w, T_d):
     w by a 10 % scan down from the cap then bisection, T_d on a grid of 21 refined three times around the best
     (7 points each: T_d to 1e-3 s).  The winner's margins are checked with python-control (``baseline_margins``);
-    ``tests/test_damage.py`` checks it against a brute-force search over (K_p, T_d)."""
+    ``tests/tools/experiment/damage/test_damage.py`` checks it against a brute-force search over (K_p, T_d)."""
     from autopilot.baseline import BaselineConfig
     from tools.design.margins import baseline_margins
 

@@ -12,7 +12,7 @@ the caller's action, frame by frame, in the order the SITL flies it (``sitl.endp
 3. the SITL flies the pulse's angle for one control period of physics steps: the faults through the one schedule
    (``sitl.damage.ScheduledEffects``), the atmosphere through the injector (``sitl.disturbances.Injector``).
 
-So a PID policy flies the launcher's roll series (tests/test_gym.py).
+So a PID policy flies the launcher's roll series (tests/tools/experiment/test_gym.py).
 """
 
 from __future__ import annotations

@@ -3,10 +3,10 @@
 
 ``gymnasium.make_vec("sitl.gym:Roll-v0", num_envs=64, vectorization_mode="vector_entry_point")``, or
 ``RollVectorEnv(64, plant=...)``.  The numbers are those of N ``Roll-v0`` environments (``gymnasium.vector.
-SyncVectorEnv``) to the last bit (tests/test_gym.py): each aircraft is a ``tools.experiment.gym.flight.Lane``
-built exactly as the single environment builds it, and the study's way of flying many aircraft
-(``tools.experiment.study``: arrays of N states, the same operations elementwise) is applied where it gives the
-same bits:
+SyncVectorEnv``) to the last bit (tests/tools/experiment/test_gym.py): each aircraft is a
+``tools.experiment.gym.flight.Lane`` built exactly as the single environment builds it, and the study's way of flying
+many aircraft (``tools.experiment.study``: arrays of N states, the same operations elementwise) is applied where it
+gives the same bits:
 
 * the physics of a linear plant (the KH2013A, a plant file without a ``truth`` map, no stop or servo fault, no
   atmosphere, no sensor errors) between fault changes: the exact ZOH update x <- Ad^n x + Bd_n u of

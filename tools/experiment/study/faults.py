@@ -182,8 +182,8 @@ def fine_matrices(scales: np.ndarray, dt: float, key) -> tuple[np.ndarray, np.nd
 def slew(delta, delta_free, rate_free, move_max: float, rate: float):
     """The rate limit's rule on arrays, ``sitl.damage.Actuator.surface``'s (and kernel.c's ``rate_limited``): the free
     step's move ``delta_free - delta`` beyond ``move_max`` (rate * h) coasts at +-rate, else the free step is taken
-    with its rate clipped to +-rate.  Returns (coast, the coasting rate, the clipped free rate); tests/test_faults.py
-    holds it to the Actuator's bit for bit."""
+    with its rate clipped to +-rate.  Returns (coast, the coasting rate, the clipped free rate);
+    tests/sitl/test_faults.py holds it to the Actuator's bit for bit."""
     move = delta_free - delta
     up, down = move > move_max, move < -move_max
     return up | down, np.where(up, rate, -rate), np.minimum(rate, np.maximum(-rate, rate_free))
