@@ -1,4 +1,4 @@
-"""``python -m autopilot``: the CL-SAC roll autopilot process (docs/design.md, "MAVLink" and "Timing modes").
+"""``python -m autopilot``: the CL-SAC roll autopilot process (docs/spec.md, "MAVLink" and "Timing modes").
 
 Links: to the SITL (sends SERVO_OUTPUT_RAW to --sitl, receives ATTITUDE) and a GCS stream (sends
 HEARTBEAT, ATTITUDE, ATTITUDE_TARGET, SERVO_OUTPUT_RAW, STATUSTEXT to --gcs and answers whoever

@@ -15,7 +15,7 @@ and a phase margin of 1.1 deg (``tools.design.margins.baseline_margins(pfc_inver
 to fly.  The default gains K_p = 0.1, K_i = 0.1 s^-1, K_d = 0.02 s give the sampled loop (100 Hz, ZOH plant,
 backward-difference derivative) a gain margin of 23.9 dB at 48.9 rad/s and a phase margin of 59.3 deg at
 a 4.7 rad/s crossover
-(``tools.design.margins.baseline_margins()``, python-control; checked by tests/test_baseline.py).
+(``tools.design.margins.baseline_margins()``, python-control; checked by tests/autopilot/test_baseline.py).
 
 **Feed-forward and derivative on the measurement** (``--controller pid-ff``, ``kff > 0``, ``derivative =
 "measurement"``; both off by default, so the baseline above is unchanged).  The adaptive laws feed the command
@@ -52,7 +52,7 @@ from autopilot.config import ConfigError, NonFiniteInputError
 from autopilot.shared.numerics import zoh
 
 # The KH2013A's roll-mode feed-forward -L_p / L_delta (paper sec. 5.1: A_lp[1, 1] = -2.22 1/s, B_lp[1] = 59.7
-# 1/s^2 per rad): s of rudder per rad/s of roll rate; tests/test_baseline.py checks it against sitl.model.
+# 1/s^2 per rad): s of rudder per rad/s of roll rate; tests/autopilot/test_baseline.py checks it against sitl.model.
 KFF_KH2013A = 2.22 / 59.7
 DERIVATIVES = ("error", "measurement")
 

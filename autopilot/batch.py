@@ -5,7 +5,7 @@
 order with the very coefficients the scalar law computes (read from a ``ClSac``/``Baseline`` built from the same
 config).  Every operation is an elementwise IEEE-754 add, multiply, compare or select, so element i of the
 batch is bit for bit what the scalar law computes for aircraft i, whatever N and whatever the other elements
-(tests/test_batch.py replays sampled runs through the scalar law).  No transcendental function is evaluated
+(tests/autopilot/test_batch.py replays sampled runs through the scalar law).  No transcendental function is evaluated
 per step.
 
 Per-aircraft configs may differ in any coefficient (the study draws the PFC per run); the switches

@@ -73,7 +73,7 @@ class ClSacConfig:
     # Parallel feedforward compensator D(s) = 1/C(s), C(s) = (4 s + 40)/10  (paper section 5)
     pfc_num: tuple[float, ...] = (10.0,)
     pfc_den: tuple[float, ...] = (4.0, 40.0)
-    # Rudder command limit |u| <= u_limit_rad (docs/design.md, "Reference scenario": 30 deg)
+    # Rudder command limit |u| <= u_limit_rad (docs/spec.md, "Reference scenario": 30 deg)
     u_limit_rad: float = math.radians(30.0)
     # Conditional integration when the command saturates (see ClSac docstring)
     anti_windup: bool = True
@@ -85,7 +85,7 @@ class ClSacConfig:
     # Freeze every integral channel while the command saturates (anti_windup skips only the channels that push
     # further past the limit).
     freeze_when_saturated: bool = False
-    # A square MIMO plant (m > 1; docs/design.md, "Square MIMO CL-SAC"): a PFC per channel, D(s) = diag(D_1, ..., D_m)
+    # A square MIMO plant (m > 1; docs/spec.md, "Square MIMO CL-SAC"): a PFC per channel, D(s) = diag(D_1, ..., D_m)
     # with D_i = num_i/den_i (``pfc_num``/``pfc_den`` are then unused), and a command limit per channel (each surface
     # its own stop).  None: every channel the same D(s) = pfc_num/pfc_den and the one ``u_limit_rad``.
     pfc_channels: tuple | None = None

@@ -1,4 +1,4 @@
-"""The controllers the product flies, in one place (docs/design.md, "Adding a controller").
+"""The controllers the product flies, in one place (docs/architecture.md, "Laws").
 
 Two tables, plain data (no numpy: ``--help`` reads them):
 

@@ -1,4 +1,4 @@
-"""The flight envelope: what "controlled" means, defined once (docs/design.md, section 4, "Three outcomes").
+"""The flight envelope: what "controlled" means, defined once (docs/spec.md, section 5, "Three outcomes").
 
 A flight is **controlled** when it stayed inside the envelope for the whole flight:
 
@@ -24,7 +24,7 @@ announces each excursion once) and :func:`judge_series` / :func:`verdict` (a rec
 Each gives a :class:`Controlled` (``ok``, the numbers, ``first_exit_s``, a one-line ``reason``, ``tracking``,
 ``ground_station``).
 
-**Tracking** (docs/design.md, section 4, "Three outcomes").  The deviation d = phi - y_r from the commanded
+**Tracking** (docs/spec.md, section 5, "Three outcomes").  The deviation d = phi - y_r from the commanded
 response y_r (the law's reference model y_m,ol driven by the command: the response the loop was designed to give,
 the reference of the ise_ref metric, so a step's designed rise is not an error) is judged over each window of
 ``TRACK_WINDOW_S`` = 20 s (two periods of the reference square wave, four of its steps: a sustained oscillation
@@ -35,7 +35,7 @@ must last that long), sliding by ``TRACK_BLOCK_S`` = 1 s, from its sums (:func:`
   ``OSC_SWING_DEG`` (4 deg peak to peak) back from its last extreme (a hysteresis, so noise and ripple below 4 deg
   count nothing, and an oscillation about an offset counts); it is regular when its size and duration are each
   within ``OSC_REGULAR_TOL`` (15 %) of the previous swing's (``autopilot.swings``; the measured counts that set the
-  limits are in docs/design.md, section 4).  Also (the rule of issue 29, kept): rms(d) >= ``DEVIATION_RATIO`` (1) x
+  limits are in docs/spec.md, section 5).  Also (the rule of issue 29, kept): rms(d) >= ``DEVIATION_RATIO`` (1) x
   max(rms(y_r), ``REF_FLOOR_DEG``) *and* the command hit its stops at least ``STOP_HITS_MIN`` (10) times (a hit:
   the command reaching a stop after it was back within ``HIT_REARM`` (half) of the limit since the last hit): a
   loop no better than holding the wings level (phi = 0 gives rms(d) = rms(y_r)) that bangs its surface from stop

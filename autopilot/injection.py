@@ -1,4 +1,4 @@
-"""MAV_CMD_INJECT_FAILURE from a ground station, the way PX4 takes it (docs/design.md, "Faults from a ground station").
+"""MAV_CMD_INJECT_FAILURE from a ground station, the way PX4 takes it (docs/spec.md, "Faults from a ground station").
 
 :class:`FailureRelay` is a part of the vehicle (``autopilot.vehicle``).  A ground station's COMMAND_LONG is refused
 with MAV_RESULT_DENIED unless failure injection is on (``--failure-injection``, or the parameter SYS_FAILURE_EN = 1),

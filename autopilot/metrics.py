@@ -1,4 +1,4 @@
-"""Run metrics of the reference scenario (docs/design.md, "Metrics"), accumulated one control sample at a time.
+"""Run metrics of the reference scenario (docs/spec.md, "Metrics"), accumulated one control sample at a time.
 
 One implementation for every transport: the in-process runner and the autopilot process both feed
 ``MetricsAccumulator.add`` once per control step, so runs compare like for like.  No I/O.

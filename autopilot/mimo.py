@@ -1,4 +1,4 @@
-"""A square MIMO law flown by the autopilot's one-channel loop (issue 32; docs/design.md, "Square MIMO CL-SAC").
+"""A square MIMO law flown by the autopilot's one-channel loop (issue 32; docs/spec.md, "Square MIMO CL-SAC").
 
 The loop, the control step, the metrics, the envelope and the telemetry fly channel 1 (the roll on the aileron) as
 they fly a SISO law; :class:`MimoLaw` quacks like one (``autopilot.clsac.ClSac``: ``command``/``advance``,

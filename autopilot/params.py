@@ -1,4 +1,4 @@
-"""The autopilot's parameter table: every controller value as a named MAVLink parameter (docs/design.md, "MAVLink").
+"""The autopilot's parameter table: every controller value as a named MAVLink parameter (docs/spec.md, "MAVLink").
 
 Names are at most 16 characters (PARAM_VALUE.param_id), all ``CLSAC_*`` but PX4's ``SYS_FAILURE_EN``, values SI
 (rad, s, Hz) and sent as REAL32, but for SYS_FAILURE_EN, an INT32 as PX4's (``encode``, ``decode``).

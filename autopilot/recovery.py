@@ -1,4 +1,4 @@
-"""Recovery after a fault (docs/design.md, section 4, "Three outcomes"): how long the roll took to come back to the
+"""Recovery after a fault (docs/spec.md, section 5, "Three outcomes"): how long the roll took to come back to the
 commanded response after a fault's onset and follow it, or that it did not.  Pure functions, no I/O.
 
 **The deviation** d = roll - y_r from the commanded response (the law's reference model y_m,ol driven by the

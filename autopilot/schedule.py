@@ -1,7 +1,7 @@
 """A ground station's lockstep schedule that no lost datagram can change: which scheduled setpoints are taken.
 
 In lockstep the autopilot flies frame k only once a ground station has scheduled setpoints up to t_k (pacing,
-docs/design.md section 5).  If the horizon moved with every setpoint that arrived, a lost one (the kernel drops
+docs/spec.md, section 4).  If the horizon moved with every setpoint that arrived, a lost one (the kernel drops
 datagrams when a flood fills the socket) would leave a hole: the frames after it would fly the point before it,
 and a lost last point would leave the run waiting for ever.  So the horizon moves only over points known to be
 contiguous with what the autopilot holds, and the ground station sends again what was lost:

@@ -7,14 +7,14 @@ Three users call :class:`ControlStep` once per control period and get a :class:`
 * the in-process runner (``tools.experiment.scenario.run_inprocess``), which adds the simulated aircraft.
 
 So the three can never drift apart: a lockstep flight over MAVLink and the in-process runner with the wire
-model give bit-identical metrics (``tests/test_e2e_lockstep.py``).  Example::
+model give bit-identical metrics (``tests/tools/flight/test_e2e_lockstep.py``).  Example::
 
     from autopilot import ClSacConfig, ControlStep, PwmMap
     from autopilot.step import ProfileSetpoints
 
     step = ControlStep(ClSacConfig(), PwmMap(), ProfileSetpoints(lambda t: 0.1745))
     res = step(0.0, phi)          # res.u: the rudder command that flies (rad), res.pwm its pulse (us)
-    step.metrics.result()         # the five metrics so far (docs/design.md, "Metrics")
+    step.metrics.result()         # the five metrics so far (docs/spec.md, "Metrics")
 
 Like simple-pid's controller object, the clock is injected (``t`` is an argument, never read from the
 machine), the internals of each step are exposed for logging (``step.law``: the ``ClSac`` with ``e``,
@@ -230,7 +230,7 @@ class ControlStep:
         known, the pulse width (the command in rad without a PWM map).  ``finish()`` must follow before the next
         step: it completes the law's step (``ClSac.advance``) and the metrics and returns the ``StepResult``, with
         exactly the numbers of ``__call__`` (the same operations in the same order).  The lockstep autopilot sends
-        the servo command between the two (docs/design.md, "Lockstep")."""
+        the servo command between the two (docs/spec.md, "Lockstep")."""
         setpoints = self.setpoints
         um = setpoints.at(t)
         if wings_level:

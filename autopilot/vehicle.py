@@ -1,4 +1,4 @@
-"""The autopilot as a MAVLink vehicle for ground stations (docs/design.md, "Ground stations").
+"""The autopilot as a MAVLink vehicle for ground stations (docs/spec.md, "Ground stations").
 
 :class:`Vehicle` answers everything a ground station (MAVProxy, QGroundControl, a pymavlink script) sends on
 the autopilot's GCS link and keeps its streams: identity (HEARTBEAT, AUTOPILOT_VERSION, PROTOCOL_VERSION), the
@@ -36,7 +36,7 @@ AVAILABLE_MODES = _all.MAVLINK_MSG_ID_AVAILABLE_MODES  # 435
 CURRENT_MODE = _all.MAVLINK_MSG_ID_CURRENT_MODE  # 436
 # PROTOCOL_VERSION (300, minimal.xml) is in none of pymavlink 2.4's generated dialects: version, min_version,
 # max_version (uint16), spec_version_hash[8], library_version_hash[8] (uint8), CRC extra 217 (computed from the
-# definition with pymavlink's generator algorithm, tests/test_vehicle.py).
+# definition with pymavlink's generator algorithm, tests/autopilot/test_vehicle.py).
 PROTOCOL_VERSION = 300
 _PROTOCOL_VERSION_MSG = SimpleNamespace(id=PROTOCOL_VERSION, crc_extra=217, unpacker=struct.Struct("<HHH8s8s"))
 

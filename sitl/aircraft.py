@@ -257,8 +257,7 @@ class Aircraft:
         if not effect.servo:
             self._act = None
             return
-        servo = ("stuck", "stuck_at", "off", "rate", "delay")
-        if self._act is None or any(getattr(effect, k) != getattr(self._act.effect, k) for k in servo):
+        if self._act is None or effect.servo_differs(self._act.effect):
             self._act = damage.Actuator(effect, self.config.dt, self._u_last)
         self._act.effect = effect
         self._adc = zoh(damage.coasting_matrix(self._a), np.zeros((self.n, 1)), self.config.dt)[0]

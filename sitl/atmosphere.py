@@ -17,7 +17,7 @@ Q_d = int_0^h e^{A s} B B^T e^{A^T s} ds = P - A_d P A_d^T (P the stationary cov
 starts in the stationary distribution, so every sample has exactly the continuous-time variance whatever
 the step h.
 
-Assumptions (docs/design.md, "Atmosphere, sensors, link faults, uncertainty"): airspeed V = |(U0, W0)|
+Assumptions (docs/spec.md, "Atmosphere, sensors, link faults, uncertainty"): airspeed V = |(U0, W0)|
 from A_lp's v row (r coefficient -7.55 ~ -U0, p coefficient 1.93 ~ W0), 7.79 m/s; wing span b = 0.15 m;
 altitude 10 m.
 """

@@ -22,22 +22,32 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
-from autopilot.shared.servo_failures import FAULT_PREFIX, LIMITS
+from autopilot.shared.servo_failures import FAULT_PREFIX
+from sitl.fault_kinds import (
+    JSBSIM_KINDS,
+    KINDS,
+    KT,
+    LINEAR_KINDS,
+    MAX_AIRSPEED_KT,
+    MAX_CG_M,
+    MAX_FACTOR,
+    SERVO_KINDS,
+    SURFACE_KINDS,
+    FaultKind,
+    help_text,
+)
 
-KT = 1852.0 / 3600.0  # m/s per kt
 COMMAND_LINE = "command line"
 GROUND_STATION = "ground station"
 ALL = "all"  # Fault.surface: every surface of the plant (a ground station's instance 0)
 # The bounds every fault value is held to, on the command line, for ground stations (the same table,
-# ``autopilot.shared.servo_failures.LIMITS``), in Flight and in both studies; a plant's own are narrower (its
-# surface's travel for a stuck angle, its trim range for an airspeed: ``sitl.plant.check_faults``).
-MAX_DELAY_S = LIMITS["delay"]  # s
-MAX_STUCK_DEG = LIMITS["stuck"]  # deg: no surface travels further (a plant's own travel is checked with the plant)
-MAX_RATE_DEG_S = LIMITS["rate"]  # deg/s
-MAX_FACTOR = 10.0  # effectiveness, damping, inertia
-MAX_AIRSPEED_KT = 5000.0  # the JSBSim spec's airspeed_kt range (a plant's own: its trim range)
+# ``autopilot.shared.servo_failures.LIMITS``), in Flight and in both studies: each kind's record
+# (``sitl.fault_kinds.FaultKind.bound``); a plant's own are narrower (its surface's travel for a stuck angle, its trim
+# range for an airspeed: ``sitl.plant.check_faults``).
+MAX_DELAY_S = KINDS["delay"].bound  # s
+MAX_STUCK_DEG = KINDS["stuck"].bound  # deg: no surface travels further (a plant's own travel is checked with the plant)
+MAX_RATE_DEG_S = KINDS["rate"].bound  # deg/s
 MAX_TIME_S = 1e6  # START and END, sim seconds (11.6 days: longer than any flight; a flight's own end is narrower)
-MAX_CG_M = 5.0
 # A number as the command line takes it: ASCII digits only (float() would also take fullwidth and Arabic-Indic
 # digits, "1_0", "inf" and "nan"), an optional sign, fraction and exponent.
 NUMBER = re.compile(r"[+-]?(?:[0-9]+(?:\.[0-9]*)?|\.[0-9]+)(?:[eE][+-]?[0-9]+)?")
@@ -47,73 +57,7 @@ class FaultSpecError(ValueError):
     """A --fault spec is malformed or out of range; the message names the spec and what is wrong."""
 
 
-@dataclass(frozen=True)
-class Kind:
-    """A fault kind: its value (``none``: no value, ``optional``, ``required``), the unit the spec gives it in, the
-    factor to SI, and the range (``check`` returns the reason a value is refused, or None)."""
-
-    name: str
-    value: str  # "none" | "optional" | "required"
-    unit: str  # at the command line
-    si_unit: str
-    to_si: float
-    check: object
-    help: str
-
-
-def _factor(v: float) -> str | None:
-    return None if 0.0 < v <= MAX_FACTOR else f"must be > 0 and at most {MAX_FACTOR:g}"
-
-
-def _rate(v: float) -> str | None:
-    return None if 0.0 < v <= MAX_RATE_DEG_S else f"must be > 0 and at most {MAX_RATE_DEG_S:g} deg/s"
-
-
-def _airspeed(v: float) -> str | None:
-    return None if 0.0 < v <= MAX_AIRSPEED_KT else f"must be > 0 and at most {MAX_AIRSPEED_KT:g} kt"
-
-
-def _at_least_one(v: float) -> str | None:
-    if v < 1.0:
-        return "must be >= 1 (ballast can only add inertia)"
-    return None if v <= MAX_FACTOR else f"must be at most {MAX_FACTOR:g}"
-
-
-def _delay(v: float) -> str | None:
-    return None if 0.0 <= v <= MAX_DELAY_S else f"must be in [0, {MAX_DELAY_S:g}] s"
-
-
-def _stuck(v: float) -> str | None:
-    return None if abs(v) <= MAX_STUCK_DEG else f"must be within +-{MAX_STUCK_DEG:g} deg"
-
-
-def _cg(v: float) -> str | None:
-    return None if abs(v) <= MAX_CG_M else f"must be within +-{MAX_CG_M:g} m"
-
-
-def _any(_v: float) -> str | None:
-    return None
-
-
-KINDS = {
-    k.name: k
-    for k in (
-        Kind("effectiveness", "required", "", "", 1.0, _factor, "the surface moves the aircraft F times as much"),
-        Kind("stuck", "optional", "deg", "rad", math.pi / 180.0, _stuck, "the surface jams where it is, or at DEG"),
-        Kind("off", "none", "", "", 1.0, _any, "the surface floats to neutral: no authority"),
-        Kind("rate", "required", "deg/s", "rad/s", math.pi / 180.0, _rate, "slews no faster than DEG_PER_S"),
-        Kind("delay", "required", "s", "s", 1.0, _delay, "S of extra actuator delay (whole physics steps)"),
-        Kind("damping", "required", "", "", 1.0, _factor, "the roll damping (L_p, Clp) times F"),
-        Kind("inertia", "required", "", "", 1.0, _at_least_one, "JSBSim: the roll inertia Ixx times F (tip ballast)"),
-        Kind("cg", "required", "m", "m", 1.0, _cg, "JSBSim: the CG M metres to the right (wing-tip ballast)"),
-        Kind("airspeed", "required", "kt", "m/s", KT, _airspeed, "JSBSim: the safety pilot holds KT knots"),
-    )
-}
-SERVO_KINDS = frozenset({"stuck", "off", "rate", "delay"})  # on the servo's path: every plant has them
-# The kinds that act on one surface (the servo's, or the surface's coefficients): a fault record names it
-SURFACE_KINDS = SERVO_KINDS | {"effectiveness"}
-LINEAR_KINDS = frozenset({"effectiveness", "damping"}) | SERVO_KINDS
-JSBSIM_KINDS = frozenset(KINDS)
+Kind = FaultKind  # a fault kind: its record (``sitl.fault_kinds.KINDS``)
 SYNTAX = "KIND[=VALUE]@START[:END]"
 
 
@@ -243,8 +187,7 @@ def add_argument(parser) -> None:
         default=None,
         metavar=SYNTAX,
         help="a fault in mid-flight, from START to END sim seconds (without END it stays), repeatable: "
-        "effectiveness=F, stuck[=DEG], off, rate=DEG_PER_S, delay=S, damping=F; on JSBSim also inertia=F, cg=M, "
-        "airspeed=KT (docs/faults.md)",
+        f"{help_text()} (docs/faults.md)",
     )
 
 
@@ -293,6 +236,10 @@ class Effect:
         """A fault on the servo's path (stuck, off, rate, delay)."""
         return self.stuck or self.off or self.rate is not None or self.delay > 0
 
+    def servo_differs(self, other: Effect) -> bool:
+        """Whether the servo's faults differ from ``other``'s (``SERVO_FIELDS``): a new ``Actuator`` takes over."""
+        return any(getattr(self, k) != getattr(other, k) for k in SERVO_FIELDS)
+
     @property
     def airframe(self) -> bool:
         """A change of the airframe's coefficients (effectiveness, damping)."""
@@ -300,31 +247,16 @@ class Effect:
 
 
 NOMINAL = Effect()
+# The Effect's fields of the servo kinds (``sitl.fault_kinds.SERVO_KINDS``' fields, and where a stuck one is held)
+SERVO_FIELDS = (*(KINDS[k].field for k in KINDS if k in SERVO_KINDS), "stuck_at")
 
 
 def combine(faults) -> Effect:
-    """The Effect of the faults active together, in the order they started (see the module docstring)."""
+    """The Effect of the faults active together, in the order they started (see the module docstring): each kind's
+    record folds its value in (``sitl.fault_kinds.FaultKind.fold``)."""
     e = NOMINAL
     for f in faults:
-        k, v = f.kind, f.value
-        if k == "effectiveness":
-            e = replace(e, effectiveness=e.effectiveness * v)
-        elif k == "damping":
-            e = replace(e, damping=e.damping * v)
-        elif k == "stuck":
-            e = replace(e, stuck=True, stuck_at=v if v is not None else e.stuck_at)
-        elif k == "off":
-            e = replace(e, off=True)
-        elif k == "rate":
-            e = replace(e, rate=v if e.rate is None else min(e.rate, v))
-        elif k == "delay":
-            e = replace(e, delay=e.delay + v)
-        elif k == "inertia":
-            e = replace(e, inertia=e.inertia * v)
-        elif k == "cg":
-            e = replace(e, cg=e.cg + v)
-        elif k == "airspeed":
-            e = replace(e, airspeed=v)
+        e = KINDS[f.kind].fold(e, f.value)
     return e
 
 
@@ -597,6 +529,15 @@ class InjectionFilter:
 __all__ = [
     "ALL",
     "COMMAND_LINE",
+    "JSBSIM_KINDS",
+    "KT",
+    "LINEAR_KINDS",
+    "MAX_AIRSPEED_KT",
+    "MAX_CG_M",
+    "MAX_FACTOR",
+    "SERVO_FIELDS",
+    "SERVO_KINDS",
+    "SURFACE_KINDS",
     "GROUND_STATION",
     "KINDS",
     "Actuator",
@@ -604,6 +545,7 @@ __all__ = [
     "Fault",
     "FaultSpecError",
     "InjectionFilter",
+    "Kind",
     "Schedule",
     "ScheduledEffects",
     "advance_scheduled",

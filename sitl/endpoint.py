@@ -126,7 +126,7 @@ class Sitl:
             params = self.inj.params()
         damaged = plants.needs_damaged_model(opts.faults)
         self.aircraft = plants.build(opts.plant, opts.physics_rate_hz, params, opts.disturbances, damaged)
-        self._euler = plants.kind(opts.plant) == "jsbsim"  # ATTITUDE carries the plant's own pitch, yaw and q
+        self._euler = plants.spec(opts.plant).euler  # ATTITUDE carries the plant's own pitch, yaw and q
         self.mimo = bool(getattr(self.aircraft, "mimo", False))
         if self.mimo != (pwm2 is not None):
             raise plants.PlantError(
@@ -195,7 +195,7 @@ class Sitl:
 
     def _heading(self, r: float | None = None) -> float:
         """Heading psi (rad, wrapped to (-pi, pi]) for ATTITUDE.yaw: psi' = r (level turn, pitch 0), integrated with
-        the trapezoid rule between ATTITUDE messages.  Not a state of the lateral model (docs/design.md, "Units").
+        the trapezoid rule between ATTITUDE messages.  Not a state of the lateral model (docs/spec.md, "Units").
         ``r``: the yaw rate now, if the caller has it (else read from the truth state)."""
         t = self.aircraft.time
         r = float(self.aircraft.truth[2]) if r is None else r

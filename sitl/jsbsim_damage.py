@@ -11,7 +11,7 @@ of ``MODEL.xml`` (nothing is committed, nothing of the installed wheel is change
 - every function of the ``ROLL`` axis that reads the roll rate (``velocities/p-aero-rad_sec``: the c172x's ``Clp``,
   the roll damping) becomes ``<product> fault/roll-damping  (the function) </product>``;
 - both properties are declared in ``<aerodynamics>`` with the value 1 (a product with 1 is exact: until a fault
-  starts the copy flies bit for bit like the installed model, ``tests/test_faults_jsbsim.py``);
+  starts the copy flies bit for bit like the installed model, ``tests/sitl/test_faults_jsbsim.py``);
 - three point masses of weight 0 are appended to ``<mass_balance>`` (``BALLAST``): the ``inertia`` and ``cg``
   faults give them weight at run time (``inertia/pointmass-weight-lbs[i]``, JSBSim recomputes the CG and the
   inertia tensor every step).

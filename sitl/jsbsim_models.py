@@ -301,7 +301,7 @@ class PilotGains:
 PILOT = PilotGains()
 # The aircraft the safety pilot holds, each with the airspeed (kt) it was checked at, at 1000 m: a roll PD flying
 # +-10 deg roll steps for 30 s, the altitude held within PILOT_HOLDS_M and the airspeed within PILOT_HOLDS_M_S
-# (tests/test_jsbsim_models.py flies them again).  All with the c172x's gains.
+# (tests/sitl/test_jsbsim_models.py flies them again).  All with the c172x's gains.
 PILOTS = {
     "737": 190.0,
     "787-8": 180.0,

@@ -550,8 +550,7 @@ class JsbsimPlant:
         one when the servo faults change), and its (delta, delta_dot) after the jam's jump and the rate's clip."""
         if not effect.servo:
             return None, d_, dd
-        servo = ("stuck", "stuck_at", "off", "rate", "delay")
-        if act is None or any(getattr(effect, k) != getattr(act.effect, k) for k in servo):
+        if act is None or effect.servo_differs(act.effect):
             act = damage.Actuator(effect, self.config.dt, self._u_last if u_last is None else u_last)
         act.effect = effect
         jump = damage.jammed(old, effect, d_)

@@ -29,49 +29,49 @@ from tools.experiment.scenario import PAPER, PAPER_RUNS, run_inprocess
 # else is done, balanced by their durations (seconds, run one after the other with --durations=0: 211 and 212).
 LANES = (
     (
-        "test_stalls.py",
-        "test_vehicle.py",
-        "test_hostile.py",
-        "test_mavlink_badinput.py",
-        "test_e2e_disturbances.py",
-        "test_signed_gcs.py",
-        "test_gcs_admission.py",
-        "test_sysid.py",
-        "test_user_lines.py",
+        "tests/tools/flight/test_stalls.py",
+        "tests/autopilot/test_vehicle.py",
+        "tests/autopilot/test_hostile.py",
+        "tests/autopilot/shared/test_mavlink_badinput.py",
+        "tests/tools/flight/test_e2e_disturbances.py",
+        "tests/autopilot/test_signed_gcs.py",
+        "tests/autopilot/test_gcs_admission.py",
+        "tests/autopilot/test_sysid.py",
+        "tests/tools/flight/test_user_lines.py",
     ),
     (
-        "test_clients.py",
-        "test_launch_verdict.py",
-        "test_e2e_envelope.py",
-        "test_telemetry_flight.py",
-        "test_signing.py",
-        "test_web.py",
-        "test_e2e_telemetry.py",
+        "tests/tools/test_clients.py",
+        "tests/tools/flight/test_launch_verdict.py",
+        "tests/tools/flight/test_e2e_envelope.py",
+        "tests/autopilot/test_telemetry_flight.py",
+        "tests/autopilot/shared/test_signing.py",
+        "tests/tools/flight/test_web.py",
+        "tests/tools/view/test_e2e_telemetry.py",
     ),
 )
 # Last, alone: real time with software rendering on both cores, and a flight pinned to a core it busy-waits on.
-ALONE = ("test_browser_viewer.py", "test_e2e_realtime.py")
+ALONE = ("tests/tools/view/test_browser_viewer.py", "tests/tools/flight/test_e2e_realtime.py")
 SERIAL_LAST = tuple(m for lane in LANES for m in lane) + ALONE  # every module that flies in real time
-BARRIER = "test_process_hygiene.py"  # its tests are what a worker waiting at the barrier runs (one each)
+BARRIER = "tests/project/test_process_hygiene.py"  # its tests are what a worker waiting at the barrier runs (one each)
 SERIAL = "real time, alone"  # the last unit's name
 
 # Started first, in this order (modules; measured with --durations=0), in the parallel phase.
 LONGEST_FIRST = (
-    "tests/test_e2e_damage.py",
-    "tests/test_e2e_every_plant.py",
-    "tests/test_study_faults.py",
-    "tests/test_e2e_damage_mimo.py",
-    "tests/test_mimo_design.py",
-    "tests/test_e2e_mimo_sensors.py",
-    "tests/test_readme_robustness.py",
-    "tests/test_study.py",
-    "tests/test_plants.py",
-    "tests/test_e2e_lockstep.py",
-    "tests/test_bad_input.py",
-    "tests/test_pfc_design.py",
-    "tests/test_mavlink_cli.py",
-    "tests/test_docs_jsbsim.py",
-    "tests/test_failure_clients.py",
+    "tests/tools/experiment/damage/test_e2e_damage.py",
+    "tests/tools/flight/test_e2e_every_plant.py",
+    "tests/tools/experiment/study/test_study_faults.py",
+    "tests/tools/experiment/damage/test_e2e_damage_mimo.py",
+    "tests/tools/design/test_mimo_design.py",
+    "tests/tools/flight/test_e2e_mimo_sensors.py",
+    "tests/project/test_readme_robustness.py",
+    "tests/tools/experiment/study/test_study.py",
+    "tests/sitl/test_plants.py",
+    "tests/tools/flight/test_e2e_lockstep.py",
+    "tests/tools/test_bad_input.py",
+    "tests/tools/design/test_pfc_design.py",
+    "tests/tools/test_mavlink_cli.py",
+    "tests/project/test_docs_jsbsim.py",
+    "tests/tools/test_failure_clients.py",
 )
 
 
@@ -85,17 +85,9 @@ def _module(nodeid: str) -> str:
     return nodeid.split("::", 1)[0]
 
 
-def _file(nodeid: str) -> str:
-    return _module(nodeid).rsplit("/", 1)[-1]
-
-
-def _serial(nodeid: str) -> bool:
-    return _file(nodeid) in SERIAL_LAST
-
-
 def _unit(nodeid: str) -> str:
     """What one worker runs, one test after the other: a lane, the last unit, one barrier test, or a module."""
-    name = _file(nodeid)
+    name = _module(nodeid)
     if name in ALONE:
         return SERIAL
     for k, lane in enumerate(LANES):

@@ -266,7 +266,7 @@ class Gcs:
 
     def _sideslip(self, time_boot_ms: int, rel_s: float):
         """A square MIMO plant's second setpoint: NAMED_VALUE_FLOAT ``SSA_SP`` (deg), the sideslip command at the
-        same ``time_boot_ms`` as the roll's SET_ATTITUDE_TARGET it goes with (docs/design.md, "Square MIMO CL-SAC")."""
+        same ``time_boot_ms`` as the roll's SET_ATTITUDE_TARGET it goes with (docs/spec.md, "Square MIMO CL-SAC")."""
         return M.MAVLink_named_value_float_message(
             time_boot_ms, SIDESLIP_SETPOINT.encode(), math.degrees(self.profile.sideslip(rel_s))
         )

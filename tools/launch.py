@@ -178,7 +178,7 @@ def print_summary(s: dict) -> None:
         print(f"   recovery          {recovery_text(r)}")
 
 
-# A lockstep flight's busy-poll (docs/design.md section 9, "A flight in about a second"): the peer answers within
+# A lockstep flight's busy-poll (docs/decisions.md, "A flight in about a second"): the peer answers within
 # tens of us when it has a core, so 100 us catches nearly every answer; while the launcher's other processes
 # start on the same two cores, each 500 us spin that waits for a peer with no core took that core from it.
 LOCKSTEP_SPIN_US = 100.0
@@ -259,7 +259,7 @@ def build_parser() -> OneLineArgumentParser:
         default=LOCKSTEP_SPIN_US,
         metavar="US",
         help=f"lockstep: the autopilot and the SITL busy-poll this long for each other's frame before sleeping "
-        f"(default {LOCKSTEP_SPIN_US:g}; the processes' own default is 500, see docs/design.md section 9)",
+        f"(default {LOCKSTEP_SPIN_US:g}; the processes' own default is 500, see docs/decisions.md)",
     )
     p.add_argument(
         "--lockstep-idle-exit",

@@ -1,6 +1,6 @@
 """``python -m tools.pfc``: the W-ASPR analysis of the plant with its parallel feedforward compensator.
 
-Thin command line over ``tools.design`` (flags and JSON keys: docs/design.md, "Command lines").  Prints
+Thin command line over ``tools.design`` (flags and JSON keys: docs/spec.md, "Command lines").  Prints
 the transfer functions T(s) and F(s) = T(s) + D(s), the W-ASPR conditions of F, the bands of constant
 K_e > 0 for which 1 + K_e F is unstable (continuous time, and sampled with a zero-order hold at the control
 rate) and the steady-state error the PFC adds; ``--closed-loop`` also flies the paper scenario in-process.
@@ -26,12 +26,12 @@ design: python -m tools.pfc design PLANT [--out FILE.params] designs a PFC, the 
 PID for another plant (FILE.toml or jsbsim:MODEL[:KEY=VALUE,...]) and writes them where the launcher finds them
 (python -m tools.pfc design --help; docs/plants.md).  A square MIMO plant (jsbsim:MODEL:surface=aileron+rudder, a
 plant file of m inputs) gets a PFC per channel, its transmission zeros, K_e bands along rays and two PIDs
-(docs/design.md, "Square MIMO CL-SAC").
+(docs/spec.md, "Square MIMO CL-SAC").
 
 coefficients are comma-separated, highest power first: --pfc-num 10 --pfc-den 4,40 is 10/(4s + 40).
 A list starting with a minus sign needs the = form: --pfc-den=-1,-2 (which is then rejected as unstable).
 
-JSON keys (docs/design.md, "Command lines"): minimum_phase, relative_degree, hf_gain, unstable_gain_bands
+JSON keys (docs/spec.md, "Command lines"): minimum_phase, relative_degree, hf_gain, unstable_gain_bands
 (the answer: each band of Ke > 0 making 1 + Ke F unstable, with the crossing frequencies in rad/s; empty
 if none; a null high means the band extends to infinity), unstable_gain_bands_hull ([first low, last
 high]: a hull that also covers any stable window between bands, or null), waspr, plant/pfc/F numerators
@@ -246,7 +246,9 @@ def format_text(rep: analysis.WasprReport, cl: list[dict] | None = None, plant_n
 
 def _plant(args, parser):
     """(A_p, B_p, C_p) of --plant FILE.toml and its name, or (None, "KH2013A")."""
-    if args.plant is None or args.plant == "kh2013a":
+    from sitl import plant as plants
+
+    if args.plant is None or plants.kind_of(args.plant).paper:
         return None, "KH2013A"
     if args.closed_loop:
         parser.error("--closed-loop flies the KH2013A paper scenario: not with --plant")

@@ -2,7 +2,7 @@
 
 The step itself (setpoint, law, rudder limit, PWM map, metrics) is ``autopilot.step.ControlStep``; the links
 are ``autopilot.shared.link``; this module reads the links, decides *when* to step and sends the answer
-(docs/design.md, "Timing modes").  Two modes:
+(docs/spec.md, "Timing modes").  Two modes:
 
 * real time (:meth:`Autopilot.run_realtime`): one control step per period on a fixed grid of
   deadlines (sleep in ``select`` until shortly before the deadline, then spin; never ``sleep(period)``),

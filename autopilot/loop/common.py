@@ -114,7 +114,7 @@ class AutopilotOptions:
     gcs_ids: tuple = tuple((s, ANY_COMPONENT) for s in GCS_SYSTEMS)  # (sys, comp); comp ANY_COMPONENT = any
     learn_gcs: bool = True  # also take any system that sends a MAV_TYPE_GCS HEARTBEAT (off with --gcs-id)
     gcs_peers: tuple = ()  # ground-station addresses admitted from the start (--gcs-peer)
-    max_gcs: int = 8  # admitted ground-station addresses at most (docs/design.md, "Trust model")
+    max_gcs: int = 8  # admitted ground-station addresses at most (docs/spec.md, "Trust model")
     signing_key: bytes | None = None  # MAVLink 2 signing on both links (autopilot.shared.signing); None = off
     # SYS_FAILURE_EN: 1 = MAV_CMD_INJECT_FAILURE from a ground station is relayed to the SITL (autopilot.injection)
     failure_injection: float = 0.0

@@ -42,7 +42,7 @@ SIDESLIP_SETPOINT = "SSA_SP"  # tools.gcs.SIDESLIP_SETPOINT: a square MIMO plant
 
 
 def refusal_text(reason: str, sysid: int, compid: int, addr, opts: AutopilotOptions) -> str:
-    """Why the GCS link refused a would-be ground station's packet, in one line (docs/design.md, "Which ground
+    """Why the GCS link refused a would-be ground station's packet, in one line (docs/spec.md, "Which ground
     stations are admitted")."""
     if reason == "unsigned":
         why = "unsigned; this vehicle takes only packets signed with its key"

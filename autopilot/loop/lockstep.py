@@ -15,7 +15,7 @@ from autopilot.shared.mavlink import (
 
 
 class LockstepScheduler:
-    """Lockstep: one control step per SITL frame, answered at once (docs/design.md, "Lockstep")."""
+    """Lockstep: one control step per SITL frame, answered at once (docs/spec.md, "Lockstep")."""
 
     # =============================================================== lockstep
     def _on_frame(self, ms: int, t_rx: float, roll: float, p: float, r: float):
@@ -64,7 +64,7 @@ class LockstepScheduler:
         self.pending_frame = None
         # The critical path, which the SITL waits for: the law, encode, sign, send.  Everything after the send
         # (timing, telemetry, the gains stream, hooks, the envelope, the tlog's queue) is done while the SITL
-        # computes the next frame (docs/design.md, "Lockstep").
+        # computes the next frame (docs/spec.md, "Lockstep").
         t0 = time.perf_counter()
         att = self.att
         control = self.control

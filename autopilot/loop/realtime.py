@@ -12,7 +12,7 @@ from autopilot.step import Failsafe
 
 
 class RealtimeScheduler:
-    """Real time: one control step per period on a fixed grid of deadlines (docs/design.md, "Real time")."""
+    """Real time: one control step per period on a fixed grid of deadlines (docs/spec.md, "Real time")."""
 
     # ============================================================== real time
     def run_realtime(self) -> int:

@@ -9,7 +9,7 @@
 * ``numerics`` (the exact zero-order hold both the control law and the simulator use);
 * ``telemetry`` (the Rerun writer primitives: buffered tables, state channels, file merge).
 
-The dependency rule (docs/design.md, "Dependency rule"; checked by ``tests/test_architecture.py``): the
+The dependency rule (docs/architecture.md, "Dependency rule"; checked by ``tests/project/test_architecture.py``): the
 control law, the loop and the autopilot's telemetry live in ``autopilot``; the simulator lives in
 ``sitl``; neither imports the other, and ``sitl`` imports only this package from ``autopilot``.
 Importing ``autopilot.shared`` does not import the control law (``autopilot/__init__`` is lazy).

@@ -3,7 +3,7 @@
 pymavlink's generic ``pack``/``decode`` cost about 11-12 us each in Python; the lockstep loop sends and
 receives a handful per frame.  These helpers use the same dialect data (the message class's
 ``unpacker`` struct, ``crc_extra``, field ``orders``) and the same CRC (fastcrc's MCRF4XX, what
-pymavlink uses), and produce byte-identical packets (``tests/test_mavlink_units.py`` checks this
+pymavlink uses), and produce byte-identical packets (``tests/autopilot/shared/test_mavlink_units.py`` checks this
 against ``msg.pack(mav)`` and ``mav.decode``).  Anything else goes through pymavlink unchanged.
 
 ``HotDecoder`` goes one step further for the two messages of a lockstep frame (``HOT_IDS``: ATTITUDE and
@@ -133,7 +133,7 @@ class HotDecoder:
 FAST_DECODE_IDS = (mavlink.MAVLINK_MSG_ID_ATTITUDE, mavlink.MAVLINK_MSG_ID_SERVO_OUTPUT_RAW)
 FAST_DECODERS = {mid: FastDecoder(mavlink.mavlink_map[mid]) for mid in FAST_DECODE_IDS}
 # ArduPilot's AOA_SSA (ardupilotmega dialect, id 11020: time_usec, AOA and SSA in deg): the sideslip a square MIMO
-# plant's SITL sends beside ATTITUDE (docs/design.md, "Square MIMO CL-SAC"); decoded here, since the links parse the
+# plant's SITL sends beside ATTITUDE (docs/spec.md, "Square MIMO CL-SAC"); decoded here, since the links parse the
 # common dialect
 from pymavlink.dialects.v20 import ardupilotmega as _apm  # noqa: E402
 

@@ -119,7 +119,7 @@ class SendClock:
 
     Shared by the links of one process (``UdpLink(send_clock=...)``): a process that is stopped (SIGSTOP),
     starved or hung sends on none of them, and its own clock shows the gap when it runs again.  That is the
-    evidence of who stopped sending first (docs/design.md, "Trust model", honest outcomes)."""
+    evidence of who stopped sending first (docs/spec.md, "Honest outcomes")."""
 
     __slots__ = ("last", "first", "sends", "gap_s", "gap_from", "ended")
 

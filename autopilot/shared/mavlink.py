@@ -1,4 +1,4 @@
-"""The MAVLink wire contract shared by the SITL, the autopilot and the GCS script (docs/design.md, "MAVLink").
+"""The MAVLink wire contract shared by the SITL, the autopilot and the GCS script (docs/spec.md, "MAVLink").
 
 MAVLink 2, common dialect.  System/component IDs, the lockstep frame clock (and its uint32 wrap), the
 roll <-> quaternion mapping and the SET_ATTITUDE_TARGET type mask.  No sockets here (``link``).
@@ -17,7 +17,7 @@ AUTOPILOT_ID = (1, 1)  # the autopilot as ground stations see it (its GCS link; 
 AUTOPILOT_SITL_ID = (1, 140)
 SITL_ID = (1, 200)
 GCS_ID = (255, 190)
-# The ground stations admitted by default (docs/design.md, "Which ground stations are admitted"): QGroundControl,
+# The ground stations admitted by default (docs/spec.md, "Which ground stations are admitted"): QGroundControl,
 # Mission Planner and MAVProxy talk as system 255, MAVSDK as 245 (its default 245:190); any other system that
 # announces itself with a MAV_TYPE_GCS heartbeat is admitted too (``UdpLink(learn_gcs=...)``).
 GCS_SYSTEMS = (255, 245)

@@ -1,6 +1,6 @@
 """Servo PWM calibration: rudder angle (rad) <-> pulse width (us), the same configuration on both sides.
 
-Default (docs/design.md, "MAVLink"): channel 4, 1500 us neutral, 1000..2000 us spanning -30..+30 deg.
+Default (docs/spec.md, "MAVLink"): channel 4, 1500 us neutral, 1000..2000 us spanning -30..+30 deg.
 Each side of the trim has its own slope, like an ArduPilot SERVOn_MIN/TRIM/MAX calibration, so an
 asymmetric calibration still maps trim to 0 and min/max to -/+rudder_max.  Pulses are whole
 microseconds: 1 us is 0.06 deg with the defaults (the quantisation the 2 % agreement budget covers).

@@ -2,7 +2,7 @@
 
 Memory stays bounded whatever the flight's length: rows are kept as float64 in a buffer of ``CHUNK_ROWS`` rows,
 which is spilled to an anonymous temporary file when full, and ``save`` writes the ``.npz`` column by column
-from the spill, a chunk at a time (docs/design.md, "Bounded memory").
+from the spill, a chunk at a time (docs/decisions.md, "Bounded memory").
 """
 
 from __future__ import annotations

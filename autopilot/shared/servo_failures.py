@@ -18,9 +18,9 @@ instance, any other unit or type is MAV_RESULT_UNSUPPORTED (:class:`FailureUnsup
 usable value (a negative rate, an infinite delay, a position beyond any surface's travel) is MAV_RESULT_DENIED
 (:class:`FailureDenied`).  NaN is MAVLink's "not used" (MAVSDK's Failure plugin sends it), 0 the same; an infinite
 value is no value and is DENIED.  The SITL then holds the value to its plant's own bounds (the surface's travel:
-``sitl.plant.check_faults``).  The same bounds hold on the command line (``sitl.damage`` reads ``LIMITS``).  Pure:
-the autopilot validates with this table before it relays the command, the SITL maps with it when it applies it,
-neither imports the other.
+``sitl.plant.check_faults``).  The same bounds hold on the command line (the fault kinds' records,
+``sitl.fault_kinds``, read ``LIMITS``).  Pure: the autopilot validates with this table before it relays the
+command, the SITL maps with it when it applies it, neither imports the other.
 """
 
 from __future__ import annotations
@@ -41,7 +41,7 @@ DEFAULT_RATE_DEG_S = 20.0  # SLOW without a rate (param5 0 or NaN)
 DEFAULT_DELAY_S = 0.1  # DELAYED without a delay (param5 0 or NaN)
 # The largest value of each servo fault, the same for a ground station and on the command line (sitl.damage): a
 # stuck position (deg; no surface travels further, a plant's own travel is narrower), a rate limit (deg/s), an
-# extra actuator delay (s).
+# extra actuator delay (s): each servo kind's ``bound`` in ``sitl.fault_kinds.KINDS``.
 LIMITS = {"stuck": 90.0, "rate": 1000.0, "delay": 10.0}
 MAX_DELAY_S = LIMITS["delay"]  # a longer extra actuator delay is refused (DENIED)
 # The SITL's STATUSTEXT when a fault starts or ends begins with this (``FAULT_PREFIX + "start: ..."``): the

@@ -2,8 +2,8 @@
 
 The signature is MAVLink 2's (incompat flag 0x01, 13 bytes after the CRC): link id (1 byte), timestamp
 (6 bytes, units of 10 us since 2015-01-01 00:00 UTC) and the first 6 bytes of
-SHA-256(secret key + header + payload + CRC + link id + timestamp).  ``tests/test_signing.py`` checks the
-bytes against pymavlink's own ``MAVLink.signing``.
+SHA-256(secret key + header + payload + CRC + link id + timestamp).
+``tests/autopilot/shared/test_signing.py`` checks the bytes against pymavlink's own ``MAVLink.signing``.
 
 A key file holds the 32-byte secret as 64 hexadecimal digits (``python -m tools.flight.keygen FILE`` writes one
 with mode 0600).  ``load_key`` refuses a missing, unreadable, group- or world-accessible or short key

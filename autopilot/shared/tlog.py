@@ -5,7 +5,7 @@ MAVLink packet, exactly what ``mavutil.mavlogfile`` writes.  pymavlink's ``setup
 nothing for UDP links driven by hand, so the links call :meth:`TlogWriter.write` with the bytes they
 sent or accepted.  A write only stamps the record (the time it was sent or accepted) and queues it; the
 owner moves the queue into the file's buffer with :meth:`TlogWriter.drain` once the lockstep answer is out
-(off the critical path: docs/design.md, "Lockstep"), and ``flush``/``close`` drain first, so every record
+(off the critical path: docs/spec.md, "Lockstep"), and ``flush``/``close`` drain first, so every record
 reaches the file in the order written with the stamp of its moment.  The buffer is flushed by the owner's
 housekeeping (``maybe_flush``), so the control step never waits on the disk and a killed run leaves a
 file that ends at a record boundary or inside the last record (readers stop there).  A write that fails (a full

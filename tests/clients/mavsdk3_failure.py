@@ -1,5 +1,5 @@
 """MAVSDK-Python 3.x's Failure plugin (gRPC to the ``mavsdk_server`` its wheel ships) against the vehicle, run by
-tests/test_failure_clients.py in the clients' own virtual environment (never the product's).  Default ids 245:190.
+tests/tools/test_failure_clients.py in the clients' own virtual environment (never the product's).  Default ids 245:190.
 
 ``python mavsdk3_failure.py PORT GRPC_PORT OUT.json``: the same steps as mavsdk4_failure.py: ``failure.inject(
 SYSTEM_SERVO, STUCK, 4)`` and ``inject(SYSTEM_SERVO, GARBAGE, 4)``; each result (``SUCCESS`` or the FailureError's

@@ -1,5 +1,5 @@
 """One ground-station session with MAVSDK-Python 3.x (gRPC to the ``mavsdk_server`` binary its wheel ships), run by
-tests/test_clients.py in the clients' own virtual environment (never the product's).  Default settings: 245:190.
+tests/tools/test_clients.py in the clients' own virtual environment (never the product's).  Default settings: 245:190.
 
 ``python mavsdk3_session.py PORT GRPC_PORT OUT.json``: the same steps as mavsdk4_session.py (parameters, a refused
 set, modes through MavlinkDirect, disarm and arm, a roll setpoint through Offboard.set_attitude), results in OUT.json.

@@ -1,5 +1,5 @@
-"""MAVSDK 4.x's Failure plugin against the vehicle, run by tests/test_failure_clients.py in the clients' own virtual
-environment (never the product's).  Default settings: MAVSDK talks as 245:190.
+"""MAVSDK 4.x's Failure plugin against the vehicle, run by tests/tools/test_failure_clients.py in the clients'
+own virtual environment (never the product's).  Default settings: MAVSDK talks as 245:190.
 
 ``python mavsdk4_failure.py PORT OUT.json``: listen on udpin://127.0.0.1:PORT, find the vehicle, then
 ``Failure.inject(SYSTEM_SERVO, STUCK, 4)`` (the rudder jams where it is) and ``inject(SYSTEM_SERVO, GARBAGE, 4)`` (not

@@ -1,5 +1,6 @@
-"""One ground-station session with MAVSDK 4.x (the ctypes binding of the C++ library), run by tests/test_clients.py
-in the clients' own virtual environment (never the product's).  Default settings: MAVSDK talks as 245:190.
+"""One ground-station session with MAVSDK 4.x (the ctypes binding of the C++ library), run by
+tests/tools/test_clients.py in the clients' own virtual environment (never the product's).  Default settings: MAVSDK
+talks as 245:190.
 
 ``python mavsdk4_session.py PORT OUT.json``: listen on udpin://127.0.0.1:PORT, find the vehicle, then download the
 parameters, get CLSAC_LV, set it, set a refused CLSAC_AM, switch mode MANUAL -> CLSAC (COMMAND_LONG DO_SET_MODE

@@ -115,7 +115,7 @@ TARGET_BAD_PLANT_FILE_S = 1.0  # docs/plants.md: a bad plant file is refused in 
 
 def bench_bad_plant_file(repeats: int) -> float:
     """Median seconds of ``python -m tools.pfc --plant FILE`` refusing a 100 MB plant file (sparse) from its size
-    alone, one line, exit 2 (the interpreter's start included).  tests/test_plant_files.py checks only that it is
+    alone, one line, exit 2 (the interpreter's start included).  tests/sitl/test_plant_files.py checks only that it is
     not read (no speed asserted in a test)."""
     root = Path(__file__).resolve().parents[2]
     times = []

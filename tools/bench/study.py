@@ -33,8 +33,8 @@ Figures, all measured in this one benchmark run:
   0.1 s to stop and 0.15-0.2 s to the exit): from SIGINT to the study's exit, the documented maximum ``--runs
   10000000`` on this process and ``--runs 1000 --workers 2 --long-runs 0``, each signalled once its progress bar
   shows and half a second more, medians of ``--sigint-repeats`` (default 3).  The tests check only that the study
-  stops and keeps what it did (tests/test_study_never_hangs.py), bounded by a generous timeout: a load of 10 on 2
-  cores took 2.08 s once.
+  stops and keeps what it did (tests/tools/experiment/study/test_study_never_hangs.py), bounded by a generous
+  timeout: a load of 10 on 2 cores took 2.08 s once.
 """
 
 from __future__ import annotations

@@ -1,7 +1,7 @@
 """Closed-loop summaries: the paper scenario's five runs flown in-process with a given PFC.
 
 What the W-ASPR analysis predicts (an unstable K_e band, a steady-state offset) checked against the
-closed loop it describes: metrics of docs/design.md, "Metrics", and the largest error gain K_e reached.
+closed loop it describes: metrics of docs/spec.md, "Metrics", and the largest error gain K_e reached.
 """
 
 from __future__ import annotations

@@ -350,21 +350,17 @@ def params_lines(designs: dict) -> list[str]:
 
 def design_plant(plant: str, control_rate_hz: float = 100.0) -> dict | str:
     """``design`` of a plant spec (kh2013a, a plant file, jsbsim:MODEL with its shipped linearisation), at the
-    surface limit of its file (+-30 deg for the KH2013A, paper sec. 5.1)."""
-    from tools.design.linearise import designed_params, linear_model
+    surface limit of its file (+-30 deg for the KH2013A, paper sec. 5.1): the plant file beside its design
+    (``sitl.plant_kinds.PlantSpec.design_file``: a plant file itself, a JSBSim model's shipped linearisation)."""
+    from sitl import plant as plants
 
-    lin = linear_model(plant)
-    limit = math.radians(30.0)
-    path = plant if plant.endswith(".toml") else None
-    if plant.startswith("jsbsim:"):
-        params = designed_params(plant)
-        path = None if params is None else str(params.with_suffix(".toml"))
-    if path is not None:
-        from sitl.linear_plant import load
-
-        limit = load(path).limit_rad or limit
+    ps = plants.spec(plant)
+    lin = ps.linear_model
     if lin is None:
         return f"no linear model of {plant} (python -m tools.pfc design designs one)"
+    limit = math.radians(30.0)
+    if ps.design_file is not None:
+        limit = plants.spec(str(ps.design_file.with_suffix(".toml"))).model.limit_rad or limit
     model = roll_model(*lin)
     if isinstance(model, str):
         return model

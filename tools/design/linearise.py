@@ -39,19 +39,11 @@ def design_path(plant: str) -> Path | None:
     """Where the design of ``plant`` is looked for (docs/plants.md, "Where a design is found"):
     ``sitl/plants/jsbsim-MODEL.params`` for ``jsbsim:MODEL[...]`` on the aileron (``jsbsim-MODEL-rudder.params`` on
     the rudder), ``FILE.params`` beside a plant ``FILE.toml``; None for kh2013a (the paper's values are its design).
-    Any airspeed: a design is flown off its design point."""
+    Any airspeed: a design is flown off its design point.  The plant kind's record says
+    (``sitl.plant_kinds.PlantKind.design``)."""
     from sitl import plant as plants
 
-    kind = plants.kind(plant)
-    if kind == "jsbsim":
-        from sitl.jsbsim_plant import parse_spec
-
-        spec = parse_spec(plant)
-        suffix = "" if spec.surface == "aileron" else f"-{spec.surface}"
-        return plants.shipped(f"jsbsim-{spec.model}{suffix}.params")
-    if kind == "file":
-        return Path(plant).with_suffix(".params")
-    return None
+    return plants.spec(plant).design_file
 
 
 def designed_params(plant: str) -> Path | None:
@@ -99,9 +91,10 @@ def design_advice(plant: str) -> str:
 
 def slow_linearisation_s(plant: str) -> float | None:
     """The measured FGLinearization time of ``plant``'s JSBSim model if it is in ``SLOW_LINEARISATION_S``, else None."""
-    if not plant.startswith("jsbsim:"):
-        return None
-    return SLOW_LINEARISATION_S.get(plant.split(":")[1])
+    from sitl import plant as plants
+
+    js = plants.spec(plant).jsbsim
+    return None if js is None else SLOW_LINEARISATION_S.get(js.model)
 
 
 PID_PARAMS = ("CLSAC_PID_KP", "CLSAC_PID_KI", "CLSAC_PID_KD")  # the baseline's gains in a parameter file
@@ -161,22 +154,11 @@ def linear_model(plant: str):
     """The linear model a plant is designed on: (A_p, B_p, C_p) with the servo last and the index of its roll-rate
     state (None when the roll rate is not one state).  kh2013a: the paper's matrices (``sitl.model``); a plant
     file: itself; ``jsbsim:MODEL[...]``: its linearised file shipped beside its designed parameter file
-    (``sitl/plants/jsbsim-MODEL.toml``, at its design point, whatever the airspeed flown), None if none."""
-    from sitl import damage, model
+    (``sitl/plants/jsbsim-MODEL.toml``, at its design point, whatever the airspeed flown), None if none: the plant
+    kind's record (``sitl.plant_kinds.PlantKind.linear``)."""
     from sitl import plant as plants
-    from sitl.linear_plant import load
 
-    kind = plants.kind(plant)
-    if kind == "kh2013a":
-        return model.A_P, model.B_P, model.C_P, model.P
-    if kind == "jsbsim":
-        params = designed_params(plant)
-        path = None if params is None else params.with_suffix(".toml")
-        if path is None or not path.is_file():
-            return None
-        plant = str(path)
-    lp = load(plant)
-    return lp.a_p, lp.b_p, lp.c_p, damage.roll_rate_index(lp.truth)
+    return plants.spec(plant).linear_model
 
 
 def linearise(spec, physics_rate_hz: float = 1000.0) -> dict:

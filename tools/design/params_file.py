@@ -54,20 +54,18 @@ def _plant_file(args, parser) -> tuple[str, Path]:
     from sitl import plant as plants
     from tools.design.linearise import design_path, shown_path
 
-    kind = plants.kind(args.plant)
-    if kind == "kh2013a":
+    ps = plants.spec(args.plant)
+    if ps.paper:  # the paper's aircraft: its plant file shipped
         text = str(plants.shipped("kh2013a.toml"))
         return text, Path(args.out or "kh2013a.params")
-    if kind == "file":
-        plants.check(args.plant)
+    plants.check(args.plant)
+    if ps.linear is not None:  # a linear plant file: designed as it is
         out = Path(args.out or design_path(args.plant))
         _refuse_another(out, parser)
         return args.plant, out
-    from sitl.jsbsim_plant import parse_spec
     from tools.design.linearise import linearise_bounded, to_toml
 
-    plants.check(args.plant)
-    spec = parse_spec(args.plant)
+    spec = ps.jsbsim  # a JSBSim aircraft: linearised first
     if args.airspeed is not None:
         if not (math.isfinite(args.airspeed) and args.airspeed > 0):
             parser.error(f"--airspeed must be positive and finite, got {args.airspeed!r}")

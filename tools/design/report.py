@@ -74,7 +74,7 @@ class WasprReport:
         return (self.bands[0].low, self.bands[-1].high) if self.bands else None
 
     def to_dict(self) -> dict:
-        """JSON-ready dict, the keys docs/design.md ("Command lines") promises first.  An unbounded edge
+        """JSON-ready dict, the keys docs/spec.md ("Command lines") promises first.  An unbounded edge
         (K -> inf) is null."""
 
         def inf_none(x: float):

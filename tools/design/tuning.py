@@ -266,7 +266,7 @@ def design_baseline(plant, *, rate_hz: float = 100.0, delay_steps: int = 0) -> B
     margin computations: each point's gain crossovers are bracketed by a scan of |L| (``crossover_range``); a point
     all of whose crossovers lie above 5 rad/s cannot qualify, and the points are taken by their highest bracket, so
     once one qualifies with crossover W, a point bracketed below W cannot beat it (python-control's crossover is one
-    of the loop's).  ``tests/test_pfc_design.py`` checks it against the brute force."""
+    of the loop's).  ``tests/tools/design/test_pfc_design.py`` checks it against the brute force."""
     from autopilot.baseline import BaselineConfig
     from tools.design.aspr import plant_tf
     from tools.design.margins import baseline_margins, sampled_loop
@@ -349,10 +349,12 @@ def faulted_plant(plant, roll_rate: int | None, effect):
     """The linear plant ``plant`` = (A_p, B_p, C_p), servo last, under a ``sitl.damage.Effect``'s airframe change, as
     the SITL flies it (docs/faults.md): effectiveness scales the deflection's column of the airframe rows and
     damping the roll rate's own term (``sitl.damage.airframe_matrix``).  A delay is not a change of (A, B, C): give
-    it to ``design_baseline`` as ``delay_steps``.  Stuck, off and a rate limit are no linear plant (ValueError)."""
+    it to ``design_baseline`` as ``delay_steps``.  Stuck, off and a rate limit are no linear plant (ValueError): the
+    kinds whose record (``sitl.fault_kinds.FaultKind.design``) has no design."""
     from sitl import damage
+    from sitl.fault_kinds import KINDS
 
-    if effect.stuck or effect.off or effect.rate is not None:
+    if any(k.design is None and k.group == "servo" and k.active(effect) for k in KINDS.values()):
         raise ValueError("stuck, off and rate faults are not a linear plant: nothing to design on")
     a_p, b_p, c_p = (np.asarray(m, dtype=float) for m in plant)
     return damage.airframe_matrix(a_p, effect, roll_rate), b_p, c_p
@@ -492,7 +494,7 @@ def design_pid_bound(plant, *, rate_hz: float = 100.0, delay_steps: int = 0, td_
     For each T_d the crossover fixes K_p (|L| = 1 there and L is linear in K_p), so the search is over (w, T_d):
     w by a 10 % scan down from the cap then bisection, T_d on a grid of 21 refined three times around the best
     (7 points each: T_d to 1e-3 s).  The winner's margins are checked with python-control (``baseline_margins``);
-    ``tests/test_damage.py`` checks it against a brute-force search over (K_p, T_d)."""
+    ``tests/tools/experiment/damage/test_damage.py`` checks it against a brute-force search over (K_p, T_d)."""
     from autopilot.baseline import BaselineConfig
     from tools.design.margins import baseline_margins
 

@@ -32,7 +32,7 @@ from tools.experiment.runs import (
 def build_parser() -> argparse.ArgumentParser:
     p = OneLineArgumentParser(
         prog="python -m tools.experiment",
-        description='Fly a reference scenario (docs/design.md, "Reference scenario") for each controller variant; '
+        description='Fly a reference scenario (docs/spec.md, "Reference scenario") for each controller variant; '
         "write OUT/summary.json and OUT/<scenario>.png and print the metrics.",
     )
     p.add_argument(

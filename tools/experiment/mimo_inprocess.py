@@ -6,8 +6,8 @@ Per control step k, as the lockstep flight over MAVLink does: the SITL's sidesli
 command through the PWM map, ``law.u2`` the rudder's through its own), and the aircraft advances one control period
 with both held; the faults fly as the SITL flies ``--fault`` (``sitl.damage.ScheduledEffects``: the aileron's, the
 first surface's).  With ``wire`` (the launcher's PWM calibration) the numbers are the MAVLink flight's: the test
-(tests/test_mimo_inprocess.py) compares them with ``python -m tools.launch``'s.  The damage sweep of docs/jsbsim.md
-(``sweep``: the aileron's effectiveness F, the rudder's channel as designed) is flown this way.
+(tests/tools/experiment/test_mimo_inprocess.py) compares them with ``python -m tools.launch``'s.  The damage sweep of
+docs/jsbsim.md (``sweep``: the aileron's effectiveness F, the rudder's channel as designed) is flown this way.
 """
 
 from __future__ import annotations

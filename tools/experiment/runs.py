@@ -3,8 +3,8 @@
     python -m tools.experiment paper --out DIR [--transport inprocess|mavlink] [--runs sac,clsac,...] [--no-plot]
                                            [--no-rrd] [--pfc paper|robust] [--sigma-xu SIGMA]
 
-writes ``DIR/summary.json`` (schema: docs/design.md, "summary.json") and ``DIR/paper.png``, and prints a table of
-the metrics of docs/design.md, "Metrics".  From Python::
+writes ``DIR/summary.json`` (schema: docs/spec.md, "summary.json") and ``DIR/paper.png``, and prints a table of
+the metrics of docs/spec.md, "Metrics".  From Python::
 
     from tools.experiment.runs import run_experiment, write_summary
     results = run_experiment("runs/x", transport="inprocess", runs=["sac", "clsac"], plot=False)
@@ -27,6 +27,7 @@ from typing import TYPE_CHECKING, Callable, Iterable, Sequence
 
 from autopilot.metrics import METRIC_NAMES
 from autopilot.shared.process import write_json_atomic
+from sitl import plant as plants
 from tools.experiment.outdir import hold_space, one_line, prepare_out_dir, write_problem
 
 if TYPE_CHECKING:
@@ -339,7 +340,7 @@ def require_design(scenario: Scenario, pfc: str | None = None) -> None:
     from sitl import plant as plants
     from tools.design.linearise import design_advice, design_path, designed_params, shown_path
 
-    if plants.kind(scenario.plant) == "kh2013a" or scenario.params is not None or pfc is not None:
+    if plants.spec(scenario.plant).paper or scenario.params is not None or pfc is not None:
         return
     if designed_params(scenario.plant) is None:
         raise ExperimentError(
@@ -444,7 +445,7 @@ def run_experiment(
             f" energy={res.metrics['energy']:.4g}" + (f" ({_surface(scen)} saturated)" if sat["saturated"] else "")
         )
     controller = {"pfc": pfc or "paper", "pfc_num_den": PFC_PRESETS[pfc or "paper"], "sigma_xu": sigma_xu or 0.0}
-    if scen.plant != "kh2013a":
+    if not plants.spec(scen.plant).paper:
         from tools.design.linearise import designed_params
 
         designed = None if pfc is not None else designed_params(scen.plant)

@@ -1,4 +1,4 @@
-"""The reference scenario ``paper`` (docs/design.md, "Reference scenario") and its in-process closed loop.  No I/O."""
+"""The reference scenario ``paper`` (docs/spec.md, "Reference scenario") and its in-process closed loop.  No I/O."""
 
 from __future__ import annotations
 
@@ -20,7 +20,7 @@ from tools.flight.profiles import Profile
 @dataclass(frozen=True)
 class Scenario:
     """A roll scenario: the command ``profile`` (any ``tools.flight.profiles.Profile``: square, step, sine or CSV
-    breakpoints) flown for ``duration_s``.  Defaults are the paper scenario (docs/design.md, "Reference
+    breakpoints) flown for ``duration_s``.  Defaults are the paper scenario (docs/spec.md, "Reference
     scenario"): a +-10 deg square wave of period 10 s, +10 deg first, for 30 s."""
 
     name: str = "paper"

@@ -334,7 +334,7 @@ class FlightConfig:
             plants.check(self.plant, self.physics_rate)
             plants.check_disturbances(self.plant, {k: getattr(self, k) for k in disturbances.FLAGS})
             plants.check_faults(self.plant, self.fault)
-            if plants.kind(self.plant) == "jsbsim":
+            if plants.spec(self.plant).jsbsim is not None:
                 _trims(self.plant)  # a JSBSim aircraft that does not trim there is refused before anything starts
         except plants.PlantError as exc:
             raise FlightConfigError("plant", f"plant: {exc}") from None
@@ -395,14 +395,14 @@ class FlightConfig:
         a square MIMO plant's first (the aileron: the roll channel the loop's verdict and messages name)."""
         from sitl import plant as plants
 
-        return plants.surface_of(self.plant).split("+")[0]
+        return plants.spec(self.plant).surfaces[0]
 
     @property
     def mimo(self) -> bool:
         """A square MIMO plant (``jsbsim:MODEL:surface=aileron+rudder``): two surfaces, roll and sideslip."""
         from sitl import plant as plants
 
-        return "+" in plants.surface_of(self.plant)
+        return plants.spec(self.plant).mimo
 
     @property
     def surface2_limit_deg(self) -> float | None:
@@ -532,7 +532,7 @@ def child_argvs(
     ap_ports: tuple[int, int] | None = None,
 ) -> dict[str, list[str]]:
     """The command line of each process of the flight; ``ap_ports``: the autopilot's SITL-link and GCS-link ports,
-    given to all three so that every link is pinned to its peer from the start (docs/design.md, "Trust model")."""
+    given to all three so that every link is pinned to its peer from the start (docs/spec.md, "Trust model")."""
     py = [sys.executable, "-u", "-m"]
     pwm = ["--rudder-max-deg", repr(max(RUDDER_MAX_DEG, cfg.u_limit_deg))]
     if cfg.mimo:  # each surface on its own SERVO_OUTPUT_RAW channel, as ArduPilot Plane: aileron 1, rudder 4

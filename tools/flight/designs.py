@@ -22,7 +22,7 @@ def refusal(cfg) -> tuple[str, str] | None:
     c = controllers.get(cfg.controller)
     path = cfg.params_file
     if c.kind.generic:  # a law on autopilot.law's interface flies its design for the plant (a user's: its defaults)
-        if c.kind.design and path is None and plants.kind(cfg.plant) != "kh2013a":
+        if c.kind.design and path is None and not plants.spec(cfg.plant).paper:
             from tools.design.linearise import design_path
 
             base = design_path(cfg.plant)
@@ -36,7 +36,7 @@ def refusal(cfg) -> tuple[str, str] | None:
         return None
     if path is None:
         explicit = cfg.pfc is not None if c.adaptive else cfg.baseline_gains is not None
-        if plants.kind(cfg.plant) != "kh2013a" and not explicit:
+        if not plants.spec(cfg.plant).paper and not explicit:
             return (
                 "plant",
                 f"plant: {cfg.plant} has no design (no {shown_path(design_path(cfg.plant))}): "

@@ -40,7 +40,7 @@ def png_request(cfg: FlightConfig, out: Path, name: str, metrics: dict) -> dict:
         "metrics": metrics,
         "plant": cfg.plant_name,
         "surface": cfg.surface,
-        "surface2": plants.surface_of(cfg.plant).split("+")[1] if cfg.mimo else None,
+        "surface2": plants.spec(cfg.plant).surfaces[1] if cfg.mimo else None,
     }
 
 
@@ -212,7 +212,7 @@ def build_summary(
         "runs": runs,
         "transport": "mavlink",
         "mode": "lockstep" if cfg.lockstep else "realtime",
-        "signing": cfg.signing,  # MAVLink 2 signing on every link (docs/design.md, "Trust model")
+        "signing": cfg.signing,  # MAVLink 2 signing on every link (docs/spec.md, "Trust model")
         # MAV_CMD_INJECT_FAILURE taken from a ground station at any time of the flight: the flag, a --params file or
         # a PARAM_SET of SYS_FAILURE_EN (what was in force, not only what the launcher was told)
         "failure_injection": failure_injection_in_force(cfg, stats),

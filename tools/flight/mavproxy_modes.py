@@ -20,7 +20,7 @@ nothing of the project, only MAVProxy and pymavlink, and those only when MAVProx
 
 from __future__ import annotations
 
-# HEARTBEAT.custom_mode -> name: autopilot.vehicle.Mode (tests/test_clients.py checks that they agree)
+# HEARTBEAT.custom_mode -> name: autopilot.vehicle.Mode (tests/tools/test_clients.py checks that they agree)
 MODES = {
     0: "MANUAL",
     100: "SAC",

@@ -36,7 +36,7 @@ def flown_report(cfg: FlightConfig, stats: dict) -> dict:
     steps asked.
 
     Lockstep: the autopilot's steps (each one a SITL frame answered).  Real time: the steps asked less every control
-    period lost (docs/design.md, "summary.json"): a step flown as a hold for want of attitude, a step that came more
+    period lost (docs/spec.md, "summary.json"): a step flown as a hold for want of attitude, a step that came more
     than the attitude timeout after its deadline or after the step before, and each control period of sim time the
     SITL flew on its servo timeout (rudder neutral, no command: ``servo_timeout_s``, plus the episode still on at
     the end unless the autopilot ended its run itself).  Without the autopilot's stats (it was killed) the steps

@@ -14,6 +14,8 @@ from pathlib import Path
 from matplotlib.backends.backend_agg import FigureCanvasAgg
 from matplotlib.figure import Figure
 
+from sitl import fault_kinds
+
 COLOURS = {
     "baseline": "#7f7f7f",
     "sac": "#d62728",
@@ -25,7 +27,7 @@ COLOURS = {
     "clsac-robust": "#17becf",
 }
 DODGE = 0.07  # x offset between controllers (categories are 1 apart)
-WORSE_LOWER = ("effectiveness", "rate", "damping", "airspeed")  # the worst severity is the lowest value
+WORSE_LOWER = fault_kinds.WORSE_LOWER  # the worst severity is the lowest value (sitl.fault_kinds.FaultKind.worse)
 
 
 def _order(kind: str, values) -> list:
@@ -36,7 +38,8 @@ def _order(kind: str, values) -> list:
 
 def _label(kind: str, v) -> str:
     if v is None:
-        return "here" if kind == "stuck" else kind
+        # no value: where it is for a kind whose value is optional (stuck), the kind itself for one without (off)
+        return "here" if kind in fault_kinds.KINDS and fault_kinds.KINDS[kind].value == "optional" else kind
     return f"{v:g}"
 
 
@@ -113,7 +116,7 @@ def draw(cells, plants, kinds, controllers, labels: dict, path, onset: float | N
                 ax.grid(True, alpha=0.3)
             share_ax.set_ylim(-5, 105)
             err_ax.set_yscale("log")
-            unit = {"stuck": " deg", "rate": " deg/s", "delay": " s", "cg": " m", "airspeed": " kt"}.get(kind, "")
+            unit = f" {fault_kinds.KINDS[kind].unit}" if fault_kinds.KINDS[kind].unit else ""  # the record's
             share_ax.set_title(f"{plant}: {kind}{unit}", fontsize=9)
             err_ax.set_xlabel(f"{kind}{unit}", fontsize=8)
             if ki == 0:

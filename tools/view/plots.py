@@ -323,7 +323,7 @@ def _lv_control(fig, spec, sweep: list[RunResult]):
 
 def _table(ax, results: Sequence[RunResult], scenario: Scenario, notes: Sequence[str] = ()):
     ax.axis("off")
-    ax.set_title('Metrics (docs/design.md, "Metrics"; SI: rad, s)', fontsize=10)
+    ax.set_title('Metrics (docs/spec.md, "Metrics"; SI: rad, s)', fontsize=10)
     header = ["run", "Lv", "ise_ref", "ise_crm", "energy", "tv", "max|u| deg", "saturated"]
     rows = []
     for r in results:
@@ -393,7 +393,10 @@ def paper_figure(
     _lv_tracking(fig, outer[3, 0], sweep, scenario)
     _lv_control(fig, outer[3, 1], sweep)
     _table(fig.add_subplot(outer[3, 2]), results, scenario, notes)
-    plant = "KH2013A" if getattr(scenario, "plant", "kh2013a") == "kh2013a" else scenario.plant
+    from sitl.plant_kinds import kind_of
+
+    plant = getattr(scenario, "plant", "kh2013a")
+    plant = "KH2013A" if kind_of(plant).paper else plant
     default = f"CL-SAC roll autopilot, {plant}: scenario 'paper' (Jana & Bhat 2017, section 5)"
     fig.suptitle(title or default, fontsize=14)
     return fig

@@ -57,8 +57,7 @@ def build_parser() -> argparse.ArgumentParser:
         "--kinds",
         default=",".join(grid.DEFAULT_KINDS),
         metavar="K1,K2",
-        help=f"fault kinds (default {','.join(grid.DEFAULT_KINDS)}; also damping, off and on JSBSim inertia, cg, "
-        "airspeed)",
+        help=f"fault kinds (default {','.join(grid.DEFAULT_KINDS)}; also {_other_kinds()})",
     )
     p.add_argument(
         "--severity",
@@ -96,6 +95,15 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--no-plot", action="store_true", help="do not write damage.png")
     p.add_argument("--quiet", action="store_true", help="no progress bars")
     return p
+
+
+def _other_kinds() -> str:
+    """The kinds beyond the defaults, from their records: every plant's, then the JSBSim aircraft's."""
+    from sitl.fault_kinds import KINDS
+
+    rest = [k for k in KINDS.values() if k.name not in grid.DEFAULT_KINDS]
+    every = ", ".join(k.name for k in rest if k.group != "mass")
+    return f"{every} and on JSBSim {', '.join(k.name for k in rest if k.group == 'mass')}"
 
 
 def study_of(args) -> object:
@@ -158,7 +166,7 @@ def study_of(args) -> object:
         from tools.design.linearise import linear_model
 
         for p in plant_list:
-            if not grid.is_mimo(p) and linear_model(p) is None:
+            if not plants.spec(p).mimo and linear_model(p) is None:
                 raise grid.DamageError(f"{grid.RETUNED} needs a linear model of {p} (tools.design.linearise)")
     return study
 
@@ -225,6 +233,7 @@ def legend(controllers) -> str:
 
 
 def print_tables(doc: dict, study) -> None:
+    from sitl import plant as plants
     from tools.experiment.damage.aggregate import paired_table, period_table, sideslip_table, table
 
     for p in study.plants:
@@ -234,7 +243,7 @@ def print_tables(doc: dict, study) -> None:
         if len(flown) > 1 and study.runs > 1:  # one seed pairs nothing
             print()
             print(paired_table(doc["cells"], p, flown))
-        if grid.is_mimo(p):
+        if plants.spec(p).mimo:
             print()
             print(sideslip_table(doc["cells"], p, flown))
         if study.duration >= LONG_S:

@@ -4,8 +4,8 @@ docs/damage.md.
 Each block of tables on the page sits between ``<!-- damage-tables: ARGS -->`` and ``<!-- /damage-tables -->``,
 ARGS the flags of ``python -m tools.experiment damage`` that made it; this flies each block's command (or reads a
 ``summary.json`` given with ``--summary N=PATH`` for block N) and replaces the block with
-``tools.experiment.damage.aggregate.markdown_tables`` of the result.  ``tests/test_docs_damage.py`` flies a row of
-each block again and compares every printed digit with the page.
+``tools.experiment.damage.aggregate.markdown_tables`` of the result.  ``tests/project/test_docs_damage.py`` flies a
+row of each block again and compares every printed digit with the page.
 """
 
 from __future__ import annotations

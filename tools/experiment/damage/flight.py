@@ -23,6 +23,7 @@ from dataclasses import replace
 
 import numpy as np
 
+from sitl import plant as plants
 from tools.experiment.damage.grid import (
     ENERGY,
     MIMO_CONTROLLERS,
@@ -34,7 +35,6 @@ from tools.experiment.damage.grid import (
     Flight,
     effect_of,
     fault_of,
-    is_mimo,
 )
 
 PAPER_RATE_HZ = 100.0  # the reference scenario's control rate (tools.experiment.scenario.PAPER)
@@ -143,13 +143,11 @@ def recovery_of(t, phi, ym, um, onset: float) -> dict:
 
 def _roll_surface(plant: str) -> str:
     """The surface that rolls the plant: the first of a square MIMO plant's (``aileron+rudder``: the aileron)."""
-    from sitl import plant as plants
-
-    return plants.surface_of(plant).split("+")[0]
+    return plants.spec(plant).surfaces[0]
 
 
 def fly_record(task: Flight) -> dict:
-    if is_mimo(task.plant):
+    if plants.spec(task.plant).mimo:
         return fly_record_mimo(task)
     res, scen = fly(task)
     return record(

@@ -12,7 +12,8 @@ import math
 from dataclasses import dataclass
 
 from autopilot import controllers as registry
-from sitl import damage
+from sitl import damage, fault_kinds
+from sitl import plant as plants
 
 # The controllers of the study: the registry's (autopilot.controllers: every built-in law, and a user's own law
 # FILE.py:Class or module:Class, flown through the generic loop, tools.experiment.scenario.run_inprocess), SAC and
@@ -51,18 +52,9 @@ def known(controller: str) -> bool:
 
 
 NONE = "none"  # the fault-free flight of a cell's controller and seed: the reference every severity is read against
-# Severities in the command line's units (sitl.damage.KINDS: deg, deg/s, s, kt, m, or a factor).
-SEVERITIES = {
-    "effectiveness": (0.1, 0.3, 0.6),
-    "stuck": (-5.0, 0.0, 5.0),
-    "rate": (5.0, 20.0, 60.0),
-    "delay": (0.02, 0.05, 0.1),
-    "damping": (0.3, 0.6),
-    "off": (None,),
-    "inertia": (1.3, 1.6),
-    "cg": (0.05, 0.1),
-    "airspeed": (63.0, 117.0),
-}
+# Severities in the command line's units (deg, deg/s, s, kt, m, or a factor): each kind's record's
+# (sitl.fault_kinds.FaultKind.severities).
+SEVERITIES = dict(fault_kinds.SEVERITIES)
 DEFAULT_KINDS = ("effectiveness", "stuck", "rate", "delay")
 DEFAULT_PLANTS = ("kh2013a", "jsbsim:c172x")
 DEFAULT_ONSETS = (10.0,)
@@ -70,7 +62,7 @@ DEFAULT_RUNS = 6  # the least seeds whose paired sign-test interval reaches 95 %
 DEFAULT_DURATION_S = 30.0
 DEFAULT_TURBULENCE = "light"
 TURBULENCE = ("none", "light", "moderate", "severe")
-LINEAR_KINDS = ("effectiveness", "damping", "delay")  # a retuned PID is designed on the faulted linear plant
+LINEAR_KINDS = fault_kinds.DESIGN_KINDS  # a retuned PID is designed on the faulted linear plant (FaultKind.design)
 # A square MIMO plant (jsbsim:MODEL:surface=aileron+rudder) flies the laws autopilot.mimo builds, nothing else.
 MIMO_CONTROLLERS = ("baseline", "sac", "clsac")
 MIMO_REFUSALS = {
@@ -82,16 +74,11 @@ MIMO_REFUSALS = {
 }
 
 
-def is_mimo(plant: str) -> bool:
-    """A square MIMO JSBSim plant (``jsbsim:MODEL:surface=aileron+rudder``)."""
-    return plant.startswith("jsbsim:") and "+" in plant.split(":", 2)[-1]
-
-
 def controller_refusals(plant: str, controllers) -> dict[str, str]:
     """{controller: why not} for the study's controllers ``plant`` does not fly (a square MIMO plant:
     ``MIMO_REFUSALS``, or a law's own reason; SAC and CL-SAC with the robust PFC on a plant whose design file sets
     the PFC)."""
-    if is_mimo(plant):
+    if plants.spec(plant).mimo:
         return {
             c: MIMO_REFUSALS.get(c) or registry.get(c).kind.mimo or f"{c} is not flown on a square MIMO plant"
             for c in controllers
@@ -100,7 +87,7 @@ def controller_refusals(plant: str, controllers) -> dict[str, str]:
     out = {}
     for c in controllers:  # a bench law without its design for the plant (tools.design.laws)
         law = None if c in ROBUST or c in (RETUNED, ENERGY) else registry.get(c).kind
-        if law is not None and law.generic and law.design and plant != "kh2013a":
+        if law is not None and law.generic and law.design and not plants.spec(plant).paper:
             from tools.design.linearise import designed_law_params
 
             if designed_law_params(plant, law.design) is None:

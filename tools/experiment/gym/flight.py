@@ -12,7 +12,7 @@ the caller's action, frame by frame, in the order the SITL flies it (``sitl.endp
 3. the SITL flies the pulse's angle for one control period of physics steps: the faults through the one schedule
    (``sitl.damage.ScheduledEffects``), the atmosphere through the injector (``sitl.disturbances.Injector``).
 
-So a PID policy flies the launcher's roll series (tests/test_gym.py).
+So a PID policy flies the launcher's roll series (tests/tools/experiment/test_gym.py).
 """
 
 from __future__ import annotations
@@ -73,11 +73,7 @@ class Episode:
     def mimo(self) -> bool:
         """A square MIMO plant (``jsbsim:MODEL:surface=aileron+rudder``): roll on the aileron, sideslip on the
         rudder."""
-        if plants.kind(self.plant) != "jsbsim":
-            return False
-        from sitl.jsbsim_plant import parse_spec
-
-        return parse_spec(self.plant).is_mimo
+        return plants.spec(self.plant).mimo
 
     @property
     def limits_rad(self) -> tuple[float, ...]:
@@ -175,7 +171,7 @@ class Lane:
         self.inj = Injector(rest, 1.0 / ep.physics_rate_hz, ep.control_rate_hz, True)
         params = self.inj.params()
         self.plant = plants.build(ep.plant, ep.physics_rate_hz, params, dist, plants.needs_damaged_model(ep.faults))
-        self.euler = plants.kind(ep.plant) == "jsbsim"
+        self.euler = plants.spec(ep.plant).euler
         self.sensors = self.inj.sensors is not None
         advance = self.plant.advance if self.inj.atmosphere is None else self._advance_air
         self.schedule = damage.Schedule(ep.faults, 0.0, 1.0 / ep.physics_rate_hz) if ep.faults else None
@@ -197,7 +193,7 @@ class Lane:
         self.k = 0
         self.u = 0.0
         self.metrics = MetricsAccumulator(self.dt)
-        self.monitor = EnvelopeMonitor(Envelope(surface=plants.surface_of(ep.plant).split("+")[0]))
+        self.monitor = EnvelopeMonitor(Envelope(surface=plants.spec(ep.plant).surfaces[0]))
         self.exit: str | None = None
         self._block = -1
         self.measure()

@@ -3,10 +3,10 @@
 
 ``gymnasium.make_vec("sitl.gym:Roll-v0", num_envs=64, vectorization_mode="vector_entry_point")``, or
 ``RollVectorEnv(64, plant=...)``.  The numbers are those of N ``Roll-v0`` environments (``gymnasium.vector.
-SyncVectorEnv``) to the last bit (tests/test_gym.py): each aircraft is a ``tools.experiment.gym.flight.Lane``
-built exactly as the single environment builds it, and the study's way of flying many aircraft
-(``tools.experiment.study``: arrays of N states, the same operations elementwise) is applied where it gives the
-same bits:
+SyncVectorEnv``) to the last bit (tests/tools/experiment/test_gym.py): each aircraft is a
+``tools.experiment.gym.flight.Lane`` built exactly as the single environment builds it, and the study's way of flying
+many aircraft (``tools.experiment.study``: arrays of N states, the same operations elementwise) is applied where it
+gives the same bits:
 
 * the physics of a linear plant (the KH2013A, a plant file without a ``truth`` map, no stop or servo fault, no
   atmosphere, no sensor errors) between fault changes: the exact ZOH update x <- Ad^n x + Bd_n u of
@@ -36,12 +36,13 @@ from autopilot.envelope import (
     stop_hit,
     window_flags,
 )
+from autopilot.swings import swing_start, swing_step
 from sitl import plant as plants
 from tools.experiment.gym.flight import REF_CM, Lane, commands, episode
 from tools.experiment.gym.roll import SEED_MAX, action_space, observation_space
 
 assert FOLLOW_GAIN_MIN > 0  # (the not-following flag is reported by the verdict, it does not end an episode)
-_RR, _PR, _DD, _HITS, _N = range(5)  # a block's sums: y_r^2, phi y_r, d^2, stop hits, samples
+_RR, _PR, _DD, _HITS, _N, _SW = range(6)  # a block's sums: y_r^2, phi y_r, d^2, stop hits, samples, regular swings
 
 
 class RollVectorEnv(VectorEnv):
@@ -131,8 +132,12 @@ class RollVectorEnv(VectorEnv):
         self._nsat = np.zeros(n, dtype=np.int64)
         self._exit = np.array([None] * n, dtype=object)
         # tracking: the open block's sums, the ring of closed ones, how many, the open block's index, hit arming
-        self._block = np.zeros((n, 5))
-        self._ring = np.zeros((n, TRACK_BLOCKS, 5))
+        self._block = np.zeros((n, 6))
+        self._ring = np.zeros((n, TRACK_BLOCKS, 6))
+        self._swing = np.array(
+            swing_start(np.zeros(n))
+        )  # autopilot.swings' state (7 x n), set at a lane's first sample
+        self._kt = np.zeros(n)  # a lane's tracked samples so far (the monitor's ``_k``)
         self._closed = np.zeros(n, dtype=np.int64)
         self._bidx = np.full(n, -1, dtype=np.int64)
         self._armed = np.ones(n, dtype=bool)
@@ -265,11 +270,11 @@ class RollVectorEnv(VectorEnv):
             self._closed[close] += 1
             full = close[self._closed[close] >= TRACK_BLOCKS]
             if full.size:
-                tot = np.zeros((full.size, 5))
+                tot = np.zeros((full.size, 6))
                 first = self._closed[full] % TRACK_BLOCKS  # the oldest block of the ring
                 for b in range(TRACK_BLOCKS):  # in time order, as the monitor sums its list
                     tot = tot + self._ring[full, (first + b) % TRACK_BLOCKS]
-                osc, _lag = window_flags(tot[:, _N], tot[:, _RR], tot[:, _PR], tot[:, _DD], tot[:, _HITS])
+                osc, _lag = window_flags(tot[:, _N], tot[:, _RR], tot[:, _PR], tot[:, _DD], tot[:, _HITS], tot[:, _SW])
                 hit = full[osc]
                 self._exit[hit[self._exit[hit] == None]] = "oscillation"  # noqa: E711
         if new.any():
@@ -283,6 +288,11 @@ class RollVectorEnv(VectorEnv):
         b[:, _DD] += d * d
         hit, self._armed = stop_hit(sat, u, self._limit, self._armed)
         b[:, _HITS] += hit
+        first = self._kt == 0.0  # a lane's first tracked sample starts its counter (EnvelopeMonitor._track)
+        if first.any():
+            self._swing[:, first] = np.array(swing_start(d[first]))
+        b[:, _SW] += swing_step(self._swing, d, self._kt)
+        self._kt += 1.0
 
     def _advance(self, u: np.ndarray) -> None:
         n = self.num_envs
@@ -353,7 +363,7 @@ class RollVectorEnv(VectorEnv):
         for key in ("_phi", "_p", "_r", "_ise", "_energy", "_max_u", "_nsat", "_exit", "_block", "_closed"):
             getattr(self, key)[i] = row[key][0]
         self._ref[i] = row["_ref"][0]
-        self._bidx[i], self._armed[i], self._ring[i] = -1, True, 0.0
+        self._bidx[i], self._armed[i], self._ring[i], self._kt[i] = -1, True, 0.0, 0.0
         width = row["_um"].shape[1]
         if width > self._um.shape[1]:
             self._um = np.pad(self._um, ((0, 0), (0, width - self._um.shape[1])))

@@ -14,6 +14,7 @@ from autopilot import controllers
 from autopilot import controllers as registry
 from autopilot.shared import cli
 from autopilot.shared.cli import OneLineArgumentParser
+from sitl import plant as plants
 from tools.experiment.outdir import check_out_dir, default_out_dir, hold_space, prepare_out_dir
 from tools.experiment.study import faults as study_faults
 from tools.experiment.study import flights
@@ -162,7 +163,7 @@ def split_plants(text: str | None) -> list[str]:
         return ["kh2013a"]
     out: list[str] = []
     for piece in _names(text, "plant"):
-        if out and out[-1].startswith("jsbsim:") and re.fullmatch(r"[a-z_]+=[^:]*", piece):
+        if out and plants.kind_of(out[-1]).keyed and re.fullmatch(r"[a-z_]+=[^:]*", piece):
             out[-1] += "," + piece
         else:
             out.append(piece)
@@ -187,8 +188,6 @@ def _airspeeds(text: str | None) -> tuple[float, ...] | None:
 
 def plan_from_args(args) -> list[tuple[str, object]]:
     """(plant, its study's options) for each --plant, every flag checked against the plants it applies to."""
-    from sitl import plant as plants
-
     texts = split_plants(args.plant)
     for text in texts:
         if text != "kh2013a":
@@ -234,7 +233,7 @@ def plan_from_args(args) -> list[tuple[str, object]]:
             "--fault in the robustness study flies on --plant kh2013a alone (on a JSBSim aircraft or plant file: "
             "python -m tools.experiment damage)"
         )
-    if "airspeeds" in given and not any(t.startswith("jsbsim:") for t in texts):
+    if "airspeeds" in given and not any(plants.kind_of(t).own_atmosphere for t in texts):
         raise StudyError("--airspeeds applies to a JSBSim aircraft (--plant jsbsim:MODEL) only")
     for text in texts:
         if text == "kh2013a":
@@ -251,7 +250,7 @@ def plan_from_args(args) -> list[tuple[str, object]]:
         if text == GENERIC:
             _generic_plan(args, unbatched, seed, plan)
             continue
-        airspeeds = _airspeeds(args.airspeeds) if text.startswith("jsbsim:") else None
+        airspeeds = _airspeeds(args.airspeeds) if plants.kind_of(text).own_atmosphere else None
         turbulence = _names(args.turbulence, "turbulence")
         if turbulence is None:
             turbulence = ("none", "moderate")

@@ -33,9 +33,10 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from sitl.fault_kinds import STUDY_KINDS
 from tools.experiment.study.sampling import StudyError
 
-KINDS = ("effectiveness", "damping", "stuck", "off", "delay", "rate")
+KINDS = STUDY_KINDS  # the kinds whose record says how the study flies them (sitl.fault_kinds.FaultKind.study)
 REFUSED: dict = {}
 SUBSTEPS = 10  # physics steps per control step under a rate limit (the SITL's 1 kHz at the study's 100 Hz)
 JUMP_NONE, JUMP_WHERE, JUMP_AT = 0, 1, 2
@@ -115,8 +116,7 @@ def plan(faults, steps: int, dt: float) -> Faults | None:
         key = (new.effectiveness, new.damping, new.stuck)
         if key not in keys:
             keys.append(key)
-        servo = ("stuck", "stuck_at", "off", "rate", "delay")
-        reset = new.servo and (not old.servo or any(getattr(new, a) != getattr(old, a) for a in servo))
+        reset = new.servo and (not old.servo or new.servo_differs(old))
         jump, at = JUMP_NONE, 0.0
         if new.stuck and not old.stuck:
             jump, at = (JUMP_WHERE, 0.0) if new.stuck_at is None else (JUMP_AT, new.stuck_at)
@@ -178,7 +178,49 @@ def fine_matrices(scales: np.ndarray, dt: float, key) -> tuple[np.ndarray, np.nd
     return phi, gam, phic
 
 
+# ---------------------------------------------------------------------------------------------- the rate limit
+def slew(delta, delta_free, rate_free, move_max: float, rate: float):
+    """The rate limit's rule on arrays, ``sitl.damage.Actuator.surface``'s (and kernel.c's ``rate_limited``): the free
+    step's move ``delta_free - delta`` beyond ``move_max`` (rate * h) coasts at +-rate, else the free step is taken
+    with its rate clipped to +-rate.  Returns (coast, the coasting rate, the clipped free rate);
+    tests/sitl/test_faults.py holds it to the Actuator's bit for bit."""
+    move = delta_free - delta
+    up, down = move > move_max, move < -move_max
+    return up | down, np.where(up, rate, -rate), np.minimum(rate, np.maximum(-rate, rate_free))
+
+
+def rate_limited(x: list, u_s, dd, fine, rate: float, dt: float) -> list:
+    """One control step under a rate limit, as ``sitl.aircraft.Aircraft._advance_servo_fault`` flies it
+    (``faults.SUBSTEPS`` physics steps of dt / SUBSTEPS): the free step, its move against rate * h; beyond it the
+    coasting step at +-rate (``damage.coasting_matrix``'s ZOH), else the free step with delta_dot clipped; the
+    disturbance ``dd`` (held) added on each step."""
+    p1, g1, pc = fine
+    move_max = rate * (dt / SUBSTEPS)  # damage.Actuator's max move
+    for _ in range(SUBSTEPS):
+        xf = [
+            p1[r][0] * x[0]
+            + p1[r][1] * x[1]
+            + p1[r][2] * x[2]
+            + p1[r][3] * x[3]
+            + p1[r][4] * x[4]
+            + p1[r][5] * x[5]
+            + g1[r][0] * u_s
+            for r in range(6)
+        ]
+        coast, at, xf[5] = slew(x[4], xf[4], xf[5], move_max, rate)
+        xc = [
+            pc[r][0] * x[0] + pc[r][1] * x[1] + pc[r][2] * x[2] + pc[r][3] * x[3] + pc[r][4] * x[4] + pc[r][5] * at
+            for r in range(6)
+        ]
+        x = [np.where(coast, xc[r], xf[r]) for r in range(6)]
+        if dd is not None:
+            x = [x[r] + (g1[r][1] * dd[0] + g1[r][2] * dd[1] + g1[r][3] * dd[2]) for r in range(6)]
+    return x
+
+
 __all__ = [
+    "rate_limited",
+    "slew",
     "JUMP_AT",
     "JUMP_NONE",
     "JUMP_WHERE",

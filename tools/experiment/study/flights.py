@@ -27,6 +27,7 @@ import numpy as np
 
 from autopilot import controllers
 from autopilot.envelope import saturated, verdict
+from sitl import plant as plants
 from tools.experiment.outdir import one_line
 from tools.experiment.study.accumulate import wilson
 from tools.experiment.study.execution import Progress, stream
@@ -67,7 +68,7 @@ def simulate(task: Flight) -> dict:
 
     dist = (("seed", task.seed),) + ((("turbulence", task.turbulence),) if task.turbulence != "none" else ())
     limit = min(PAPER.u_limit_rad, plants.surface_limit_rad(task.plant) or float("inf"))
-    if is_mimo(task.plant):
+    if plants.spec(task.plant).mimo:
         return _simulate_mimo(task, dist, limit)
     scenario = replace(PAPER, plant=task.plant, u_limit_rad=limit, disturbances=dist)
     res = run_inprocess(scenario, run_of(task.controller), atmosphere=True)
@@ -87,11 +88,6 @@ def _judged(out: dict, c: dict) -> dict:
     out["oscillating"] = bool(tr is not None and tr["oscillating_windows"])
     out["not_following"] = bool(tr is not None and tr["not_following_windows"])
     return out
-
-
-def is_mimo(plant: str) -> bool:
-    """A square MIMO JSBSim plant (``jsbsim:MODEL:surface=aileron+rudder``)."""
-    return plant.startswith("jsbsim:") and "+" in plant.split(":", 2)[-1]
 
 
 MIMO_CONTROLLERS = ("sac", "clsac", "baseline")  # the controllers a square MIMO plant flies (autopilot.mimo)
@@ -134,7 +130,8 @@ class FlightOptions:
 
     @property
     def jsbsim(self) -> bool:
-        return self.plant.startswith("jsbsim:")
+        """A JSBSim aircraft (its own atmosphere, flown at airspeeds), else a plant file."""
+        return plants.spec(self.plant).jsbsim is not None
 
     def conditions(self) -> list[tuple[str, float | None, str]]:
         """(plant text flown, airspeed or None, turbulence) of each condition, airspeed by airspeed."""
@@ -151,7 +148,8 @@ class FlightOptions:
     def flights(self) -> list[Flight]:
         """Every flight, controller by controller, condition by condition, seed by seed (a square MIMO plant: the
         controllers it flies, ``MIMO_CONTROLLERS``)."""
-        names = [c for c in self.controllers if not is_mimo(self.plant) or c in MIMO_CONTROLLERS]
+        mimo = plants.spec(self.plant).mimo
+        names = [c for c in self.controllers if not mimo or c in MIMO_CONTROLLERS]
         return [
             Flight(c, text, t, self.seed * SEED_STRIDE + i, v)
             for c in names
@@ -277,7 +275,7 @@ def fly(opts: FlightOptions, *, log=print, progress: bool = True, stop: threadin
     section = {
         "study": "robustness",
         "plant": opts.plant,
-        "kind": "jsbsim" if opts.jsbsim else "file",
+        "kind": plants.spec(opts.plant).kind.name,
         "flights": "the reference scenario flown in-process (tools.experiment.scenario.run_inprocess)",
         "seed": opts.seed,
         "seeds": opts.seeds,
@@ -322,7 +320,7 @@ def check(opts: FlightOptions) -> None:
                 f"{', '.join(controllers.NAMES)}, or a law of your own, FILE.py:Class)"
             ) from None
         law = controllers.get(c).kind
-        if law.generic and law.design and opts.plant != "kh2013a" and not is_mimo(opts.plant):
+        if law.generic and law.design and opts.plant != "kh2013a" and not plants.spec(opts.plant).mimo:
             from tools.design.linearise import designed_law_params
 
             if designed_law_params(opts.plant, law.design) is None:

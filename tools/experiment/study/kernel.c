@@ -70,7 +70,7 @@ typedef struct {
     const int64_t *ph_start, *ph_mat, *ph_jump, *ph_off, *ph_delay, *ph_reset;
     const double *ph_at, *mphi, *mgam;
     double *ring, *ring_pos;
-    /* a rate limit (faults.py, simulation._rate_limited): ph_rate rad/s (0: none), flown in nsub physics steps of
+    /* a rate limit (faults.py, faults.rate_limited): ph_rate rad/s (0: none), flown in nsub physics steps of
      * sub_h with the physics-step set ph_fine: mphi1 (nfine * 36, n), mgam1 (nfine * 24, n), mphic1 (coasting) */
     int64_t nsub;
     double sub_h;
@@ -94,7 +94,7 @@ enum { B_PHI_OL, B_G_OL, B_CM, B_KP, B_KI_T, B_KD_T };
 enum { R_T, R_UM, R_PHI, R_YM, R_YM_OL, R_YA, R_Y_PFC, R_E, R_U, R_KPE, R_KIE, R_KE, R_KPX, R_KIX, R_KX, R_KPU,
        R_KIU, R_KU, R_V, R_P, R_R, R_DELTA_R, R_COUNT };
 
-/* One control step under a rate limit (simulation._rate_limited; sitl.aircraft.Aircraft._advance_servo_fault):
+/* One control step under a rate limit (faults.rate_limited; sitl.aircraft.Aircraft._advance_servo_fault):
  * nsub physics steps, each the free step, its move against rate * h; beyond it the coasting step at +-rate, else
  * the free step with delta_dot clipped; the held disturbance dd (or none) added on each.  x in, xn out. */
 static void rate_limited(const double *x0, double *xn, double u_s, const double *dd, const double *p1,

@@ -1,7 +1,7 @@
 """The study's control steps in C (``kernel.c``): built on first use with the machine's C compiler, cached by the
 hash of the source and the flags, loaded with ``ctypes``.  ``load()`` returns the library, or None with the
 reason in ``reason()`` (no compiler, a failed build, ``CLSAC_STUDY_KERNEL=numpy``): the study then steps in numpy,
-with the same numbers (tests/test_study_kernel.py flies both).
+with the same numbers (tests/tools/experiment/study/test_study_kernel.py flies both).
 
 Why C: a step of the numpy loop is ~150 array operations of ~0.5 us of Python and numpy overhead each, whatever the
 batch's width, so a batch of 24 aircraft over 60,000 steps (the long flights) paid ~100 us a step for ~2 us of

@@ -103,6 +103,15 @@ def sections_of(summary: dict) -> dict[str, dict]:
     return summary["plants"] if "plants" in summary else {summary.get("plant", "kh2013a"): summary}
 
 
+def _flown_one_by_one(section: dict) -> bool:
+    """A section of a plant flown flight by flight (``flights``), not in the batched study: its ``kind`` is a plant
+    kind's (``sitl.plant_kinds.KINDS``) that the batched study does not fly."""
+    from sitl.plant_kinds import KINDS
+
+    kind = KINDS.get(section.get("kind"))
+    return kind is not None and not kind.batched
+
+
 def report(sections: dict[str, dict], headings: bool = False, full: bool = True) -> str:
     """The tables of every section (Markdown; table.md), under a heading per plant when ``headings``; not ``full``:
     the KH2013A's main table only (the command prints the others with ``notes``)."""
@@ -110,7 +119,7 @@ def report(sections: dict[str, dict], headings: bool = False, full: bool = True)
     for text, s in sections.items():
         if headings:
             parts.append(f"## {text}" + (" (partial)" if s.get("partial") else ""))
-        if s.get("kind") in ("jsbsim", "file"):
+        if _flown_one_by_one(s):
             parts += [flights.format_table(s["results"]), flights.format_bounded(s["results"])]
         else:
             parts += study_tables(s) if full else [format_table(s)]
@@ -123,7 +132,7 @@ def final_line(summary: dict, out: Path) -> str:
     if "plants" not in summary:
         s = next(iter(secs.values()))
         t = s["timing"]
-        if s.get("kind") in ("jsbsim", "file"):
+        if _flown_one_by_one(s):
             return (
                 f"{t['runs']} flights in {t['wall_s']:.1f} s ({(t['runs_per_s'] or 0):.2f} flights/s) on "
                 f"{s['where']}; files in {out.resolve()}"
@@ -146,7 +155,7 @@ def notes(summary: dict) -> list[str]:
 
     lines = []
     s = sections_of(summary).get("kh2013a")
-    if s is None or s.get("kind") in ("jsbsim", "file"):  # the laws without a batch form: one flight at a time
+    if s is None or _flown_one_by_one(s):  # the laws without a batch form: one flight at a time
         return lines
     if s["sweep_runs"]:
         lines += ["where each controller stops being bounded (< 90 % of runs), one factor at a time from nominal:"]

@@ -106,7 +106,7 @@ def _hms(s: float) -> str:
 
 def estimate(n30: int, nlong: int, runs_per_s: float, parallel: int, exact: bool, cells: int) -> dict:
     """Time and memory of a study from a pilot's rate (30 s runs per second in one process): a 600 s run costs 20
-    of them (the same cost per simulated second, docs/design.md); ``parallel`` processes or cluster threads."""
+    of them (the same cost per simulated second, docs/spec.md); ``parallel`` processes or cluster threads."""
     wall = (n30 + nlong * LONG_DURATION_S / 30.0) / max(runs_per_s * parallel, 1e-9)
     windows = int(LONG_DURATION_S / WINDOW_S)
     kept = value_bytes(n30, nlong, windows)

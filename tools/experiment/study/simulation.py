@@ -584,7 +584,7 @@ def _fly_numpy(b) -> tuple[dict, np.ndarray, np.ndarray, dict | None]:
                     dd[0] = dd[0] + np.where(inside, gust_k[cols, np.clip(j, 0, gust_k.shape[1] - 1)], 0.0)
                 dd[0] = dd[0] + crosswind
                 if fine is not None:
-                    x = _rate_limited(x, u_s, dd, fine, rate, dt)
+                    x = study_faults.rate_limited(x, u_s, dd, fine, rate, dt)
                 else:
                     x = [
                         PHI[r][0] * x[0]
@@ -598,7 +598,7 @@ def _fly_numpy(b) -> tuple[dict, np.ndarray, np.ndarray, dict | None]:
                         for r in range(6)
                     ]
             elif fine is not None:
-                x = _rate_limited(x, u_s, None, fine, rate, dt)
+                x = study_faults.rate_limited(x, u_s, None, fine, rate, dt)
             else:
                 x = [
                     PHI[r][0] * x[0]
@@ -612,39 +612,6 @@ def _fly_numpy(b) -> tuple[dict, np.ndarray, np.ndarray, dict | None]:
                 ]
     series = {key: np.array(v) for key, v in rec.items()} if rec is not None else None
     return acc, peaks, track, series
-
-
-def _rate_limited(x: list, u_s, dd, fine, rate: float, dt: float) -> list:
-    """One control step under a rate limit, as ``sitl.aircraft.Aircraft._advance_servo_fault`` flies it
-    (``faults.SUBSTEPS`` physics steps of dt / SUBSTEPS): the free step, its move against rate * h; beyond it the
-    coasting step at +-rate (``damage.coasting_matrix``'s ZOH), else the free step with delta_dot clipped; the
-    disturbance ``dd`` (held) added on each step."""
-    p1, g1, pc = fine
-    move_max = rate * (dt / study_faults.SUBSTEPS)  # damage.Actuator's max move
-    for _ in range(study_faults.SUBSTEPS):
-        xf = [
-            p1[r][0] * x[0]
-            + p1[r][1] * x[1]
-            + p1[r][2] * x[2]
-            + p1[r][3] * x[3]
-            + p1[r][4] * x[4]
-            + p1[r][5] * x[5]
-            + g1[r][0] * u_s
-            for r in range(6)
-        ]
-        move = xf[4] - x[4]
-        up, down = move > move_max, move < -move_max
-        at = np.where(up, rate, -rate)  # the coasting rate
-        xc = [
-            pc[r][0] * x[0] + pc[r][1] * x[1] + pc[r][2] * x[2] + pc[r][3] * x[3] + pc[r][4] * x[4] + pc[r][5] * at
-            for r in range(6)
-        ]
-        xf[5] = np.minimum(rate, np.maximum(-rate, xf[5]))
-        coast = up | down
-        x = [np.where(coast, xc[r], xf[r]) for r in range(6)]
-        if dd is not None:
-            x = [x[r] + (g1[r][1] * dd[0] + g1[r][2] * dd[1] + g1[r][3] * dd[2]) for r in range(6)]
-    return x
 
 
 def _close_block(blk: list, ring: np.ndarray, track: np.ndarray, closed: int, nw: float) -> None:

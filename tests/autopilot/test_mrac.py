@@ -1,0 +1,143 @@
+"""autopilot.mrac (MRAC with integral action, Lavretsky & Wise 2013 ch. 9-10; CRM-MRAC, Gibson, Annaswamy &
+Lavretsky 2013) against the test's own closed loop: the law written here from the textbook's equations (numpy, not
+the law's module), the continuous KH2013A integrated by solve_ivp per control period (tests/_law_loop.py).
+
+Both fly the same samples (the law holds its signals over a period, as the module documents), so they differ only by
+solve_ivp's tolerance (rtol 1e-11) against the exact ZOH: 1e-7 rad bounds it with room.  No number printed in the
+textbook or in Gibson et al. for their own examples is reproduced here (their examples' models are not ours)."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+from scipy.linalg import solve_continuous_lyapunov
+
+from autopilot.config import ConfigError, NonFiniteInputError
+from autopilot.lawkit import proj
+from autopilot.mrac import CRM_PARAMETERS, PARAMETERS, TELEMETRY_FIELDS, Mrac, MracConfig, crm_config
+from tests import _law_loop as loop
+
+
+def _textbook(cfg: MracConfig):
+    """The textbook's sampled law as (law_sample, state0) for ``loop.ivp_flight``; state [x_I, x_ref (3), dK (3)]."""
+    a = np.array([[0, 1, 0], [0, cfg.a11, cfg.a12], [0, cfg.a21, cfg.a22]], dtype=float)
+    b = np.array([0.0, cfg.b1, cfg.b2])
+    b_ref = np.array([-1.0, 0.0, 0.0])
+    k = np.array([cfg.k_i, cfg.k_phi, cfg.k_p])
+    a_ref = a - np.outer(b, k)
+    a_c = a_ref - cfg.crm_l * np.eye(3)
+    pb = solve_continuous_lyapunov(a_c.T, -np.eye(3)) @ b  # A_c^T P + P A_c = -I
+
+    def sample(_k, phi, p, _r, cmd, s):
+        xi, x_ref, dk = s[0], s[1:4], s[4:7]
+        z = np.array([xi, phi, p])
+        e = z - x_ref
+        u = float((dk - k) @ z)
+        assert abs(u) < cfg.u_limit_rad  # the scenario never saturates: no anti-windup to mirror
+        assert np.linalg.norm(dk) < cfg.k_max / math.sqrt(1 + cfg.proj_eps)  # Proj idle: the plain gradient law
+
+        def ode(y, z=z, e=e, cmd=cmd):
+            return np.concatenate([
+                [phi - cmd],  # x_I' = phi - r (the held sample)
+                a_ref @ y[1:4] + b_ref * cmd + cfg.crm_l * (z - y[1:4]),  # x_ref' (CRM: + l (z - x_ref))
+                -cfg.gamma * z * float(e @ pb),  # dK' = -gamma z e^T P B
+            ])  # fmt: skip
+
+        return u, ode, s
+
+    return sample, np.zeros(7)
+
+
+@pytest.mark.parametrize("crm", [False, True], ids=["mrac", "crm-mrac"])
+def test_matches_the_textbook_loop_integrated_by_solve_ivp(crm):
+    cfg = crm_config() if crm else MracConfig()
+    n = 1500  # 15 s: two edges of the square wave, with the effectiveness at 0.3 from 10 s
+    eff = (1000, 0.3)
+    phi_ref, u_ref = loop.ivp_flight(*_textbook(cfg), n=n, effectiveness=eff)
+    phi, u = loop.lockstep(Mrac(cfg), n=n, effectiveness=eff)
+    assert np.max(np.abs(phi - phi_ref)) < 1e-7
+    assert np.max(np.abs(u - u_ref)) < 1e-7
+    assert np.max(np.abs(phi)) > math.radians(9)  # it flew the command
+
+
+@pytest.mark.parametrize("crm", [False, True], ids=["mrac", "crm-mrac"])
+def test_tracks_the_paper_scenario_and_reports_the_effectiveness_drop(crm):
+    cfg = crm_config() if crm else MracConfig()
+    ref = loop.reference()
+    phi, u = loop.lockstep(Mrac(cfg))
+    late = loop.late_error_deg(phi, ref)
+    phi_f, u_f = loop.lockstep(Mrac(cfg), effectiveness=(1000, 0.3))
+    late_f = loop.late_error_deg(phi_f, ref)
+    print(f"\n{'crm-mrac' if crm else 'mrac'}: late |phi - ref| {late:.3g} deg nominal, {late_f:.3g} deg with the "
+          f"effectiveness at 0.3 from 10 s; max |u| {math.degrees(np.max(np.abs(u))):.3g} / "
+          f"{math.degrees(np.max(np.abs(u_f))):.3g} deg")  # fmt: skip
+    assert late < 1.0
+    assert np.all(np.isfinite(phi_f)) and late_f < 5.0
+
+
+def test_projection_keeps_the_gains_in_their_ball():
+    """Proj's two properties (Lavretsky & Wise ch. 11): the bound, and (theta - theta*)^T (Proj(theta, y) - y) <= 0
+    for any theta* inside the ball (what the Lyapunov proof needs)."""
+    rng = np.random.default_rng(1)
+    t_max, eps = 2.0, 0.1
+    for _ in range(2000):
+        theta = rng.normal(size=3) * rng.uniform(0, 1.2) * t_max / math.sqrt(3)
+        y = rng.normal(size=3) * 10
+        star = rng.normal(size=3)
+        star *= rng.uniform(0, 1) * t_max / math.sqrt(1 + eps) / np.linalg.norm(star)
+        py = proj(theta, y, t_max, eps)
+        assert (theta - star) @ (py - y) <= 1e-9
+        if np.linalg.norm(theta) >= t_max:
+            grad = theta  # the outward normal
+            assert py @ grad <= 1e-9 * np.linalg.norm(y) * np.linalg.norm(theta)
+    # A law adapting hard on a plant it cannot match stays in the ball.
+    cfg = MracConfig(gamma=1e4, k_max=0.5)
+    law = Mrac(cfg)
+    loop.lockstep(law, n=600, effectiveness=(0, 0.3))
+    assert np.linalg.norm(law.dk) <= cfg.k_max * (1 + 1e-12)
+
+
+def test_interface_hold_reset_telemetry_and_bad_input():
+    law = Mrac(crm_config())
+    u = law.step(0.01, 0.02, 0.0, 0.1)
+    assert abs(u) <= law.config.u_limit_rad
+    assert set(law.telemetry()) == set(TELEMETRY_FIELDS)
+    assert all(isinstance(v, float) for v in law.telemetry().values())
+    for _ in range(50):
+        law.step(0.0, 0.0, 0.0, 0.2)
+    dk, xi, xr = law.dk.copy(), law.xi, law.x_ref.copy()
+    law.hold(0.05)
+    assert np.array_equal(law.dk, dk) and law.xi == xi  # adaptation and integral frozen
+    assert not np.array_equal(law.x_ref, xr)  # the reference model moves on
+    assert law.telemetry()["u"] == 0.05
+    law.reset()
+    assert law.xi == 0.0 and not np.any(law.dk) and not np.any(law.x_ref)
+    for bad in (math.nan, math.inf):
+        with pytest.raises(NonFiniteInputError):
+            law.step(bad, 0.0, 0.0, 0.0)
+        with pytest.raises(NonFiniteInputError):
+            law.step(0.0, 0.0, bad, 0.0)
+    for field in ("gamma", "k_max", "b2", "control_rate_hz"):
+        with pytest.raises(ConfigError):
+            MracConfig(**{field: math.nan})
+    with pytest.raises(ConfigError):
+        MracConfig(k_max=-1.0)
+    with pytest.raises(ConfigError):
+        MracConfig(crm_l=-1.0)
+    names = [row[0] for row in PARAMETERS + CRM_PARAMETERS]
+    assert len(set(names)) == len(names) and all(len(n) <= 16 for n in names)  # MAVLink param_id
+    assert all(n.startswith("MRAC_") for n in names[: len(PARAMETERS)])
+    assert all(n.startswith("CRM_") for n in names[len(PARAMETERS) :])
+
+
+def test_reconfigure_keeps_the_adaptation():
+    law = Mrac()
+    for _ in range(200):
+        law.step(0.0, 0.0, 0.0, 0.2)
+    dk, xi = law.dk.copy(), law.xi
+    law.reconfigure(crm_config(gamma=0.0))
+    assert np.array_equal(law.dk, dk) and law.xi == xi and law.config.crm_l > 0
+    law.step(0.0, 0.0, 0.0, 0.2)
+    assert np.array_equal(law.dk, dk)  # gamma = 0 from now on

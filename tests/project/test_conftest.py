@@ -1,0 +1,46 @@
+"""The suite's schedule (tests/conftest.py; docs/tests.md, "Parallel") names modules by their paths: each must be a
+test file that exists, or a moved or renamed file would silently lose its real-time lane, the barrier or its early
+start and run beside the CPU-bound tests."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import pytest
+
+from tests import conftest as schedule
+
+ROOT = Path(__file__).resolve().parents[2]
+NAMED = (*schedule.SERIAL_LAST, schedule.BARRIER, *schedule.LONGEST_FIRST)
+
+
+@pytest.mark.parametrize("module", NAMED)
+def test_every_module_the_schedule_names_is_a_test_file(module):
+    path = ROOT / module
+    assert path.is_file() and path.name.startswith("test_") and module.startswith("tests/"), module
+
+
+def test_no_module_is_named_twice():
+    assert len(set(NAMED)) == len(NAMED)
+
+
+def test_each_module_goes_to_its_unit():
+    """A test of a lane's module goes to that lane, one of ALONE's to the last unit, each barrier test to a unit of
+    its own, and any other test to its module's unit; the phases are 2, 3, 1 and 0."""
+    lane2 = schedule.LANES[1][0]
+    cases = {
+        f"{schedule.LANES[0][-1]}::test_a": ("real time, lane 1", 2),
+        f"{lane2}::test_a[x-1]": ("real time, lane 2", 2),
+        f"{schedule.ALONE[0]}::test_a": (schedule.SERIAL, 3),
+        f"{schedule.BARRIER}::test_a[3]": (f"barrier {schedule.BARRIER}::test_a[3]", 1),
+        "tests/sitl/test_model.py::test_a": ("tests/sitl/test_model.py", 0),
+    }
+    for nodeid, (unit, phase) in cases.items():
+        assert schedule._unit(nodeid) == unit, nodeid
+        assert schedule._phase(unit) == phase, nodeid
+
+
+def test_a_file_of_the_same_name_in_another_folder_is_not_scheduled_as_real_time():
+    """Modules are matched by path, not by file name: a test_stalls.py of another package runs in parallel."""
+    lane_file = Path(schedule.LANES[0][0]).name
+    assert schedule._unit(f"tests/sitl/{lane_file}::test_a") == f"tests/sitl/{lane_file}"
