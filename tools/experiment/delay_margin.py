@@ -136,8 +136,8 @@ def faults_of(delay_ms: int, case: str) -> tuple:
 def fly(plant: str, controller: str, delay_ms: int, case: str = "nominal", gains=None) -> dict:
     """The damage study's record (``tools.experiment.damage.flight.record``) of the reference flight, still air,
     with the case's faults; a square MIMO plant as ``fly_record_mimo`` flies it."""
+    from sitl import plant as plants
     from tools.experiment.damage import flight
-    from tools.experiment.damage.grid import is_mimo
     from tools.experiment.scenario import PAPER, run_inprocess
 
     faults = faults_of(delay_ms, case)
@@ -145,7 +145,7 @@ def fly(plant: str, controller: str, delay_ms: int, case: str = "nominal", gains
     onset = LOSS[2] if case == "loss" else 0.0
     scen = flight._scenario(plant, DURATION_S, dist, faults=faults, baseline_gains=gains)
     dt = 1.0 / scen.control_rate_hz
-    if is_mimo(plant):
+    if plants.spec(plant).mimo:
         from tools.experiment.mimo_inprocess import run_mimo
 
         r = run_mimo(
@@ -199,7 +199,9 @@ def controllers_for(plant: str, asked: Sequence[str] | None) -> tuple[list[str],
     refused = dict(grid.controller_refusals(plant, names))
     if DESIGNED in names:
         refused[DESIGNED] = "retuned for each fault: a different PID at every delay, not one controller's margin"
-    if grid.ENERGY in names and grid.is_mimo(plant):
+    from sitl import plant as plants
+
+    if grid.ENERGY in names and plants.spec(plant).mimo:
         refused.setdefault(grid.ENERGY, grid.MIMO_REFUSALS[grid.ENERGY])
     return [c for c in names if c not in refused], refused
 
