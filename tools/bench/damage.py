@@ -14,6 +14,11 @@ pool of W processes (two processes flying at once share the machine's memory and
 flights/s on 2 workers is less than twice its 1-worker figure).  Figure: the study's flights/s over the floor's
 on as many workers; target >= 0.85 on JSBSim, reported without a target on the KH2013A (whose step is
 microseconds: the law and the verdict dominate).
+
+Each law against the PID (issue 38, item 7): every law of the registry (``autopilot.controllers``) flies the same
+tasks (the faults above, ``--law-seeds`` seeds) one after the other in this process, each flight timed alone;
+``damage_<plant>_<law>_of_pid`` is the law's flights per second (one over its median seconds per flight) over the
+PID's (``baseline``) on the same plant, target >= 0.5 for a law flown through the generic loop (no batch form).
 """
 
 from __future__ import annotations
@@ -26,6 +31,7 @@ from tools.bench import figure, load_warning, machine_load, print_table
 
 QUICK_ARGV = ["--quick"]
 TARGET_OF_FLOOR = 0.85
+TARGET_OF_PID = 0.5  # a law without a batch form flies at least half as fast as the PID in the same loop
 FAULTS = (("none", None), ("effectiveness", 0.3), ("stuck", 0.0), ("rate", 20.0), ("delay", 0.05))
 
 
@@ -82,16 +88,63 @@ def study_rate(plant: str, workers: int, seeds: int) -> float:
     return len(tasks) / (time.perf_counter() - t0)
 
 
+def law_seconds(plant: str, controllers, seeds: int) -> dict[str, list[float]]:
+    """{controller: seconds per flight}: the study's tasks (``FAULTS`` x ``seeds``) flown one at a time here
+    (``tools.experiment.damage.flight.simulate``), each timed alone, the controllers in turn on each task (a
+    change of the machine's load falls on every law alike)."""
+    from tools.experiment.damage.flight import simulate
+    from tools.experiment.damage.grid import Flight
+
+    out: dict[str, list[float]] = {c: [] for c in controllers}
+    for s in range(1, seeds + 1):
+        for k, v in FAULTS:
+            for c in controllers:
+                t0 = time.perf_counter()
+                simulate(Flight(plant, c, k, v, 10.0, s))
+                out[c].append(time.perf_counter() - t0)
+    return out
+
+
+def law_figures(plant: str, tag: str, seeds: int, laws=None) -> dict:
+    """Each registered law's flights per second over the PID's on ``plant`` (median seconds per flight)."""
+    from autopilot import controllers as registry
+
+    laws = list(laws or registry.NAMES)
+    times = law_seconds(plant, list(dict.fromkeys(["baseline", *laws])), seeds)
+    med = {c: statistics.median(v) for c, v in times.items()}
+    figs = {}
+    for c in laws:
+        if c == "baseline":
+            continue
+        figs[f"damage_{tag}_{c}_of_pid"] = figure(
+            med["baseline"] / med[c],
+            "x",
+            TARGET_OF_PID,
+            higher=True,
+            flights_per_s=round(1.0 / med[c], 3),
+            pid_flights_per_s=round(1.0 / med["baseline"], 3),
+            median_s=round(med[c], 4),
+            pid_median_s=round(med["baseline"], 4),
+            n=len(FAULTS) * seeds,
+        )
+    return figs
+
+
 def main(argv: list[str] | None = None) -> dict:
     p = argparse.ArgumentParser(prog="python -m tools.bench.damage", description=__doc__.split("\n\n")[0])
     p.add_argument("--quick", action="store_true", help="one seed, one floor repetition")
     p.add_argument("--seeds", type=int, default=None, help="seeds per fault (default 4, quick 1)")
+    p.add_argument("--law-seeds", type=int, default=1, help="seeds per fault for each law against the PID (default 1)")
+    p.add_argument("--laws-only", action="store_true", help="only each law against the PID (no floor)")
     args = p.parse_args(argv or [])
     seeds = args.seeds or (1 if args.quick else 4)
     reps = 1 if args.quick else 3
     load = machine_load()
     figs = {}
     for plant, tag, target in (("jsbsim:c172x", "jsbsim", TARGET_OF_FLOOR), ("kh2013a", "kh2013a", None)):
+        figs.update(law_figures(plant, tag, max(1, args.law_seeds)))
+        if args.laws_only:
+            continue
         floors = {k: floor_s(plant, k, v, reps) for k, v in FAULTS}
         mean_floor = statistics.fmean(floors.values())
         figs[f"damage_{tag}_floor"] = figure(
@@ -120,4 +173,6 @@ def main(argv: list[str] | None = None) -> dict:
 
 
 if __name__ == "__main__":
-    main()
+    import sys
+
+    main(sys.argv[1:])

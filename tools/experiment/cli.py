@@ -40,7 +40,8 @@ def build_parser() -> argparse.ArgumentParser:
         help=f"scenario name ({', '.join(SCENARIOS)}); or 'robustness': the Monte Carlo study, "
         "'python -m tools.experiment robustness --help'; or 'replay': one run of the study alone, "
         "'python -m tools.experiment replay --help'; or 'damage': the damage study, faults in mid-flight, "
-        "'python -m tools.experiment damage --help'",
+        "'python -m tools.experiment damage --help'; or 'delay-margin': each law's largest extra actuator "
+        "delay, 'python -m tools.experiment delay-margin --help'",
     )
     p.add_argument("--out", metavar="DIR", help="output folder (default: a new runs/<scenario>-<timestamp>/)")
     p.add_argument(
@@ -98,6 +99,10 @@ def main(argv: Sequence[str] | None = None) -> int:
         from tools.experiment.damage.cli import main as damage_main
 
         return damage_main(argv[1:])
+    if argv[:1] == ["delay-margin"]:  # each law's delay margin (tools.experiment.delay_margin), its own flags
+        from tools.experiment.delay_margin import main as margin_main
+
+        return margin_main(argv[1:])
     if argv[:1] == ["replay"]:  # one run of the study, alone
         from tools.experiment.study.cli import replay_main
 

@@ -1,0 +1,114 @@
+"""tools.experiment.damage.leaderboard against a hand count on a small grid: records made by hand, summarised by the
+damage study's own cells (tools.experiment.damage.aggregate.summarise), read back as a leaderboard."""
+
+from __future__ import annotations
+
+import json
+import math
+import subprocess
+import sys
+
+import pytest
+
+from tools.experiment.damage.aggregate import summarise
+from tools.experiment.damage.grid import Flight
+from tools.experiment.damage.leaderboard import markdown, rows, winners
+
+
+def _rec(controlled, ise, energy, rec_s):
+    return {
+        "controlled": controlled,
+        "reason": "",
+        "first_exit_s": None,
+        "oscillating": False,
+        "not_following": False,
+        "max_abs_roll_deg": 12.0,
+        "saturated_share": 0.0,
+        "ise_ref": ise * 2,
+        "energy": energy * 2,
+        "ise_ref_after": ise,
+        "ise_ref_before": ise,
+        "energy_after": energy,
+        "ise_ref_periods": [ise / 2, ise / 2, ise / 2],
+        "recovered": rec_s is not None,
+        "recovery_s": rec_s,
+        "recovery_band_deg": 1.0,
+        "recovery_reason": "",
+    }
+
+
+# (controller): per seed 1, 2, 3 (controlled, ise_ref after the onset, energy after it, recovery s or None)
+HAND = {
+    "clsac": [(True, 0.1, 1.0, 2.0), (True, 0.3, 2.0, 4.0), (False, 0.2, 3.0, None)],
+    "pid-energy": [(True, 0.4, 4.0, 1.0), (True, 0.5, 4.0, 1.0), (True, 0.6, 4.0, 1.0)],
+    "baseline": [(True, 0.2, 5.0, 3.0), (True, 0.2, 6.0, 3.0), (True, 0.3, 7.0, 5.0)],
+    "pid-retuned": [(True, 0.01, 1.0, 0.5)] * 3,
+}
+
+
+@pytest.fixture()
+def cells():
+    flights, results = [], []
+    for c, per_seed in HAND.items():
+        for seed, r in enumerate(per_seed, 1):
+            flights.append(Flight("kh2013a", c, "effectiveness", 0.3, 10.0, seed))
+            results.append(_rec(*r))
+    return summarise(flights, results)
+
+
+def test_rows_are_the_hand_count(cells):
+    rs = {r["controller"]: r for r in rows(cells, "kh2013a")}
+    c = rs["clsac"]
+    assert (c["fault"], c["controlled"], c["flights"]) == ("effectiveness=0.3", 2, 3)
+    # Wilson 1927 for 2 of 3 at z = 1.96, written out here
+    z, n, p = 1.959963984540054, 3, 2 / 3
+    centre = (p + z * z / (2 * n)) / (1 + z * z / n)
+    half = z * math.sqrt(p * (1 - p) / n + z * z / (4 * n * n)) / (1 + z * z / n)
+    assert c["wilson95"] == pytest.approx([centre - half, centre + half], abs=1e-12)
+    assert c["wilson95"] == pytest.approx([0.2077, 0.9385], abs=1e-4)
+    assert c["recovery_s_p50"] == pytest.approx(3.0)  # the median of the two that recovered (2, 4)
+    assert c["ise_ref_after_p50"] == pytest.approx(0.2) and c["energy_after_p50"] == pytest.approx(2.0)
+    assert c["ise_vs_energy_pid"] == pytest.approx(0.2 / 0.5) and c["energy_vs_energy_pid"] == pytest.approx(2 / 4)
+    assert rs["pid-energy"]["ise_vs_energy_pid"] is None and rs["pid-energy"]["wilson95"][1] == 1.0
+    assert rs["baseline"]["recovery_s_p50"] == pytest.approx(3.0)
+    assert (c["recovered"], c["recovery_measured"]) == (2, 3)
+
+
+def test_the_winner_is_the_highest_share_then_the_least_error_and_never_the_bound(cells):
+    # baseline and pid-energy keep 3/3; baseline's median error 0.2 < 0.5; pid-retuned (0.01) is a bound
+    assert winners(cells, "kh2013a") == {"effectiveness=0.3": ["baseline"]}
+    md = markdown(cells, "kh2013a")
+    assert "| `effectiveness=0.3` | **PID (as designed)** | 3/3 |" in md
+    assert "PID retuned for the fault (bound)" in md
+    assert "- CL-SAC wins 0: none" in md and "- PID (as designed) wins 1: `effectiveness=0.3`" in md
+
+
+def test_a_fault_no_law_keeps_has_no_winner():
+    flights, results = [], []
+    for c, err in (("clsac", 5.0), ("baseline", 9.0)):
+        for seed in (1, 2):
+            flights.append(Flight("kh2013a", c, "stuck", 5.0, 10.0, seed))
+            results.append(_rec(False, err, 1.0, None))
+    cells = summarise(flights, results)
+    assert winners(cells, "kh2013a") == {"stuck=5": []}
+    assert "- no law keeps a flight: `stuck=5`" in markdown(cells, "kh2013a")
+
+
+def test_the_command_prints_a_summarys_leaderboard(cells, tmp_path):
+    path = tmp_path / "summary.json"
+    path.write_text(json.dumps({"plants": ["kh2013a"], "cells": cells, "labels": {}}))
+    r = subprocess.run(
+        [sys.executable, "-m", "tools.experiment.damage.leaderboard", str(path)],
+        capture_output=True,
+        text=True,
+        timeout=120,
+    )
+    assert r.returncode == 0, r.stderr
+    assert "### kh2013a" in r.stdout and "**PID (as designed)**" in r.stdout
+    r = subprocess.run(
+        [sys.executable, "-m", "tools.experiment.damage.leaderboard", str(tmp_path / "nope.json")],
+        capture_output=True,
+        text=True,
+        timeout=120,
+    )
+    assert r.returncode == 2 and len(r.stderr.strip().splitlines()) == 1
