@@ -276,6 +276,7 @@ def fly(opts: FlightOptions, *, log=print, progress: bool = True, stop: threadin
         "study": "robustness",
         "plant": opts.plant,
         "kind": plants.spec(opts.plant).kind.name,
+        "one_by_one": True,  # flown flight by flight (this module), not in the batched study: its tables are these
         "flights": "the reference scenario flown in-process (tools.experiment.scenario.run_inprocess)",
         "seed": opts.seed,
         "seeds": opts.seeds,

@@ -108,6 +108,8 @@ def _flown_one_by_one(section: dict) -> bool:
     kind's (``sitl.plant_kinds.KINDS``) that the batched study does not fly."""
     from sitl.plant_kinds import KINDS
 
+    if section.get("one_by_one"):  # the flights' own mark (the KH2013A's laws without a batch form too)
+        return True
     kind = KINDS.get(section.get("kind"))
     return kind is not None and not kind.batched
 
