@@ -194,4 +194,32 @@ def main(argv=None) -> int:
     print("\n".join(lines))
     print(f"wrote {out}; fly it (every controller: --controller sac, clsac or baseline):")
     print(fly_command(args.plant, out))
+    _design_laws(plant_text, out, args.rate_hz)
     return 0
+
+
+def _design_laws(plant_text: str, out: Path, rate_hz: float) -> None:
+    """The adaptive-law bench's gains for the same plant (``tools.design.laws``, its stated rules), written beside
+    the design as ``OUT-laws.params`` (where the launcher finds them: ``linearise.designed_law_params``); a line per
+    law: its gains written, or the reason it could not be designed."""
+    from tools.design import laws
+
+    try:
+        with warnings.catch_warnings(), np.errstate(all="ignore"):
+            warnings.simplefilter("ignore")
+            designs = laws.design_plant(plant_text, rate_hz)
+    except (ValueError, ArithmeticError, np.linalg.LinAlgError) as exc:  # a plant these rules cannot take
+        designs = str(exc)
+    if isinstance(designs, str):
+        print(f"adaptive laws ({', '.join(laws.LAWS)}): not designed: {designs}")
+        return
+    path = out.with_name(out.stem + "-laws.params")
+    text = [f"# adaptive-law bench designs for {plant_text} by python -m tools.pfc design", *laws.params_lines(designs)]
+    try:
+        path.write_text("\n".join(text) + "\n", encoding="utf-8")
+    except OSError as exc:
+        print(f"adaptive laws: could not write {path}: {exc.strerror or exc}")
+        return
+    for law in laws.LAWS:
+        d = designs.get(law)
+        print(f"{law}: " + (f"not designed: {d}" if isinstance(d, str) else f"gains in {path}"))

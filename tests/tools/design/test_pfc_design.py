@@ -366,3 +366,18 @@ def test_the_mimo_rudder_corner_is_the_acceptable_one_with_the_least_d0():
     assert design.pfcs[0] == pytest.approx((k1, a1), rel=1e-9)
     assert design.pfcs[1][1] == chosen["a"] and design.pfcs[1][0] == pytest.approx(chosen["k"], rel=1e-6)
     assert design.designs[1].accepted == len(rows)
+
+
+def test_the_design_writes_every_adaptive_law_or_its_reason(designed):
+    """Issue 38: ``python -m tools.pfc design`` writes the adaptive-law bench's gains beside the design
+    (``OUT-laws.params``, by ``tools.design.laws``' stated rules) and says, per law, where or why not.  Designed from
+    the shipped c172x linearisation, they are the shipped ``jsbsim-c172x-laws.params`` (which the launcher flies) to
+    1e-7 relative: the rules pick from grids (scalings by 0.8^j), so only a solver's last digits may differ."""
+    path, out = designed
+    laws = path.with_name(path.stem + "-laws.params")
+    for law in ("mrac", "crm-mrac", "l1", "indi"):
+        assert f"{law}: gains in {laws}" in out or f"{law}: not designed: " in out, out
+    fresh, shipped = load_file(laws), load_file(plants.shipped("jsbsim-c172x-laws.params"))
+    assert fresh.keys() == shipped.keys() and {k[:3] for k in fresh} >= {"MRA", "CRM", "L1_", "IND"}
+    for name, v in shipped.items():
+        assert fresh[name] == pytest.approx(v, rel=1e-7, abs=1e-12), name
