@@ -94,4 +94,6 @@ def test_the_policy_flies_in_the_damage_study(trained, tmp_path):
     )  # fmt: skip
     assert r.returncode == 0, r.stdout + r.stderr
     s = json.loads((tmp_path / "d2" / "summary.json").read_text())
-    assert spec in json.dumps(s) and s["labels"][spec] == "ARS linear policy"
+    assert s["labels"][spec] == "ARS linear policy"
+    cells = [c for c in s["cells"] if c["controller"] == spec]
+    assert {c["kind"] for c in cells} == {"none", "effectiveness"} and all(c["flights"] == 1 for c in cells)
