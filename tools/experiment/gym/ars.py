@@ -21,8 +21,9 @@ scenario in light turbulence, seeds 101..; the fault-free flight for reference. 
 (``--controller baseline``'s gains, as a policy in the same environment) are scored by the product's metrics and
 verdict (``info``: ise_ref, energy, saturation, the envelope's reason).
 
-It saves ``policy.json`` (M, mu, sigma, the training settings) and ``scores.json`` in ``--out``.  Flying the policy
-as a law (``--controller FILE.py:Class``, over MAVLink, in the damage study) needs the law interface of issue 37.
+It saves ``policy.json`` (M, mu, sigma, the training settings), ``scores.json`` and ``policy_law.py`` in ``--out``:
+the policy as a law (``tools.experiment.gym.policy_law``, its numbers as literals), flown with ``--controller
+OUT/policy_law.py:Policy`` by the launcher and the damage study.
 """
 
 from __future__ import annotations
@@ -205,11 +206,14 @@ def main(argv=None) -> int:
         "train_s": took,
     }
     (out / "policy.json").write_text(json.dumps(record, indent=1))
+    from tools.experiment.gym.policy_law import law_source
+
+    (out / "policy_law.py").write_text(law_source(record))  # --controller DIR/policy_law.py:Policy
     rows = {"ars": score(lambda: policy), "pid": score(pid_policy)}
     (out / "scores.json").write_text(json.dumps({"held_out": list(HELD_OUT), "scores": rows}, indent=1))
     print(f"trained in {took:.0f} s; held-out faults, 30 s paper scenario, light turbulence:")
     print(table(rows))
-    print(f"wrote {out / 'policy.json'} and {out / 'scores.json'}")
+    print(f"wrote {out / 'policy.json'}, {out / 'scores.json'} and {out / 'policy_law.py'}")
     return 0
 
 
