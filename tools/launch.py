@@ -482,6 +482,7 @@ def main(argv=None, png_helper=None) -> int:
         return EXIT_USAGE
     except OutputError as exc:  # the folder cannot take even the provisional summary (a full disk)
         print(f"FAILED: launch: {exc}; nothing was flown", flush=True)
+        return EXIT_FAILED
     except Exception as exc:  # noqa: BLE001  an internal error: one line, its traceback in DIR/launch.log
         log = flight.out / "launch.log" if flight.out is not None and flight.out.is_dir() else None
         print("FAILED: " + crash.report("launch", exc, log=log, file=io.StringIO()), flush=True)  # the one line

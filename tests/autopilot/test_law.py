@@ -376,7 +376,7 @@ def test_each_bench_law_flies_lockstep_and_is_named(tmp_path, name):
 @pytest.mark.e2e
 def test_a_ground_station_sees_the_laws_mode_and_sets_its_parameters_live(tmp_path, law_file):
     from tests._mavlink_procs import free_ports
-    from tests.test_vehicle import Gcs, _download, _start_autopilot
+    from tests.autopilot.test_vehicle import Gcs, _download, _start_autopilot
 
     port = free_ports(1)[0]
     gcs = Gcs(port)

@@ -191,10 +191,10 @@ def main(argv=None) -> int:
         write_params(out, plant_text, lines, values, args.plant)
     except OSError as exc:
         parser.error(f"--out {out}: {exc.strerror or exc}")
+    _design_laws(plant_text, out, args.rate_hz)  # first: the last line is the command that flies the design
     print("\n".join(lines))
     print(f"wrote {out}; fly it (every controller: --controller sac, clsac or baseline):")
     print(fly_command(args.plant, out))
-    _design_laws(plant_text, out, args.rate_hz)
     return 0
 
 

@@ -51,7 +51,9 @@ def _inject_during_flight(tmp_path, *flags, wait_s: float = 3.0, param5: float =
                 break
         gcs.mav.heartbeat_send(M.MAV_TYPE_GCS, M.MAV_AUTOPILOT_INVALID, 0, 0, 0)
         t0 = time.monotonic()
-        gcs.mav.command_long_send(1, 1, M.MAV_CMD_INJECT_FAILURE, 0, 102, M.FAILURE_TYPE_STUCK, 4, NAN, param5, 0, 0)
+        gcs.mav.command_long_send(
+            1, 1, M.MAV_CMD_INJECT_FAILURE, 0, 102, M.FAILURE_TYPE_STUCK, 4, NAN, param5, NAN, NAN
+        )
         while time.monotonic() < t0 + 5:
             m = gcs.recv_match(type="COMMAND_ACK", blocking=True, timeout=0.5)
             if m is not None and m.command == M.MAV_CMD_INJECT_FAILURE and m.target_component == 230:

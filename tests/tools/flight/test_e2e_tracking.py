@@ -123,10 +123,9 @@ def test_a_roll_that_never_follows_its_command_is_out(tmp_path):
 def test_a_flight_disarmed_by_a_ground_station_says_so_on_its_last_line(tmp_path):
     """Issue 31 item 10: a DISARM from the key holder, mid-flight (real time), then ARM again: the time flown
     disarmed is the series' own count of disarmed steps, and the verdict line names it."""
-    from test_signed_gcs import Station, _gcs_port, _until
-
     from autopilot.shared.mavlink import mavlink
     from autopilot.shared.signing import load_key
+    from tests.autopilot.test_signed_gcs import Station, _gcs_port, _until
     from tools.flight import Flight
     from tools.launch import outcome_line
 

@@ -366,7 +366,7 @@ def test_the_browser_shows_the_aircraft_roll_the_right_way(tmp_path):
 
 
 def test_nothing_listens_after_the_live_flight(live):
-    from test_web import listeners
+    from tests.tools.flight.test_web import listeners
 
     http, grpc = live["ports"]
     assert listeners(http) == set() and listeners(grpc) == set()
