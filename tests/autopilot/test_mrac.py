@@ -1,6 +1,8 @@
 """autopilot.mrac (MRAC with integral action, Lavretsky & Wise 2013 ch. 9-10; CRM-MRAC, Gibson, Annaswamy &
 Lavretsky 2013) against the test's own closed loop: the law written here from the textbook's equations (numpy, not
-the law's module), the continuous KH2013A integrated by solve_ivp per control period (tests/_law_loop.py).
+the law's module), the continuous KH2013A integrated by solve_ivp per control period (tests/_law_loop.py),
+compared with the class flying the exact ZOH plant and with the product's own lockstep flight of the shipped design
+(in process).
 
 Both fly the same samples (the law holds its signals over a period, as the module documents), so they differ only by
 solve_ivp's tolerance (rtol 1e-11) against the exact ZOH: 1e-7 rad bounds it with room.  No number printed in the
@@ -52,16 +54,34 @@ def _textbook(cfg: MracConfig):
     return sample, np.zeros(7)
 
 
-@pytest.mark.parametrize("crm", [False, True], ids=["mrac", "crm-mrac"])
-def test_matches_the_textbook_loop_integrated_by_solve_ivp(crm):
-    cfg = crm_config() if crm else MracConfig()
-    n = 1500  # 15 s: two edges of the square wave, with the effectiveness at 0.3 from 10 s
-    eff = (1000, 0.3)
+@pytest.fixture(scope="module", params=["mrac", "crm-mrac"])
+def flown(request):
+    """15 s (two edges of the square wave, the effectiveness at 0.3 from 10 s): the product's lockstep flight of the
+    law with its shipped design, and the textbook's loop with that design integrated by solve_ivp."""
+    n, eff = 1500, (1000, 0.3)
+    phi, u, cfg = loop.product_flight(request.param, n=n, effectiveness=eff)
+    assert cfg.crm_l > 0 if request.param == "crm-mrac" else cfg.crm_l == 0
     phi_ref, u_ref = loop.ivp_flight(*_textbook(cfg), n=n, effectiveness=eff)
+    return cfg, (phi_ref, u_ref), (phi, u), (n, eff)
+
+
+def test_matches_the_textbook_loop_integrated_by_solve_ivp(flown):
+    cfg, (phi_ref, u_ref), _, (n, eff) = flown
     phi, u = loop.lockstep(Mrac(cfg), n=n, effectiveness=eff)
     assert np.max(np.abs(phi - phi_ref)) < 1e-7
     assert np.max(np.abs(u - u_ref)) < 1e-7
     assert np.max(np.abs(phi)) > math.radians(9)  # it flew the command
+
+
+def test_the_products_lockstep_flight_matches_the_textbook_loop(flown):
+    """The product's flight (ControlStep, the SITL's aircraft, the fault as --fault flies it) against the textbook's
+    loop: both sample the roll at the same instants and hold the surface over the period, and the SITL advances the
+    linear plant exactly (ten exact 1 ms steps), so the sampling leaves no difference to explain; what remains is
+    solve_ivp's tolerance (rtol 1e-11; measured 2e-13 rad), which 1e-7 rad bounds with room."""
+    _, (phi_ref, u_ref), (phi, u), _ = flown
+    assert np.max(np.abs(phi - phi_ref)) < 1e-7
+    assert np.max(np.abs(u - u_ref)) < 1e-7
+    assert np.max(np.abs(u[1000:])) > np.max(np.abs(u[:1000]))  # the fault flew: more surface after 10 s
 
 
 @pytest.mark.parametrize("crm", [False, True], ids=["mrac", "crm-mrac"])
