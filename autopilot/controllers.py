@@ -66,6 +66,11 @@ class Law:
             return tuple(getattr(self.cls, "PARAMETERS", ()))
         return tuple(_load(self.parameter_rows)) if self.parameter_rows else ()
 
+    def aliases(self) -> dict[str, str]:
+        """Its parameters' other names, alias -> its own name (a generic law's ``PARAMETER_ALIASES``; the PID's
+        are in ``autopilot.params.BASELINE_PARAMS``)."""
+        return dict(getattr(self.law_class(), "PARAMETER_ALIASES", None) or {}) if self.generic else {}
+
     def telemetry_fields(self) -> tuple[str, ...]:
         """Its own telemetry's names (generic laws)."""
         return tuple(getattr(self.law_class(), "TELEMETRY_FIELDS", ())) if self.generic else ()

@@ -6,6 +6,10 @@ A law is a class with (the :class:`Law` protocol)::
                            u_limit_rad (rad); Config(control_rate_hz=..., u_limit_rad=...) is its default design
     PARAMETERS             its parameter table: rows (NAME, field, unit, lower, upper, description), NAME at most
                            16 characters under the law's own prefix, field a field of Config
+    PARAMETER_ALIASES      optional: {OLD_NAME: NAME}, the names its parameters had before; a ground station's
+                           PARAM_SET / PARAM_REQUEST_READ and a parameter file by OLD_NAME act on NAME
+                           (autopilot.params, "Aliases"); PARAM_REQUEST_LIST lists NAME only; not under
+                           CLSAC_ or SYS_ (the autopilot's own)
     TELEMETRY_FIELDS       the names of its own telemetry (telemetry() returns them, as floats)
     __init__(config)
     step(roll, roll_rate, yaw_rate, command) -> surface command (rad)   measured roll (rad), rates (rad/s), command
@@ -46,6 +50,7 @@ from typing import Protocol, runtime_checkable
 ENTRY_POINT_GROUP = "clsac_autopilot.laws"
 METHODS = ("step", "reset", "hold", "telemetry")
 PARAM_ID_LEN = 16  # PARAM_VALUE.param_id
+RESERVED = ("CLSAC_", "SYS_")  # the autopilot's own parameters' prefixes (autopilot.params): no user law's alias
 
 
 class LawSpecError(ValueError):
@@ -191,6 +196,19 @@ def check(cls, spec: str = "") -> None:
             raise LawSpecError(f"{who}: parameter {name}: bounds must be finite numbers")
         if lo > hi:
             raise LawSpecError(f"{who}: parameter {name}: lower bound {lo:g} above upper {hi:g}")
+    aliases = getattr(cls, "PARAMETER_ALIASES", None) or {}
+    if not isinstance(aliases, dict):
+        raise LawSpecError(f"{who}: PARAMETER_ALIASES must be a dict {{OLD_NAME: NAME}}, got {aliases!r}")
+    names = {row[0] for row in rows}
+    for old, new in aliases.items():
+        if not (isinstance(old, str) and old and len(old) <= PARAM_ID_LEN and old.isascii()):
+            raise LawSpecError(f"{who}: alias {old!r} must be 1 to {PARAM_ID_LEN} ASCII characters")
+        if new not in names:
+            raise LawSpecError(f"{who}: alias {old} names {new!r}, not a parameter of its table")
+        if old in names:
+            raise LawSpecError(f"{who}: alias {old} is a parameter's own name")
+        if old.startswith(RESERVED):
+            raise LawSpecError(f"{who}: alias {old}: {' and '.join(RESERVED)} names are the autopilot's own")
 
 
 def configure(cls, **options):

@@ -250,6 +250,39 @@ def test_the_laws_parameters_are_its_own_table_set_within_bounds_and_flown_from_
     assert mine == {"PFF_KFF": 0.01, "NOBODYS": 1.0} and other == ["MRAC_KP"]
 
 
+def test_a_laws_parameter_aliases_act_on_its_parameter_listed_once_and_load_from_files(tmp_path, registry):
+    """PARAMETER_ALIASES {OLD: NAME}: the table gets and sets NAME by OLD, lists NAME once, and a parameter file with
+    OLD loads as NAME (autopilot.params, "Aliases"); a bad alias is named in one line."""
+    from autopilot.params import load_file
+
+    alias = '    PARAMETER_ALIASES = {"OLD_KP": "PFF_KP"}\n'
+    text = docs_law().replace("    Config = PffConfig\n", "    Config = PffConfig\n" + alias)
+    spec = f"{_write(tmp_path, 'aliased.py', text)}:ProportionalFF"
+    table = ParamTable(controllers.get(spec).config(control_rate_hz=100.0, u_limit_rad=0.5), OPTIONS)
+    assert [n for n, _ in table.items()][-2:] == ["PFF_KP", "PFF_KFF"] and "OLD_KP" in table
+    assert table.set("OLD_KP", 0.3) == 0.3 and table.get("PFF_KP") == 0.3 and table.config.kp == 0.3
+    assert table.index("OLD_KP") == table.index("PFF_KP") and table.name_of("OLD_KP") == "PFF_KP"
+    with pytest.raises(ParamError, match=r"must be in \[0, 10\]"):
+        table.set("OLD_KP", 11.0)
+    assert table.get("PFF_KP") == 0.3
+    path = _write(tmp_path, "old.parm", "OLD_KP 0.2\nCLSAC_PID_KD 0.03\n")
+    assert load_file(path) == {"PFF_KP": 0.2, "PID_KD": 0.03}
+    mine, other = table.split(load_file(path))
+    table.update(mine)
+    assert table.config.kp == 0.2 and other == ["PID_KD"]
+    for i, (aliases, why) in enumerate(
+        (
+            ('{"OLD_KP": "PFF_NOPE"}', "names 'PFF_NOPE', not a parameter of its table"),
+            ('{"PFF_KFF": "PFF_KP"}', "alias PFF_KFF is a parameter's own name"),
+            ('{"CLSAC_LV": "PFF_KP"}', "alias CLSAC_LV: CLSAC_ and SYS_ names are the autopilot's own"),
+            ('{"OLD_NAME_FAR_TOO_LONG": "PFF_KP"}', "must be 1 to 16 ASCII characters"),
+        )
+    ):
+        bad = _write(tmp_path, f"bad{i}.py", text.replace('{"OLD_KP": "PFF_KP"}', aliases))
+        with pytest.raises(LawSpecError, match=re.escape(why)):
+            load(f"{bad}:ProportionalFF")
+
+
 # ------------------------------------------------------------------------------------------------ the CLIs
 def _run(*args, timeout=120.0):
     t0 = time.monotonic()
