@@ -44,6 +44,12 @@ class Law:
     parameter_rows: str = ""  # "module:NAME" of its PARAMETERS rows (generic laws)
     mimo: str | None = None
     design: str = ""  # the suffix of its design file beside a plant's (sitl/plants/PLANT-laws.params: "-laws")
+    # Optional: its batch form (N aircraft at once: "module:Class", Class.accepts(config), Class.of(configs);
+    # autopilot.batch) and its C-kernel form ("module:function", function(batch law) -> autopilot.batch.KernelForm).
+    # The KH2013A study flies a controller by its law's batch form where it has one that accepts its configuration,
+    # in C where it has a kernel form too; else the generic loop, one in-process flight at a time
+    batch: str = ""
+    kernel: str = ""
     cls: object = field(default=None, compare=False, repr=False)  # a user's law: its class, loaded (autopilot.law)
 
     def config_class(self):
@@ -70,6 +76,14 @@ class Law:
         """Its parameters' other names, alias -> its own name (a generic law's ``PARAMETER_ALIASES``; the PID's
         are in ``autopilot.params.BASELINE_PARAMS``)."""
         return dict(getattr(self.law_class(), "PARAMETER_ALIASES", None) or {}) if self.generic else {}
+
+    def batch_class(self):
+        """Its batch form's class, or None."""
+        return _load(self.batch) if self.batch else None
+
+    def kernel_form(self):
+        """Its C-kernel form (a function of a batch law -> ``autopilot.batch.KernelForm``), or None."""
+        return _load(self.kernel) if self.kernel else None
 
     def telemetry_fields(self) -> tuple[str, ...]:
         """Its own telemetry's names (generic laws)."""
@@ -103,6 +117,12 @@ class Controller:
         ``lv`` (None: the law's default), ``pfc``, ``sigma_xu``, ``dead_zone_rad``, ``ki_max``,
         ``freeze_when_saturated``, ``gains`` (the baseline's KP,KI,KD or None); a law reads those it has."""
         return LAWS[self.law].configure(**{**options, **dict(self.options)})
+
+    def batch_form(self):
+        """Its law's batch form if that flies this controller (``Law.batch``: ``accepts`` its configuration), else
+        None: the study flies it through the generic loop."""
+        cls = LAWS[self.law].batch_class()
+        return cls if cls is not None and cls.accepts(self.config(control_rate_hz=100.0, u_limit_rad=0.5)) else None
 
 
 def clsac_config(
@@ -191,6 +211,8 @@ LAWS: dict[str, Law] = {
             parameters=True,
             modes=("SAC", "CLSAC"),
             lv=20.0,  # paper sec. 5
+            batch="autopilot.batch:BatchClSac",
+            kernel="autopilot.batch:clsac_kernel",
         ),
         Law(
             "baseline",
@@ -200,6 +222,8 @@ LAWS: dict[str, Law] = {
             adaptive=False,
             parameters=False,
             modes=("BASELINE",),
+            batch="autopilot.batch:BatchBaseline",
+            kernel="autopilot.batch:baseline_kernel",
         ),
         _bench("mrac", "autopilot.mrac", "Mrac", "MracConfig", "PARAMETERS", "MRAC", "mrac_config"),
         _bench("crm-mrac", "autopilot.mrac", "Mrac", "MracConfig", "CRM_PARAMETERS", "CRM_MRAC", "crm_mrac_config"),

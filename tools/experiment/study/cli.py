@@ -199,9 +199,10 @@ def plan_from_args(args) -> list[tuple[str, object]]:
     controllers_of = registry.CONTROLLERS
     seed = 0 if args.seed is None else args.seed
     plan: list[tuple[str, object]] = []
-    # laws without a batch form: a registered one, or a user's (FILE.py:Class, module:Class); an unknown name is
-    # the batched study's to refuse
-    unbatched = tuple(c for c in controllers or () if c not in CONTROLLERS and (c in controllers_of or ":" in c))
+    # laws without a batch form (autopilot.controllers.Law.batch, or one that does not fly the controller's
+    # configuration: pid-ff): a registered one, or a user's (FILE.py:Class, module:Class); an unknown name is the
+    # batched study's to refuse
+    unbatched = tuple(c for c in controllers or () if not _batched(c) and (c in controllers_of or ":" in c))
     if unbatched and "kh2013a" in texts:
         # The KH2013A's batched study flies the laws of its kernel; any other law (mrac, l1, indi, a user's own)
         # flies the generic loop, one in-process flight at a time, bit for bit its lockstep flight
@@ -279,6 +280,12 @@ def plan_from_args(args) -> list[tuple[str, object]]:
 
 
 GENERIC = "kh2013a (one flight at a time)"  # the KH2013A's section of the laws without a batch form
+
+
+def _batched(name: str) -> bool:
+    """A controller of the batched study whose law has a batch form (its record's ``batch``)."""
+    c = CONTROLLERS.get(name)
+    return c is not None and registry.LAWS[c.kind].batch_class() is not None
 
 
 def _generic_plan(args, names: tuple[str, ...], seed: int, plan: list) -> None:
