@@ -17,6 +17,7 @@ the experiments and pictures read these tables; the study (``tools.experiment.st
 from __future__ import annotations
 
 import importlib
+import math
 from dataclasses import dataclass, field
 
 
@@ -103,6 +104,9 @@ class Controller:
     lv_fixed: float | None = None  # the L_v it flies whatever --lv says (SAC: 0); None: the configured one
     options: tuple = ()  # (name, value) pairs its law's build takes on top of the command line's (pid-ff's)
     study_label: str = ""  # the damage study's words, where they differ from ``label`` (its tables name the PIDs)
+    robustness_label: str = ""  # the KH2013A robustness study's words, where they differ from ``label``
+    changes: tuple = ()  # (field, value) pairs over its law's configuration (the robustness study's VARIANTS)
+    damage: int | None = None  # its place among the damage study's default controllers (None: not one of them)
 
     @property
     def kind(self) -> Law:
@@ -117,6 +121,16 @@ class Controller:
         ``lv`` (None: the law's default), ``pfc``, ``sigma_xu``, ``dead_zone_rad``, ``ki_max``,
         ``freeze_when_saturated``, ``gains`` (the baseline's KP,KI,KD or None); a law reads those it has."""
         return LAWS[self.law].configure(**{**options, **dict(self.options)})
+
+    def study_config(self, pfc: str, control_rate_hz: float, u_limit_rad: float):
+        """Its configuration in the KH2013A robustness study: its own L_v, the PFC drawn for the run, ``changes``."""
+        cfg = self.config(control_rate_hz=control_rate_hz, u_limit_rad=u_limit_rad, lv=self.lv, pfc=pfc)
+        return cfg.with_(**dict(self.changes)) if self.changes else cfg
+
+    @property
+    def robustness_words(self) -> str:
+        """Its words in the robustness study's tables (``robustness_label``, else ``label``)."""
+        return self.robustness_label or self.label
 
     def batch_form(self):
         """Its law's batch form if that flies this controller (``Law.batch``: ``accepts`` its configuration), else
@@ -235,9 +249,16 @@ LAWS: dict[str, Law] = {
 CONTROLLERS: dict[str, Controller] = {
     c.name: c
     for c in (
-        Controller("sac", "clsac", lv=0.0, mode="SAC", label="SAC", help="sac (Lv = 0)", lv_fixed=0.0),
+        Controller("sac", "clsac", lv=0.0, mode="SAC", label="SAC", help="sac (Lv = 0)", lv_fixed=0.0, damage=1),
         Controller(
-            "clsac", "clsac", lv=20.0, mode="CLSAC", label="CL-SAC", help="clsac (Lv = 20, the paper's; default)"
+            "clsac",
+            "clsac",
+            lv=20.0,
+            mode="CLSAC",
+            label="CL-SAC",
+            help="clsac (Lv = 20, the paper's; default)",
+            robustness_label="CL-SAC Lv 20 (paper)",
+            damage=2,
         ),
         Controller(
             "baseline",
@@ -247,6 +268,7 @@ CONTROLLERS: dict[str, Controller] = {
             label="fixed-gain PID",
             study_label="PID (as designed)",
             help="baseline (fixed-gain PID; --lv, --pfc and the adaptation's options are refused)",
+            damage=0,
         ),
         Controller(
             "pid-ff",
@@ -257,6 +279,7 @@ CONTROLLERS: dict[str, Controller] = {
             study_label="PID + feed-forward, D on roll",
             help="pid-ff (the PID with the reference model's rate fed forward and the derivative on the roll)",
             options=(("feedforward", True),),
+            damage=3,
         ),
         Controller("mrac", "mrac", lv=0.0, mode="MRAC", label="MRAC", help="mrac (MRAC, open-loop reference model)"),
         Controller(
@@ -269,6 +292,39 @@ CONTROLLERS: dict[str, Controller] = {
 NAMES = tuple(CONTROLLERS)  # the built-in --controller choices
 DEFAULT = "clsac"
 BUILT_IN = NAMES
+
+DEAD_ZONE_RAD = 0.25 * (math.pi / 180.0)  # about the roll noise of "moderate" (tools.experiment.study)
+KI_MAX = 0.2  # rad/rad: 2.6 times the largest |K_I| of the nominal 30 s CL-SAC run (0.076)
+
+
+def _variant(name: str, label: str, lv: float = 20.0, **changes) -> Controller:
+    return Controller(name, "clsac", lv=lv, mode="CLSAC", label=label, help="", changes=tuple(changes.items()))
+
+
+# The KH2013A robustness study's variants of CL-SAC (tools.experiment.study): its configurations that the study
+# compares beside the --controller choices (their names are its --controllers), not --controller choices themselves
+VARIANTS: dict[str, Controller] = {
+    c.name: c
+    for c in (
+        _variant("clsac_lv10", "CL-SAC Lv 10", lv=10.0),
+        _variant("clsac_lv50", "CL-SAC Lv 50", lv=50.0),
+        _variant("clsac_leak", "CL-SAC + leakage 0.1", sigma_x=0.1, sigma_u=0.1),
+        _variant("clsac_deadzone", "CL-SAC + dead-zone 0.25 deg", dead_zone_rad=DEAD_ZONE_RAD),
+        _variant("clsac_projection", "CL-SAC + projection |K_I| <= 0.2", ki_max=KI_MAX),
+        _variant("clsac_freeze", "CL-SAC + freeze when saturated", freeze_when_saturated=True),
+    )
+}
+# The robustness study's controllers, in its tables' order (the batched study's default --controllers)
+ROBUSTNESS = ("sac", "clsac_lv10", "clsac", "clsac_lv50", "baseline", *tuple(VARIANTS)[2:])
+
+
+def studied(name: str) -> Controller:
+    """A controller of the robustness study (``ROBUSTNESS``: a --controller choice or a ``VARIANTS`` one);
+    ValueError naming the known ones."""
+    c = VARIANTS.get(name) or (CONTROLLERS.get(name) if name in ROBUSTNESS else None)
+    if c is None:
+        raise ValueError(f"unknown controller {name!r} (known: {', '.join(ROBUSTNESS)})")
+    return c
 
 
 def register(spec: str) -> Controller:

@@ -155,7 +155,6 @@ def simulate(task: Task, engine: str | None = None) -> dict:
     "numpy" (the numpy loop) or None (the kernel when it loads, else numpy); the same numbers whichever."""
     from scipy.special import ndtri
 
-    from autopilot.controllers import LAWS
     from sitl.atmosphere import Gust
 
     ctrl = get_controller(task.controller)
@@ -183,10 +182,10 @@ def simulate(task: Task, engine: str | None = None) -> dict:
     thr = ndtri(loss)  # lost when the standard normal draw is below it (-inf: never)
 
     # Law, one config per run (the PFC is drawn per run): its record's batch form (autopilot.controllers.Law.batch)
-    record = LAWS[ctrl.kind]
+    record = ctrl.kind  # its law's record (autopilot.controllers.Law)
     if record.batch_class() is None:
         raise StudyError(f"{ctrl.name}: its law {record.name} has no batch form (the generic loop flies it)")
-    by_pfc = {True: ctrl.config("paper", rate, umax), False: ctrl.config("robust", rate, umax)}
+    by_pfc = {True: ctrl.study_config("paper", rate, umax), False: ctrl.study_config("robust", rate, umax)}
     law = record.batch_class().of([by_pfc[bool(p)] for p in pfc_paper])
 
     # Plant, one per distinct scale vector (nominal: one for all).

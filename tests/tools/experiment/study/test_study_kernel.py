@@ -15,9 +15,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from autopilot.controllers import ROBUSTNESS
 from tools.experiment.study import (
     CONDITIONS,
-    CONTROLLERS,
     LONG_CONTROLLERS,
     StudyOptions,
     Task,
@@ -56,7 +56,7 @@ def _same(a: dict, b: dict) -> list[str]:
     return bad
 
 
-@pytest.mark.parametrize("controller", list(CONTROLLERS))
+@pytest.mark.parametrize("controller", ROBUSTNESS)
 def test_the_kernel_flies_every_controller_bit_for_bit_as_the_numpy_loop(kernel, controller):
     """Every metric, the window peaks, and every series of every step, under the three conditions and the sweeps'
     extremes (delay, loss, turbulence), the PFC drawn per run."""
