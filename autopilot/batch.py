@@ -11,11 +11,18 @@ per step.
 Per-aircraft configs may differ in any coefficient (the study draws the PFC per run); the switches
 (``anti_windup``, ``dead_zone_rad``, ``ki_max``, ``freeze_when_saturated``) and the limit must be the same for
 the whole batch.
+
+**The hooks the study reads** (``autopilot.controllers.Law``: ``batch``, ``kernel``; no list of names in the study).
+A batch form is a class with ``accepts(config)`` (whether it flies that configuration: the plain PID, not pid-ff's
+feed-forward) and ``of(configs)`` (the law for one config per aircraft).  Its C-kernel form is a function of a
+batch law giving :class:`KernelForm`: its law number in the study's kernel (``tools/experiment/study/kernel.c``,
+``Batch.kind``), its coefficients and states in the kernel's order, and its switches.
 """
 
 from __future__ import annotations
 
 from collections.abc import Sequence
+from typing import NamedTuple
 
 import numpy as np
 
@@ -42,6 +49,20 @@ _COEFFS = (
 )
 _LEAKS = ("_decay", "_gain_ie", "_decay_x", "_gain_ix", "_decay_u", "_gain_iu")
 _SWITCHES = ("_umax", "_aw", "_dz", "_kmax", "_freeze")
+
+
+class KernelForm(NamedTuple):
+    """A batch law as the study's C kernel flies it (kernel.c's ``Batch``): ``kind`` its law there (0 CL-SAC, 1 the
+    fixed-gain PID), ``coef`` its coefficients (C_*/B_* in kernel.c; a float for every aircraft or an (N,) array),
+    ``state`` its six states s0..s5, and its switches."""
+
+    kind: int
+    coef: list
+    state: list
+    anti_windup: bool
+    dead_zone: float
+    ki_max: float | None
+    freeze: bool
 
 
 def _column(values: list[float]):
@@ -84,6 +105,16 @@ class BatchClSac:
         self._leak = {k: _column([getattr(law, k) for law in per]) for k in _LEAKS}
         self._ki0 = tuple(np.array([law._ki0[i][0, 0] for law in per]) for i in range(3))  # noqa: SLF001
         self.reset()
+
+    @staticmethod
+    def accepts(config) -> bool:
+        """It flies the SISO law with a first-order PFC (``ClSac``'s fast path)."""
+        return bool(config.is_siso) and len(config.pfc_den) == 2
+
+    @classmethod
+    def of(cls, configs: Sequence[ClSacConfig]) -> BatchClSac:
+        """The batch of one config per aircraft."""
+        return cls(configs)
 
     def reset(self) -> None:
         n = self.n
@@ -168,6 +199,18 @@ class BatchBaseline:
         self._umax, self._aw = law._umax, law._aw  # noqa: SLF001
         self.reset()
 
+    @staticmethod
+    def accepts(config) -> bool:
+        """It flies the plain PID only: no feed-forward, the derivative on the error (not pid-ff)."""
+        return not config.kff and config.derivative == "error"
+
+    @classmethod
+    def of(cls, configs: Sequence[BaselineConfig]) -> BatchBaseline:
+        """The batch of one config per aircraft: the same config for all (ValueError otherwise)."""
+        if not configs or any(c != configs[0] for c in configs):
+            raise ValueError("BatchBaseline flies one config for the whole batch")
+        return cls(configs[0], len(configs))
+
     def reset(self) -> None:
         n = self.n
         self.xm_ol = np.zeros(n)
@@ -192,3 +235,18 @@ class BatchBaseline:
         self.e, self.ym_ol, self.u_raw, self.u, self.saturated = e, ym_ol, u_raw, u, sat
         self.steps += 1
         return u
+
+
+def clsac_kernel(law: BatchClSac) -> KernelForm:
+    """CL-SAC's C-kernel form: kernel.c's law 0, coefficients ``_COEFFS`` then ``_LEAKS``, states xm, xm_ol, xd,
+    K_Ie, K_Ix, K_Iu."""
+    coef = [law._c[k] for k in _COEFFS] + [law._leak[k] for k in _LEAKS]  # noqa: SLF001
+    state = [law.xm, law.xm_ol, law.xd, law.ki_e, law.ki_x, law.ki_u]
+    return KernelForm(0, coef, state, law._aw, law._dz, law._kmax, law._freeze)  # noqa: SLF001
+
+
+def baseline_kernel(law: BatchBaseline) -> KernelForm:
+    """The fixed-gain PID's C-kernel form: kernel.c's law 1, coefficients phi_ol, g_ol, C_m, K_p, K_i T, K_d / T,
+    states x_m,ol, x_i, e[k-1]."""
+    coef = [law._phi_ol, law._g_ol, law._cm, law._kp, law._ki_t, law._kd_t]  # noqa: SLF001
+    return KernelForm(1, coef, [law.xm_ol, law.xi, law.e_prev, 0.0, 0.0, 0.0], law._aw, 0.0, None, False)  # noqa: SLF001

@@ -17,6 +17,7 @@ the experiments and pictures read these tables; the study (``tools.experiment.st
 from __future__ import annotations
 
 import importlib
+import math
 from dataclasses import dataclass, field
 
 
@@ -44,6 +45,12 @@ class Law:
     parameter_rows: str = ""  # "module:NAME" of its PARAMETERS rows (generic laws)
     mimo: str | None = None
     design: str = ""  # the suffix of its design file beside a plant's (sitl/plants/PLANT-laws.params: "-laws")
+    # Optional: its batch form (N aircraft at once: "module:Class", Class.accepts(config), Class.of(configs);
+    # autopilot.batch) and its C-kernel form ("module:function", function(batch law) -> autopilot.batch.KernelForm).
+    # The KH2013A study flies a controller by its law's batch form where it has one that accepts its configuration,
+    # in C where it has a kernel form too; else the generic loop, one in-process flight at a time
+    batch: str = ""
+    kernel: str = ""
     cls: object = field(default=None, compare=False, repr=False)  # a user's law: its class, loaded (autopilot.law)
 
     def config_class(self):
@@ -66,6 +73,19 @@ class Law:
             return tuple(getattr(self.cls, "PARAMETERS", ()))
         return tuple(_load(self.parameter_rows)) if self.parameter_rows else ()
 
+    def aliases(self) -> dict[str, str]:
+        """Its parameters' other names, alias -> its own name (a generic law's ``PARAMETER_ALIASES``; the PID's
+        are in ``autopilot.params.BASELINE_PARAMS``)."""
+        return dict(getattr(self.law_class(), "PARAMETER_ALIASES", None) or {}) if self.generic else {}
+
+    def batch_class(self):
+        """Its batch form's class, or None."""
+        return _load(self.batch) if self.batch else None
+
+    def kernel_form(self):
+        """Its C-kernel form (a function of a batch law -> ``autopilot.batch.KernelForm``), or None."""
+        return _load(self.kernel) if self.kernel else None
+
     def telemetry_fields(self) -> tuple[str, ...]:
         """Its own telemetry's names (generic laws)."""
         return tuple(getattr(self.law_class(), "TELEMETRY_FIELDS", ())) if self.generic else ()
@@ -84,6 +104,9 @@ class Controller:
     lv_fixed: float | None = None  # the L_v it flies whatever --lv says (SAC: 0); None: the configured one
     options: tuple = ()  # (name, value) pairs its law's build takes on top of the command line's (pid-ff's)
     study_label: str = ""  # the damage study's words, where they differ from ``label`` (its tables name the PIDs)
+    robustness_label: str = ""  # the KH2013A robustness study's words, where they differ from ``label``
+    changes: tuple = ()  # (field, value) pairs over its law's configuration (the robustness study's VARIANTS)
+    damage: int | None = None  # its place among the damage study's default controllers (None: not one of them)
 
     @property
     def kind(self) -> Law:
@@ -98,6 +121,22 @@ class Controller:
         ``lv`` (None: the law's default), ``pfc``, ``sigma_xu``, ``dead_zone_rad``, ``ki_max``,
         ``freeze_when_saturated``, ``gains`` (the baseline's KP,KI,KD or None); a law reads those it has."""
         return LAWS[self.law].configure(**{**options, **dict(self.options)})
+
+    def study_config(self, pfc: str, control_rate_hz: float, u_limit_rad: float):
+        """Its configuration in the KH2013A robustness study: its own L_v, the PFC drawn for the run, ``changes``."""
+        cfg = self.config(control_rate_hz=control_rate_hz, u_limit_rad=u_limit_rad, lv=self.lv, pfc=pfc)
+        return cfg.with_(**dict(self.changes)) if self.changes else cfg
+
+    @property
+    def robustness_words(self) -> str:
+        """Its words in the robustness study's tables (``robustness_label``, else ``label``)."""
+        return self.robustness_label or self.label
+
+    def batch_form(self):
+        """Its law's batch form if that flies this controller (``Law.batch``: ``accepts`` its configuration), else
+        None: the study flies it through the generic loop."""
+        cls = LAWS[self.law].batch_class()
+        return cls if cls is not None and cls.accepts(self.config(control_rate_hz=100.0, u_limit_rad=0.5)) else None
 
 
 def clsac_config(
@@ -186,6 +225,8 @@ LAWS: dict[str, Law] = {
             parameters=True,
             modes=("SAC", "CLSAC"),
             lv=20.0,  # paper sec. 5
+            batch="autopilot.batch:BatchClSac",
+            kernel="autopilot.batch:clsac_kernel",
         ),
         Law(
             "baseline",
@@ -195,6 +236,8 @@ LAWS: dict[str, Law] = {
             adaptive=False,
             parameters=False,
             modes=("BASELINE",),
+            batch="autopilot.batch:BatchBaseline",
+            kernel="autopilot.batch:baseline_kernel",
         ),
         _bench("mrac", "autopilot.mrac", "Mrac", "MracConfig", "PARAMETERS", "MRAC", "mrac_config"),
         _bench("crm-mrac", "autopilot.mrac", "Mrac", "MracConfig", "CRM_PARAMETERS", "CRM_MRAC", "crm_mrac_config"),
@@ -206,9 +249,16 @@ LAWS: dict[str, Law] = {
 CONTROLLERS: dict[str, Controller] = {
     c.name: c
     for c in (
-        Controller("sac", "clsac", lv=0.0, mode="SAC", label="SAC", help="sac (Lv = 0)", lv_fixed=0.0),
+        Controller("sac", "clsac", lv=0.0, mode="SAC", label="SAC", help="sac (Lv = 0)", lv_fixed=0.0, damage=1),
         Controller(
-            "clsac", "clsac", lv=20.0, mode="CLSAC", label="CL-SAC", help="clsac (Lv = 20, the paper's; default)"
+            "clsac",
+            "clsac",
+            lv=20.0,
+            mode="CLSAC",
+            label="CL-SAC",
+            help="clsac (Lv = 20, the paper's; default)",
+            robustness_label="CL-SAC Lv 20 (paper)",
+            damage=2,
         ),
         Controller(
             "baseline",
@@ -218,6 +268,7 @@ CONTROLLERS: dict[str, Controller] = {
             label="fixed-gain PID",
             study_label="PID (as designed)",
             help="baseline (fixed-gain PID; --lv, --pfc and the adaptation's options are refused)",
+            damage=0,
         ),
         Controller(
             "pid-ff",
@@ -228,6 +279,7 @@ CONTROLLERS: dict[str, Controller] = {
             study_label="PID + feed-forward, D on roll",
             help="pid-ff (the PID with the reference model's rate fed forward and the derivative on the roll)",
             options=(("feedforward", True),),
+            damage=3,
         ),
         Controller("mrac", "mrac", lv=0.0, mode="MRAC", label="MRAC", help="mrac (MRAC, open-loop reference model)"),
         Controller(
@@ -240,6 +292,39 @@ CONTROLLERS: dict[str, Controller] = {
 NAMES = tuple(CONTROLLERS)  # the built-in --controller choices
 DEFAULT = "clsac"
 BUILT_IN = NAMES
+
+DEAD_ZONE_RAD = 0.25 * (math.pi / 180.0)  # about the roll noise of "moderate" (tools.experiment.study)
+KI_MAX = 0.2  # rad/rad: 2.6 times the largest |K_I| of the nominal 30 s CL-SAC run (0.076)
+
+
+def _variant(name: str, label: str, lv: float = 20.0, **changes) -> Controller:
+    return Controller(name, "clsac", lv=lv, mode="CLSAC", label=label, help="", changes=tuple(changes.items()))
+
+
+# The KH2013A robustness study's variants of CL-SAC (tools.experiment.study): its configurations that the study
+# compares beside the --controller choices (their names are its --controllers), not --controller choices themselves
+VARIANTS: dict[str, Controller] = {
+    c.name: c
+    for c in (
+        _variant("clsac_lv10", "CL-SAC Lv 10", lv=10.0),
+        _variant("clsac_lv50", "CL-SAC Lv 50", lv=50.0),
+        _variant("clsac_leak", "CL-SAC + leakage 0.1", sigma_x=0.1, sigma_u=0.1),
+        _variant("clsac_deadzone", "CL-SAC + dead-zone 0.25 deg", dead_zone_rad=DEAD_ZONE_RAD),
+        _variant("clsac_projection", "CL-SAC + projection |K_I| <= 0.2", ki_max=KI_MAX),
+        _variant("clsac_freeze", "CL-SAC + freeze when saturated", freeze_when_saturated=True),
+    )
+}
+# The robustness study's controllers, in its tables' order (the batched study's default --controllers)
+ROBUSTNESS = ("sac", "clsac_lv10", "clsac", "clsac_lv50", "baseline", *tuple(VARIANTS)[2:])
+
+
+def studied(name: str) -> Controller:
+    """A controller of the robustness study (``ROBUSTNESS``: a --controller choice or a ``VARIANTS`` one);
+    ValueError naming the known ones."""
+    c = VARIANTS.get(name) or (CONTROLLERS.get(name) if name in ROBUSTNESS else None)
+    if c is None:
+        raise ValueError(f"unknown controller {name!r} (known: {', '.join(ROBUSTNESS)})")
+    return c
 
 
 def register(spec: str) -> Controller:

@@ -6,9 +6,16 @@ A law is a class with (the :class:`Law` protocol)::
                            u_limit_rad (rad); Config(control_rate_hz=..., u_limit_rad=...) is its default design
     PARAMETERS             its parameter table: rows (NAME, field, unit, lower, upper, description), NAME at most
                            16 characters under the law's own prefix, field a field of Config
+    PARAMETER_ALIASES      optional: {OLD_NAME: NAME}, the names its parameters had before; a ground station's
+                           PARAM_SET / PARAM_REQUEST_READ and a parameter file by OLD_NAME act on NAME
+                           (autopilot.params, "Aliases"); PARAM_REQUEST_LIST lists NAME only; not under
+                           CLSAC_ or SYS_ (the autopilot's own)
     TELEMETRY_FIELDS       the names of its own telemetry (telemetry() returns them, as floats)
     __init__(config)
     step(roll, roll_rate, yaw_rate, command) -> surface command (rad)   measured roll (rad), rates (rad/s), command
+                           (rad); a step that takes a keyword ``sideslip`` (or ``**measurements``) gets the
+                           measured sideslip too (rad, AOA_SSA's on a square MIMO plant; NaN where the autopilot
+                           has none: every one-surface plant), a step without it is called as above (:data:`SIDESLIP`)
     reset()                back to rest
     hold(u_applied)        the surface it asked for was not applied (``u_applied`` flew): freeze what adapts
     telemetry() -> dict    its TELEMETRY_FIELDS after the last step
@@ -37,6 +44,7 @@ from __future__ import annotations
 import dataclasses
 import importlib
 import importlib.util
+import inspect
 import keyword
 import math
 import sys
@@ -46,6 +54,24 @@ from typing import Protocol, runtime_checkable
 ENTRY_POINT_GROUP = "clsac_autopilot.laws"
 METHODS = ("step", "reset", "hold", "telemetry")
 PARAM_ID_LEN = 16  # PARAM_VALUE.param_id
+RESERVED = ("CLSAC_", "SYS_")  # the autopilot's own parameters' prefixes (autopilot.params): no user law's alias
+
+
+SIDESLIP = "sideslip"  # the optional keyword of step: the measured sideslip (rad), NaN where it is not measured
+
+
+def takes_sideslip(step) -> bool:
+    """Whether a law's ``step`` takes the sideslip: a parameter :data:`SIDESLIP` that can be given by keyword, or
+    ``**kwargs``.  A step written before it (four positional measurements) is called as it was."""
+    try:
+        sig = inspect.signature(step)
+    except (TypeError, ValueError):
+        return False
+    by_keyword = (inspect.Parameter.POSITIONAL_OR_KEYWORD, inspect.Parameter.KEYWORD_ONLY)
+    return any(
+        (p.name == SIDESLIP and p.kind in by_keyword) or p.kind is inspect.Parameter.VAR_KEYWORD
+        for p in sig.parameters.values()
+    )
 
 
 class LawSpecError(ValueError):
@@ -63,7 +89,7 @@ class Law(Protocol):
     PARAMETERS: tuple
     TELEMETRY_FIELDS: tuple
 
-    def step(self, roll: float, roll_rate: float, yaw_rate: float, command: float) -> float: ...
+    def step(self, roll: float, roll_rate: float, yaw_rate: float, command: float) -> float: ...  # [, sideslip=]
 
     def reset(self) -> None: ...
 
@@ -191,6 +217,19 @@ def check(cls, spec: str = "") -> None:
             raise LawSpecError(f"{who}: parameter {name}: bounds must be finite numbers")
         if lo > hi:
             raise LawSpecError(f"{who}: parameter {name}: lower bound {lo:g} above upper {hi:g}")
+    aliases = getattr(cls, "PARAMETER_ALIASES", None) or {}
+    if not isinstance(aliases, dict):
+        raise LawSpecError(f"{who}: PARAMETER_ALIASES must be a dict {{OLD_NAME: NAME}}, got {aliases!r}")
+    names = {row[0] for row in rows}
+    for old, new in aliases.items():
+        if not (isinstance(old, str) and old and len(old) <= PARAM_ID_LEN and old.isascii()):
+            raise LawSpecError(f"{who}: alias {old!r} must be 1 to {PARAM_ID_LEN} ASCII characters")
+        if new not in names:
+            raise LawSpecError(f"{who}: alias {old} names {new!r}, not a parameter of its table")
+        if old in names:
+            raise LawSpecError(f"{who}: alias {old} is a parameter's own name")
+        if old.startswith(RESERVED):
+            raise LawSpecError(f"{who}: alias {old}: {' and '.join(RESERVED)} names are the autopilot's own")
 
 
 def configure(cls, **options):
@@ -219,7 +258,12 @@ class Flown:
     It keeps what the step, the metrics, the envelope and the recording's common row read of any law: ``um``,
     ``y`` (= ``ya``), ``ym_ol`` (= ``ym``: no closed-loop reference model), ``e`` = y_m,ol - y, ``u_raw``, ``u``,
     ``saturated``, ``config``; CL-SAC's PFC output and gains are NaN (not drawn); ``law_row()`` is the law's own
-    telemetry, by its ``TELEMETRY_FIELDS``."""
+    telemetry, by its ``TELEMETRY_FIELDS``.
+
+    ``y2``: the measured sideslip (rad), which the loop sets before each step where the plant measures it (a square
+    MIMO plant's AOA_SSA: ``autopilot.loop.handlers``, in lockstep and real time; ``tools.experiment.mimo_inprocess``
+    in-process), as it sets ``autopilot.mimo.MimoLaw``'s; NaN elsewhere.  A law whose step takes it
+    (:func:`takes_sideslip`) gets it as ``sideslip=``."""
 
     MEASURES = True  # ControlStep passes the rates
 
@@ -232,6 +276,8 @@ class Flown:
         self._phi = math.exp(AM * self.dt)  # exact ZOH of the scalar reference model
         self._gam = (self._phi - 1.0) / AM * BM
         self.registered_law = name
+        self.y2 = math.nan  # the sideslip (rad): set by the loop where the plant measures it (class docstring)
+        self._sideslip = takes_sideslip(inner.step)
         self._zero()
 
     def _zero(self) -> None:
@@ -265,7 +311,10 @@ class Flown:
             raise NonFiniteInputError(f"controller inputs must be finite, got y={y!r}, um={um!r}, p={p!r}, r={r!r}")
         ym_ol = CM * self.xm  # y_m,ol = C_m x_m,ol (paper eq. (3))
         try:
-            u_raw = float(self.inner.step(y, p, r, um))
+            if self._sideslip:
+                u_raw = float(self.inner.step(y, p, r, um, sideslip=float(self.y2)))
+            else:
+                u_raw = float(self.inner.step(y, p, r, um))
         except Exception as exc:  # noqa: BLE001  (any error of the law is its failure, never the loop's)
             raise LawFailure(f"law {self.name} raised {_why(exc)}") from exc
         if not math.isfinite(u_raw):

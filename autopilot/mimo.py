@@ -9,7 +9,8 @@ flies the other channels beside it: before each step the loop sets ``y2`` (the s
 
 Two laws: CL-SAC (or SAC) as ``autopilot.clsac.ClSac``'s matrix step with a PFC per channel, or the baseline, one
 ``autopilot.baseline.Baseline`` PID per channel.  ``from_values`` builds either from a design's parameter file
-(``CLSAC_PFC_*``/``CLSAC_PFC2_*``, ``CLSAC_GAM_*``, ``CLSAC_PID_*``/``CLSAC_PID2_*``: ``tools.design.mimo_report``).
+(``CLSAC_PFC_*``/``CLSAC_PFC2_*``, ``CLSAC_GAM_*``, ``PID_*``/``PID2_*``: ``tools.design.mimo_report``; a file's
+``CLSAC_PID_*``/``CLSAC_PID2_*``, their aliases, as ``autopilot.params.load_file`` reads them).
 """
 
 from __future__ import annotations
@@ -150,10 +151,13 @@ class MimoLaw:
 def from_values(kind: str, values: dict, *, control_rate_hz: float, limits, lv: float | None = None):
     """The MIMO law ``kind`` ("clsac", "sac" or "baseline") from a design's parameter values (``load_file``), the
     surfaces' ``limits`` (rad); ConfigError naming what the file lacks."""
+    from autopilot.params import canonical
+
+    values = {canonical(n): v for n, v in values.items()}  # CLSAC_PID_KP -> PID_KP (autopilot.params, "Aliases")
     need = (
         ("CLSAC_PFC_NUM", "CLSAC_PFC_DEN1", "CLSAC_PFC_DEN0", "CLSAC_PFC2_NUM", "CLSAC_PFC2_DEN1", "CLSAC_PFC2_DEN0")
         if kind != "baseline"
-        else ("CLSAC_PID_KP", "CLSAC_PID_KI", "CLSAC_PID_KD", "CLSAC_PID2_KP", "CLSAC_PID2_KI", "CLSAC_PID2_KD")
+        else ("PID_KP", "PID_KI", "PID_KD", "PID2_KP", "PID2_KI", "PID2_KD")
     )
     missing = [n for n in need if n not in values]
     if missing:
@@ -169,7 +173,7 @@ def from_values(kind: str, values: dict, *, control_rate_hz: float, limits, lv: 
             BaselineConfig(
                 control_rate_hz=control_rate_hz,
                 u_limit_rad=float(limits[i]),
-                **{k.lower(): values[f"CLSAC_PID{tag}_{k}"] for k in ("KP", "KI", "KD")},
+                **{k.lower(): values[f"PID{tag}_{k}"] for k in ("KP", "KI", "KD")},
             )
             for i, tag in enumerate(("", "2"))
         ]
@@ -313,7 +317,7 @@ def with_sideslip(controlled: dict, side: dict) -> dict:
 def param_table(law: MimoLaw, options: dict):
     """The parameter table of a MIMO flight (``autopilot.params.ParamTable``'s interface): each channel's values
     under the names a ground station shows (channel 1 the SISO names, channel 2 with a 2: ``CLSAC_PFC2_NUM``,
-    ``CLSAC_PID2_KP``; the adaptation weights, sigma and L_v one for both), then the options."""
+    ``PID2_KP``, alias ``CLSAC_PID2_KP``; the adaptation weights, sigma and L_v one for both), then the options."""
     from autopilot.params import ParamTable
 
     class MimoParamTable(ParamTable):
@@ -328,7 +332,7 @@ def param_table(law: MimoLaw, options: dict):
             else:
                 own = BASELINE_PARAMS + MIMO_PARAMS[3:]
             self.params = own + tuple(p for p in PARAMS if p.option)
-            self._names = {p.name: p for p in self.params}
+            self._names = {n: p for p in self.params for n in (p.name, *p.aliases)}  # aliases: CLSAC_PID2_KP
             self._config = law.config
             self._options = {
                 p.option: float(options[p.option] if p.option in options else OPTION_DEFAULTS[p.option])
@@ -343,6 +347,7 @@ def param_table(law: MimoLaw, options: dict):
             p = self._names.get(name)
             if p is None:
                 raise ParamError(f"unknown parameter {name!r}")
+            name = p.name
             if p.option:
                 return self._options[p.option]
             if law.kind != "clsac":
@@ -360,7 +365,7 @@ def param_table(law: MimoLaw, options: dict):
             p = self._names.get(name)
             if p is None:
                 raise ParamError(f"unknown parameter {name!r}")
-            value = float(value)
+            name, value = p.name, float(value)
             if not math.isfinite(value) or not p.admits(value):
                 raise ParamError(f"{name} must be in {p.bounds()}, got {value:g}")
             if p.option:

@@ -1,11 +1,21 @@
 """The autopilot's parameter table: every controller value as a named MAVLink parameter (docs/spec.md, "MAVLink").
 
-Names are at most 16 characters (PARAM_VALUE.param_id), all ``CLSAC_*`` but PX4's ``SYS_FAILURE_EN``, values SI
+Names are at most 16 characters (PARAM_VALUE.param_id), ``CLSAC_*`` (CL-SAC's and the autopilot's options) but PX4's
+``SYS_FAILURE_EN`` and each other law's under its own prefix (the PID's ``PID_*``), values SI
 (rad, s, Hz) and sent as REAL32, but for SYS_FAILURE_EN, an INT32 as PX4's (``encode``, ``decode``).
 :class:`ParamTable` holds the values, validates a set (a rejected set leaves the value unchanged and raises
 :class:`ParamError` with a one-line reason) and builds the :class:`~autopilot.config.ClSacConfig` the law flies.
 :func:`load_file` / :func:`save_file` read and write the two parameter-file formats of the ground stations:
 MAVProxy's ``NAME VALUE`` lines and QGroundControl's tab-separated ``SYS COMP NAME VALUE TYPE``.
+
+Each law's parameters are under its own prefix (CL-SAC's ``CLSAC_*``, the PID's ``PID_*``, a bench law's
+``MRAC_*``, ``L1_*``, ...).  **Aliases**: a parameter keeps the names it had before (``Param.aliases``; a law on
+``autopilot.law``'s interface: its ``PARAMETER_ALIASES``), as ``CLSAC_PID_KP`` for ``PID_KP``.  A PARAM_SET or
+PARAM_REQUEST_READ by an alias acts on the parameter and is answered by the name asked (the ground station's
+handshake waits for that name), a set then also by the parameter's own name, so that every station's list sees the
+change; PARAM_REQUEST_LIST lists each parameter once, by its own name; :func:`load_file` reads an alias as the
+parameter's own name (a parameter file written before the rename loads as it did).  ArduPilot converts renamed
+parameters once and answers by the new name only.
 """
 
 from __future__ import annotations
@@ -54,6 +64,10 @@ class Param:
     high_open: bool = False
     flying_read_only: bool = False
     mav_type: int = mavlink.MAV_PARAM_TYPE_REAL32  # PARAM_VALUE.param_type (INT32: sent bytewise, ``encode``)
+    # The names it had before (``CLSAC_PID_KP`` for ``PID_KP``): a PARAM_SET / PARAM_REQUEST_READ, a parameter file
+    # or a flag by one of them acts on this parameter (module docstring, "Aliases"); PARAM_REQUEST_LIST lists
+    # ``name`` only
+    aliases: tuple[str, ...] = ()
 
     def bounds(self, per: float = 1.0, unit: str | None = None) -> str:
         """The allowed range as an error message gives it, in units of ``per`` SI units (``unit``)."""
@@ -135,11 +149,14 @@ PARAMS: tuple[Param, ...] = (
         mav_type=mavlink.MAV_PARAM_TYPE_INT32,  # PX4's type: MAVSDK's set_param_int / get_param_int
     ),
 )
-# The fixed-gain baseline's gains (``autopilot.baseline.BaselineConfig``): its table is the options and these.
+# The fixed-gain baseline's gains (``autopilot.baseline.BaselineConfig``): its table is the options and these,
+# under the PID's own prefix; ``CLSAC_PID_*``, their names until issue 37, are aliases.
 BASELINE_PARAMS: tuple[Param, ...] = (
-    Param("CLSAC_PID_KP", "", "baseline PID K_p, rad of surface per rad of roll error", field="kp", low=0.0),
-    Param("CLSAC_PID_KI", "1/s", "baseline PID K_i", field="ki", low=0.0),
-    Param("CLSAC_PID_KD", "s", "baseline PID K_d", field="kd", low=0.0),
+    Param(
+        "PID_KP", "", "baseline PID K_p, rad of surface per rad of roll error", "kp", low=0.0, aliases=("CLSAC_PID_KP",)
+    ),
+    Param("PID_KI", "1/s", "baseline PID K_i", field="ki", low=0.0, aliases=("CLSAC_PID_KI",)),
+    Param("PID_KD", "s", "baseline PID K_d", field="kd", low=0.0, aliases=("CLSAC_PID_KD",)),
 )
 LAW_PARAMS = {"baseline": BASELINE_PARAMS}  # a law's own parameters (autopilot.controllers.LAWS keys), not CL-SAC's
 # A square MIMO design's second channel (the sideslip on the rudder; ``tools.design.mimo_report``): read by
@@ -148,11 +165,18 @@ MIMO_PARAMS: tuple[Param, ...] = (
     Param("CLSAC_PFC2_NUM", "", "channel 2's PFC D_2(s) = NUM / (DEN1 s + DEN0)", low=0.0, low_open=True),
     Param("CLSAC_PFC2_DEN1", "s", "channel 2's PFC denominator, s coefficient", low=0.0, low_open=True),
     Param("CLSAC_PFC2_DEN0", "", "channel 2's PFC denominator, constant", low=0.0, low_open=True),
-    Param("CLSAC_PID2_KP", "", "channel 2's baseline PID K_p, rad of surface per rad of sideslip error", low=0.0),
-    Param("CLSAC_PID2_KI", "1/s", "channel 2's baseline PID K_i", low=0.0),
-    Param("CLSAC_PID2_KD", "s", "channel 2's baseline PID K_d", low=0.0),
+    Param(
+        "PID2_KP",
+        "",
+        "channel 2's baseline PID K_p, rad of surface per rad of sideslip error",
+        low=0.0,
+        aliases=("CLSAC_PID2_KP",),
+    ),
+    Param("PID2_KI", "1/s", "channel 2's baseline PID K_i", low=0.0, aliases=("CLSAC_PID2_KI",)),
+    Param("PID2_KD", "s", "channel 2's baseline PID K_d", low=0.0, aliases=("CLSAC_PID2_KD",)),
 )
-BY_NAME = {p.name: p for p in PARAMS + BASELINE_PARAMS + MIMO_PARAMS}
+ALIASES = {a: p.name for p in PARAMS + BASELINE_PARAMS + MIMO_PARAMS for a in p.aliases}  # old name -> name
+BY_NAME = {n: p for p in PARAMS + BASELINE_PARAMS + MIMO_PARAMS for n in (p.name, *p.aliases)}  # aliases too
 BINARY = ("CLSAC_ANTIWINDUP", "SYS_FAILURE_EN")  # 0 or 1, nothing between
 # The options a caller of ParamTable may leave out (every other option has no default: the caller's flags give it)
 OPTION_DEFAULTS = {"failure_injection": 0.0}
@@ -216,19 +240,41 @@ def law_params(law) -> tuple[Param, ...]:
     NAME, field, unit, lower, upper, description)."""
     if law.name in LAW_PARAMS:
         return LAW_PARAMS[law.name]
+    aliases = law.aliases()
     return tuple(
-        Param(name, unit, doc, field=field, low=float(lo), high=float(hi))
+        Param(
+            name, unit, doc, field=field, low=float(lo), high=float(hi),
+            aliases=tuple(a for a, to in aliases.items() if to == name),
+        )
         for name, field, unit, lo, hi, doc in law.rows()
-    )
+    )  # fmt: skip
+
+
+def canonical(name: str) -> str:
+    """The parameter's own name for ``name`` (an alias: ``CLSAC_PID_KP`` -> ``PID_KP``; a registered law's
+    ``PARAMETER_ALIASES`` too); any other name as it is."""
+    if name in ALIASES:
+        return ALIASES[name]
+    if name in BY_NAME:
+        return name
+    from autopilot.controllers import LAWS
+
+    for law in LAWS.values():
+        if law.generic:
+            to = law.aliases().get(name)
+            if to is not None:
+                return to
+    return name
 
 
 def known(name: str) -> bool:
-    """A parameter of some law: the tables here, or a registered law's own (``law_params``)."""
+    """A parameter of some law (its own name or an alias): the tables here, or a registered law's own
+    (``law_params``)."""
     if name in BY_NAME:
         return True
     from autopilot.controllers import LAWS
 
-    return any(name == row[0] for law in LAWS.values() if law.generic for row in law.rows())
+    return any(name == row[0] for law in LAWS.values() if law.generic for row in law.rows()) or canonical(name) != name
 
 
 def _config_value(cfg: ClSacConfig, name: str, p: Param | None = None) -> float:
@@ -259,7 +305,7 @@ class ParamTable:
         clsac = law.parameters and config.is_siso and len(config.pfc_den) == 2  # autopilot.controllers
         self.params = PARAMS if clsac else tuple(p for p in PARAMS if p.option) + law_params(law)
         self._generic = law.generic  # a law on autopilot.law's interface: its Config may raise anything
-        self._names = {p.name: p for p in self.params}
+        self._names = {n: p for p in self.params for n in (p.name, *p.aliases)}  # an alias acts on its parameter
         self._config = config
         self._options = {
             p.option: float(options[p.option] if p.option in options else OPTION_DEFAULTS[p.option])
@@ -289,6 +335,10 @@ class ParamTable:
 
     def index(self, name: str) -> int:
         return self.params.index(self._names[name])
+
+    def name_of(self, name: str) -> str:
+        """The parameter's own name for ``name`` (its own name, or an alias)."""
+        return self._names[name].name
 
     def items(self) -> list[tuple[str, float]]:
         return [(p.name, self.get(p.name)) for p in self.params]
@@ -364,7 +414,9 @@ class ParamTable:
 
 def load_file(path) -> dict[str, float]:
     """Read a parameter file: MAVProxy's ``NAME VALUE`` (comma or blanks) or QGroundControl's
-    ``SYS COMP NAME VALUE TYPE`` lines; ``#`` starts a comment.  Raises :class:`ParamError` naming the line."""
+    ``SYS COMP NAME VALUE TYPE`` lines; ``#`` starts a comment.  An alias is read as its parameter's own name
+    (:func:`canonical`: a file with ``CLSAC_PID_KP`` gives ``PID_KP``; a name given twice, the later line).
+    Raises :class:`ParamError` naming the line."""
     out: dict[str, float] = {}
     data = Path(path).read_bytes()
     try:
@@ -388,7 +440,7 @@ def load_file(path) -> dict[str, float]:
             out[name] = float(value)
         except ValueError:
             raise ParamError(f"{path}:{n}: {name}: not a number: {value!r}") from None
-    return out
+    return {canonical(n): v for n, v in out.items()}
 
 
 def save_file(path, items, *, qgc: bool = False, ids: tuple[int, int] = (1, 1)) -> None:

@@ -301,19 +301,18 @@ class Vehicle:
         self._apply_params(name)
         self.ap.events["param_sets"] += 1
         new = self.params.get(name)
+        own = self.params.name_of(name)  # an alias (CLSAC_PID_KP) sets its parameter (PID_KP): autopilot.params
         if new != old:
             now = self.ap._now_sim_us()
-            self.param_changes.append(
-                {"t_s": None if now is None else now * 1e-6, "name": name, "from": old, "to": new}
-            )
+            self.param_changes.append({"t_s": None if now is None else now * 1e-6, "name": own, "from": old, "to": new})
         # answered in the type it was set in when that is REAL32: MAVProxy, which reads an integer type bytewise only
-        # from a PX4 autopilot, sets SYS_FAILURE_EN as REAL32 and shows the answer as it comes
+        # from a PX4 autopilot, sets SYS_FAILURE_EN as REAL32 and shows the answer as it comes; by the name asked
+        # (the station's handshake waits for it), then, for an alias, by the parameter's own name (every list's)
         as_float = msg.param_type == M.MAV_PARAM_TYPE_REAL32
-        self.send_all(
-            self._param_value(name, self.params.get(name), mav_type=M.MAV_PARAM_TYPE_REAL32 if as_float else None)
-        )
+        for said in (name,) if own == name else (name, own):
+            self.send_all(self._param_value(said, new, mav_type=M.MAV_PARAM_TYPE_REAL32 if as_float else None))
         for hook in self.param_hooks:
-            hook(name, float(self.params.get(name)), True)
+            hook(own, float(new), True)
 
     def _on_mission_request_list(self, msg) -> None:
         if self._for_us(msg):

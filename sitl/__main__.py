@@ -49,6 +49,7 @@ from autopilot.shared.telemetry.flags import add_arguments as add_telemetry_argu
 from autopilot.shared.telemetry.flags import check_arguments as check_telemetry_arguments
 from sitl import damage, disturbances
 from sitl import plant as plants
+from sitl.plant_kinds import help_text as plant_help
 from sitl.telemetry import attach as attach_telemetry
 
 
@@ -67,8 +68,7 @@ def add_plant_argument(p) -> None:
         type=plant_arg,
         default=plants.KH2013A,
         metavar="PLANT",
-        help="kh2013a (the paper's model, default), FILE.toml (a linear plant of your own) or "
-        "jsbsim:MODEL[:airspeed_kt=KT,altitude_m=M,surface=aileron|rudder] (a JSBSim aircraft, e.g. jsbsim:c172x)",
+        help=f"{plant_help()} (docs/plants.md)",  # from the kinds' records (sitl.plant_kinds.KINDS)
     )
 
 

@@ -72,7 +72,8 @@ class PlantKind:
     cannot fly a fault's value (beyond a surface's travel, checked for every kind); ``keyed``: its spec takes
     comma-separated KEY=VALUE pairs; ``own_atmosphere``: it flies its own (JSBSim);
     ``batched``: the batched robustness study (numpy and C) flies it; ``euler``: its attitude has pitch and yaw;
-    ``faults``: the ``sitl.fault_kinds.FaultKind.group`` s it flies (``servo``, ``airframe``, ``mass``)."""
+    ``faults``: the ``sitl.fault_kinds.FaultKind.group`` s it flies (``servo``, ``airframe``, ``mass``);
+    ``words``: what it is, in --plant's help (:func:`help_text`)."""
 
     name: str
     syntax: str
@@ -98,6 +99,7 @@ class PlantKind:
     batched: bool = False
     euler: bool = False
     faults: frozenset = frozenset({"servo", "airframe"})
+    words: str = ""
 
     def __repr__(self) -> str:
         return f"PlantKind({self.name!r})"
@@ -418,6 +420,7 @@ KINDS: dict[str, PlantKind] = {
             linear=_kh_linear,
             paper=True,
             batched=True,
+            words="the paper's model",
         ),
         PlantKind(
             name="jsbsim",
@@ -447,6 +450,7 @@ KINDS: dict[str, PlantKind] = {
             own_atmosphere=True,
             euler=True,
             faults=frozenset({"servo", "airframe", "mass"}),
+            words="a JSBSim aircraft, e.g. jsbsim:c172x",
         ),
         PlantKind(  # last: any other value is a plant file's path
             name="file",
@@ -466,9 +470,24 @@ KINDS: dict[str, PlantKind] = {
             atmosphere=lambda lp, dist: replace(dist, atmosphere=scaled_atmosphere(lp, dist.atmosphere)),
             refusals=_file_refusals,
             unsupported={"scale": SCALE},
+            words="a linear plant file of your own",
         ),
     )
 }
+
+
+def help_text(default: str | None = KH2013A, note: Callable[[PlantKind], str] | None = None) -> str:
+    """What --plant takes, from the records (``KINDS``, in its order): each kind's syntax and words, ``default``
+    marked, and ``note(kind)`` (a command's own words about a kind) after its words where it gives some."""
+    parts = []
+    for k in KINDS.values():
+        said = [
+            k.words,
+            *([note(k)] if note is not None and note(k) else []),
+            *(["default"] if k.syntax == default else []),
+        ]
+        parts.append(f"{k.syntax} ({'; '.join(s for s in said if s)})")
+    return ", ".join(parts[:-1]) + " or " + parts[-1]
 
 
 def kind_of(text: str) -> PlantKind:
@@ -506,4 +525,7 @@ def shipped(name: str) -> Path:
     return Path(str(resources.files("sitl") / "plants" / name))
 
 
-__all__ = ["JSBSIM", "KH2013A", "KINDS", "Plant", "PlantError", "PlantKind", "PlantSpec", "kind_of", "shipped", "spec"]
+__all__ = [
+    "JSBSIM", "KH2013A", "KINDS", "Plant", "PlantError", "PlantKind", "PlantSpec", "help_text", "kind_of", "shipped",
+    "spec",
+]  # fmt: skip

@@ -57,6 +57,7 @@ from autopilot.shared.cli import (
 )
 from autopilot.shared.process import EXIT_FAILED, EXIT_USAGE, install_stop_handlers, survive_closed_stdout
 from sitl import damage, disturbances
+from sitl.plant_kinds import help_text as plant_help
 from tools.flight import (
     LIVE_RATE_HZ,
     LIVE_WINDOW_S,
@@ -385,8 +386,7 @@ def build_parser() -> OneLineArgumentParser:
         "--plant",
         default="kh2013a",
         metavar="PLANT",
-        help="the SITL's plant: kh2013a (default), FILE.toml (a linear plant of your own) or jsbsim:MODEL[:KEY=VALUE,"
-        "...] (a JSBSim aircraft, e.g. jsbsim:c172x; see docs/plants.md)",
+        help=f"the SITL's plant: {plant_help()} (docs/plants.md)",  # from the kinds' records (sitl.plant_kinds)
     )
     p.add_argument(
         "--params",

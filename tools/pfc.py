@@ -45,6 +45,8 @@ exit status: 0 on success, 2 on bad input (one-line reason on stderr), 1 if the 
 
 
 def build_parser() -> argparse.ArgumentParser:
+    from sitl.plant_kinds import KINDS
+
     p = OneLineArgumentParser(
         prog="python -m tools.pfc",
         usage="python -m tools.pfc [options]\n       python -m tools.pfc design PLANT [--out FILE.params] [options]",
@@ -87,7 +89,7 @@ def build_parser() -> argparse.ArgumentParser:
         "--plant",
         default=None,
         metavar="FILE.toml",
-        help="analyse a linear plant file of your own (sitl.linear_plant) instead of the KH2013A",
+        help=f"analyse {KINDS['file'].words} (sitl.linear_plant) instead of the KH2013A",  # sitl.plant_kinds
     )
     p.add_argument(
         "--closed-loop",

@@ -9,7 +9,8 @@ from autopilot.baseline import Baseline
 from autopilot.batch import BatchClSac
 from autopilot.clsac import ClSac
 from autopilot.config import ClSacConfig, ConfigError
-from tools.experiment.study import CONTROLLERS, Task, replay, simulate
+from autopilot.controllers import studied
+from tools.experiment.study import Task, replay, simulate
 
 SAMPLED = [
     ("clsac", "severe", 3),
@@ -30,13 +31,13 @@ def test_batch_law_equals_the_scalar_law_bit_for_bit_on_study_runs(controller, c
     command and every integral gain is the same double."""
     r = replay(controller, condition, seed=4, run=run, duration_s=10.0, record=True)
     s = {k: v[:, 0] for k, v in r["series"].items()}
-    ctrl = CONTROLLERS[controller]
+    ctrl = studied(controller)  # the registry's (autopilot.controllers)
     pfc = "paper" if r["pfc_paper"][0] else "robust"
-    law = ClSac(ctrl.config(pfc, 100.0, np.radians(30.0))) if ctrl.kind == "clsac" else Baseline()
+    law = ClSac(ctrl.study_config(pfc, 100.0, np.radians(30.0))) if ctrl.law == "clsac" else Baseline()
     u = np.array([law(y, um) for y, um in zip(s["phi"].tolist(), s["um"].tolist())])
     assert np.array_equal(u, s["u"])
     assert np.array_equal(np.array([law.e]), s["e"][-1:])
-    if ctrl.kind == "clsac":
+    if ctrl.law == "clsac":
         # the gains used in the last step are those the batch exposed
         assert (law.kie, law.kix, law.kiu) == (s["kie"][-1], s["kix"][-1], s["kiu"][-1])
 

@@ -75,11 +75,24 @@ def test_an_unknown_controller_or_law_is_refused_by_name():
 
 def test_the_experiments_and_studies_read_the_registry():
     from tools.experiment.scenario import BASELINE_RUN, PAPER_RUNS, run_of
-    from tools.experiment.study import CONTROLLERS as STUDIED
     from tools.experiment.study import flights
 
     # the flights of a JSBSim aircraft or plant file: by default the laws of the published tables
     assert flights.CONTROLLERS == ("sac", "clsac", "baseline", "pid-ff")
     assert (run_of("sac"), run_of("clsac"), run_of("baseline")) == (PAPER_RUNS[0], PAPER_RUNS[1], BASELINE_RUN)
-    assert {c.kind for c in STUDIED.values()} <= set(controllers.LAWS)
-    assert [n for n, c in STUDIED.items() if not c.adaptive] == ["baseline"]
+    # the robustness study's controllers: the registry's, its choices and CL-SAC's VARIANTS, labels from the records
+    studied = {n: controllers.studied(n) for n in controllers.ROBUSTNESS}
+    assert {c.law for c in studied.values()} == {"clsac", "baseline"}
+    assert [n for n, c in studied.items() if not c.adaptive] == ["baseline"]
+    assert studied["baseline"] is controllers.CONTROLLERS["baseline"] and set(controllers.VARIANTS) < set(studied)
+    assert studied["clsac"].robustness_words == "CL-SAC Lv 20 (paper)" and studied["sac"].robustness_words == "SAC"
+    assert studied["baseline"].robustness_words == controllers.CONTROLLERS["baseline"].label == "fixed-gain PID"
+    assert not set(controllers.VARIANTS) & set(controllers.NAMES)  # not --controller choices
+    with pytest.raises(ValueError, match="unknown controller 'pid-ff'"):
+        controllers.studied("pid-ff")  # a --controller choice the batched study does not compare
+    # the damage study's default set: the records with a damage place, in its order, labelled by the registry
+    from tools.experiment.damage import grid
+
+    assert grid.CONTROLLERS[:4] == ("baseline", "sac", "clsac", "pid-ff")
+    assert [controllers.get(n).damage for n in grid.CONTROLLERS[:4]] == [0, 1, 2, 3]
+    assert grid.label("baseline") == controllers.get("baseline").study_label and grid.label("sac") == "SAC"

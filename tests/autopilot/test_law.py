@@ -188,6 +188,50 @@ def test_the_step_gives_the_law_the_rates_limits_it_and_keeps_the_reference_mode
     assert step.law.law_row() == (200.0,)
 
 
+class SideslipRecorder(Recorder):
+    """A law whose step takes the sideslip (autopilot.law.SIDESLIP)."""
+
+    def step(self, roll, roll_rate, yaw_rate, command, sideslip=0.0):
+        self.seen.append((roll, roll_rate, yaw_rate, command, sideslip))
+        return 0.01 * sideslip if math.isfinite(sideslip) else 0.0
+
+
+class KwargsRecorder(Recorder):
+    def step(self, roll, roll_rate, yaw_rate, command, **measurements):
+        self.seen.append((roll, roll_rate, yaw_rate, command, measurements))
+        return 0.0
+
+
+def test_the_step_gives_the_sideslip_to_a_law_that_takes_it_and_the_four_measurements_to_one_that_does_not(law_file):
+    """The sideslip is the law's where the plant measures it (``Flown.y2``, set by the loop as it sets
+    ``MimoLaw.y2``: a square MIMO plant's AOA_SSA), NaN where it does not; a law written against the four
+    measurements (docs/adding-a-law.md's, ``Recorder``) is called with those four, and flies the same numbers."""
+    from autopilot.law import takes_sideslip
+
+    assert takes_sideslip(SideslipRecorder.step) and takes_sideslip(KwargsRecorder.step)
+    assert not takes_sideslip(Recorder.step) and not takes_sideslip(controllers.get(law_file).kind.cls.step)
+    side = SideslipRecorder(_cfg())
+    step = ControlStep(law=Flown(side, "side"), setpoints=ProfileSetpoints(lambda t: 0.1))
+    step(0.0, 0.01, p=0.3, r=-0.2)
+    assert side.seen[0][:4] == (0.01, 0.3, -0.2, 0.1) and math.isnan(side.seen[0][4])  # none measured: NaN
+    step.law.y2 = 0.05  # as autopilot.loop.handlers does with each AOA_SSA (rad), before the step
+    assert step(0.01, 0.01, p=0.3, r=-0.2).u == pytest.approx(0.01 * 0.05, rel=1e-15)
+    assert side.seen[1] == (0.01, 0.3, -0.2, 0.1, 0.05)
+    kw = KwargsRecorder(_cfg())
+    flown = Flown(kw, "kw")
+    flown.y2 = -0.02
+    flown(0.0, 0.1, 0.0, 0.0)
+    assert kw.seen == [(0.0, 0.0, 0.0, 0.1, {"sideslip": -0.02})]
+    # the docs' four-measurement law with a sideslip set: called as before, the same command to the last bit
+    cfg = controllers.get(law_file).config(control_rate_hz=100.0, u_limit_rad=0.5)
+    a, b = (
+        ControlStep(cfg, setpoints=ProfileSetpoints(lambda t: 0.1)),
+        ControlStep(cfg, setpoints=ProfileSetpoints(lambda t: 0.1)),
+    )
+    b.law.y2 = 0.3
+    assert [a(k / 100, 0.02 * k).u for k in range(5)] == [b(k / 100, 0.02 * k).u for k in range(5)]
+
+
 def test_a_law_that_returns_nan_or_raises_trips_the_failsafe_and_is_not_flown_again():
     nan_at_3 = lambda n: math.nan if n >= 3 else 0.05  # noqa: E731
     raise_at_3 = lambda n: 1 / (n - 3)  # noqa: E731
@@ -248,6 +292,39 @@ def test_the_laws_parameters_are_its_own_table_set_within_bounds_and_flown_from_
     # another law's values in a design file are not flown (the file the bench's designs are in)
     mine, other = table.split({"PFF_KFF": 0.01, "MRAC_KP": 1.0, "NOBODYS": 1.0})
     assert mine == {"PFF_KFF": 0.01, "NOBODYS": 1.0} and other == ["MRAC_KP"]
+
+
+def test_a_laws_parameter_aliases_act_on_its_parameter_listed_once_and_load_from_files(tmp_path, registry):
+    """PARAMETER_ALIASES {OLD: NAME}: the table gets and sets NAME by OLD, lists NAME once, and a parameter file with
+    OLD loads as NAME (autopilot.params, "Aliases"); a bad alias is named in one line."""
+    from autopilot.params import load_file
+
+    alias = '    PARAMETER_ALIASES = {"OLD_KP": "PFF_KP"}\n'
+    text = docs_law().replace("    Config = PffConfig\n", "    Config = PffConfig\n" + alias)
+    spec = f"{_write(tmp_path, 'aliased.py', text)}:ProportionalFF"
+    table = ParamTable(controllers.get(spec).config(control_rate_hz=100.0, u_limit_rad=0.5), OPTIONS)
+    assert [n for n, _ in table.items()][-2:] == ["PFF_KP", "PFF_KFF"] and "OLD_KP" in table
+    assert table.set("OLD_KP", 0.3) == 0.3 and table.get("PFF_KP") == 0.3 and table.config.kp == 0.3
+    assert table.index("OLD_KP") == table.index("PFF_KP") and table.name_of("OLD_KP") == "PFF_KP"
+    with pytest.raises(ParamError, match=r"must be in \[0, 10\]"):
+        table.set("OLD_KP", 11.0)
+    assert table.get("PFF_KP") == 0.3
+    path = _write(tmp_path, "old.parm", "OLD_KP 0.2\nCLSAC_PID_KD 0.03\n")
+    assert load_file(path) == {"PFF_KP": 0.2, "PID_KD": 0.03}
+    mine, other = table.split(load_file(path))
+    table.update(mine)
+    assert table.config.kp == 0.2 and other == ["PID_KD"]
+    for i, (aliases, why) in enumerate(
+        (
+            ('{"OLD_KP": "PFF_NOPE"}', "names 'PFF_NOPE', not a parameter of its table"),
+            ('{"PFF_KFF": "PFF_KP"}', "alias PFF_KFF is a parameter's own name"),
+            ('{"CLSAC_LV": "PFF_KP"}', "alias CLSAC_LV: CLSAC_ and SYS_ names are the autopilot's own"),
+            ('{"OLD_NAME_FAR_TOO_LONG": "PFF_KP"}', "must be 1 to 16 ASCII characters"),
+        )
+    ):
+        bad = _write(tmp_path, f"bad{i}.py", text.replace('{"OLD_KP": "PFF_KP"}', aliases))
+        with pytest.raises(LawSpecError, match=re.escape(why)):
+            load(f"{bad}:ProportionalFF")
 
 
 # ------------------------------------------------------------------------------------------------ the CLIs
@@ -396,9 +473,26 @@ def test_a_ground_station_sees_the_laws_mode_and_sets_its_parameters_live(tmp_pa
         ap.stop()
 
 
-def test_a_law_without_a_mimo_form_is_refused_on_a_square_mimo_plant(tmp_path):
-    r = _launch(tmp_path / "f", "--controller", "l1", "--plant", "jsbsim:c172x:surface=aileron+rudder", timeout=60)
+def test_a_law_without_a_mimo_form_is_refused_on_a_square_mimo_plant(tmp_path, law_file):
+    """A law on the interface flies one surface: refused on a square MIMO plant with its reason (the launcher: one
+    line, exit 2; the damage study: summary.json's ``not_flown``), a law that takes the sideslip too."""
+    mimo = "jsbsim:c172x:surface=aileron+rudder"
+    r = _launch(tmp_path / "f", "--controller", "l1", "--plant", mimo, timeout=60)
     assert r.returncode == 2 and "l1 has no square-MIMO form" in r.stderr, r.stderr
+    side = docs_law().replace(
+        "def step(self, roll, roll_rate, yaw_rate, command):",
+        "def step(self, roll, roll_rate, yaw_rate, command, sideslip=0.0):",
+    )
+    assert "sideslip=0.0" in side
+    spec = f"{_write(tmp_path, 'side_law.py', side)}:ProportionalFF"
+    r = _launch(tmp_path / "g", "--controller", spec, "--plant", mimo, timeout=60)
+    assert r.returncode == 2 and "p-ff has no square-MIMO form (a law on autopilot.law's interface" in r.stderr, (
+        r.stderr
+    )
+    from tools.experiment.damage import grid
+
+    refused = grid.controller_refusals(mimo, ("baseline", "mrac", spec))
+    assert set(refused) == {"mrac", spec} and "p-ff has no square-MIMO form" in refused[spec]
 
 
 @pytest.mark.e2e

@@ -47,7 +47,7 @@ def test_a_file_without_the_second_channel_is_refused(values):
     siso = load_file(plants.shipped("jsbsim-c172x.params"))
     with pytest.raises(ValueError, match="CLSAC_PFC2_NUM"):
         mimo.from_values("clsac", siso, control_rate_hz=100.0, limits=(0.3, 0.28))
-    with pytest.raises(ValueError, match="CLSAC_PID2_KP"):
+    with pytest.raises(ValueError, match="PID2_KP"):
         mimo.from_values("baseline", siso, control_rate_hz=100.0, limits=(0.3, 0.28))
 
 
@@ -65,8 +65,11 @@ def test_the_parameter_table_names_each_channel_and_sets_it(values):
         table.set("CLSAC_PFC2_DEN0", -1.0)
     base = mimo.from_values("baseline", values, control_rate_hz=100.0, limits=(0.305, 0.279))
     bt = mimo.param_table(base, OPTIONS)
-    bt.set("CLSAC_PID2_KP", 2.5)
-    assert base.laws[1].config.kp == 2.5 and bt.get("CLSAC_PID2_KP") == 2.5 and bt.get("CLSAC_PID_KP") == 1.0
+    bt.set("CLSAC_PID2_KP", 2.5)  # the name before issue 37: an alias of PID2_KP, listed once by its own name
+    assert base.laws[1].config.kp == 2.5 and bt.get("PID2_KP") == 2.5 and bt.get("CLSAC_PID_KP") == 1.0
+    assert {"PID_KP", "PID2_KP"} <= {n for n, _ in bt.items()} and not any("CLSAC_PID" in n for n, _ in bt.items())
+    bt.set("PID2_KD", 0.5)
+    assert base.laws[1].config.kd == 0.5 and bt.get("CLSAC_PID2_KD") == 0.5
 
 
 def test_the_channel_metrics_are_the_sums_of_their_samples():

@@ -117,7 +117,7 @@ def test_pid_ff_flies_the_plants_feed_forward():
         0.2,
         pytest.approx(4.365483361450203 / 18.609913599571907, rel=1e-15),
     )
-    # the plain baseline takes its designed gains from the design's parameter file (CLSAC_PID_KP/KI/KD, --params)
+    # the plain baseline takes its designed gains from the design's parameter file (PID_KP/KI/KD, --params)
     assert FlightConfig(lockstep=True, controller="baseline", plant="jsbsim:c172x").baseline_gains_flown is None
     assert FlightConfig(lockstep=True, controller="pid-ff", baseline_gains="1,2,3,4").baseline_gains_flown == (
         1.0,

@@ -236,6 +236,47 @@ def test_save_load_round_trip_and_params_flag(vehicle, tmp_path):
     assert "--params" in p.output() and "CLSAC_AM" in p.output()
 
 
+def test_the_pids_old_names_are_aliases_over_mavlink_and_in_files(tmp_path):
+    """The PID's parameters are PID_KP, _KI, _KD (its own prefix, issue 37); CLSAC_PID_*, their names before, keep
+    working: a --params file by the old names loads, PARAM_REQUEST_LIST lists each parameter once by its own name,
+    PARAM_REQUEST_READ and PARAM_SET by an old name act on it and are answered by the name asked (at the parameter's
+    index), a set then by its own name too; a refused set by an old name is answered by the old name."""
+    path = tmp_path / "old.parm"
+    path.write_text("CLSAC_PID_KP 0.3\nCLSAC_PID_KI 0.05\n")  # a file written before the rename
+    port = free_ports(1)[0]
+    gcs = Gcs(port)
+    ap = _start_autopilot(tmp_path, "autopilot", port, "--controller", "baseline", "--params", str(path))
+    try:
+        gcs.connect()
+        gcs.drain()
+        gcs.mav.param_request_list_send(1, 1)
+        listed = []  # every PARAM_VALUE of the list, in order: no name twice
+        while len(listed) < (listed[0].param_count if listed else 1):
+            listed.append(gcs.wait("PARAM_VALUE"))
+        names = [m.param_id for m in listed]
+        assert names[-3:] == ["PID_KP", "PID_KI", "PID_KD"] and len(set(names)) == len(names) == 7
+        assert not any(n.startswith("CLSAC_PID") for n in names)
+        assert [m.param_value for m in listed[-3:]] == [_f32(0.3), _f32(0.05), _f32(0.02)]  # the file's, default KD
+        gcs.mav.param_request_read_send(1, 1, b"CLSAC_PID_KI", -1)
+        m = gcs.wait("PARAM_VALUE", cond=lambda m: m.param_id != "PID_KD")
+        assert (m.param_id, m.param_value, m.param_index, m.param_count) == ("CLSAC_PID_KI", _f32(0.05), 5, 7)
+        gcs.mav.param_set_send(1, 1, b"CLSAC_PID_KD", 0.04, A.MAV_PARAM_TYPE_REAL32)
+        old = gcs.wait("PARAM_VALUE")
+        own = gcs.wait("PARAM_VALUE")
+        assert (old.param_id, own.param_id) == ("CLSAC_PID_KD", "PID_KD")
+        assert old.param_value == own.param_value == _f32(0.04) and old.param_index == own.param_index == 6
+        gcs.mav.param_request_read_send(1, 1, b"PID_KD", -1)
+        assert gcs.wait("PARAM_VALUE").param_value == _f32(0.04)  # the same parameter
+        gcs.mav.param_set_send(1, 1, b"CLSAC_PID_KP", -1.0, A.MAV_PARAM_TYPE_REAL32)
+        m = gcs.wait("PARAM_VALUE")
+        e = gcs.wait("PARAM_ERROR")
+        assert (m.param_id, m.param_value) == ("CLSAC_PID_KP", _f32(0.3))
+        assert (e.param_id, e.param_index, e.error) == ("CLSAC_PID_KP", 4, A.MAV_PARAM_ERROR_VALUE_OUT_OF_RANGE)
+    finally:
+        gcs.close()
+        ap.stop()
+
+
 def test_disarmed_at_start_until_armed(tmp_path):
     port = free_ports(1)[0]
     gcs = Gcs(port)

@@ -173,7 +173,7 @@ def test_a_design_flies_every_controller_its_values_split_by_law():
             assert (table.config.kp, table.config.ki, table.config.kd) == (1.0, 0.1, 0.2)
             assert others and all(n.startswith(("CLSAC_PFC", "CLSAC_GAM")) for n in others)
         else:
-            assert table.config.pfc_num == (values["CLSAC_PFC_NUM"],) and others == [f"CLSAC_PID_K{k}" for k in "PID"]
+            assert table.config.pfc_num == (values["CLSAC_PFC_NUM"],) and others == [f"PID_K{k}" for k in "PID"]
         with pytest.raises(ParamError, match="unknown parameter 'CLSAC_NOPE'"):
             table.update(table.split({"CLSAC_NOPE": 1.0})[0])
 

@@ -111,3 +111,42 @@ def test_the_kind_test_finds_what_it_is_for():
     )
     for line in lines:
         assert KIND_TEST.search(line), line
+
+
+def test_every_plant_flags_help_is_written_from_the_kinds_records(monkeypatch):
+    """Wherever --plant is defined, its help says each kind's syntax and words as its record has them (in the
+    table's order); a kind added to the table (here a fourth record, put before the catch-all) is in every help."""
+    import argparse
+    import dataclasses
+
+    import sitl.__main__ as sitl_main
+    import tools.launch
+    import tools.pfc
+    from tools.experiment import cli as experiment_cli
+    from tools.experiment import delay_margin
+    from tools.experiment.damage import cli as damage_cli
+    from tools.experiment.study import cli as study_cli
+
+    parsers = (
+        sitl_main.build_parser, tools.launch.build_parser, experiment_cli.build_parser, delay_margin.build_parser,
+        damage_cli.build_parser, study_cli.build_parser,
+    )  # fmt: skip
+
+    def plant_help(build) -> str:
+        p = build()
+        parsers = [p] + [s for a in p._actions if isinstance(a, argparse._SubParsersAction) for s in a.choices.values()]  # noqa: SLF001
+        (action,) = [a for q in parsers for a in q._actions if "--plant" in a.option_strings][:1]  # noqa: SLF001
+        return " ".join(str(action.help).split())
+
+    for build in parsers:
+        text = plant_help(build)
+        places = [text.index(f"{k.syntax} ({k.words}") for k in plant_kinds.KINDS.values()]
+        assert places == sorted(places), (build.__module__, text)
+    assert plant_kinds.KINDS["file"].words in plant_help(tools.pfc.build_parser)  # its --plant takes a file only
+    new = dataclasses.replace(plant_kinds.KINDS["kh2013a"], name="toy", syntax="toy:N", words="a toy for this test")
+    table = dict(plant_kinds.KINDS)
+    monkeypatch.setattr(
+        plant_kinds, "KINDS", {**{k: v for k, v in table.items() if k != "file"}, "toy": new, "file": table["file"]}
+    )
+    for build in parsers:
+        assert "toy:N (a toy for this test" in plant_help(build), build.__module__

@@ -97,12 +97,12 @@ def slow_linearisation_s(plant: str) -> float | None:
     return None if js is None else SLOW_LINEARISATION_S.get(js.model)
 
 
-PID_PARAMS = ("CLSAC_PID_KP", "CLSAC_PID_KI", "CLSAC_PID_KD")  # the baseline's gains in a parameter file
+PID_PARAMS = ("PID_KP", "PID_KI", "PID_KD")  # the baseline's gains in a parameter file (aliases CLSAC_PID_*)
 PFC_PARAMS = ("CLSAC_PFC_NUM", "CLSAC_PFC_DEN1", "CLSAC_PFC_DEN0")  # SAC's and CL-SAC's PFC
 
 
 def designed_baseline(plant: str) -> tuple[float, float, float] | None:
-    """The baseline gains designed for ``plant`` (``CLSAC_PID_KP``, ``_KI``, ``_KD`` of its designed parameter file,
+    """The baseline gains designed for ``plant`` (``PID_KP``, ``_KI``, ``_KD`` of its designed parameter file,
     written by ``python -m tools.pfc design``), or None."""
     path = designed_params(plant)
     if path is None:

@@ -1,8 +1,8 @@
 """The design printout and parameter values of a square MIMO plant (``python -m tools.pfc design``, m > 1).  No I/O.
 
 Each line says what was chosen and how (``tools.design.mimo``, ``tools.design.mimo_baseline``).  The parameters:
-channel 1 (the roll on the aileron) keeps the SISO names (``CLSAC_PFC_NUM``, ``_DEN1``, ``_DEN0``, ``CLSAC_PID_KP``,
-``_KI``, ``_KD``), channel 2 (the sideslip on the rudder) has them with a 2 (``CLSAC_PFC2_NUM``, ... ``CLSAC_PID2_KD``,
+channel 1 (the roll on the aileron) keeps the SISO names (``CLSAC_PFC_NUM``, ``_DEN1``, ``_DEN0``, ``PID_KP``,
+``_KI``, ``_KD``), channel 2 (the sideslip on the rudder) has them with a 2 (``CLSAC_PFC2_NUM``, ... ``PID2_KD``,
 at most 16 characters: PARAM_VALUE's param_id); the six adaptation weights are one Gamma = gamma I for both.
 """
 
@@ -103,5 +103,5 @@ def design_text_mimo(lp, plant_text: str, rate_hz: float, margin: float, lv: flo
     values.update({f"CLSAC_GAM_{n.upper()}": gamma for n in GAMMA_NAMES})
     for i, g in enumerate(base.gains):
         tag = "" if i == 0 else str(i + 1)
-        values.update(zip((f"CLSAC_PID{tag}_KP", f"CLSAC_PID{tag}_KI", f"CLSAC_PID{tag}_KD"), g))
+        values.update(zip((f"PID{tag}_KP", f"PID{tag}_KI", f"PID{tag}_KD"), g))
     return lines, values

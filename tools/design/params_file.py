@@ -3,7 +3,7 @@
 PLANT is a linear plant file (``sitl.linear_plant``), ``kh2013a``, or ``jsbsim:MODEL[:...]`` (linearised first with
 ``tools.plant``; the plant file is written beside the output as OUT.toml).  How each value is chosen:
 ``tools.design.tuning``.  Writes OUT, a parameter file ``python -m autopilot --params`` loads, with every
-controller's values (SAC's and CL-SAC's PFC and adaptation weights, the baseline's PID gains ``CLSAC_PID_KP``,
+controller's values (SAC's and CL-SAC's PFC and adaptation weights, the baseline's PID gains ``PID_KP``,
 ``_KI``, ``_KD``: each controller flies its own) and the design story in its comments.  OUT defaults to where the
 launcher finds a plant's design (``tools.design.linearise.design_path``: ``sitl/plants/jsbsim-MODEL.params``, or
 FILE.params beside FILE.toml), so that ``python -m tools.launch --plant PLANT`` flies it; another file there is
@@ -153,9 +153,9 @@ def write_params(path: Path, plant_text: str, lines: list[str], values: dict, pl
     text = [f"{HEADER}{plant_text} by python -m tools.pfc design"]
     text += [f"#   {line}" for line in lines]
     if any(n.startswith("CLSAC_PFC2") for n in values):
-        text.append("# SAC and CL-SAC fly the CLSAC_PFC*_* and CLSAC_GAM_* values, the baseline the CLSAC_PID*_* ones")
+        text.append("# SAC and CL-SAC fly the CLSAC_PFC*_* and CLSAC_GAM_* values, the baseline the PID*_* ones")
     else:
-        text.append("# SAC and CL-SAC fly the CLSAC_PFC_* and CLSAC_GAM_* values, the baseline the CLSAC_PID_* ones")
+        text.append("# SAC and CL-SAC fly the CLSAC_PFC_* and CLSAC_GAM_* values, the baseline the PID_* ones")
     if plant is not None:
         text.append(f"#   fly it: {fly_command(plant, path)} [--controller sac|clsac|baseline]")
     text += [f"{name:<16s} {float(v)!r}" for name, v in values.items()]

@@ -30,6 +30,8 @@ from tools.experiment.runs import (
 
 
 def build_parser() -> argparse.ArgumentParser:
+    from sitl.plant_kinds import help_text as plant_help  # numpy: here, not on every import of the dispatcher
+
     p = OneLineArgumentParser(
         prog="python -m tools.experiment",
         description='Fly a reference scenario (docs/spec.md, "Reference scenario") for each controller variant; '
@@ -84,7 +86,7 @@ def build_parser() -> argparse.ArgumentParser:
         "--plant",
         default=None,
         metavar="PLANT",
-        help="the plant: kh2013a (default), FILE.toml or jsbsim:MODEL[:KEY=VALUE,...] (docs/plants.md)",
+        help=f"the plant: {plant_help()} (docs/plants.md)",  # from the kinds' records (sitl.plant_kinds)
     )
     return p
 

@@ -229,6 +229,7 @@ def _ms(text: str) -> int:
 def build_parser() -> argparse.ArgumentParser:
     from autopilot.shared import cli
     from autopilot.shared.cli import OneLineArgumentParser
+    from sitl.plant_kinds import help_text as plant_help
 
     p = OneLineArgumentParser(
         prog=PROG,
@@ -237,7 +238,10 @@ def build_parser() -> argparse.ArgumentParser:
         "effectiveness loss to 0.3 at 10 s; writes OUT/summary.json (docs/delay-margin.md).",
     )
     p.add_argument(
-        "--plant", default="kh2013a,jsbsim:c172x", metavar="P1,P2", help="plants (default kh2013a,jsbsim:c172x)"
+        "--plant",
+        default="kh2013a,jsbsim:c172x",
+        metavar="P1,P2",
+        help=f"plants: {plant_help(None)} (default kh2013a,jsbsim:c172x)",  # sitl.plant_kinds' records
     )
     p.add_argument(
         "--controllers",

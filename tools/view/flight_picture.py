@@ -83,7 +83,7 @@ def _start_gains(out: Path) -> tuple[float, float, float] | None:
     try:
         with open(out / "autopilot.json") as f:
             start = json.load(f).get("params_start") or {}
-        return tuple(float(start[f"CLSAC_PID_K{k}"]) for k in "PID")
+        return tuple(float(start.get(f"PID_K{k}", start.get(f"CLSAC_PID_K{k}"))) for k in "PID")  # before: the alias
     except (OSError, ValueError, AttributeError, TypeError, KeyError):
         return None
 

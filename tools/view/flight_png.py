@@ -683,7 +683,7 @@ def pid_panel(t: np.ndarray, gains, changes) -> Panel:
     ):
         y = np.full(len(t), float(gains[i]))
         for c in changes or ():
-            if c.get("name") == f"CLSAC_PID_K{'PID'[i]}" and c.get("t_s") is not None:
+            if c.get("name") in (f"PID_K{'PID'[i]}", f"CLSAC_PID_K{'PID'[i]}") and c.get("t_s") is not None:
                 y[t >= c["t_s"]] = float(c["to"])
         top = max(top, float(np.max(y)))
         panel.lines.append(Line(y, C_GAINS[key], lw, style, steps=True, label=label))

@@ -52,7 +52,7 @@ def test_the_shipped_design_is_what_the_command_makes(design):
 
     _text, values, _lp = design
     shipped = load_file(Path(plants.__file__).parent / "plants" / "jsbsim-c172x-aileron+rudder.params")
-    assert sorted(values) == sorted(shipped) and "CLSAC_PFC2_NUM" in values and "CLSAC_PID2_KP" in values
+    assert sorted(values) == sorted(shipped) and "CLSAC_PFC2_NUM" in values and "PID2_KP" in values
     # Not to the last bit: the PFC gains are margin / g*, with g* the critical gain from polynomial roots and matrix
     # eigenvalues (LAPACK), whose last digits differ between numpy/scipy builds (CLSAC_PFC2_NUM 1.0582135411183893
     # against 1.058213541092955, 2.4e-11 relative, numpy 2.4.6/scipy 1.17.1).  1e-7 relative is 4000 times that, and
@@ -85,7 +85,7 @@ def test_the_printout_says_how_each_item_was_chosen(design):
     assert lp.m == 2 and lp.output_names == ("phi", "beta")
     # the roll channel keeps the aileron-only design's numbers (sitl/plants/jsbsim-c172x.params)
     siso = load_file(plants.shipped("jsbsim-c172x.params"))
-    for name in ("CLSAC_PFC_NUM", "CLSAC_PFC_DEN0", "CLSAC_PID_KP", "CLSAC_PID_KI", "CLSAC_PID_KD"):
+    for name in ("CLSAC_PFC_NUM", "CLSAC_PFC_DEN0", "PID_KP", "PID_KI", "PID_KD"):
         assert values[name] == pytest.approx(siso[name], rel=1e-6)
 
 
@@ -163,8 +163,8 @@ def _pid_loop_grows(lp, gains, steps=4000) -> bool:
 
 def test_the_baseline_loop_at_a_time_gain_margins_by_simulation(design):
     text, values, lp = design
-    g1 = tuple(values[f"CLSAC_PID_{k}"] for k in ("KP", "KI", "KD"))
-    g2 = tuple(values[f"CLSAC_PID2_{k}"] for k in ("KP", "KI", "KD"))
+    g1 = tuple(values[f"PID_{k}"] for k in ("KP", "KI", "KD"))
+    g2 = tuple(values[f"PID2_{k}"] for k in ("KP", "KI", "KD"))
     assert not _pid_loop_grows(lp, [g1, g2])
     for i, tag in ((0, "baseline PID 1"), (1, "baseline PID 2")):
         gm_db = float(text.split(tag)[1].split("gain margin ")[1].split(" dB")[0])
@@ -183,7 +183,7 @@ def test_the_margins_match_python_control_with_the_other_loop_open(design):
     from tools.design.mimo_baseline import mimo_margins
 
     _text, values, lp = design
-    g1 = tuple(values[f"CLSAC_PID_{k}"] for k in ("KP", "KI", "KD"))
+    g1 = tuple(values[f"PID_{k}"] for k in ("KP", "KI", "KD"))
     mats = (lp.a_p, lp.b_p, lp.c_p)
     ours = mimo_margins(mats, [g1, (0.0, 0.0, 0.0)], T)["loops"][0]
     ref = baseline_margins(BaselineConfig(kp=g1[0], ki=g1[1], kd=g1[2]), plant=channel(mats, 0))

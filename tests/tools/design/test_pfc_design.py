@@ -80,7 +80,7 @@ def test_the_design_reports_how_the_pfc_was_chosen(designed):
 def test_the_designed_baseline_has_the_margins_it_claims(designed):
     path, _out = designed
     values = load_file(path)  # real parameters, not a comment: the baseline flies the file (issue 30, item 2)
-    kp, ki, kd = (values[f"CLSAC_PID_K{k}"] for k in "PID")
+    kp, ki, kd = (values[f"PID_K{k}"] for k in "PID")
     import control
 
     lp = linear_plant.load(SHIPPED)
@@ -113,7 +113,7 @@ def test_a_plant_no_pfc_can_make_waspr_is_a_clear_error(tmp_path):
 def test_the_launcher_flies_the_shipped_design_by_default():
     path = designed_params("jsbsim:c172x:airspeed_kt=70")
     assert path is not None and path.name == "jsbsim-c172x.params"
-    assert set(load_file(path)) >= {"CLSAC_PFC_NUM", "CLSAC_PFC_DEN1", "CLSAC_PFC_DEN0", "CLSAC_PID_KP"}
+    assert set(load_file(path)) >= {"CLSAC_PFC_NUM", "CLSAC_PFC_DEN1", "CLSAC_PFC_DEN0", "PID_KP"}
     assert "CLSAC_LV" not in load_file(path)  # --lv / the run's Lv still chooses SAC or CL-SAC
     assert "CLSAC_U_LIMIT" not in load_file(path)  # the limit is the plant's stop, given to every controller
     assert designed_baseline("jsbsim:c172x") is not None

@@ -54,7 +54,8 @@ def test_the_design_s_last_line_is_the_command_that_flies_it(pa28):
     last = stdout.strip().splitlines()[-1]
     assert last == f"python -m tools.launch --lockstep --plant jsbsim:pa28 --params {path}"
     text = path.read_text()
-    assert "CLSAC_PID_KP" in text and "# baseline_gains" not in text and "CLSAC_U_LIMIT" not in text
+    assert "PID_KP" in text and "CLSAC_PID" not in text  # the PID's own names (issue 37), not their aliases
+    assert "# baseline_gains" not in text and "CLSAC_U_LIMIT" not in text
     assert "rate_limit" not in path.with_suffix(".toml").read_text()  # pa28's ailerons have no actuator
 
 
@@ -74,7 +75,7 @@ def test_the_design_flies_every_controller_and_the_outputs_name_pa28(tmp_path, p
     from autopilot.params import load_file
 
     start, design = s["parameters"]["start"], load_file(path)
-    names = ("CLSAC_PID_KP", "CLSAC_PID_KI", "CLSAC_PID_KD") if controller == "baseline" else ("CLSAC_PFC_NUM",)
+    names = ("PID_KP", "PID_KI", "PID_KD") if controller == "baseline" else ("CLSAC_PFC_NUM",)
     assert all(start[n] == pytest.approx(design[n], rel=1e-6) for n in names)  # the design's values flew (REAL32)
     assert (out / "flight.png").is_file()
 

@@ -77,7 +77,7 @@ def test_the_mimo_flight_flies_both_surfaces(design, controller, tmp_path):
     assert summary["runs"][0]["steps"] == 3000
     # each channel's parameters under the names a ground station shows, and the matrix gain in the recording
     start = summary["parameters"]["start"]
-    assert ("CLSAC_PFC2_NUM" in start) if controller == "clsac" else ("CLSAC_PID2_KP" in start)
+    assert ("CLSAC_PFC2_NUM" in start) if controller == "clsac" else ("PID2_KP" in start)
     rrd = _run("tools.rrd", "summary", str(out / "flight.rrd"))
     assert rrd.returncode == 0 and "/autopilot/mimo/ke " in rrd.stdout and "/autopilot/mimo/sideslip" in rrd.stdout
 

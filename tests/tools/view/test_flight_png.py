@@ -365,11 +365,12 @@ def test_the_baseline_is_drawn_as_a_fixed_gain_pid_not_as_sac():
         assert abs(rows[key] - y_of[key]) < 4, (key, rows[key], y_of[key])
 
 
-def test_a_parameter_changed_in_flight_steps_the_pid_line_and_is_marked():
-    """A ground station's CLSAC_PID_KP 0.1 -> 0.3 at 15 s: the K_p line steps there, and the picture marks it."""
+@pytest.mark.parametrize("name", ["PID_KP", "CLSAC_PID_KP"])  # a recording from before issue 37: its alias
+def test_a_parameter_changed_in_flight_steps_the_pid_line_and_is_marked(name):
+    """A ground station's PID_KP 0.1 -> 0.3 at 15 s: the K_p line steps there, and the picture marks it."""
     from tools.view.flight_picture import marks
 
-    changes = [{"t_s": 15.0, "name": "CLSAC_PID_KP", "from": 0.1, "to": 0.3}]
+    changes = [{"t_s": 15.0, "name": name, "from": 0.1, "to": 0.3}]
     common = dict(name="b", lv=0.0, metrics={}, u_limit_rad=30 * DEG, title="t", controller="baseline")
     plain = np.asarray(flight_image(_series(), gains=(0.1, 0.1, 0.02), **common)).astype(int)
     moved = np.asarray(

@@ -21,6 +21,8 @@ MAX_FLIGHTS = 20_000  # the largest grid flown without --max-flights (the docs' 
 
 
 def build_parser() -> argparse.ArgumentParser:
+    from sitl.plant_kinds import help_text as plant_help
+
     p = OneLineArgumentParser(
         prog=PROG,
         description="The damage study: faults in mid-flight (fault kind x severity x onset x seed x controller) "
@@ -30,7 +32,7 @@ def build_parser() -> argparse.ArgumentParser:
         "--plant",
         default=",".join(grid.DEFAULT_PLANTS),
         metavar="P1,P2",
-        help="plants: kh2013a, FILE.toml, jsbsim:MODEL[:KEY=VALUE,...] (default kh2013a,jsbsim:c172x)",
+        help=f"plants: {plant_help(None)} (default {','.join(grid.DEFAULT_PLANTS)})",  # sitl.plant_kinds' records
     )
     p.add_argument(
         "--runs",

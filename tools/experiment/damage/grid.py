@@ -18,12 +18,19 @@ from sitl import plant as plants
 # The controllers of the study: the registry's (autopilot.controllers: every built-in law, and a user's own law
 # FILE.py:Class or module:Class, flown through the generic loop, tools.experiment.scenario.run_inprocess), SAC and
 # CL-SAC with the robust PFC (the launcher's --pfc robust) and two fixed-gain PIDs made here.  The default set is
-# the published tables'; ``all`` flies every registered law too.
-REGISTERED = ("baseline", "sac", "clsac", "pid-ff")
+# the published tables': the registry's controllers with a ``damage`` place, in its order; ``all`` flies every
+# registered law too.
 ROBUST = {"sac-robust": "sac", "clsac-robust": "clsac"}  # the law flown with autopilot.config.PFC_PRESETS["robust"]
 RETUNED = "pid-retuned"  # tools.design.tuning.design_baseline on the plant as it is, switched at the fault's onset
 ENERGY = "pid-energy"  # the plant's PID with its gains scaled to CL-SAC's energy on the fault-free scenario
-CONTROLLERS = (*REGISTERED, *ROBUST, RETUNED, ENERGY)
+CONTROLLERS = (
+    *sorted(
+        (c.name for c in registry.CONTROLLERS.values() if c.damage is not None), key=lambda n: registry.get(n).damage
+    ),
+    *ROBUST,
+    RETUNED,
+    ENERGY,
+)
 ALL = (*registry.BUILT_IN, *ROBUST, RETUNED, ENERGY)  # --controllers all
 # The study's words for each (the registry's study_label, else its label), and for its own
 LABELS = {

@@ -79,7 +79,7 @@ def mavlink_command(controller: str, condition: str, seed: int, run: int, rec: d
     d = rec["draws"]
     argv = ["python -m tools.launch --lockstep", f"--duration {duration:g}"]
     if not ctrl.adaptive:
-        argv.append(f"--controller {ctrl.kind}")
+        argv.append(f"--controller {ctrl.law}")
     else:
         argv += [f"--controller {'sac' if ctrl.lv == 0 else 'clsac'}", f"--lv {ctrl.lv:g}", f"--pfc {rec['pfc']}"]
         changes = dict(ctrl.changes)

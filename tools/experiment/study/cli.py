@@ -15,12 +15,13 @@ from autopilot import controllers as registry
 from autopilot.shared import cli
 from autopilot.shared.cli import OneLineArgumentParser
 from sitl import plant as plants
+from sitl.plant_kinds import help_text as plant_help
 from tools.experiment.outdir import check_out_dir, default_out_dir, hold_space, prepare_out_dir
 from tools.experiment.study import faults as study_faults
 from tools.experiment.study import flights
 from tools.experiment.study.execution import interruptible
 from tools.experiment.study.robustness import final_line, notes, report, run_plants, sections_of
-from tools.experiment.study.sampling import CONTROLLERS, METRICS, StudyError, StudyOptions, get_condition
+from tools.experiment.study.sampling import METRICS, StudyError, StudyOptions, get_condition
 from tools.experiment.study.simulation import replay
 
 # ---------------------------------------------------------------------------------------- command line
@@ -42,7 +43,7 @@ def build_parser(prog: str = ROBUSTNESS_PROG) -> argparse.ArgumentParser:
 def build_replay_parser(prog: str = REPLAY_PROG) -> argparse.ArgumentParser:
     """One run of the study, alone, with its metrics (the command summary.json's ``replay_inprocess`` gives)."""
     q = OneLineArgumentParser(prog=prog, description="One run of the robustness study, alone, with its metrics.")
-    q.add_argument("--controller", required=True, choices=tuple(CONTROLLERS))
+    q.add_argument("--controller", required=True, choices=registry.ROBUSTNESS)
     q.add_argument("--condition", required=True)
     q.add_argument("--seed", type=cli.seed, required=True)
     q.add_argument("--run", type=cli.count(0, 10**9, name="run"), required=True)
@@ -55,14 +56,13 @@ def add_run_arguments(r: argparse.ArgumentParser) -> None:
     r.add_argument(
         "--plant",
         metavar="PLANT[,PLANT...]",
-        help="the plants studied: kh2013a (the batched study below; default), FILE.toml (a plant file) or "
-        "jsbsim:MODEL[:KEY=VALUE,...] (a JSBSim aircraft; docs/plants.md), or a comma-separated list of them: one "
-        "summary.json with a section per plant",
+        help=f"the plants studied: {plant_help(note=lambda k: 'the batched study below' if k.batched else '')} "
+        "(docs/plants.md), or a comma-separated list of them: one summary.json with a section per plant",
     )
     r.add_argument(
         "--controllers",
         metavar="A,B",
-        help=f"kh2013a: a subset of {','.join(CONTROLLERS)}; a JSBSim aircraft or plant file: of "
+        help=f"kh2013a: a subset of {','.join(registry.ROBUSTNESS)}; a JSBSim aircraft or plant file: of "
         f"{','.join(flights.CONTROLLERS)} (default: all of each); either: also any registered law "
         f"({','.join(n for n in controllers.NAMES if n not in flights.CONTROLLERS)}) or one of your own, FILE.py:Class "
         "(docs/adding-a-law.md), flown one in-process flight at a time",
@@ -199,9 +199,10 @@ def plan_from_args(args) -> list[tuple[str, object]]:
     controllers_of = registry.CONTROLLERS
     seed = 0 if args.seed is None else args.seed
     plan: list[tuple[str, object]] = []
-    # laws without a batch form: a registered one, or a user's (FILE.py:Class, module:Class); an unknown name is
-    # the batched study's to refuse
-    unbatched = tuple(c for c in controllers or () if c not in CONTROLLERS and (c in controllers_of or ":" in c))
+    # laws without a batch form (autopilot.controllers.Law.batch, or one that does not fly the controller's
+    # configuration: pid-ff): a registered one, or a user's (FILE.py:Class, module:Class); an unknown name is the
+    # batched study's to refuse
+    unbatched = tuple(c for c in controllers or () if not _batched(c) and (c in controllers_of or ":" in c))
     if unbatched and "kh2013a" in texts:
         # The KH2013A's batched study flies the laws of its kernel; any other law (mrac, l1, indi, a user's own)
         # flies the generic loop, one in-process flight at a time, bit for bit its lockstep flight
@@ -279,6 +280,12 @@ def plan_from_args(args) -> list[tuple[str, object]]:
 
 
 GENERIC = "kh2013a (one flight at a time)"  # the KH2013A's section of the laws without a batch form
+
+
+def _batched(name: str) -> bool:
+    """A controller of the batched study (``autopilot.controllers.ROBUSTNESS``) whose law has a batch form that flies
+    it (its record's ``batch``: ``Controller.batch_form``)."""
+    return name in registry.ROBUSTNESS and registry.studied(name).batch_form() is not None
 
 
 def _generic_plan(args, names: tuple[str, ...], seed: int, plan: list) -> None:

@@ -6,13 +6,14 @@ import math
 from collections.abc import Sequence
 from pathlib import Path
 
-from tools.experiment.study.sampling import CONTROLLERS, SWEEPS, StudyOptions
+from autopilot import controllers as registry
+from tools.experiment.study.sampling import SWEEPS, StudyOptions
 from tools.experiment.study.simulation import replay
 
 
 def _adaptive(name: str) -> bool:
     """A study controller whose law has a PFC (the baseline's has none)."""
-    return name not in CONTROLLERS or CONTROLLERS[name].adaptive
+    return name not in registry.ROBUSTNESS or registry.studied(name).adaptive
 
 
 def format_table(summary: dict, conditions: Sequence[str] = ("nominal", "moderate", "severe")) -> str:
@@ -140,7 +141,7 @@ def save_worst_rrd(summary: dict, opts: StudyOptions, path: Path, condition: str
         r = replay(ctrl, cond, opts.seed, w["run"], faults=opts.faults)
         series = {k: v[:, 0] for k, v in r["series"].items()}
         metrics = {m: float(r[m][0]) for m in ("ise_ref", "ise_crm", "energy", "tv", "max_abs_u")}
-        results.append(RunResult(f"{ctrl}_{cond}_run{w['run']}", CONTROLLERS[ctrl].lv, metrics, series))
+        results.append(RunResult(f"{ctrl}_{cond}_run{w['run']}", registry.studied(ctrl).lv, metrics, series))
     if not results:
         return None
     try:

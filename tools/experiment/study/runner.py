@@ -13,6 +13,7 @@ import time
 from collections.abc import Iterator
 from pathlib import Path
 
+from autopilot import controllers as registry
 from autopilot.envelope import tracking_limits
 from autopilot.shared.process import write_json_atomic
 from tools.experiment.outdir import one_line, write_problem
@@ -31,7 +32,6 @@ from tools.experiment.study.report import format_breaks, format_long, format_tab
 from tools.experiment.study.sampling import (
     BOUND_ROLL_RAD,
     BOUND_SAT_FRACTION,
-    CONTROLLERS,
     DEG,
     WINDOW_S,
     StudyOptions,
@@ -287,7 +287,8 @@ def study_summary(opts: StudyOptions, tally: Tally, sweeps, long_ctrls, long_flo
         "percentiles": "exact" if tally.exact else f"binned (relative bin width {BIN_WIDTH:g})",
         "conditions": {c: dataclasses.asdict(get_condition(c)) for c in conds},
         "controllers": {
-            c: {"label": CONTROLLERS[c].label, "changes": dict(CONTROLLERS[c].changes)} for c in opts.controllers
+            c: {"label": registry.studied(c).robustness_words, "changes": dict(registry.studied(c).changes)}
+            for c in opts.controllers
         },
         "results": {
             c: {cond: cell_summary(tally.cells.get(c, {}).get(cond), cond, c, opts.seed) for cond in conds}

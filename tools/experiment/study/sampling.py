@@ -1,5 +1,6 @@
-"""What the study flies: the controllers, the conditions (and their one-factor sweeps), and the chunks
-(``Task``) the runs are cut into.  Plain data; no simulation."""
+"""What the study flies: the conditions (and their one-factor sweeps), and the chunks (``Task``) the runs are cut
+into; its controllers are the registry's (``autopilot.controllers``: ``ROBUSTNESS``, ``studied``, the ``VARIANTS``
+of CL-SAC).  Plain data; no simulation."""
 
 from __future__ import annotations
 
@@ -9,8 +10,7 @@ import math
 from collections.abc import Sequence
 from dataclasses import dataclass
 
-from autopilot.controllers import CONTROLLERS as REGISTERED
-from autopilot.controllers import LAWS
+from autopilot import controllers as registry
 from autopilot.envelope import Envelope
 from autopilot.shared import cli
 
@@ -43,50 +43,6 @@ STATIC = 13  # static draws per run: 6 scales, pfc, gust amplitude, length, star
 
 class StudyError(ValueError):
     """Bad study input; one line naming the value."""
-
-
-# ---------------------------------------------------------------------------------------- controllers
-@dataclass(frozen=True)
-class Controller:
-    """A controller of the study: ``kind``, its law (a key of ``autopilot.controllers.LAWS``: "clsac", SAC being
-    L_v = 0, or "baseline"), and changes to the law's configuration."""
-
-    name: str
-    kind: str = "clsac"
-    lv: float = 20.0
-    changes: tuple[tuple[str, object], ...] = ()
-    label: str = ""
-
-    def config(self, pfc: str, control_rate_hz: float, u_limit_rad: float):
-        cfg = LAWS[self.kind].configure(control_rate_hz=control_rate_hz, u_limit_rad=u_limit_rad, lv=self.lv, pfc=pfc)
-        return cfg.with_(**dict(self.changes)) if self.changes else cfg
-
-    @property
-    def adaptive(self) -> bool:
-        """Its law has adaptive gains and a PFC (the baseline: neither)."""
-        return LAWS[self.kind].adaptive
-
-
-DEAD_ZONE_RAD = 0.25 * DEG  # about the roll noise of "moderate"
-
-
-KI_MAX = 0.2  # rad/rad: 2.6 times the largest |K_I| of the nominal 30 s CL-SAC run (0.076)
-
-
-CONTROLLERS: dict[str, Controller] = {
-    c.name: c
-    for c in (
-        Controller("sac", lv=0.0, label="SAC"),
-        Controller("clsac_lv10", lv=10.0, label="CL-SAC Lv 10"),
-        Controller("clsac", lv=20.0, label="CL-SAC Lv 20 (paper)"),
-        Controller("clsac_lv50", lv=50.0, label="CL-SAC Lv 50"),
-        Controller("baseline", kind="baseline", lv=0.0, label=REGISTERED["baseline"].label),  # "fixed-gain PID"
-        Controller("clsac_leak", changes=(("sigma_x", 0.1), ("sigma_u", 0.1)), label="CL-SAC + leakage 0.1"),
-        Controller("clsac_deadzone", changes=(("dead_zone_rad", DEAD_ZONE_RAD),), label="CL-SAC + dead-zone 0.25 deg"),
-        Controller("clsac_projection", changes=(("ki_max", KI_MAX),), label="CL-SAC + projection |K_I| <= 0.2"),
-        Controller("clsac_freeze", changes=(("freeze_when_saturated", True),), label="CL-SAC + freeze when saturated"),
-    )
-}
 
 
 # ---------------------------------------------------------------------------------------- conditions
@@ -165,11 +121,12 @@ def get_condition(name: str) -> Condition:
     return cond
 
 
-def get_controller(name: str) -> Controller:
+def get_controller(name: str) -> registry.Controller:
+    """The robustness study's controller ``name`` (``autopilot.controllers.studied``: the registry's); StudyError."""
     try:
-        return CONTROLLERS[name]
-    except KeyError:
-        raise StudyError(f"unknown controller {name!r} (known: {', '.join(CONTROLLERS)})") from None
+        return registry.studied(name)
+    except ValueError as exc:
+        raise StudyError(str(exc)) from None
 
 
 # ---------------------------------------------------------------------------------------- one batch
@@ -201,7 +158,7 @@ def make_tasks(
 class StudyOptions:
     runs: int = 1000
     seed: int = 0
-    controllers: tuple[str, ...] = tuple(CONTROLLERS)
+    controllers: tuple[str, ...] = registry.ROBUSTNESS
     conditions: tuple[str, ...] = tuple(CONDITIONS)
     sweep_runs: int = 100
     long_runs: int = 10

@@ -155,7 +155,6 @@ def simulate(task: Task, engine: str | None = None) -> dict:
     "numpy" (the numpy loop) or None (the kernel when it loads, else numpy); the same numbers whichever."""
     from scipy.special import ndtri
 
-    from autopilot.batch import BatchBaseline, BatchClSac
     from sitl.atmosphere import Gust
 
     ctrl = get_controller(task.controller)
@@ -182,12 +181,12 @@ def simulate(task: Task, engine: str | None = None) -> dict:
     loss = np.array([c.loss for c in conds])
     thr = ndtri(loss)  # lost when the standard normal draw is below it (-inf: never)
 
-    # Law, one config per run (the PFC is drawn per run).
-    if ctrl.kind == "baseline":
-        law = BatchBaseline(ctrl.config("paper", rate, umax), n)
-    else:
-        by_pfc = {True: ctrl.config("paper", rate, umax), False: ctrl.config("robust", rate, umax)}
-        law = BatchClSac([by_pfc[bool(p)] for p in pfc_paper])
+    # Law, one config per run (the PFC is drawn per run): its record's batch form (autopilot.controllers.Law.batch)
+    record = ctrl.kind  # its law's record (autopilot.controllers.Law)
+    if record.batch_class() is None:
+        raise StudyError(f"{ctrl.name}: its law {record.name} has no batch form (the generic loop flies it)")
+    by_pfc = {True: ctrl.study_config("paper", rate, umax), False: ctrl.study_config("robust", rate, umax)}
+    law = record.batch_class().of([by_pfc[bool(p)] for p in pfc_paper])
 
     # Plant, one per distinct scale vector (nominal: one for all).
     phis, gams = _plants(scales, dt)
@@ -233,7 +232,7 @@ def simulate(task: Task, engine: str | None = None) -> dict:
 
     # Everything the steps read: the batch, its law, its plants and its disturbances, each run's generator.
     b = argparse.Namespace(
-        kind=ctrl.kind,
+        kernel_form=record.kernel_form(),  # its C-kernel form (Law.kernel), None: numpy only
         n=n,
         steps=steps,
         rate=rate,
@@ -263,9 +262,9 @@ def simulate(task: Task, engine: str | None = None) -> dict:
     )
     if engine not in (None, "kernel", "numpy"):
         raise StudyError(f"engine must be 'kernel' or 'numpy', got {engine!r}")
-    lib = None if engine == "numpy" else native.load()
+    lib = None if engine == "numpy" or b.kernel_form is None else native.load()
     if engine == "kernel" and lib is None:
-        raise StudyError(f"no C kernel: {native.reason()}")
+        raise StudyError(f"no C kernel: {native.reason() if b.kernel_form else f'{record.name} has no kernel form'}")
     acc, peaks, track, rec = _fly_numpy(b) if lib is None else _fly_kernel(lib, b)
     out = {
         "ise_ref": acc["ise_ref"] * dt,
@@ -297,10 +296,7 @@ def simulate(task: Task, engine: str | None = None) -> dict:
     return out
 
 
-# The law's coefficients in kernel.c's order (its C_* and B_* names).
-_CLSAC_COEFFS = ("phi_m", "g_mu", "g_my", "phi_ol", "g_ol", "cm", "phi_d", "g_d", "cd", "gpe", "gie", "gpx", "gix")
-_CLSAC_COEFFS += ("gpu", "giu")
-_CLSAC_LEAKS = ("_decay", "_gain_ie", "_decay_x", "_gain_ix", "_decay_u", "_gain_iu")
+COEF_ROWS = 21  # kernel.c's law coefficients per aircraft (CL-SAC's C_*, B_*: autopilot.batch.clsac_kernel)
 _SERIES = ("t", "um", "phi", "ym", "ym_ol", "ya", "y_pfc", "e", "u", "kpe", "kie", "ke", "kpx", "kix", "kx", "kpu")
 _SERIES += ("kiu", "ku", "v", "p", "r", "delta_r")  # _record's keys, in its order
 
@@ -325,18 +321,12 @@ def _fly_kernel(lib, b) -> tuple[dict, np.ndarray, np.ndarray, dict | None]:
     draws it."""
     import ctypes
 
-    n, steps, law = b.n, b.steps, b.law
-    if b.kind == "clsac":  # BatchClSac
-        kind = 0
-        coef = _rows([law._c[k] for k in _CLSAC_COEFFS] + [law._leak[k] for k in _CLSAC_LEAKS], n)  # noqa: SLF001
-        state = _rows([law.xm, law.xm_ol, law.xd, law.ki_e, law.ki_x, law.ki_u], n)
-        aw, dz, kmax, freeze = law._aw, law._dz, law._kmax, law._freeze  # noqa: SLF001
-    else:  # BatchBaseline
-        kind = 1
-        coef = _rows([law._phi_ol, law._g_ol, law._cm, law._kp, law._ki_t, law._kd_t], n)  # noqa: SLF001
-        coef = np.vstack([coef, np.zeros((21 - coef.shape[0], n))])
-        state = _rows([law.xm_ol, law.xi, law.e_prev, 0.0, 0.0, 0.0], n)
-        aw, dz, kmax, freeze = law._aw, 0.0, None, False  # noqa: SLF001
+    n, steps = b.n, b.steps
+    form = b.kernel_form(b.law)  # the law's C-kernel form (autopilot.batch.KernelForm): kernel.c's law and arrays
+    kind, state = form.kind, _rows(form.state, n)
+    coef = _rows(form.coef, n)
+    coef = np.vstack([coef, np.zeros((COEF_ROWS - coef.shape[0], n))])
+    aw, dz, kmax, freeze = form.anti_windup, form.dead_zone, form.ki_max, form.freeze
     window = int(round(WINDOW_S * b.rate))
     npeaks = max(steps // window, 1)
     keep = {  # every array the kernel reads or writes, kept alive (and C-contiguous) for the calls

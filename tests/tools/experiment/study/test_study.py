@@ -15,9 +15,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from autopilot.controllers import ROBUSTNESS
 from tools.experiment.study import (
     CONDITIONS,
-    CONTROLLERS,
     StudyError,
     StudyOptions,
     Task,
@@ -125,7 +125,7 @@ def test_bad_study_flags_exit_2_with_one_line(argv, message, tmp_path):
 def test_options_reject_unknown_names():
     with pytest.raises(StudyError, match="unknown controller"):
         StudyOptions(controllers=("pid",))
-    assert "baseline" in CONTROLLERS and "clsac_freeze" in CONTROLLERS
+    assert "baseline" in ROBUSTNESS and "clsac_freeze" in ROBUSTNESS
 
 
 def _free_port() -> int:

@@ -15,9 +15,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from autopilot.controllers import ROBUSTNESS
 from tools.experiment.study import (
     CONDITIONS,
-    CONTROLLERS,
     LONG_CONTROLLERS,
     StudyOptions,
     Task,
@@ -56,7 +56,7 @@ def _same(a: dict, b: dict) -> list[str]:
     return bad
 
 
-@pytest.mark.parametrize("controller", list(CONTROLLERS))
+@pytest.mark.parametrize("controller", ROBUSTNESS)
 def test_the_kernel_flies_every_controller_bit_for_bit_as_the_numpy_loop(kernel, controller):
     """Every metric, the window peaks, and every series of every step, under the three conditions and the sweeps'
     extremes (delay, loss, turbulence), the PFC drawn per run."""
@@ -192,3 +192,37 @@ def test_the_plants_of_a_batch_are_discretised_at_once_bit_for_bit():
     ms[0] = 0.0
     many = expm_many(ms)
     assert all(many[i].tobytes() == expm(ms[i]).tobytes() for i in range(30))
+
+
+def test_the_study_reads_the_laws_batch_and_kernel_forms_from_its_record(monkeypatch):
+    """No list of names: a controller flies the batched study by its law's batch form (``Law.batch``, one that
+    accepts its configuration), in C by its kernel form (``Law.kernel``), else the generic loop; taking a law's forms
+    away sends it there (its record only changed), and a batch form without a kernel form steps in numpy."""
+    from autopilot import controllers
+    from autopilot.batch import BatchBaseline, BatchClSac
+    from tools.experiment.study.cli import GENERIC, build_parser, plan_from_args
+    from tools.experiment.study.sampling import StudyError
+
+    assert {n for n, law in controllers.LAWS.items() if law.batch} == {"clsac", "baseline"}
+    assert (
+        controllers.get("clsac").batch_form() is BatchClSac
+        and controllers.get("baseline").batch_form() is BatchBaseline
+    )
+    assert controllers.get("pid-ff").batch_form() is None  # the baseline's batch form flies no feed-forward
+    assert all(controllers.get(n).batch_form() is None for n in ("mrac", "crm-mrac", "l1", "indi"))
+
+    def plan():
+        args = build_parser().parse_args(["--controllers", "baseline,clsac", "--runs", "2"])
+        return [(text, tuple(opts.controllers)) for text, opts in plan_from_args(args)]
+
+    assert plan() == [("kh2013a", ("baseline", "clsac"))]
+    task = Task("baseline", (("moderate", 0), ("nominal", 1)), 2, 2.0)
+    numpy_ = simulate(task, "numpy")
+    monkeypatch.setitem(controllers.LAWS, "baseline", dataclasses.replace(controllers.LAWS["baseline"], kernel=""))
+    assert _same(simulate(task), numpy_) == []  # no kernel form: the numpy loop, whatever the machine
+    with pytest.raises(StudyError, match="no C kernel: baseline has no kernel form"):
+        simulate(task, "kernel")
+    monkeypatch.setitem(controllers.LAWS, "baseline", dataclasses.replace(controllers.LAWS["baseline"], batch=""))
+    assert plan() == [("kh2013a", ("clsac",)), (GENERIC, ("baseline",))]
+    with pytest.raises(StudyError, match="its law baseline has no batch form"):
+        simulate(task)
