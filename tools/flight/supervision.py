@@ -23,6 +23,7 @@ from autopilot.shared.process import (
     write_json_atomic,
 )
 from tools.flight.children import Child, cpu_times, free_udp_ports, machine_load, new_run_dir, stop_children
+from tools.flight.command_lines import _flight_key, child_argvs
 from tools.flight.config import (
     LIVE_RATE_HZ,
     LIVE_WINDOW_S,
@@ -30,8 +31,6 @@ from tools.flight.config import (
     PROFILES,
     FlightConfig,
     FlightConfigError,
-    _flight_key,
-    child_argvs,
 )
 from tools.flight.files import (
     STALE_FILES,
