@@ -321,7 +321,7 @@ def check(opts: FlightOptions) -> None:
                 f"{', '.join(controllers.NAMES)}, or a law of your own, FILE.py:Class)"
             ) from None
         law = controllers.get(c).kind
-        if law.generic and law.design and opts.plant != "kh2013a" and not plants.spec(opts.plant).mimo:
+        if law.generic and law.design and not plants.spec(opts.plant).paper and not plants.spec(opts.plant).mimo:
             from tools.design.linearise import designed_law_params
 
             if designed_law_params(opts.plant, law.design) is None:
