@@ -44,7 +44,7 @@ class Study:
             n += len(flown) * self.runs * (1 + len(cells[p]) * len(self.onsets))
         return n
 
-    def flights(self) -> list[grid.Flight]:
+    def flights(self) -> list[grid.DamageFlight]:
         cells, _ = self.cells()
         return grid.make_flights(
             self.plants, self.controllers, cells, self.onsets, self.seed, self.runs, self.duration, self.turbulence
@@ -103,7 +103,7 @@ def run(
                 done[t] = r
                 bar.add(1)
     except Exception as exc:  # after the first flight, what was flown is kept (a partial summary)
-        if not any(isinstance(t, grid.Flight) for t in done):
+        if not any(isinstance(t, grid.DamageFlight) for t in done):
             raise
         error = f"{type(exc).__name__}: {exc}".strip().splitlines()[0]
     finally:

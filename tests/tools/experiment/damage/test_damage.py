@@ -41,10 +41,10 @@ def test_the_grid_is_every_kind_severity_onset_seed_and_controller():
 
 def test_the_retuned_pid_switches_at_the_onset_and_the_energy_pid_flies_its_scaled_gains():
     flights = [
-        grid.Flight("kh2013a", grid.RETUNED, "effectiveness", 0.3, 10.0, 1),
-        grid.Flight("kh2013a", grid.RETUNED, "rate", 5.0, 10.0, 1),
-        grid.Flight("kh2013a", grid.ENERGY, "rate", 5.0, 10.0, 1),
-        grid.Flight("kh2013a", "clsac", "rate", 5.0, 10.0, 1),
+        grid.DamageFlight("kh2013a", grid.RETUNED, "effectiveness", 0.3, 10.0, 1),
+        grid.DamageFlight("kh2013a", grid.RETUNED, "rate", 5.0, 10.0, 1),
+        grid.DamageFlight("kh2013a", grid.ENERGY, "rate", 5.0, 10.0, 1),
+        grid.DamageFlight("kh2013a", "clsac", "rate", 5.0, 10.0, 1),
     ]
     designed = {
         grid.Design("kh2013a", grid.NONE, None): (1.0, 0.1, 0.2),
@@ -165,7 +165,7 @@ def test_cells_aggregate_their_seeds():
     assert cell["wilson95"] == pytest.approx(list(wilson(2, 3)))
     assert cell["ise_ref_after_p50"] == 0.3 and cell["ise_ref_periods_p50"] == [0.3, 0.6]
     assert cell["recovered_share"] == pytest.approx(2 / 3) and cell["recovery_s_p50"] == 3.0
-    flights = [grid.Flight("kh2013a", "clsac", "rate", 5.0, 10.0, s) for s in (1, 2, 3)]
+    flights = [grid.DamageFlight("kh2013a", "clsac", "rate", 5.0, 10.0, s) for s in (1, 2, 3)]
     (one,) = summarise(flights, recs)
     assert one["fault"] == "rate=5@10" and one["seeds"] == [1, 2, 3] and len(one["runs"]) == 3
 
