@@ -24,10 +24,10 @@ def mimo_flight():
     from tools.experiment.damage.flight import fly_record
     from tools.experiment.damage.grid import NONE, DamageFlight
     from tools.experiment.mimo_inprocess import run_mimo
-    from tools.experiment.study.flights import StudyFlight, simulate
+    from tools.experiment.study.flights import StudyFlight, fly_study_flight
 
     r = run_mimo(MIMO, "baseline", disturbances=(("seed", 1), ("turbulence", "light")))
-    study = simulate(StudyFlight("baseline", MIMO, "light", 1))
+    study = fly_study_flight(StudyFlight("baseline", MIMO, "light", 1))
     damage = fly_record(DamageFlight(MIMO, "baseline", NONE, None, 10.0, 1, 30.0, "light"))
     return r, study, damage
 

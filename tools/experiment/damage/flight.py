@@ -1,4 +1,5 @@
-"""One task of the damage study, flown or designed in a worker (``simulate``: picklable, a function of the task only).
+"""One task of the damage study, flown or designed in a worker (``run_damage_task``: picklable, a function of the
+task only).
 
 A :class:`~tools.experiment.damage.grid.DamageFlight` is the reference scenario's square wave (``PAPER``: +-10 deg,
 period 10 s) flown in-process (``tools.experiment.scenario.run_inprocess``: the control step and the plant in one
@@ -249,7 +250,7 @@ def calibrate(task: Calibration) -> dict:
     }
 
 
-def simulate(task) -> dict:
+def run_damage_task(task) -> dict:
     """The task function of ``tools.experiment.study.execute``: a flight's record, a design or a calibration."""
     if isinstance(task, DamageFlight):
         return fly_record(task)

@@ -61,7 +61,7 @@ class StudyFlight:
         return self.turbulence if self.airspeed_kt is None else f"{self.airspeed_kt:g}kt_{self.turbulence}"
 
 
-def simulate(task: StudyFlight) -> dict:
+def fly_study_flight(task: StudyFlight) -> dict:
     """The flight's metrics, max |roll| (rad), saturated fraction and ``bounded`` (picklable: runs in a worker)."""
     from sitl import plant as plants
     from tools.experiment.scenario import PAPER, run_inprocess, run_of
@@ -94,8 +94,8 @@ MIMO_CONTROLLERS = ("sac", "clsac", "baseline")  # the controllers a square MIMO
 
 
 def _simulate_mimo(task: StudyFlight, dist, limit: float) -> dict:
-    """``simulate`` on a square MIMO plant: ``tools.experiment.mimo_inprocess.run_mimo`` (bit for bit its lockstep
-    flight), judged as the launcher judges it (the roll channel, the rudder's saturation, the sideslip), the
+    """``fly_study_flight`` on a square MIMO plant: ``tools.experiment.mimo_inprocess.run_mimo`` (bit for bit its
+    lockstep flight), judged as the launcher judges it (the roll channel, the rudder's saturation, the sideslip), the
     sideslip's max |beta| (rad) beside."""
     from tools.experiment.mimo_inprocess import run_mimo
 
@@ -245,7 +245,7 @@ def fly(opts: FlightOptions, *, log=print, progress: bool = True, stop: threadin
     t0 = time.perf_counter()
     error = None
     try:  # an error after the first flight keeps the flights flown (partial, with the error's line)
-        for f, r in stream(flights[:1], simulate=simulate, stop=stop):
+        for f, r in stream(flights[:1], simulate=fly_study_flight, stop=stop):
             done.append((f, r))
             bar.add(1)
         if done:
@@ -262,7 +262,7 @@ def fly(opts: FlightOptions, *, log=print, progress: bool = True, stop: threadin
                 f"({first:.2f} s for the first flight); memory about "
                 f"{_mb(_rss_bytes() + RECORD_BYTES * len(flights))} here; Ctrl-C stops and keeps what is done"
             )
-            for f, r in stream(flights[1:], opts.scheduler, opts.workers, simulate, stop=stop, client=client):
+            for f, r in stream(flights[1:], opts.scheduler, opts.workers, fly_study_flight, stop=stop, client=client):
                 done.append((f, r))
                 bar.add(1)
     except Exception as exc:

@@ -367,7 +367,7 @@ def test_column_headers_are_whole_names_with_a_legend():
 def test_an_error_after_the_first_flight_keeps_the_flights_flown(tmp_path):
     """A study stopped by an error at its third flight: the two flights flown are kept, in a summary that says it is
     partial, how many of how many and why; an error before any flight is raised as it was."""
-    from tools.experiment.damage.flight import simulate
+    from tools.experiment.damage.flight import run_damage_task
     from tools.experiment.damage.runner import run, write
 
     study = _study("--plant", "kh2013a", "--kinds", "effectiveness", "--severity", "effectiveness=0.3",
@@ -378,7 +378,7 @@ def test_an_error_after_the_first_flight_keeps_the_flights_flown(tmp_path):
         calls.append(task)
         if len(calls) == 3:
             raise ValueError("the third flight failed")
-        return simulate(task)
+        return run_damage_task(task)
 
     quiet = dict(workers=1, progress=False, log=lambda *_: None)
     doc = run(study, simulate=third_fails, **quiet)
