@@ -62,7 +62,7 @@ _WHERE = {  # public name -> its module, imported on first use (PEP 562): import
     "Flight": "tools.flight.supervision",
     "FlightResult": "tools.flight.supervision",
     "OutputError": "tools.flight.supervision",
-    "run_lockstep": "tools.flight.supervision",
+    "fly_run_over_mavlink": "tools.flight.supervision",
     "serve_web": "tools.flight.supervision",
 }
 
@@ -93,11 +93,11 @@ __all__ = [
     "fault_recoveries",
     "first_stall",
     "flown_report",
+    "fly_run_over_mavlink",
     "load_series",
     "outcome_of",
     "provisional_summary",
     "recovery_text",
-    "run_lockstep",
     "serve_web",
     "shortfall",
     "silences",

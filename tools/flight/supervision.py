@@ -1,6 +1,6 @@
 """``Flight``: one flight of the three processes, started, watched and ended (child supervision, the web
-server's lifetime), and ``FlightResult``, what it returns; ``run_lockstep``, the ``mavlink`` transport of
-experiments."""
+server's lifetime), and ``FlightResult``, what it returns; ``fly_run_over_mavlink``, the ``mavlink`` transport
+of experiments."""
 
 from __future__ import annotations
 
@@ -667,7 +667,7 @@ class Flight:
         return png
 
 
-def run_lockstep(scenario, run, workdir):
+def fly_run_over_mavlink(scenario, run, workdir):
     """Fly one RunSpec of a Scenario in lockstep over real processes and UDP; metrics from what flew.
 
     The ``mavlink`` transport of ``tools.experiment``: files go to ``workdir``; returns a
