@@ -9,8 +9,9 @@ REQUEST_DATA_STREAM), SYS_STATUS at 1 Hz and NAMED_VALUE_FLOAT for the adaptive 
 (MAV_CMD_INJECT_FAILURE, relayed to the SITL: ``autopilot.injection``).  Every COMMAND_LONG and COMMAND_INT gets a
 COMMAND_ACK (a relayed one when the SITL has answered); what is not supported gets MAV_RESULT_UNSUPPORTED.
 
-The scheduler (``autopilot.loop.Autopilot``) owns the links and the control step; this module only decides
-what to answer and what the step flies (``ControlStep.manual``, ``.armed``, ``.reconfigure``, ``.transfer``).
+The autopilot (``autopilot.loop.Autopilot``, driven by its scheduler) owns the links and the control step; this
+module only decides what to answer and what the step flies (``ControlStep.manual``, ``.armed``, ``.reconfigure``,
+``.transfer``).
 """
 
 from __future__ import annotations

@@ -4,12 +4,12 @@ The step itself (setpoint, law, rudder limit, PWM map, metrics) is ``autopilot.s
 are ``autopilot.shared.link``; this module reads the links, decides *when* to step and sends the answer
 (docs/spec.md, "Timing modes").  Two modes:
 
-* real time (:meth:`Autopilot.run_realtime`): one control step per period on a fixed grid of
+* real time (:class:`RealtimeScheduler`): one control step per period on a fixed grid of
   deadlines (sleep in ``select`` until shortly before the deadline, then spin; never ``sleep(period)``),
   using the newest ATTITUDE.  Failsafes: no attitude for ``attitude_timeout_s`` (wall clock) ->
   rudder neutral, adaptation frozen (``ClSac.hold``), HEARTBEAT CRITICAL, STATUSTEXT; recovers by
   itself.  No setpoint for ``setpoint_timeout_s`` -> wings level (0 deg), STATUSTEXT.
-* lockstep (:meth:`Autopilot.run_lockstep`): one step per SITL frame.  Frame k is recovered from
+* lockstep (:class:`LockstepScheduler`): one step per SITL frame.  Frame k is recovered from
   ATTITUDE.time_boot_ms and the control rate; the answer is SERVO_OUTPUT_RAW with time_usec =
   t_k in us mod 2**32.  A duplicate frame is answered by resending the stored answer (signed again; no second step),
   an older frame is counted and ignored.  With pacing on (default), frame k waits until a GCS has
@@ -20,7 +20,8 @@ with one :class:`StepRecord` after the servo command has been sent (outside the 
 ``Autopilot.event_hooks`` with ``(severity, text)`` for every status event (failsafe, clamp, ...).
 
 Layout: ``common`` (options, the step record, timing statistics), ``handlers`` (the link handlers),
-``lockstep`` and ``realtime`` (the two schedulers), ``autopilot`` (``Autopilot``, composed of the three),
+``lockstep`` and ``realtime`` (the two schedulers), ``autopilot`` (``Autopilot``: its state and handlers, and the
+scheduler it holds, which drives it),
 ``series`` (the per-step series); ``from autopilot.loop import ...`` gives each public name.
 """
 

@@ -1,5 +1,5 @@
-"""``Autopilot``: the autopilot process's loop, the two schedulers around one set of link handlers, its state,
-its stats and its shutdown.
+"""``Autopilot``: the autopilot process: its links, control step and state, its link handlers, the scheduler it holds
+(lockstep or real time) which drives it, its stats and its shutdown.
 """
 
 from __future__ import annotations
@@ -49,9 +49,10 @@ from autopilot.vehicle import MSGIDS as VEHICLE_MSGIDS
 from autopilot.vehicle import Mode, Vehicle
 
 
-class Autopilot(LinkHandlers, LockstepScheduler, RealtimeScheduler):
-    """The autopilot process: the control step between a SITL link and a GCS link, run by one of the two schedulers
-    (``run_lockstep``, ``run_realtime``) around one set of link handlers; ``run()`` picks the one asked for."""
+class Autopilot(LinkHandlers):
+    """The autopilot process: the control step between a SITL link and a GCS link, with its link handlers and its
+    state, driven by the scheduler it holds (``scheduler``: a ``LockstepScheduler`` or a ``RealtimeScheduler``, as
+    ``opts.lockstep`` asks); ``run()`` runs it."""
 
     def __init__(
         self,
@@ -153,7 +154,6 @@ class Autopilot(LinkHandlers, LockstepScheduler, RealtimeScheduler):
         self._side_pending: list = []  # lockstep MIMO: SSA_SP (datagram, t_us, rad) waiting for its roll point
         self._side_seen = False  # lockstep MIMO: a station sends SSA_SP in the roll's linked datagrams
         self._side_in_dg = (-1, 0)  # (datagram, SSA_SP in it so far): the roll point's place among roll points
-        self._read_unix_us = 0  # lockstep: wall time (Unix us) of the last read of the links (SYSTEM_TIME says it)
         self.last_setpoint_wall = None
         self.setpoint_lost = False
         self._last_clamp_report = -1e9
@@ -182,17 +182,10 @@ class Autopilot(LinkHandlers, LockstepScheduler, RealtimeScheduler):
         self.params = params
         self.vehicle = Vehicle(self, params, mode, armed)
         # lockstep
-        self._steps_to_fly = round(opts.duration_s * self.rate) if opts.duration_s > 0 else 0  # 0 = until stopped
-        # frame_from_ms and frame_usec (autopilot.shared.mavlink) inline for an integer rate: its ms and us per frame
-        self._irate = int(self.rate) if self.rate.is_integer() else 0
-        self._usec_per_frame = 1_000_000 // self._irate if self._irate and 1_000_000 % self._irate == 0 else 0
         self.first_frame = None
         self.last_frame = None  # last frame answered
-        self._last_answer = b""
-        self.pending_frame = None
-        self.pending_t_rx = 0.0
-        self._next_systime = 0.0
-        self._blocked_since = None
+        self.pending_frame = None  # the frame received and not yet flown (waiting for the schedule)
+        self._blocked_since = None  # since when the pending frame waits for the ground station's schedule
         self.finished = False
         self.t_first_step = None
         self.t_last_step = None
@@ -216,6 +209,8 @@ class Autopilot(LinkHandlers, LockstepScheduler, RealtimeScheduler):
         if pwm2 is not None:  # MIMO: both surfaces in every SERVO_OUTPUT_RAW, each on its own channel
             self._servo_wire = self._servo_wire_mimo
             self._servo_payload = self._servo_payload_mimo
+        # what drives it: one control step per SITL frame, or per period on a grid of deadlines
+        self.scheduler = LockstepScheduler(self) if opts.lockstep else RealtimeScheduler(self)
 
     # ================================================================== exit
     def run(self) -> int:
@@ -225,7 +220,7 @@ class Autopilot(LinkHandlers, LockstepScheduler, RealtimeScheduler):
         gc.freeze()
         self.params.flying = True  # CLSAC_RATE is read-only from now on
         try:
-            return self.run_lockstep() if self.opts.lockstep else self.run_realtime()
+            return self.scheduler.run()
         finally:
             self.shutdown()
             self.send_clock.end(time.monotonic())

@@ -65,8 +65,8 @@ def refusal_text(reason: str, sysid: int, compid: int, addr, opts: AutopilotOpti
 
 
 class LinkHandlers:
-    """The one set of link handlers both schedulers share: what the autopilot does with each message from
-    the SITL and the ground stations, what it sends, housekeeping, the failsafe and envelope transitions."""
+    """The autopilot's link handlers, whichever scheduler drives it: what it does with each message from the SITL
+    and the ground stations, what it sends, housekeeping, the failsafe and envelope transitions."""
 
     # ================================================================== inputs
     def _on_sitl(self, msg, t_rx):
@@ -103,7 +103,7 @@ class LinkHandlers:
             return
         self.att.yaw = yaw  # heading, for the GCS's ATTITUDE only (the law flies roll)
         if self.opts.lockstep:
-            self._on_frame(ms, t_rx, roll, p, r)
+            self.scheduler.on_frame(ms, t_rx, roll, p, r)
             return
         att = self.att
         if att.valid and t_rx - att.t_rx < self.opts.attitude_timeout_s:
@@ -178,7 +178,7 @@ class LinkHandlers:
         elif t_us > self.horizon_us:
             self.horizon_us = t_us
         if self.opts.lockstep and self.pending_frame is not None:
-            self._try_step(t_rx)
+            self.scheduler.try_step(t_rx)
 
     def _on_sideslip_setpoint(self, msg) -> None:
         """A square MIMO plant's second setpoint (NAMED_VALUE_FLOAT ``SSA_SP``, deg, sent by the ground station just

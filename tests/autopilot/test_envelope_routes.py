@@ -22,14 +22,12 @@ AILERON_STOP = math.radians(17.5)  # the c172x's aileron (sitl.plant.surface_lim
 def mimo_flight():
     """The MIMO baseline in light turbulence, seed 1, 30 s: in process, in the robustness study, in the damage study."""
     from tools.experiment.damage.flight import fly_record
-    from tools.experiment.damage.grid import NONE
-    from tools.experiment.damage.grid import Flight as DamageFlight
+    from tools.experiment.damage.grid import NONE, DamageFlight
     from tools.experiment.mimo_inprocess import run_mimo
-    from tools.experiment.study.flights import Flight as StudyFlight
-    from tools.experiment.study.flights import simulate
+    from tools.experiment.study.flights import StudyFlight, fly_study_flight
 
     r = run_mimo(MIMO, "baseline", disturbances=(("seed", 1), ("turbulence", "light")))
-    study = simulate(StudyFlight("baseline", MIMO, "light", 1))
+    study = fly_study_flight(StudyFlight("baseline", MIMO, "light", 1))
     damage = fly_record(DamageFlight(MIMO, "baseline", NONE, None, 10.0, 1, 30.0, "light"))
     return r, study, damage
 
@@ -68,7 +66,7 @@ def test_the_siso_oscillation_is_out_in_process_and_in_the_damage_study():
     (run_inprocess at the stop, ``verdict``) and in the damage study's flight."""
     from autopilot.envelope import Envelope, verdict
     from tools.experiment.damage.flight import fly_record
-    from tools.experiment.damage.grid import Flight as DamageFlight
+    from tools.experiment.damage.grid import DamageFlight
     from tools.experiment.scenario import PAPER, run_inprocess, run_of
 
     sc = replace(PAPER, plant="jsbsim:c172x", duration_s=60.0, faults=("delay=0.06@10",), disturbances=(("seed", 1),))

@@ -186,12 +186,12 @@ def test_a_sideslip_setpoint_from_a_ground_station_is_clamped_to_the_envelope(va
 
 
 def test_the_monte_carlo_flies_the_mimo_plant_with_its_controllers():
-    from tools.experiment.study.flights import FlightOptions, simulate
+    from tools.experiment.study.flights import FlightOptions, fly_study_flight
 
     opts = FlightOptions("jsbsim:c172x:surface=aileron+rudder", turbulence=("none",), seeds=1)
     flights = opts.flights()
     assert [f.controller for f in flights] == ["sac", "clsac", "baseline"]  # pid-ff is not flown on it
-    r = simulate(flights[1])
+    r = fly_study_flight(flights[1])
     assert r["bounded"] and 0.0 < r["max_abs_sideslip"] < math.radians(10.0) and r["rudder_sat_fraction"] == 0.0
 
 

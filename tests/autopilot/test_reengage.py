@@ -5,11 +5,11 @@ Before, the envelope's tracking windows divided by their count of samples: a win
 flew no step (MANUAL or disarmed for more than 20 s) raised ZeroDivisionError, and the autopilot exited ("error:
 ZeroDivisionError: float division by zero") about 2 s after the ground station re-engaged the law.
 
-The autopilot here is the real ``autopilot.loop.Autopilot`` in this process: its lockstep frame handler
-(``_on_frame``: the control step, the envelope, the hooks) fed the KH2013A's roll (``sitl.Aircraft``, wrapped at
-+-180 deg as the SITL's ATTITUDE is), and the ground station's commands real MAVLink datagrams on its real UDP GCS
-link, read by its own handler.  The real-time flights with a pymavlink ground station are in
-tests/autopilot/test_vehicle.py.
+The autopilot here is the real ``autopilot.loop.Autopilot`` in this process: its lockstep scheduler's frame handler
+(``LockstepScheduler.on_frame``: the control step, the envelope, the hooks) fed the KH2013A's roll
+(``sitl.Aircraft``, wrapped at +-180 deg as the SITL's ATTITUDE is), and the ground station's commands real MAVLink
+datagrams on its real UDP GCS link, read by its own handler.  The real-time flights with a pymavlink ground station
+are in tests/autopilot/test_vehicle.py.
 """
 
 from __future__ import annotations
@@ -105,7 +105,7 @@ class Bench:
                 q = [math.cos(math.radians(deg) / 2), math.sin(math.radians(deg) / 2), 0.0, 0.0]
                 self.send(M.MAVLink_set_attitude_target_message(0, 1, 1, 71, q, 0, 0, 0, 0))
             x = self.plant.truth
-            self.ap._on_frame(k * 1000 // RATE, time.perf_counter(), wrap_pi(float(x[3])), float(x[0]), 0.0)
+            self.ap.scheduler.on_frame(k * 1000 // RATE, time.perf_counter(), wrap_pi(float(x[3])), float(x[0]), 0.0)
             assert len(self.results) == k + 1, "the step was not flown"
             self.plant.advance(self.results[-1].u, 1000 // RATE)
             self.k += 1

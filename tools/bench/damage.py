@@ -67,10 +67,10 @@ def _floor_task(task) -> dict:
 
 def floor_rate(plant: str, workers: int, seeds: int) -> float:
     """Flights per second of the plant alone, the study's tasks on ``workers`` local processes."""
-    from tools.experiment.damage.grid import Flight
+    from tools.experiment.damage.grid import DamageFlight
     from tools.experiment.study import execute
 
-    tasks = [Flight(plant, "clsac", k, v, 10.0, s) for s in range(1, seeds + 1) for k, v in FAULTS]
+    tasks = [DamageFlight(plant, "clsac", k, v, 10.0, s) for s in range(1, seeds + 1) for k, v in FAULTS]
     t0 = time.perf_counter()
     execute(tasks, None, None, workers, simulate=_floor_task)
     return len(tasks) / (time.perf_counter() - t0)
@@ -78,29 +78,29 @@ def floor_rate(plant: str, workers: int, seeds: int) -> float:
 
 def study_rate(plant: str, workers: int, seeds: int) -> float:
     """Flights per second of the damage study's tasks on ``workers`` local processes."""
-    from tools.experiment.damage.flight import simulate
-    from tools.experiment.damage.grid import Flight
+    from tools.experiment.damage.flight import run_damage_task
+    from tools.experiment.damage.grid import DamageFlight
     from tools.experiment.study import execute
 
-    tasks = [Flight(plant, "clsac", k, v, 10.0, s) for s in range(1, seeds + 1) for k, v in FAULTS]
+    tasks = [DamageFlight(plant, "clsac", k, v, 10.0, s) for s in range(1, seeds + 1) for k, v in FAULTS]
     t0 = time.perf_counter()
-    execute(tasks, None, None, workers, simulate=simulate)
+    execute(tasks, None, None, workers, simulate=run_damage_task)
     return len(tasks) / (time.perf_counter() - t0)
 
 
 def law_seconds(plant: str, controllers, seeds: int) -> dict[str, list[float]]:
     """{controller: seconds per flight}: the study's tasks (``FAULTS`` x ``seeds``) flown one at a time here
-    (``tools.experiment.damage.flight.simulate``), each timed alone, the controllers in turn on each task (a
+    (``tools.experiment.damage.flight.run_damage_task``), each timed alone, the controllers in turn on each task (a
     change of the machine's load falls on every law alike)."""
-    from tools.experiment.damage.flight import simulate
-    from tools.experiment.damage.grid import Flight
+    from tools.experiment.damage.flight import run_damage_task
+    from tools.experiment.damage.grid import DamageFlight
 
     out: dict[str, list[float]] = {c: [] for c in controllers}
     for s in range(1, seeds + 1):
         for k, v in FAULTS:
             for c in controllers:
                 t0 = time.perf_counter()
-                simulate(Flight(plant, c, k, v, 10.0, s))
+                run_damage_task(DamageFlight(plant, c, k, v, 10.0, s))
                 out[c].append(time.perf_counter() - t0)
     return out
 

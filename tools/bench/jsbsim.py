@@ -57,11 +57,11 @@ def bench_lockstep(runs: int, duration: float) -> list[float]:
 def bench_monte_carlo(workers: int, seeds: int) -> float:
     """Flights per second of the JSBSim Monte Carlo with ``workers`` local processes."""
     from tools.experiment.study import execute
-    from tools.experiment.study.flights import make_flights, simulate
+    from tools.experiment.study.flights import fly_study_flight, make_flights
 
     flights = make_flights("c172x", ["clsac"], [63.0, 117.0], ["none", "moderate"], seeds)
     t0 = time.perf_counter()
-    execute(flights, None, None, workers, simulate=simulate)
+    execute(flights, None, None, workers, simulate=fly_study_flight)
     return len(flights) / (time.perf_counter() - t0)
 
 

@@ -161,7 +161,7 @@ def fly(plant: str, controller: str, delay_ms: int, case: str = "nominal", gains
     )
 
 
-def simulate(case: Case) -> dict:
+def measure_margin(case: Case) -> dict:
     """One margin (picklable, for ``tools.experiment.study.execution.stream``): ``search`` over ``fly``."""
     reasons: dict[int, str] = {}
     t0 = time.perf_counter()
@@ -381,7 +381,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     try:
         cases = with_gains(cases)
         with interruptible() as stop:
-            for i, (c, r) in enumerate(stream(cases, None, workers, simulate, stop=stop), 1):
+            for i, (c, r) in enumerate(stream(cases, None, workers, measure_margin, stop=stop), 1):
                 results.append({"plant": c.plant, "controller": c.controller, "case": c.case, **r})
                 print(
                     f"[{i}/{len(cases)}] {c.plant} {c.controller} {c.case}: {_fmt(results[-1])} "

@@ -26,9 +26,9 @@ from tools.flight.profiles import Profile
 
 
 def launcher_pwm(u_limit_deg: float) -> tuple[PwmMap, PwmMap]:
-    """The two PWM maps a MIMO launch gives its processes (``tools.flight.config.child_argvs``: aileron on 1,
+    """The two PWM maps a MIMO launch gives its processes (``tools.flight.command_lines.child_argvs``: aileron on 1,
     rudder on 4, ``--rudder-max-deg max(30, limit)``)."""
-    from tools.flight.config import MIMO_CHANNELS, RUDDER_MAX_DEG
+    from tools.flight.command_lines import MIMO_CHANNELS, RUDDER_MAX_DEG
 
     span = math.radians(max(RUDDER_MAX_DEG, u_limit_deg))
     return PwmMap(1000, 2000, 1500, span, MIMO_CHANNELS[0]), PwmMap(1000, 2000, 1500, span, MIMO_CHANNELS[1])

@@ -76,10 +76,10 @@ def _load_inprocess() -> Runner:
 def _load_mavlink() -> Runner:
     """SITL + autopilot processes in lockstep, one ``tools.flight.Flight`` per run."""
     try:
-        from tools.flight import run_lockstep  # noqa: PLC0415  (lazy: pulls in pymavlink and processes)
+        from tools.flight import fly_run_over_mavlink  # noqa: PLC0415  (lazy: pulls in pymavlink and processes)
     except ImportError as exc:
         raise ExperimentError(f"transport 'mavlink' is not available: importing tools.flight failed: {exc}") from None
-    return run_lockstep
+    return fly_run_over_mavlink
 
 
 TRANSPORTS: dict[str, Callable[[], Runner]] = {

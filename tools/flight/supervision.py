@@ -1,6 +1,6 @@
 """``Flight``: one flight of the three processes, started, watched and ended (child supervision, the web
-server's lifetime), and ``FlightResult``, what it returns; ``run_lockstep``, the ``mavlink`` transport of
-experiments."""
+server's lifetime), and ``FlightResult``, what it returns; ``fly_run_over_mavlink``, the ``mavlink`` transport
+of experiments."""
 
 from __future__ import annotations
 
@@ -23,6 +23,7 @@ from autopilot.shared.process import (
     write_json_atomic,
 )
 from tools.flight.children import Child, cpu_times, free_udp_ports, machine_load, new_run_dir, stop_children
+from tools.flight.command_lines import _flight_key, child_argvs
 from tools.flight.config import (
     LIVE_RATE_HZ,
     LIVE_WINDOW_S,
@@ -30,8 +31,6 @@ from tools.flight.config import (
     PROFILES,
     FlightConfig,
     FlightConfigError,
-    _flight_key,
-    child_argvs,
 )
 from tools.flight.files import (
     STALE_FILES,
@@ -668,7 +667,7 @@ class Flight:
         return png
 
 
-def run_lockstep(scenario, run, workdir):
+def fly_run_over_mavlink(scenario, run, workdir):
     """Fly one RunSpec of a Scenario in lockstep over real processes and UDP; metrics from what flew.
 
     The ``mavlink`` transport of ``tools.experiment``: files go to ``workdir``; returns a

@@ -9,7 +9,7 @@
   faults starting together) are written once, merged, instead of on top of each other.
 
 and the axes' ticks (``nice_ticks``, ``tick_labels``) and plain ranges (``data_range``), as matplotlib chooses them.
-Plain numpy, no drawing: ``tools.view.flight_png`` draws what these say."""
+Plain numpy, no drawing: ``tools.view.plot_engine`` draws what these say."""
 
 from __future__ import annotations
 
@@ -41,7 +41,7 @@ def robust_range(values: list[np.ndarray]) -> tuple[float, float] | None:
 
     The bulk is the values between the PERCENTILES (all series together); when the full range of the finite values
     is more than SPIKE_RATIO times the bulk's, the range is the bulk's widened by ROBUST_PAD of it on each side (a
-    bulk of one value: +-5 % of it, +-0.05 at zero, as ``flight_png.data_range``)."""
+    bulk of one value: +-5 % of it, +-0.05 at zero, as ``data_range``)."""
     finite = [v[np.isfinite(v)] for v in values if v is not None]
     finite = np.concatenate([v for v in finite if v.size]) if any(v.size for v in finite) else np.empty(0)
     if finite.size < 2:

@@ -64,10 +64,10 @@ def test_bad_flags_exit_2_with_one_line(tmp_path):
 @pytest.mark.e2e
 def test_the_baseline_margin_on_the_kh2013a_against_flights_flown_separately(tmp_path):
     """The command's margin for the PID on the KH2013A (a 50 ms grid to 300 ms, bisected to 1 ms); then the flights
-    at margin - 1, margin and margin + 1 ms flown as the damage study flies them (its Flight task, kind delay at 0 s,
-    still air): the first two controlled, the third not."""
+    at margin - 1, margin and margin + 1 ms flown as the damage study flies them (its DamageFlight task, kind delay at
+    0 s, still air): the first two controlled, the third not."""
     from tools.experiment.damage.flight import fly_record
-    from tools.experiment.damage.grid import Flight
+    from tools.experiment.damage.grid import DamageFlight
 
     out = tmp_path / "m"
     r = subprocess.run(
@@ -84,7 +84,8 @@ def test_the_baseline_margin_on_the_kh2013a_against_flights_flown_separately(tmp
     ms = round(m * 1000)
 
     def controlled(d_ms):
-        return fly_record(Flight("kh2013a", "baseline", "delay", d_ms / 1000.0, 0.0, 1, 30.0, "none"))["controlled"]
+        flight = DamageFlight("kh2013a", "baseline", "delay", d_ms / 1000.0, 0.0, 1, 30.0, "none")
+        return fly_record(flight)["controlled"]
 
     assert controlled(ms - 1) and controlled(ms)
     assert not controlled(ms + 1)

@@ -12,7 +12,7 @@ from PIL import Image
 
 from tests._mavlink_procs import run_cli
 from tools.flight import Flight, FlightConfigError
-from tools.view.flight_png import C_FAULT
+from tools.view.plot_engine import C_FAULT
 
 pytestmark = pytest.mark.e2e
 

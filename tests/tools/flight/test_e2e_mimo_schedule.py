@@ -68,7 +68,8 @@ def _swap(argv: list[str], flag: str, value: str) -> None:
 
 
 def _flight(out: Path, drop: float, seed: int) -> dict:
-    from tools.flight.config import FlightConfig, child_argvs
+    from tools.flight.command_lines import child_argvs
+    from tools.flight.config import FlightConfig
 
     out.mkdir(parents=True)
     csv = out / "profile.csv"

@@ -2,7 +2,7 @@
 
 * a short lockstep flight: result, metrics equal to summary.json's, series of the right length;
 * a long flight left early from its ``with`` block: valid summary.json, tlog and flight.rrd, no process left;
-* the experiment's mavlink transport (``run_lockstep``) against the in-process loop with the wire model;
+* the experiment's mavlink transport (``fly_run_over_mavlink``) against the in-process loop with the wire model;
 * bad keywords (``FlightConfigError`` naming the value, TypeError naming unknown ones);
 * ``Profile``, the command profile every flight flies, against the plain profile functions.
 """
@@ -23,7 +23,7 @@ from autopilot.shared.pwm import PwmMap
 from autopilot.shared.tlog import packet_ids, read_tlog
 from tests._mavlink_procs import mavlink
 from tools.experiment.scenario import PAPER_RUNS, Scenario, run_inprocess
-from tools.flight import Flight, FlightConfigError, profiles, run_lockstep
+from tools.flight import Flight, FlightConfigError, fly_run_over_mavlink, profiles
 from tools.flight.profiles import Profile, ProfileError
 from tools.view import rrd_files as rrd
 
@@ -146,7 +146,7 @@ def test_leaving_the_with_block_stops_the_flight_and_leaves_valid_files(tmp_path
 @pytest.mark.e2e
 def test_experiment_transport_flies_the_scenario_like_the_wire_model(tmp_path):
     scenario, run = Scenario(duration_s=2.0), PAPER_RUNS[1]
-    res = run_lockstep(scenario, run, tmp_path / run.name)
+    res = fly_run_over_mavlink(scenario, run, tmp_path / run.name)
     assert res.name == "clsac" and res.lv == 20.0
     expected = run_inprocess(scenario, run, wire=PwmMap())
     for key in METRIC_NAMES:

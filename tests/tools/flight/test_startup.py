@@ -75,8 +75,8 @@ def test_the_picture_helper_does_not_import_the_launcher_nor_matplotlib(tmp_path
     start; the renderer only reads its font file): after its warm-up, and after drawing a picture."""
     _series(tmp_path)
     seen = (
-        "print(sorted(m for m in ('tools.flight.config', 'tools.flight.supervision', 'rerun', 'tools.launch', "
-        "'tools.experiment.scenario') if m in sys.modules), "
+        "print(sorted(m for m in ('tools.flight.config', 'tools.flight.command_lines', 'tools.flight.supervision', "
+        "'rerun', 'tools.launch', 'tools.experiment.scenario') if m in sys.modules), "
         "sorted({m.split('.')[0] for m in sys.modules} & {'matplotlib', 'PIL', 'numpy'}), "
         "'tools.view.flight_png' in sys.modules)\n"
     )

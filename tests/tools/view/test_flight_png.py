@@ -1,10 +1,10 @@
-"""flight.png drawn with Pillow (``tools.view.flight_png``), checked on the picture read back, against what is known of
-the
-flight drawn, not against the renderer's own numbers: the panels' frames, grid lines and tick labels are found in the
-pixels (a label is read by matching it with the digits drawn in the same font), and a series of known value must lie
-where the grid lines and their labels put that value; each series' colour is in its panel only when the flight has
-the series; a missing one is said; a mode switch is marked at its time; NaN and infinite values leave gaps, not a
-crash; no series, no picture.  In this process, no children: each picture takes a few tens of milliseconds."""
+"""flight.png drawn with Pillow (``tools.view.flight_png`` on ``tools.view.plot_engine``), checked on the picture read
+back, against what is known of the flight drawn, not against the renderer's own numbers: the panels' frames, grid
+lines and tick labels are found in the pixels (a label is read by matching it with the digits drawn in the same
+font), and a series of known value must lie where the grid lines and their labels put that value; each series' colour
+is in its panel only when the flight has the series; a missing one is said; a mode switch is marked at its time; NaN
+and infinite values leave gaps, not a crash; no series, no picture. In this process, no children: each picture takes
+a few tens of milliseconds."""
 
 from __future__ import annotations
 
@@ -14,15 +14,16 @@ import numpy as np
 import pytest
 from PIL import Image, ImageColor, ImageDraw, ImageFont
 
-from tools.view import flight_png
+from tools.view import flight_png, plot_engine
 from tools.view.flight_picture import draw_flight_png
-from tools.view.flight_png import flight_image, nice_ticks
+from tools.view.flight_png import flight_image
+from tools.view.flight_scales import nice_ticks
 
 N = 3001  # a 30 s flight at 100 Hz
 DEG = math.pi / 180.0
 T = np.arange(N) / 100.0
 SQUARE = np.where((T // 5) % 2 == 0, 1.0, -1.0)  # +1 for 5 s, -1 for 5 s, ...
-GRID = ImageColor.getrgb(flight_png.C_GRID)
+GRID = ImageColor.getrgb(plot_engine.C_GRID)
 
 
 def _series(**over) -> dict:
@@ -88,7 +89,7 @@ def _solid(px: np.ndarray, color: str, run: int = 8) -> np.ndarray:
 def digits():
     """The labels a tick may have in these flights, drawn in DejaVu at the tick labels' size as black masks: right
     aligned (a y axis's labels) and centred (the time axis's), as the glyphs' places in a label depend on it."""
-    font = ImageFont.truetype(flight_png.font_file(), flight_png.PT_TICK * flight_png.PX)
+    font = ImageFont.truetype(plot_engine.font_file(), plot_engine.PT_TICK * plot_engine.PX)
     masks = {"rm": {}, "mt": {}}
     for v in np.arange(-40, 40.5, 0.5):
         for s in {f"{v:.1f}", f"{v:.0f}" if v == int(v) else f"{v:.1f}"}:
@@ -253,7 +254,7 @@ def test_a_mode_switch_is_a_dotted_line_at_its_time_in_every_panel_with_its_name
     for _, top, _, bottom in frames:
         dotted = []
         for img in (px, plain):
-            strip = _coverage(img[top + 1 : bottom, int(col) - 1 : int(col) + 3], flight_png.C_MARK)
+            strip = _coverage(img[top + 1 : bottom, int(col) - 1 : int(col) + 3], plot_engine.C_MARK)
             dotted.append(int((strip.max(axis=1) > 0.4).sum()))  # rows with a dot (other lines cross it too)
         assert dotted[0] - dotted[1] > 0.3 * (bottom - top), (top, dotted)
     top = frames[0][1]
@@ -392,7 +393,7 @@ def test_mode_lines_go_under_the_legend():
     left, top, right, bottom = _frames(px)[0]
     col = int(round(left + (t_switch - (-1.5)) / 33.0 * (right - left)))  # data range 0-30 s, padded 5 %
     box = px[top + 14 : top + 20, col - 3 : col + 4]  # a band inside the legend box, between two entries
-    assert _coverage(box, flight_png.C_MARK).max() < 0.2
+    assert _coverage(box, plot_engine.C_MARK).max() < 0.2
 
 
 def test_mode_names_stay_by_their_lines_and_inside_the_picture():
@@ -430,12 +431,12 @@ def test_a_rudder_that_touched_its_limit_is_never_said_to_be_there_0_percent_of_
     (17.5 deg, not 18)."""
     u = np.where(np.arange(N) < share * N, 17.5 * DEG, 0.0)
     notes = []
-    original = flight_png._note_box
+    original = plot_engine._note_box
     try:
-        flight_png._note_box = lambda c, ax, lines: notes.extend(lines)
+        plot_engine._note_box = lambda c, ax, lines: notes.extend(lines)
         flight_image(_series(u=u), name="x", lv=20.0, metrics={}, u_limit_rad=17.5 * DEG, title="t")
     finally:
-        flight_png._note_box = original
+        plot_engine._note_box = original
     assert f"rudder at the 17.5 deg limit {said} of the time" in notes, notes
 
 
@@ -444,20 +445,20 @@ def test_odd_values_are_drawn_and_said_not_crashed_on():
     error), a roll with no finite value ("max|φ|=n/a", not 0) and a blown-up one (1e30 rad: three digits, not 31)."""
     _draw(_series(ke=np.array([0.0, 5e-324] * (N // 2) + [0.0])))
     notes = []
-    original = flight_png._note_box
+    original = plot_engine._note_box
     try:
-        flight_png._note_box = lambda c, ax, lines: notes.extend(lines)
+        plot_engine._note_box = lambda c, ax, lines: notes.extend(lines)
         for phi in (np.full(N, np.nan), np.full(N, 1e30)):
             flight_image(_series(phi=phi), name="x", lv=20.0, metrics={"ise_ref": 1.0}, u_limit_rad=0.5, title="t")
     finally:
-        flight_png._note_box = original
+        plot_engine._note_box = original
     assert notes[0] == "ise_ref=1 rad²s, max|φ|=n/a" and notes[1] == "ise_ref=1 rad²s, max|φ|=5.73e+31 deg", notes
 
 
 # ---------------------------------------------------------------------------------------- issue 35: what a user sees
 def _text_mask(s: str, pt: float, rotate: bool = False, ink: int = 90) -> np.ndarray:
     """``s`` drawn alone in DejaVu at ``pt`` points (read upwards if ``rotate``), as the ink a reader sees."""
-    font = ImageFont.truetype(flight_png.font_file(), pt * flight_png.PX)
+    font = ImageFont.truetype(plot_engine.font_file(), pt * plot_engine.PX)
     img = Image.new("L", (int(font.getlength(s)) + 40, 60), 0)
     ImageDraw.Draw(img).text((20, 30), s, font=font, fill=255, anchor="lm")
     if rotate:
@@ -502,9 +503,9 @@ def test_gain_spikes_are_clipped_and_marked_not_flattening_the_panel(digits):
     ke = np.full(N, 0.1)
     ke[1500:1503] = 330.0
     notes = []
-    original = flight_png._note_box
+    original = plot_engine._note_box
     try:
-        flight_png._note_box = lambda c, ax, lines: (notes.extend(lines), original(c, ax, lines))
+        plot_engine._note_box = lambda c, ax, lines: (notes.extend(lines), original(c, ax, lines))
         px = _draw(_series(ke=ke))
         frames = _frames(px)
         left, top, right, bottom = frames[2]
@@ -526,7 +527,7 @@ def test_gain_spikes_are_clipped_and_marked_not_flattening_the_panel(digits):
         )
         assert rows.max() - rows.min() > 0.75 * (bottom - top) and not any("clipped" in s for s in notes), notes
     finally:
-        flight_png._note_box = original
+        plot_engine._note_box = original
 
 
 def test_fault_labels_that_fall_together_are_merged_not_drawn_over_each_other(digits):
@@ -551,8 +552,8 @@ def test_fault_labels_that_fall_together_are_merged_not_drawn_over_each_other(di
     names = ", ".join(s for _, s in faults[:8])
     for t0, texts in ((12.0, (names, "fault stuck=1 (+7 more)")), (20.0, ("end stuck=3",))):
         col = math.floor(_at(x, t0))
-        ink = _crop(_coverage(px[top + 1 : bottom, col - 20 : col], flight_png.C_FAULT) > 0.35)
-        best = max(_iou(ink, _text_mask(s, flight_png.PT_MODE, rotate=True)) for s in texts)
+        ink = _crop(_coverage(px[top + 1 : bottom, col - 20 : col], plot_engine.C_FAULT) > 0.35)
+        best = max(_iou(ink, _text_mask(s, plot_engine.PT_MODE, rotate=True)) for s in texts)
         assert best > 0.8, (t0, best, ink.shape)
 
 
@@ -571,4 +572,4 @@ def test_a_mimo_flights_title_names_both_surfaces(tmp_path):
     px = np.asarray(Image.open(png).convert("RGB")).astype(int)
     ink = _crop(px[5:45].mean(axis=-1) < 128)
     title = "Flight run-mimo: clsac on c172x-aileron+rudder (aileron and rudder), lockstep, 100 Hz"
-    assert _iou(ink, _text_mask(title, flight_png.PT_SUPTITLE, ink=127)) > 0.8
+    assert _iou(ink, _text_mask(title, plot_engine.PT_SUPTITLE, ink=127)) > 0.8

@@ -78,7 +78,8 @@ def _same_recording(a: Path, b: Path) -> None:
 @pytest.fixture(scope="module")
 def spooled_flight(tmp_path_factory) -> dict:
     """A real 20 s lockstep flight whose autopilot and SITL spool their rows (the launcher's command lines)."""
-    from tools.flight.config import FlightConfig, child_argvs
+    from tools.flight.command_lines import child_argvs
+    from tools.flight.config import FlightConfig
 
     out = tmp_path_factory.mktemp("spooled")
     cfg = FlightConfig(lockstep=True, duration=20.0, out=out, quiet=True, png=False, signing=False)

@@ -1,6 +1,7 @@
-"""One task of the damage study, flown or designed in a worker (``simulate``: picklable, a function of the task only).
+"""One task of the damage study, flown or designed in a worker (``run_damage_task``: picklable, a function of the
+task only).
 
-A :class:`~tools.experiment.damage.grid.Flight` is the reference scenario's square wave (``PAPER``: +-10 deg,
+A :class:`~tools.experiment.damage.grid.DamageFlight` is the reference scenario's square wave (``PAPER``: +-10 deg,
 period 10 s) flown in-process (``tools.experiment.scenario.run_inprocess``: the control step and the plant in one
 process, faults flown as the SITL flies ``--fault``) for ``duration`` s on the plant, with the fault from its
 onset, in turbulence seeded by the flight's seed.  Its record: the verdict (``autopilot.envelope.judge_series``
@@ -31,8 +32,8 @@ from tools.experiment.damage.grid import (
     RETUNED,
     ROBUST,
     Calibration,
+    DamageFlight,
     Design,
-    Flight,
     effect_of,
     fault_of,
 )
@@ -66,7 +67,7 @@ def disturbances(turbulence: str, seed: int) -> tuple:
     return (("seed", int(seed)),) + ((("turbulence", turbulence),) if turbulence != "none" else ())
 
 
-def fly(task: Flight):
+def fly(task: DamageFlight):
     """The flight's ``RunResult`` and its scenario."""
     from tools.experiment.scenario import run_inprocess
 
@@ -146,7 +147,7 @@ def _roll_surface(plant: str) -> str:
     return plants.spec(plant).surfaces[0]
 
 
-def fly_record(task: Flight) -> dict:
+def fly_record(task: DamageFlight) -> dict:
     if plants.spec(task.plant).mimo:
         return fly_record_mimo(task)
     res, scen = fly(task)
@@ -156,7 +157,7 @@ def fly_record(task: Flight) -> dict:
     )  # fmt: skip
 
 
-def fly_record_mimo(task: Flight) -> dict:
+def fly_record_mimo(task: DamageFlight) -> dict:
     """A square MIMO plant's flight (``tools.experiment.mimo_inprocess.run_mimo``, bit for bit the lockstep MAVLink
     flight): the same square wave, fault, onset and turbulence; the fault acts on the first surface, the aileron
     (``sitl.damage.ScheduledEffects`` on the aileron's command, effectiveness on its control derivatives), the
@@ -249,9 +250,9 @@ def calibrate(task: Calibration) -> dict:
     }
 
 
-def simulate(task) -> dict:
+def run_damage_task(task) -> dict:
     """The task function of ``tools.experiment.study.execute``: a flight's record, a design or a calibration."""
-    if isinstance(task, Flight):
+    if isinstance(task, DamageFlight):
         return fly_record(task)
     if isinstance(task, Design):
         return design(task)

@@ -1,7 +1,7 @@
 """The damage study's axes and its tasks: fault kind x severity x onset x seed x controller, per plant.  No I/O.
 
-A flight is :class:`Flight` (one task of ``tools.experiment.study.execute``); what it needs designed first (the PID
-retuned for a faulted plant, the PID scaled to CL-SAC's energy) are the tasks :class:`Design` and
+A flight is :class:`DamageFlight` (one task of ``tools.experiment.study.execute``); what it needs designed first (the
+PID retuned for a faulted plant, the PID scaled to CL-SAC's energy) are the tasks :class:`Design` and
 :class:`Calibration`, flown before the flights that use them.  Every task is a frozen dataclass of plain values: a
 result depends on the task only, never on the worker or the order, so a Dask cluster gives a local run's numbers.
 """
@@ -116,7 +116,7 @@ class DamageError(ValueError):
 
 
 @dataclass(frozen=True)
-class Flight:
+class DamageFlight:
     """One flight: ``plant``, ``controller`` (``CONTROLLERS``), the fault ``kind`` (``NONE``: none) of ``value``
     (command-line units; None: a kind without one, ``stuck`` where it is) from ``onset`` s, the disturbance
     ``seed`` and ``turbulence``, ``duration`` s; ``gains`` and ``schedule`` are what the study designed for the
@@ -221,7 +221,7 @@ def make_flights(
     runs: int,
     duration: float,
     turbulence: str,
-) -> list[Flight]:
+) -> list[DamageFlight]:
     """Every flight of the study, without the designed gains (``with_designs`` adds them): per plant, controller
     and seed the fault-free flight, and per fault cell and onset one faulted flight (a controller the plant does
     not fly, ``controller_refusals``, flies none)."""
@@ -232,10 +232,10 @@ def make_flights(
             if c in refused:
                 continue
             for s in seeds(seed, runs):
-                out.append(Flight(p, c, NONE, None, float(onsets[0]), s, duration, turbulence))
+                out.append(DamageFlight(p, c, NONE, None, float(onsets[0]), s, duration, turbulence))
                 for kind, value in cells_by_plant[p]:
                     for t in onsets:
-                        out.append(Flight(p, c, kind, value, float(t), s, duration, turbulence))
+                        out.append(DamageFlight(p, c, kind, value, float(t), s, duration, turbulence))
     return out
 
 
@@ -252,7 +252,7 @@ def designs_needed(flights) -> list:
     return list(need)
 
 
-def with_designs(flights, designed: dict) -> list[Flight]:
+def with_designs(flights, designed: dict) -> list[DamageFlight]:
     """The flights with their designed gains: ``designed`` maps each Design to (KP, KI, KD) and each Calibration to
     the gains it scaled.  The retuned PID flies the design of the plant as built until the onset, then the design
     of the faulted plant (a perfect gain schedule: it knows the fault the moment it happens); for a fault that is

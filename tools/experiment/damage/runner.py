@@ -9,7 +9,7 @@ from pathlib import Path
 
 from tools.experiment.damage import grid
 from tools.experiment.damage.aggregate import paired_list, summarise
-from tools.experiment.damage.flight import simulate
+from tools.experiment.damage.flight import run_damage_task
 
 
 @dataclass(frozen=True)
@@ -44,7 +44,7 @@ class Study:
             n += len(flown) * self.runs * (1 + len(cells[p]) * len(self.onsets))
         return n
 
-    def flights(self) -> list[grid.Flight]:
+    def flights(self) -> list[grid.DamageFlight]:
         cells, _ = self.cells()
         return grid.make_flights(
             self.plants, self.controllers, cells, self.onsets, self.seed, self.runs, self.duration, self.turbulence
@@ -72,12 +72,12 @@ def run(
     progress: bool = True,
     log=print,
     stop=None,
-    simulate=simulate,
+    simulate=run_damage_task,
 ) -> dict:
     """Fly the study; its ``summary.json`` document (``write`` puts it on disk).  ``stop`` set (SIGINT,
     ``tools.experiment.study.execution.interruptible``) or an error after the first flight: the flights done so far,
     ``partial`` True, ``done`` {flights, of} and ``error`` (the error's line, if one stopped it).  ``simulate``: the
-    task function (``tools.experiment.damage.flight.simulate``)."""
+    task function (``tools.experiment.damage.flight.run_damage_task``)."""
     from tools.experiment.study import Progress
     from tools.experiment.study.execution import stream
 
@@ -103,7 +103,7 @@ def run(
                 done[t] = r
                 bar.add(1)
     except Exception as exc:  # after the first flight, what was flown is kept (a partial summary)
-        if not any(isinstance(t, grid.Flight) for t in done):
+        if not any(isinstance(t, grid.DamageFlight) for t in done):
             raise
         error = f"{type(exc).__name__}: {exc}".strip().splitlines()[0]
     finally:

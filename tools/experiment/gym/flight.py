@@ -34,7 +34,7 @@ from sitl import plant as plants
 from sitl.disturbances import FLAGS
 
 DEG = math.pi / 180.0
-RUDDER_MAX_DEG = 30.0  # the servo calibration's full deflection (tools.flight.config.RUDDER_MAX_DEG)
+RUDDER_MAX_DEG = 30.0  # the servo calibration's full deflection (tools.flight.command_lines.RUDDER_MAX_DEG)
 U_LIMIT_RAD = RUDDER_MAX_DEG * DEG  # the reference scenario's command limit (tools.experiment.scenario.PAPER)
 # The reference model y_m,ol the reward and ise_ref track (paper sec. 5.1: A_m = -5, B_m = 5, C_m = 1; the same in
 # autopilot.config.ClSacConfig and autopilot.baseline.BaselineConfig): the command filtered by 1/(0.2 s + 1).

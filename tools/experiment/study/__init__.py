@@ -77,6 +77,7 @@ from tools.experiment.study.cli import (
     replay_main,
 )
 from tools.experiment.study.execution import Progress, execute, interruptible, merge, stream
+from tools.experiment.study.inputs import CANONICAL_BITS, DRYDEN_COLUMN_SIGNS, canonical
 from tools.experiment.study.report import format_breaks, format_long, format_table, save_figure, save_worst_rrd
 from tools.experiment.study.runner import run_study
 from tools.experiment.study.sampling import (
@@ -100,7 +101,7 @@ from tools.experiment.study.sampling import (
     make_tasks,
     sweep_conditions,
 )
-from tools.experiment.study.simulation import CANONICAL_BITS, DRYDEN_COLUMN_SIGNS, canonical, replay, simulate
+from tools.experiment.study.simulation import replay, simulate
 
 __all__ = [
     "BLOCK",

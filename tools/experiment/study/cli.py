@@ -160,7 +160,7 @@ def split_plants(text: str | None) -> list[str]:
     """The --plant list: comma-separated, a JSBSim spec keeping its own KEY=VALUE pairs (``jsbsim:c172x:
     airspeed_kt=60,surface=rudder,kh2013a`` is two plants)."""
     if text is None:
-        return ["kh2013a"]
+        return [plants.KH2013A]
     out: list[str] = []
     for piece in _names(text, "plant"):
         if out and plants.kind_of(out[-1]).keyed and re.fullmatch(r"[a-z_]+=[^:]*", piece):
@@ -190,7 +190,7 @@ def plan_from_args(args) -> list[tuple[str, object]]:
     """(plant, its study's options) for each --plant, every flag checked against the plants it applies to."""
     texts = split_plants(args.plant)
     for text in texts:
-        if text != "kh2013a":
+        if not _batched(text):
             try:
                 plants.check(text)
             except plants.PlantError as exc:
@@ -203,22 +203,24 @@ def plan_from_args(args) -> list[tuple[str, object]]:
     # configuration: pid-ff): a registered one, or a user's (FILE.py:Class, module:Class); an unknown name is the
     # batched study's to refuse
     unbatched = tuple(c for c in controllers or () if not _batched(c) and (c in controllers_of or ":" in c))
-    if unbatched and "kh2013a" in texts:
+    batched_plant = next((t for t in texts if _batched_plant(t)), None)  # the KH2013A: the batched study's plant
+    if unbatched and batched_plant is not None:
         # The KH2013A's batched study flies the laws of its kernel; any other law (mrac, l1, indi, a user's own)
         # flies the generic loop, one in-process flight at a time, bit for bit its lockstep flight
         # (tools.experiment.scenario.run_inprocess), as a JSBSim aircraft's or a plant file's study does.
-        i = texts.index("kh2013a")
-        texts = [*texts[:i], *(["kh2013a"] if len(unbatched) < len(controllers) else []), GENERIC, *texts[i + 1 :]]
+        i = texts.index(batched_plant)
+        texts = [*texts[:i], *([batched_plant] if len(unbatched) < len(controllers) else []), GENERIC, *texts[i + 1 :]]
     batched = None if controllers is None else tuple(c for c in controllers if c not in unbatched)
-    scalar = [t for t in texts if t != "kh2013a"]
+    scalar = [t for t in texts if not _batched(t)]
+    batched_given = any(_batched(t) for t in texts)
     given = {k for k in (*KH2013A_FLAGS, *FLIGHT_FLAGS) if getattr(args, k) is not None}
     for k in KH2013A_FLAGS:
-        if k in given and "kh2013a" not in texts and GENERIC in texts:
+        if k in given and not batched_given and GENERIC in texts:
             raise StudyError(
                 f"--{k.replace('_', '-')} applies to the KH2013A's batched study: {', '.join(unbatched)} "
                 "(no batch form) fly --seeds flights per --turbulence level, one in-process flight at a time"
             )
-        if k in given and "kh2013a" not in texts:
+        if k in given and not batched_given:
             raise StudyError(
                 f"--{k.replace('_', '-')} applies to --plant kh2013a only (a JSBSim aircraft or plant file flies "
                 "--seeds flights per --turbulence level and airspeed)"
@@ -237,7 +239,7 @@ def plan_from_args(args) -> list[tuple[str, object]]:
     if "airspeeds" in given and not any(plants.kind_of(t).own_atmosphere for t in texts):
         raise StudyError("--airspeeds applies to a JSBSim aircraft (--plant jsbsim:MODEL) only")
     for text in texts:
-        if text == "kh2013a":
+        if _batched(text):
             kw = {k: getattr(args, k) for k in ("runs", "sweep_runs", "long_runs", "chunk") if k in given}
             if args.fault:
                 study_faults.check(args.fault)
@@ -288,12 +290,24 @@ def _batched(name: str) -> bool:
     return name in registry.ROBUSTNESS and registry.studied(name).batch_form() is not None
 
 
+def _batched_plant(text: str) -> bool:
+    """The plant the batched study (numpy and ``kernel.c``) flies, by its kind's record (the KH2013A); not GENERIC."""
+    return text != GENERIC and plants.kind_of(text).batched
+
+
 def _generic_plan(args, names: tuple[str, ...], seed: int, plan: list) -> None:
     """The KH2013A flown by the laws without a batch form: ``flights.FlightOptions`` on kh2013a (the turbulence
     levels of --turbulence, default none and moderate; --seeds flights each, default 3)."""
     turbulence = _names(args.turbulence, "turbulence") or ("none", "moderate")
     opts = flights.FlightOptions(
-        "kh2013a", names, turbulence, 3 if args.seeds is None else args.seeds, seed, None, args.workers, args.scheduler
+        plants.KH2013A,
+        names,
+        turbulence,
+        3 if args.seeds is None else args.seeds,
+        seed,
+        None,
+        args.workers,
+        args.scheduler,
     )
     flights.check(opts)
     plan.append((GENERIC, opts))
@@ -302,7 +316,7 @@ def _generic_plan(args, names: tuple[str, ...], seed: int, plan: list) -> None:
 def options_from_args(args) -> StudyOptions:
     """The KH2013A study's options (``--plant kh2013a``)."""
     for text, opts in plan_from_args(args):
-        if text == "kh2013a":
+        if _batched(text):
             return opts
     raise StudyError("--plant does not name kh2013a")
 

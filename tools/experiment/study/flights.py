@@ -43,7 +43,7 @@ RECORD_BYTES = 2000  # a flight's record in summary.json's table, about
 
 
 @dataclass(frozen=True)
-class Flight:
+class StudyFlight:
     """One flight: ``runs`` (one) is what ``Progress`` counts; ``condition`` its cell's key."""
 
     controller: str
@@ -61,7 +61,7 @@ class Flight:
         return self.turbulence if self.airspeed_kt is None else f"{self.airspeed_kt:g}kt_{self.turbulence}"
 
 
-def simulate(task: Flight) -> dict:
+def fly_study_flight(task: StudyFlight) -> dict:
     """The flight's metrics, max |roll| (rad), saturated fraction and ``bounded`` (picklable: runs in a worker)."""
     from sitl import plant as plants
     from tools.experiment.scenario import PAPER, run_inprocess, run_of
@@ -93,9 +93,9 @@ def _judged(out: dict, c: dict) -> dict:
 MIMO_CONTROLLERS = ("sac", "clsac", "baseline")  # the controllers a square MIMO plant flies (autopilot.mimo)
 
 
-def _simulate_mimo(task: Flight, dist, limit: float) -> dict:
-    """``simulate`` on a square MIMO plant: ``tools.experiment.mimo_inprocess.run_mimo`` (bit for bit its lockstep
-    flight), judged as the launcher judges it (the roll channel, the rudder's saturation, the sideslip), the
+def _simulate_mimo(task: StudyFlight, dist, limit: float) -> dict:
+    """``fly_study_flight`` on a square MIMO plant: ``tools.experiment.mimo_inprocess.run_mimo`` (bit for bit its
+    lockstep flight), judged as the launcher judges it (the roll channel, the rudder's saturation, the sideslip), the
     sideslip's max |beta| (rad) beside."""
     from tools.experiment.mimo_inprocess import run_mimo
 
@@ -145,26 +145,26 @@ class FlightOptions:
             speeds = [(with_airspeed(self.plant, v), float(v)) for v in self.airspeeds_kt]
         return [(text, v, t) for text, v in speeds for t in self.turbulence]
 
-    def flights(self) -> list[Flight]:
+    def flights(self) -> list[StudyFlight]:
         """Every flight, controller by controller, condition by condition, seed by seed (a square MIMO plant: the
         controllers it flies, ``MIMO_CONTROLLERS``)."""
         mimo = plants.spec(self.plant).mimo
         names = [c for c in self.controllers if not mimo or c in MIMO_CONTROLLERS]
         return [
-            Flight(c, text, t, self.seed * SEED_STRIDE + i, v)
+            StudyFlight(c, text, t, self.seed * SEED_STRIDE + i, v)
             for c in names
             for text, v, t in self.conditions()
             for i in range(self.seeds)
         ]
 
 
-def make_flights(model: str, controllers, airspeeds, turbulence, seeds: int) -> list[Flight]:
+def make_flights(model: str, controllers, airspeeds, turbulence, seeds: int) -> list[StudyFlight]:
     """The flights of ``jsbsim:MODEL`` at ``airspeeds`` (kt) in ``turbulence``, ``seeds`` each."""
     opts = FlightOptions(f"jsbsim:{model}", tuple(controllers), tuple(turbulence), seeds, 0, tuple(airspeeds))
     return opts.flights()
 
 
-def summarise(flights: Sequence[Flight], results: Sequence[dict]) -> dict:
+def summarise(flights: Sequence[StudyFlight], results: Sequence[dict]) -> dict:
     """Per controller and condition: median ise_ref and energy, the share bounded with its Wilson 95 % interval,
     and every flight's record."""
     table: dict[str, dict[str, dict]] = {}
@@ -241,11 +241,11 @@ def fly(opts: FlightOptions, *, log=print, progress: bool = True, stop: threadin
         f"flights = {len(flights)} in-process flights of 30 s on {where}"
     )
     bar = Progress(len(flights), "30 s flights", enabled=progress, unit="flights")
-    done: list[tuple[Flight, dict]] = []
+    done: list[tuple[StudyFlight, dict]] = []
     t0 = time.perf_counter()
     error = None
     try:  # an error after the first flight keeps the flights flown (partial, with the error's line)
-        for f, r in stream(flights[:1], simulate=simulate, stop=stop):
+        for f, r in stream(flights[:1], simulate=fly_study_flight, stop=stop):
             done.append((f, r))
             bar.add(1)
         if done:
@@ -262,7 +262,7 @@ def fly(opts: FlightOptions, *, log=print, progress: bool = True, stop: threadin
                 f"({first:.2f} s for the first flight); memory about "
                 f"{_mb(_rss_bytes() + RECORD_BYTES * len(flights))} here; Ctrl-C stops and keeps what is done"
             )
-            for f, r in stream(flights[1:], opts.scheduler, opts.workers, simulate, stop=stop, client=client):
+            for f, r in stream(flights[1:], opts.scheduler, opts.workers, fly_study_flight, stop=stop, client=client):
                 done.append((f, r))
                 bar.add(1)
     except Exception as exc:
@@ -321,7 +321,7 @@ def check(opts: FlightOptions) -> None:
                 f"{', '.join(controllers.NAMES)}, or a law of your own, FILE.py:Class)"
             ) from None
         law = controllers.get(c).kind
-        if law.generic and law.design and opts.plant != "kh2013a" and not plants.spec(opts.plant).mimo:
+        if law.generic and law.design and not plants.spec(opts.plant).paper and not plants.spec(opts.plant).mimo:
             from tools.design.linearise import designed_law_params
 
             if designed_law_params(opts.plant, law.design) is None:

@@ -1,5 +1,5 @@
-/* The study's control steps in C (tools/experiment/study/native.py builds and loads this file; tools/experiment/study/simulation.py
- * is the reference it must equal bit for bit).
+/* The study's control steps in C (tools/experiment/study/native.py builds and loads this file, kernel_steps.py fills its
+ * Batch; tools/experiment/study/numpy_steps.py is the reference it must equal bit for bit).
  *
  * One call flies steps k0 .. k0 + m - 1 of every run of a batch: the sensor (delay, bias, noise), the link
  * (ATTITUDE and SERVO_OUTPUT_RAW lost with probability p), the law (CL-SAC: ClSac._step_siso, paper eqs. (6),
@@ -49,7 +49,7 @@ typedef struct {
     double *acc;        /* (7, n) */
     double *wmax;       /* (n,) */
     double *peaks;      /* (n, npeaks) */
-    /* the series (record), or NULL: (22, steps, n) in simulation._record's order */
+    /* the series (record), or NULL: (22, steps, n) in numpy_steps._record's order */
     double *rec;
     /* tracking (autopilot.envelope.window_flags): blocks of tblock steps, windows of tblocks blocks; the open
      * block's sums of y_r^2, phi y_r, (phi - y_r)^2, stop hits and regular swings (5, n), the ring of the last
@@ -303,7 +303,7 @@ void study_steps(const Batch *b, int64_t k0, int64_t m, const double *z_all) {
             }
             const int sat_k = !(fabs(u) < b->sat_lim); /* autopilot.envelope.saturated */
             a_sat += sat_k ? 1.0 : 0.0;
-            { /* tracking: simulation._close_block, autopilot.envelope.stop_hit and window_flags */
+            { /* tracking: numpy_steps._close_block, autopilot.envelope.stop_hit and window_flags */
                 const int hit = sat_k && armed;
                 armed = !hit && (armed || fabs(u) <= b->rearm_lim);
                 t_hits = t_hits + (hit ? 1.0 : 0.0);

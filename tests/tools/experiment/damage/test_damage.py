@@ -41,10 +41,10 @@ def test_the_grid_is_every_kind_severity_onset_seed_and_controller():
 
 def test_the_retuned_pid_switches_at_the_onset_and_the_energy_pid_flies_its_scaled_gains():
     flights = [
-        grid.Flight("kh2013a", grid.RETUNED, "effectiveness", 0.3, 10.0, 1),
-        grid.Flight("kh2013a", grid.RETUNED, "rate", 5.0, 10.0, 1),
-        grid.Flight("kh2013a", grid.ENERGY, "rate", 5.0, 10.0, 1),
-        grid.Flight("kh2013a", "clsac", "rate", 5.0, 10.0, 1),
+        grid.DamageFlight("kh2013a", grid.RETUNED, "effectiveness", 0.3, 10.0, 1),
+        grid.DamageFlight("kh2013a", grid.RETUNED, "rate", 5.0, 10.0, 1),
+        grid.DamageFlight("kh2013a", grid.ENERGY, "rate", 5.0, 10.0, 1),
+        grid.DamageFlight("kh2013a", "clsac", "rate", 5.0, 10.0, 1),
     ]
     designed = {
         grid.Design("kh2013a", grid.NONE, None): (1.0, 0.1, 0.2),
@@ -165,7 +165,7 @@ def test_cells_aggregate_their_seeds():
     assert cell["wilson95"] == pytest.approx(list(wilson(2, 3)))
     assert cell["ise_ref_after_p50"] == 0.3 and cell["ise_ref_periods_p50"] == [0.3, 0.6]
     assert cell["recovered_share"] == pytest.approx(2 / 3) and cell["recovery_s_p50"] == 3.0
-    flights = [grid.Flight("kh2013a", "clsac", "rate", 5.0, 10.0, s) for s in (1, 2, 3)]
+    flights = [grid.DamageFlight("kh2013a", "clsac", "rate", 5.0, 10.0, s) for s in (1, 2, 3)]
     (one,) = summarise(flights, recs)
     assert one["fault"] == "rate=5@10" and one["seeds"] == [1, 2, 3] and len(one["runs"]) == 3
 
@@ -367,7 +367,7 @@ def test_column_headers_are_whole_names_with_a_legend():
 def test_an_error_after_the_first_flight_keeps_the_flights_flown(tmp_path):
     """A study stopped by an error at its third flight: the two flights flown are kept, in a summary that says it is
     partial, how many of how many and why; an error before any flight is raised as it was."""
-    from tools.experiment.damage.flight import simulate
+    from tools.experiment.damage.flight import run_damage_task
     from tools.experiment.damage.runner import run, write
 
     study = _study("--plant", "kh2013a", "--kinds", "effectiveness", "--severity", "effectiveness=0.3",
@@ -378,7 +378,7 @@ def test_an_error_after_the_first_flight_keeps_the_flights_flown(tmp_path):
         calls.append(task)
         if len(calls) == 3:
             raise ValueError("the third flight failed")
-        return simulate(task)
+        return run_damage_task(task)
 
     quiet = dict(workers=1, progress=False, log=lambda *_: None)
     doc = run(study, simulate=third_fails, **quiet)

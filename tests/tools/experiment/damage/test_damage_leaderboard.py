@@ -11,7 +11,7 @@ import sys
 import pytest
 
 from tools.experiment.damage.aggregate import summarise
-from tools.experiment.damage.grid import Flight
+from tools.experiment.damage.grid import DamageFlight
 from tools.experiment.damage.leaderboard import markdown, rows, winners
 
 
@@ -51,7 +51,7 @@ def cells():
     flights, results = [], []
     for c, per_seed in HAND.items():
         for seed, r in enumerate(per_seed, 1):
-            flights.append(Flight("kh2013a", c, "effectiveness", 0.3, 10.0, seed))
+            flights.append(DamageFlight("kh2013a", c, "effectiveness", 0.3, 10.0, seed))
             results.append(_rec(*r))
     return summarise(flights, results)
 
@@ -87,7 +87,7 @@ def test_a_fault_no_law_keeps_has_no_winner():
     flights, results = [], []
     for c, err in (("clsac", 5.0), ("baseline", 9.0)):
         for seed in (1, 2):
-            flights.append(Flight("kh2013a", c, "stuck", 5.0, 10.0, seed))
+            flights.append(DamageFlight("kh2013a", c, "stuck", 5.0, 10.0, seed))
             results.append(_rec(False, err, 1.0, None))
     cells = summarise(flights, results)
     assert winners(cells, "kh2013a") == {"stuck=5": []}

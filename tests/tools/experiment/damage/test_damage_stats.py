@@ -140,10 +140,10 @@ def _cells(onsets=(10.0, 20.0)):
     flights, results = [], []
     for ctrl, base in (("clsac", 1.0), ("baseline", 2.0)):
         for seed in range(1, 7):
-            flights.append(grid.Flight("kh2013a", ctrl, grid.NONE, None, onsets[0], seed))
+            flights.append(grid.DamageFlight("kh2013a", ctrl, grid.NONE, None, onsets[0], seed))
             results.append(_rec(seed, after=base * 0.01 + seed * 1e-4, energy=base))
             for t in onsets:
-                flights.append(grid.Flight("kh2013a", ctrl, "rate", 5.0, t, seed))
+                flights.append(grid.DamageFlight("kh2013a", ctrl, "rate", 5.0, t, seed))
                 err = base * (0.3 if t == onsets[0] else 7.0) + seed * 1e-3
                 results.append(_rec(seed, controlled=ctrl == "baseline" or seed > 4, after=err, energy=2 * base))
     return summarise(flights, results)
@@ -179,7 +179,7 @@ def test_the_long_flight_table_ranks_the_means_over_the_last_window():
     flights, results = [], []
     for ctrl, last in (("clsac", 0.05), ("baseline", 0.02)):
         for seed in (1, 2):
-            flights.append(grid.Flight("kh2013a", ctrl, "rate", 5.0, 10.0, seed, 300.0))
+            flights.append(grid.DamageFlight("kh2013a", ctrl, "rate", 5.0, 10.0, seed, 300.0))
             first = 0.01 if ctrl == "clsac" else 0.03
             results.append(_rec(seed, periods=[0.0, first] + [1.0] * 18 + [last + seed * 1e-3] * 10))
     cells = summarise(flights, results)

@@ -71,7 +71,7 @@ def test_the_mimo_damage_study(tmp_path):
 
 def test_a_mimo_cell_is_the_lockstep_flight_with_the_fault(tmp_path):
     from tools.experiment.damage.flight import fly_record
-    from tools.experiment.damage.grid import Flight
+    from tools.experiment.damage.grid import DamageFlight
 
     argv = [sys.executable, "-m", "tools.launch", "--lockstep", "--quiet", "--duration", "12", "--plant", PLANT,
             "--controller", "clsac", "--fault", "effectiveness=0.3@5", "--turbulence", "light", "--seed", "1",
@@ -80,7 +80,7 @@ def test_a_mimo_cell_is_the_lockstep_flight_with_the_fault(tmp_path):
     assert r.returncode == 0, r.stdout[-2000:] + r.stderr[-2000:]
     out = Path(re.search(r"files: (\S+)/flight\.tlog", r.stdout).group(1))
     s = json.loads((out / "summary.json").read_text())
-    mine = fly_record(Flight(PLANT, "clsac", "effectiveness", 0.3, 5.0, 1, 12.0, "light"))
+    mine = fly_record(DamageFlight(PLANT, "clsac", "effectiveness", 0.3, 5.0, 1, 12.0, "light"))
     assert mine["ise_ref"] == s["runs"][0]["metrics"]["ise_ref"]
     assert mine["energy"] == s["runs"][0]["metrics"]["energy"]
     assert mine["max_abs_sideslip_deg"] == pytest.approx(s["sideslip"]["max_abs_sideslip_deg"], abs=1e-9)

@@ -212,11 +212,11 @@ _MATRICES = """
 import json, sys
 import numpy as np
 from autopilot import ClSac, ClSacConfig
-from tools.experiment.study.simulation import _dryden, _plant, _plants
+from tools.experiment.study.inputs import dryden, zoh_plant, zoh_plants
 rng = np.random.default_rng(5)
-out = [m.ravel() for _ in range(20) for m in _plant(1 + 0.4 * (2 * rng.random(6) - 1), 0.01)]
-out += [m.ravel() for m in _plants(1 + 0.4 * (2 * rng.random((20, 6)) - 1), 0.01)]  # the study's: all at once
-out += [getattr(_dryden(0.01), k).ravel() for k in ("ad", "ld", "c", "l0")]
+out = [m.ravel() for _ in range(20) for m in zoh_plant(1 + 0.4 * (2 * rng.random(6) - 1), 0.01)]
+out += [m.ravel() for m in zoh_plants(1 + 0.4 * (2 * rng.random((20, 6)) - 1), 0.01)]  # the study's: all at once
+out += [getattr(dryden(0.01), k).ravel() for k in ("ad", "ld", "c", "l0")]
 law = ClSac(ClSacConfig())._s
 out += [np.ravel(np.asarray(law[k], dtype=float)) for k in sorted(law)]
 print(json.dumps([float(v).hex() for m in out for v in m]))

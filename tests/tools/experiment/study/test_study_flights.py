@@ -15,7 +15,7 @@ import pytest
 
 from sitl.plant import shipped
 from tools.experiment.study import StudyOptions, execute, replay, run_study
-from tools.experiment.study.flights import Flight, make_flights, simulate, summarise
+from tools.experiment.study.flights import StudyFlight, fly_study_flight, make_flights, summarise
 
 ROOT = Path(__file__).resolve().parents[4]
 FLIGHTS = make_flights("c172x", ["clsac"], [63.0, 117.0], ["none", "moderate"], 1)
@@ -61,22 +61,22 @@ def test_the_command_gives_the_same_results_on_one_two_workers_and_a_dask_cluste
     assert table["63kt_moderate"]["ise_ref_p50"] > table["63kt_none"]["ise_ref_p50"]
     assert all(cell["bounded_share"] == 1.0 and cell["runs"] == 1 for cell in table.values())
     # and the executor alone, as tools.bench and the damage study call it: each flight's record
-    alone = execute(FLIGHTS, None, None, 2, simulate=simulate)
+    alone = execute(FLIGHTS, None, None, 2, simulate=fly_study_flight)
     assert [{"seed": f.seed, **r} for f, r in zip(FLIGHTS, alone)] == [
         table[f.condition]["flights"][0] for f in FLIGHTS
     ]
 
 
 def test_a_flight_of_the_monte_carlo_is_the_in_process_scenario():
-    r = simulate(FLIGHTS[0])
+    r = fly_study_flight(FLIGHTS[0])
     assert r["bounded"] and r["max_abs_roll"] < math.radians(20.0) and r["sat_fraction"] == 0.0
-    assert r == simulate(FLIGHTS[0])  # a flight depends on its task only
+    assert r == fly_study_flight(FLIGHTS[0])  # a flight depends on its task only
 
 
 def test_a_plant_file_of_the_kh2013a_flies_the_studys_nominal_run():
     """In still air the KH2013A's plant file, flown in-process at 1 kHz, is the batched study's nominal run (its
     exact ZOH at 100 Hz; docs/spec.md: the same linear system, equal to ~1e-9): an independent solution."""
-    flown = simulate(Flight("clsac", KH_FILE, "none", 0))
+    flown = fly_study_flight(StudyFlight("clsac", KH_FILE, "none", 0))
     run = next(i for i in range(20) if replay("clsac", "nominal", 0, i, record=False)["pfc_paper"][0])  # paper PFC
     batch = replay("clsac", "nominal", 0, run, record=False)
     for m in ("ise_ref", "energy", "max_abs_roll"):
@@ -84,10 +84,10 @@ def test_a_plant_file_of_the_kh2013a_flies_the_studys_nominal_run():
 
 
 def test_a_plant_file_flies_seeded_turbulence():
-    a, b = (simulate(Flight("clsac", KH_FILE, "moderate", s)) for s in (7, 8))
-    assert a == simulate(Flight("clsac", KH_FILE, "moderate", 7))  # the seed decides
+    a, b = (fly_study_flight(StudyFlight("clsac", KH_FILE, "moderate", s)) for s in (7, 8))
+    assert a == fly_study_flight(StudyFlight("clsac", KH_FILE, "moderate", 7))  # the seed decides
     assert abs(a["ise_ref"] - b["ise_ref"]) > 0.1 * a["ise_ref"]  # another seed, another gust sequence
-    still = simulate(Flight("clsac", KH_FILE, "none", 7))
+    still = fly_study_flight(StudyFlight("clsac", KH_FILE, "none", 7))
     assert a["ise_ref"] > 3 * still["ise_ref"]
 
 
@@ -99,7 +99,7 @@ def test_a_plant_files_turbulence_is_the_sitls(tmp_path):
     from tools.flight import Flight as Launch
 
     for seed in (7, 8):
-        here = simulate(Flight("clsac", KH_FILE, "moderate", seed))
+        here = fly_study_flight(StudyFlight("clsac", KH_FILE, "moderate", seed))
         res = Launch(
             lockstep=True,
             plant=KH_FILE,
@@ -195,7 +195,7 @@ def test_help_shows_every_default():
 
 
 def test_summarise_gives_the_median_and_the_wilson_interval():
-    flights = [Flight("sac", "p.toml", "none", s) for s in range(4)]
+    flights = [StudyFlight("sac", "p.toml", "none", s) for s in range(4)]
     results = [{"ise_ref": v, "energy": 2 * v, "bounded": v < 3} for v in (1.0, 4.0, 2.0, 3.0)]
     cell = summarise(flights, results)["sac"]["none"]
     assert cell["ise_ref_p50"] == 2.5 and cell["energy_p50"] == 5.0 and cell["bounded_share"] == 0.5

@@ -178,15 +178,15 @@ def test_the_plants_of_a_batch_are_discretised_at_once_bit_for_bit():
     """``zoh_many`` (the study's per-run plants, all at once) is ``zoh`` of each, bit for bit: repeated scale
     vectors, the nominal plant, and matrices of very different norms (each its own number of squarings)."""
     from autopilot.shared.numerics import expm, expm_many
-    from tools.experiment.study.simulation import _plant, _plants
+    from tools.experiment.study.inputs import zoh_plant, zoh_plants
 
     rng = np.random.default_rng(11)
     scales = 1.0 + 0.4 * (2.0 * rng.random((40, 6)) - 1.0)
     scales[3] = scales[17]
     scales[20:25] = 1.0
-    phi, gam = _plants(scales, 0.01)
+    phi, gam = zoh_plants(scales, 0.01)
     for i, s in enumerate(scales):
-        p, g = _plant(s, 0.01)
+        p, g = zoh_plant(s, 0.01)
         assert phi[i].tobytes() == p.tobytes() and gam[i].tobytes() == g.tobytes(), i
     ms = rng.standard_normal((30, 7, 7)) * np.logspace(-4, 2, 30)[:, None, None]
     ms[0] = 0.0
