@@ -190,7 +190,7 @@ def plan_from_args(args) -> list[tuple[str, object]]:
     """(plant, its study's options) for each --plant, every flag checked against the plants it applies to."""
     texts = split_plants(args.plant)
     for text in texts:
-        if not _batched(text):
+        if not _batched_plant(text):
             try:
                 plants.check(text)
             except plants.PlantError as exc:
@@ -211,8 +211,8 @@ def plan_from_args(args) -> list[tuple[str, object]]:
         i = texts.index(batched_plant)
         texts = [*texts[:i], *([batched_plant] if len(unbatched) < len(controllers) else []), GENERIC, *texts[i + 1 :]]
     batched = None if controllers is None else tuple(c for c in controllers if c not in unbatched)
-    scalar = [t for t in texts if not _batched(t)]
-    batched_given = any(_batched(t) for t in texts)
+    scalar = [t for t in texts if not _batched_plant(t)]
+    batched_given = any(_batched_plant(t) for t in texts)
     given = {k for k in (*KH2013A_FLAGS, *FLIGHT_FLAGS) if getattr(args, k) is not None}
     for k in KH2013A_FLAGS:
         if k in given and not batched_given and GENERIC in texts:
@@ -239,7 +239,7 @@ def plan_from_args(args) -> list[tuple[str, object]]:
     if "airspeeds" in given and not any(plants.kind_of(t).own_atmosphere for t in texts):
         raise StudyError("--airspeeds applies to a JSBSim aircraft (--plant jsbsim:MODEL) only")
     for text in texts:
-        if _batched(text):
+        if _batched_plant(text):
             kw = {k: getattr(args, k) for k in ("runs", "sweep_runs", "long_runs", "chunk") if k in given}
             if args.fault:
                 study_faults.check(args.fault)
@@ -316,7 +316,7 @@ def _generic_plan(args, names: tuple[str, ...], seed: int, plan: list) -> None:
 def options_from_args(args) -> StudyOptions:
     """The KH2013A study's options (``--plant kh2013a``)."""
     for text, opts in plan_from_args(args):
-        if _batched(text):
+        if _batched_plant(text):
             return opts
     raise StudyError("--plant does not name kh2013a")
 
