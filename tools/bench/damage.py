@@ -37,22 +37,15 @@ FAULTS = (("none", None), ("effectiveness", 0.3), ("stuck", 0.0), ("rate", 20.0)
 
 def floor_s(plant: str, kind: str, value, reps: int) -> float:
     """Seconds per 30 s flight of the plant alone with the fault (median of ``reps``)."""
-    from sitl import damage
-    from sitl import plant as plants
     from tools.experiment.damage.flight import disturbances
     from tools.experiment.damage.grid import NONE, fault_of
-    from tools.experiment.scenario import Scenario, _atmosphere, _inprocess_disturbances
+    from tools.experiment.scenario import Scenario, aircraft
 
     faults = () if kind == NONE else (fault_of(kind, value, 10.0),)
-    scen = Scenario(plant=plant, disturbances=disturbances("light", 1), faults=faults)
+    scen = Scenario(plant=plant, disturbances=disturbances("light", 1), faults=faults)  # 1000 Hz physics
     times = []
     for _ in range(reps):
-        dist = _inprocess_disturbances(scen, atmosphere=True)
-        inj = _atmosphere(scen, dist)
-        ac = plants.build(plant, 1000.0, None, dist, plants.needs_damaged_model(faults))
-        adv = ac.advance if inj is None else (lambda u, m, _ac=ac, _inj=inj: _inj.advance(_ac, u, m))
-        if faults:
-            adv = damage.ScheduledEffects(ac, damage.Schedule(faults, 0.0, 1e-3), adv).advance
+        _ac, adv = aircraft(scen, atmosphere=True)
         t0 = time.perf_counter()
         for _k in range(3000):
             adv(0.01, 10)
