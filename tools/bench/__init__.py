@@ -13,7 +13,7 @@ anything given after ``--``.  An area that raises or exits non-zero is reported 
 ``--json PATH`` on the command line writes all areas' figures, and ``--strict`` makes the command exit 1 when
 a figure misses its target.
 
-Shared helpers for area modules live here: :func:`figure`, :func:`print_table`, :func:`timed_batches`.
+Shared helpers for area modules live here: :func:`figure`, :func:`print_table`, :func:`report`, :func:`timed_batches`.
 """
 
 from __future__ import annotations
@@ -137,6 +137,15 @@ def print_table(title: str, figures: dict[str, dict], file=None) -> None:
         print(f"  {name:<{w}} {_fmt(f['value']):>10} {f['unit']:<5} {target:>9}  {verdict:<6} {extra}", file=file)
 
 
+def report(title: str, figures: dict[str, dict], file=None) -> None:
+    """How an area ends: its figures' table (:func:`print_table`) and, on a busy machine, the load's note
+    (:func:`load_warning`)."""
+    print_table(title, figures, file=file)
+    warning = load_warning()
+    if warning:
+        print(warning, file=file)
+
+
 def _fmt(v) -> str:
     if isinstance(v, float):
         return f"{v:.3g}" if abs(v) < 1000 else f"{v:.0f}"
@@ -161,6 +170,7 @@ __all__: Iterable[str] = (
     "timed_batches",
     "summarise_us",
     "print_table",
+    "report",
     "failures",
     "machine_load",
     "load_warning",

@@ -27,7 +27,7 @@ import argparse
 import statistics
 import time
 
-from tools.bench import figure, load_warning, machine_load, print_table
+from tools.bench import figure, machine_load, report
 
 QUICK_ARGV = ["--quick"]
 TARGET_OF_FLOOR = 0.85
@@ -158,10 +158,7 @@ def main(argv: list[str] | None = None) -> dict:
                 floor_flights_per_s=round(floor, 3),
                 floor_assumed_flights_per_s=round(workers / mean_floor, 3),
             )
-    print_table(f"damage study, load {load['load1']} on {load['cpus']} CPU(s)", figs)
-    warning = load_warning()
-    if warning:
-        print(warning)
+    report(f"damage study, load {load['load1']} on {load['cpus']} CPU(s)", figs)
     return figs
 
 

@@ -19,7 +19,7 @@ import tempfile
 import time
 from pathlib import Path
 
-from tools.bench import figure, load_warning, machine_load, print_table
+from tools.bench import figure, machine_load, report
 
 QUICK_ARGV = ["--quick"]
 TARGET_MS_PER_SIM_S = 50.0  # 20x real time
@@ -91,10 +91,7 @@ def main(argv: list[str] | None = None) -> dict:
         figs[f"jsbsim_monte_carlo_{workers}_worker{'s' if workers > 1 else ''}"] = figure(
             bench_monte_carlo(workers, 1 if args.quick else 6), "1/s", note="30 s flights per wall second"
         )
-    print_table(f"JSBSim (c172x), load {load['load1']} on {load['cpus']} CPU(s)", figs)
-    warning = load_warning()
-    if warning:
-        print(warning)
+    report(f"JSBSim (c172x), load {load['load1']} on {load['cpus']} CPU(s)", figs)
     return figs
 
 
