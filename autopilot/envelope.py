@@ -170,6 +170,28 @@ def tracking_limits() -> dict:
 _N, _RR, _PR, _DD, _D, _DOT2, _NDOT, _HITS, _SAT, _T0, _T1, _SW = range(12)
 
 
+BLOCK_FIELDS = _SW + 1  # the width of a block of sums
+
+
+def block_add(b, roll, ref, d, hit, swing):
+    """One tracked sample into its block's sums ``b`` (module docstring, "Tracking"): the samples, y_r^2, phi y_r,
+    d^2 with d = phi - y_r, the stop hits (:func:`stop_hit`) and the regular swings (``swing_step``).  ``b`` is
+    indexed by the block's fields: one block (a list), or many at once (numpy arrays, the fields on the first
+    axis: the ``.T`` of an (N, ``BLOCK_FIELDS``) array; elementwise, the gym's vector environment)."""
+    b[_N] += 1
+    b[_RR] += ref * ref
+    b[_PR] += roll * ref
+    b[_DD] += d * d
+    b[_HITS] += hit
+    b[_SW] += swing
+
+
+def window_sums(tot):
+    """:func:`window_flags`'s arguments from a window's summed blocks ``tot`` (indexed by the block's fields, as
+    :func:`block_add` takes them)."""
+    return tot[_N], tot[_RR], tot[_PR], tot[_DD], tot[_HITS], tot[_SW]
+
+
 def _empty_block() -> list:
     return [0, 0.0, 0.0, 0.0, 0.0, 0.0, 0, 0, 0, math.nan, math.nan, 0]
 
@@ -546,21 +568,16 @@ class EnvelopeMonitor:
             self._block, self._block_index = _empty_block(), j
         b = self._block
         d = roll - ref
-        b[_N] += 1
-        b[_RR] += ref * ref
-        b[_PR] += roll * ref
-        b[_DD] += d * d
+        hit, self._hit_armed = stop_hit(bool(sat), u, u_limit, self._hit_armed)
+        if self._swing is None:
+            self._swing = swing_start(float(d))
+        block_add(b, roll, ref, d, hit, bool(swing_step(self._swing, float(d), float(self._k))))
+        self._k += 1
         b[_D] += d
         if self._d_prev is not None and ft > self._ft_prev:
             rate = (d - self._d_prev) / (ft - self._ft_prev)
             b[_DOT2] += rate * rate
             b[_NDOT] += 1
-        hit, self._hit_armed = stop_hit(bool(sat), u, u_limit, self._hit_armed)
-        b[_HITS] += hit
-        if self._swing is None:
-            self._swing = swing_start(float(d))
-        b[_SW] += bool(swing_step(self._swing, float(d), float(self._k)))
-        self._k += 1
         b[_SAT] += bool(sat)
         if b[_N] == 1:
             b[_T0] = ft
