@@ -33,11 +33,11 @@ from autopilot.envelope import (
     FOLLOW_GAIN_MIN,
     TRACK_BLOCK_S,
     TRACK_BLOCKS,
+    WINDOW_SUMS,
     block_add,
     saturated,
     stop_hit,
     window_flags,
-    window_sums,
 )
 from autopilot.swings import swing_start, swing_step
 from sitl import plant as plants
@@ -277,7 +277,7 @@ class RollVectorEnv(VectorEnv):
                 first = self._closed[full] % TRACK_BLOCKS  # the oldest block of the ring
                 for b in range(TRACK_BLOCKS):  # in time order, as the monitor sums its list
                     tot = tot + self._ring[full, (first + b) % TRACK_BLOCKS]
-                osc, _lag = window_flags(*window_sums(tot.T))
+                osc, _lag = window_flags(*tot.T[list(WINDOW_SUMS)])
                 hit = full[osc]
                 self._exit[hit[self._exit[hit] == None]] = "oscillation"  # noqa: E711
         if new.any():
@@ -288,7 +288,7 @@ class RollVectorEnv(VectorEnv):
         first = self._kt == 0.0  # a lane's first tracked sample starts its counter (EnvelopeMonitor._track)
         if first.any():
             self._swing[:, first] = np.array(swing_start(d[first]))
-        block_add(self._block.T, roll, ref, d, hit, swing_step(self._swing, d, self._kt))  # the monitor's own sums
+        block_add(self._block.T, roll, ref, d, hit, swing_step(self._swing, d, self._kt), sat)  # the monitor's sums
         self._kt += 1.0
 
     def _advance(self, u: np.ndarray) -> None:
