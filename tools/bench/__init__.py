@@ -13,7 +13,8 @@ anything given after ``--``.  An area that raises or exits non-zero is reported 
 ``--json PATH`` on the command line writes all areas' figures, and ``--strict`` makes the command exit 1 when
 a figure misses its target.
 
-Shared helpers for area modules live here: :func:`figure`, :func:`print_table`, :func:`report`, :func:`timed_batches`.
+Shared helpers for area modules live here: :func:`figure`, :func:`print_table`, :func:`report`, :func:`timed_batches`,
+:func:`flights_per_s`.
 """
 
 from __future__ import annotations
@@ -88,6 +89,16 @@ def timed_batches(
         if gc_was_on:
             gc.enable()
     return per_call
+
+
+def flights_per_s(tasks: list, workers: int, simulate) -> float:
+    """Flights per second of ``tasks`` flown by ``simulate`` through the studies' executor
+    (``tools.experiment.study.execute``) on ``workers`` local processes, from the call to the last result."""
+    from tools.experiment.study import execute
+
+    t0 = time.perf_counter()
+    execute(tasks, None, None, workers, simulate=simulate)
+    return len(tasks) / (time.perf_counter() - t0)
 
 
 def summarise_us(samples: list[float]) -> dict:
@@ -168,6 +179,7 @@ __all__: Iterable[str] = (
     "figure",
     "percentile",
     "timed_batches",
+    "flights_per_s",
     "summarise_us",
     "print_table",
     "report",

@@ -27,7 +27,7 @@ import argparse
 import statistics
 import time
 
-from tools.bench import figure, machine_load, report
+from tools.bench import figure, flights_per_s, machine_load, report
 
 QUICK_ARGV = ["--quick"]
 TARGET_OF_FLOOR = 0.85
@@ -61,24 +61,18 @@ def _floor_task(task) -> dict:
 def floor_rate(plant: str, workers: int, seeds: int) -> float:
     """Flights per second of the plant alone, the study's tasks on ``workers`` local processes."""
     from tools.experiment.damage.grid import Flight
-    from tools.experiment.study import execute
 
     tasks = [Flight(plant, "clsac", k, v, 10.0, s) for s in range(1, seeds + 1) for k, v in FAULTS]
-    t0 = time.perf_counter()
-    execute(tasks, None, None, workers, simulate=_floor_task)
-    return len(tasks) / (time.perf_counter() - t0)
+    return flights_per_s(tasks, workers, _floor_task)
 
 
 def study_rate(plant: str, workers: int, seeds: int) -> float:
     """Flights per second of the damage study's tasks on ``workers`` local processes."""
     from tools.experiment.damage.flight import simulate
     from tools.experiment.damage.grid import Flight
-    from tools.experiment.study import execute
 
     tasks = [Flight(plant, "clsac", k, v, 10.0, s) for s in range(1, seeds + 1) for k, v in FAULTS]
-    t0 = time.perf_counter()
-    execute(tasks, None, None, workers, simulate=simulate)
-    return len(tasks) / (time.perf_counter() - t0)
+    return flights_per_s(tasks, workers, simulate)
 
 
 def law_seconds(plant: str, controllers, seeds: int) -> dict[str, list[float]]:

@@ -19,7 +19,7 @@ import tempfile
 import time
 from pathlib import Path
 
-from tools.bench import figure, machine_load, report
+from tools.bench import figure, flights_per_s, machine_load, report
 
 QUICK_ARGV = ["--quick"]
 TARGET_MS_PER_SIM_S = 50.0  # 20x real time
@@ -56,13 +56,10 @@ def bench_lockstep(runs: int, duration: float) -> list[float]:
 
 def bench_monte_carlo(workers: int, seeds: int) -> float:
     """Flights per second of the JSBSim Monte Carlo with ``workers`` local processes."""
-    from tools.experiment.study import execute
     from tools.experiment.study.flights import make_flights, simulate
 
     flights = make_flights("c172x", ["clsac"], [63.0, 117.0], ["none", "moderate"], seeds)
-    t0 = time.perf_counter()
-    execute(flights, None, None, workers, simulate=simulate)
-    return len(flights) / (time.perf_counter() - t0)
+    return flights_per_s(flights, workers, simulate)
 
 
 def main(argv: list[str] | None = None) -> dict:
