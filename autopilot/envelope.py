@@ -168,6 +168,16 @@ def tracking_limits() -> dict:
 # A block's sums, in this order: samples, y_r^2, phi y_r, d^2, d, (d')^2, derivative samples, stop hits, saturated,
 # the flight time of its first and last sample, and the regular swings.
 _N, _RR, _PR, _DD, _D, _DOT2, _NDOT, _HITS, _SAT, _T0, _T1, _SW = range(12)
+BLOCK_FIELDS = _SW + 1  # the width of a block of sums
+WINDOW_SUMS = (_N, _RR, _PR, _DD, _HITS, _SW)  # the fields window_flags judges a window's summed blocks by
+
+
+def block_add(b, roll, ref, d, hit, swing, sat):
+    """One tracked sample (d = phi - y_r, ``hit`` of :func:`stop_hit`, ``swing`` of ``swing_step``, ``sat``) into its
+    block's sums ``b``: one block (a list) or, elementwise, many (numpy arrays: an (N, BLOCK_FIELDS) array's ``.T``)."""
+    sums = (_N, 1), (_RR, ref * ref), (_PR, roll * ref), (_DD, d * d), (_D, d), (_HITS, hit), (_SW, swing), (_SAT, sat)
+    for j, x in sums:
+        b[j] += x
 
 
 def _empty_block() -> list:
@@ -546,22 +556,15 @@ class EnvelopeMonitor:
             self._block, self._block_index = _empty_block(), j
         b = self._block
         d = roll - ref
-        b[_N] += 1
-        b[_RR] += ref * ref
-        b[_PR] += roll * ref
-        b[_DD] += d * d
-        b[_D] += d
+        hit, self._hit_armed = stop_hit(bool(sat), u, u_limit, self._hit_armed)
+        if self._swing is None:
+            self._swing = swing_start(float(d))
+        block_add(b, roll, ref, d, hit, bool(swing_step(self._swing, float(d), float(self._k))), bool(sat))
+        self._k += 1
         if self._d_prev is not None and ft > self._ft_prev:
             rate = (d - self._d_prev) / (ft - self._ft_prev)
             b[_DOT2] += rate * rate
             b[_NDOT] += 1
-        hit, self._hit_armed = stop_hit(bool(sat), u, u_limit, self._hit_armed)
-        b[_HITS] += hit
-        if self._swing is None:
-            self._swing = swing_start(float(d))
-        b[_SW] += bool(swing_step(self._swing, float(d), float(self._k)))
-        self._k += 1
-        b[_SAT] += bool(sat)
         if b[_N] == 1:
             b[_T0] = ft
         b[_T1] = ft
@@ -690,10 +693,7 @@ def judge_series(t, roll, u, u_limit_rad: float, envelope: Envelope = Envelope()
     mon = EnvelopeMonitor(envelope)
     lim = float(u_limit_rad)
     cols = [np.asarray(a, dtype=float).tolist() for a in (t, roll, u)]
-    if ref is None:
-        for ti, ri, ui in zip(*cols):
-            mon.add(ti, ri, ui, lim)
-    else:
-        for ti, ri, ui, yi in zip(*cols, np.asarray(ref, dtype=float).tolist()):
-            mon.add(ti, ri, ui, lim, yi)
+    refs = [None] * len(cols[0]) if ref is None else np.asarray(ref, dtype=float).tolist()
+    for ti, ri, ui, yi in zip(*cols, refs):
+        mon.add(ti, ri, ui, lim, yi)
     return mon.result()

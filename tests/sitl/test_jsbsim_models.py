@@ -3,10 +3,12 @@ answers Ctrl-C."""
 
 from __future__ import annotations
 
+import os
 import signal
 import subprocess
 import sys
 import time
+from pathlib import Path
 
 import pytest
 
@@ -108,12 +110,9 @@ def test_the_linearisation_is_bounded_by_its_timeout(tmp_path):
     assert "of c172x did not finish within 0.01 s; stopped" in r.stderr and len(r.stderr.strip().splitlines()) == 1
 
 
-@pytest.mark.xfail(
-    reason="open bug: in the .ci/run of 2026-12-06 a SIGINT sent while Boeing314's linearising child ran was not "
-    "answered within 60 s (passed run alone); kept running, not hidden",
-    strict=False,
-)
 def test_the_design_answers_ctrl_c_during_the_linearisation_and_leaves_no_child(tmp_path):
+    """Started with SIGINT ignored, as a script's background job is (the .ci/run of 2026-12-06): Python then installs
+    no KeyboardInterrupt of its own, and the design ignored Ctrl-C for the whole 340 s of the linearisation."""
     p = subprocess.Popen(
         [
             sys.executable,
@@ -129,17 +128,25 @@ def test_the_design_answers_ctrl_c_during_the_linearisation_and_leaves_no_child(
         stdout=subprocess.DEVNULL,
         stderr=subprocess.PIPE,
         text=True,
+        preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_IGN),  # as a background job inherits it
     )
-    deadline = time.monotonic() + 120  # in FGLinearization once its child runs (not a guess of the start-up's time)
-    while subprocess.run(["pgrep", "-f", "tools.plant _linearise jsbsim:Boeing314"], capture_output=True).returncode:
-        assert time.monotonic() < deadline and p.poll() is None, "the design never started linearising"
-        time.sleep(0.1)
-    time.sleep(0.5)
-    t0 = time.monotonic()
-    p.send_signal(signal.SIGINT)
-    err = p.communicate(timeout=60)[1]  # a hang; the linearisation alone would take 340 s
+    try:
+        deadline = time.monotonic() + 120  # in FGLinearization once its child runs (not a guess of the start-up)
+        child = ["pgrep", "-P", str(p.pid), "-f", "tools.plant _linearise jsbsim:Boeing314"]  # this design's own
+        while (found := subprocess.run(child, capture_output=True, text=True)).returncode:
+            assert time.monotonic() < deadline and p.poll() is None, "the design never started linearising"
+            time.sleep(0.1)
+        pid = int(found.stdout.split()[0])
+        time.sleep(0.5)
+        t0 = time.monotonic()
+        p.send_signal(signal.SIGINT)
+        err = p.communicate(timeout=60)[1]  # a hang; the linearisation alone would take 340 s
+    finally:  # a hang leaves neither the design nor its child running
+        if p.poll() is None:
+            for q in subprocess.run(["pgrep", "-P", str(p.pid)], capture_output=True, text=True).stdout.split():
+                os.kill(int(q), signal.SIGKILL)
+            p.kill()
+            p.wait()
     assert p.returncode == 130, (p.returncode, time.monotonic() - t0, err)
     assert "interrupted" in err and "Traceback" not in err
-    time.sleep(0.2)
-    left = subprocess.run(["pgrep", "-f", "tools.plant _linearise jsbsim:Boeing314"], capture_output=True)
-    assert left.returncode == 1  # no linearising child left
+    assert not Path(f"/proc/{pid}").exists()  # no linearising child left (killed and reaped by the design)

@@ -13,7 +13,8 @@ anything given after ``--``.  An area that raises or exits non-zero is reported 
 ``--json PATH`` on the command line writes all areas' figures, and ``--strict`` makes the command exit 1 when
 a figure misses its target.
 
-Shared helpers for area modules live here: :func:`figure`, :func:`print_table`, :func:`timed_batches`.
+Shared helpers for area modules live here: :func:`figure`, :func:`print_table`, :func:`report`, :func:`timed_batches`,
+:func:`flights_per_s`.
 """
 
 from __future__ import annotations
@@ -90,6 +91,16 @@ def timed_batches(
     return per_call
 
 
+def flights_per_s(tasks: list, workers: int, simulate) -> float:
+    """Flights per second of ``tasks`` flown by ``simulate`` through the studies' executor
+    (``tools.experiment.study.execute``) on ``workers`` local processes, from the call to the last result."""
+    from tools.experiment.study import execute
+
+    t0 = time.perf_counter()
+    execute(tasks, None, None, workers, simulate=simulate)
+    return len(tasks) / (time.perf_counter() - t0)
+
+
 def summarise_us(samples: list[float]) -> dict:
     """median, p90 and min of per-call times (min: what the code costs on an idle machine)."""
     return {
@@ -137,6 +148,15 @@ def print_table(title: str, figures: dict[str, dict], file=None) -> None:
         print(f"  {name:<{w}} {_fmt(f['value']):>10} {f['unit']:<5} {target:>9}  {verdict:<6} {extra}", file=file)
 
 
+def report(title: str, figures: dict[str, dict], file=None) -> None:
+    """How an area ends: its figures' table (:func:`print_table`) and, on a busy machine, the load's note
+    (:func:`load_warning`)."""
+    print_table(title, figures, file=file)
+    warning = load_warning()
+    if warning:
+        print(warning, file=file)
+
+
 def _fmt(v) -> str:
     if isinstance(v, float):
         return f"{v:.3g}" if abs(v) < 1000 else f"{v:.0f}"
@@ -159,8 +179,10 @@ __all__: Iterable[str] = (
     "figure",
     "percentile",
     "timed_batches",
+    "flights_per_s",
     "summarise_us",
     "print_table",
+    "report",
     "failures",
     "machine_load",
     "load_warning",

@@ -22,7 +22,7 @@ from autopilot.clsac import ClSac
 from autopilot.config import ClSacConfig
 from autopilot.shared.process import standard_json
 from sitl.aircraft import Aircraft, AircraftConfig
-from tools.bench import figure, load_warning, print_table, summarise_us, timed_batches
+from tools.bench import figure, report, summarise_us, timed_batches
 from tools.experiment.scenario import PAPER, PAPER_RUNS, controller_config, run_inprocess
 
 TARGET_CONTROLLER_US = 10.0
@@ -181,10 +181,7 @@ def main(argv: list[str] | None = None) -> dict:
             bench_bad_plant_file(repeats), "s", TARGET_BAD_PLANT_FILE_S, note="100 MB file, python -m tools.pfc"
         )
 
-    print_table("core benchmarks (per-call times: median, p90 and min over batches of calls)", figs)
-    warning = load_warning()
-    if warning:
-        print(warning)
+    report("core benchmarks (per-call times: median, p90 and min over batches of calls)", figs)
     if args.json:
         Path(args.json).write_text(standard_json({"core": figs}, indent=2) + "\n", encoding="utf-8")
         print(f"wrote {Path(args.json).resolve()}")

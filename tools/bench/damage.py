@@ -27,7 +27,7 @@ import argparse
 import statistics
 import time
 
-from tools.bench import figure, load_warning, machine_load, print_table
+from tools.bench import figure, flights_per_s, machine_load, report
 
 QUICK_ARGV = ["--quick"]
 TARGET_OF_FLOOR = 0.85
@@ -37,22 +37,15 @@ FAULTS = (("none", None), ("effectiveness", 0.3), ("stuck", 0.0), ("rate", 20.0)
 
 def floor_s(plant: str, kind: str, value, reps: int) -> float:
     """Seconds per 30 s flight of the plant alone with the fault (median of ``reps``)."""
-    from sitl import damage
-    from sitl import plant as plants
     from tools.experiment.damage.flight import disturbances
     from tools.experiment.damage.grid import NONE, fault_of
-    from tools.experiment.scenario import Scenario, _atmosphere, _inprocess_disturbances
+    from tools.experiment.scenario import Scenario, aircraft
 
     faults = () if kind == NONE else (fault_of(kind, value, 10.0),)
-    scen = Scenario(plant=plant, disturbances=disturbances("light", 1), faults=faults)
+    scen = Scenario(plant=plant, disturbances=disturbances("light", 1), faults=faults)  # 1000 Hz physics
     times = []
     for _ in range(reps):
-        dist = _inprocess_disturbances(scen, atmosphere=True)
-        inj = _atmosphere(scen, dist)
-        ac = plants.build(plant, 1000.0, None, dist, plants.needs_damaged_model(faults))
-        adv = ac.advance if inj is None else (lambda u, m, _ac=ac, _inj=inj: _inj.advance(_ac, u, m))
-        if faults:
-            adv = damage.ScheduledEffects(ac, damage.Schedule(faults, 0.0, 1e-3), adv).advance
+        _ac, adv = aircraft(scen, atmosphere=True)
         t0 = time.perf_counter()
         for _k in range(3000):
             adv(0.01, 10)
@@ -68,24 +61,18 @@ def _floor_task(task) -> dict:
 def floor_rate(plant: str, workers: int, seeds: int) -> float:
     """Flights per second of the plant alone, the study's tasks on ``workers`` local processes."""
     from tools.experiment.damage.grid import DamageFlight
-    from tools.experiment.study import execute
 
     tasks = [DamageFlight(plant, "clsac", k, v, 10.0, s) for s in range(1, seeds + 1) for k, v in FAULTS]
-    t0 = time.perf_counter()
-    execute(tasks, None, None, workers, simulate=_floor_task)
-    return len(tasks) / (time.perf_counter() - t0)
+    return flights_per_s(tasks, workers, _floor_task)
 
 
 def study_rate(plant: str, workers: int, seeds: int) -> float:
     """Flights per second of the damage study's tasks on ``workers`` local processes."""
     from tools.experiment.damage.flight import run_damage_task
     from tools.experiment.damage.grid import DamageFlight
-    from tools.experiment.study import execute
 
     tasks = [DamageFlight(plant, "clsac", k, v, 10.0, s) for s in range(1, seeds + 1) for k, v in FAULTS]
-    t0 = time.perf_counter()
-    execute(tasks, None, None, workers, simulate=run_damage_task)
-    return len(tasks) / (time.perf_counter() - t0)
+    return flights_per_s(tasks, workers, run_damage_task)
 
 
 def law_seconds(plant: str, controllers, seeds: int) -> dict[str, list[float]]:
@@ -165,10 +152,7 @@ def main(argv: list[str] | None = None) -> dict:
                 floor_flights_per_s=round(floor, 3),
                 floor_assumed_flights_per_s=round(workers / mean_floor, 3),
             )
-    print_table(f"damage study, load {load['load1']} on {load['cpus']} CPU(s)", figs)
-    warning = load_warning()
-    if warning:
-        print(warning)
+    report(f"damage study, load {load['load1']} on {load['cpus']} CPU(s)", figs)
     return figs
 
 

@@ -17,7 +17,7 @@ import time
 
 import numpy as np
 
-from tools.bench import figure, load_warning, machine_load, print_table
+from tools.bench import figure, machine_load, report
 
 QUICK_ARGV = ["--quick"]
 TARGET_RATIO = 10.0
@@ -70,10 +70,7 @@ def main(argv: list[str] | None = None) -> dict:
         "gym_sync_steps_per_s": figure(statistics.median(slow), "1/s", envs=n, min=round(min(slow)), reps=reps),
         "gym_native_over_sync": figure(ratio, "x", TARGET_RATIO, higher=True),
     }
-    print_table(f"gym vector environment, {n} aircraft, load {load['load1']} on {load['cpus']} CPU(s)", figs)
-    warning = load_warning()
-    if warning:
-        print(warning)
+    report(f"gym vector environment, {n} aircraft, load {load['load1']} on {load['cpus']} CPU(s)", figs)
     return figs
 
 

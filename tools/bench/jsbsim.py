@@ -19,7 +19,7 @@ import tempfile
 import time
 from pathlib import Path
 
-from tools.bench import figure, load_warning, machine_load, print_table
+from tools.bench import figure, flights_per_s, machine_load, report
 
 QUICK_ARGV = ["--quick"]
 TARGET_MS_PER_SIM_S = 50.0  # 20x real time
@@ -56,13 +56,10 @@ def bench_lockstep(runs: int, duration: float) -> list[float]:
 
 def bench_monte_carlo(workers: int, seeds: int) -> float:
     """Flights per second of the JSBSim Monte Carlo with ``workers`` local processes."""
-    from tools.experiment.study import execute
     from tools.experiment.study.flights import fly_study_flight, make_flights
 
     flights = make_flights("c172x", ["clsac"], [63.0, 117.0], ["none", "moderate"], seeds)
-    t0 = time.perf_counter()
-    execute(flights, None, None, workers, simulate=fly_study_flight)
-    return len(flights) / (time.perf_counter() - t0)
+    return flights_per_s(flights, workers, fly_study_flight)
 
 
 def main(argv: list[str] | None = None) -> dict:
@@ -91,10 +88,7 @@ def main(argv: list[str] | None = None) -> dict:
         figs[f"jsbsim_monte_carlo_{workers}_worker{'s' if workers > 1 else ''}"] = figure(
             bench_monte_carlo(workers, 1 if args.quick else 6), "1/s", note="30 s flights per wall second"
         )
-    print_table(f"JSBSim (c172x), load {load['load1']} on {load['cpus']} CPU(s)", figs)
-    warning = load_warning()
-    if warning:
-        print(warning)
+    report(f"JSBSim (c172x), load {load['load1']} on {load['cpus']} CPU(s)", figs)
     return figs
 
 

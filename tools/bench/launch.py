@@ -41,7 +41,7 @@ import tempfile
 import time
 from pathlib import Path
 
-from tools.bench import figure, load_warning, print_table
+from tools.bench import figure, report
 
 QUICK_ARGV = ["--quick"]
 WALL_TARGET_S = 1.2  # issue 21: "a flight in about a second"
@@ -180,10 +180,7 @@ def main(argv: list[str] | None = None) -> dict:
         figs["launch CPU / baseline launch CPU"] = figure(med(cpu) / med(cpu_before), "x")
         if around and around_before:
             figs["baseline launch minus its flight (wall)"] = figure(med(around_before), "s", **spread(around_before))
-    print_table("launch: python -m tools.launch --lockstep --duration 30, command to every file", figs)
-    note = load_warning()
-    if note:
-        print(note)
+    report("launch: python -m tools.launch --lockstep --duration 30, command to every file", figs)
     return figs
 
 

@@ -41,7 +41,7 @@ import tempfile
 from pathlib import Path
 
 from autopilot.shared.process import standard_json
-from tools.bench import figure, load_warning, machine_load, print_table
+from tools.bench import figure, machine_load, report
 from tools.flight import Flight
 
 QUICK_ARGV = ["--quick"]
@@ -634,10 +634,7 @@ def main(argv: list[str] | None = None) -> dict:
         f"floor {floor_runs} x {floor_s:g} s; {runs} lockstep runs per rate and set-up, {duration:g} s sim; "
         + ("real time skipped: --lockstep-only)" if args.lockstep_only else f"real time {rt_runs} x {rt_s:g} s)")
     )
-    print_table(title, figs)
-    warn = load_warning()
-    if warn:
-        print(warn)
+    report(title, figs)
     if args.json:
         Path(args.json).write_text(standard_json(figs, indent=1))
     return figs

@@ -52,7 +52,7 @@ import tempfile
 import time
 from pathlib import Path
 
-from tools.bench import figure, load_warning, print_table
+from tools.bench import figure, print_table, report
 
 TARGET_10K_S = 20.0
 TARGET_DASK_RATIO = 0.75
@@ -298,10 +298,7 @@ def main(argv: list[str] | None = None) -> dict:
             figs.update(study_figures(1, numpy=True))
     figs.update(fault_figures(args.fault_runs or (200 if args.quick else 1000), args.fault_repeats or 5))
     figs.update(sigint_figures(args.sigint_repeats or (1 if args.quick else 3)))
-    print_table("study benchmarks (vectorised Monte Carlo, tools.experiment.study)", figs)
-    warning = load_warning()
-    if warning:
-        print(warning)
+    report("study benchmarks (vectorised Monte Carlo, tools.experiment.study)", figs)
     return figs
 
 

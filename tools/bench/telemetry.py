@@ -478,7 +478,7 @@ def main(argv: list[str] | None = None) -> dict:
         v = getattr(args, name)
         if not (math.isfinite(v) and v > 0):
             ap.error(f"--{name.replace('_', '-')} must be positive, got {v}")
-    from tools.bench import load_warning, print_table
+    from tools.bench import report
 
     tmp = Path(tempfile.mkdtemp(prefix="bench-telemetry-")) if args.out is None else args.out
     tmp.mkdir(parents=True, exist_ok=True)
@@ -494,14 +494,11 @@ def main(argv: list[str] | None = None) -> dict:
     figures = to_figures(raw)
     if args.json:
         print(standard_json(raw, indent=2))
-    print_table(
+    report(
         f"telemetry: control loop at {args.rate:g} Hz with and without telemetry, .rrd size, memory "
         f"({args.minutes:g} min real time); Python {sys.version.split()[0]}, {os.cpu_count()} CPUs",
         figures,
     )
-    warning = load_warning()
-    if warning:
-        print(warning)
     return figures
 
 

@@ -113,7 +113,7 @@ def main(argv: list[str] | None = None) -> dict:
         v = getattr(args, name)
         if not (math.isfinite(v) and v > 0):
             ap.error(f"--{name} must be positive, got {v}")
-    from tools.bench import figure, load_warning, print_table
+    from tools.bench import figure, report
     from tools.bench._browser import chromium_path
 
     if chromium_path() is None:
@@ -128,10 +128,7 @@ def main(argv: list[str] | None = None) -> dict:
         n = len(r["samples"])
         figures[f"{name}.median_lag"] = figure(r["median_lag_s"], "s", target, p90=r["p90_lag_s"], n=n)
         figures[f"{name}.sim_time_shown"] = figure(r["max_sim_s"], "s", flight_s=args.seconds)
-    print_table(f"live web viewer lag ({args.seconds:g} s real-time flights, headless Chromium, SwiftShader)", figures)
-    warning = load_warning()
-    if warning:
-        print(warning)
+    report(f"live web viewer lag ({args.seconds:g} s real-time flights, headless Chromium, SwiftShader)", figures)
     if args.json:
         print(standard_json(raw, indent=1))
     return figures

@@ -15,10 +15,13 @@ launcher gives the autopilot by default.
 
 from __future__ import annotations
 
+import contextlib
 import dataclasses
 import math
 import os
+import signal
 import sys
+import threading
 from pathlib import Path
 
 import numpy as np
@@ -243,10 +246,29 @@ LINEARISE_TIMEOUT_S = 60.0  # JSBSim's FGLinearization of one model: c172x takes
 SLOW_LINEARISATION_S = {"Boeing314": 340.0}
 
 
+@contextlib.contextmanager
+def _ctrl_c_flag():
+    """A list that Ctrl-C (SIGINT) appends to while the block runs, for the caller to raise KeyboardInterrupt where
+    it is safe.  Answered even in a process started with SIGINT ignored (a script's background job, as CI runs the
+    suite: Python then installs no KeyboardInterrupt of its own and the design ignored Ctrl-C), and never raised
+    inside ``subprocess.Popen.poll`` between taking its waitpid lock and its ``try`` (the lock left held, the
+    ``proc.wait()`` after it waits for ever).  Outside the main thread (no handler can be set there): never set."""
+    stop: list[int] = []
+    if threading.current_thread() is not threading.main_thread():
+        yield stop
+        return
+    previous = signal.signal(signal.SIGINT, lambda signum, _frame: stop.append(signum))
+    try:
+        yield stop
+    finally:
+        signal.signal(signal.SIGINT, signal.default_int_handler if previous is None else previous)
+
+
 def linearise_bounded(spec, timeout_s: float = LINEARISE_TIMEOUT_S, physics_rate_hz: float = 1000.0) -> dict:
     """:func:`linearise` in a child process, within ``timeout_s`` of wall clock (FGLinearization is one C++ call that
     holds the interpreter: in this process neither a timeout nor Ctrl-C could stop it).  LinearisationError if it
-    takes longer; Ctrl-C (KeyboardInterrupt here) kills the child at once; JsbsimPlantError as the child had it."""
+    takes longer; Ctrl-C (KeyboardInterrupt here, within a poll of 50 ms: :func:`_ctrl_c_flag`) kills the child at
+    once; JsbsimPlantError as the child had it."""
     import json
     import subprocess
     import tempfile
@@ -263,7 +285,7 @@ def linearise_bounded(spec, timeout_s: float = LINEARISE_TIMEOUT_S, physics_rate
         )
     root = str(Path(__file__).resolve().parents[2])  # the folder holding tools/ and sitl/
     env = {**os.environ, "PYTHONPATH": os.pathsep.join(p for p in (root, os.environ.get("PYTHONPATH")) if p)}
-    with tempfile.TemporaryDirectory(prefix="linearise-") as tmp:
+    with tempfile.TemporaryDirectory(prefix="linearise-") as tmp, _ctrl_c_flag() as stop:
         out = Path(tmp) / "lin.json"
         argv = [sys.executable, "-m", "tools.plant", "_linearise", spec.text(), str(physics_rate_hz), str(out)]
         proc = subprocess.Popen(
@@ -277,13 +299,15 @@ def linearise_bounded(spec, timeout_s: float = LINEARISE_TIMEOUT_S, physics_rate
         )
         try:
             t_end = time.monotonic() + timeout_s
-            while proc.poll() is None:
+            while proc.poll() is None and not stop:
                 if time.monotonic() >= t_end:
                     raise LinearisationError(
                         f"JSBSim's linearisation (FGLinearization) of {spec.model} did not finish within "
                         f"{timeout_s:g} s; stopped"
                     )
                 time.sleep(0.05)
+            if stop:
+                raise KeyboardInterrupt
             err = proc.stderr.read().strip().splitlines()
         finally:
             if proc.poll() is None:

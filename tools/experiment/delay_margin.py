@@ -227,9 +227,9 @@ def _ms(text: str) -> int:
 
 
 def build_parser() -> argparse.ArgumentParser:
-    from autopilot.shared import cli
     from autopilot.shared.cli import OneLineArgumentParser
     from sitl.plant_kinds import help_text as plant_help
+    from tools.experiment import flags
 
     p = OneLineArgumentParser(
         prog=PROG,
@@ -250,28 +250,21 @@ def build_parser() -> argparse.ArgumentParser:
         help="laws to fly (default: every registered law the plant flies, the PIDs included, and SAC and CL-SAC "
         "with the robust PFC; also pid-energy)",
     )
-    p.add_argument("--out", metavar="DIR", help="output folder (default: a new runs/delay-margin-<timestamp>/)")
+    flags.add_out(p, "delay-margin")
     p.add_argument("--step", type=_ms, default=STEP_MS, help=f"the coarse grid's step, s (default {STEP_MS / 1000:g})")
     p.add_argument("--cap", type=_ms, default=CAP_MS, help=f"the grid's last delay, s (default {CAP_MS / 1000:g})")
     p.add_argument("--no-loss", action="store_true", help="skip the margin under the effectiveness loss")
-    p.add_argument(
-        "--workers",
-        type=cli.count(1, 1024, name="workers"),
-        default=None,
-        help="local processes (default: the machine's cores; results do not change)",
-    )
+    flags.add_workers(p, scheduler=False)
     p.add_argument("--verbose", action="store_true", help="a line on stderr per flight, not only per margin")
     return p
 
 
 def plan(args) -> tuple[list[str], list[Case], dict]:
     """The plants, the cases to search and {plant: {controller: why not}} (MarginError, PlantError: one line)."""
-    from sitl import plant as plants
     from tools.experiment.damage import grid
+    from tools.experiment.flags import plant_list as plants_of
 
-    plant_list = list(dict.fromkeys(grid.parse_list(args.plant, "plants")))
-    for p in plant_list:
-        plants.check(p)
+    plant_list = plants_of(args.plant)
     asked = None
     if args.controllers is not None:
         asked = list(dict.fromkeys(grid.parse_list(args.controllers, "controllers")))

@@ -56,6 +56,7 @@ def run_mimo(
     from sitl import damage
     from sitl.jsbsim_plant import parse_spec
     from tools.design.linearise import designed_params
+    from tools.experiment.scenario import scheduled_faults
 
     spec = parse_spec(plant)
     if not spec.is_mimo:
@@ -80,9 +81,8 @@ def run_mimo(
 
         dist = _dist.from_values(dict(disturbances))
     ac = plants.build(plant, physics_rate_hz, None, dist, plants.needs_damaged_model(faults))
-    advance = ac.advance
-    if faults:
-        advance = damage.ScheduledEffects(ac, damage.Schedule(faults, 0.0, 1.0 / physics_rate_hz), advance).advance
+    faulted = scheduled_faults(ac, faults, physics_rate_hz, ac.advance)
+    advance = ac.advance if faulted is None else faulted.advance
     channels = ChannelMetrics(1.0 / rate_hz, limits)
     n, nphys = int(round(duration_s * rate_hz)), int(round(physics_rate_hz / rate_hz))
     rows = np.empty((n, 7))

@@ -68,6 +68,36 @@ def hold_space(out: Path, nbytes: int = SUMMARY_RESERVE_BYTES):
     return reserve_for(Path(out) / "summary.json", nbytes)
 
 
+def write_summary(out: str | os.PathLike, doc: dict, problems: list[str], reserve=None, *, indent: int = 2):
+    """``out``/summary.json, standard JSON replaced atomically (``autopilot.shared.process.write_json_atomic``: on a
+    full disk the space ``reserve`` holds, :func:`hold_space`, is released and the write tried again): its path, or
+    None and a line in ``problems`` (:func:`write_problem`) when it cannot be written."""
+    from autopilot.shared.process import write_json_atomic
+
+    path = Path(out) / "summary.json"
+    try:
+        write_json_atomic(path, doc, indent=indent, reserve=reserve)
+    except OSError as exc:
+        problems.append(write_problem(path, exc))
+        return None
+    return path
+
+
+def write_figure(path: Path, draw, problems: list[str], log=print, not_drawn: str | None = None):
+    """``draw()``'s value (it writes the figure ``path``), or None.  A file that cannot be written (a full disk) is
+    a line in ``problems``; a figure that cannot be drawn (its own error) never fails what wrote the numbers: a line
+    to ``log``, ``NOT_DRAWN: error`` (default ``NAME not drawn``).  Either way no half file is left."""
+    try:
+        return draw()
+    except OSError as exc:  # a full disk: no half picture left
+        path.unlink(missing_ok=True)
+        problems.append(write_problem(path, exc))
+    except Exception as exc:  # noqa: BLE001  (the figure's own error: the numbers are written)
+        path.unlink(missing_ok=True)
+        log(f"{not_drawn or f'{path.name} not drawn'}: {one_line(exc)}")
+    return None
+
+
 def write_problem(path: str | os.PathLike, exc: Exception) -> str:
     """The line for an output that could not be written: ``could not write PATH: reason``."""
     return f"could not write {os.fspath(path)}: {getattr(exc, 'strerror', None) or one_line(exc)}"

@@ -28,7 +28,8 @@ from typing import TYPE_CHECKING, Callable, Iterable, Sequence
 from autopilot.metrics import METRIC_NAMES
 from autopilot.shared.process import write_json_atomic
 from sitl import plant as plants
-from tools.experiment.outdir import hold_space, one_line, prepare_out_dir, write_problem
+from tools.experiment import outdir
+from tools.experiment.outdir import hold_space, prepare_out_dir, write_problem
 
 if TYPE_CHECKING:
     from tools.experiment.scenario import RunResult, RunSpec, Scenario
@@ -236,16 +237,30 @@ def write_summary(
     extra: dict | None = None,
     reserve=None,
 ) -> Path:
-    """Write ``summary.json``: ``{"scenario": ..., "runs": [{"name", "Lv", "metrics": {...}}, ...]}``; on a full
-    disk the space ``reserve`` holds (``tools.experiment.outdir.hold_space``) is released and the write tried again.
+    """Write ``summary.json`` (:func:`summary_doc`); on a full disk the space ``reserve`` holds
+    (``tools.experiment.outdir.hold_space``) is released and the write tried again.  The file is replaced
+    atomically."""
+    path = Path(path)
+    doc = summary_doc(results, scenario=scenario, transport=transport, extra=extra)
+    write_json_atomic(path, doc, indent=2, reserve=reserve)
+    return path
+
+
+def summary_doc(
+    results: Sequence[RunResult],
+    *,
+    scenario: Scenario | None = None,
+    transport: str | None = None,
+    extra: dict | None = None,
+) -> dict:
+    """``summary.json``'s document: ``{"scenario": ..., "runs": [{"name", "Lv", "metrics": {...}}, ...]}``.
 
     Extra top-level keys (never inside ``runs``): ``units``, ``settings``, ``transport``, ``saturation``,
     ``paper_checks``, ``versions``, ``created`` and whatever ``extra`` holds.  Non-finite metrics are
-    written as null (strict JSON).  The file is replaced atomically.
+    written as null (strict JSON).
     """
     if scenario is None:
         from tools.experiment.scenario import PAPER as scenario
-    path = Path(path)
     doc: dict = {
         "scenario": scenario.name,
         "runs": [
@@ -279,8 +294,7 @@ def write_summary(
             if key in ("scenario", "runs"):
                 raise ValueError(f"extra must not override {key!r}")
         doc.update(extra)
-    write_json_atomic(path, doc, indent=2, reserve=reserve)
-    return path
+    return doc
 
 
 def format_table(results: Sequence[RunResult], scenario: Scenario | None = None) -> str:
@@ -451,20 +465,14 @@ def run_experiment(
         designed = None if pfc is not None else designed_params(scen.plant)
         controller.update(plant=scen.plant, params=None if designed is None else str(designed))
     problems: list[str] = []
+    extra = {"controller": controller, "disturbances": dict(scen.disturbances)}
     try:
-        summary = write_summary(
-            results,
-            out / "summary.json",
-            scenario=scen,
-            transport=transport,
-            extra={"controller": controller, "disturbances": dict(scen.disturbances)},
-            reserve=reserve,
-        )
-        say(f"wrote {summary.resolve()}")
-    except OSError as exc:
-        problems.append(write_problem(out / "summary.json", exc))
+        doc = summary_doc(results, scenario=scen, transport=transport, extra=extra)
+        summary = outdir.write_summary(out, doc, problems, reserve)
     finally:
         reserve.release()
+    if summary is not None:
+        say(f"wrote {summary.resolve()}")
     if rrd:
         t0 = time.perf_counter()
         from tools.view.recording import log_experiment  # lazy: rerun costs ~1 s to import
@@ -485,15 +493,13 @@ def run_experiment(
         from tools.view.plots import save_paper_figure  # lazy: matplotlib costs ~1 s to import
 
         target = out / f"{scen.name}.png"
-        try:
-            png = save_paper_figure(results, target, scen, notes=_check_lines(paper_checks(results)))
+
+        def draw():
+            return save_paper_figure(results, target, scen, notes=_check_lines(paper_checks(results)))
+
+        png = outdir.write_figure(target, draw, problems, say)
+        if png is not None:
             say(f"wrote {png.resolve()} ({time.perf_counter() - t0:.1f} s)")
-        except OSError as exc:
-            target.unlink(missing_ok=True)
-            problems.append(write_problem(target, exc))
-        except Exception as exc:  # noqa: BLE001  (the figure's own error: the numbers are written)
-            target.unlink(missing_ok=True)
-            say(f"{target.name} not drawn: {one_line(exc)}")
     if problems:
         raise OutputError("; ".join(problems))
     return results

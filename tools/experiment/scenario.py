@@ -17,8 +17,26 @@ from sitl import plant as plants
 from tools.flight.profiles import Profile
 
 
+class Rates:
+    """A flight's count of control periods and of physics steps per period, from its ``duration_s``,
+    ``control_rate_hz`` and ``physics_rate_hz`` (the :class:`Scenario`'s and the gym's ``Episode``'s)."""
+
+    duration_s: float
+    control_rate_hz: float
+    physics_rate_hz: float
+
+    @property
+    def steps(self) -> int:
+        """Number of control steps in the run."""
+        return int(round(self.duration_s * self.control_rate_hz))
+
+    @property
+    def physics_per_control(self) -> int:
+        return int(round(self.physics_rate_hz / self.control_rate_hz))
+
+
 @dataclass(frozen=True)
-class Scenario:
+class Scenario(Rates):
     """A roll scenario: the command ``profile`` (any ``tools.flight.profiles.Profile``: square, step, sine or CSV
     breakpoints) flown for ``duration_s``.  Defaults are the paper scenario (docs/spec.md, "Reference
     scenario"): a +-10 deg square wave of period 10 s, +10 deg first, for 30 s."""
@@ -63,15 +81,6 @@ class Scenario:
                 f"physics_rate_hz ({self.physics_rate_hz}) must be a whole multiple of control_rate_hz "
                 f"({self.control_rate_hz})"
             )
-
-    @property
-    def steps(self) -> int:
-        """Number of control steps in the run."""
-        return int(round(self.duration_s * self.control_rate_hz))
-
-    @property
-    def physics_per_control(self) -> int:
-        return int(round(self.physics_rate_hz / self.control_rate_hz))
 
     @property
     def amplitude_rad(self) -> float:
@@ -203,6 +212,28 @@ def _atmosphere(scenario: Scenario, dist):
     return Injector(rest, 1.0 / scenario.physics_rate_hz, scenario.control_rate_hz, lockstep=True)
 
 
+def scheduled_faults(plant, faults, physics_rate_hz: float, advance):
+    """The plant's ``advance`` flown through the faults as the SITL flies ``--fault`` (``sitl.fault_injection``):
+    one schedule on the physics-step grid from t = 0 (``sitl.damage.ScheduledEffects``); None without faults."""
+    if not faults:
+        return None
+    from sitl import damage
+
+    return damage.ScheduledEffects(plant, damage.Schedule(faults, 0.0, 1.0 / physics_rate_hz), advance)
+
+
+def aircraft(scenario: Scenario, atmosphere: bool = False):
+    """(the plant, its ``advance(u, n)``): the scenario's plant with the disturbances it flies in-process
+    (:func:`_inprocess_disturbances`, :func:`_atmosphere` with ``atmosphere``) and its faults
+    (:func:`scheduled_faults`)."""
+    dist = _inprocess_disturbances(scenario, atmosphere)
+    ac = plants.build(scenario.plant, scenario.physics_rate_hz, None, dist, plants.needs_damaged_model(scenario.faults))
+    air = _atmosphere(scenario, dist) if atmosphere else None
+    advance = ac.advance if air is None else (lambda u, m: air.advance(ac, u, m))
+    faulted = scheduled_faults(ac, scenario.faults, scenario.physics_rate_hz, advance)
+    return ac, advance if faulted is None else faulted.advance
+
+
 def run_inprocess(
     scenario: Scenario = PAPER,
     run: RunSpec = PAPER_RUNS[1],
@@ -238,15 +269,7 @@ def run_inprocess(
     law = step.law
     if scenario.faults:
         plants.check_faults(scenario.plant, scenario.faults)  # PlantError: a kind the plant cannot fly
-    dist = _inprocess_disturbances(scenario, atmosphere)
-    ac = plants.build(scenario.plant, scenario.physics_rate_hz, None, dist, plants.needs_damaged_model(scenario.faults))
-    air = _atmosphere(scenario, dist) if atmosphere else None
-    advance = ac.advance if air is None else (lambda u, m: air.advance(ac, u, m))
-    if scenario.faults:  # as the SITL flies --fault (sitl.fault_injection): one schedule on the physics-step grid
-        from sitl import damage
-
-        schedule = damage.Schedule(scenario.faults, 0.0, 1.0 / scenario.physics_rate_hz)
-        advance = damage.ScheduledEffects(ac, schedule, advance).advance
+    ac, advance = aircraft(scenario, atmosphere)
     n = scenario.steps
     nphys = scenario.physics_per_control
     out = np.empty((n, len(SERIES)))

@@ -12,6 +12,7 @@ from pathlib import Path
 
 from autopilot.shared import cli
 from autopilot.shared.cli import OneLineArgumentParser
+from tools.experiment import flags
 from tools.experiment.damage import grid
 
 PROG = "python -m tools.experiment damage"
@@ -41,13 +42,8 @@ def build_parser() -> argparse.ArgumentParser:
         help=f"seeds per cell (default {grid.DEFAULT_RUNS}: the least for a 95 %% paired interval)",
     )
     p.add_argument("--seed", type=cli.seed, default=1, help="flight j of a cell flies with seed SEED + j (default 1)")
-    p.add_argument("--out", metavar="DIR", help="output folder (default: a new runs/damage-<timestamp>/)")
-    p.add_argument(
-        "--workers",
-        type=cli.count(1, 1024, name="workers"),
-        default=None,
-        help="local processes when no --scheduler (default: the machine's cores; results do not change)",
-    )
+    flags.add_out(p, "damage")
+    flags.add_workers(p)
     p.add_argument("--scheduler", metavar="tcp://HOST:PORT", help="a Dask scheduler (default: run here)")
     p.add_argument(
         "--duration",
@@ -113,9 +109,7 @@ def study_of(args) -> object:
     from sitl import plant as plants
     from tools.experiment.damage.runner import Study
 
-    plant_list = list(dict.fromkeys(grid.parse_list(args.plant, "plants")))  # a value given twice is flown once
-    for p in plant_list:
-        plants.check(p)
+    plant_list = flags.plant_list(args.plant)
     kinds = grid.parse_list(args.kinds, "fault kinds")
     from sitl import damage
 

@@ -194,26 +194,19 @@ def write(doc: dict, out: Path, plot: bool = True, reserve=None, log=print) -> t
     """``out/summary.json`` first (the space ``reserve`` holds released if the disk is full), then (``plot``)
     ``out/damage.png``: (the paths written, a line per file that could not be written).  A picture that cannot be
     drawn never loses the summary: it is skipped with a line (``log``); one that cannot be written is a problem."""
-    from autopilot.shared.process import write_json_atomic
-    from tools.experiment.outdir import one_line, write_problem
+    from tools.experiment.outdir import write_figure, write_summary
 
-    out = Path(out)
-    summary = out / "summary.json"
-    try:
-        write_json_atomic(summary, doc, reserve=reserve)
-    except OSError as exc:
-        return [], [write_problem(summary, exc)]
-    written, problems = [summary], []
+    out, problems = Path(out), []
+    summary = write_summary(out, doc, problems, reserve, indent=1)
+    if summary is None:
+        return [], problems
+    written = [summary]
     if plot and doc["cells"]:
         from tools.view.damage_png import draw
 
         png = out / "damage.png"
-        try:
-            written.append(draw(doc["cells"], doc["plants"], doc["kinds"], doc["controllers"], doc["labels"], png))
-        except OSError as exc:  # a full disk: no half picture left
-            png.unlink(missing_ok=True)
-            problems.append(write_problem(png, exc))
-        except Exception as exc:  # noqa: BLE001  (the figure's own error: the numbers are written)
-            png.unlink(missing_ok=True)
-            log(f"damage.png not drawn: {one_line(exc)}")
+        cells = (doc["cells"], doc["plants"], doc["kinds"], doc["controllers"], doc["labels"])
+        drawn = write_figure(png, lambda: draw(*cells, png), problems, log)
+        if drawn is not None:
+            written.append(drawn)
     return written, problems

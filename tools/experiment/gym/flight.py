@@ -32,6 +32,7 @@ from autopilot.shared.pwm import PwmMap
 from sitl import damage
 from sitl import plant as plants
 from sitl.disturbances import FLAGS
+from tools.experiment.scenario import Rates, scheduled_faults
 
 DEG = math.pi / 180.0
 RUDDER_MAX_DEG = 30.0  # the servo calibration's full deflection (tools.flight.command_lines.RUDDER_MAX_DEG)
@@ -47,7 +48,7 @@ OPTIONS = ("plant", "fault", "duration", "control_rate", "physics_rate", *PROFIL
 
 
 @dataclass(frozen=True)
-class Episode:
+class Episode(Rates):
     """What one episode flies: the plant spec, the faults (``sitl.damage.Fault``), the disturbance flags' values
     (``{dest: value}``, as ``sitl.disturbances.from_values`` takes them, seed aside), the command (``tools.flight.
     profiles.Profile``), the duration and the rates, and the reward's effort weight."""
@@ -60,14 +61,6 @@ class Episode:
     control_rate_hz: float
     physics_rate_hz: float
     effort_weight: float
-
-    @property
-    def steps(self) -> int:
-        return int(round(self.duration_s * self.control_rate_hz))
-
-    @property
-    def physics_per_control(self) -> int:
-        return int(round(self.physics_rate_hz / self.control_rate_hz))
 
     @property
     def mimo(self) -> bool:
@@ -174,8 +167,8 @@ class Lane:
         self.euler = plants.spec(ep.plant).euler
         self.sensors = self.inj.sensors is not None
         advance = self.plant.advance if self.inj.atmosphere is None else self._advance_air
-        self.schedule = damage.Schedule(ep.faults, 0.0, 1.0 / ep.physics_rate_hz) if ep.faults else None
-        self.scheduled = None if self.schedule is None else damage.ScheduledEffects(self.plant, self.schedule, advance)
+        self.scheduled = scheduled_faults(self.plant, ep.faults, ep.physics_rate_hz, advance)
+        self.schedule = None if self.scheduled is None else self.scheduled.schedule
         self._advance = advance if self.scheduled is None else self.scheduled.advance
         self.mimo = ep.mimo
         self.limits = ep.limits_rad

@@ -13,7 +13,7 @@ gives the same bits:
   ``sitl.aircraft.Aircraft.advance`` for all of them in one stacked ``numpy.matmul`` (one matrix-vector product
   per aircraft, as the aircraft's own ``@``);
 * the pulse, the reference model, the metrics and the envelope's roll, saturation and oscillation checks
-  (``autopilot.envelope.saturated``, ``stop_hit``, ``window_flags``: its elementwise forms).
+  (``autopilot.envelope.saturated``, ``stop_hit``, ``block_add``, ``window_flags``: its elementwise forms).
 
 Every other step (a JSBSim aircraft, turbulence, sensor errors, a fault starting or ending, a stuck or rate-limited
 surface) is flown by that aircraft's own ``Lane``.  Autoreset: ``NEXT_STEP``, as ``SyncVectorEnv``.
@@ -29,9 +29,12 @@ from gymnasium.vector import AutoresetMode, VectorEnv
 from gymnasium.vector.utils import batch_space
 
 from autopilot.envelope import (
+    BLOCK_FIELDS,
     FOLLOW_GAIN_MIN,
     TRACK_BLOCK_S,
     TRACK_BLOCKS,
+    WINDOW_SUMS,
+    block_add,
     saturated,
     stop_hit,
     window_flags,
@@ -42,7 +45,6 @@ from tools.experiment.gym.flight import REF_CM, Lane, commands, episode
 from tools.experiment.gym.roll import SEED_MAX, action_space, observation_space
 
 assert FOLLOW_GAIN_MIN > 0  # (the not-following flag is reported by the verdict, it does not end an episode)
-_RR, _PR, _DD, _HITS, _N, _SW = range(6)  # a block's sums: y_r^2, phi y_r, d^2, stop hits, samples, regular swings
 
 
 class RollVectorEnv(VectorEnv):
@@ -131,9 +133,10 @@ class RollVectorEnv(VectorEnv):
         self._max_u = np.zeros(n)
         self._nsat = np.zeros(n, dtype=np.int64)
         self._exit = np.array([None] * n, dtype=object)
-        # tracking: the open block's sums, the ring of closed ones, how many, the open block's index, hit arming
-        self._block = np.zeros((n, 6))
-        self._ring = np.zeros((n, TRACK_BLOCKS, 6))
+        # tracking: the open block's sums (the envelope's fields: autopilot.envelope.block_add), the ring of closed
+        # ones, how many, the open block's index, hit arming
+        self._block = np.zeros((n, BLOCK_FIELDS))
+        self._ring = np.zeros((n, TRACK_BLOCKS, BLOCK_FIELDS))
         self._swing = np.array(
             swing_start(np.zeros(n))
         )  # autopilot.swings' state (7 x n), set at a lane's first sample
@@ -270,28 +273,22 @@ class RollVectorEnv(VectorEnv):
             self._closed[close] += 1
             full = close[self._closed[close] >= TRACK_BLOCKS]
             if full.size:
-                tot = np.zeros((full.size, 6))
+                tot = np.zeros((full.size, BLOCK_FIELDS))
                 first = self._closed[full] % TRACK_BLOCKS  # the oldest block of the ring
                 for b in range(TRACK_BLOCKS):  # in time order, as the monitor sums its list
                     tot = tot + self._ring[full, (first + b) % TRACK_BLOCKS]
-                osc, _lag = window_flags(tot[:, _N], tot[:, _RR], tot[:, _PR], tot[:, _DD], tot[:, _HITS], tot[:, _SW])
+                osc, _lag = window_flags(*tot.T[list(WINDOW_SUMS)])
                 hit = full[osc]
                 self._exit[hit[self._exit[hit] == None]] = "oscillation"  # noqa: E711
         if new.any():
             self._block[new] = 0.0
             self._bidx[new] = j[new]
         d = roll - ref
-        b = self._block
-        b[:, _N] += 1
-        b[:, _RR] += ref * ref
-        b[:, _PR] += roll * ref
-        b[:, _DD] += d * d
         hit, self._armed = stop_hit(sat, u, self._limit, self._armed)
-        b[:, _HITS] += hit
         first = self._kt == 0.0  # a lane's first tracked sample starts its counter (EnvelopeMonitor._track)
         if first.any():
             self._swing[:, first] = np.array(swing_start(d[first]))
-        b[:, _SW] += swing_step(self._swing, d, self._kt)
+        block_add(self._block.T, roll, ref, d, hit, swing_step(self._swing, d, self._kt), sat)  # the monitor's sums
         self._kt += 1.0
 
     def _advance(self, u: np.ndarray) -> None:

@@ -16,6 +16,7 @@ from autopilot.shared import cli
 from autopilot.shared.cli import OneLineArgumentParser
 from sitl import plant as plants
 from sitl.plant_kinds import help_text as plant_help
+from tools.experiment import flags
 from tools.experiment.outdir import check_out_dir, default_out_dir, hold_space, prepare_out_dir
 from tools.experiment.study import faults as study_faults
 from tools.experiment.study import flights
@@ -73,14 +74,9 @@ def add_run_arguments(r: argparse.ArgumentParser) -> None:
         help="kh2013a: run i draws from numpy default_rng([seed, i]); a JSBSim aircraft or plant file: flight i flies "
         f"with the seed seed*{flights.SEED_STRIDE} + i (default 0)",
     )
-    r.add_argument("--out", metavar="DIR", help="output folder (default: a new runs/robustness-<timestamp>/)")
+    flags.add_out(r, "robustness")
     r.add_argument("--scheduler", metavar="tcp://HOST:PORT", help="a Dask scheduler (default: run here)")
-    r.add_argument(
-        "--workers",
-        type=cli.count(1, 1024, name="workers"),
-        default=1,
-        help="local processes when no --scheduler (default 1; results do not change)",
-    )
+    flags.add_workers(r, 1)
     r.add_argument("--no-progress", action="store_true", help="no progress bar")
     k = r.add_argument_group("kh2013a (many aircraft at once, as numpy arrays or in C)")
     k.add_argument(

@@ -15,8 +15,7 @@ from pathlib import Path
 
 from autopilot import controllers as registry
 from autopilot.envelope import tracking_limits
-from autopilot.shared.process import write_json_atomic
-from tools.experiment.outdir import one_line, write_problem
+from tools.experiment.outdir import one_line, write_figure, write_problem, write_summary
 from tools.experiment.study import native
 from tools.experiment.study.accumulate import BIN_WIDTH, EXACT_BYTES, Tally, value_bytes
 from tools.experiment.study.aggregation import (
@@ -161,16 +160,6 @@ def run_study(
     summary["timing"] = timing(phases, t_start)  # from the call to the last file
     finish(out, summary, problems, log)
     return summary
-
-
-def write_summary(out: Path, summary: dict, problems: list[str], reserve=None) -> bool:
-    """``out``/summary.json (standard JSON); a line in ``problems`` if it cannot be written."""
-    try:
-        write_json_atomic(out / "summary.json", summary, indent=2, reserve=reserve)
-        return True
-    except OSError as exc:
-        problems.append(write_problem(out / "summary.json", exc))
-        return False
 
 
 def finish(out: Path, summary: dict, problems: list[str], log=print) -> None:
@@ -353,17 +342,17 @@ def write_study_files(
     if summary.get("partial"):
         return problems
     png = out / "robustness.png"
-    try:
-        save_figure(tally, opts, png)
+
+    def draw():
+        try:
+            save_figure(tally, opts, png)
+        except ImportError as exc:
+            log(f"no figure: {exc}")
+            return None
+        return png
+
+    if write_figure(png, draw, problems, log, "no figure") is not None:
         log(f"wrote {png.resolve()}")
-    except ImportError as exc:
-        log(f"no figure: {exc}")
-    except OSError as exc:
-        png.unlink(missing_ok=True)
-        problems.append(write_problem(png, exc))
-    except Exception as exc:  # noqa: BLE001  (the figure's own error: the numbers are written)
-        png.unlink(missing_ok=True)
-        log(f"no figure: {one_line(exc)}")
     path = out / "worst.rrd"
     try:
         rrd = save_worst_rrd(summary, opts, path)
