@@ -107,6 +107,7 @@ class Controller:
     robustness_label: str = ""  # the KH2013A robustness study's words, where they differ from ``label``
     changes: tuple = ()  # (field, value) pairs over its law's configuration (the robustness study's VARIANTS)
     damage: int | None = None  # its place among the damage study's default controllers (None: not one of them)
+    mimo: bool = False  # flies a square MIMO plant (its law's matrix form, autopilot.mimo); MIMO lists them
 
     @property
     def kind(self) -> Law:
@@ -249,7 +250,9 @@ LAWS: dict[str, Law] = {
 CONTROLLERS: dict[str, Controller] = {
     c.name: c
     for c in (
-        Controller("sac", "clsac", lv=0.0, mode="SAC", label="SAC", help="sac (Lv = 0)", lv_fixed=0.0, damage=1),
+        Controller(
+            "sac", "clsac", lv=0.0, mode="SAC", label="SAC", help="sac (Lv = 0)", lv_fixed=0.0, damage=1, mimo=True
+        ),
         Controller(
             "clsac",
             "clsac",
@@ -259,6 +262,7 @@ CONTROLLERS: dict[str, Controller] = {
             help="clsac (Lv = 20, the paper's; default)",
             robustness_label="CL-SAC Lv 20 (paper)",
             damage=2,
+            mimo=True,
         ),
         Controller(
             "baseline",
@@ -269,6 +273,7 @@ CONTROLLERS: dict[str, Controller] = {
             study_label="PID (as designed)",
             help="baseline (fixed-gain PID; --lv, --pfc and the adaptation's options are refused)",
             damage=0,
+            mimo=True,
         ),
         Controller(
             "pid-ff",
@@ -315,6 +320,8 @@ VARIANTS: dict[str, Controller] = {
     )
 }
 # The robustness study's controllers, in its tables' order (the batched study's default --controllers)
+# the controllers a square MIMO plant flies (their laws' matrix forms, autopilot.mimo), in the damage study's order
+MIMO = tuple(sorted((c.name for c in CONTROLLERS.values() if c.mimo), key=lambda n: CONTROLLERS[n].damage))
 ROBUSTNESS = ("sac", "clsac_lv10", "clsac", "clsac_lv50", "baseline", *tuple(VARIANTS)[2:])
 
 

@@ -71,7 +71,7 @@ DEFAULT_TURBULENCE = "light"
 TURBULENCE = ("none", "light", "moderate", "severe")
 LINEAR_KINDS = fault_kinds.DESIGN_KINDS  # a retuned PID is designed on the faulted linear plant (FaultKind.design)
 # A square MIMO plant (jsbsim:MODEL:surface=aileron+rudder) flies the laws autopilot.mimo builds, nothing else.
-MIMO_CONTROLLERS = ("baseline", "sac", "clsac")
+MIMO_CONTROLLERS = registry.MIMO
 MIMO_REFUSALS = {
     "pid-ff": "autopilot.mimo flies clsac, sac and baseline only (the launcher refuses --controller pid-ff on it)",
     "sac-robust": "the robust PFC is a single-input PFC: the MIMO laws fly their design file's PFC matrix",

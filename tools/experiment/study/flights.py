@@ -90,7 +90,7 @@ def _judged(out: dict, c: dict) -> dict:
     return out
 
 
-MIMO_CONTROLLERS = ("sac", "clsac", "baseline")  # the controllers a square MIMO plant flies (autopilot.mimo)
+MIMO_CONTROLLERS = controllers.MIMO  # the controllers a square MIMO plant flies (autopilot.controllers)
 
 
 def _simulate_mimo(task: StudyFlight, dist, limit: float) -> dict:
