@@ -17,9 +17,19 @@ how, in three phases:
   barrier opens, not beside the lanes.
 * **Then the browser, alone.**  Its live flight flies in real time and its software rendering takes both cores
   (``ALONE``): a worker that finds only it left ends, and the last worker takes it.
+
+**On four workers or more (``-n 4``, the default in pyproject.toml) the lanes do not wait.**  ``LANE_WORKERS`` of the
+workers fly the real-time lanes from the start, at normal priority, while the others run the parallel phase at the
+lowest priority (nice 19, ``_lower_priority``: a worker lowers itself, and so every process it starts, before its
+first test of the parallel phase, and never raises itself again).  The scheduler then gives a real-time flight the
+CPU whenever it asks for it, and the CPU-bound tests take what is left: the lanes' wall time, which was a phase of
+its own, overlaps the parallel phase.  The browser still runs last and alone, on a lane worker (never on a lowered
+one).  On fewer workers the phases run one after the other, as above.
 """
 
 from __future__ import annotations
+
+import os
 
 import pytest
 
@@ -54,6 +64,9 @@ ALONE = ("tests/tools/view/test_browser_viewer.py", "tests/tools/flight/test_e2e
 SERIAL_LAST = tuple(m for lane in LANES for m in lane) + ALONE  # every module that flies in real time
 BARRIER = "tests/project/test_process_hygiene.py"  # its tests are what a worker waiting at the barrier runs (one each)
 SERIAL = "real time, alone"  # the last unit's name
+LANE_WORKERS = 2  # on four workers or more: the workers that fly the lanes from the start (module docstring)
+CONCURRENT_FROM = 4  # the fewest workers on which the lanes overlap the parallel phase
+LOWEST_PRIORITY = 19  # nice of a worker running the parallel phase beside the lanes
 
 # Started first, in this order (modules; measured with --durations=0), in the parallel phase.
 LONGEST_FIRST = (
@@ -117,6 +130,24 @@ def _rank(nodeid: str) -> int:
     return next(listed, len(LONGEST_FIRST))
 
 
+def _concurrent() -> bool:
+    """In an xdist worker of a run on ``CONCURRENT_FROM`` workers or more."""
+    return int(os.environ.get("PYTEST_XDIST_WORKER_COUNT", "0")) >= CONCURRENT_FROM
+
+
+def _lower_priority() -> None:
+    """This worker (its test thread, and every process and thread it starts from now on) to the lowest priority.
+    Irreversible without privileges: the scheduler never gives a real-time test to a worker that ran the parallel
+    phase."""
+    if os.getpriority(os.PRIO_PROCESS, 0) < LOWEST_PRIORITY:
+        os.setpriority(os.PRIO_PROCESS, 0, LOWEST_PRIORITY)
+
+
+def pytest_runtest_setup(item):
+    if _concurrent() and _phase(_unit(item.nodeid)) == 0:
+        _lower_priority()
+
+
 def pytest_collection_modifyitems(config, items):
     """The longest modules first, then the barrier, the real-time lanes and the browser; a unit starts where its
     best-ranked test is (stable: file order)."""
@@ -153,7 +184,51 @@ def pytest_xdist_make_scheduler(config, log):
         def _queued(self, phase: int) -> list:
             return [s for s in self.workqueue if _phase(s) == phase]
 
+        def _lane_worker(self, node) -> bool:
+            """Whether ``node`` flies real time (never lowered); decided when it first asks for work."""
+            roles = self.__dict__.setdefault("_roles", {})
+            if node not in roles:
+                real_time = bool(self._queued(2)) or SERIAL in self.workqueue
+                roles[node] = real_time and sum(roles.values()) < LANE_WORKERS
+            return roles[node]
+
+        def _assign_concurrently(self, node) -> None:
+            """On ``CONCURRENT_FROM`` workers or more: the lanes from the start on the lane workers, the parallel
+            phase on the others (lowered), the browser last on a lane worker once every other worker is gone."""
+            if self._lane_worker(node):
+                lanes = self._queued(2)
+                if lanes:
+                    self._give(node, lanes[0])
+                    return
+                if SERIAL not in self.workqueue:
+                    self._roles[node] = False  # no real time left to fly: it joins the parallel phase
+                    self._assign_concurrently(node)
+                    return
+                barriers = self._queued(1)
+                if barriers and self._pending(node, 2) and not self._pending(node, 1):
+                    self._give(node, barriers[0])  # the lane's last test runs now, not when the browser comes
+                    return
+                others = [n for n in self.assigned_work if n is not node]
+                if any(not self._roles.get(n) for n in others):
+                    return  # the parallel phase still runs: wait
+                if others:
+                    if not all(n.shutting_down for n in others):
+                        node.shutdown()  # the other lane worker takes the browser
+                    return  # else wait for the ending workers to be gone (remove_node)
+                self._give(node, SERIAL)
+                return
+            parallel = self._queued(0)
+            if parallel:
+                self._give(node, parallel[0])
+                return
+            for barrier in self._queued(1):
+                self._give(node, barrier)
+            node.shutdown()
+
         def _assign_work_unit(self, node) -> None:
+            if self.numnodes >= CONCURRENT_FROM:
+                self._assign_concurrently(node)
+                return
             parallel = self._queued(0)
             if parallel:
                 self._give(node, parallel[0])
