@@ -22,9 +22,19 @@ the nominal baseline loop A_ref = A - B K, plus for CRM-MRAC the error feedback 
                                                                                lambda dK~ dK~^T / gamma)
     A_c^T P + P A_c = -I,  A_c = A_ref - l I                                  (Lyapunov; e' = A_c e + B lambda dK~ z)
 
-dK is the adaptive increment on the baseline (dK(0) = 0; the ideal dK* = K (1 - 1/lambda)); Proj bounds
-||dK|| <= k_max (``autopilot.lawkit.proj``, eps = ``proj_eps``); the sampled (Euler) step can overshoot the
-ball the continuous law never leaves, so it is scaled back onto ||dK|| <= k_max (idle while Proj is).
+dK is the adaptive increment on the baseline (dK(0) = 0; the ideal dK* = K (1 - 1/lambda)).  Proj (L&W ch. 11,
+``autopilot.lawkit.proj``, eps = ``proj_eps``) acts element-wise on the box (each scalar dK_j - c_j with its bound
+h_j, L&W's Proj applied to each parameter), then on the ball ||dK|| <= k_max:
+
+    box:  dK_j in [k_j (1 - g_max), k_j (1 - g_min)], c_j its centre, h_j its half-width  (every gain of K - dK
+          within [g_min, g_max] x its baseline gain; h_j = 0: dK_j does not adapt)
+
+The sampled (Euler) step can overshoot the box and the ball the continuous law never leaves, so it is put back
+(clipped onto the box, scaled onto the ball; idle while Proj is).  Why the box: a disturbance drifts dK along the
+gradient without bound (Rohrs et al. 1985; L&W ch. 11): on the KH2013A in light turbulence the roll rate's gusts
+drive dK_p' = -gamma p e^T P B with e_p ~ p towards ever more rate damping, and the plant is unstable from twice
+the baseline's k_p (the rudder-driven dutch roll, the servo), so the bound must be on each gain, from the gains
+the design verified (docs/adaptive-laws.md).
 
 Sampled at T = 1 / control_rate_hz, every signal held over the period (the law knows its signals at the samples,
 as ``autopilot.clsac``): at step k with z_k, r_k
@@ -61,8 +71,10 @@ _ROWS = (
     ("KPHI", "k_phi", "1", 0.0, 1e4, "baseline roll gain k_phi"),
     ("KP", "k_p", "s", 0.0, 1e4, "baseline roll-rate gain k_p"),
     ("GAM_X", "gamma", "1", 0.0, 1e6, "adaptation rate gamma of dK"),
-    ("KMAX", "k_max", "1", 1e-6, 1e6, "projection bound on ||dK||"),
+    ("KMAX", "k_max", "1", 1e-6, 1e6, "projection bound on ||dK|| (outer; the design's circumscribes the box)"),
     ("EPS", "proj_eps", "1", 1e-3, 1.0, "projection tolerance eps"),
+    ("GMIN", "g_min", "1", 0.0, 1e3, "projection box: each gain of K - dK at least g_min x its baseline"),
+    ("GMAX", "g_max", "1", 0.0, 1e3, "projection box: each gain of K - dK at most g_max x its baseline"),
 )
 PARAMETERS = tuple((f"MRAC_{n}", f, u, lo, hi, d) for n, f, u, lo, hi, d in _ROWS)
 CRM_PARAMETERS = tuple((f"CRM_{n}", f, u, lo, hi, d) for n, f, u, lo, hi, d in _ROWS) + (
@@ -76,8 +88,8 @@ TELEMETRY_FIELDS = (
 @dataclass(frozen=True)
 class MracConfig:
     """MRAC settings.  Defaults: the KH2013A design of ``python -m tools.design.laws kh2013a`` (poles -3.2, -6.4,
-    -9.6, the rule's -5, -10, -15 scaled by 0.64 for the dutch roll; gamma and k_max by its rules), open-loop
-    reference model (crm_l = 0)."""
+    -9.6, the rule's -5, -10, -15 scaled by 0.64 for the dutch roll; the projection box, k_max and gamma by its
+    rules), open-loop reference model (crm_l = 0)."""
 
     control_rate_hz: float = 100.0
     u_limit_rad: float = math.radians(30.0)
@@ -92,12 +104,18 @@ class MracConfig:
     k_phi: float = 0.5521677294782774  # rad per rad
     k_p: float = 0.08246983127466834  # s
     gamma: float = 0.3  # 1 (dK is dimensionless per state unit)
-    k_max: float = 4.375913945619709  # bound on ||dK||: 4 ||K|| (covers an effectiveness down to 1/5)
+    k_max: float = 0.5736871581246389  # bound on ||dK||: the ball around the box, sqrt(1 + eps) x its far corner
     proj_eps: float = 0.1
+    # The projection box: every gain of K - dK within [g_min, g_max] x its baseline gain (tools.design.laws: the
+    # loop gains the baseline is verified robust to, ROBUST_GAINS).
+    g_min: float = 0.5
+    g_max: float = 1.4
     crm_l: float = 0.0  # 1/s; 0: open-loop reference model (mrac), > 0: CRM-MRAC
 
     def __post_init__(self) -> None:
         check_fields(self, PARAMETERS)
+        if not self.g_min <= 1.0 <= self.g_max:
+            raise ConfigError(f"g_min <= 1 <= g_max must hold (dK = 0 in the box), got {self.g_min!r}, {self.g_max!r}")
         if not (isinstance(self.crm_l, (int, float)) and math.isfinite(self.crm_l) and 0.0 <= self.crm_l <= 1e4):
             raise ConfigError(f"crm_l must be in [0, 10000] 1/s, got {self.crm_l!r}")
 
@@ -143,7 +161,20 @@ class Mrac:
         self._g_r, self._g_z = gam[:, 0], gam[:, 1:]
         self._pb = (lyapunov(a_c, np.eye(3)) @ b)[:, 0]  # P B
         self._umax = float(cfg.u_limit_rad)
+        # The box, element-wise: dK_j in [k_j (1 - g_max), k_j (1 - g_min)], centre c_j, half-width h_j
+        self._lo, self._hi = self._k * (1.0 - cfg.g_max), self._k * (1.0 - cfg.g_min)
+        self._c, self._h = 0.5 * (self._lo + self._hi), 0.5 * (self._hi - self._lo)
         self.reset()
+
+    def _proj(self, y: np.ndarray) -> np.ndarray:
+        """Proj of y at dK: element-wise on the box (Proj of L&W ch. 11 on each scalar dK_j - c_j with the bound
+        h_j; a gain with h_j = 0 does not adapt), then on the ball ||dK|| <= k_max."""
+        cfg = self.config
+        out = np.zeros(3)
+        for j in range(3):
+            if self._h[j] > 0.0:
+                out[j] = proj(self.dk[j : j + 1] - self._c[j], y[j : j + 1], self._h[j], cfg.proj_eps)[0]
+        return proj(self.dk, out, cfg.k_max, cfg.proj_eps)
 
     def reset(self) -> None:
         """Back to rest: x_I = 0, x_ref = 0, dK = 0."""
@@ -169,11 +200,11 @@ class Mrac:
         sat = u != u_raw
         # dK' = gamma Proj(dK, -z e^T P B)
         y = -z * float(e @ self._pb)
-        py = proj(self.dk, y, cfg.k_max, cfg.proj_eps)
+        py = self._proj(y)
         self.projecting = bool(np.any(py != y))
-        dk = self.dk + T * cfg.gamma * py
+        dk = np.clip(self.dk + T * cfg.gamma * py, self._lo, self._hi)  # the sampled step kept in Proj's box
         norm = float(np.linalg.norm(dk))
-        self.dk = dk if norm <= cfg.k_max else dk * (cfg.k_max / norm)  # the sampled step kept in Proj's ball
+        self.dk = dk if norm <= cfg.k_max else dk * (cfg.k_max / norm)  # ... and ball
         # x_I' = phi - r, conditional integration: d u / d x_I = dK_0 - k_i
         dxi = T * (phi - r)
         if not (sat and dxi * (self.dk[0] - self._k[0]) * u_raw > 0.0):

@@ -5,6 +5,9 @@ independently of the laws and of the project's discretisation (scipy's expm, sol
   held (ZOH at 100 Hz); the law is the test's own, a function of the samples returning (u, ode): ``ode(t, s)`` the
   law's continuous states over the period with its inputs held (integrated with the plant in the same solve_ivp).
 * ``lockstep``: the law class flying the exact ZOH discretisation of the same plant (e^{A T} by scipy).
+* ``product_flight``: the product's own lockstep flight of a registered law, in process
+  (``tools.experiment.scenario.run_inprocess``: ``autopilot.step.ControlStep`` with the law's shipped design for the
+  KH2013A, ``sitl``'s aircraft at 1 kHz physics, the fault as ``--fault`` flies it), still air, no sensor noise.
 """
 
 from __future__ import annotations
@@ -97,3 +100,16 @@ def reference(n: int = N, pole: float = 5.0) -> np.ndarray:
         out[k] = y
         y = a * y + (1 - a) * command(k)
     return out
+
+
+def product_flight(controller: str, n: int = N, effectiveness=None):
+    """The product's lockstep flight of ``controller`` on the KH2013A for n control steps, in process, with the
+    effectiveness fault (k_onset, factor) flown as ``--fault effectiveness=F@T``: (roll, surface, the law's config as
+    the product built it from its shipped design)."""
+    from tools.experiment.scenario import Scenario, controller_config, run_inprocess, run_of
+
+    faults = () if effectiveness is None else (f"effectiveness={effectiveness[1]!r}@{effectiveness[0] * T!r}",)
+    sc = Scenario(duration_s=n * T, faults=faults)
+    run = run_of(controller)
+    series = run_inprocess(sc, run).series
+    return series["phi"], series["u"], controller_config(sc, run)

@@ -1,6 +1,7 @@
 """autopilot.indi (adaptive INDI, Smeur, Chu & de Croon 2016, as Paparazzi's stabilization_indi.c flies it) against the
 test's own closed loop: the paper's equations written here (each continuous filter integrated by solve_ivp, not the
-law's module), the continuous KH2013A integrated by solve_ivp per control period (tests/_law_loop.py).
+law's module), the continuous KH2013A integrated by solve_ivp per control period (tests/_law_loop.py), compared with
+the class flying the exact ZOH plant and with the product's own lockstep flight of the shipped design (in process).
 
 Both fly the same samples, so they differ by solve_ivp's tolerance only: 1e-7 rad bounds it with room.  The paper's
 flight results (its Bebop's effectiveness estimates) are not reproducible on this plant: no number of it is."""
@@ -45,11 +46,34 @@ def _paper(cfg: IndiConfig):
     return sample, np.array([0, 0, 0, 0, 0, 0, cfg.g0], dtype=float)
 
 
-@pytest.mark.parametrize("mu", [None, 10.0], ids=["designed", "fast-lms"])
-def test_matches_the_paper_loop_integrated_by_solve_ivp(mu):
-    cfg = IndiConfig() if mu is None else IndiConfig(mu=mu)
+@pytest.fixture(scope="module")
+def flown():
+    """15 s, the effectiveness at 0.3 from 10 s: the product's lockstep flight of ``indi`` with its shipped design,
+    and the paper's loop with that design integrated by solve_ivp."""
     n, eff = 1500, (1000, 0.3)
+    phi, u, cfg = loop.product_flight("indi", n=n, effectiveness=eff)
     phi_ref, u_ref = loop.ivp_flight(*_paper(cfg), n=n, effectiveness=eff)
+    return cfg, (phi_ref, u_ref), (phi, u)
+
+
+def test_the_products_lockstep_flight_matches_the_paper_loop(flown):
+    """The product's flight (ControlStep, the SITL's aircraft, the fault as --fault flies it) against the paper's
+    loop: the same sampling instants and held surface, the plant advanced exactly by both, so only solve_ivp's
+    tolerance remains (measured 6e-14 rad); 1e-7 rad bounds it with room."""
+    _, (phi_ref, u_ref), (phi, u) = flown
+    assert np.max(np.abs(phi - phi_ref)) < 1e-7
+    assert np.max(np.abs(u - u_ref)) < 1e-7
+    assert np.max(np.abs(u[1000:])) > np.max(np.abs(u[:1000]))  # the fault flew: more surface after 10 s
+
+
+@pytest.mark.parametrize("mu", [None, 10.0], ids=["designed", "fast-lms"])
+def test_matches_the_paper_loop_integrated_by_solve_ivp(mu, flown):
+    n, eff = 1500, (1000, 0.3)
+    if mu is None:
+        cfg, (phi_ref, u_ref), _ = flown
+    else:
+        cfg = IndiConfig(mu=mu)
+        phi_ref, u_ref = loop.ivp_flight(*_paper(cfg), n=n, effectiveness=eff)
     law = Indi(cfg)
     phi, u = loop.lockstep(law, n=n, effectiveness=eff)
     assert np.max(np.abs(phi - phi_ref)) < 1e-7

@@ -1,6 +1,7 @@
 """autopilot.l1 (L1 adaptive control, Hovakimyan & Cao 2010: state predictor, piecewise-constant adaptation law, low-
 pass filter C(s)) against the test's own closed loop: the book's equations written here (scipy, not the law's
-module), the continuous KH2013A integrated by solve_ivp per control period (tests/_law_loop.py).
+module), the continuous KH2013A integrated by solve_ivp per control period (tests/_law_loop.py), compared with the class
+flying the exact ZOH plant and with the product's own lockstep flight of the shipped design (in process).
 
 Both fly the same samples, so they differ by solve_ivp's tolerance only: 1e-7 rad bounds it with room.  The
 L1-norm condition's value is checked against an independent impulse response (scipy.signal).  The book's examples
@@ -49,14 +50,32 @@ def _book(cfg: L1Config):
     return sample, np.zeros(3)
 
 
-def test_matches_the_book_loop_integrated_by_solve_ivp():
-    cfg = L1Config()
+@pytest.fixture(scope="module")
+def flown():
+    """15 s, the effectiveness at 0.3 from 10 s: the product's lockstep flight of ``l1`` with its shipped design, and
+    the book's loop with that design integrated by solve_ivp."""
     n, eff = 1500, (1000, 0.3)
+    phi, u, cfg = loop.product_flight("l1", n=n, effectiveness=eff)
     phi_ref, u_ref = loop.ivp_flight(*_book(cfg), n=n, effectiveness=eff)
+    return cfg, (phi_ref, u_ref), (phi, u), (n, eff)
+
+
+def test_matches_the_book_loop_integrated_by_solve_ivp(flown):
+    cfg, (phi_ref, u_ref), _, (n, eff) = flown
     phi, u = loop.lockstep(L1(cfg), n=n, effectiveness=eff)
     assert np.max(np.abs(phi - phi_ref)) < 1e-7
     assert np.max(np.abs(u - u_ref)) < 1e-7
     assert np.max(np.abs(phi)) > math.radians(9)
+
+
+def test_the_products_lockstep_flight_matches_the_book_loop(flown):
+    """The product's flight (ControlStep, the SITL's aircraft, the fault as --fault flies it) against the book's loop:
+    the same sampling instants and held surface, the plant advanced exactly by both, so only solve_ivp's tolerance
+    remains (measured 5e-14 rad); 1e-7 rad bounds it with room."""
+    _, (phi_ref, u_ref), (phi, u), _ = flown
+    assert np.max(np.abs(phi - phi_ref)) < 1e-7
+    assert np.max(np.abs(u - u_ref)) < 1e-7
+    assert np.max(np.abs(u[1000:])) > np.max(np.abs(u[:1000]))  # the fault flew: more surface after 10 s
 
 
 def test_a_faster_filter_matches_too_through_saturation():

@@ -18,8 +18,11 @@ surface's effect x 0.5, 1, 1.4, i.e. -6 dB and +3 dB of gain margin):
 
 * MRAC: the baseline K = [k_i, k_phi, k_p] places the integral-extended design model's poles at -a (1, 2, 3),
   scaled by 0.8^j until u = -K z leaves the full continuous plant (dutch roll and servo included) stable at every
-  ROBUST_GAINS factor; A_ref = A - B K; P from A_c^T P + P A_c = -I; the projection bound k_max = 4 ||K|| (the
-  ideal dK* = K (1 - 1/lambda) for an effectiveness lambda down to 1/5); gamma: the smallest of GAMMAS whose roll
+  ROBUST_GAINS factor, and at every gain multiplied by its own factor (all 27 points of ROBUST_GAINS^3); A_ref =
+  A - B K; P from A_c^T P + P A_c = -I; the projection box: each gain of K - dK within [min, max] of ROBUST_GAINS
+  times its baseline (g_min = 0.5, g_max = 1.4: the gains the baseline was just verified at, so no adaptation,
+  a disturbance's drift included, takes the unfaulted plant outside them; docs/adaptive-laws.md), and the ball
+  k_max = sqrt(1 + eps) x the box's farthest corner (idle on the box); gamma: the smallest of GAMMAS whose roll
   ise_ref (the paper's +-10 deg square wave, 30 s, on the full linear plant sampled at the control rate, with the
   surface's effect halved) is within 1.5 times the best of the grid without saturating the surface (the rule
   CL-SAC's Gamma is designed by).
@@ -40,6 +43,7 @@ surface's effect x 0.5, 1, 1.4, i.e. -6 dB and +3 dB of gain margin):
 from __future__ import annotations
 
 import argparse
+import itertools
 import math
 import sys
 from dataclasses import dataclass
@@ -204,10 +208,18 @@ def _unstable(model: RollModel, k: np.ndarray, integral: bool) -> float:
     return float(np.max(np.linalg.eigvals(cl).real))
 
 
-def baseline_gains(model: RollModel, speeds, integral: bool) -> tuple[np.ndarray, float] | str:
+def box_points(n: int) -> list[np.ndarray]:
+    """The gain multipliers the MRAC projection box is verified at: every point of ROBUST_GAINS^n (its corners, the
+    middles of its edges and faces, and the baseline's diagonal f (1, ..., 1))."""
+    return [np.array(g) for g in itertools.product(ROBUST_GAINS, repeat=n)]
+
+
+def baseline_gains(model: RollModel, speeds, integral: bool, box: bool = False) -> tuple[np.ndarray, float] | str:
     """K placing the (integral-extended) design model's poles at -a s (a = REF_POLE, s in ``speeds``), scaled by
     0.8^j (j = 0..15) until f K (f in ROBUST_GAINS) all leave the full continuous plant stable (the plant with the
-    states the design model residualised: the dutch roll, the servo); (K, the scale), or the reason."""
+    states the design model residualised: the dutch roll, the servo); with ``box``, also every gain multiplied by
+    its own factor of ROBUST_GAINS (``box_points``: MRAC's projection box, the gains its adaptation may reach);
+    (K, the scale), or the reason."""
     a_x, b_x = model.a, model.b
     if integral:
         a_x = np.block([[np.zeros((1, 1)), np.eye(1, 2)], [np.zeros((2, 1)), model.a]])
@@ -215,7 +227,8 @@ def baseline_gains(model: RollModel, speeds, integral: bool) -> tuple[np.ndarray
     for j in range(16):
         scale = 0.8**j
         k = place(a_x, b_x, [-REF_POLE * scale * s for s in speeds])
-        if all(_unstable(model, f * k, integral) < 0 for f in ROBUST_GAINS):
+        gains = [f * k for f in ROBUST_GAINS] + ([g * k for g in box_points(len(k))] if box else [])
+        if all(_unstable(model, g, integral) < 0 for g in gains):
             return k, scale
     return "no pole placement down to 0.8^15 of the rule's keeps the full plant stable at gains x 0.5 to x 1.4"
 
@@ -248,22 +261,27 @@ def design(model: RollModel, control_rate_hz: float = 100.0, u_limit_rad: float 
     base = dict(control_rate_hz=control_rate_hz, u_limit_rad=u_limit_rad)
     out: dict = {}
     half = RollModel(**{**vars(model), "a_p": _scaled(model, 0.5)})
-    placed = baseline_gains(model, (1.0, 2.0, 3.0), integral=True)
+    placed = baseline_gains(model, (1.0, 2.0, 3.0), integral=True, box=True)
     for name, crm in (("mrac", 0.0), ("crm-mrac", 4.0)):
         if isinstance(placed, str):
             out[name] = placed
             continue
         k, scale = placed
+        g_min, g_max = min(ROBUST_GAINS), max(ROBUST_GAINS)
+        corner = np.maximum(np.abs(k * (1 - g_max)), np.abs(k * (1 - g_min)))  # the box's farthest corner
+        k_max = math.sqrt(1 + MracConfig.proj_eps) * float(np.linalg.norm(corner))  # the ball idle on the box
         cfg = MracConfig(**base, **_model_fields(model), k_i=float(k[0]), k_phi=float(k[1]), k_p=float(k[2]),
-                         k_max=4 * float(np.linalg.norm(k)), crm_l=crm * a * scale)  # fmt: skip
+                         k_max=k_max, g_min=g_min, g_max=g_max, crm_l=crm * a * scale)  # fmt: skip
         gamma, scores = _pick(lambda g, c=cfg: Mrac(c.with_(gamma=g)), GAMMAS, half, u_limit_rad)
         if not math.isfinite(gamma):
             out[name] = f"no adaptation rate flies the halved effectiveness ({scores})"
             continue
         poles = ", ".join(f"-{a * scale * s:.4g}" for s in (1, 2, 3))
         out[name] = (cfg.with_(gamma=gamma), [
-            f"poles {poles} (the rule's x {scale:.4g}): K = [{k[0]:.5g}, {k[1]:.5g}, {k[2]:.5g}], k_max = 4 ||K|| = "
-            f"{cfg.k_max:.5g}" + (f", l = {cfg.crm_l:.4g} 1/s" if crm else ""),
+            f"poles {poles} (the rule's x {scale:.4g}): K = [{k[0]:.5g}, {k[1]:.5g}, {k[2]:.5g}]"
+            + (f", l = {cfg.crm_l:.4g} 1/s" if crm else ""),
+            f"projection box: each gain of K - dK in [{g_min:g}, {g_max:g}] x its baseline (the full plant stable at "
+            f"all {3 ** len(k)} points of ROBUST_GAINS^3), k_max = {cfg.k_max:.5g} (the ball around the box)",
             f"gamma = {gamma:g} (ise_ref with the effectiveness halved: {scores})",
         ])  # fmt: skip
     placed = baseline_gains(model, (1.0, 3.0), integral=False)
