@@ -26,11 +26,11 @@ flew, the filters and the reference model not advanced.
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, replace
+from dataclasses import dataclass
 
 import numpy as np
 
-from autopilot.lawkit import check_fields, finite
+from autopilot.lawkit import LawConfig, Reconfigurable, check_fields, finite
 from autopilot.shared.numerics import zoh
 
 PARAMETERS = (
@@ -48,11 +48,10 @@ TELEMETRY_FIELDS = ("r", "phi_m", "nu", "p_f", "pdot_f", "u_act", "u_f", "g", "u
 
 
 @dataclass(frozen=True)
-class IndiConfig:
-    """INDI settings.  Defaults: the KH2013A design of ``tools.design.laws``."""
+class IndiConfig(LawConfig):
+    """INDI settings: the control rate and the surface limit (``LawConfig``), then the law's own.  Defaults: the
+    KH2013A design of ``tools.design.laws``."""
 
-    control_rate_hz: float = 100.0
-    u_limit_rad: float = math.radians(30.0)
     g0: float = 196.14607966050582  # 1/s^2 per rad: b_p of the residualised design model
     g_min: float = 1.9614607966050581  # G0 / 100
     mu: float = 1.0  # 1/s (the design's rule over 0.01 ... 1000)
@@ -66,20 +65,13 @@ class IndiConfig:
     def __post_init__(self) -> None:
         check_fields(self, PARAMETERS)
 
-    @property
-    def dt(self) -> float:
-        return 1.0 / self.control_rate_hz
-
-    def with_(self, **changes) -> IndiConfig:
-        return replace(self, **changes)
-
 
 def filter_matrices(omega: float, zeta: float) -> tuple[np.ndarray, np.ndarray]:
     """(A, B) of H(s) = w^2 / (s^2 + 2 zeta w s + w^2), states [y, y']."""
     return np.array([[0.0, 1.0], [-(omega**2), -2.0 * zeta * omega]]), np.array([[0.0], [omega**2]])
 
 
-class Indi:
+class Indi(Reconfigurable):
     """Adaptive INDI: ``u = law.step(phi, p, r, command)`` once per control step."""
 
     TELEMETRY_FIELDS = TELEMETRY_FIELDS
@@ -126,12 +118,6 @@ class Indi:
         self.r, self.u_raw, self.u, self.saturated = r, u_raw, u, u != u_raw
         self.steps += 1
         return u
-
-    def reconfigure(self, config) -> None:
-        """Fly ``config`` from the next step on (a parameter set live), keeping the states and the adaptation."""
-        kept = {k: v for k, v in vars(self).items() if not k.startswith("_") and k not in ("config", "dt")}
-        self.__init__(config)
-        vars(self).update(kept)
 
     def hold(self, u_applied: float = 0.0) -> None:
         """G frozen; the actuator model moved by what flew; filters and reference not advanced."""

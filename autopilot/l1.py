@@ -35,20 +35,14 @@ predictor advanced on the surface that flew.
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, replace
+from dataclasses import dataclass
 
 import numpy as np
 
-from autopilot.lawkit import check_fields, finite
+from autopilot.lawkit import DESIGN_MODEL_ROWS, DesignModelConfig, Reconfigurable, check_fields, finite, prefixed
 from autopilot.shared.numerics import expm, zoh
 
-PARAMETERS = (
-    ("L1_A11", "a11", "1/s", -1e4, 1e4, "design model A[phi, phi]"),
-    ("L1_A12", "a12", "1", -1e4, 1e4, "design model A[phi, p]"),
-    ("L1_A21", "a21", "1/s^2", -1e4, 1e4, "design model A[p, phi]"),
-    ("L1_A22", "a22", "1/s", -1e4, 1e4, "design model A[p, p] (roll damping)"),
-    ("L1_B1", "b1", "1/s", -1e5, 1e5, "design model b[phi]"),
-    ("L1_B2", "b2", "1/s^2", 1e-3, 1e5, "design model b[p] (surface effectiveness)"),
+PARAMETERS = prefixed("L1_", DESIGN_MODEL_ROWS) + (
     ("L1_KPHI", "k_phi", "1", 0.0, 1e4, "state feedback k_phi (A_m = A - b k_m^T)"),
     ("L1_KP", "k_p", "s", 0.0, 1e4, "state feedback k_p"),
     ("L1_WC", "omega_c", "rad/s", 1e-3, 1e4, "bandwidth w_c of C(s) = w_c / (s + w_c)"),
@@ -57,30 +51,16 @@ TELEMETRY_FIELDS = ("r", "phi_hat", "p_hat", "sigma_m", "sigma_um", "u_f", "u_ra
 
 
 @dataclass(frozen=True)
-class L1Config:
-    """L1 settings.  Defaults: the KH2013A design of ``python -m tools.design.laws kh2013a``."""
+class L1Config(DesignModelConfig):
+    """L1 settings: the control rate, the surface limit and the design model (the KH2013A's, ``DesignModelConfig``),
+    then the law's own.  Defaults: the KH2013A design of ``python -m tools.design.laws kh2013a``."""
 
-    control_rate_hz: float = 100.0
-    u_limit_rad: float = math.radians(30.0)
-    a11: float = 0.26410314075222957  # the KH2013A's design model (tools.design.laws)
-    a12: float = 1.0638124268665718
-    a21: float = -2.161188445133773
-    a22: float = -3.233723389772091
-    b1: float = 0.09824126491749602
-    b2: float = 196.14607966050582
     k_phi: float = 0.3735347734217771  # A_m's poles -5, -15
     k_p: float = 0.08663789381751384
     omega_c: float = 2.4325912110340284  # rad/s: the servo's w_n / 20 (the design's robustness rule)
 
     def __post_init__(self) -> None:
         check_fields(self, PARAMETERS)
-
-    @property
-    def dt(self) -> float:
-        return 1.0 / self.control_rate_hz
-
-    def with_(self, **changes) -> L1Config:
-        return replace(self, **changes)
 
 
 def desired(cfg: L1Config) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -127,7 +107,7 @@ def l1_condition(cfg: L1Config, lipschitz: float) -> float:
     return float(max(norms) * lipschitz)
 
 
-class L1:
+class L1(Reconfigurable):
     """The L1 adaptive controller: ``u = law.step(phi, p, r, command)`` once per control step."""
 
     TELEMETRY_FIELDS = TELEMETRY_FIELDS
@@ -177,12 +157,6 @@ class L1:
     def _predict(self, u_ad: float) -> None:
         """x^ to the next sample: x^' = A_m x^ + b (u_ad + sigma^_m) + b_um sigma^_um, inputs held (exact ZOH)."""
         self.x_hat = self._e @ self.x_hat + self._gb @ np.array([u_ad + self.sigma[0], self.sigma[1]])
-
-    def reconfigure(self, config) -> None:
-        """Fly ``config`` from the next step on (a parameter set live), keeping the states and the adaptation."""
-        kept = {k: v for k, v in vars(self).items() if not k.startswith("_") and k not in ("config", "dt")}
-        self.__init__(config)
-        vars(self).update(kept)
 
     def hold(self, u_applied: float = 0.0) -> None:
         """Adaptation frozen (sigma^ held); the predictor advanced on the surface that flew and the last state."""

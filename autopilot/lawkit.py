@@ -1,5 +1,8 @@
 """What the adaptive-law bench's laws (``autopilot.mrac``, ``autopilot.l1``, ``autopilot.indi``) share.  No I/O.
 
+* :class:`LawConfig`: what every law's configuration has (the control rate, the surface limit, ``dt``, ``with_``), and
+  :class:`DesignModelConfig` with the design model on [phi, p] (MRAC, L1), whose rows are ``DESIGN_MODEL_ROWS``;
+* :class:`Reconfigurable`: ``reconfigure``, a parameter set live, the states and the adaptation kept;
 * :func:`check_fields`: a law's config validated against its ``PARAMETERS`` table (ConfigError, one line);
 * :func:`finite`: the measurements checked as ClSac checks them (NonFiniteInputError);
 * :func:`proj`: the projection operator of Lavretsky & Wise (2013), ch. 11 (robust adaptive control);
@@ -11,10 +14,66 @@ A ``PARAMETERS`` row is ``(ground-station name, field, unit, lower bound, upper 
 from __future__ import annotations
 
 import math
+from dataclasses import dataclass, replace
 
 import numpy as np
 
 from autopilot.config import ConfigError, NonFiniteInputError
+
+# The design model x' = A x + b u on [phi, p] (tools.design.laws.roll_model), without the law's name prefix
+DESIGN_MODEL_ROWS = (
+    ("A11", "a11", "1/s", -1e4, 1e4, "design model A[phi, phi]"),
+    ("A12", "a12", "1", -1e4, 1e4, "design model A[phi, p]"),
+    ("A21", "a21", "1/s^2", -1e4, 1e4, "design model A[p, phi]"),
+    ("A22", "a22", "1/s", -1e4, 1e4, "design model A[p, p] (roll damping)"),
+    ("B1", "b1", "1/s", -1e5, 1e5, "design model b[phi]"),
+    ("B2", "b2", "1/s^2", 1e-3, 1e5, "design model b[p] (surface effectiveness)"),
+)
+
+
+def prefixed(prefix: str, rows) -> tuple:
+    """``rows`` with their ground-station names prefixed (``MRAC_``, ``CRM_``, ``L1_``)."""
+    return tuple((f"{prefix}{name}", *rest) for name, *rest in rows)
+
+
+@dataclass(frozen=True)
+class LawConfig:
+    """What every law's configuration has: the law interface's control rate and surface limit, its period ``dt``
+    and ``with_`` (a copy with changes)."""
+
+    control_rate_hz: float = 100.0
+    u_limit_rad: float = math.radians(30.0)
+
+    @property
+    def dt(self) -> float:
+        return 1.0 / self.control_rate_hz
+
+    def with_(self, **changes):
+        return replace(self, **changes)
+
+
+@dataclass(frozen=True)
+class DesignModelConfig(LawConfig):
+    """A law's configuration with the design model x' = A x + b u on [phi, p] (``DESIGN_MODEL_ROWS``); the defaults are
+    the KH2013A's: the paper's plant (sec. 5) with v, r and the servo residualised (``tools.design.laws``)."""
+
+    a11: float = 0.26410314075222957
+    a12: float = 1.0638124268665718
+    a21: float = -2.161188445133773
+    a22: float = -3.233723389772091
+    b1: float = 0.09824126491749602
+    b2: float = 196.14607966050582
+
+
+class Reconfigurable:
+    """``reconfigure`` for a law whose public attributes are its states and adaptation (the private ones, ``config``
+    and ``dt`` are what ``__init__`` derives from its configuration)."""
+
+    def reconfigure(self, config) -> None:
+        """Fly ``config`` from the next step on (a parameter set live), keeping the states and the adaptation."""
+        kept = {k: v for k, v in vars(self).items() if not k.startswith("_") and k not in ("config", "dt")}
+        self.__init__(config)
+        vars(self).update(kept)
 
 
 def check_fields(cfg, parameters) -> None:

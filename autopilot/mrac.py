@@ -51,22 +51,25 @@ advanced on the last command and measurement.
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, replace
+from dataclasses import dataclass
 
 import numpy as np
 
 from autopilot.config import ConfigError
-from autopilot.lawkit import check_fields, finite, lyapunov, proj
+from autopilot.lawkit import (
+    DESIGN_MODEL_ROWS,
+    DesignModelConfig,
+    Reconfigurable,
+    check_fields,
+    finite,
+    lyapunov,
+    prefixed,
+    proj,
+)
 from autopilot.shared.numerics import zoh
 
 # (name, field, unit, lower, upper, description); the CRM-MRAC's are the same fields under CRM_ plus CRM_L.
-_ROWS = (
-    ("A11", "a11", "1/s", -1e4, 1e4, "design model A[phi, phi]"),
-    ("A12", "a12", "1", -1e4, 1e4, "design model A[phi, p]"),
-    ("A21", "a21", "1/s^2", -1e4, 1e4, "design model A[p, phi]"),
-    ("A22", "a22", "1/s", -1e4, 1e4, "design model A[p, p] (roll damping)"),
-    ("B1", "b1", "1/s", -1e5, 1e5, "design model b[phi]"),
-    ("B2", "b2", "1/s^2", 1e-3, 1e5, "design model b[p] (surface effectiveness)"),
+_ROWS = DESIGN_MODEL_ROWS + (
     ("KI", "k_i", "1/(rad s)", 0.0, 1e4, "baseline integral gain k_i"),
     ("KPHI", "k_phi", "1", 0.0, 1e4, "baseline roll gain k_phi"),
     ("KP", "k_p", "s", 0.0, 1e4, "baseline roll-rate gain k_p"),
@@ -76,8 +79,8 @@ _ROWS = (
     ("GMIN", "g_min", "1", 0.0, 1e3, "projection box: each gain of K - dK at least g_min x its baseline"),
     ("GMAX", "g_max", "1", 0.0, 1e3, "projection box: each gain of K - dK at most g_max x its baseline"),
 )
-PARAMETERS = tuple((f"MRAC_{n}", f, u, lo, hi, d) for n, f, u, lo, hi, d in _ROWS)
-CRM_PARAMETERS = tuple((f"CRM_{n}", f, u, lo, hi, d) for n, f, u, lo, hi, d in _ROWS) + (
+PARAMETERS = prefixed("MRAC_", _ROWS)
+CRM_PARAMETERS = prefixed("CRM_", _ROWS) + (
     ("CRM_L", "crm_l", "1/s", 1e-6, 1e4, "closed-loop reference model gain l (L = l I)"),
 )
 TELEMETRY_FIELDS = (
@@ -86,20 +89,12 @@ TELEMETRY_FIELDS = (
 
 
 @dataclass(frozen=True)
-class MracConfig:
-    """MRAC settings.  Defaults: the KH2013A design of ``python -m tools.design.laws kh2013a`` (poles -3.2, -6.4,
+class MracConfig(DesignModelConfig):
+    """MRAC settings: the control rate, the surface limit and the design model (the KH2013A's, ``DesignModelConfig``),
+    then the law's own.  Defaults: the KH2013A design of ``python -m tools.design.laws kh2013a`` (poles -3.2, -6.4,
     -9.6, the rule's -5, -10, -15 scaled by 0.64 for the dutch roll; the projection box, k_max and gamma by its
     rules), open-loop reference model (crm_l = 0)."""
 
-    control_rate_hz: float = 100.0
-    u_limit_rad: float = math.radians(30.0)
-    # The KH2013A's design model: the paper's plant (sec. 5) with v, r and the servo residualised (tools.design.laws)
-    a11: float = 0.26410314075222957
-    a12: float = 1.0638124268665718
-    a21: float = -2.161188445133773
-    a22: float = -3.233723389772091
-    b1: float = 0.09824126491749602
-    b2: float = 196.14607966050582
     k_i: float = 0.9407967124566005  # rad of surface per (rad s)
     k_phi: float = 0.5521677294782774  # rad per rad
     k_p: float = 0.08246983127466834  # s
@@ -119,13 +114,6 @@ class MracConfig:
         if not (isinstance(self.crm_l, (int, float)) and math.isfinite(self.crm_l) and 0.0 <= self.crm_l <= 1e4):
             raise ConfigError(f"crm_l must be in [0, 10000] 1/s, got {self.crm_l!r}")
 
-    @property
-    def dt(self) -> float:
-        return 1.0 / self.control_rate_hz
-
-    def with_(self, **changes) -> MracConfig:
-        return replace(self, **changes)
-
 
 def crm_config(**changes) -> MracConfig:
     """The CRM-MRAC default: the same design with l = 12.8 1/s (4 x the reference model's dominant pole 3.2 1/s,
@@ -142,7 +130,7 @@ def matrices(cfg: MracConfig):
     return a, b, b_ref, k, a - b @ k
 
 
-class Mrac:
+class Mrac(Reconfigurable):
     """MRAC with integral action (``crm_l`` = 0) or CRM-MRAC (``crm_l`` > 0): ``u = law.step(phi, p, r, command)``."""
 
     TELEMETRY_FIELDS = TELEMETRY_FIELDS
@@ -209,23 +197,21 @@ class Mrac:
         dxi = T * (phi - r)
         if not (sat and dxi * (self.dk[0] - self._k[0]) * u_raw > 0.0):
             self.xi += dxi
-        self.x_ref = self._phi @ self.x_ref + self._g_r * r + self._g_z @ z
+        self._advance_ref(r, z)
         self._z, self.e, self.r = z, e, r
         self.u_raw, self.u, self.saturated = u_raw, u, sat
         self.steps += 1
         return u
 
-    def reconfigure(self, config) -> None:
-        """Fly ``config`` from the next step on (a parameter set live), keeping the states and the adaptation."""
-        kept = {k: v for k, v in vars(self).items() if not k.startswith("_") and k not in ("config", "dt")}
-        self.__init__(config)
-        vars(self).update(kept)
-
     def hold(self, u_applied: float = 0.0) -> None:
         """The surface asked for was not applied (``u_applied`` flew), or no fresh data: dK and x_I frozen, the
         reference model advanced on the last command and measurement."""
-        self.x_ref = self._phi @ self.x_ref + self._g_r * self.r + self._g_z @ self._z
+        self._advance_ref(self.r, self._z)
         self.u = self.u_raw = float(u_applied)
+
+    def _advance_ref(self, r: float, z: np.ndarray) -> None:
+        """x_ref to the next sample on the held command and measurement (exact ZOH, module docstring)."""
+        self.x_ref = self._phi @ self.x_ref + self._g_r * r + self._g_z @ z
 
     def telemetry(self) -> dict[str, float]:
         """This law's internals after the last step, by ``TELEMETRY_FIELDS``."""

@@ -113,3 +113,19 @@ def product_flight(controller: str, n: int = N, effectiveness=None):
     run = run_of(controller)
     series = run_inprocess(sc, run).series
     return series["phi"], series["u"], controller_config(sc, run)
+
+
+CHECK_N, CHECK_FAULT = 1500, (1000, 0.3)  # the checks' flight: 15 s, the effectiveness at 0.3 from 10 s
+
+
+def flown_against(controller: str, independent):
+    """The check's two flights of ``controller``'s shipped design: (config, the independent loop's (roll, surface),
+    the product's lockstep flight's), ``independent(config)`` giving ``ivp_flight``'s (law_sample, state0)."""
+    phi, u, cfg = product_flight(controller, n=CHECK_N, effectiveness=CHECK_FAULT)
+    return cfg, ivp_flight(*independent(cfg), n=CHECK_N, effectiveness=CHECK_FAULT), (phi, u)
+
+
+def assert_agree(flight, independent, tol: float = 1e-7) -> None:
+    """Roll and surface of two (roll, surface) flights within ``tol`` rad at every sample."""
+    for a, b in zip(flight, independent, strict=True):
+        assert np.max(np.abs(a - b)) < tol

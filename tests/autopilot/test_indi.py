@@ -50,34 +50,28 @@ def _paper(cfg: IndiConfig):
 def flown():
     """15 s, the effectiveness at 0.3 from 10 s: the product's lockstep flight of ``indi`` with its shipped design,
     and the paper's loop with that design integrated by solve_ivp."""
-    n, eff = 1500, (1000, 0.3)
-    phi, u, cfg = loop.product_flight("indi", n=n, effectiveness=eff)
-    phi_ref, u_ref = loop.ivp_flight(*_paper(cfg), n=n, effectiveness=eff)
-    return cfg, (phi_ref, u_ref), (phi, u)
+    return loop.flown_against("indi", _paper)
 
 
 def test_the_products_lockstep_flight_matches_the_paper_loop(flown):
     """The product's flight (ControlStep, the SITL's aircraft, the fault as --fault flies it) against the paper's
     loop: the same sampling instants and held surface, the plant advanced exactly by both, so only solve_ivp's
     tolerance remains (measured 6e-14 rad); 1e-7 rad bounds it with room."""
-    _, (phi_ref, u_ref), (phi, u) = flown
-    assert np.max(np.abs(phi - phi_ref)) < 1e-7
-    assert np.max(np.abs(u - u_ref)) < 1e-7
-    assert np.max(np.abs(u[1000:])) > np.max(np.abs(u[:1000]))  # the fault flew: more surface after 10 s
+    _, independent, product = flown
+    loop.assert_agree(product, independent)
+    assert np.max(np.abs(product[1][1000:])) > np.max(np.abs(product[1][:1000]))  # the fault flew: more surface
 
 
 @pytest.mark.parametrize("mu", [None, 10.0], ids=["designed", "fast-lms"])
 def test_matches_the_paper_loop_integrated_by_solve_ivp(mu, flown):
-    n, eff = 1500, (1000, 0.3)
     if mu is None:
-        cfg, (phi_ref, u_ref), _ = flown
+        cfg, independent, _ = flown
     else:
         cfg = IndiConfig(mu=mu)
-        phi_ref, u_ref = loop.ivp_flight(*_paper(cfg), n=n, effectiveness=eff)
+        independent = loop.ivp_flight(*_paper(cfg), n=loop.CHECK_N, effectiveness=loop.CHECK_FAULT)
     law = Indi(cfg)
-    phi, u = loop.lockstep(law, n=n, effectiveness=eff)
-    assert np.max(np.abs(phi - phi_ref)) < 1e-7
-    assert np.max(np.abs(u - u_ref)) < 1e-7
+    phi, u = loop.lockstep(law, n=loop.CHECK_N, effectiveness=loop.CHECK_FAULT)
+    loop.assert_agree((phi, u), independent)
     assert np.max(np.abs(phi)) > math.radians(9)
     if mu is not None:
         assert law.g < 0.9 * cfg.g0  # the LMS estimate moved toward the lower effectiveness

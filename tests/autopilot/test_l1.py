@@ -54,17 +54,13 @@ def _book(cfg: L1Config):
 def flown():
     """15 s, the effectiveness at 0.3 from 10 s: the product's lockstep flight of ``l1`` with its shipped design, and
     the book's loop with that design integrated by solve_ivp."""
-    n, eff = 1500, (1000, 0.3)
-    phi, u, cfg = loop.product_flight("l1", n=n, effectiveness=eff)
-    phi_ref, u_ref = loop.ivp_flight(*_book(cfg), n=n, effectiveness=eff)
-    return cfg, (phi_ref, u_ref), (phi, u), (n, eff)
+    return loop.flown_against("l1", _book)
 
 
 def test_matches_the_book_loop_integrated_by_solve_ivp(flown):
-    cfg, (phi_ref, u_ref), _, (n, eff) = flown
-    phi, u = loop.lockstep(L1(cfg), n=n, effectiveness=eff)
-    assert np.max(np.abs(phi - phi_ref)) < 1e-7
-    assert np.max(np.abs(u - u_ref)) < 1e-7
+    cfg, independent, _ = flown
+    phi, u = loop.lockstep(L1(cfg), n=loop.CHECK_N, effectiveness=loop.CHECK_FAULT)
+    loop.assert_agree((phi, u), independent)
     assert np.max(np.abs(phi)) > math.radians(9)
 
 
@@ -72,10 +68,9 @@ def test_the_products_lockstep_flight_matches_the_book_loop(flown):
     """The product's flight (ControlStep, the SITL's aircraft, the fault as --fault flies it) against the book's loop:
     the same sampling instants and held surface, the plant advanced exactly by both, so only solve_ivp's tolerance
     remains (measured 5e-14 rad); 1e-7 rad bounds it with room."""
-    _, (phi_ref, u_ref), (phi, u), _ = flown
-    assert np.max(np.abs(phi - phi_ref)) < 1e-7
-    assert np.max(np.abs(u - u_ref)) < 1e-7
-    assert np.max(np.abs(u[1000:])) > np.max(np.abs(u[:1000]))  # the fault flew: more surface after 10 s
+    _, independent, product = flown
+    loop.assert_agree(product, independent)
+    assert np.max(np.abs(product[1][1000:])) > np.max(np.abs(product[1][:1000]))  # the fault flew: more surface
 
 
 def test_a_faster_filter_matches_too_through_saturation():

@@ -58,18 +58,15 @@ def _textbook(cfg: MracConfig):
 def flown(request):
     """15 s (two edges of the square wave, the effectiveness at 0.3 from 10 s): the product's lockstep flight of the
     law with its shipped design, and the textbook's loop with that design integrated by solve_ivp."""
-    n, eff = 1500, (1000, 0.3)
-    phi, u, cfg = loop.product_flight(request.param, n=n, effectiveness=eff)
+    cfg, independent, product = loop.flown_against(request.param, _textbook)
     assert cfg.crm_l > 0 if request.param == "crm-mrac" else cfg.crm_l == 0
-    phi_ref, u_ref = loop.ivp_flight(*_textbook(cfg), n=n, effectiveness=eff)
-    return cfg, (phi_ref, u_ref), (phi, u), (n, eff)
+    return cfg, independent, product
 
 
 def test_matches_the_textbook_loop_integrated_by_solve_ivp(flown):
-    cfg, (phi_ref, u_ref), _, (n, eff) = flown
-    phi, u = loop.lockstep(Mrac(cfg), n=n, effectiveness=eff)
-    assert np.max(np.abs(phi - phi_ref)) < 1e-7
-    assert np.max(np.abs(u - u_ref)) < 1e-7
+    cfg, independent, _ = flown
+    phi, u = loop.lockstep(Mrac(cfg), n=loop.CHECK_N, effectiveness=loop.CHECK_FAULT)
+    loop.assert_agree((phi, u), independent)
     assert np.max(np.abs(phi)) > math.radians(9)  # it flew the command
 
 
@@ -78,10 +75,9 @@ def test_the_products_lockstep_flight_matches_the_textbook_loop(flown):
     loop: both sample the roll at the same instants and hold the surface over the period, and the SITL advances the
     linear plant exactly (ten exact 1 ms steps), so the sampling leaves no difference to explain; what remains is
     solve_ivp's tolerance (rtol 1e-11; measured 2e-13 rad), which 1e-7 rad bounds with room."""
-    _, (phi_ref, u_ref), (phi, u), _ = flown
-    assert np.max(np.abs(phi - phi_ref)) < 1e-7
-    assert np.max(np.abs(u - u_ref)) < 1e-7
-    assert np.max(np.abs(u[1000:])) > np.max(np.abs(u[:1000]))  # the fault flew: more surface after 10 s
+    _, independent, product = flown
+    loop.assert_agree(product, independent)
+    assert np.max(np.abs(product[1][1000:])) > np.max(np.abs(product[1][:1000]))  # the fault flew: more surface
 
 
 @pytest.mark.parametrize("crm", [False, True], ids=["mrac", "crm-mrac"])
