@@ -185,3 +185,26 @@ def test_the_page_block_is_rewritten_from_a_summary_and_names_its_commands(cells
     assert "- PID (as designed) wins 1: `effectiveness=0.3`" in text
     assert "- `effectiveness=0.3`: PID (as designed) over PID at CL-SAC's energy:" in text
     assert main([str(path), "--page", str(tmp_path / "none.md")]) == 2
+
+
+@pytest.mark.e2e  # one ARS iteration of 2 directions, then 4 KH2013A flights
+def test_fly_trains_the_policy_flies_the_blocks_command_and_writes_the_page(tmp_path):
+    page = tmp_path / "page.md"
+    page.write_text(
+        "<!-- leaderboard-ars: --seed 1 --iterations 1 --directions 2 --top 1 -->\n"
+        "<!-- leaderboard-damage: --plant kh2013a --controllers baseline,{policy} --kinds effectiveness "
+        "--severity effectiveness=0.3 --runs 1 --seed 1 -->\nstale\n<!-- /leaderboard -->\n"
+    )
+    cmd = [sys.executable, "-m", "tools.experiment.damage.leaderboard", "--fly", str(tmp_path / "o")]
+    r = subprocess.run(
+        [*cmd, "--page", str(page)],
+        capture_output=True,
+        text=True,
+        timeout=900,
+    )
+    assert r.returncode == 0, r.stdout + r.stderr
+    assert json.loads((tmp_path / "o" / "ars" / "policy.json").read_text())["settings"]["seed"] == 1
+    doc = json.loads((tmp_path / "o" / "damage" / "summary.json").read_text())
+    assert doc["runs"] == 1 and any(c.endswith("policy_law.py:Policy") for c in doc["controllers"])
+    text = page.read_text()
+    assert "stale" not in text and "| `effectiveness=0.3` | ARS linear policy | " in text.replace("**", "")
