@@ -140,7 +140,7 @@ def test_a_win_by_share_counts_the_seeds_only_the_winner_keeps():
     flights, results = [], []
     for c, ok in (("clsac", True), ("baseline", False)):
         for seed in range(1, 7):
-            flights.append(Flight("kh2013a", c, "delay", 0.05, 10.0, seed))
+            flights.append(DamageFlight("kh2013a", c, "delay", 0.05, 10.0, seed))
             results.append(_rec(ok, (0.1, 0.2, 0.3, 0.5, 0.6, 0.7)[seed - 1] if ok else 5.0, 1.0, None))
     m = margins(summarise(flights, results), "kh2013a")["delay=0.05"]
     assert (m["winner"], m["runner_up"]) == ("clsac", "baseline")
