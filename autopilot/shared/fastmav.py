@@ -134,10 +134,12 @@ FAST_DECODE_IDS = (mavlink.MAVLINK_MSG_ID_ATTITUDE, mavlink.MAVLINK_MSG_ID_SERVO
 FAST_DECODERS = {mid: FastDecoder(mavlink.mavlink_map[mid]) for mid in FAST_DECODE_IDS}
 # ArduPilot's AOA_SSA (ardupilotmega dialect, id 11020: time_usec, AOA and SSA in deg): the sideslip a square MIMO
 # plant's SITL sends beside ATTITUDE (docs/spec.md, "Square MIMO CL-SAC"); decoded here, since the links parse the
-# common dialect
-from pymavlink.dialects.v20 import ardupilotmega as _apm  # noqa: E402
+# common dialect.  Taken from pymavlink's ``all`` dialect (the same message: id, fields and CRC extra), which every
+# process of a flight loads already (``autopilot.shared.link``): loading ``ardupilotmega`` as well cost each of
+# them about 30 ms.
+from pymavlink.dialects.v20 import all as _all  # noqa: E402
 
-AOA_SSA = _apm.MAVLink_aoa_ssa_message
+AOA_SSA = _all.MAVLink_aoa_ssa_message
 AOA_SSA_ID = AOA_SSA.id
 FAST_DECODERS[AOA_SSA_ID] = FastDecoder(AOA_SSA)
 HOT_IDS = FAST_DECODE_IDS
