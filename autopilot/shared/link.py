@@ -298,6 +298,16 @@ class UdpLink(Admission):
         self._sendto(targets, buf, (msg.get_msgId(),), (buf,))
         return buf
 
+    def send_fast(self, packer: FastPacker, *wire_values) -> bytes | None:
+        """``send`` for a message packed by a fast packer (``wire_values`` in struct order): the same bytes, sequence
+        number, counters and tlog as ``send`` of the pymavlink message; None if there is no peer yet."""
+        targets = self._targets()
+        if not targets:
+            return None
+        buf = self.pack_fast(packer, *wire_values)
+        self._sendto(targets, buf, (packer.msgid,), (buf,))
+        return buf
+
     def fast_packer(self, cls) -> FastPacker:
         """A byte-identical fast encoder for a hot message class (see ``autopilot.shared.fastmav``)."""
         return FastPacker(cls, self.mav.srcSystem, self.mav.srcComponent, self.signing)
