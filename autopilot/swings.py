@@ -42,12 +42,11 @@ def swing_step(st: list, d, k):
     ``OSC_REGULAR_TOL`` of their max with this one's.  A NaN d changes nothing.  Elementwise on numpy arrays (the
     study; kernel.c does the same operations in the same order) and on floats (the monitor)."""
     up = st[_UP] != 0.0
-    ext = st[_EXT]
-    grow = (d > ext) & up | (d < ext) & ~up if not isinstance(up, bool) else (d > ext if up else d < ext)
     if isinstance(up, bool):
-        back = (d <= ext - OSC_SWING_RAD) if up else (d >= ext + OSC_SWING_RAD)
-    else:
-        back = (d <= ext - OSC_SWING_RAD) & up | (d >= ext + OSC_SWING_RAD) & ~up
+        return _swing_step_float(st, d, k, up)
+    ext = st[_EXT]
+    grow = (d > ext) & up | (d < ext) & ~up
+    back = (d <= ext - OSC_SWING_RAD) & up | (d >= ext + OSC_SWING_RAD) & ~up
     ext = _where(grow, d, ext)
     kext = _where(grow, k, st[_KEXT])
     size = abs(ext - st[_LAST])
@@ -63,6 +62,41 @@ def swing_step(st: list, d, k):
     st[_UP] = _where(back, 1.0 - st[_UP], st[_UP])
     st[_EXT] = _where(back, d, ext)
     st[_KEXT] = _where(back, k, kext)
+    return regular
+
+
+def _swing_step_float(st: list, d: float, k: float, up: bool) -> bool:
+    """:func:`swing_step` on floats (the autopilot's monitor, once per control step): the same operations in the same
+    order, without the elementwise helpers' type tests (``tests/autopilot/test_swings.py`` holds the two forms to the
+    same states, bit for bit)."""
+    ext = st[_EXT]
+    grow = d > ext if up else d < ext
+    back = (d <= ext - OSC_SWING_RAD) if up else (d >= ext + OSC_SWING_RAD)
+    if grow:
+        ext = d
+        kext = k
+    else:
+        kext = st[_KEXT]
+    size = abs(ext - st[_LAST])
+    dur = kext - st[_KLAST]
+    prev, pdur = st[_SIZE], st[_DUR]
+    regular = (
+        back
+        and prev > 0.0
+        and abs(size - prev) <= OSC_REGULAR_TOL * (size if size >= prev else prev)
+        and abs(dur - pdur) <= OSC_REGULAR_TOL * (dur if dur >= pdur else pdur)
+    )
+    if back:
+        st[_SIZE] = size
+        st[_DUR] = dur
+        st[_LAST] = ext
+        st[_KLAST] = kext
+        st[_UP] = 1.0 - st[_UP]
+        st[_EXT] = d
+        st[_KEXT] = k
+    else:
+        st[_EXT] = ext
+        st[_KEXT] = kext
     return regular
 
 

@@ -21,20 +21,26 @@ import struct
 import time
 from types import SimpleNamespace
 
-# The standard-modes messages are in pymavlink's ``all`` and ``development`` dialects, not in ``common``.  Their
-# wire format is the same MAVLink 2 frame: a common-dialect link packs them with the message's own id and CRC extra.
-from pymavlink.dialects.v20 import all as _all
-
 from autopilot.controllers import law_of
 from autopilot.injection import FailureRelay
 from autopilot.params import PARAM_ID_LEN, PARAMS, ParamError, ParamTable, decode, encode
-from autopilot.shared.mavlink import mavlink
+from autopilot.shared.mavlink import OTHER_DIALECT_MESSAGES, all_dialect, mavlink
 from autopilot.step import Failsafe
 
 M = mavlink
 
-AVAILABLE_MODES = _all.MAVLINK_MSG_ID_AVAILABLE_MODES  # 435
-CURRENT_MODE = _all.MAVLINK_MSG_ID_CURRENT_MODE  # 436
+# The standard-modes messages are in pymavlink's ``all`` and ``development`` dialects, not in ``common``.  Their
+# wire format is the same MAVLink 2 frame: a common-dialect link packs them with the message's own id and CRC extra.
+# CURRENT_MODE, sent every second, is packed by a fast packer on its wire layout (custom_mode, intended_custom_mode
+# uint32, standard_mode uint8), so the autopilot does not load the ``all`` dialect (~110 M instructions at its start)
+# for it; AVAILABLE_MODES, sent on request, is that dialect's class (``all_dialect``).  tests/autopilot/test_vehicle.py
+# holds the packed CURRENT_MODE to pymavlink's bytes.
+AVAILABLE_MODES = 435
+CURRENT_MODE = 436
+MAV_STANDARD_MODE_NON_STANDARD = 0  # the standard mode of every mode of ours (pymavlink's MAV_STANDARD_MODE)
+_CURRENT_MODE_MSG = SimpleNamespace(
+    id=CURRENT_MODE, crc_extra=OTHER_DIALECT_MESSAGES[CURRENT_MODE][1], unpacker=struct.Struct("<IIB")
+)
 # PROTOCOL_VERSION (300, minimal.xml) is in none of pymavlink 2.4's generated dialects: version, min_version,
 # max_version (uint16), spec_version_hash[8], library_version_hash[8] (uint8), CRC extra 217 (computed from the
 # definition with pymavlink's generator algorithm, tests/autopilot/test_vehicle.py).
@@ -141,6 +147,7 @@ class Vehicle:
         self._next_status = 0.0
         self._pk_nvf = self.link.fast_packer(M.MAVLink_named_value_float_message)
         self._pk_pv = self.link.fast_packer(_PROTOCOL_VERSION_MSG)
+        self._pk_current_mode = self.link.fast_packer(_CURRENT_MODE_MSG)
         self.failures = FailureRelay(ap)  # MAV_CMD_INJECT_FAILURE, relayed to the SITL
         self._reply_tokens: dict = {}  # station address -> (tokens, perf_counter): the answers' budget (REPLY_RATE)
         if mode in (Mode.SAC, Mode.CLSAC):
@@ -156,7 +163,12 @@ class Vehicle:
         self.link.broadcast(bufs, msgids)
 
     def send_all(self, msg) -> None:
-        self.link.send(msg)  # an admitting link sends to every admitted peer and the default port
+        """A pymavlink message, or (fast packer, wire values...) (``_current_mode``), to every ground station: an
+        admitting link sends to every admitted peer and the default port."""
+        if type(msg) is tuple:
+            self.link.send_fast(*msg)
+        else:
+            self.link.send(msg)
 
     def reply(self, msg) -> bool:
         """An answer to the station whose message is being handled, sent to every ground station (each checks the
@@ -536,17 +548,17 @@ class Vehicle:
             sensors, sensors, healthy, load, 65535, -1, -1, drop, min(65535, rej), 0, 0, 0, 0
         )
 
-    def _current_mode(self):
-        return _all.MAVLink_current_mode_message(
-            _all.MAV_STANDARD_MODE_NON_STANDARD, int(self.mode), int(self.selected)
-        )
+    def _current_mode(self) -> tuple:
+        """CURRENT_MODE as (its fast packer, the wire values): ``send_all`` and ``reply`` take it as a message."""
+        return (self._pk_current_mode, int(self.mode), int(self.selected), MAV_STANDARD_MODE_NON_STANDARD)
 
     def _available_modes(self, index: int):
         modes = self.modes
         mode = modes[index - 1]
-        props = _all.MAV_MODE_PROPERTY_NOT_USER_SELECTABLE if mode not in self.selectable else 0
-        return _all.MAVLink_available_modes_message(
-            len(modes), index, _all.MAV_STANDARD_MODE_NON_STANDARD, int(mode), props, mode.name.encode()
+        every = all_dialect()
+        props = every.MAV_MODE_PROPERTY_NOT_USER_SELECTABLE if mode not in self.selectable else 0
+        return every.MAVLink_available_modes_message(
+            len(modes), index, every.MAV_STANDARD_MODE_NON_STANDARD, int(mode), props, mode.name.encode()
         )
 
     def _send_available_modes(self, msg) -> None:

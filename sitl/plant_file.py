@@ -16,7 +16,6 @@ No numerics here (``sitl.linear_plant`` checks the values).
 
 from __future__ import annotations
 
-import difflib
 import os
 import stat
 import tomllib
@@ -136,6 +135,8 @@ def check_keys(path: Path, doc: dict) -> None:
             if home is not None:
                 why = f"{key} goes under [{home}]" + (" (a transfer function)" if key in ("num", "den") else "")
             else:
+                import difflib  # only to name the key meant (difflib and heapq: not loaded by every flight)
+
                 close = difflib.get_close_matches(key, KEYS[table], n=1)
                 why = f"did you mean {close[0]}?" if close else f"the keys there are {', '.join(KEYS[table])}"
             raise PlantFileError(f"{path}: unknown key {key!r} {_where(table)}: {why}")

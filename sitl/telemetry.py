@@ -88,25 +88,33 @@ class SitlHook(ProcessHook):
         self._push = self.table.push
         self._held = tel.table(SITL_HELD_TABLE).push if held else None
         self._phi = STATE_NAMES.index("phi")
-        self._rows: dict = {}  # the last row of each table: where a fault's markers sit
+        # the last row of each table: where a fault's markers sit (attributes, not a dict keyed by the layout: hashing
+        # the layout every frame cost more than the row)
+        self._row: tuple | None = None
+        self._held_row: tuple | None = None
         self._marks: dict = {}  # the fault-marker tables, made at the first fault (a flight without none)
 
     def __call__(self, rec) -> None:
         self.last_t = t = rec.t_sim
         wall = time.time()
-        self._rows[self._layout] = row = tuple(rec.x.tolist()) + (nan_if_none(rec.u), nan_if_none(rec.pwm))
+        self._row = row = tuple(rec.x.tolist()) + (nan_if_none(rec.u), nan_if_none(rec.pwm))
         self._push((t, wall, row))
         if self._held is not None:
             held = rec.sitl.aircraft.held()
-            self._rows[SITL_HELD_TABLE] = row = (*(held[k] for k in HELD_FIELDS), float(rec.x[self._phi]))
+            self._held_row = row = (*(held[k] for k in HELD_FIELDS), float(rec.x[self._phi]))
             self._held((t, wall, row))
+
+    def _last_rows(self) -> list:
+        """(layout, its last row) of each table that has one."""
+        rows = [] if self._row is None else [(self._layout, self._row)]
+        return rows + ([] if self._held_row is None else [(SITL_HELD_TABLE, self._held_row)])
 
     def event(self, severity, text: str) -> None:
         """A status event in ``/sitl/events``; a fault's start or end also as a marker on every plot."""
         super().event(severity, text)
         if str(text).startswith(FAULT_PREFIX):
             wall = time.time()
-            for layout, row in self._rows.items():
+            for layout, row in self._last_rows():
                 if layout not in self._marks:
                     self._marks[layout] = self.tel.table(fault_marks_layout(layout))
                 self._marks[layout].push((self.last_t, wall, row))

@@ -13,7 +13,7 @@ SERVO_OUTPUT_RAW): the payload's values as one tuple in wire order, no message o
 
 from __future__ import annotations
 
-from autopilot.shared.mavlink import mavlink
+from autopilot.shared.mavlink import OTHER_DIALECT_MESSAGES, all_dialect, mavlink
 
 
 def _x25crc(data: bytes) -> int:
@@ -134,11 +134,35 @@ FAST_DECODE_IDS = (mavlink.MAVLINK_MSG_ID_ATTITUDE, mavlink.MAVLINK_MSG_ID_SERVO
 FAST_DECODERS = {mid: FastDecoder(mavlink.mavlink_map[mid]) for mid in FAST_DECODE_IDS}
 # ArduPilot's AOA_SSA (ardupilotmega dialect, id 11020: time_usec, AOA and SSA in deg): the sideslip a square MIMO
 # plant's SITL sends beside ATTITUDE (docs/spec.md, "Square MIMO CL-SAC"); decoded here, since the links parse the
-# common dialect
-from pymavlink.dialects.v20 import ardupilotmega as _apm  # noqa: E402
+# common dialect.  Its class is pymavlink's ``all`` dialect's, loaded at the first use (``AOA_SSA``, or the first
+# AOA_SSA a link decodes: ``fast_decoder``), not by every process of a flight (about 35 ms each).
+AOA_SSA_ID = next(mid for mid, (name, _extra) in OTHER_DIALECT_MESSAGES.items() if name == "AOA_SSA")
+_LAZY_CLASSES = {AOA_SSA_ID: "MAVLink_aoa_ssa_message"}  # msgid -> its class in the all dialect
 
-AOA_SSA = _apm.MAVLink_aoa_ssa_message
-AOA_SSA_ID = AOA_SSA.id
-FAST_DECODERS[AOA_SSA_ID] = FastDecoder(AOA_SSA)
+
+def _lazy_class(msgid: int):
+    """The class of a lazily loaded message (``_LAZY_CLASSES``), its fast decoder registered in ``FAST_DECODERS``."""
+    cls = getattr(all_dialect(), _LAZY_CLASSES[msgid])
+    if msgid not in FAST_DECODERS:
+        FAST_DECODERS[msgid] = FastDecoder(cls)
+    return cls
+
+
+def fast_decoder(msgid: int):
+    """``FAST_DECODERS``' decoder of ``msgid`` (None: none, decode with pymavlink), built for a lazily loaded class
+    (AOA_SSA) at its first message."""
+    fast = FAST_DECODERS.get(msgid)
+    if fast is None and msgid in _LAZY_CLASSES:
+        _lazy_class(msgid)
+        fast = FAST_DECODERS[msgid]
+    return fast
+
+
+def __getattr__(name: str):
+    if name == "AOA_SSA":  # the class, loaded at the first use (module docstring)
+        return _lazy_class(AOA_SSA_ID)
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
+
+
 HOT_IDS = FAST_DECODE_IDS
 HOT_DECODERS = {mid: HotDecoder(mavlink.mavlink_map[mid]) for mid in HOT_IDS}

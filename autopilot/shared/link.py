@@ -55,8 +55,6 @@ import struct
 import time
 from collections import Counter
 
-from pymavlink.dialects.v20 import all as _all_dialect
-
 from autopilot.shared.admission import (  # noqa: F401  (re-exported: part of this module's API)
     _HEARTBEAT,
     GCS_COMPONENT,
@@ -66,12 +64,26 @@ from autopilot.shared.admission import (  # noqa: F401  (re-exported: part of th
     heartbeat_type,
     looks_like_gcs,
 )
-from autopilot.shared.fastmav import FAST_DECODERS, HOT_DECODERS, FastPacker, crc16
-from autopilot.shared.mavlink import mavlink
+from autopilot.shared.fastmav import FAST_DECODERS, HOT_DECODERS, FastPacker, crc16, fast_decoder
+from autopilot.shared.mavlink import OTHER_DIALECT_MESSAGES, all_dialect, mavlink
 
-# CRC extras of every message pymavlink knows (a superset of common with the same extras), so a valid message of
-# another dialect, e.g. the vehicle's CURRENT_MODE (436, development), is a checked ``ignored_msg``, not unknown
-_CRC_EXTRA = {mid: bytes([cls.crc_extra]) for mid, cls in _all_dialect.mavlink_map.items()}
+# CRC extras of every message pymavlink knows, so a valid message of another dialect, e.g. the vehicle's CURRENT_MODE
+# (436, development), is a checked ``ignored_msg``, not unknown: common's and the other dialects' messages a flight
+# exchanges (``OTHER_DIALECT_MESSAGES``) at once, the rest of pymavlink's ``all`` dialect at the first message of it
+# (``_other_extra``: the same extras, without loading that dialect in every process)
+_CRC_EXTRA = {mid: bytes([cls.crc_extra]) for mid, cls in mavlink.mavlink_map.items()}
+_CRC_EXTRA.update({mid: bytes([extra]) for mid, (_name_, extra) in OTHER_DIALECT_MESSAGES.items()})
+_ALL_EXTRAS_LOADED = [False]
+
+
+def _other_extra(msgid: int) -> bytes | None:
+    """The CRC extra of a message not in ``_CRC_EXTRA`` yet: pymavlink's ``all`` dialect's (loaded once), else None."""
+    if not _ALL_EXTRAS_LOADED[0]:
+        _ALL_EXTRAS_LOADED[0] = True
+        _CRC_EXTRA.update({mid: bytes([cls.crc_extra]) for mid, cls in all_dialect().mavlink_map.items()})
+    return _CRC_EXTRA.get(msgid)
+
+
 REJECT_REASONS = (
     "empty",
     "bad_magic",
@@ -286,6 +298,16 @@ class UdpLink(Admission):
         self._sendto(targets, buf, (msg.get_msgId(),), (buf,))
         return buf
 
+    def send_fast(self, packer: FastPacker, *wire_values) -> bytes | None:
+        """``send`` for a message packed by a fast packer (``wire_values`` in struct order): the same bytes, sequence
+        number, counters and tlog as ``send`` of the pymavlink message; None if there is no peer yet."""
+        targets = self._targets()
+        if not targets:
+            return None
+        buf = self.pack_fast(packer, *wire_values)
+        self._sendto(targets, buf, (packer.msgid,), (buf,))
+        return buf
+
     def fast_packer(self, cls) -> FastPacker:
         """A byte-identical fast encoder for a hot message class (see ``autopilot.shared.fastmav``)."""
         return FastPacker(cls, self.mav.srcSystem, self.mav.srcComponent, self.signing)
@@ -487,6 +509,8 @@ class UdpLink(Admission):
             msgid = data[j + 7] | (data[j + 8] << 8) | (data[j + 9] << 16)
             extra = _CRC_EXTRA.get(msgid)
             if extra is None:
+                extra = _other_extra(msgid)
+            if extra is None:
                 reason = reason or "unknown_msg"
                 continue
             c = crc16(data[j + 1 : j + 10 + plen] + extra)
@@ -520,7 +544,7 @@ class UdpLink(Admission):
                 reason = reason or "ignored_msg"
                 continue
             try:
-                fast = FAST_DECODERS.get(msgid)
+                fast = FAST_DECODERS.get(msgid) or fast_decoder(msgid)
                 msg = fast(raw) if fast is not None else self._decoder.decode(bytearray(raw))
             except Exception:  # noqa: BLE001  (any decoder failure is a rejected packet, never a crash)
                 reason = reason or "decode_error"
@@ -623,7 +647,12 @@ class UdpLink(Admission):
 
 
 def _name(msgid: int) -> str:
-    cls = _all_dialect.mavlink_map.get(msgid)
+    cls = mavlink.mavlink_map.get(msgid)
+    if cls is not None:
+        return cls.msgname
+    if msgid in OTHER_DIALECT_MESSAGES:
+        return OTHER_DIALECT_MESSAGES[msgid][0]
+    cls = all_dialect().mavlink_map.get(msgid)
     return cls.msgname if cls is not None else str(msgid)
 
 

@@ -10,6 +10,23 @@ import math
 
 from pymavlink.dialects.v20 import common as mavlink  # noqa: F401  (MAVLink 2, common dialect; re-exported)
 
+# ------------------------------------------------------------------------------------- other dialects
+# The messages of dialects other than common that a flight's processes exchange: the vehicle's standard-modes messages
+# (development dialect) and ArduPilot's AOA_SSA (ardupilotmega; a square MIMO plant's sideslip): id -> (name, CRC
+# extra).  pymavlink's ``all`` dialect holds them and every other, but loading it costs a process about 110 M
+# instructions (~35 ms): the links check these by this table and load ``all`` (``all_dialect``) only for another
+# dialect's message or for a message class.  tests/autopilot/shared/test_mavlink_units.py holds them to pymavlink's.
+OTHER_DIALECT_MESSAGES = {435: ("AVAILABLE_MODES", 134), 436: ("CURRENT_MODE", 193), 11020: ("AOA_SSA", 205)}
+
+
+def all_dialect():
+    """pymavlink's ``all`` dialect (every message it knows, a superset of common with the same CRC extras), loaded at
+    the first call."""
+    from pymavlink.dialects.v20 import all as dialect
+
+    return dialect
+
+
 # ---------------------------------------------------------------------------------------------- IDs
 AUTOPILOT_ID = (1, 1)  # the autopilot as ground stations see it (its GCS link; MAV_COMP_ID_AUTOPILOT1)
 # The autopilot's link to the SITL: its own component (MAV_COMP_ID_SERVO1, it drives the rudder servo), so a tlog

@@ -54,6 +54,27 @@ def test_the_swing_counter_is_the_count_by_hand_on_floats_and_on_arrays():
     assert not any(swing_step(st, v, float(k)) for k, v in enumerate([math.nan] * 5))  # NaN changes nothing
 
 
+def test_the_float_form_keeps_the_array_form_s_state_bit_for_bit():
+    """The monitor's float form (a fast path of its own) and the study's elementwise form go through the same
+    states, to the last bit, on noisy, breathing and NaN-holed deviations."""
+    rng = np.random.default_rng(5)
+    t = np.arange(2000) / RATE
+    runs = np.radians(
+        [
+            3.0 * np.sin(2 * np.pi * 1.3 * t) + rng.normal(0, 0.5, t.size),
+            np.cumsum(rng.normal(0, 0.4, t.size)),
+            np.where(rng.random(t.size) < 0.01, np.nan, 4.0 * np.sin(2 * np.pi * 0.9 * t)),
+        ]
+    )
+    st_batch = swing_start(runs[:, 0])
+    st_float = [swing_start(float(r[0])) for r in runs]
+    for k in range(t.size):
+        got = swing_step(st_batch, runs[:, k], float(k))
+        for i, st in enumerate(st_float):
+            assert swing_step(st, float(runs[i, k]), float(k)) is bool(got[i])
+            assert np.array_equal(np.array(st), np.array([s[i] for s in st_batch]), equal_nan=True)
+
+
 def _sine_flight(amp_deg: float, f_hz: float, seconds: float = 20.0, start: float = 0.0, ref_deg: float = 10.0):
     """ref = 10 deg sin(2 pi t / 10 s); roll = ref + amp sin(2 pi f (t - start)) from ``start``."""
     t = np.arange(int(round(seconds * RATE))) / RATE

@@ -713,3 +713,19 @@ def test_a_flight_disarmed_5_s_in_and_never_armed_again_is_not_ok(tmp_path):
     assert 0.1 < law < 0.4 and gs["disarmed_s"] > 18.0, gs
     reason = res.summary["controlled"]["reason"]
     assert reason.startswith(f"the law flew only {100 * law:.1f} % of the flight (limit: more than 50 %"), reason
+
+
+def test_current_mode_is_packed_as_pymavlink_packs_it():
+    """CURRENT_MODE goes out through a fast packer on its wire layout (the autopilot does not load pymavlink's
+    ``all`` dialect for it): the same bytes as that dialect's message, every mode and sequence number."""
+    from autopilot.shared.fastmav import FastPacker
+    from autopilot.vehicle import _CURRENT_MODE_MSG, CURRENT_MODE, MAV_STANDARD_MODE_NON_STANDARD
+
+    assert CURRENT_MODE == mavall.MAVLINK_MSG_ID_CURRENT_MODE and MAV_STANDARD_MODE_NON_STANDARD == 0
+    assert mavall.MAV_STANDARD_MODE_NON_STANDARD == 0
+    packer = FastPacker(_CURRENT_MODE_MSG, 1, 1)
+    ref = mavall.MAVLink(None, 1, 1)
+    for seq, (mode, selected) in enumerate([(m, s) for m in Mode for s in (Mode.MANUAL, Mode.CLSAC, Mode.LAW)]):
+        ref.seq = seq % 256
+        want = mavall.MAVLink_current_mode_message(MAV_STANDARD_MODE_NON_STANDARD, int(mode), int(selected)).pack(ref)
+        assert packer(seq % 256, int(mode), int(selected), MAV_STANDARD_MODE_NON_STANDARD) == want

@@ -18,40 +18,60 @@ python-control and scipy are imported on first use, so ``python -m tools.pfc --h
 
 from __future__ import annotations
 
-from autopilot.config import PFC_PRESETS
-from tools.design._common import AnalysisError, CoefficientError, PfcError
-from tools.design.aspr import (
-    PAPER_PFC,
-    ROBUST_PFC,
-    augmented_realisation,
-    augmented_tf,
-    damping_ratio,
-    dc_gain,
-    hf_gain,
-    is_minimum_phase,
-    is_waspr,
-    parse_coefficients,
-    pfc_tf,
-    plant_tf,
-    relative_degree,
-    ss_to_tf,
-    steady_state_offset,
-    tf_coefficients,
-    validate_pfc,
-)
-from tools.design.bands import (
-    GainBand,
-    bilinear_realisation,
-    clsac_kx_bands,
-    compensator_gain_margin,
-    discrete_bands,
-    discretise,
-    unstable_gain_bands,
-    unstable_gain_bands_discrete,
-)
-from tools.design.closed_loop import paper_scenario_runs
-from tools.design.report import WasprReport, analyse
-from tools.design.search import first_order_pfc, robust_pfc_search
+# Every public name, re-exported from the module that defines it, imported at its first use (PEP 562): a
+# process that needs one submodule (the launcher's ``tools.design.linearise``) does not load them all.
+_WHERE = {
+    "PFC_PRESETS": "autopilot.config",
+    "AnalysisError": "tools.design._common",
+    "CoefficientError": "tools.design._common",
+    "PfcError": "tools.design._common",
+    "PAPER_PFC": "tools.design.aspr",
+    "ROBUST_PFC": "tools.design.aspr",
+    "augmented_realisation": "tools.design.aspr",
+    "augmented_tf": "tools.design.aspr",
+    "damping_ratio": "tools.design.aspr",
+    "dc_gain": "tools.design.aspr",
+    "hf_gain": "tools.design.aspr",
+    "is_minimum_phase": "tools.design.aspr",
+    "is_waspr": "tools.design.aspr",
+    "parse_coefficients": "tools.design.aspr",
+    "pfc_tf": "tools.design.aspr",
+    "plant_tf": "tools.design.aspr",
+    "relative_degree": "tools.design.aspr",
+    "ss_to_tf": "tools.design.aspr",
+    "steady_state_offset": "tools.design.aspr",
+    "tf_coefficients": "tools.design.aspr",
+    "validate_pfc": "tools.design.aspr",
+    "GainBand": "tools.design.bands",
+    "bilinear_realisation": "tools.design.bands",
+    "clsac_kx_bands": "tools.design.bands",
+    "compensator_gain_margin": "tools.design.bands",
+    "discrete_bands": "tools.design.bands",
+    "discretise": "tools.design.bands",
+    "unstable_gain_bands": "tools.design.bands",
+    "unstable_gain_bands_discrete": "tools.design.bands",
+    "paper_scenario_runs": "tools.design.closed_loop",
+    "WasprReport": "tools.design.report",
+    "analyse": "tools.design.report",
+    "first_order_pfc": "tools.design.search",
+    "robust_pfc_search": "tools.design.search",
+}
+
+
+def __getattr__(name: str):
+    where = _WHERE.get(name)
+    if where is None:
+        raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
+    import importlib
+
+    value = getattr(importlib.import_module(where), name)
+    globals()[name] = value
+    return value
+
+
+def __dir__() -> list[str]:
+    return sorted(set(globals()) | set(_WHERE))
+
 
 __all__ = [
     "PFC_PRESETS",

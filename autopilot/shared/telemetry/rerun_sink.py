@@ -178,6 +178,11 @@ def _joined(parts: list[tuple[dict, tuple]]) -> tuple[dict, tuple]:
     return head, arrays
 
 
+def _start_of(sim: np.ndarray) -> float:
+    """The earliest finite-or-infinite sim time of a record's rows (NaN ignored; -inf when none is finite)."""
+    return float(np.nanmin(sim)) if np.isfinite(sim).any() else -math.inf
+
+
 class _Source:
     """One spool being recorded: its reader, its sink, and the timed records read but not all sent yet."""
 
@@ -187,6 +192,7 @@ class _Source:
         self.sink = RerunSink(rec, f"/{reader.process}/events", errors.append)
         self.handles: dict[int, object] = {}
         self.pending: list[tuple[dict, tuple]] = []
+        self.starts: list[float] = []  # each pending record's earliest sim time (``_start_of``), computed once
         self.done = False
         self.span = [math.inf, -math.inf]  # the sim times of its rows
 
@@ -201,7 +207,7 @@ class _Source:
     def fill(self, until: float, read: Callable[[tuple], None]) -> None:
         """Read records until one starts at or after ``until`` (or the spool ends); a record that registers a table
         or a channel is sent at once (it comes before that table's rows)."""
-        while not self.done and not (self.pending and self.pending[-1][1][0].size and self._start(-1) >= until):
+        while not self.done and not (self.pending and self.pending[-1][1][0].size and self.starts[-1] >= until):
             item = next(self.records, None)
             if item is None:
                 self.done = True
@@ -214,16 +220,13 @@ class _Source:
                     if ok.size:
                         self.span = [min(self.span[0], float(ok.min())), max(self.span[1], float(ok.max()))]
                 self.pending.append(item)
+                self.starts.append(_start_of(arrays[0]))
             else:
                 self._dispatch(head, arrays)
 
-    def _start(self, i: int) -> float:
-        sim = self.pending[i][1][0]
-        return float(np.nanmin(sim)) if np.isfinite(sim).any() else -math.inf
-
     def start(self) -> float:
         """The earliest sim time not sent yet (inf: nothing pending)."""
-        return min((self._start(i) for i in range(len(self.pending)) if self.pending[i][1][0].size), default=math.inf)
+        return min((t for (_h, a), t in zip(self.pending, self.starts) if a[0].size), default=math.inf)
 
     def send_before(self, until: float | None) -> None:
         """Send what of the pending records lies before ``until``: one send per table, channel and event log (the
@@ -232,19 +235,21 @@ class _Source:
         if until is None:
             for head, arrays in self.pending:
                 self._dispatch(head, arrays)
-            self.pending = []
+            self.pending, self.starts = [], []
             return
-        left, due = [], {}
-        for head, arrays in self.pending:
+        left, starts, due = [], [], {}
+        for (head, arrays), start in zip(self.pending, self.starts):
             later = arrays[0] >= until
             if later.all():
                 left.append((head, arrays))
+                starts.append(start)
                 continue
             if later.any():
                 left.append(_slice(head, arrays, later))
+                starts.append(_start_of(left[-1][1][0]))
                 head, arrays = _slice(head, arrays, ~later)
             due.setdefault((head["k"], head.get("id")), []).append((head, arrays))
-        self.pending = left
+        self.pending, self.starts = left, starts
         for parts in due.values():
             self._dispatch(*_joined(parts))
 

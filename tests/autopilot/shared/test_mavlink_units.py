@@ -168,6 +168,36 @@ def test_link_accepts_valid_and_rejects_each_kind_of_bad_input():
     tx.close()
 
 
+def test_other_dialects_messages_are_checked_by_their_crc_whether_known_by_heart_or_loaded():
+    """The vehicle's CURRENT_MODE (development) and AOA_SSA (ardupilotmega) are checked by the table of
+    ``OTHER_DIALECT_MESSAGES``, any other dialect's message (ardupilotmega's MEMINFO) by pymavlink's ``all`` dialect
+    loaded at its first one: valid ones are ignored_msg, a flipped bit is bad_crc.  The table is pymavlink's."""
+    from pymavlink.dialects.v20 import all as every
+
+    for mid, (name, extra) in P.OTHER_DIALECT_MESSAGES.items():
+        cls = every.mavlink_map[mid]
+        assert (cls.msgname, cls.crc_extra) == (name, extra) and mid not in mavlink.mavlink_map
+    m = every.MAVLink(None, 1, 200)
+    msgs = [
+        every.MAVLink_current_mode_message(every.MAV_STANDARD_MODE_NON_STANDARD, 3, 3),
+        every.MAVLink_aoa_ssa_message(5, 1.5, -0.5),
+        every.MAVLink_meminfo_message(100, 2000, 3000),
+    ]
+    assert every.MAVLINK_MSG_ID_MEMINFO not in P.OTHER_DIALECT_MESSAGES
+    good = [bytes(msg.pack(m)) for msg in msgs]
+    bad = []
+    for raw in good:
+        b = bytearray(raw)
+        b[11] ^= 0x01  # a payload bit
+        bad.append(bytes(b))
+    link = _link()
+    tx = udp()
+    _deliver(link, tx, good + bad)
+    assert link.rejected == {"ignored_msg": 3, "bad_crc": 3}
+    link.close()
+    tx.close()
+
+
 def test_link_survives_random_bytes():
     link = _link()
     tx = udp()

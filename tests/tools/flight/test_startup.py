@@ -308,7 +308,10 @@ def test_a_launch_leaves_every_file_with_the_picture_from_the_helper(tmp_path):
 @pytest.mark.e2e
 def test_a_file_only_flight_flies_without_rerun_in_its_processes(tmp_path, monkeypatch):
     """The autopilot and the SITL of a default (file-only) lockstep flight import neither rerun nor pyarrow
-    (``python -X importtime`` in each child's log); with ``rrd_live`` they do, as before, and both leave flight.rrd."""
+    (``python -X importtime`` in each child's log); with ``rrd_live`` they do, as before, and both leave flight.rrd.
+    No child imports scipy, matplotlib or gymnasium, nor pymavlink's ``all`` or ``ardupilotmega`` dialect: the links
+    check the other dialects' messages a flight exchanges by heart (``autopilot.shared.mavlink.OTHER_DIALECT_MESSAGES``)
+    and the autopilot packs its CURRENT_MODE itself (issue 37: each dialect costs a process ~30 ms to load)."""
     from tools.flight import Flight
 
     monkeypatch.setenv("PYTHONPROFILEIMPORTTIME", "1")  # each child logs every import to its stderr (its .log)
@@ -317,14 +320,19 @@ def test_a_file_only_flight_flies_without_rerun_in_its_processes(tmp_path, monke
         res = Flight(lockstep=True, duration=1.0, out=out, quiet=True, png=False, rrd_live=live).run()
         assert res.ok, res.reason
         assert res.summary["files"]["rrd_indexed"] and (out / "flight.rrd").stat().st_size > 10_000
-        for name in ("autopilot", "sitl"):
+        for name in ("autopilot", "sitl", "gcs"):
             imported = {
                 line.rsplit("|", 1)[-1].strip()
                 for line in (out / f"{name}.log").read_text().splitlines()
                 if line.startswith("import time:")
             }
-            assert "numpy" in imported, name  # the log does list the child's imports
-            assert ("rerun" in imported and "pyarrow" in imported) is live, (name, live)
+            assert "pymavlink.dialects.v20.common" in imported, name  # the log does list the child's imports
+            dialects = {f"pymavlink.dialects.v20.{d}" for d in ("all", "ardupilotmega")}
+            heavy = {"scipy", "matplotlib", "gymnasium"} | dialects
+            assert not imported & heavy, (name, imported & heavy)
+            if name != "gcs":
+                assert "numpy" in imported, name
+                assert ("rerun" in imported and "pyarrow" in imported) is live, (name, live)
 
 
 @pytest.mark.e2e
