@@ -18,13 +18,13 @@ how, in three phases:
 * **Then the browser, alone.**  Its live flight flies in real time and its software rendering takes both cores
   (``ALONE``): a worker that finds only it left ends, and the last worker takes it.
 
-**On four workers or more (``-n 4``, the default in pyproject.toml) the lanes do not wait.**  ``LANE_WORKERS`` of the
-workers fly the real-time lanes from the start, at normal priority, while the others run the parallel phase at the
-lowest priority (nice 19, ``_lower_priority``: a worker lowers itself, and so every process it starts, before its
-first test of the parallel phase, and never raises itself again).  The scheduler then gives a real-time flight the
-CPU whenever it asks for it, and the CPU-bound tests take what is left: the lanes' wall time, which was a phase of
-its own, overlaps the parallel phase.  The browser still runs last and alone, on a lane worker (never on a lowered
-one).  On fewer workers the phases run one after the other, as above.
+**On four workers or more (``python -m pytest -n 4``; the default is two, docs/tests.md says why) the lanes do not
+wait.**  ``LANE_WORKERS`` of the workers fly the real-time lanes from the start, at normal priority, while the others
+run the parallel phase at the lowest priority (nice 19, ``_lower_priority``: a worker lowers itself, and so every
+process it starts, before its first test of the parallel phase, and never raises itself again).  The kernel then
+gives a real-time flight the CPU whenever it asks for it, and the CPU-bound tests take what is left: the lanes' wall
+time, which was a phase of its own, overlaps the parallel phase.  The browser still runs last and alone, on a lane
+worker (never on a lowered one).  On fewer workers the phases run one after the other, as above.
 """
 
 from __future__ import annotations
