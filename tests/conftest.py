@@ -59,14 +59,26 @@ LANES = (
         "tests/tools/view/test_e2e_telemetry.py",
     ),
 )
+# Tests that fly in real time in modules that otherwise do not (their modules run in the parallel phase): a third
+# lane, so that none of them runs beside the CPU-bound tests (node ids, or their prefixes for a parametrized test).
+REAL_TIME_TESTS = (
+    "tests/tools/test_failure_clients.py::",
+    "tests/tools/flight/test_e2e_failure_injection.py::test_real_time_",
+    "tests/tools/flight/test_e2e_tracking.py::test_a_flight_disarmed_by_a_ground_station_says_so_on_its_last_line",
+    "tests/tools/flight/test_e2e_mimo_sensors.py::test_real_time_link_faults_carry_the_sideslip_with_the_attitude",
+    "tests/autopilot/test_law.py::test_the_docs_law_flies_in_real_time_and_through_flight",
+    "tests/tools/flight/test_startup.py::test_a_sitl_that_binds_after_the_first_heartbeat_is_found_at_once[realtime]",
+    "tests/sitl/test_divergence.py::",
+)
+EXTRA_LANE = "real time, lane 3"  # REAL_TIME_TESTS' unit
 # Last, alone: real time with software rendering on both cores, and a flight pinned to a core it busy-waits on.
 ALONE = ("tests/tools/view/test_browser_viewer.py", "tests/tools/flight/test_e2e_realtime.py")
 SERIAL_LAST = tuple(m for lane in LANES for m in lane) + ALONE  # every module that flies in real time
 BARRIER = "tests/project/test_process_hygiene.py"  # its tests are what a worker waiting at the barrier runs (one each)
 SERIAL = "real time, alone"  # the last unit's name
-LANE_WORKERS = 2  # on four workers or more: the workers that fly the lanes from the start (module docstring)
-CONCURRENT_FROM = 4  # the fewest workers on which the lanes overlap the parallel phase
-LOWEST_PRIORITY = 19  # nice of a worker running the parallel phase beside the lanes
+LANE_WORKERS = 1  # on three workers or more: the worker that flies the lanes from the start (module docstring)
+CONCURRENT_FROM = 3  # the fewest workers on which the lanes overlap the parallel phase
+LOWEST_PRIORITY = 19  # nice of a worker running the parallel phase beside the lanes, where SCHED_IDLE is not to be had
 
 # Started first, in this order (modules; measured with --durations=0), in the parallel phase.
 LONGEST_FIRST = (
@@ -103,6 +115,8 @@ def _unit(nodeid: str) -> str:
     name = _module(nodeid)
     if name in ALONE:
         return SERIAL
+    if nodeid.startswith(REAL_TIME_TESTS):
+        return EXTRA_LANE
     for k, lane in enumerate(LANES):
         if name in lane:
             return f"real time, lane {k + 1}"
@@ -136,11 +150,34 @@ def _concurrent() -> bool:
 
 
 def _lower_priority() -> None:
-    """This worker (its test thread, and every process and thread it starts from now on) to the lowest priority.
-    Irreversible without privileges: the scheduler never gives a real-time test to a worker that ran the parallel
-    phase."""
+    """This worker (its test thread, and every process and thread it starts from now on) to the lowest priority:
+    ``SCHED_IDLE`` (it runs only on a CPU no other task wants, so a real-time flight never waits for it), and the
+    idle I/O class; nice 19 where SCHED_IDLE is refused.  Irreversible without privileges: the scheduler never gives
+    a real-time test to a worker that ran the parallel phase."""
+    if getattr(os, "SCHED_IDLE", None) is not None and os.sched_getscheduler(0) != os.SCHED_IDLE:
+        try:
+            os.sched_setscheduler(0, os.SCHED_IDLE, os.sched_param(0))
+        except OSError:
+            pass
+        _idle_io()
     if os.getpriority(os.PRIO_PROCESS, 0) < LOWEST_PRIORITY:
         os.setpriority(os.PRIO_PROCESS, 0, LOWEST_PRIORITY)
+
+
+def _idle_io() -> None:
+    """This thread's (and its children's) disk I/O to the idle class (``ioprio_set``, Linux x86-64 and arm64); best
+    effort: the CPU is what the real-time flights need first."""
+    import ctypes
+    import platform
+
+    number = {"x86_64": 251, "aarch64": 30}.get(platform.machine())
+    if number is None:
+        return
+    try:
+        libc = ctypes.CDLL(None, use_errno=True)
+        libc.syscall(number, 1, 0, 3 << 13)  # IOPRIO_WHO_PROCESS, this thread, IOPRIO_CLASS_IDLE << IOPRIO_CLASS_SHIFT
+    except (OSError, AttributeError):
+        pass
 
 
 def pytest_runtest_setup(item):
@@ -200,22 +237,12 @@ def pytest_xdist_make_scheduler(config, log):
                 if lanes:
                     self._give(node, lanes[0])
                     return
-                if SERIAL not in self.workqueue:
-                    self._roles[node] = False  # no real time left to fly: it joins the parallel phase
-                    self._assign_concurrently(node)
+                if SERIAL in self.workqueue:
+                    # the browser next, beside the parallel phase: its workers run at SCHED_IDLE (_lower_priority)
+                    self._give(node, SERIAL)
                     return
-                barriers = self._queued(1)
-                if barriers and self._pending(node, 2) and not self._pending(node, 1):
-                    self._give(node, barriers[0])  # the lane's last test runs now, not when the browser comes
-                    return
-                others = [n for n in self.assigned_work if n is not node]
-                if any(not self._roles.get(n) for n in others):
-                    return  # the parallel phase still runs: wait
-                if others:
-                    if not all(n.shutting_down for n in others):
-                        node.shutdown()  # the other lane worker takes the browser
-                    return  # else wait for the ending workers to be gone (remove_node)
-                self._give(node, SERIAL)
+                self._roles[node] = False  # no real time left to fly: it joins the parallel phase
+                self._assign_concurrently(node)
                 return
             parallel = self._queued(0)
             if parallel:
