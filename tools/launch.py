@@ -308,8 +308,9 @@ def build_parser() -> OneLineArgumentParser:
         type=bounded(0.0, 1e6, "MB"),
         default=MERGE_MAX_MB,
         metavar="MB",
-        help=f"telemetry up to this size is merged into an indexed DIR/flight.rrd (memory about twice the size); "
-        f"more is concatenated into it without an index, in constant memory (default {MERGE_MAX_MB:g})",
+        help=f"telemetry up to this size (the processes' spools, or their --rrd-live parts) goes into an indexed "
+        f"DIR/flight.rrd (spools: recorded in one pass; parts: merged, memory about twice their size); more is "
+        f"concatenated into it without an index, in constant memory (default {MERGE_MAX_MB:g})",
     )
     g.add_argument(
         "--live-rate",

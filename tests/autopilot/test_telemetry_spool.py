@@ -119,6 +119,40 @@ def test_two_spools_make_one_recording_with_each_processes_events(tmp_path):
     assert len(rrd.recordings(tmp_path / "f.rrd")) == 1
 
 
+def test_spools_recorded_with_their_layout_and_index_are_the_merge_of_a_part(tmp_path):
+    """``record_spools(..., write_footer=True, blueprint=...)`` (the launcher's one pass) makes what recording a
+    footerless part and merging it with the same layout (``rerun rrd merge``) makes: the same recording, rows,
+    values and layout, and an index (footer) that ``rerun rrd verify`` requires."""
+    from tools.view.views import flight_blueprint
+
+    rid = tm.new_recording_id()
+    with tm.Telemetry("autopilot", rid, spool_path=tmp_path / "autopilot.spool") as tel:
+        _fill(tel)
+    spool = [tmp_path / "autopilot.spool"]
+    span, limit = (0.0, 3.0), 12.5
+    tm.record_spools(
+        spool, tmp_path / "direct.rrd", write_footer=True, blueprint=flight_blueprint(span, rudder_limit_deg=limit)
+    )
+    tm.record_spools(spool, tmp_path / "part.rrd")
+    tm.merge_recordings(
+        [tmp_path / "part.rrd"], tmp_path / "merged.rrd", blueprint=flight_blueprint(span, rudder_limit_deg=limit)
+    )
+    direct, merged = tmp_path / "direct.rrd", tmp_path / "merged.rrd"
+    assert rrd.recordings(direct) == rrd.recordings(merged) == [(tm.APPLICATION_ID, rid)]
+    _same_recording(merged, direct)
+    assert rrd.has_blueprint(direct)
+    assert rrd.visible_time_ranges(direct) == rrd.visible_time_ranges(merged) != {}
+    assert rrd.y_ranges(direct) == rrd.y_ranges(merged) != {}
+    for component in ("ViewBlueprint:display_name", "TimePanelBlueprint:timeline"):
+        same = sorted(rrd.blueprint_components(direct, component)) == sorted(
+            rrd.blueprint_components(merged, component)
+        )
+        assert same, component  # (the merge may reorder the layout's chunks)
+    ok, msg = rrd.verify(direct)  # footers required
+    assert ok, msg
+    assert not rrd.verify(tmp_path / "part.rrd")[0]  # (a part has none: the check can fail)
+
+
 def test_a_layout_survives_the_spool():
     for layout in (L.AUTOPILOT, L.PARAM_SETS, S.SITL_TABLE, S.SITL_HELD_TABLE, L.link_layout("gcs")):
         assert layout_from_data(layout_to_data(layout)) == layout

@@ -49,26 +49,50 @@ def write_flight_png(cfg: FlightConfig, out: Path, name: str, metrics: dict) -> 
     return draw_flight_png(**png_request(cfg, out, name, metrics))
 
 
-def start_recorder_import(parts: dict[str, Path]) -> threading.Thread | None:
-    """For a flight whose processes spool their rows (the launcher records them after the flight): import what the
-    recording needs (rerun, about 0.27 CPU s) in a thread, now, while the children start, instead of after the
-    flight, where it was the longest part of what the user waited for.  The children's start-up keeps both cores
-    busy, so it delays the flight a little; measured (10 alternating lockstep launches against the code before):
-    0.88 -> 0.77 s, 1.7 % more CPU.  The caller starts it for lockstep flights only (a real-time loop is not to
-    share a core with it).  The thread's failure is ignored: the join imports again and reports it.  None for a
-    flight without spools: nothing to import."""
-    if not any(p.suffix == ".spool" for p in parts.values()):
-        return None
+class RecorderImport:
+    """What recording the flight's spools needs, prepared in a thread while the flight starts and flies
+    (``start_recorder_import``): rerun imported, and the viewer layout built for the flight's span as asked."""
 
-    def run() -> None:
+    def __init__(self, span=None, rudder_limit_deg: float | None = None):
+        self.key = (tuple(span), rudder_limit_deg) if span is not None else None
+        self._layout = None
+        self.thread = threading.Thread(target=self._run, name="import-recorder", daemon=True)
+
+    def _run(self) -> None:
         try:
             import autopilot.shared.telemetry.rerun_sink  # noqa: F401  (rerun, pyarrow and the sink)
-        except Exception:  # noqa: BLE001  (the join imports it again, and says what failed)
+
+            if self.key is not None:
+                from tools.view.views import flight_blueprint
+
+                self._layout = flight_blueprint(self.key[0], rudder_limit_deg=self.key[1])
+        except Exception:  # noqa: BLE001  (the join imports and builds again, and says what failed)
             pass
 
-    thread = threading.Thread(target=run, name="import-recorder", daemon=True)
-    thread.start()
-    return thread
+    def layout(self, span, rudder_limit_deg: float | None):
+        """The layout built for ``span`` and ``rudder_limit_deg``, or None (another span: a flight that ended early;
+        or the thread failed): the caller builds it."""
+        self.thread.join()
+        return self._layout if (tuple(span), rudder_limit_deg) == self.key else None
+
+
+def start_recorder_import(
+    parts: dict[str, Path], span=None, rudder_limit_deg: float | None = None
+) -> RecorderImport | None:
+    """For a flight whose processes spool their rows (the launcher records them after the flight): import what the
+    recording needs (rerun, about 0.27 CPU s) in a thread, now, while the children start, instead of after the
+    flight, where it was the longest part of what the user waited for; and build its layout (``span``,
+    ``rudder_limit_deg``: ``tools.view.views.flight_blueprint``'s, for a flight flown to its end), which the
+    recording then carries (``_join_telemetry``).  The children's start-up keeps both cores busy, so it delays the
+    flight a little; measured (10 alternating lockstep launches against the code before): 0.88 -> 0.77 s, 1.7 %
+    more CPU.  The caller starts it for lockstep flights only (a real-time loop is not to share a core with it).
+    The thread's failure is ignored: the join imports again and reports it.  None for a flight without spools:
+    nothing to import."""
+    if not any(p.suffix == ".spool" for p in parts.values()):
+        return None
+    prepared = RecorderImport(span, rudder_limit_deg)
+    prepared.thread.start()
+    return prepared
 
 
 def _join_telemetry(
@@ -78,10 +102,16 @@ def _join_telemetry(
     merge_max_mb: float,
     span=None,
     rudder_limit_deg: float | None = None,
+    prepared: RecorderImport | None = None,
 ) -> tuple[Path | None, bool, str | None]:
     """Join the processes' part files into DIR/flight.rrd (whatever ended the flight); (path, indexed, error).
     ``span``: the flight's (start, end) sim s, the plots' visible time range; ``rudder_limit_deg``: the surface's
-    limit, the Rudder plot's fixed range (``tools.view.views.flight_blueprint``).
+    limit, the Rudder plot's fixed range (``tools.view.views.flight_blueprint``); ``prepared``: the
+    ``start_recorder_import`` of this flight, whose layout is used when it was built for the same span.
+
+    Spools only (the default), ``merge_max_mb`` or less of them in all: they are recorded straight into the flight's
+    one file, the layout first and rerun's index (footer) last, in bounded memory; no ``rerun rrd merge`` (it took
+    about 0.09 s of the 1.5 s lockstep launch, a second pass over the same rows).
 
     ``rerun rrd merge`` compacts the chunks and writes the footer (index) the viewer uses for random access, but
     holds the whole recording in memory (about twice the files' size).  So parts larger than ``merge_max_mb`` in
@@ -101,13 +131,31 @@ def _join_telemetry(
         # sim time, written here by the same code a live writer sends with (autopilot.shared.telemetry.rerun_sink),
         # then joined like a live part.
         part = out / ".parts" / "flight.rrd"
+        direct = len(spools) == len(existing) and sum(p.stat().st_size for p in spools) <= merge_max_mb * 1e6
         try:
-            tm.record_spools(spools, part)
+            layout = None
+            if direct:
+                tm.check_recording_target(target)
+                layout = prepared.layout(span, rudder_limit_deg) if prepared is not None else None
+                if layout is None:
+                    from tools.view.views import flight_blueprint
+
+                    layout = flight_blueprint(span, rudder_limit_deg=rudder_limit_deg)
+            tm.record_spools(spools, part, write_footer=direct, blueprint=layout)
+            if direct:
+                tm.install_recording(part, target)
         except Exception as exc:  # noqa: BLE001  (a flight's other files stay valid; say what went wrong)
             part.unlink(missing_ok=True)
-            return None, False, f"recording the telemetry spools into {part} failed: {exc}"
+            what = target if direct else part
+            return None, False, f"recording the telemetry spools into {what} failed: {exc}"
         for p in spools:
             p.unlink(missing_ok=True)
+        if direct:
+            try:
+                (out / ".parts").rmdir()
+            except OSError:
+                pass
+            return target, True, None
         existing = [p for p in existing if p.suffix != ".spool"] + [part]
     indexed = sum(p.stat().st_size for p in existing) <= merge_max_mb * 1e6
     try:

@@ -459,7 +459,7 @@ class Flight:
                 sitl_port, gcs_port, *ap_ports = ports
                 self._spawn(child_argvs(cfg, self.out, sitl_port, gcs_port, telemetry, key_file, tuple(ap_ports)))
                 if self._recorder is None and cfg.lockstep and not cfg.pin:
-                    self._recorder = start_recorder_import(self._parts)
+                    self._recorder = start_recorder_import(self._parts, flight_span(cfg), cfg.u_limit_deg)
                 failed = self._await_listening()
                 if failed is None:
                     break
@@ -588,6 +588,7 @@ class Flight:
             cfg.rrd_merge_max_mb,
             flight_span(cfg, stats["sitl"]),
             cfg.u_limit_deg,
+            self._recorder,
         )
         if rrd_error and exit_code == EXIT_OK:
             exit_code, failed, error = EXIT_FAILED, "telemetry", rrd_error

@@ -344,17 +344,23 @@ def merge(out: str | os.PathLike, parts: list, *, blueprint: bool = True, concat
 
 def record(out: str | os.PathLike, spools: list, *, blueprint: bool = True):
     """Record the telemetry spools of one flight (``--telemetry-spool``) into ``out``: one recording (sent through
-    the live writers' ``RerunSink``, ``autopilot.shared.telemetry.record_spools``), merged with the flight blueprint
-    and rerun's footer.  Returns the output path."""
+    the live writers' ``RerunSink``, ``autopilot.shared.telemetry.record_spools``) with the flight blueprint and
+    rerun's footer, written in one pass as the launcher writes ``flight.rrd``.  Returns the output path."""
     import tempfile
 
-    from autopilot.shared.telemetry import record_spools
+    from autopilot.shared.telemetry import check_recording_target, install_recording, record_spools
 
     out = os.fspath(out)
+    check_recording_target(out)
+    layout = None
+    if blueprint:
+        from tools.view.views import flight_blueprint
+
+        layout = flight_blueprint()
     with tempfile.TemporaryDirectory(prefix=".rrd-record-", dir=os.path.dirname(os.path.abspath(out))) as tmp:
         part = os.path.join(tmp, "part.rrd")
-        record_spools(spools, part)
-        return merge(out, [part], blueprint=blueprint)
+        record_spools(spools, part, write_footer=True, blueprint=layout)
+        return install_recording(part, out)
 
 
 def summary(path: str | os.PathLike) -> str:

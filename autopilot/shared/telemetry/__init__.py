@@ -10,7 +10,7 @@
 * ``columns``  Arrow columns for ``RecordingStream.send_columns`` (scalars, time columns, series styles);
 * ``viewer``   a live viewer: URL, reachability, spawning one, showing a blueprint in it;
 * ``files``    one recording from several processes: ``new_recording_id``, ``part_paths``, ``merge_recordings``,
-               ``concatenate_recordings``, ``verify_rrd``, ``RrdError``;
+               ``concatenate_recordings``, ``install_recording``, ``verify_rrd``, ``RrdError``;
 * ``flags``    the command-line flags (``add_arguments``, ``requested``, ``from_args``, ``attach``);
 * ``hooks``    ``ProcessHook``, the part every process's telemetry hook shares (status events).
 
@@ -58,6 +58,8 @@ _LAZY = {
     "new_recording_id": "layout",
     "part_paths": "files",
     "concatenate_recordings": "files",
+    "install_recording": "files",
+    "check_recording_target": "files",
     "verify_rrd": "files",
     "add_arguments": "flags",
     "attach": "flags",

@@ -15,6 +15,10 @@ the parts and the viewer layout into ONE file in one of two ways:
   verify`` needs ``--check-footers=false``.  (``rerun rrd route`` would also stream, but in rerun 0.41 it
   writes an empty footer that makes ``RrdReader`` see no recording, and panics on a footered input.)
 
+A flight whose processes spool their rows (the default) has no parts to join: the launcher records the spools
+straight into its one file, layout and footer included (``rerun_sink.record_spools``), and moves it into place
+with its digest (``install_recording``).
+
 A part left without footer by a SIGKILL is still joined: every complete message is kept and the torn tail is
 dropped.  rerun itself is imported only to write the layout for a concatenation; ``rerun rrd`` does the rest.
 """
@@ -174,6 +178,23 @@ def _check_target(out: Path) -> None:
     what = not_regular(out)
     if what:
         raise RrdError(f"{out} is {what}, not a regular file: a recording is never written over it")
+
+
+def check_recording_target(out_path: str | os.PathLike) -> None:
+    """RrdError if ``out_path`` exists and is not a regular file (``/dev/null``): a rename would replace it."""
+    _check_target(Path(out_path))
+
+
+def install_recording(written: str | os.PathLike, out_path: str | os.PathLike) -> Path:
+    """Move a finished recording ``written`` (in ``out_path``'s file system) to ``out_path``, with its digest beside
+    it (``OUT.sha256``), as :func:`merge_recordings` does with its output; the output path."""
+    out = Path(out_path)
+    _check_target(out)
+    digest = sha256_file(written)
+    remove_digest(out)
+    os.replace(written, out)
+    write_digest(out, digest)
+    return out
 
 
 class _Hashing:

@@ -260,6 +260,7 @@ def record_spools(
     *,
     write_footer: bool = False,
     interleave_s: float | None = INTERLEAVE_S,
+    blueprint=None,
 ) -> dict:
     """Send the spooled rows of one flight's processes (``spool.SpoolReader``) into one recording at ``rrd_path``.
 
@@ -272,7 +273,11 @@ def record_spools(
 
     The file is written like a live writer's part (without a footer unless ``write_footer``), one stream for all
     processes, in bounded memory: the spools are read a flush at a time and the stream is flushed to the file after
-    every ``FLUSH_EVERY_BYTES`` sent.  Returns ``{"recording_id", "chunks", "truncated": [spools cut short],
+    every ``FLUSH_EVERY_BYTES`` sent.  ``blueprint``: a ``rerun.blueprint.Blueprint`` sent first, in the same stream
+    (its own store, active and default), so that with ``write_footer`` the file is a whole flight's recording as
+    ``rerun rrd merge`` of a part and the layout makes it, without that second pass.
+
+    Returns ``{"recording_id", "chunks", "truncated": [spools cut short],
     "span": (first, last) sim s of the rows or None}``; a send that failed, a spool that is not one, or spools of
     different flights raise ``SpoolError``.
     """
@@ -289,6 +294,8 @@ def record_spools(
         path = Path(rrd_path)
         path.parent.mkdir(parents=True, exist_ok=True)
         rec.set_sinks(rr.FileSink(str(path), write_footer=write_footer))
+        if blueprint is not None:
+            rec.send_blueprint(blueprint)
         pending = [0]  # bytes read since the stream was last flushed to the file
 
         def read(arrays: tuple) -> None:

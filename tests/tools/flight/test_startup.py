@@ -274,7 +274,7 @@ def test_a_lockstep_launcher_imports_rerun_while_its_children_start_a_real_time_
         f"    f = Flight(lockstep=lockstep, rrd=rrd, duration=1.0, quiet=True, png=False, out=r'{tmp_path}/' + name)\n"
         "    f.start()\n"
         "    if f._recorder is not None:\n"
-        "        f._recorder.join(60)\n"
+        "        f._recorder.thread.join(60)\n"
         "    print(name, f._recorder is not None, 'rerun' in sys.modules)\n"
         "    res = f.wait(60)\n"
         "    print(name, res.ok, (f.out / 'flight.rrd').exists())\n"
@@ -293,7 +293,8 @@ def test_a_lockstep_launcher_imports_rerun_while_its_children_start_a_real_time_
 
 @pytest.mark.e2e
 def test_a_launch_leaves_every_file_with_the_picture_from_the_helper(tmp_path):
-    """The whole launcher: tlog, flight.rrd (with the cached layout), flight.png and summary.json, in one run."""
+    """The whole launcher: tlog, flight.rrd (with its layout and index, recorded straight from the spools: no part
+    left), flight.png and summary.json, in one run."""
     from tools.flight import Flight
     from tools.view import rrd_files as rrd
 
