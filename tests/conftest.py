@@ -1,30 +1,34 @@
 """Shared fixtures, and how the suite runs in parallel (docs/tests.md, "Parallel").
 
 Slow tests that start real processes carry the ``e2e`` marker: ``python -m pytest -m "not e2e"`` runs the fast ones
-in seconds.  ``python -m pytest`` runs on pytest-xdist workers (``addopts`` in pyproject.toml); this file decides
-how, in three phases:
+in seconds.  ``python -m pytest`` runs on three pytest-xdist workers (``addopts`` in pyproject.toml); this file
+decides how.
 
-* **Everything that does not fly in real time, in parallel.**  Every such module runs whole on one worker, so a
-  module-scoped fixture (a flight, a study several tests only read) runs once; the longest modules start first
-  (``LONGEST_FIRST``), so no worker is left with a long module when the others are done.
-* **Then the real-time tests, in two lanes, with nothing else running.**  The tests that fly in real time assert
-  timing (deadlines, stalls, latencies, sim time against the wall clock), and they failed whenever the CPU-bound
-  tests shared the two cores with them (in lanes beside the rest, 7 of them on a quiet machine).  A real-time flight
-  itself takes little CPU (the whole phase averaged 0.4 of one core run serially), so two lanes of them (``LANES``,
-  balanced by their measured durations) share the machine with each other only.  A barrier keeps them from starting
-  while any other test is still to run: a worker waiting at it is sent one test of ``test_process_hygiene.py`` (an
-  xdist worker runs the last test it holds only once it is given more work), so the test it held runs before the
-  barrier opens, not beside the lanes.
-* **Then the browser, alone.**  Its live flight flies in real time and its software rendering takes both cores
+**Three workers or more (the default): one real-time lane beside the rest at idle priority.**
+
+* One worker (``LANE_WORKERS``) flies the real-time tests, one after the other, from the start and at normal
+  priority: the modules of ``LANES``, the real-time tests of other modules (``REAL_TIME_TESTS``, a lane of their
+  own), then the browser and the pinned flight (``ALONE``).  The tests that fly in real time assert timing
+  (deadlines, stalls, latencies, sim time against the wall clock), and one flight at a time keeps a real-time test
+  from sharing the CPU with another's start-up (four Python processes, or a ground station, on two cores).
+* The other workers run everything else, each module whole on one worker (a module-scoped fixture, a flight or a
+  study several tests only read, runs once; the longest modules start first, ``LONGEST_FIRST``), at the lowest
+  priority: ``SCHED_IDLE`` and the idle I/O class (``_lower_priority``: a worker lowers itself, and so every process
+  it starts, before its first test of the parallel phase, and never raises itself again).  A ``SCHED_IDLE`` task
+  runs only on a CPU that no other task wants, so a real-time flight gets a core whenever it asks for one, and the
+  CPU-bound tests take what is left: the real-time tests, about 0.4 of one core on average, no longer take a phase
+  of their own.  (Nice 19, the first try, still left a real-time flight starved for 0.1 s now and then.)  The lane
+  worker joins the parallel phase when its lane is done.
+
+**On two workers (``-n 2``) the phases run one after the other:**
+
+* everything that does not fly in real time, on both workers;
+* then the real-time tests, in lanes, with nothing else running.  A barrier keeps them from starting while any
+  other test is still to run: a worker waiting at it is sent one test of ``test_process_hygiene.py`` (an xdist
+  worker runs the last test it holds only once it is given more work), so the test it held runs before the barrier
+  opens, not beside the lanes;
+* then the browser, alone: its live flight flies in real time and its software rendering takes both cores
   (``ALONE``): a worker that finds only it left ends, and the last worker takes it.
-
-**On four workers or more (``python -m pytest -n 4``; the default is two, docs/tests.md says why) the lanes do not
-wait.**  ``LANE_WORKERS`` of the workers fly the real-time lanes from the start, at normal priority, while the others
-run the parallel phase at the lowest priority (nice 19, ``_lower_priority``: a worker lowers itself, and so every
-process it starts, before its first test of the parallel phase, and never raises itself again).  The kernel then
-gives a real-time flight the CPU whenever it asks for it, and the CPU-bound tests take what is left: the lanes' wall
-time, which was a phase of its own, overlaps the parallel phase.  The browser still runs last and alone, on a lane
-worker (never on a lowered one).  On fewer workers the phases run one after the other, as above.
 """
 
 from __future__ import annotations
@@ -35,8 +39,9 @@ import pytest
 
 from tools.experiment.scenario import PAPER, PAPER_RUNS, run_inprocess
 
-# The modules whose tests fly in real time and assert its timing: two lanes that run side by side once everything
-# else is done, balanced by their durations (seconds, run one after the other with --durations=0: 211 and 212).
+# The modules whose tests fly in real time and assert its timing: on two workers, two lanes that run side by side
+# once everything else is done, balanced by their durations (seconds, run one after the other with --durations=0: 211
+# and 212); on three or more, one lane after the other on the lane worker.
 LANES = (
     (
         "tests/tools/flight/test_stalls.py",
@@ -61,7 +66,12 @@ LANES = (
 )
 # Tests that fly in real time in modules that otherwise do not (their modules run in the parallel phase): a third
 # lane, so that none of them runs beside the CPU-bound tests (node ids, or their prefixes for a parametrized test).
+# With them, the tests that mount a small tmpfs and fill it (tests/_small_disk.py): a real-time flight beside them
+# starved for 0.1-0.2 s twice in one run, at idle priority or not.
 REAL_TIME_TESTS = (
+    "tests/tools/flight/test_output_paths.py::test_a_disk_full_",
+    "tests/tools/flight/test_output_paths.py::test_a_full_disk_",
+    "tests/tools/experiment/damage/test_e2e_damage.py::test_a_full_disk_keeps_the_summary_and_names_the_picture",
     "tests/tools/test_failure_clients.py::",
     "tests/tools/flight/test_e2e_failure_injection.py::test_real_time_",
     "tests/tools/flight/test_e2e_tracking.py::test_a_flight_disarmed_by_a_ground_station_says_so_on_its_last_line",

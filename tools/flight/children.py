@@ -38,8 +38,9 @@ class Child:
         self.argv = argv
         self.log_path = log_path
         self.echo = echo
-        self.ready = threading.Event()
+        self.ready = threading.Event()  # set when it says ready_marker, or at the end of its output
         self.ready_marker = ready_marker
+        self.marker_seen = False  # it said ready_marker
         self.tail: list[str] = []
         self.log_error: str | None = None  # the log could not be written (a full disk): the output is still read
         self._log = open(log_path, "w", buffering=1)
@@ -86,6 +87,7 @@ class Child:
             if len(self.tail) > 40:
                 del self.tail[:20]
             if self.ready_marker and self.ready_marker in line:
+                self.marker_seen = True
                 self.ready.set()
             if self.echo:
                 sys.stdout.write(f"[{self.name}] {line}\n")

@@ -501,11 +501,12 @@ class Flight:
 
     def _await_listening(self) -> Child | None:
         """Wait (up to 60 s each, or until interrupted) for the SITL and the GCS to listen; the one that exited
-        instead, if any."""
+        instead, if any.  One that said it listens and has exited since is not one of them: a short lockstep flight
+        can be flown to its end before this thread looks (a loaded machine; the verdict reads how it ended)."""
         for c in (self._children["sitl"], self._children["gcs"]):
             while not c.ready.wait(0.05) and not self._interrupt.is_set() and time.monotonic() - c.started <= 60:
                 pass
-            if c.code is not None:
+            if c.code is not None and not c.marker_seen:
                 return c
         return None
 

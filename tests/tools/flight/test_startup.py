@@ -550,3 +550,24 @@ def test_a_sitl_that_binds_after_the_first_heartbeat_is_found_at_once(tmp_path, 
     later = np.count_nonzero((times >= 2.2) & (times < 4.2))  # past the fast 2 s: every 0.25 s, about 8, not 40
     assert first_second >= 8, (first_second, ap.output())
     assert 4 <= later <= 12, (later, ap.output())
+
+
+def test_a_child_that_listened_and_ended_before_the_launcher_looked_did_not_fail_at_start_up(tmp_path):
+    """A short lockstep flight can be flown to its end before the launcher's thread looks (a loaded machine: the
+    suite's full run saw "sitl failed at start-up (exit code 0)" after 200 of 200 steps).  A child that said it
+    listens and exited since is left to the verdict; one that exited without saying it failed at start-up."""
+    from tools.flight import Flight
+
+    def child(name: str, said: str) -> Child:
+        c = Child(name, [sys.executable, "-c", f"print({said!r})"], tmp_path / f"{name}.log", False, "listening on")
+        assert c.wait(30.0) == 0 and c.ready.wait(30.0)  # exited, and its output read to the end
+        return c
+
+    flight = Flight(lockstep=True, duration=1.0, out=tmp_path / "f", quiet=True)
+    flight._children = {
+        "sitl": child("sitl", "sitl: listening on 127.0.0.1:1"),
+        "gcs": child("gcs", "gcs: listening on 127.0.0.1:2"),
+    }
+    assert flight._await_listening() is None
+    flight._children["gcs"] = child("gcs", "gcs: bad flag")
+    assert flight._await_listening() is flight._children["gcs"]
