@@ -1,34 +1,31 @@
 """Shared fixtures, and how the suite runs in parallel (docs/tests.md, "Parallel").
 
 Slow tests that start real processes carry the ``e2e`` marker: ``python -m pytest -m "not e2e"`` runs the fast ones
-in seconds.  ``python -m pytest`` runs on three pytest-xdist workers (``addopts`` in pyproject.toml); this file
-decides how.
+in seconds.  ``python -m pytest`` runs on two pytest-xdist workers (``addopts`` in pyproject.toml); this file decides
+how, in three phases:
 
-**Three workers or more (the default): one real-time lane beside the rest at idle priority.**
-
-* One worker (``LANE_WORKERS``) flies the real-time tests, one after the other, from the start and at normal
-  priority: the modules of ``LANES``, the real-time tests of other modules (``REAL_TIME_TESTS``, a lane of their
-  own), then the browser and the pinned flight (``ALONE``).  The tests that fly in real time assert timing
-  (deadlines, stalls, latencies, sim time against the wall clock), and one flight at a time keeps a real-time test
-  from sharing the CPU with another's start-up (four Python processes, or a ground station, on two cores).
-* The other workers run everything else, each module whole on one worker (a module-scoped fixture, a flight or a
-  study several tests only read, runs once; the longest modules start first, ``LONGEST_FIRST``), at the lowest
-  priority: ``SCHED_IDLE`` and the idle I/O class (``_lower_priority``: a worker lowers itself, and so every process
-  it starts, before its first test of the parallel phase, and never raises itself again).  A ``SCHED_IDLE`` task
-  runs only on a CPU that no other task wants, so a real-time flight gets a core whenever it asks for one, and the
-  CPU-bound tests take what is left: the real-time tests, about 0.4 of one core on average, no longer take a phase
-  of their own.  (Nice 19, the first try, still left a real-time flight starved for 0.1 s now and then.)  The lane
-  worker joins the parallel phase when its lane is done.
-
-**On two workers (``-n 2``) the phases run one after the other:**
-
-* everything that does not fly in real time, on both workers;
-* then the real-time tests, in lanes, with nothing else running.  A barrier keeps them from starting while any
-  other test is still to run: a worker waiting at it is sent one test of ``test_process_hygiene.py`` (an xdist
-  worker runs the last test it holds only once it is given more work), so the test it held runs before the barrier
-  opens, not beside the lanes;
-* then the browser, alone: its live flight flies in real time and its software rendering takes both cores
+* **Everything that does not fly in real time, in parallel.**  Every such module runs whole on one worker, so a
+  module-scoped fixture (a flight, a study several tests only read) runs once; the longest modules start first
+  (``LONGEST_FIRST``), so no worker is left with a long module when the others are done.
+* **Then the real-time tests, in two lanes, with nothing else running.**  The tests that fly in real time assert
+  timing (deadlines, stalls, latencies, sim time against the wall clock), and they failed whenever the CPU-bound
+  tests shared the two cores with them (in lanes beside the rest, 7 of them on a quiet machine).  A real-time flight
+  itself takes little CPU (the whole phase averaged 0.4 of one core run serially), so two lanes of them (``LANES``,
+  balanced by their measured durations) share the machine with each other only.  A barrier keeps them from starting
+  while any other test is still to run: a worker waiting at it is sent one test of ``test_process_hygiene.py`` (an
+  xdist worker runs the last test it holds only once it is given more work), so the test it held runs before the
+  barrier opens, not beside the lanes.
+* **Then the browser, alone.**  Its live flight flies in real time and its software rendering takes both cores
   (``ALONE``): a worker that finds only it left ends, and the last worker takes it.
+
+**On three workers or more (``python -m pytest -n 3``; not the default, docs/tests.md says why) the real-time tests
+do not wait.**  One worker (``LANE_WORKERS``) flies them from the start, one after the other, at normal priority: the
+lanes, the real-time tests of other modules and the tests that mount a small tmpfs (``REAL_TIME_TESTS``, a lane of
+their own on this schedule only), then ``ALONE``.  The others run the parallel phase at the lowest priority
+(``_lower_priority``: ``SCHED_IDLE`` and the idle I/O class, nice 19 where refused; a worker lowers itself, and so
+every process it starts, before its first test of the parallel phase, and never raises itself again): a
+``SCHED_IDLE`` task runs only on a CPU no other task wants.  The lane worker joins the parallel phase when its lane
+is done.
 """
 
 from __future__ import annotations
@@ -39,9 +36,9 @@ import pytest
 
 from tools.experiment.scenario import PAPER, PAPER_RUNS, run_inprocess
 
-# The modules whose tests fly in real time and assert its timing: on two workers, two lanes that run side by side
-# once everything else is done, balanced by their durations (seconds, run one after the other with --durations=0: 211
-# and 212); on three or more, one lane after the other on the lane worker.
+# The modules whose tests fly in real time and assert its timing: two lanes that run side by side once everything
+# else is done, balanced by their durations (seconds, run one after the other with --durations=0: 211 and 212); on
+# three workers or more, one lane after the other on the lane worker.
 LANES = (
     (
         "tests/tools/flight/test_stalls.py",
@@ -64,10 +61,10 @@ LANES = (
         "tests/tools/view/test_e2e_telemetry.py",
     ),
 )
-# Tests that fly in real time in modules that otherwise do not (their modules run in the parallel phase): a third
-# lane, so that none of them runs beside the CPU-bound tests (node ids, or their prefixes for a parametrized test).
-# With them, the tests that mount a small tmpfs and fill it (tests/_small_disk.py): a real-time flight beside them
-# starved for 0.1-0.2 s twice in one run, at idle priority or not.
+# On three workers or more: tests that fly in real time in modules that otherwise do not, so that none of them runs
+# beside the lowered parallel phase (node ids, or their prefixes), and the tests that mount a small tmpfs and fill it
+# (tests/_small_disk.py: a real-time flight beside them starved for 0.1-0.2 s twice in one run): a lane of their
+# own, after the others.  On two workers they run with their modules, in the parallel phase, as before.
 REAL_TIME_TESTS = (
     "tests/tools/flight/test_output_paths.py::test_a_disk_full_",
     "tests/tools/flight/test_output_paths.py::test_a_full_disk_",
@@ -120,12 +117,14 @@ def _module(nodeid: str) -> str:
     return nodeid.split("::", 1)[0]
 
 
-def _unit(nodeid: str) -> str:
-    """What one worker runs, one test after the other: a lane, the last unit, one barrier test, or a module."""
+def _unit(nodeid: str, concurrent: bool | None = None) -> str:
+    """What one worker runs, one test after the other: a lane, the last unit, one barrier test, or a module.
+    ``concurrent``: on the schedule of three workers or more (default: this worker's, ``_concurrent``), where the
+    tests of ``REAL_TIME_TESTS`` are a lane; on two workers they run with their modules."""
     name = _module(nodeid)
     if name in ALONE:
         return SERIAL
-    if nodeid.startswith(REAL_TIME_TESTS):
+    if (_concurrent() if concurrent is None else concurrent) and nodeid.startswith(REAL_TIME_TESTS):
         return EXTRA_LANE
     for k, lane in enumerate(LANES):
         if name in lane:
@@ -213,7 +212,7 @@ def pytest_xdist_make_scheduler(config, log):
 
     class Phases(LoadScopeScheduling):
         def _split_scope(self, nodeid: str) -> str:
-            return _unit(nodeid)
+            return _unit(nodeid, self.numnodes >= CONCURRENT_FROM)
 
         def _give(self, node, scope: str) -> None:
             work_unit = self.workqueue.pop(scope)

@@ -633,22 +633,31 @@ def _hold(gcs: Gcs, seconds: float) -> None:
         time.sleep(min(1.0, max(0.0, t_end - time.monotonic())))
 
 
-def _station_flight(tmp_path, duration: float, script) -> tuple:
+STARVED = "a real-time process starved of CPU"  # the launcher's own finding (tools.flight.outcome.realtime_advice)
+
+
+def _station_flight(tmp_path, duration: float, script, attempts: int = 2) -> tuple:
     """A real-time launch (unsigned, a pymavlink station on a --gcs-peer port): ``script(gcs)`` runs once the
-    station sees the vehicle; the flight's result and its series."""
+    station sees the vehicle; the flight's result and its series.  A flight the launcher itself finds starved of
+    CPU (steps held or late: the machine's doing, which these tests do not judge) is flown again, up to
+    ``attempts`` flights in all, and said on the test's output; what the test asserts holds of the last one."""
     from tools.flight import Flight
 
-    port = free_ports(1)[0]
-    gcs = Gcs(port)
-    out = tmp_path / "flight"
-    try:
-        with Flight(duration=duration, out=out, signing=False, quiet=True, gcs_peer=(f"127.0.0.1:{port}",)) as flight:
-            gcs.connect()
-            script(gcs)
-            res = flight.wait(timeout=duration + 120)
-    finally:
-        gcs.close()
-    assert res is not None, "the flight did not end"
+    for attempt in range(attempts):
+        port = free_ports(1)[0]
+        gcs = Gcs(port)
+        out = tmp_path / f"flight{attempt}"
+        try:
+            with Flight(duration=duration, out=out, signing=False, quiet=True, gcs_peer=(f"127.0.0.1:{port}",)) as f:
+                gcs.connect()
+                script(gcs)
+                res = f.wait(timeout=duration + 120)
+        finally:
+            gcs.close()
+        assert res is not None, "the flight did not end"
+        if res.ok or STARVED not in (res.reason or "") or attempt == attempts - 1:
+            break
+        print(f"flight {attempt + 1} starved of CPU, flown again: {res.reason}")
     return res, np.load(out / "autopilot_series.npz"), (out / "autopilot.log").read_text()
 
 

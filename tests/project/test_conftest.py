@@ -44,3 +44,21 @@ def test_a_file_of_the_same_name_in_another_folder_is_not_scheduled_as_real_time
     """Modules are matched by path, not by file name: a test_stalls.py of another package runs in parallel."""
     lane_file = Path(schedule.LANES[0][0]).name
     assert schedule._unit(f"tests/sitl/{lane_file}::test_a") == f"tests/sitl/{lane_file}"
+
+
+@pytest.mark.parametrize("prefix", schedule.REAL_TIME_TESTS)
+def test_each_real_time_test_named_is_a_test_of_a_file_that_exists(prefix):
+    """A prefix names a test file and, after ``::``, the start of a test function's name defined in it."""
+    module, _, name = prefix.partition("::")
+    path = ROOT / module
+    assert path.is_file() and module.startswith("tests/") and "::" in prefix, prefix
+    function = name.split("[", 1)[0]
+    assert not function or f"def {function}" in path.read_text(), prefix
+
+
+def test_the_real_time_tests_of_other_modules_are_a_lane_on_three_workers_only():
+    nodeid = f"{schedule.REAL_TIME_TESTS[0]}x"
+    module = nodeid.split("::", 1)[0]
+    assert schedule._unit(nodeid, concurrent=True) == schedule.EXTRA_LANE
+    assert schedule._phase(schedule.EXTRA_LANE) == 2
+    assert schedule._unit(nodeid, concurrent=False) == module

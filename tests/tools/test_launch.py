@@ -42,8 +42,11 @@ def test_a_timeout_is_quoted_as_given(tmp_path):
 
 def test_a_child_killed_by_a_signal_is_named_by_the_signal(tmp_path):
     c = Child(
-        "x", [sys.executable, "-c", "print('x: a start-up banner', flush=True); input()"], tmp_path / "x.log", False
-    )
+        "x",
+        [sys.executable, "-c", "import time; print('x: a start-up banner', flush=True); time.sleep(60)"],
+        tmp_path / "x.log",
+        False,
+    )  # (not input(): stdin is /dev/null, so it ended by itself with status 1 when the kill came late)
     c.proc.kill()
     assert c.wait(10.0) == -9
     assert c.reason() == "killed by SIGKILL"
