@@ -11,7 +11,8 @@ how, in three phases:
   timing (deadlines, stalls, latencies, sim time against the wall clock), and they failed whenever the CPU-bound
   tests shared the two cores with them (in lanes beside the rest, 7 of them on a quiet machine).  A real-time flight
   itself takes little CPU (the whole phase averaged 0.4 of one core run serially), so two lanes of them (``LANES``,
-  balanced by their measured durations) share the machine with each other only.  A barrier keeps them from starting
+  with the real-time tests of other modules, ``REAL_TIME_TESTS``; balanced by their measured durations) share the
+  machine with each other only.  A barrier keeps them from starting
   while any other test is still to run: a worker waiting at it is sent one test of ``test_process_hygiene.py`` (an
   xdist worker runs the last test it holds only once it is given more work), so the test it held runs before the
   barrier opens, not beside the lanes.
@@ -20,12 +21,12 @@ how, in three phases:
 
 **On three workers or more (``python -m pytest -n 3``; not the default, docs/tests.md says why) the real-time tests
 do not wait.**  One worker (``LANE_WORKERS``) flies them from the start, one after the other, at normal priority: the
-lanes, the real-time tests of other modules and the tests that mount a small tmpfs (``REAL_TIME_TESTS``, a lane of
-their own on this schedule only), then ``ALONE``.  The others run the parallel phase at the lowest priority
-(``_lower_priority``: ``SCHED_IDLE`` and the idle I/O class, nice 19 where refused; a worker lowers itself, and so
-every process it starts, before its first test of the parallel phase, and never raises itself again): a
-``SCHED_IDLE`` task runs only on a CPU no other task wants.  The lane worker joins the parallel phase when its lane
-is done.
+lanes (with the real-time tests of other modules, ``REAL_TIME_TESTS``), the tests that mount a small tmpfs
+(``SMALL_DISK_TESTS``, a lane of their own on this schedule only), then ``ALONE``.  The others run the parallel phase
+at the lowest priority (``_lower_priority``: ``SCHED_IDLE`` and the idle I/O class, nice 19 where refused; a worker
+lowers itself, and so every process it starts, before its first test of the parallel phase, and never raises itself
+again): a ``SCHED_IDLE`` task runs only on a CPU no other task wants.  The lane worker joins the parallel phase when
+its lane is done.
 """
 
 from __future__ import annotations
@@ -61,23 +62,30 @@ LANES = (
         "tests/tools/view/test_e2e_telemetry.py",
     ),
 )
-# On three workers or more: tests that fly in real time in modules that otherwise do not, so that none of them runs
-# beside the lowered parallel phase (node ids, or their prefixes), and the tests that mount a small tmpfs and fill it
-# (tests/_small_disk.py: a real-time flight beside them starved for 0.1-0.2 s twice in one run): a lane of their
-# own, after the others.  On two workers they run with their modules, in the parallel phase, as before.
+# Tests that fly in real time in modules that otherwise do not: each joins a lane (REAL_TIME_TESTS[k] lane k + 1,
+# split so that the two stay balanced), so that none runs beside the CPU-bound tests; node ids, or their prefixes.
 REAL_TIME_TESTS = (
+    (
+        "tests/tools/test_failure_clients.py::",
+        "tests/tools/flight/test_e2e_tracking.py::test_a_flight_disarmed_by_a_ground_station_says_so_on_its_last_line",
+        "tests/autopilot/test_law.py::test_the_docs_law_flies_in_real_time_and_through_flight",
+    ),
+    (
+        "tests/tools/flight/test_e2e_failure_injection.py::test_real_time_",
+        "tests/tools/flight/test_e2e_mimo_sensors.py::test_real_time_link_faults_carry_the_sideslip_with_the_attitude",
+        "tests/tools/flight/test_startup.py::test_a_sitl_that_binds_after_the_first_heartbeat_is_found_at_once[realtime]",
+        "tests/sitl/test_divergence.py::",
+    ),
+)
+# On three workers or more, the tests that mount a small tmpfs and fill it (tests/_small_disk.py) are a lane of their
+# own, after the others: a real-time flight beside them starved for 0.1-0.2 s twice in one run.  On two workers they
+# run with their modules, in the parallel phase, where no real-time flight flies.
+SMALL_DISK_TESTS = (
     "tests/tools/flight/test_output_paths.py::test_a_disk_full_",
     "tests/tools/flight/test_output_paths.py::test_a_full_disk_",
     "tests/tools/experiment/damage/test_e2e_damage.py::test_a_full_disk_keeps_the_summary_and_names_the_picture",
-    "tests/tools/test_failure_clients.py::",
-    "tests/tools/flight/test_e2e_failure_injection.py::test_real_time_",
-    "tests/tools/flight/test_e2e_tracking.py::test_a_flight_disarmed_by_a_ground_station_says_so_on_its_last_line",
-    "tests/tools/flight/test_e2e_mimo_sensors.py::test_real_time_link_faults_carry_the_sideslip_with_the_attitude",
-    "tests/autopilot/test_law.py::test_the_docs_law_flies_in_real_time_and_through_flight",
-    "tests/tools/flight/test_startup.py::test_a_sitl_that_binds_after_the_first_heartbeat_is_found_at_once[realtime]",
-    "tests/sitl/test_divergence.py::",
 )
-EXTRA_LANE = "real time, lane 3"  # REAL_TIME_TESTS' unit
+EXTRA_LANE = "real time, lane 3"  # SMALL_DISK_TESTS' unit on three workers or more
 # Last, alone: real time with software rendering on both cores, and a flight pinned to a core it busy-waits on.
 ALONE = ("tests/tools/view/test_browser_viewer.py", "tests/tools/flight/test_e2e_realtime.py")
 SERIAL_LAST = tuple(m for lane in LANES for m in lane) + ALONE  # every module that flies in real time
@@ -120,11 +128,14 @@ def _module(nodeid: str) -> str:
 def _unit(nodeid: str, concurrent: bool | None = None) -> str:
     """What one worker runs, one test after the other: a lane, the last unit, one barrier test, or a module.
     ``concurrent``: on the schedule of three workers or more (default: this worker's, ``_concurrent``), where the
-    tests of ``REAL_TIME_TESTS`` are a lane; on two workers they run with their modules."""
+    tests of ``SMALL_DISK_TESTS`` are a lane; on two workers they run with their modules."""
     name = _module(nodeid)
     if name in ALONE:
         return SERIAL
-    if (_concurrent() if concurrent is None else concurrent) and nodeid.startswith(REAL_TIME_TESTS):
+    for k, tests in enumerate(REAL_TIME_TESTS):
+        if nodeid.startswith(tests):
+            return f"real time, lane {k + 1}"
+    if (_concurrent() if concurrent is None else concurrent) and nodeid.startswith(SMALL_DISK_TESTS):
         return EXTRA_LANE
     for k, lane in enumerate(LANES):
         if name in lane:

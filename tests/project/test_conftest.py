@@ -46,8 +46,10 @@ def test_a_file_of_the_same_name_in_another_folder_is_not_scheduled_as_real_time
     assert schedule._unit(f"tests/sitl/{lane_file}::test_a") == f"tests/sitl/{lane_file}"
 
 
-@pytest.mark.parametrize("prefix", schedule.REAL_TIME_TESTS)
-def test_each_real_time_test_named_is_a_test_of_a_file_that_exists(prefix):
+@pytest.mark.parametrize(
+    "prefix", [*(t for lane in schedule.REAL_TIME_TESTS for t in lane), *schedule.SMALL_DISK_TESTS]
+)
+def test_each_test_named_is_a_test_of_a_file_that_exists(prefix):
     """A prefix names a test file and, after ``::``, the start of a test function's name defined in it."""
     module, _, name = prefix.partition("::")
     path = ROOT / module
@@ -56,8 +58,14 @@ def test_each_real_time_test_named_is_a_test_of_a_file_that_exists(prefix):
     assert not function or f"def {function}" in path.read_text(), prefix
 
 
-def test_the_real_time_tests_of_other_modules_are_a_lane_on_three_workers_only():
-    nodeid = f"{schedule.REAL_TIME_TESTS[0]}x"
+def test_a_real_time_test_of_another_module_joins_its_lane_on_every_schedule():
+    for k, lane in enumerate(schedule.REAL_TIME_TESTS):
+        for concurrent in (False, True):
+            assert schedule._unit(f"{lane[0]}x", concurrent=concurrent) == f"real time, lane {k + 1}"
+
+
+def test_the_small_disk_tests_are_a_lane_on_three_workers_only():
+    nodeid = f"{schedule.SMALL_DISK_TESTS[0]}x"
     module = nodeid.split("::", 1)[0]
     assert schedule._unit(nodeid, concurrent=True) == schedule.EXTRA_LANE
     assert schedule._phase(schedule.EXTRA_LANE) == 2
