@@ -189,6 +189,25 @@ def slew(delta, delta_free, rate_free, move_max: float, rate: float):
     return up | down, np.where(up, rate, -rate), np.minimum(rate, np.maximum(-rate, rate_free))
 
 
+def zoh_step(PHI, GAM, x: list, u_s, dd: list | None) -> list:
+    """One physics step of the sampled plant, x+ = Phi x + Gamma_u u (+ Gamma_d d with the disturbances ``dd``), row
+    by row over the runs (PHI, GAM: per-run columns), left to right as the kernel adds (bit for bit).  The study's
+    numpy path (``numpy_steps``) steps the plant with it, and ``rate_limited`` its free sub-steps."""
+    out = [
+        PHI[r][0] * x[0]
+        + PHI[r][1] * x[1]
+        + PHI[r][2] * x[2]
+        + PHI[r][3] * x[3]
+        + PHI[r][4] * x[4]
+        + PHI[r][5] * x[5]
+        + GAM[r][0] * u_s
+        for r in range(6)
+    ]
+    if dd is None:
+        return out
+    return [out[r] + (GAM[r][1] * dd[0] + GAM[r][2] * dd[1] + GAM[r][3] * dd[2]) for r in range(6)]
+
+
 def rate_limited(x: list, u_s, dd, fine, rate: float, dt: float) -> list:
     """One control step under a rate limit, as ``sitl.aircraft.Aircraft._advance_servo_fault`` flies it
     (``faults.SUBSTEPS`` physics steps of dt / SUBSTEPS): the free step, its move against rate * h; beyond it the
@@ -197,16 +216,7 @@ def rate_limited(x: list, u_s, dd, fine, rate: float, dt: float) -> list:
     p1, g1, pc = fine
     move_max = rate * (dt / SUBSTEPS)  # damage.Actuator's max move
     for _ in range(SUBSTEPS):
-        xf = [
-            p1[r][0] * x[0]
-            + p1[r][1] * x[1]
-            + p1[r][2] * x[2]
-            + p1[r][3] * x[3]
-            + p1[r][4] * x[4]
-            + p1[r][5] * x[5]
-            + g1[r][0] * u_s
-            for r in range(6)
-        ]
+        xf = zoh_step(p1, g1, x, u_s, None)
         coast, at, xf[5] = slew(x[4], xf[4], xf[5], move_max, rate)
         xc = [
             pc[r][0] * x[0] + pc[r][1] * x[1] + pc[r][2] * x[2] + pc[r][3] * x[3] + pc[r][4] * x[4] + pc[r][5] * at

@@ -9,6 +9,7 @@ import numpy as np
 from autopilot import swings as sw  # the oscillation rule's swing counter
 from autopilot.envelope import TRACK_BLOCK_S, TRACK_BLOCKS, saturated, stop_hit, window_flags
 from tools.experiment.study import faults as study_faults
+from tools.experiment.study.faults import zoh_step
 from tools.experiment.study.sampling import BLOCK, CHANNELS, WINDOW_S
 
 
@@ -147,31 +148,13 @@ def fly_numpy(b) -> tuple[dict, np.ndarray, np.ndarray, dict | None]:
                 if fine is not None:
                     x = study_faults.rate_limited(x, u_s, dd, fine, rate, dt)
                 else:
-                    x = _zoh_step(PHI, GAM, x, u_s, dd)
+                    x = zoh_step(PHI, GAM, x, u_s, dd)
             elif fine is not None:
                 x = study_faults.rate_limited(x, u_s, None, fine, rate, dt)
             else:
-                x = _zoh_step(PHI, GAM, x, u_s, None)
+                x = zoh_step(PHI, GAM, x, u_s, None)
     series = {key: np.array(v) for key, v in rec.items()} if rec is not None else None
     return acc, peaks, track, series
-
-
-def _zoh_step(PHI, GAM, x: list, u_s, dd: list | None) -> list:
-    """One physics step of the sampled plant, x+ = Phi x + Gamma_u u (+ Gamma_d d with the disturbances ``dd``), row
-    by row over the runs (PHI, GAM: per-run columns), left to right as the kernel adds (bit for bit)."""
-    out = [
-        PHI[r][0] * x[0]
-        + PHI[r][1] * x[1]
-        + PHI[r][2] * x[2]
-        + PHI[r][3] * x[3]
-        + PHI[r][4] * x[4]
-        + PHI[r][5] * x[5]
-        + GAM[r][0] * u_s
-        for r in range(6)
-    ]
-    if dd is None:
-        return out
-    return [out[r] + (GAM[r][1] * dd[0] + GAM[r][2] * dd[1] + GAM[r][3] * dd[2]) for r in range(6)]
 
 
 def _close_block(blk: list, ring: np.ndarray, track: np.ndarray, closed: int, nw: float) -> None:
