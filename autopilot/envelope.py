@@ -61,6 +61,8 @@ from autopilot.swings import (  # the swing counter of the oscillation rule (mod
     OSC_REGULAR_TOL,
     OSC_SWING_DEG,
     OSC_SWINGS_MIN,
+    _UP,
+    _swing_step_float,
     swing_start,
     swing_step,
 )
@@ -556,10 +558,28 @@ class EnvelopeMonitor:
             self._block, self._block_index = _empty_block(), j
         b = self._block
         d = roll - ref
-        hit, self._hit_armed = stop_hit(bool(sat), u, u_limit, self._hit_armed)
-        if self._swing is None:
-            self._swing = swing_start(float(d))
-        block_add(b, roll, ref, d, hit, bool(swing_step(self._swing, float(d), float(self._k))), bool(sat))
+        # stop_hit, swing_step and block_add on floats, written out (once per control step; the same operations in
+        # the same order: tests/autopilot/test_envelope.py holds the monitor to the functions)
+        sat = bool(sat)
+        armed = self._hit_armed
+        hit = sat and armed
+        self._hit_armed = not hit and (armed or abs(u) <= HIT_REARM * u_limit)
+        df = float(d)
+        st = self._swing
+        if st is None:
+            st = self._swing = swing_start(df)
+        swing = _swing_step_float(st, df, float(self._k), st[_UP] != 0.0)
+        b[_N] += 1
+        b[_RR] += ref * ref
+        b[_PR] += roll * ref
+        b[_DD] += d * d
+        b[_D] += d
+        if hit:
+            b[_HITS] += 1
+        if swing:
+            b[_SW] += 1
+        if sat:
+            b[_SAT] += 1
         self._k += 1
         if self._d_prev is not None and ft > self._ft_prev:
             rate = (d - self._d_prev) / (ft - self._ft_prev)

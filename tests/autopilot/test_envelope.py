@@ -298,3 +298,53 @@ def test_the_envelope_inequalities_elementwise(roll_deg, sat, ok):
 
     assert bool(within(roll_deg * DEG, sat)) is ok
     assert within(np.array([roll_deg * DEG, 1.0 * DEG]), np.array([sat, 0.0])).tolist() == [ok, True]
+
+
+def test_the_monitors_step_is_the_elementwise_functions_sample_by_sample():
+    """The monitor writes out ``stop_hit``, ``swing_step`` and ``block_add`` on floats (once per control step); the
+    same flight fed through the functions, sample by sample, must leave the same blocks, counters and verdict, to
+    the bit: a saturating command (stop hits), a regular +-6 deg oscillation (swings), noise, and a NaN roll."""
+    import pickle
+
+    from autopilot import envelope as env
+    from autopilot.swings import swing_start, swing_step
+
+    class ByTheFunctions(EnvelopeMonitor):
+        def _track(self, ft, roll, ref, u, u_limit, sat):
+            j = int(math.floor(ft / env.TRACK_BLOCK_S + 1e-6))
+            text = None
+            if j != self._block_index:
+                if self._block is not None:
+                    text = self._close(j)
+                self._block, self._block_index = env._empty_block(), j
+            b = self._block
+            d = roll - ref
+            hit, self._hit_armed = env.stop_hit(bool(sat), u, u_limit, self._hit_armed)
+            if self._swing is None:
+                self._swing = swing_start(float(d))
+            env.block_add(b, roll, ref, d, hit, bool(swing_step(self._swing, float(d), float(self._k))), bool(sat))
+            self._k += 1
+            if self._d_prev is not None and ft > self._ft_prev:
+                rate = (d - self._d_prev) / (ft - self._ft_prev)
+                b[env._DOT2] += rate * rate
+                b[env._NDOT] += 1
+            if b[env._N] == 1:
+                b[env._T0] = ft
+            b[env._T1] = ft
+            self._d_prev, self._ft_prev = d, ft
+            return text
+
+    rng = np.random.default_rng(7)
+    t = _t(70.0)
+    ref = np.radians(10.0) * np.sign(np.sin(2 * np.pi * t / 20.0))
+    roll = ref + np.radians(6.0) * np.sin(2 * np.pi * 0.8 * t) + np.radians(0.3) * rng.standard_normal(len(t))
+    roll[3000] = math.nan
+    u = np.clip(1.4 * LIM * np.sin(2 * np.pi * 0.8 * t + 0.3), -LIM, LIM)
+    mons = EnvelopeMonitor(), ByTheFunctions()
+    texts = [[m.add(*x, LIM, r) for x, r in zip(zip(t.tolist(), roll.tolist(), u.tolist()), ref.tolist())] for m in mons]
+    assert texts[0] == texts[1] and any(texts[0])
+    res = [m.result() for m in mons]
+    assert res[0].tracking.max_swings >= 16 and res[0].tracking.oscillating_windows > 0
+    assert pickle.dumps(res[0].to_dict()) == pickle.dumps(res[1].to_dict())
+    state = [{k: v for k, v in vars(m).items()} for m in mons]
+    assert pickle.dumps(state[0]) == pickle.dumps(state[1])
