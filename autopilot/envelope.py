@@ -58,13 +58,12 @@ import math
 from dataclasses import dataclass
 
 from autopilot.swings import (  # the swing counter of the oscillation rule (module docstring, "Tracking")
+    _UP,
     OSC_REGULAR_TOL,
     OSC_SWING_DEG,
     OSC_SWINGS_MIN,
-    _UP,
     _swing_step_float,
     swing_start,
-    swing_step,
 )
 
 MAX_ROLL_DEG = 60.0  # default roll limit of the envelope

@@ -341,7 +341,8 @@ def test_the_monitors_step_is_the_elementwise_functions_sample_by_sample():
     roll[3000] = math.nan
     u = np.clip(1.4 * LIM * np.sin(2 * np.pi * 0.8 * t + 0.3), -LIM, LIM)
     mons = EnvelopeMonitor(), ByTheFunctions()
-    texts = [[m.add(*x, LIM, r) for x, r in zip(zip(t.tolist(), roll.tolist(), u.tolist()), ref.tolist())] for m in mons]
+    samples = list(zip(t.tolist(), roll.tolist(), u.tolist(), ref.tolist()))
+    texts = [[m.add(ti, ri, ui, LIM, yi) for ti, ri, ui, yi in samples] for m in mons]
     assert texts[0] == texts[1] and any(texts[0])
     res = [m.result() for m in mons]
     assert res[0].tracking.max_swings >= 16 and res[0].tracking.oscillating_windows > 0

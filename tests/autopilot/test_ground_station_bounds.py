@@ -16,16 +16,15 @@ from __future__ import annotations
 import json
 import os
 import random
-import select
 import socket
 import subprocess
-import threading
 import time
 from pathlib import Path
 
 import pytest
 
 from tests._mavlink_procs import PY, Proc, free_ports, load_json, run_cli
+from tests._udp_relay import DroppingRelay
 
 os.environ.setdefault("MAVLINK20", "1")
 from pymavlink.dialects.v20 import common as M  # noqa: E402
@@ -202,54 +201,15 @@ def test_squatters_that_go_silent_do_not_lock_a_station_out_of_a_running_autopil
 
 
 # --------------------------------------------------------------------------------- lockstep: loss and floods
-class Relay:
-    """Between the GCS script and the autopilot: forwards both ways, drops the GCS's setpoint datagrams with
-    probability ``drop`` (seeded), and every setpoint datagram sent after ``tail_after_s`` of sim time... is kept:
-    a loss anywhere, the run's last datagrams included, must be recovered."""
-
-    def __init__(self, ap_port: int, gcs_port: int, drop: float, seed: int):
-        self.to_ap, self.to_gcs = ("127.0.0.1", ap_port), ("127.0.0.1", gcs_port)
-        self.a, self.b = (
-            socket.socket(socket.AF_INET, socket.SOCK_DGRAM),
-            socket.socket(socket.AF_INET, socket.SOCK_DGRAM),
-        )
-        self.a.bind(("127.0.0.1", 0))  # the autopilot's peer
-        self.b.bind(("127.0.0.1", 0))  # the GCS script's vehicle
-        self.rng, self.drop = random.Random(seed), drop
-        self.setpoint_datagrams = self.dropped = 0
-        self._stop = False
-        self._thread = threading.Thread(target=self._pump, daemon=True)
-        self._thread.start()
-
-    def _pump(self):
-        while not self._stop:
-            for s in select.select([self.a, self.b], [], [], 0.1)[0]:
-                data = s.recv(65535)
-                if s is self.a:
-                    self.b.sendto(data, self.to_gcs)
-                    continue
-                if len(data) > 10 and data[0] == 0xFD and data[7] == M.MAVLINK_MSG_ID_SET_ATTITUDE_TARGET:
-                    self.setpoint_datagrams += 1
-                    if self.rng.random() < self.drop:
-                        self.dropped += 1
-                        continue
-                self.a.sendto(data, self.to_ap)
-
-    def close(self):
-        self._stop = True
-        self._thread.join(2)
-        self.a.close()
-        self.b.close()
-
-
 def _by_hand(out: Path, drop: float, seed: int, duration: float = 10.0, gcs_args: tuple = ()) -> dict:
-    """A signed lockstep flight of the three processes by hand, the GCS script behind a ``Relay``."""
+    """A signed lockstep flight of the three processes by hand, the GCS script behind a ``DroppingRelay`` losing
+    setpoints."""
     out.mkdir(parents=True, exist_ok=True)
     key = out / "k.key"
     key.write_text(os.urandom(32).hex())
     key.chmod(0o600)
     sitl_p, ap_sitl_p, ap_gcs_p, gcs_p = free_ports(4)
-    relay = Relay(ap_gcs_p, gcs_p, drop, seed)
+    relay = DroppingRelay(ap_gcs_p, gcs_p, M.MAVLINK_MSG_ID_SET_ATTITUDE_TARGET, drop, seed)
     common = ["--lockstep", "--signing-key", str(key)]
     procs = [
         Proc("sitl", ["--listen", f"127.0.0.1:{sitl_p}", "--autopilot", f"127.0.0.1:{ap_sitl_p}", "--duration",
@@ -271,7 +231,7 @@ def _by_hand(out: Path, drop: float, seed: int, duration: float = 10.0, gcs_args
             p.stop(5)
         relay.close()
     ap, gcs = load_json(out / "autopilot.json"), load_json(out / "gcs.json")
-    return {"codes": codes, "ap": ap, "gcs": gcs, "relay": (relay.setpoint_datagrams, relay.dropped)}
+    return {"codes": codes, "ap": ap, "gcs": gcs, "relay": (relay.matched, relay.dropped)}
 
 
 @pytest.mark.e2e

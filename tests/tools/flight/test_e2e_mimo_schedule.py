@@ -8,59 +8,17 @@ flew to) and the count of sideslip setpoints queued.  Three real processes over 
 from __future__ import annotations
 
 import os
-import random
-import select
-import socket
-import threading
 from pathlib import Path
 
 import pytest
 
 from tests._mavlink_procs import Proc, free_ports, load_json
+from tests._udp_relay import DroppingRelay
 
 pytestmark = pytest.mark.e2e
 PLANT = "jsbsim:c172x:surface=aileron+rudder"
 NAMED_VALUE_FLOAT = 251
 PROFILE = "time_s, roll_deg, sideslip_deg\n0, 10, 0\n3, -10, 3\n6, 5, -2\n8, 5, -2\n"
-
-
-class SideslipRelay:
-    """Forwards both ways; drops the GCS's datagrams whose first packet is a NAMED_VALUE_FLOAT (the MIMO
-    schedule's: SSA_SP, roll, SSA_SP, roll, ...) with probability ``drop``."""
-
-    def __init__(self, ap_port: int, gcs_port: int, drop: float, seed: int):
-        self.to_ap, self.to_gcs = ("127.0.0.1", ap_port), ("127.0.0.1", gcs_port)
-        self.a, self.b = (
-            socket.socket(socket.AF_INET, socket.SOCK_DGRAM),
-            socket.socket(socket.AF_INET, socket.SOCK_DGRAM),
-        )
-        self.a.bind(("127.0.0.1", 0))
-        self.b.bind(("127.0.0.1", 0))
-        self.rng, self.drop = random.Random(seed), drop
-        self.sideslip_datagrams = self.dropped = 0
-        self._stop = False
-        self._thread = threading.Thread(target=self._pump, daemon=True)
-        self._thread.start()
-
-    def _pump(self):
-        while not self._stop:
-            for s in select.select([self.a, self.b], [], [], 0.1)[0]:
-                data = s.recv(65535)
-                if s is self.a:
-                    self.b.sendto(data, self.to_gcs)
-                    continue
-                if len(data) > 10 and data[0] == 0xFD and data[7:10] == bytes((NAMED_VALUE_FLOAT, 0, 0)):
-                    self.sideslip_datagrams += 1
-                    if self.rng.random() < self.drop:
-                        self.dropped += 1
-                        continue
-                self.a.sendto(data, self.to_ap)
-
-    def close(self):
-        self._stop = True
-        self._thread.join(2)
-        self.a.close()
-        self.b.close()
 
 
 def _swap(argv: list[str], flag: str, value: str) -> None:
@@ -80,7 +38,7 @@ def _flight(out: Path, drop: float, seed: int) -> dict:
     key.write_text(os.urandom(32).hex())
     key.chmod(0o600)
     argvs = child_argvs(cfg, out, sitl_p, gcs_p, key_file=key, ap_ports=(ap_sitl_p, ap_gcs_p))
-    relay = SideslipRelay(ap_gcs_p, gcs_p, drop, seed)
+    relay = DroppingRelay(ap_gcs_p, gcs_p, NAMED_VALUE_FLOAT, drop, seed)  # the schedule's SSA_SP
     ra, rb = "%s:%d" % relay.a.getsockname(), "%s:%d" % relay.b.getsockname()
     ap, gcs = argvs["autopilot"], argvs["gcs"]
     _swap(ap, "--gcs", ra)
@@ -101,7 +59,7 @@ def _flight(out: Path, drop: float, seed: int) -> dict:
         "codes": codes,
         "ap": load_json(out / "autopilot.json"),
         "gcs": load_json(out / "gcs.json"),
-        "relay": (relay.sideslip_datagrams, relay.dropped),
+        "relay": (relay.matched, relay.dropped),
         "beta": series["beta"].copy(),
         "um2": series["um2"].copy(),
         "logs": {p.log.name: p.output()[-1500:] for p in procs},
