@@ -17,12 +17,10 @@ The laws clip their command to exactly +-u_limit (``autopilot.clsac``: u = sat(u
 tolerance of 1e-9 this is the laws' own flag ``|u_raw| > u_limit`` (a command closer than 1e-9 u_limit to the limit
 without being clipped counts too); a NaN command counts as saturated, as ``u != u_raw`` does.
 
-One definition, three forms on the same code: :func:`within` (accumulated statistics, elementwise: the robustness
-study's ``bounded``), :class:`EnvelopeMonitor` (one sample per control step, constant memory: the autopilot, which
-announces each excursion once) and :func:`judge_series` / :func:`verdict` (a recorded flight: every other route).
-
-Each gives a :class:`Controlled` (``ok``, the numbers, ``first_exit_s``, a one-line ``reason``, ``tracking``,
-``ground_station``).
+One definition, three forms on the same code, each giving a :class:`Controlled`: :func:`within` (accumulated
+statistics, elementwise: the robustness study's ``bounded``), :class:`EnvelopeMonitor` (one sample per control step,
+constant memory: the autopilot, which announces each excursion once) and :func:`judge_series` / :func:`verdict` (a
+recorded flight: every other route).
 
 **Tracking** (docs/spec.md, section 5, "Three outcomes").  The deviation d = phi - y_r from the commanded
 response y_r (the law's reference model y_m,ol driven by the command: the response the loop was designed to give,
@@ -30,21 +28,18 @@ the reference of the ise_ref metric, so a step's designed rise is not an error) 
 ``TRACK_WINDOW_S`` = 20 s (two periods of the reference square wave, four of its steps: a sustained oscillation
 must last that long), sliding by ``TRACK_BLOCK_S`` = 1 s, from its sums (:func:`window_flags`):
 
-* **sustained oscillation**, judged on the response itself, whether or not the surface reaches its stops: at
-  least ``OSC_SWINGS_MIN`` (16) **regular swings** of d in the window.  A swing is d moving at least
-  ``OSC_SWING_DEG`` (4 deg peak to peak) back from its last extreme (a hysteresis, so noise and ripple below 4 deg
-  count nothing, and an oscillation about an offset counts); it is regular when its size and duration are each
-  within ``OSC_REGULAR_TOL`` (15 %) of the previous swing's (``autopilot.swings``; the measured counts that set the
-  limits are in docs/spec.md, section 5).  Also (the rule of issue 29, kept): rms(d) >= ``DEVIATION_RATIO`` (1) x
-  max(rms(y_r), ``REF_FLOOR_DEG``) *and* the command hit its stops at least ``STOP_HITS_MIN`` (10) times (a hit:
-  the command reaching a stop after it was back within ``HIT_REARM`` (half) of the limit since the last hit): a
-  loop no better than holding the wings level (phi = 0 gives rms(d) = rms(y_r)) that bangs its surface from stop
-  to stop.  The floor (2 deg RMS) stands for a command near level, where rms(y_r) says nothing.
-* **not following**: where rms(y_r) >= ``REF_FLOOR_DEG``, the roll's in-phase response g = sum(phi y_r) /
-  sum(y_r^2) (the least-squares gain of y_r in phi: 1 when phi follows y_r, 0 when it ignores it or lags it by
-  90 deg) is below ``FOLLOW_GAIN_MIN`` = 0.5 (half the commanded response, or a 60 deg lag at full size), or the
-  deviation is at least ``DEVIATION_MAX`` (1.5) x rms(y_r): half as bad again as holding the wings level,
-  whatever its shape (a slow swing or a drift makes neither 16 regular swings nor 10 stop hits).
+* **sustained oscillation**, whether or not the surface reaches its stops: at least ``OSC_SWINGS_MIN`` (16)
+  **regular swings** of d in the window (``autopilot.swings``: d moving ``OSC_SWING_DEG``, 4 deg, back from its last
+  extreme, a hysteresis below which noise counts nothing; regular when its size and duration are within
+  ``OSC_REGULAR_TOL``, 15 %, of the previous swing's; the measured counts that set the limits: docs/spec.md,
+  section 5).  Also (issue 29's rule, kept): rms(d) >= ``DEVIATION_RATIO`` (1) x max(rms(y_r), ``REF_FLOOR_DEG``,
+  2 deg: a command near level) *and* at least ``STOP_HITS_MIN`` (10) hits of the stops (a hit: the command at a
+  stop after it was back within ``HIT_REARM``, half, of the limit): no better than holding the wings level
+  (phi = 0 gives rms(d) = rms(y_r)), banging the surface from stop to stop.
+* **not following**: where rms(y_r) >= ``REF_FLOOR_DEG``, the in-phase response g = sum(phi y_r) / sum(y_r^2) (the
+  least-squares gain of y_r in phi: 1 when phi follows y_r, 0 when it ignores it or lags 90 deg) below
+  ``FOLLOW_GAIN_MIN`` = 0.5, or the deviation at least ``DEVIATION_MAX`` (1.5) x rms(y_r): half as bad again as
+  holding the wings level, whatever its shape (a slow swing or a drift makes neither 16 swings nor 10 hits).
 
 Flights shorter than one window are not judged on tracking (the reason says so).  A window's numbers are
 :class:`TrackWindow`'s (amplitude sqrt(2) std(d); mean frequency by Rice's formula).
@@ -265,12 +260,9 @@ class Tracking:
         return not (self.oscillating_windows or self.not_following_windows)
 
     def to_dict(self) -> dict:
-        out = {}
-        for k, v in self.__dict__.items():
-            out[k] = v.to_dict() if isinstance(v, TrackWindow) else (_finite_or_none(v) if isinstance(v, float) else v)
-        out["ok"] = self.ok
-        out["limits"] = tracking_limits()
-        return out
+        out = {k: v.to_dict() if isinstance(v, TrackWindow) else v for k, v in self.__dict__.items()}
+        out = {k: _finite_or_none(v) if isinstance(v, float) else v for k, v in out.items()}
+        return {**out, "ok": self.ok, "limits": tracking_limits()}
 
     def parts(self) -> list[str]:
         """The reasons a flight did not track, one per failure, with the numbers."""
@@ -557,28 +549,22 @@ class EnvelopeMonitor:
             self._block, self._block_index = _empty_block(), j
         b = self._block
         d = roll - ref
-        # stop_hit, swing_step and block_add on floats, written out (once per control step; the same operations in
-        # the same order: tests/autopilot/test_envelope.py holds the monitor to the functions)
-        sat = bool(sat)
-        armed = self._hit_armed
+        # stop_hit, swing_step and block_add on floats, written out: the same operations in the same order
+        sat, armed = bool(sat), self._hit_armed
         hit = sat and armed
         self._hit_armed = not hit and (armed or abs(u) <= HIT_REARM * u_limit)
-        df = float(d)
         st = self._swing
         if st is None:
-            st = self._swing = swing_start(df)
-        swing = _swing_step_float(st, df, float(self._k), st[_UP] != 0.0)
+            st = self._swing = swing_start(float(d))
+        swing = _swing_step_float(st, float(d), float(self._k), st[_UP] != 0.0)
         b[_N] += 1
         b[_RR] += ref * ref
         b[_PR] += roll * ref
         b[_DD] += d * d
         b[_D] += d
-        if hit:
-            b[_HITS] += 1
-        if swing:
-            b[_SW] += 1
-        if sat:
-            b[_SAT] += 1
+        b[_HITS] += hit
+        b[_SW] += swing
+        b[_SAT] += sat
         self._k += 1
         if self._d_prev is not None and ft > self._ft_prev:
             rate = (d - self._d_prev) / (ft - self._ft_prev)
@@ -648,16 +634,13 @@ class EnvelopeMonitor:
         last window at its end).  None if no sample had a reference response.  Leaves the monitor as it was."""
         if self._block is None:
             return None
-        saved = (self._windows, self._n_osc, self._n_lag, self._first_osc, self._last_osc, self._first_lag)
-        saved += (self._last_window, self._worst_ratio, self._min_gain, self._max_swings, self._worst_follow)
+        saved = dict(self.__dict__)  # what _note changes: attributes only, restored below
         try:
             ring = (self._ring + [self._block])[-TRACK_BLOCKS:]
+            period = (self.t_last - self.t0) / (self.n - 1) if self.n > 1 else 0.0
             if len(ring) == TRACK_BLOCKS and self._block[_N]:
-                period = (self.t_last - self.t0) / (self.n - 1) if self.n > 1 else 0.0
-                end = min((self._block_index + 1) * TRACK_BLOCK_S, self._block[_T1] + period)
-                self._note(_window(ring, end))
-            flown = (self.t_last - self.t0) if self.n else 0.0
-            law_s = self.n_law * ((self.t_last - self.t0) / (self.n - 1) if self.n > 1 else 0.0)
+                self._note(_window(ring, min((self._block_index + 1) * TRACK_BLOCK_S, self._block[_T1] + period)))
+            flown, law_s = (self.t_last - self.t0) if self.n else 0.0, self.n_law * period
             return Tracking(
                 self._windows > 0, self._windows, self._n_osc, self._n_lag, self._first_osc, self._last_osc,
                 self._first_lag, self._last_window, self._worst_ratio if self._windows else math.nan,
@@ -665,8 +648,7 @@ class EnvelopeMonitor:
                 self._worst_follow if math.isfinite(self._min_gain) else math.nan, law_s,
             )  # fmt: skip
         finally:
-            (self._windows, self._n_osc, self._n_lag, self._first_osc, self._last_osc, self._first_lag) = saved[:6]
-            self._last_window, self._worst_ratio, self._min_gain, self._max_swings, self._worst_follow = saved[6:]
+            self.__dict__.update(saved)
 
     # ------------------------------------------------------------------------------------------- the verdict
     @property
