@@ -328,6 +328,9 @@ def test_mavproxy_sees_two_vehicles_with_sysid_1_and_2(tmp_path, mavproxy_python
     (tests/autopilot/test_sysid.py checks each one's HEARTBEAT and ATTITUDE stream on such a port)."""
     port = free_ports(1)[0]
     mp = MavProxy(mavproxy_python, port, tmp_path)
+    # its port bound before the launches fly: a lockstep launch lasts about 1.5 s, and a MAVProxy still starting
+    # (4 s cold) missed both vehicles once by hand; what they send after the bind waits in the socket
+    mp.wait_for(r"Telemetry log:", 60)
     launches = [
         subprocess.Popen(
             [sys.executable, "-m", "tools.launch", "--lockstep", "--duration", "10", "--sysid", str(n), "--gcs-peer"]
