@@ -232,8 +232,9 @@ def verdict(
        time: late, holds, servo timeout), the owner of the larger loss (``shortfall``; a stall is noted);
     2. the process that stopped sending first (``first_stall``: a silence of ``STALL_S`` or more on its own send
        clock, or on its peers' receive clocks if it left no stats), whoever noticed it;
-    3. the process that exited first (a child that ends early with status 0 included), or, when it ended because
-       a peer went silent (its stats' ``peer_lost``), that peer.
+    3. the process that exited first (a child that ends early with status 0 included; one that ended at the end
+       of the run with status 0 not), or, when it ended because a peer went silent (its stats' ``peer_lost``),
+       that peer.
 
     The reason is one line with the numbers, plus the fraction flown; a real-time flight that lost steps also says
     what to do and, when it was high, the machine's CPU load (``machine``: ``tools.flight.children.machine_load``).
@@ -278,7 +279,10 @@ def verdict(
             if n != name and st and st.get("peer_lost") and st.get("exit_reason")
         ]
         return EXIT_FAILED, name, "; ".join([stalled, *reports]) + tail
-    first = order[0] if order else children.get(failed) or children["autopilot"]
+    # a child that ended at the end of the run with status 0 did not end the flight, however early it was reaped
+    # (the autopilot, failing on a full disk, exited after the GCS script that saw it power off, on a busy machine)
+    ends = [c for c in order if not (c.code == 0 and _reached_end(c.name, stats.get(c.name), flown["duration_s"]))]
+    first = ends[0] if ends else children.get(failed) or children["autopilot"]
     name = first.name
     seen = {name}
     while (peer := (stats.get(name) or {}).get("peer_lost")) and peer in children and peer not in seen:

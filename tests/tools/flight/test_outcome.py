@@ -117,6 +117,25 @@ def test_the_reason_names_the_stall_that_began_first_and_the_peer_that_reported_
     assert "autopilot reports: SITL silent" in why
 
 
+@pytest.mark.parametrize("gcs_ms, named", [(29_500, "autopilot"), (29_499, "gcs")])
+def test_a_ground_station_that_ended_at_the_end_of_the_run_is_not_blamed_for_exiting_first(gcs_ms, named):
+    """The autopilot flew all 3000 steps, then failed (exit 1: a file it could not write) and was reaped after the
+    GCS script, which had ended on the vehicle's POWEROFF with the clock at ``gcs_ms`` of a 30 s profile (CI, a busy
+    machine: "gcs exited early").  At 29.5 s (the end, less ``GCS_END_SLACK_S``) the autopilot is named; 1 ms before
+    it, the GCS script ended early (mutation: the first exit blamed whatever it was)."""
+    cfg = FlightConfig(duration=30.0, quiet=True)
+    stats = {
+        "autopilot": {"steps": 3000, "metric_samples": 3000, "exit_reason": "could not write flight.tlog"},
+        "sitl": {"frames": 3000},
+        "gcs": {"exit_reason": "end of run (vehicle powered off)", "sim_ms": gcs_ms, "origin_ms": 0},
+    }
+    children = {"sitl": _child("sitl", 0, 31.0), "autopilot": _child("autopilot", 1, 30.5)}
+    children["gcs"] = _child("gcs", 0, 30.2)
+    code, failed, why = verdict(children, stats, flown_report(cfg, stats), 1, None, None, t_end=40.0)
+    assert (code, failed) == (1, named), why
+    assert why.startswith("autopilot failed (exit code 1)" if named == "autopilot" else "gcs exited early"), why
+
+
 # ------------------------------------------------------------------------------------ out of the envelope: 3
 def test_a_completed_flight_out_of_the_envelope_exits_3():
     """Completed (0) but not controlled: exit 3, "OUT OF ENVELOPE" with the autopilot's reason; controlled: 0; a
