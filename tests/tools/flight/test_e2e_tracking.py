@@ -147,10 +147,11 @@ def test_a_flight_disarmed_by_a_ground_station_says_so_on_its_last_line(tmp_path
     flying = s["t"] >= 0.0  # real time: the stand-by steps before the first attitude are not flight
     disarmed = int(np.sum(~s["armed"][flying].astype(bool)))
     gs = res.summary["ground_station"]
-    # disarmed_s is the disarmed steps times the flight's mean step period (autopilot.envelope.EnvelopeMonitor): a
-    # step missed on a busy machine stretches that period by 1/steps of it (0.011 s over 3 s at 5 of 1200 missed)
-    flown = res.summary["flown"]
-    stretch = disarmed * 0.01 * (flown["steps_asked"] - flown["steps"]) / flown["steps"]
+    # disarmed_s is the disarmed steps times the flight's mean step period (autopilot.envelope.EnvelopeMonitor): steps
+    # missed or late on a busy machine stretch that period (three lanes side by side: 3.010 s for 299 steps, a mean of
+    # 10.07 ms), as test_vehicle's MANUAL and disarm flights allow
+    t = s["t"][flying]
+    stretch = disarmed * abs((t[-1] - t[0]) / (len(t) - 1) - 0.01)
     assert 200 <= disarmed <= 450 and gs["disarmed_s"] == pytest.approx(disarmed / 100.0, abs=0.011 + stretch)
     line = outcome_line(res.summary)
     assert (
