@@ -124,30 +124,34 @@ def main(argv: list[str] | None = None) -> dict:
     per_process: dict[str, list[float]] = {}  # this code's runs: CPU seconds of each process
     around, around_before = [], []  # each run's wall minus its flight: what the user waits for around the flight
     with tempfile.TemporaryDirectory(prefix="bench-launch-") as tmp:
-        # with a baseline, this code runs as the baseline does (from its checkout, on PYTHONPATH): with this checkout
-        # as its own baseline and this code run from the caller's folder, this code was 5-7 % faster
+        # with a baseline, this code runs as the baseline does (from its checkout, on PYTHONPATH), and the two take
+        # turns at going first: two ways the bench could favour one side, removed.  This checkout timed against
+        # itself still printed 0.92-0.97 (docs/benchmarks.md): read a ratio within about 5 % of 1 as no difference.
         here = ROOT if base else None
         _flight(Path(tmp) / "warm-up", [], FILES, here)  # page cache, .pyc files and the cached flight layout
         if base:
             _flight(Path(tmp) / "warm-up-baseline", [], FILES, base)
+
+        def launch(name: str, i: int, tree: str | None) -> tuple:
+            out = Path(tmp) / f"{name}-{i}"
+            try:
+                return _flight(out, [], FILES, tree)
+            finally:
+                shutil.rmtree(out, ignore_errors=True)
+
         for i in range(runs):
             wall, c = _timed([sys.executable, "-c", "import numpy, scipy"])
             imports.append(wall)
             cpu_imports.append(c)
-            # the two codes take turns at going first: the second of a pair ran 5-13 % faster (wall and CPU) when
-            # both were this code, so a fixed order would put that into the ratio
             for which in ("baseline", "full") if i % 2 == 0 else ("full", "baseline"):
                 if which == "baseline" and base:
-                    out = Path(tmp) / f"baseline-{i}"
-                    wall, fl, c, _ = _flight(out, [], FILES, base)
+                    wall, fl, c, _ = launch("baseline", i, base)
                     before.append(wall)
                     cpu_before.append(c)
                     if fl is not None:
                         around_before.append(wall - fl)
-                    shutil.rmtree(out, ignore_errors=True)
                 elif which == "full":
-                    out = Path(tmp) / f"full-{i}"
-                    wall, fl, c, per = _flight(out, [], FILES, here)
+                    wall, fl, c, per = launch("full", i, here)
                     full.append(wall)
                     cpu.append(c)
                     for name, v in per.items():
@@ -155,7 +159,6 @@ def main(argv: list[str] | None = None) -> dict:
                     if fl is not None:
                         flown.append(fl)
                         around.append(wall - fl)
-                    shutil.rmtree(out, ignore_errors=True)
             out = Path(tmp) / f"bare-{i}"
             bare.append(_flight(out, ["--no-rrd", "--no-png"], ("flight.tlog", "summary.json"))[0])
             shutil.rmtree(out, ignore_errors=True)
