@@ -73,7 +73,7 @@ def test_the_small_disk_tests_are_a_lane_of_their_own_on_the_concurrent_schedule
 
     addopts = tomllib.loads((ROOT / "pyproject.toml").read_text())["tool"]["pytest"]["ini_options"]["addopts"]
     workers = int(re.search(r"-n (\d+)", addopts).group(1))
-    assert len(schedule.LANES) == workers < schedule.CONCURRENT_FROM  # the default: a lane a worker, at the barrier
+    assert len(schedule.LANES) <= workers < schedule.CONCURRENT_FROM  # the default waits at the barrier
     nodeid = f"{schedule.SMALL_DISK_TESTS[0]}x"
     module = nodeid.split("::", 1)[0]
     assert schedule._unit(nodeid, concurrent=True) == schedule.EXTRA_LANE
