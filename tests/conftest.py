@@ -1,8 +1,8 @@
 """Shared fixtures, and how the suite runs in parallel (docs/tests.md, "Parallel").
 
 Slow tests that start real processes carry the ``e2e`` marker: ``python -m pytest -m "not e2e"`` runs the fast ones
-in seconds.  ``python -m pytest`` runs on three pytest-xdist workers (``addopts`` in pyproject.toml; on two cores the
-third keeps both busy while a worker waits on a flight's processes); this file decides how, in three phases:
+in seconds.  ``python -m pytest`` runs on two pytest-xdist workers (``addopts`` in pyproject.toml); this file decides
+how, in three phases:
 
 * **Everything that does not fly in real time, in parallel.**  Every such module runs whole on one worker, so a
   module-scoped fixture (a flight, a study several tests only read) runs once; the longest modules start first
@@ -12,16 +12,14 @@ third keeps both busy while a worker waits on a flight's processes); this file d
   tests shared the two cores with them (in lanes beside the rest, 7 of them on a quiet machine).  A real-time flight
   itself takes little CPU (the whole phase averaged 0.4 of one core run serially), so two lanes of them (``LANES``,
   with the real-time tests of other modules, ``REAL_TIME_TESTS``; balanced by their measured durations) share the
-  machine with each other only; the third worker ends.  Three lanes side by side were tried: a MAVProxy session's
-  flight came 0.3 s late in CI.  A barrier keeps them from starting
+  machine with each other only.  A barrier keeps them from starting
   while any other test is still to run: a worker waiting at it is sent one test of ``test_process_hygiene.py`` (an
   xdist worker runs the last test it holds only once it is given more work), so the test it held runs before the
   barrier opens, not beside the lanes.
 * **Then the browser, alone.**  Its live flight flies in real time and its software rendering takes both cores
-  (``ALONE``): a worker that finds only it left ends, and the last worker takes it.  In the parallel phase it
-  rendered for 355 s instead of 145 s and slowed the modules beside it as much.
+  (``ALONE``): a worker that finds only it left ends, and the last worker takes it.
 
-**On four workers or more (``python -m pytest -n 4``; not the default, docs/tests.md says why) the real-time tests
+**On three workers or more (``python -m pytest -n 3``; not the default, docs/tests.md says why) the real-time tests
 do not wait.**  One worker (``LANE_WORKERS``) flies them from the start, one after the other, at normal priority: the
 lanes (with the real-time tests of other modules, ``REAL_TIME_TESTS``), the tests that mount a small tmpfs
 (``SMALL_DISK_TESTS``, a lane of their own on this schedule only), then ``ALONE``.  The others run the parallel phase
@@ -39,9 +37,9 @@ import pytest
 
 from tools.experiment.scenario import PAPER, PAPER_RUNS, run_inprocess
 
-# The modules whose tests fly in real time and assert its timing: three lanes that run side by side once everything
-# else is done, balanced by their durations (a plugin logging each test's start and end, three lanes side by side:
-# 208, 233 and 276 s, the third with a starved flight flown twice); on four workers or more, one after the other.
+# The modules whose tests fly in real time and assert its timing: two lanes that run side by side once everything
+# else is done, balanced by their durations (seconds, run one after the other with --durations=0: 211 and 212); on
+# three workers or more, one lane after the other on the lane worker.
 LANES = (
     (
         "tests/tools/flight/test_stalls.py",
@@ -79,54 +77,41 @@ REAL_TIME_TESTS = (
         "tests/sitl/test_divergence.py::",
     ),
 )
-# On four workers or more, the tests that mount a small tmpfs and fill it (tests/_small_disk.py) are a lane of their
-# own, after the others: a real-time flight beside them starved for 0.1-0.2 s twice in one run.  On fewer workers
-# they run with their modules, in the parallel phase, where no real-time flight flies.
+# On three workers or more, the tests that mount a small tmpfs and fill it (tests/_small_disk.py) are a lane of their
+# own, after the others: a real-time flight beside them starved for 0.1-0.2 s twice in one run.  On two workers they
+# run with their modules, in the parallel phase, where no real-time flight flies.
 SMALL_DISK_TESTS = (
     "tests/tools/flight/test_output_paths.py::test_a_disk_full_",
     "tests/tools/flight/test_output_paths.py::test_a_full_disk_",
     "tests/tools/experiment/damage/test_e2e_damage.py::test_a_full_disk_keeps_the_summary_and_names_the_picture",
 )
-EXTRA_LANE = f"real time, lane {len(LANES) + 1}"  # SMALL_DISK_TESTS' unit on four workers or more
+EXTRA_LANE = "real time, lane 3"  # SMALL_DISK_TESTS' unit on three workers or more
 # Last, alone: real time with software rendering on both cores, and a flight pinned to a core it busy-waits on.
 ALONE = ("tests/tools/view/test_browser_viewer.py", "tests/tools/flight/test_e2e_realtime.py")
 SERIAL_LAST = tuple(m for lane in LANES for m in lane) + ALONE  # every module that flies in real time
 BARRIER = "tests/project/test_process_hygiene.py"  # its tests are what a worker waiting at the barrier runs (one each)
 SERIAL = "real time, alone"  # the last unit's name
-LANE_WORKERS = 1  # on four workers or more: the worker that flies the lanes from the start (module docstring)
-CONCURRENT_FROM = 4  # the fewest workers on which the lanes overlap the parallel phase
+LANE_WORKERS = 1  # on three workers or more: the worker that flies the lanes from the start (module docstring)
+CONCURRENT_FROM = 3  # the fewest workers on which the lanes overlap the parallel phase
 LOWEST_PRIORITY = 19  # nice of a worker running the parallel phase beside the lanes, where SCHED_IDLE is not to be had
 
 # Started first, in this order (modules; measured with --durations=0), in the parallel phase.
 LONGEST_FIRST = (
     "tests/tools/experiment/damage/test_e2e_damage.py",
-    "tests/tools/experiment/study/test_study_faults.py",
     "tests/tools/flight/test_e2e_every_plant.py",
-    "tests/tools/design/test_pfc_design.py",
-    "tests/tools/test_bad_input.py",
-    "tests/tools/flight/test_startup.py",
-    "tests/tools/experiment/study/test_study_flights.py",
-    "tests/tools/view/test_viewer_stream.py",
-    "tests/project/test_docs_leaderboard.py",
-    "tests/tools/experiment/test_gym.py",
-    "tests/tools/experiment/study/test_study_kernel.py",
-    "tests/tools/flight/test_e2e_faults.py",
-    "tests/tools/flight/test_output_paths.py",
-    "tests/tools/flight/test_e2e_tracking.py",
-    "tests/sitl/test_plants.py",
-    "tests/tools/experiment/study/test_study_never_hangs.py",
-    "tests/project/test_docs_damage.py",
-    "tests/tools/experiment/study/test_study.py",
-    "tests/tools/flight/test_e2e_mimo.py",
-    "tests/tools/design/test_mimo_design.py",
+    "tests/tools/experiment/study/test_study_faults.py",
     "tests/tools/experiment/damage/test_e2e_damage_mimo.py",
+    "tests/tools/design/test_mimo_design.py",
     "tests/tools/flight/test_e2e_mimo_sensors.py",
     "tests/project/test_readme_robustness.py",
-    "tests/autopilot/shared/test_rrd_integrity.py",
-    "tests/project/test_docs_jsbsim.py",
+    "tests/tools/experiment/study/test_study.py",
+    "tests/sitl/test_plants.py",
     "tests/tools/flight/test_e2e_lockstep.py",
-    "tests/autopilot/test_law.py",
+    "tests/tools/test_bad_input.py",
+    "tests/tools/design/test_pfc_design.py",
     "tests/tools/test_mavlink_cli.py",
+    "tests/project/test_docs_jsbsim.py",
+    "tests/tools/test_failure_clients.py",
 )
 
 
@@ -142,8 +127,8 @@ def _module(nodeid: str) -> str:
 
 def _unit(nodeid: str, concurrent: bool | None = None) -> str:
     """What one worker runs, one test after the other: a lane, the last unit, one barrier test, or a module.
-    ``concurrent``: on the schedule of four workers or more (default: this worker's, ``_concurrent``), where the
-    tests of ``SMALL_DISK_TESTS`` are a lane; on fewer workers they run with their modules."""
+    ``concurrent``: on the schedule of three workers or more (default: this worker's, ``_concurrent``), where the
+    tests of ``SMALL_DISK_TESTS`` are a lane; on two workers they run with their modules."""
     name = _module(nodeid)
     if name in ALONE:
         return SERIAL

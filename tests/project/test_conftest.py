@@ -64,16 +64,7 @@ def test_a_real_time_test_of_another_module_joins_its_lane_on_every_schedule():
             assert schedule._unit(f"{lane[0]}x", concurrent=concurrent) == f"real time, lane {k + 1}"
 
 
-def test_the_small_disk_tests_are_a_lane_of_their_own_on_the_concurrent_schedule_only():
-    """On four workers or more (``CONCURRENT_FROM``) a lane after the others, never merged into one of them; on the
-    default three workers, with their modules."""
-    assert schedule.EXTRA_LANE not in {f"real time, lane {k + 1}" for k in range(len(schedule.LANES))}
-    import re
-    import tomllib
-
-    addopts = tomllib.loads((ROOT / "pyproject.toml").read_text())["tool"]["pytest"]["ini_options"]["addopts"]
-    workers = int(re.search(r"-n (\d+)", addopts).group(1))
-    assert len(schedule.LANES) <= workers < schedule.CONCURRENT_FROM  # the default waits at the barrier
+def test_the_small_disk_tests_are_a_lane_on_three_workers_only():
     nodeid = f"{schedule.SMALL_DISK_TESTS[0]}x"
     module = nodeid.split("::", 1)[0]
     assert schedule._unit(nodeid, concurrent=True) == schedule.EXTRA_LANE

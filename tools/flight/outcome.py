@@ -111,6 +111,15 @@ def _reached_end(name: str, st: dict | None, duration: float) -> bool:
     return True
 
 
+def _ended_by_others(name: str, stats: dict, children: dict, duration: float) -> bool:
+    """Whether a child that ended with status 0 ended because the run did: at its end (``_reached_end``), or, for the
+    ground-station script, on the POWEROFF of an autopilot that itself failed (a non-zero exit status)."""
+    if _reached_end(name, stats.get(name), duration):
+        return True
+    powered_off = str((stats.get(name) or {}).get("exit_reason", "")) == "end of run (vehicle powered off)"
+    return name == "gcs" and powered_off and children["autopilot"].code not in (None, 0)
+
+
 def _last_heard(name: str, stats: dict) -> tuple[float | None, list[str]]:
     """When a peer last accepted a packet from process ``name`` (monotonic), and which peers heard it."""
     times = []
@@ -232,9 +241,9 @@ def verdict(
        time: late, holds, servo timeout), the owner of the larger loss (``shortfall``; a stall is noted);
     2. the process that stopped sending first (``first_stall``: a silence of ``STALL_S`` or more on its own send
        clock, or on its peers' receive clocks if it left no stats), whoever noticed it;
-    3. the process that exited first (a child that ends early with status 0 included; one that ended at the end
-       of the run with status 0 not), or, when it ended because a peer went silent (its stats' ``peer_lost``),
-       that peer.
+    3. the process that exited first (a child that ends early with status 0 included; one that ended with status 0
+       at the end of the run, or the GCS script on the POWEROFF of an autopilot that failed, not), or, when it ended
+       because a peer went silent (its stats' ``peer_lost``), that peer.
 
     The reason is one line with the numbers, plus the fraction flown; a real-time flight that lost steps also says
     what to do and, when it was high, the machine's CPU load (``machine``: ``tools.flight.children.machine_load``).
@@ -279,9 +288,10 @@ def verdict(
             if n != name and st and st.get("peer_lost") and st.get("exit_reason")
         ]
         return EXIT_FAILED, name, "; ".join([stalled, *reports]) + tail
-    # a child that ended at the end of the run with status 0 did not end the flight, however early it was reaped
-    # (the autopilot, failing on a full disk, exited after the GCS script that saw it power off, on a busy machine)
-    ends = [c for c in order if not (c.code == 0 and _reached_end(c.name, stats.get(c.name), flown["duration_s"]))]
+    # a child that ended with status 0 at the end of the run, or (the GCS script) on the POWEROFF of an autopilot that
+    # then failed, did not end the flight, however early it was reaped (on a busy machine the failing autopilot exits
+    # after the script that saw it power off: a full disk, an internal error)
+    ends = [c for c in order if not (c.code == 0 and _ended_by_others(c.name, stats, children, flown["duration_s"]))]
     first = ends[0] if ends else children.get(failed) or children["autopilot"]
     name = first.name
     seen = {name}

@@ -120,18 +120,37 @@ def test_the_reason_names_the_stall_that_began_first_and_the_peer_that_reported_
 @pytest.mark.parametrize("gcs_ms, named", [(29_500, "autopilot"), (29_499, "gcs")])
 def test_a_ground_station_that_ended_at_the_end_of_the_run_is_not_blamed_for_exiting_first(gcs_ms, named):
     """The autopilot flew all 3000 steps, then failed (exit 1: a file it could not write) and was reaped after the
-    GCS script, which had ended on the vehicle's POWEROFF with the clock at ``gcs_ms`` of a 30 s profile (CI, a busy
-    machine: "gcs exited early").  At 29.5 s (the end, less ``GCS_END_SLACK_S``) the autopilot is named; 1 ms before
-    it, the GCS script ended early (mutation: the first exit blamed whatever it was)."""
+    GCS script, which had ended at the end of its profile with the clock at ``gcs_ms`` of 30 s (CI, a busy machine:
+    "gcs exited early").  At 29.5 s (the end, less ``GCS_END_SLACK_S``) the autopilot is named; 1 ms before it, the
+    GCS script ended early (mutation: the first exit blamed whatever it was)."""
     cfg = FlightConfig(duration=30.0, quiet=True)
     stats = {
         "autopilot": {"steps": 3000, "metric_samples": 3000, "exit_reason": "could not write flight.tlog"},
         "sitl": {"frames": 3000},
-        "gcs": {"exit_reason": "end of run (vehicle powered off)", "sim_ms": gcs_ms, "origin_ms": 0},
+        "gcs": {"exit_reason": "end of run (profile done)", "sim_ms": gcs_ms, "origin_ms": 0},
     }
     children = {"sitl": _child("sitl", 0, 31.0), "autopilot": _child("autopilot", 1, 30.5)}
     children["gcs"] = _child("gcs", 0, 30.2)
     code, failed, why = verdict(children, stats, flown_report(cfg, stats), 1, None, None, t_end=40.0)
+    assert (code, failed) == (1, named), why
+    assert why.startswith("autopilot failed (exit code 1)" if named == "autopilot" else "gcs exited early"), why
+
+
+@pytest.mark.parametrize("autopilot_code, named", [(1, "autopilot"), (0, "gcs")])
+def test_a_ground_station_ended_by_a_failing_autopilots_poweroff_is_not_blamed(autopilot_code, named):
+    """The autopilot raised at 5.7 s, powered off and exited after the GCS script, which had ended on that POWEROFF
+    (CI, a busy machine: "gcs exited early").  The autopilot failed (exit 1): it is named.  An autopilot that exited 0
+    did not fail: the script's early end on a POWEROFF (a forged one) is the culprit (mutation: the autopilot's exit
+    status not tested)."""
+    cfg = FlightConfig(duration=20.0, quiet=True)
+    stats = {
+        "autopilot": {"steps": 570, "metric_samples": 570, "exit_reason": "ZeroDivisionError: planted"},
+        "sitl": {"frames": 570},
+        "gcs": {"exit_reason": "end of run (vehicle powered off)", "sim_ms": 5_700, "origin_ms": 0},
+    }
+    children = {"sitl": _child("sitl", 0, 7.0), "autopilot": _child("autopilot", autopilot_code, 6.5)}
+    children["gcs"] = _child("gcs", 0, 6.0)
+    code, failed, why = verdict(children, stats, flown_report(cfg, stats), 1, None, None, t_end=10.0)
     assert (code, failed) == (1, named), why
     assert why.startswith("autopilot failed (exit code 1)" if named == "autopilot" else "gcs exited early"), why
 
