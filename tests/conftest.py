@@ -83,6 +83,7 @@ REAL_TIME_TESTS = (
 SMALL_DISK_TESTS = (
     "tests/tools/flight/test_output_paths.py::test_a_disk_full_",
     "tests/tools/flight/test_output_paths.py::test_a_full_disk_",
+    "tests/tools/flight/test_output_paths.py::test_a_disk_that_holds_",
     "tests/tools/experiment/damage/test_e2e_damage.py::test_a_full_disk_keeps_the_summary_and_names_the_picture",
 )
 EXTRA_LANE = "real time, lane 3"  # SMALL_DISK_TESTS' unit on three workers or more

@@ -9,6 +9,7 @@ what a ``--rrd-live`` one's does.
 
 from __future__ import annotations
 
+import errno
 import math
 import struct
 import subprocess
@@ -240,6 +241,61 @@ def test_a_malformed_spool_is_an_error_that_says_what(tmp_path):
     other = _spool(tmp_path, "r2", "b.spool")
     with pytest.raises(SpoolError, match="one flight has one"):
         tm.record_spools([_spool(tmp_path, "r1", "c.spool"), other], tmp_path / "g.rrd")
+
+
+def test_check_room_is_the_free_space_to_the_byte(tmp_path):
+    """``check_room`` on a real 256 kB tmpfs: what is free passes, one byte more is ENOSPC naming the file."""
+    from autopilot.shared.telemetry.files import check_room
+    from tests._small_disk import free_bytes, small_disk
+
+    with small_disk(tmp_path / "disk", 256) as disk:
+        free = free_bytes(disk)
+        check_room(disk / "f.rrd", free)
+        with pytest.raises(OSError) as exc:
+            check_room(disk / "f.rrd", free + 1, "the layout")
+        assert exc.value.errno == errno.ENOSPC and exc.value.filename == str(disk / "f.rrd")
+        assert "for the layout: it needs about" in exc.value.strerror
+
+
+def test_spools_are_recorded_only_onto_a_disk_with_room_for_the_recording(tmp_path):
+    """rerun 0.41's FileSink can hang its process for good when the disk fills under it (``telemetry.files``), so
+    ``record_spools`` measures first: on a real tmpfs with 8 kB less than the recording is allowed (4 bytes per
+    spooled byte and 1 MB) it raises ENOSPC naming the file before rerun writes a byte, and rerun is never called
+    (no error of its own); with 8 kB more it records the whole recording, footer included."""
+    from autopilot.shared.telemetry.files import RRD_FIXED_BYTES, RRD_PER_SPOOL_BYTE, has_footer
+    from tests._small_disk import fill, small_disk
+
+    with tm.Telemetry("autopilot", tm.new_recording_id(), spool_path=tmp_path / "ap.spool") as tel:
+        _fill(tel)
+    need = RRD_PER_SPOOL_BYTE * (tmp_path / "ap.spool").stat().st_size + RRD_FIXED_BYTES
+    assert RRD_PER_SPOOL_BYTE == 4 and RRD_FIXED_BYTES == 1 << 20  # the figures this test and the docs quote
+    for leave_kb, fits in ((need // 1024 - 8, False), (need // 1024 + 8, True)):
+        with small_disk(tmp_path / "disk", need // 1024 + 64) as disk:
+            fill(disk, leave_kb=leave_kb)
+            target = disk / "f.rrd"
+            if not fits:
+                with pytest.raises(OSError) as exc:
+                    tm.record_spools([tmp_path / "ap.spool"], target, write_footer=True)
+                assert exc.value.errno == errno.ENOSPC and exc.value.filename == str(target)
+                assert not target.exists()
+            else:
+                done = tm.record_spools([tmp_path / "ap.spool"], target, write_footer=True)
+                assert done["chunks"] > 0 and has_footer(target)
+                assert target.stat().st_size < need  # the allowance holds this recording
+
+
+def test_a_recording_without_its_end_is_told_from_a_whole_one(tmp_path):
+    """``has_footer``: a recording ended with its footer, not one cut by a byte, not a footerless part."""
+    from autopilot.shared.telemetry.files import has_footer
+
+    spool = _spool(tmp_path)
+    tm.record_spools([spool], tmp_path / "whole.rrd", write_footer=True)
+    tm.record_spools([spool], tmp_path / "part.rrd", write_footer=False)
+    assert has_footer(tmp_path / "whole.rrd") and not has_footer(tmp_path / "part.rrd")
+    data = (tmp_path / "whole.rrd").read_bytes()
+    (tmp_path / "cut.rrd").write_bytes(data[:-1])
+    (tmp_path / "empty.rrd").write_bytes(b"")
+    assert not has_footer(tmp_path / "cut.rrd") and not has_footer(tmp_path / "empty.rrd")
 
 
 # ---------------------------------------------------------------------------------------- the launcher

@@ -147,7 +147,13 @@ def _join_telemetry(
         except Exception as exc:  # noqa: BLE001  (a flight's other files stay valid; say what went wrong)
             part.unlink(missing_ok=True)
             what = target if direct else part
-            return None, False, f"recording the telemetry spools into {what} failed: {exc}"
+            why = exc.strerror if isinstance(exc, OSError) and exc.strerror else exc  # the file is named before
+            later = f"python -m tools.rrd record {target} {' '.join(str(p) for p in spools)}"
+            return (
+                None,
+                False,
+                f"recording the telemetry spools into {what} failed: {why} (the spools are kept: {later})",
+            )
         for p in spools:
             p.unlink(missing_ok=True)
         if direct:

@@ -27,7 +27,13 @@ import numpy as np
 import rerun as rr
 
 from autopilot.shared.telemetry.columns import scalar_column, series_style, sim_time_column
-from autopilot.shared.telemetry.files import new_recording_id
+from autopilot.shared.telemetry.files import (
+    RRD_FIXED_BYTES,
+    RRD_PER_SPOOL_BYTE,
+    check_room,
+    has_footer,
+    new_recording_id,
+)
 from autopilot.shared.telemetry.integrity import write_digest
 from autopilot.shared.telemetry.layout import (
     BLUE,
@@ -89,7 +95,8 @@ def log_experiment(
     ``series`` (numpy arrays ``t, um, phi, ym, ym_ol, e, u, ke, kx, ku, kpe, kie, ...``).  The blueprint
     overlays all runs; each run also gets its own tab; every plot shows the runs' span of sim time (the first to the
     last sample).  Its SHA-256 goes beside it (``path.sha256``, ``autopilot.shared.telemetry.integrity``).  Returns
-    the path.
+    the path.  A disk without room for it raises OSError (ENOSPC) before a byte is written; a recording rerun could
+    not end (the disk filled meanwhile) raises RuntimeError.
     """
     results = list(results)
     if not results:
@@ -102,6 +109,10 @@ def log_experiment(
             raise ValueError(f"run names must be non-empty path components, got {n!r}")
     out = Path(path)
     out.parent.mkdir(parents=True, exist_ok=True)
+    # never a FileSink on a disk that cannot hold the recording: rerun's can hang for good there
+    # (autopilot.shared.telemetry.files); the runs' arrays stand for the spools there
+    arrays = sum(np.asarray(v).nbytes for r in results for v in r.series.values())
+    check_room(out, RRD_PER_SPOOL_BYTE * arrays + RRD_FIXED_BYTES)
     rec = rr.RecordingStream(EXPERIMENT_APPLICATION_ID, recording_id=recording_id or new_recording_id())
     rec.set_sinks(rr.FileSink(str(out)))
     try:
@@ -153,5 +164,7 @@ def log_experiment(
         rec.flush()
     finally:
         rec.disconnect()
+    if not has_footer(out):  # rerun said nothing but could not end it (a disk that filled)
+        raise RuntimeError(f"{out}: the recording has no end (rerun could not write its footer)")
     write_digest(out)  # out.sha256: what `python -m tools.rrd verify` checks the content against
     return out

@@ -26,6 +26,7 @@ from autopilot.shared.telemetry.columns import (
     sim_time_column,
     wall_time_column,
 )
+from autopilot.shared.telemetry.files import RRD_FIXED_BYTES, RRD_PER_SPOOL_BYTE, check_room, has_footer
 from autopilot.shared.telemetry.layout import TableLayout
 from autopilot.shared.telemetry.spool import SpoolError, SpoolReader, layout_from_data
 
@@ -278,8 +279,9 @@ def record_spools(
     ``rerun rrd merge`` of a part and the layout makes it, without that second pass.
 
     Returns ``{"recording_id", "chunks", "truncated": [spools cut short],
-    "span": (first, last) sim s of the rows or None}``; a send that failed, a spool that is not one, or spools of
-    different flights raise ``SpoolError``.
+    "span": (first, last) sim s of the rows or None}``; a send that failed, a spool that is not one, spools of
+    different flights, or a footer rerun could not write raise ``SpoolError``.  A disk without room for the recording
+    (``files.check_room``: 4 bytes per spooled byte and 1 MB) raises OSError (ENOSPC) before rerun writes a byte.
     """
     if interleave_s is not None and not (math.isfinite(interleave_s) and interleave_s > 0):
         raise ValueError(f"interleave_s must be positive seconds or None, got {interleave_s!r}")
@@ -290,9 +292,12 @@ def record_spools(
             raise SpoolError(f"spools of {len(ids)} recordings, one flight has one: {sorted(ids)}")
         application_id, rid = ids.pop()
         errors: list[str] = []
-        rec = rr.RecordingStream(application_id, recording_id=rid)
         path = Path(rrd_path)
         path.parent.mkdir(parents=True, exist_ok=True)
+        # never a FileSink on a disk that cannot hold the recording: rerun's can hang for good there (files.py)
+        spooled = sum(r.path.stat().st_size for r in readers)
+        check_room(path, RRD_PER_SPOOL_BYTE * spooled + RRD_FIXED_BYTES, "the recording of the spools")
+        rec = rr.RecordingStream(application_id, recording_id=rid)
         rec.set_sinks(rr.FileSink(str(path), write_footer=write_footer))
         if blueprint is not None:
             rec.send_blueprint(blueprint)
@@ -323,6 +328,8 @@ def record_spools(
         rec.disconnect()
         if errors:
             raise SpoolError(f"{len(errors)} sends failed, the first: {errors[0]}")
+        if write_footer and not has_footer(path):  # rerun said nothing but could not end it (a disk that filled)
+            raise SpoolError(f"{path}: the recording has no end (rerun could not write its footer)")
         t0, t1 = min(s.span[0] for s in sources), max(s.span[1] for s in sources)
         return {
             "recording_id": rid,

@@ -177,6 +177,42 @@ def test_a_full_disk_ends_the_launch_failed_with_the_whole_summary_and_no_tempor
 
 
 @pytest.mark.e2e
+def test_a_disk_that_holds_the_flight_but_not_its_recording_keeps_the_spools(tmp_path):
+    """A real 3 MB tmpfs holds a 30 s lockstep flight's files and spools, not their recording: the recording is not
+    started (rerun 0.41's FileSink can hang its process for good on a full disk, ``autopilot.shared.telemetry.files``;
+    in CI a launch did so until its 300 s timeout), one FAILED line says what it needs and how to record the kept
+    spools later; that command, run elsewhere, makes the whole recording."""
+    from tests._small_disk import leftovers, small_disk
+
+    with small_disk(tmp_path / "disk", 3000) as disk:
+        out = disk / "run"
+        r = run_cli("tools.launch", "--lockstep", "--duration", "30", "--out", str(out), timeout=300)
+        both = r.stdout + r.stderr
+        assert r.returncode == 1 and "Traceback" not in both, both[-3000:]
+        last = r.stdout.strip().splitlines()[-1]
+        spools = [out / ".parts" / "autopilot.spool", out / ".parts" / "sitl.spool"]
+        later = f"python -m tools.rrd record {out / 'flight.rrd'} {spools[0]} {spools[1]}"
+        assert last.startswith(
+            f"FAILED: recording the telemetry spools into {out / 'flight.rrd'} failed: No space left on device for "
+            "the recording of the spools: it needs about "
+        ), last
+        assert f"(the spools are kept: {later});" in last and "flown 100 % (3000 of 3000 steps" in last, last
+        summary = json.loads((out / "summary.json").read_text())
+        assert summary["failed"] == "telemetry" and summary["exit_code"] == 1 and summary["files"]["rrd"] is None
+        assert not (out / "flight.rrd").exists() and leftovers(out) == [] and all(p.stat().st_size for p in spools)
+        kept = tmp_path / "kept"
+        kept.mkdir()
+        for p in spools:
+            (kept / p.name).write_bytes(p.read_bytes())
+    r = run_cli("tools.rrd", "record", str(tmp_path / "later.rrd"), *(str(kept / p.name) for p in spools), timeout=120)
+    assert r.returncode == 0, r.stdout + r.stderr
+    from autopilot.shared.telemetry.files import verify_rrd
+
+    ok, msg = verify_rrd(tmp_path / "later.rrd")  # footer included
+    assert ok, msg
+
+
+@pytest.mark.e2e
 def test_a_disk_full_before_the_flight_is_one_failed_line(tmp_path):
     """Not even the start stub fits: one FAILED line, exit 1, nothing flown, nothing left behind."""
     from tests._small_disk import fill, leftovers, small_disk
