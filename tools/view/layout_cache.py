@@ -152,6 +152,7 @@ def flight_blueprint_file(application_id: str | None = None, span=None, rudder_l
     """The saved flight layout for the flight ``span`` (start, end sim s) and rudder limit (deg, the Rudder plot's
     range; ``tools.view.views.flight_blueprint``), built now if the cache has none for this code, this rerun, this
     span and this limit, or None if it cannot be cached (then the caller builds the layout itself)."""
+    from autopilot.shared.telemetry.files import RRD_FIXED_BYTES, check_room
     from autopilot.shared.telemetry.layout import APPLICATION_ID
 
     application_id = application_id or APPLICATION_ID
@@ -171,6 +172,8 @@ def flight_blueprint_file(application_id: str | None = None, span=None, rudder_l
 
         with tempfile.TemporaryDirectory(prefix=".flight-blueprint-", dir=rbl.parent) as tmp:
             built = Path(tmp) / "flight.rbl"
+            # blueprint.save writes with rerun's FileSink, which can hang for good on a full disk (telemetry.files)
+            check_room(built, RRD_FIXED_BYTES, "the layout")
             flight_blueprint(span, rudder_limit_deg=rudder_limit_deg).save(application_id, str(built))
             data = built.read_bytes()
         meta = {
