@@ -29,6 +29,8 @@ from tools.flight import Flight
 os.environ.setdefault("MAVLINK20", "1")
 from pymavlink import mavutil  # noqa: E402  (MAVLink 2 chosen above, before mavutil picks its dialect)
 
+from tools.flight.outcome import STARVED  # the launcher's own finding (realtime_advice)
+
 pytestmark = pytest.mark.e2e  # real processes over loopback UDP
 
 MAX_GCS = AutopilotOptions.max_gcs
@@ -36,9 +38,6 @@ AP_ID = (1, 1)  # the autopilot as ground stations see it
 WRONG_KEY = bytes(range(32))
 PASSPHRASE = "correct-horse-battery-staple"
 _GCS_LINK = re.compile(r"GCS link [\d.]+:(\d+) -> ")
-
-
-STARVED = "a real-time process starved of CPU"  # the launcher's own finding (tools.flight.outcome.realtime_advice)
 
 
 def _flight(out: Path, duration: float, **kw) -> Flight:

@@ -25,6 +25,7 @@ from autopilot.shared.fastmav import crc16  # noqa: E402
 from autopilot.shared.tlog import payload_streams  # noqa: E402
 from autopilot.vehicle import Mode  # noqa: E402
 from tests._mavlink_procs import Proc, free_ports  # noqa: E402
+from tools.flight.outcome import STARVED  # the launcher's own finding (realtime_advice)
 
 pytestmark = pytest.mark.e2e
 A = mavall
@@ -631,9 +632,6 @@ def _hold(gcs: Gcs, seconds: float) -> None:
         gcs.mav.heartbeat_send(A.MAV_TYPE_GCS, A.MAV_AUTOPILOT_INVALID, 0, 0, 0)
         gcs.drain()
         time.sleep(min(1.0, max(0.0, t_end - time.monotonic())))
-
-
-STARVED = "a real-time process starved of CPU"  # the launcher's own finding (tools.flight.outcome.realtime_advice)
 
 
 def _station_flight(tmp_path, duration: float, script, attempts: int = 2) -> tuple:

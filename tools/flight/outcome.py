@@ -214,6 +214,9 @@ def shortfall(flown: dict, stats: dict, rate: float, machine: dict | None = None
 BUSY_SHARE = 0.8  # a machine whose CPUs were this busy while a real-time flight flew starved it
 
 
+STARVED = "a real-time process starved of CPU"  # realtime_advice's finding, which the tests look for
+
+
 def realtime_advice(lost: dict, machine: dict | None) -> str:
     """What a real-time flight that lost steps (late, held, on the servo timeout) adds to its reason: what to do, and
     how busy the machine was when it was busy (``machine``: ``tools.flight.children.machine_load``)."""
@@ -224,7 +227,7 @@ def realtime_advice(lost: dict, machine: dict | None) -> str:
         avg = "" if machine["load1"] is None else f", load average {machine['load1']:.1f}"
         load = f" (the machine's {machine['cpus']} CPUs were {100 * machine['busy']:.0f} % busy{avg})"
     return (
-        f"; a real-time process starved of CPU{load}: fly --lockstep (no deadlines), or --pin --busy-wait (the "
+        f"; {STARVED}{load}: fly --lockstep (no deadlines), or --pin --busy-wait (the "
         "autopilot alone on a CPU), or on a quieter machine"
     )
 

@@ -186,9 +186,9 @@ def _check_target(out: Path) -> None:
 # that thread's answer for ever: reproduced in 5 of 9 recordings (``record_spools`` without the guard below) of a
 # 30 s flight's spools onto a tmpfs with 1.2 or 1.6 MB free, three busy loops on the 2-core machine.  A flush with a
 # timeout does not help: the interpreter's exit then waits for ever instead (rerun flushes every recording there;
-# 12 of 24).  Other runs print the error and raise, or return as if
-# the recording were whole although its end is missing (1.8 MB free).  So no recording is started on a disk that
-# cannot hold it (``check_room``), and a recording said to have a footer is checked for it (``has_footer``).
+# 12 of 24).  Other runs print the error and raise, or return as if the recording were whole although its end is
+# missing (1.8 MB free).  So no recording is started on a disk that cannot hold it (``check_room``), and a recording
+# said to have a footer is checked for it (``has_footer``).
 RRD_PER_SPOOL_BYTE = 4  # a recording's bytes per byte of its spools: measured 2.5 (a 600 s flight) to 3.0 (30 s)
 RRD_FIXED_BYTES = 1 << 20  # and its fixed part (the layout, the properties): 0.42 MB measured for a 2 s flight
 FOOTER_MAGIC = b"RRF2FOOT"  # the last bytes but four (the version) of a recording rerun 0.41 ended with a footer
