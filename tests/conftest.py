@@ -65,12 +65,10 @@ LANES = (
 # Tests that fly in real time in modules that otherwise do not: each joins a lane (REAL_TIME_TESTS[k] lane k + 1,
 # split so that the two stay balanced), so that none runs beside the CPU-bound tests; node ids, or their prefixes.
 REAL_TIME_TESTS = (
+    ("tests/autopilot/test_law.py::test_the_docs_law_flies_in_real_time_and_through_flight",),
     (
         "tests/tools/test_failure_clients.py::",
         "tests/tools/flight/test_e2e_tracking.py::test_a_flight_disarmed_by_a_ground_station_says_so_on_its_last_line",
-        "tests/autopilot/test_law.py::test_the_docs_law_flies_in_real_time_and_through_flight",
-    ),
-    (
         "tests/tools/flight/test_e2e_failure_injection.py::test_real_time_",
         "tests/tools/flight/test_e2e_mimo_sensors.py::test_real_time_link_faults_carry_the_sideslip_with_the_attitude",
         "tests/tools/flight/test_startup.py::test_a_sitl_that_binds_after_the_first_heartbeat_is_found_at_once[realtime]",
@@ -98,21 +96,35 @@ LOWEST_PRIORITY = 19  # nice of a worker running the parallel phase beside the l
 
 # Started first, in this order (modules; measured with --durations=0), in the parallel phase.
 LONGEST_FIRST = (
+    "tests/tools/view/test_browser_recording.py",
     "tests/tools/experiment/damage/test_e2e_damage.py",
+    "tests/tools/design/test_pfc_design.py",
     "tests/tools/flight/test_e2e_every_plant.py",
     "tests/tools/experiment/study/test_study_faults.py",
-    "tests/tools/experiment/damage/test_e2e_damage_mimo.py",
-    "tests/tools/design/test_mimo_design.py",
-    "tests/tools/flight/test_e2e_mimo_sensors.py",
-    "tests/project/test_readme_robustness.py",
-    "tests/tools/experiment/study/test_study.py",
-    "tests/sitl/test_plants.py",
-    "tests/tools/flight/test_e2e_lockstep.py",
     "tests/tools/test_bad_input.py",
-    "tests/tools/design/test_pfc_design.py",
-    "tests/tools/test_mavlink_cli.py",
+    "tests/tools/flight/test_startup.py",
+    "tests/tools/experiment/study/test_study_flights.py",
+    "tests/tools/flight/test_e2e_faults.py",
+    "tests/tools/experiment/study/test_study_never_hangs.py",
+    "tests/sitl/test_plants.py",
+    "tests/project/test_docs_leaderboard.py",
+    "tests/project/test_docs_damage.py",
+    "tests/autopilot/test_law.py",
+    "tests/tools/flight/test_e2e_tracking.py",
+    "tests/tools/experiment/test_gym.py",
+    "tests/autopilot/test_ground_station_bounds.py",
+    "tests/tools/flight/test_output_paths.py",
+    "tests/tools/experiment/study/test_study_kernel.py",
+    "tests/tools/flight/test_e2e_lockstep.py",
+    "tests/autopilot/shared/test_rrd_integrity.py",
     "tests/project/test_docs_jsbsim.py",
-    "tests/tools/test_failure_clients.py",
+    "tests/tools/experiment/study/test_study.py",
+    "tests/tools/flight/test_e2e_mimo.py",
+    "tests/autopilot/test_telemetry_spool.py",
+    "tests/tools/flight/test_e2e_mimo_sensors.py",
+    "tests/tools/experiment/damage/test_e2e_damage_mimo.py",
+    "tests/tools/experiment/test_mimo_inprocess.py",
+    "tests/tools/design/test_mimo_design.py",
 )
 
 

@@ -209,6 +209,12 @@ def test_thinning_keeps_the_first_row_of_each_bucket():
     assert thinned(slow, 25.0, -math.inf)[0].all()
 
 
+def _default_sigint() -> None:
+    import signal
+
+    signal.signal(signal.SIGINT, signal.SIG_DFL)
+
+
 class _Endpoint:
     """``rerun --save FILE`` on a free port: a gRPC endpoint that writes what a viewer would receive."""
 
@@ -225,6 +231,9 @@ class _Endpoint:
             [rerun_cli_path(), "--bind", "127.0.0.1", "--port", str(self.port), "--save", str(path)],
             stdout=subprocess.DEVNULL,
             stderr=subprocess.DEVNULL,
+            # close() stops it with SIGINT, which it would inherit ignored from a suite run as a script's background
+            # job (CI): it then waited out close()'s 30 s and was killed (33 s of the parallel phase's last module)
+            preexec_fn=_default_sigint,
         )
         self.url = tm.viewer_url(self.port)
         deadline = time.monotonic() + 30
