@@ -17,7 +17,9 @@ how, in three phases:
   xdist worker runs the last test it holds only once it is given more work), so the test it held runs before the
   barrier opens, not beside the lanes.
 * **Then the browser, alone.**  Its live flight flies in real time and its software rendering takes both cores
-  (``ALONE``): a worker that finds only it left ends, and the last worker takes it.
+  (``ALONE``): a worker that finds only it left ends, and the last worker takes it.  (Its saved-recording checks,
+  which fly nothing in real time, were tried in the parallel phase: Chromium then took 151 CPU s where it takes
+  about 130 alone, and slowed the module beside it from 75 to 168 s: the phase grew by more than the end shrank.)
 
 **On three workers or more (``python -m pytest -n 3``; not the default, docs/tests.md says why) the real-time tests
 do not wait.**  One worker (``LANE_WORKERS``) flies them from the start, one after the other, at normal priority: the
@@ -38,7 +40,8 @@ import pytest
 from tools.experiment.scenario import PAPER, PAPER_RUNS, run_inprocess
 
 # The modules whose tests fly in real time and assert its timing: two lanes that run side by side once everything
-# else is done, balanced by their durations (seconds, run one after the other with --durations=0: 211 and 212); on
+# else is done, balanced by their durations (seconds, each test's start and end logged in a whole run on 2 workers,
+# 2026-12-07: 327 and 313 with this split, where the one before had left 369 and 249); on
 # three workers or more, one lane after the other on the lane worker.
 LANES = (
     (
@@ -94,9 +97,9 @@ LANE_WORKERS = 1  # on three workers or more: the worker that flies the lanes fr
 CONCURRENT_FROM = 3  # the fewest workers on which the lanes overlap the parallel phase
 LOWEST_PRIORITY = 19  # nice of a worker running the parallel phase beside the lanes, where SCHED_IDLE is not to be had
 
-# Started first, in this order (modules; measured with --durations=0), in the parallel phase.
+# Started first, in this order (modules, longest first: their time in a whole run on 2 workers, 2026-12-07), in the
+# parallel phase: the last to start are then short, and neither worker waits long at the barrier for the other.
 LONGEST_FIRST = (
-    "tests/tools/view/test_browser_recording.py",
     "tests/tools/experiment/damage/test_e2e_damage.py",
     "tests/tools/design/test_pfc_design.py",
     "tests/tools/flight/test_e2e_every_plant.py",
