@@ -17,9 +17,9 @@ how, in three phases:
   xdist worker runs the last test it holds only once it is given more work), so the test it held runs before the
   barrier opens, not beside the lanes.
 * **Then the browser, alone.**  Its live flight flies in real time and its software rendering takes both cores
-  (``ALONE``): a worker that finds only it left ends, and the last worker takes it.  (Its saved-recording checks,
-  which fly nothing in real time, were tried in the parallel phase: Chromium then took 151 CPU s where it takes
-  about 130 alone, and slowed the module beside it from 75 to 168 s: the phase grew by more than the end shrank.)
+  (``ALONE``): a worker that finds only it left ends, and the last worker takes it.  Its saved-recording checks fly
+  nothing in real time but stay here: in the parallel phase Chromium slowed the module beside them more than the
+  end gained (docs/tests.md).
 
 **On three workers or more (``python -m pytest -n 3``; not the default, docs/tests.md says why) the real-time tests
 do not wait.**  One worker (``LANE_WORKERS``) flies them from the start, one after the other, at normal priority: the
