@@ -1,34 +1,31 @@
 """Shared fixtures, and how the suite runs in parallel (docs/tests.md, "Parallel").
 
 Slow tests that start real processes carry the ``e2e`` marker: ``python -m pytest -m "not e2e"`` runs the fast ones
-in seconds.  ``python -m pytest`` runs on two pytest-xdist workers (``addopts`` in pyproject.toml); this file decides
-how, in three phases:
+in seconds.  ``python -m pytest`` runs on four pytest-xdist workers (``addopts`` in pyproject.toml), also on two
+cores; this file decides how:
 
-* **Everything that does not fly in real time, in parallel.**  Every such module runs whole on one worker, so a
-  module-scoped fixture (a flight, a study several tests only read) runs once; the longest modules start first
-  (``LONGEST_FIRST``), so no worker is left with a long module when the others are done.
-* **Then the real-time tests, in two lanes, with nothing else running.**  The tests that fly in real time assert
-  timing (deadlines, stalls, latencies, sim time against the wall clock), and they failed whenever the CPU-bound
-  tests shared the two cores with them (in lanes beside the rest, 7 of them on a quiet machine).  A real-time flight
-  itself takes little CPU (the whole phase averaged 0.4 of one core run serially), so two lanes of them (``LANES``,
-  with the real-time tests of other modules, ``REAL_TIME_TESTS``; balanced by their measured durations) share the
-  machine with each other only.  A barrier keeps them from starting
-  while any other test is still to run: a worker waiting at it is sent one test of ``test_process_hygiene.py`` (an
-  xdist worker runs the last test it holds only once it is given more work), so the test it held runs before the
-  barrier opens, not beside the lanes.
-* **Then the browser, alone.**  Its live flight flies in real time and its software rendering takes both cores
-  (``ALONE``): a worker that finds only it left ends, and the last worker takes it.  Its saved-recording checks fly
-  nothing in real time but stay here: in the parallel phase Chromium slowed the module beside them more than the
-  end gained (docs/tests.md).
+* **The real-time tests, from the start, on two workers at normal priority** (``lane_workers``), one lane each
+  (``LANES``, with the real-time tests of other modules, ``REAL_TIME_TESTS``; balanced by their measured durations).
+  They assert timing (deadlines, stalls, latencies, sim time against the wall clock), but a real-time flight takes
+  little CPU (0.4 of one core).  When both lanes are done, the last lane worker flies the tests that mount a small
+  tmpfs and fill it (``SMALL_DISK_TESTS``, ``EXTRA_LANE``), then, once everything else is done, the browser
+  (``ALONE``: a live flight, and software rendering on both cores that starves idle-priority tests); a lane worker
+  done before it joins the parallel phase.
+* **Everything else, on the other workers, at the lowest priority** (``_lower_priority``: ``SCHED_IDLE`` and the
+  idle I/O class, nice 19 where refused; a worker lowers itself, and so every process it starts, before its first
+  test of the parallel phase, and never raises itself again): a ``SCHED_IDLE`` task runs only on a CPU no other
+  task in its scheduling group wants.  The launcher starts a flight's processes in its own session
+  (``tools/flight/children.py``) so that the kernel's autogroups, one per session, do not give an idle-priority
+  test's flight the weight of a session of its own (``python -m tools.bench isolation``).  Every such module runs
+  whole on one worker, so a module-scoped fixture (a flight, a study several tests only read) runs once; the longest
+  modules start first (``LONGEST_FIRST``).
 
-**On three workers or more (``python -m pytest -n 3``; not the default, docs/tests.md says why) the real-time tests
-do not wait.**  One worker (``LANE_WORKERS``) flies them from the start, one after the other, at normal priority: the
-lanes (with the real-time tests of other modules, ``REAL_TIME_TESTS``), the tests that mount a small tmpfs
-(``SMALL_DISK_TESTS``, a lane of their own on this schedule only), then ``ALONE``.  The others run the parallel phase
-at the lowest priority (``_lower_priority``: ``SCHED_IDLE`` and the idle I/O class, nice 19 where refused; a worker
-lowers itself, and so every process it starts, before its first test of the parallel phase, and never raises itself
-again): a ``SCHED_IDLE`` task runs only on a CPU no other task wants.  The lane worker joins the parallel phase when
-its lane is done.
+**On two workers (``python -m pytest -n 2``) the schedule is in three phases instead:** everything that does not
+fly in real time, in parallel; then the two lanes, with nothing else running (the tests of ``SMALL_DISK_TESTS`` run
+with their modules, in the first phase); then the browser, alone.  A barrier keeps the lanes from starting while any
+other test is still to run: a worker waiting at it is sent one test of ``test_process_hygiene.py`` (an xdist worker
+runs the last test it holds only once it is given more work), so the test it held runs before the barrier opens.
+On three workers, one lane worker flies the lanes one after the other.
 """
 
 from __future__ import annotations
@@ -39,10 +36,9 @@ import pytest
 
 from tools.experiment.scenario import PAPER, PAPER_RUNS, run_inprocess
 
-# The modules whose tests fly in real time and assert its timing: two lanes that run side by side once everything
-# else is done, balanced by their durations (seconds, each test's start and end logged in a whole run on 2 workers,
-# 2026-12-07: 327 and 313 with this split, where the one before had left 369 and 249); on
-# three workers or more, one lane after the other on the lane worker.
+# The modules whose tests fly in real time and assert its timing: two lanes, side by side, balanced by their durations
+# (seconds, each test's start and end logged in a whole run on 2 workers, 2026-12-07: 327 and 313 with this split,
+# where the one before had left 369 and 249); on three workers, one lane after the other on the lane worker.
 LANES = (
     (
         "tests/tools/flight/test_stalls.py",
@@ -54,6 +50,7 @@ LANES = (
         "tests/autopilot/test_gcs_admission.py",
         "tests/autopilot/test_sysid.py",
         "tests/tools/flight/test_user_lines.py",
+        "tests/autopilot/test_failure_injection.py",
     ),
     (
         "tests/tools/test_clients.py",
@@ -68,10 +65,17 @@ LANES = (
 # Tests that fly in real time in modules that otherwise do not: each joins a lane (REAL_TIME_TESTS[k] lane k + 1,
 # split so that the two stay balanced), so that none runs beside the CPU-bound tests; node ids, or their prefixes.
 REAL_TIME_TESTS = (
-    ("tests/autopilot/test_law.py::test_the_docs_law_flies_in_real_time_and_through_flight",),
+    (
+        "tests/autopilot/test_law.py::test_the_docs_law_flies_in_real_time_and_through_flight",
+        "tests/autopilot/test_law.py::test_a_ground_station_sees_the_laws_mode_and_sets_its_parameters_live",
+        "tests/tools/flight/test_startup.py::test_a_lockstep_launcher_imports_rerun_while_its_children_start_a_real_t",
+        "tests/tools/flight/test_startup.py::test_only_a_lockstep_flight_has_the_picture_helper_beside_it",
+    ),
     (
         "tests/tools/test_failure_clients.py::",
         "tests/tools/flight/test_e2e_tracking.py::test_a_flight_disarmed_by_a_ground_station_says_so_on_its_last_line",
+        "tests/tools/flight/test_e2e_tracking.py::test_the_default_flight_tracks_and_stays_ok[",
+        "tests/tools/flight/test_startup.py::test_an_adopted_helper_draws_the_picture_or_is_closed_when_not_wanted",
         "tests/tools/flight/test_e2e_failure_injection.py::test_real_time_",
         "tests/tools/flight/test_e2e_mimo_sensors.py::test_real_time_link_faults_carry_the_sideslip_with_the_attitude",
         "tests/tools/flight/test_startup.py::test_a_sitl_that_binds_after_the_first_heartbeat_is_found_at_once[realtime]",
@@ -93,7 +97,6 @@ ALONE = ("tests/tools/view/test_browser_viewer.py", "tests/tools/flight/test_e2e
 SERIAL_LAST = tuple(m for lane in LANES for m in lane) + ALONE  # every module that flies in real time
 BARRIER = "tests/project/test_process_hygiene.py"  # its tests are what a worker waiting at the barrier runs (one each)
 SERIAL = "real time, alone"  # the last unit's name
-LANE_WORKERS = 1  # on three workers or more: the worker that flies the lanes from the start (module docstring)
 CONCURRENT_FROM = 3  # the fewest workers on which the lanes overlap the parallel phase
 LOWEST_PRIORITY = 19  # nice of a worker running the parallel phase beside the lanes, where SCHED_IDLE is not to be had
 
@@ -135,6 +138,12 @@ LONGEST_FIRST = (
 def paper_runs() -> dict:
     """The reference scenario's five runs in-process (no wire model), by run name: ``RunResult`` objects."""
     return {run.name: run_inprocess(PAPER, run) for run in PAPER_RUNS}
+
+
+def lane_workers(workers: int) -> int:
+    """On ``CONCURRENT_FROM`` workers or more: how many fly the lanes from the start, one lane each (module
+    docstring); the others, at least two, run the parallel phase."""
+    return max(1, min(len(LANES), workers - 2))
 
 
 def _module(nodeid: str) -> str:
@@ -257,27 +266,43 @@ def pytest_xdist_make_scheduler(config, log):
         def _queued(self, phase: int) -> list:
             return [s for s in self.workqueue if _phase(s) == phase]
 
+        def _parallel_left(self) -> bool:
+            return bool(self._queued(0)) or any(self._pending(n, 0) for n in self.assigned_work)
+
         def _lane_worker(self, node) -> bool:
             """Whether ``node`` flies real time (never lowered); decided when it first asks for work."""
             roles = self.__dict__.setdefault("_roles", {})
             if node not in roles:
                 real_time = bool(self._queued(2)) or SERIAL in self.workqueue
-                roles[node] = real_time and sum(roles.values()) < LANE_WORKERS
+                roles[node] = real_time and sum(roles.values()) < lane_workers(self.numnodes)
             return roles[node]
 
         def _assign_concurrently(self, node) -> None:
             """On ``CONCURRENT_FROM`` workers or more: the lanes from the start on the lane workers, the parallel
-            phase on the others (lowered), the browser last on a lane worker once every other worker is gone."""
+            phase on the others (lowered); when the lanes are done, the last lane worker flies ``EXTRA_LANE``, and
+            the browser once the parallel phase is done too; a lane worker done before it joins the parallel phase."""
+            waiting = self.__dict__.setdefault("_waiting", set())
+            waiting.discard(node)
             if self._lane_worker(node):
-                lanes = self._queued(2)
+                lanes = [s for s in self._queued(2) if s != EXTRA_LANE]
                 if lanes:
                     self._give(node, lanes[0])
                     return
-                if SERIAL in self.workqueue:
-                    # the browser next, beside the parallel phase: its workers run at SCHED_IDLE (_lower_priority)
-                    self._give(node, SERIAL)
+                rest = [s for s in (EXTRA_LANE, SERIAL) if s in self.workqueue]
+                flying = [n for n in self.assigned_work if n is not node and self._pending(n, 2)]
+                if rest and any(self._roles.get(n) for n in flying):
+                    self._roles[node] = False  # another lane worker still flies: it flies the rest
+                elif rest and (flying or (rest[0] == SERIAL and self._parallel_left())):
+                    # a lane worker turned parallel still flies its last lane tests, or the browser waits for the
+                    # rest to be done: its rendering on both cores starves idle-priority tests
+                    waiting.add(node)
                     return
-                self._roles[node] = False  # no real time left to fly: it joins the parallel phase
+                elif rest:
+                    # beside the parallel phase only: its workers run at SCHED_IDLE (_lower_priority)
+                    self._give(node, rest[0])
+                    return
+                else:
+                    self._roles[node] = False  # no real time left to fly: it joins the parallel phase
                 self._assign_concurrently(node)
                 return
             parallel = self._queued(0)
@@ -337,6 +362,12 @@ def pytest_xdist_make_scheduler(config, log):
             if self._pending_of(self.assigned_work[node]) > 2:
                 return
             self._assign_work_unit(node)
+
+        def mark_test_complete(self, node, item_index: int, duration: float = 0) -> None:
+            super().mark_test_complete(node, item_index, duration)
+            for other in list(self.__dict__.get("_waiting", ())):  # a lane worker waiting for the last lane tests
+                if other is not node:
+                    self._reschedule(other)
 
         def remove_node(self, node):
             crashed = super().remove_node(node)

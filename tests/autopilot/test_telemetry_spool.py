@@ -257,6 +257,28 @@ def test_check_room_is_the_free_space_to_the_byte(tmp_path):
         assert "for the layout: it needs about" in exc.value.strerror
 
 
+def test_check_room_is_also_the_largest_file_the_process_may_write(tmp_path):
+    """Under ``ulimit -f`` (RLIMIT_FSIZE, 300 kB) a write past the limit fails as on a full disk, so ``check_room``
+    refuses one byte more than the limit (EFBIG, naming the file and the limit) and passes the limit itself, on a
+    disk with room for both; in a process of its own (the limit is the process's)."""
+    code = (
+        "import errno, resource, sys\n"
+        "from autopilot.shared.telemetry.files import check_room\n"
+        "resource.setrlimit(resource.RLIMIT_FSIZE, (300_000, resource.RLIM_INFINITY))\n"
+        "check_room(sys.argv[1], 300_000)\n"
+        "try:\n"
+        "    check_room(sys.argv[1], 300_001, 'the layout')\n"
+        "except OSError as exc:\n"
+        "    print(exc.errno == errno.EFBIG, exc.filename, exc.strerror)\n"
+    )
+    out = subprocess.run(
+        [sys.executable, "-c", code, str(tmp_path / "f.rrd")], capture_output=True, text=True, timeout=60, cwd=ROOT
+    )
+    assert out.returncode == 0, out.stderr
+    assert out.stdout.startswith(f"True {tmp_path / 'f.rrd'} File too large for the layout: it needs about 0.3 MB"), out
+    assert "files of 0.3 MB at most (RLIMIT_FSIZE, ulimit -f)" in out.stdout
+
+
 def test_spools_are_recorded_only_onto_a_disk_with_room_for_the_recording(tmp_path):
     """rerun 0.41's FileSink can hang its process for good when the disk fills under it (``telemetry.files``), so
     ``record_spools`` measures first: on a real tmpfs with 8 kB less than the recording is allowed (4 bytes per

@@ -294,7 +294,7 @@ def linearise_bounded(spec, timeout_s: float = LINEARISE_TIMEOUT_S, physics_rate
             stdout=subprocess.DEVNULL,  # JSBSim's own chatter
             stderr=subprocess.PIPE,
             env=env,
-            start_new_session=True,  # the terminal's Ctrl-C reaches this process, which kills the child
+            process_group=0,  # Ctrl-C reaches this process, which kills the child; not a session (children.py)
             text=True,
         )
         try:

@@ -52,7 +52,12 @@ class Child:
             stderr=subprocess.STDOUT,
             # its internal error's traceback comes as lines for the log only (autopilot.shared.crash)
             env=child_env(PYTHONUNBUFFERED="1", MAVLINK20="1", **{crash.LOG_ENV: str(log_path)}),
-            start_new_session=True,
+            # A process group of its own (the terminal's Ctrl-C reaches the launcher only, which stops the children in
+            # order) in the launcher's session: not a session of its own, which the kernel's autogroups
+            # (/proc/sys/kernel/sched_autogroup_enabled) would weigh as a separate desktop session, at full weight,
+            # whatever the launcher's priority.  So `nice` or SCHED_IDLE on the launcher holds for its whole flight
+            # (docs/tests.md, "Parallel": 19-165 late periods in 1200 against 0-1, tools.bench isolation).
+            process_group=0,
             text=True,
             bufsize=1,
         )

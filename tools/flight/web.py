@@ -190,7 +190,7 @@ class WebServer:
                 stdin=subprocess.DEVNULL,
                 stdout=log,
                 stderr=subprocess.STDOUT,
-                start_new_session=True,  # its own process group: Ctrl-C goes to the launcher, stop() ends the group
+                process_group=0,  # its own process group: Ctrl-C goes to the launcher, stop() ends the group
                 preexec_fn=_die_with_parent_fn(),
                 env=dict(os.environ, RUST_LOG=os.environ.get("RUST_LOG", "warn")),
             )
@@ -239,7 +239,7 @@ class WebServer:
             return
         for sig, grace in ((signal.SIGTERM, STOP_GRACE_S), (signal.SIGKILL, STOP_GRACE_S)):
             try:
-                os.killpg(proc.pid, sig)  # its group: start_new_session made its pid the group id
+                os.killpg(proc.pid, sig)  # its group: process_group=0 made its pid the group id
             except ProcessLookupError:
                 break
             try:

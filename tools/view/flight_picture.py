@@ -178,7 +178,7 @@ class PngHelper:
             stdin=subprocess.PIPE,
             stdout=subprocess.PIPE,  # the answer; its warnings and errors go to the launcher's stderr, as before
             text=True,
-            start_new_session=True,  # Ctrl-C reaches the launcher only, which still asks for the picture
+            process_group=0,  # Ctrl-C reaches the launcher only, which still asks for the picture (children.py)
             env=child_env(PYTHONUNBUFFERED="1"),  # one OpenBLAS thread: the picture does no linear algebra
         )
         self._sent = False

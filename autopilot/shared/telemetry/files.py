@@ -188,7 +188,9 @@ def _check_target(out: Path) -> None:
 # timeout does not help: the interpreter's exit then waits for ever instead (rerun flushes every recording there;
 # 12 of 24).  Other runs print the error and raise, or return as if the recording were whole although its end is
 # missing (1.8 MB free).  So no recording is started on a disk that cannot hold it (``check_room``), and a recording
-# said to have a footer is checked for it (``has_footer``).
+# said to have a footer is checked for it (``has_footer``).  A file size limit (RLIMIT_FSIZE) fails the write the same
+# way (EFBIG): a launcher limited to 300 kB files hung in that flush for 300 s in one whole run of the suite, so
+# ``check_room`` refuses a recording larger than the limit too.
 RRD_PER_SPOOL_BYTE = 4  # a recording's bytes per byte of its spools: measured 2.5 (a 600 s flight) to 3.0 (30 s)
 RRD_FIXED_BYTES = 1 << 20  # and its fixed part (the layout, the properties): 0.42 MB measured for a 2 s flight
 FOOTER_MAGIC = b"RRF2FOOT"  # the last bytes but four (the version) of a recording rerun 0.41 ended with a footer
@@ -196,7 +198,8 @@ FOOTER_MAGIC = b"RRF2FOOT"  # the last bytes but four (the version) of a recordi
 
 def check_room(path: str | os.PathLike, need_bytes: int, what: str = "the recording") -> None:
     """OSError (ENOSPC, naming ``path``) if the file system ``path`` is written on has fewer than ``need_bytes``
-    free for this user: what is about to be written there would not fit (``path``'s folder must exist)."""
+    free for this user, or (EFBIG) if this process may not write a file of ``need_bytes`` (``ulimit -f``): what is
+    about to be written there would not fit (``path``'s folder must exist)."""
     st = os.statvfs(Path(path).parent)
     free = st.f_bavail * st.f_frsize
     if free < need_bytes:
@@ -206,6 +209,25 @@ def check_room(path: str | os.PathLike, need_bytes: int, what: str = "the record
             f"{free / 1e6:.1f} MB are free",
             os.fspath(path),
         )
+    largest = _largest_file()
+    if largest is not None and largest < need_bytes:  # a write past it fails as on a full disk (EFBIG): same hang
+        raise OSError(
+            errno.EFBIG,
+            f"File too large for {what}: it needs about {need_bytes / 1e6:.1f} MB, and this process may write "
+            f"files of {largest / 1e6:.1f} MB at most (RLIMIT_FSIZE, ulimit -f)",
+            os.fspath(path),
+        )
+
+
+def _largest_file() -> int | None:
+    """The largest file this process may write (its RLIMIT_FSIZE soft limit, ``ulimit -f``), in bytes; None if
+    unlimited or unknown (not POSIX)."""
+    try:
+        import resource
+    except ImportError:
+        return None
+    soft = resource.getrlimit(resource.RLIMIT_FSIZE)[0]
+    return None if soft == resource.RLIM_INFINITY else soft
 
 
 def has_footer(path: str | os.PathLike) -> bool:
