@@ -37,8 +37,8 @@ import pytest
 from tools.experiment.scenario import PAPER, PAPER_RUNS, run_inprocess
 
 # The modules whose tests fly in real time and assert its timing: two lanes, side by side, balanced by their durations
-# (seconds, each test's start and end logged in a whole run on 2 workers, 2026-12-07: 327 and 313 with this split,
-# where the one before had left 369 and 249); on three workers, one lane after the other on the lane worker.
+# (seconds, each test's start and end logged in whole runs, 2026-12-07: 327 and 313 on 2 workers, where the split
+# before had left 369 and 249; 334 and 307 on 4); on three workers, one lane after the other on the lane worker.
 LANES = (
     (
         "tests/tools/flight/test_stalls.py",
@@ -63,7 +63,8 @@ LANES = (
     ),
 )
 # Tests that fly in real time in modules that otherwise do not: each joins a lane (REAL_TIME_TESTS[k] lane k + 1,
-# split so that the two stay balanced), so that none runs beside the CPU-bound tests; node ids, or their prefixes.
+# split so that the two stay balanced), so that none runs at idle priority, where a real-time flight starved (a 30 s
+# flight had flown 10 s after 75 s), or on 2 workers beside the CPU-bound tests; node ids, or their prefixes.
 REAL_TIME_TESTS = (
     (
         "tests/autopilot/test_law.py::test_the_docs_law_flies_in_real_time_and_through_flight",
