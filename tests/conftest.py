@@ -299,7 +299,7 @@ def pytest_xdist_make_scheduler(config, log):
                     waiting.add(node)
                     return
                 elif rest:
-                    # beside the parallel phase only: its workers run at SCHED_IDLE (_lower_priority)
+                    # EXTRA_LANE beside the parallel phase (its workers at SCHED_IDLE), or the browser after it
                     self._give(node, rest[0])
                     return
                 else:

@@ -1,9 +1,10 @@
 """Whether work at idle priority, started as the launcher starts a flight's processes, leaves a real-time loop alone.
 
-    python -m tools.bench isolation [--quick]      (or: python -m tools.bench.isolation [--periods N])
+    python -m tools.bench isolation [--quick]      (or: python -m tools.bench.isolation [--periods N] [--per-cpu K])
 
 A probe in this process (normal priority) sleeps to a 10 ms deadline ``--periods`` times (1200) and counts the
-periods it woke more than ``LATE_MS`` (2 ms) late, with one busy loop per CPU beside it, in three set-ups:
+periods it woke more than ``LATE_MS`` (2 ms) late, with ``--per-cpu`` busy loops per CPU (2) beside it, in three
+set-ups:
 
 * ``quiet``: no busy loop (the machine's own noise);
 * ``launcher``: each busy loop lowers itself to ``SCHED_IDLE`` (nice 19 where refused) and is started by
@@ -105,8 +106,8 @@ def main(argv: list[str] | None = None) -> dict:
     p.add_argument("--per-cpu", type=int, default=2, help="busy loops per CPU (default 2)")
     args = p.parse_args(argv or [])
     periods = args.periods or (400 if args.quick else 1200)
-    if periods < 1:
-        p.error("--periods must be at least 1")
+    if periods < 1 or args.per_cpu < 1:
+        p.error("--periods and --per-cpu must be at least 1")
     load = machine_load()
     cpus = os.cpu_count() or 1
     loops_n = args.per_cpu * cpus
