@@ -366,7 +366,7 @@ def pytest_xdist_make_scheduler(config, log):
 
         def mark_test_complete(self, node, item_index: int, duration: float = 0) -> None:
             super().mark_test_complete(node, item_index, duration)
-            for other in list(self.__dict__.get("_waiting", ())):  # a lane worker waiting for the last lane tests
+            for other in list(self.__dict__.get("_waiting", ())):  # a lane worker waiting for lane tests or the rest
                 if other is not node:
                     self._reschedule(other)
 

@@ -68,8 +68,9 @@ def busy_loops(how: str, n: int, folder: Path) -> list:
     argv = [sys.executable, "-c", BUSY_LOOP]
     if how == "launcher":
         loops = [Child(f"busy{i}", argv, folder / f"busy{i}.log", False, ready_marker="spinning") for i in range(n)]
-        for loop in loops:
-            loop.ready.wait(30)
+        if not all(loop.ready.wait(30) and loop.marker_seen for loop in loops):
+            stop(loops)
+            raise RuntimeError(f"a busy loop did not start (its log: {folder})")
         return loops
     loops = [
         subprocess.Popen(argv, stdin=subprocess.DEVNULL, stdout=subprocess.PIPE, text=True, start_new_session=True)
@@ -119,11 +120,12 @@ def main(argv: list[str] | None = None) -> dict:
                 lateness = probe(periods)
             finally:
                 stop(loops)
-            late = sum(x > LATE_MS for x in lateness) / periods
-            extra = {"late": sum(x > LATE_MS for x in lateness), "of": periods}
-            extra.update(p99_ms=round(percentile(lateness, 99.0), 2), max_ms=round(max(lateness), 1))
+            late = sum(x > LATE_MS for x in lateness)
+            p99, worst = round(percentile(lateness, 99.0), 2), round(max(lateness), 1)
             target = TARGET_LATE if how == "launcher" else None
-            figs[f"isolation_{how}_late"] = figure(late, "", target, **extra)
+            figs[f"isolation_{how}_late"] = figure(
+                late / periods, "", target, late=late, of=periods, p99_ms=p99, max_ms=worst
+            )
     report(
         f"a 10 ms loop beside {loops_n} idle-priority busy loop(s): periods > {LATE_MS:g} ms late, autogroups "
         f"{autogroups()}, load {load['load1']} on {load['cpus']} CPU(s)",

@@ -56,7 +56,8 @@ class Child:
             # order) in the launcher's session: not a session of its own, which the kernel's autogroups
             # (/proc/sys/kernel/sched_autogroup_enabled) would weigh as a separate desktop session, at full weight,
             # whatever the launcher's priority.  So `nice` or SCHED_IDLE on the launcher holds for its whole flight
-            # (docs/tests.md, "Parallel": 19-165 late periods in 1200 against 0-1, tools.bench isolation).
+            # (docs/tests.md, "Parallel"; `python -m tools.bench isolation`: a 10 ms loop beside idle-priority busy
+            # loops woke late in 1-9 periods of 1200 with them started here, 16-23 with them in sessions of their own).
             process_group=0,
             text=True,
             bufsize=1,
