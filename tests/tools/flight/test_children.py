@@ -56,12 +56,13 @@ def test_a_child_shares_the_launchers_autogroup(child):
     assert group == Path("/proc/self/autogroup").read_text().split()[0]
 
 
-def test_ctrl_c_stops_a_child_and_its_log_keeps_its_lines(tmp_path):
-    """``stop_children`` sends SIGINT to each child's own process: the child, not in the terminal's group, still ends
-    on it, within the grace, and what it printed is in its log."""
+def test_stop_children_ends_a_child_and_its_log_keeps_its_lines(tmp_path):
+    """``stop_children`` ends a child that would run on (SIGINT to its own process, SIGKILL after the grace), and what
+    it printed is in its log.  (Not asserted: that SIGINT alone ends it.  A suite run as a background job, as CI runs
+    it, passes SIGINT on ignored, and the child is then killed after the grace: docs/tests.md, "Parallel".)"""
     c = Child("report", [sys.executable, "-c", REPORT], tmp_path / "report.log", False, ready_marker="autogroup")
     assert c.ready.wait(60) and c.marker_seen, c.tail
     stop_children([c])
-    assert c.code == -signal.SIGINT  # ended by the SIGINT (KeyboardInterrupt), not killed after the grace
+    assert c.code in (-signal.SIGINT, -signal.SIGKILL)  # not the 60 s sleep's end
     log = (tmp_path / "report.log").read_text()
     assert "ids " in log and "autogroup " in log
