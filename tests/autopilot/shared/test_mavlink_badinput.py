@@ -1,8 +1,9 @@
 """Bad input at the real ports of running processes (real time SITL + autopilot, real UDP packets).
 
 Each kind is rejected and counted (the counters the processes write at exit), nothing crashes, both
-exit 0, and the control loop keeps its rate (all steps done in the expected wall time, few missed
-deadlines; loose bounds for a loaded machine: the strict targets are in the benchmark).
+exit 0, and the flight keeps its rates (all steps done in the expected wall time, few missed
+deadlines, the SITL's sensor stream at 200 Hz; loose bounds for a loaded machine, and a flight that missed them is
+flown once more: ``_fly``; the strict targets are in the benchmark).
 """
 
 from __future__ import annotations
@@ -64,8 +65,8 @@ class Flight:
         for p in payloads:
             self.tx.sendto(p, addr)
 
-    def finish(self, rate: bool = True):
-        """Both processes' stats after the flight, both exited 0; ``rate``: the loop kept its rate, asserted."""
+    def finish(self):
+        """Both processes' stats after the flight, both exited 0 (whether it kept its rates: ``_late``)."""
         try:
             assert self.ap.p.wait(60) == 0, self.ap.output()
         finally:
@@ -77,17 +78,17 @@ class Flight:
         sitl = load_json(self.dir / "sitl.json")
         assert ap["steps"] == round(DURATION * RATE)  # every step done
         assert "rejected:" in self.ap.output() and "rejected:" in self.sitl.output()
-        if rate:
-            assert not _late(ap), _late(ap)
         return ap, sitl
 
 
-def _late(ap: dict) -> str | None:
-    """Why the loop did not keep its rate (the flight's wall time off by more than 5 %, or more than 5 % of its
-    steps past their deadlines), or None."""
+def _late(ap: dict, sitl: dict | None = None) -> str | None:
+    """Why the flight did not keep its rates (the autopilot's wall time off by more than 5 %, or more than 5 % of its
+    steps past their deadlines; the SITL's sensor stream off its 200 Hz by more than 10 %), or None."""
     wall, missed = ap["wall_s"], ap["timing"]["missed_deadlines"]
     if wall != pytest.approx(DURATION - 1.0 / RATE, rel=0.05) or missed > 0.05 * ap["steps"]:
         return f"{missed} missed deadlines of {ap['steps']} steps, {wall:.3f} s of wall clock"
+    if sitl is not None and sitl["frames"] / sitl["wall_s"] != pytest.approx(200, rel=0.1):
+        return f"the SITL's sensor stream at {sitl['frames'] / sitl['wall_s']:.1f} Hz, not 200 Hz +- 10 %"
     return None
 
 
@@ -102,9 +103,21 @@ def _started(where) -> Flight:
     return f
 
 
-@pytest.fixture
-def flight(tmp_path):
-    return _started(tmp_path)
+def _fly(tmp_path, send) -> tuple[Flight, dict, dict]:
+    """A flight, ``send(flight)`` its bad input, its stats.  These floods are at the edge of what a loaded machine
+    keeps in time (CI, beside another real-time flight: 19 missed deadlines of 300, a 177 Hz sensor stream): a
+    flight that did not keep its rates (``_late``) is flown once more, said on the test's output; what is asserted
+    holds of the last flight, which must keep them."""
+    for attempt in range(2):
+        flight = _started(tmp_path / f"flight{attempt}")
+        send(flight)
+        ap, sitl = flight.finish()
+        late = _late(ap, sitl)
+        if late is None or attempt == 1:
+            break
+        print(f"flight {attempt + 1} did not keep its rates, flown again: {late}")
+    assert late is None, late
+    return flight, ap, sitl
 
 
 def _rejected(stats, link):
@@ -126,66 +139,66 @@ def _servo(m, time_usec=0, pwm=1500):
 
 
 def test_random_bytes(tmp_path):
-    """900 datagrams of random bytes at once.  The heaviest flood here: a flight whose loop did not keep its rate
-    is flown once more, said on the test's output (CI, beside another real-time flight: 19 missed deadlines of 300);
-    what is asserted holds of the last flight."""
+    """900 datagrams of random bytes at once, the heaviest flood here."""
     n = 300
-    for attempt in range(2):
-        flight = _started(tmp_path / f"flight{attempt}")
+
+    def send(flight):
         rng = random.Random(7)
         for where in ("ap_sitl", "ap_gcs", "sitl"):
             flight.send(where, [bytes(rng.randrange(256) for _ in range(rng.randrange(1, 280))) for _ in range(n)])
-        ap, sitl = flight.finish(rate=False)
-        late = _late(ap)
-        if late is None or attempt == 1:
-            break
-        print(f"flight {attempt + 1} did not keep its rate, flown again: {late}")
-    assert late is None, late
+
+    _flight, ap, sitl = _fly(tmp_path, send)
     for rej in (_rejected(ap, "sitl"), _rejected(ap, "gcs"), _rejected(sitl, None)):
         # a burst of 300 at once: beyond the per-poll budget the rest is read and dropped (over_budget)
         assert sum(rej.values()) >= n and rej.get("bad_magic", 0) + rej.get("over_budget", 0) > 0.9 * n
 
 
-def test_truncated_packets(flight):
+def test_truncated_packets(tmp_path):
     n = 100
     good_sitl, good_gcs, good_ap = mav(1, 200), mav(255, 190), mav(1, 140)
-    att = [_attitude(good_sitl)[: 8 + k % 10] for k in range(n)]
-    sp = [_setpoint(good_gcs, [1.0, 0.0, 0.0, 0.0])[: -1 - k % 20] for k in range(n)]
-    srv = [_servo(good_ap)[: 12 + k % 5] for k in range(n)]
-    flight.send("ap_sitl", att)
-    flight.send("ap_gcs", sp)
-    flight.send("sitl", srv)
-    ap, sitl = flight.finish()
+
+    def send(flight):
+        flight.send("ap_sitl", [_attitude(good_sitl)[: 8 + k % 10] for k in range(n)])
+        flight.send("ap_gcs", [_setpoint(good_gcs, [1.0, 0.0, 0.0, 0.0])[: -1 - k % 20] for k in range(n)])
+        flight.send("sitl", [_servo(good_ap)[: 12 + k % 5] for k in range(n)])
+
+    _flight, ap, sitl = _fly(tmp_path, send)
     assert _rejected(ap, "sitl")["truncated"] == n
     assert _rejected(ap, "gcs")["truncated"] == n
     assert _rejected(sitl, None)["truncated"] == n
 
 
-def test_wrong_system_ids(flight):
+def test_wrong_system_ids(tmp_path):
     n = 100
-    flight.send("ap_sitl", [_attitude(mav(2, 200), roll=1.0) for _ in range(n)])
-    flight.send("ap_gcs", [_setpoint(mav(254, 190), [0.0, 1.0, 0.0, 0.0]) for _ in range(n)])
-    flight.send("sitl", [_servo(mav(1, 2), pwm=2000) for _ in range(n)])
-    ap, sitl = flight.finish()
+
+    def send(flight):
+        flight.send("ap_sitl", [_attitude(mav(2, 200), roll=1.0) for _ in range(n)])
+        flight.send("ap_gcs", [_setpoint(mav(254, 190), [0.0, 1.0, 0.0, 0.0]) for _ in range(n)])
+        flight.send("sitl", [_servo(mav(1, 2), pwm=2000) for _ in range(n)])
+
+    _flight, ap, sitl = _fly(tmp_path, send)
     assert _rejected(ap, "sitl")["wrong_id"] == n
     assert _rejected(ap, "gcs")["wrong_id"] == n
     assert _rejected(sitl, None)["wrong_id"] == n
     assert ap["metrics"]["max_abs_u"] < 1e-9  # nothing they said was flown (no setpoint: wings level)
 
 
-def test_forged_attitude_and_servo_from_another_port(flight):
+def test_forged_attitude_and_servo_from_another_port(tmp_path):
     m = mav(1, 200)
     bad = [_attitude(m, roll=v) for v in (math.nan, math.inf, -math.inf)] * 30
     bad += [_attitude(m, p=math.nan), _attitude(m, r=math.inf)] * 5
-    flight.send("ap_sitl", bad)
     # a valid attitude from the past (time_boot_ms 1 is long gone): out of order, not used
     old = [pack(m, mavlink.MAVLink_attitude_message(1, 0.5, 0.0, 0.0, 0.0, 0.0, 0.0)) for _ in range(20)]
-    flight.send("ap_sitl", old)
-    # servo messages with the autopilot's IDs but time stamps 10 s old (real time: time_usec is the autopilot's
-    # Unix-clock microseconds mod 2**32): stale, not applied
-    old_usec = (time.time_ns() // 1000 - 10_000_000) % (1 << 32)
-    flight.send("sitl", [_servo(mav(1, 140), time_usec=(old_usec + k) % (1 << 32), pwm=2000) for k in range(50)])
-    ap, sitl = flight.finish()
+
+    def send(flight):
+        flight.send("ap_sitl", bad)
+        flight.send("ap_sitl", old)
+        # servo messages with the autopilot's IDs but time stamps 10 s old (real time: time_usec is the autopilot's
+        # Unix-clock microseconds mod 2**32): stale, not applied
+        old_usec = (time.time_ns() // 1000 - 10_000_000) % (1 << 32)
+        flight.send("sitl", [_servo(mav(1, 140), time_usec=(old_usec + k) % (1 << 32), pwm=2000) for k in range(50)])
+
+    _flight, ap, sitl = _fly(tmp_path, send)
     # the links are pinned to their peers: the right IDs from any other port are not even decoded
     assert _rejected(ap, "sitl")["not_peer"] == len(bad) + len(old)
     assert _rejected(sitl, None)["not_peer"] == 50
@@ -194,13 +207,16 @@ def test_forged_attitude_and_servo_from_another_port(flight):
     assert ap["metrics"]["max_abs_u"] < 0.01  # nothing of it was flown (no setpoint: wings level)
 
 
-def test_nonfinite_and_out_of_range_setpoints(flight):
+def test_nonfinite_and_out_of_range_setpoints(tmp_path):
     g = mav(255, 190)
     bad = [_setpoint(g, q) for q in ([math.nan, 0, 0, 0], [1, math.inf, 0, 0], [0, 0, 0, 0], [1, 0, -math.inf, 0])] * 10
-    flight.send("ap_gcs", bad)
     big = math.radians(60)
-    flight.send("ap_gcs", [_setpoint(g, [math.cos(big / 2), math.sin(big / 2), 0, 0])])
-    ap, _sitl = flight.finish()
+
+    def send(flight):
+        flight.send("ap_gcs", bad)
+        flight.send("ap_gcs", [_setpoint(g, [math.cos(big / 2), math.sin(big / 2), 0, 0])])
+
+    flight, ap, _sitl = _fly(tmp_path, send)
     assert _rejected(ap, "gcs")["nonfinite_setpoint"] == len(bad)
     assert ap["events"]["setpoints_clamped"] == 1 and ap["events"]["setpoints"] == 1
     assert "clamped to 45" in flight.ap.output()
@@ -223,26 +239,27 @@ def _flood_payloads(rng, right_id):
 
 
 @pytest.mark.parametrize("where,right_id", [("ap_sitl", (1, 200)), ("ap_gcs", (255, 190)), ("sitl", (1, 140))])
-def test_flood_of_10000_packets_per_second(flight, where, right_id):
-    rng = random.Random(3)
-    payloads = _flood_payloads(rng, right_id)
-    addr = flight.targets()[where]
-    sock = flight.tx
+def test_flood_of_10000_packets_per_second(tmp_path, where, right_id):
+    payloads = _flood_payloads(random.Random(3), right_id)
     sent = 0
-    t0 = time.perf_counter()
-    while time.perf_counter() - t0 < 1.0:  # 10,000 packets/s for 1 s, in bursts of 100 every 10 ms
-        burst_start = time.perf_counter()
-        for _ in range(100):
-            sock.sendto(payloads[sent % len(payloads)], addr)
-            sent += 1
-        pause = 0.01 - (time.perf_counter() - burst_start)
-        if pause > 0:
-            time.sleep(pause)
-    ap, sitl = flight.finish()
+
+    def send(flight):
+        nonlocal sent
+        addr = flight.targets()[where]
+        sent = 0
+        t0 = time.perf_counter()
+        while time.perf_counter() - t0 < 1.0:  # 10,000 packets/s for 1 s, in bursts of 100 every 10 ms
+            burst_start = time.perf_counter()
+            for _ in range(100):
+                flight.tx.sendto(payloads[sent % len(payloads)], addr)
+                sent += 1
+            pause = 0.01 - (time.perf_counter() - burst_start)
+            if pause > 0:
+                time.sleep(pause)
+
+    _flight, ap, sitl = _fly(tmp_path, send)  # the SITL kept its 200 Hz sensor stream (``_late``)
     link = {"ap_sitl": ap["links"]["sitl"], "ap_gcs": ap["links"]["gcs"], "sitl": sitl["link"]}[where]
     assert sent >= 8000
     # every datagram that reached the process was read and rejected (the kernel may drop a few)
     assert sum(link["rejected"].values()) >= 0.9 * sent
     assert ap["events"].get("failsafes", 0) == 0
-    # the SITL kept its 200 Hz sensor stream
-    assert sitl["frames"] / sitl["wall_s"] == pytest.approx(200, rel=0.1)
