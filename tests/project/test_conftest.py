@@ -70,3 +70,11 @@ def test_the_small_disk_tests_are_a_lane_on_three_workers_only():
     assert schedule._unit(nodeid, concurrent=True) == schedule.EXTRA_LANE
     assert schedule._phase(schedule.EXTRA_LANE) == 2
     assert schedule._unit(nodeid, concurrent=False) == module
+
+
+@pytest.mark.parametrize("workers,lanes", [(3, 1), (4, 2), (5, 2), (16, 2)])
+def test_lane_workers_leave_two_workers_to_the_rest(workers, lanes):
+    """On three workers one flies the lanes one after the other; from four on, one per lane, never more, and at
+    least two workers run the parallel phase."""
+    assert schedule.lane_workers(workers) == lanes
+    assert workers - lanes >= 2
