@@ -23,6 +23,35 @@ def free_ports(n: int) -> list[int]:
     return free_udp_ports(n)
 
 
+def free_base_port(n: int = 4) -> int:
+    """The first of ``n`` consecutive free UDP ports (``--base-port``, ``Flight(base_port=...)``), below the kernel's
+    ephemeral range: a socket that sends unbound, or binds port 0, anywhere on the machine between this check and the
+    flight's bind cannot take one of them (a flood's 200 sockets, started after the check, took the flight's
+    ground-station port in CI: an ephemeral range of 28,232 ports, 200 sockets, 3 ports, about 2 % a flight)."""
+    import random
+
+    try:
+        low = int(Path("/proc/sys/net/ipv4/ip_local_port_range").read_text().split()[0])
+    except (OSError, ValueError, IndexError):
+        low = 32768
+    below = low - n >= 10000
+    for _ in range(100):
+        base = random.randrange(10000, low - n) if below else random.randrange(20000, 65536 - n)
+        socks = []
+        try:
+            for i in range(n):
+                s = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+                socks.append(s)
+                s.bind(("127.0.0.1", base + i))
+            return base
+        except OSError:
+            continue
+        finally:
+            for s in socks:
+                s.close()
+    raise AssertionError(f"no {n} free consecutive UDP ports")
+
+
 class Proc:
     """A module run as a subprocess, output to a file (so a full pipe never blocks it)."""
 

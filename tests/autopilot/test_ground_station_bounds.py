@@ -15,7 +15,6 @@ from __future__ import annotations
 
 import json
 import os
-import random
 import socket
 import subprocess
 import time
@@ -23,7 +22,7 @@ from pathlib import Path
 
 import pytest
 
-from tests._mavlink_procs import PY, Proc, free_ports, load_json, run_cli
+from tests._mavlink_procs import PY, Proc, free_base_port, free_ports, load_json, run_cli
 from tests._udp_relay import DroppingRelay
 
 os.environ.setdefault("MAVLINK20", "1")
@@ -276,31 +275,12 @@ print(n)
 """
 
 
-def _base_port() -> int:
-    """Four free consecutive ports for ``--base-port``."""
-    for _ in range(50):
-        p = random.randrange(20000, 60000, 4)
-        socks = []
-        try:
-            for i in range(4):
-                s = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
-                socks.append(s)
-                s.bind(("127.0.0.1", p + i))
-            return p
-        except OSError:
-            continue
-        finally:
-            for s in socks:
-                s.close()
-    raise AssertionError("no four free consecutive ports")
-
-
 @pytest.mark.e2e
 def test_a_flood_without_the_key_from_200_sockets_changes_no_bit_of_a_lockstep_flight(tmp_path):
     """200 sockets flood the autopilot's ground-station port with unsigned packets (at most 3 million datagrams or
     60 s) through a 20 s lockstep flight: every metric is the unflooded flight's."""
-    clean = _launch(tmp_path / "clean", _base_port())
-    base = _base_port()
+    clean = _launch(tmp_path / "clean", free_base_port())
+    base = free_base_port()
     flood = subprocess.Popen([PY, "-c", _UNSIGNED_FLOOD, str(base + 3), "60", "3000000"], stdout=subprocess.PIPE)
     try:
         flooded = _launch(tmp_path / "flooded", base)
@@ -348,8 +328,8 @@ def test_a_key_holder_flooding_requests_is_bounded_and_changes_no_bit(tmp_path):
     key = tmp_path / "k.key"
     key.write_text(os.urandom(32).hex())
     key.chmod(0o600)
-    clean = _launch(tmp_path / "clean", _base_port(), "--signing-key", str(key))
-    base = _base_port()
+    clean = _launch(tmp_path / "clean", free_base_port(), "--signing-key", str(key))
+    base = free_base_port()
     flood = subprocess.Popen([PY, "-c", _KEY_FLOOD, str(base + 3), "60", str(key)], stdout=subprocess.PIPE)
     try:
         time.sleep(0.5)  # the flooder's imports

@@ -10,7 +10,7 @@ import time
 
 import pytest
 
-from tests._mavlink_procs import Proc, free_ports, mav, mavlink, pack, run_cli, udp
+from tests._mavlink_procs import Proc, free_base_port, free_ports, mav, mavlink, pack, run_cli, udp
 from tools.flight import Flight
 
 pytestmark = pytest.mark.e2e  # real processes over loopback UDP
@@ -140,7 +140,7 @@ def test_ground_station_ended_by_a_forged_poweroff_fails_the_flight(tmp_path):
     "not protected") ends the GCS script mid-profile with "end of run (vehicle powered off)".  The autopilot flies
     on, wings level, every step on a fresh attitude: the verdict still says the flight failed, naming the GCS."""
     raw = _raw_socket()
-    base = free_ports(4)[0]
+    base = free_base_port()
     kw = dict(duration=8.0, out=tmp_path, quiet=True, rrd=False, series=False, png=False, signing=False)
     with Flight(base_port=base, **kw) as flight:
         _wait_for_steps(flight, "gcs", "gcs: vehicle ")
