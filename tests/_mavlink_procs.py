@@ -1,4 +1,4 @@
-"""Helpers for the MAVLink end-to-end tests: real subprocesses on ephemeral loopback ports, real sockets."""
+"""Helpers for the MAVLink end-to-end tests: real subprocesses on free loopback ports, real sockets."""
 
 from __future__ import annotations
 
@@ -18,9 +18,13 @@ PY = sys.executable
 
 
 def free_ports(n: int) -> list[int]:
-    from tools.flight.children import free_udp_ports
-
-    return free_udp_ports(n)
+    """``n`` distinct free UDP ports, each below the kernel's ephemeral range (``free_base_port``)."""
+    ports: list[int] = []
+    while len(ports) < n:
+        port = free_base_port(1)
+        if port not in ports:
+            ports.append(port)
+    return ports
 
 
 def free_base_port(n: int = 4) -> int:
