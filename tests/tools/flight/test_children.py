@@ -27,8 +27,8 @@ REPORT = (
 
 
 def _own_autogroup() -> str | None:
-    """This process's autogroup, or None: no autogroups in the kernel, or (an empty file, as in a container whose
-    cgroup has a CPU controller of its own) the process is weighed by its cgroup instead."""
+    """This process's autogroup, or None: no autogroups in the kernel, or the file is empty (as on the CI machine):
+    the process is in the root autogroup, which the kernel does not name, and there sessions are not weighed apart."""
     group = Path("/proc/self/autogroup")
     words = group.read_text().split() if group.exists() else []
     return words[0] if words else None
