@@ -168,9 +168,9 @@ def test_autopilot_killed_sitl_goes_neutral_and_recovers(tmp_path):
 
 
 def test_launch_ctrl_c_stops_everything_cleanly(tmp_path):
-    """Started as a script's background job is (SIGINT inherited *ignored*, which Python keeps), the launcher still
-    takes SIGINT, and so do its processes: each ends by its own stop handler (exit 0) with its files, none is killed
-    after the grace (-9)."""
+    """Started as a script's background job would be (SIGINT inherited *ignored*, which Python keeps), the launcher
+    still takes SIGINT, and so do its processes: each ends by its own stop handler (exit 0) with its files, none is
+    killed after the grace (-9)."""
     import signal
     import subprocess
 
