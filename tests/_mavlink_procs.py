@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import json
 import os
+import random
 import signal
 import socket
 import subprocess
@@ -18,13 +19,9 @@ PY = sys.executable
 
 
 def free_ports(n: int) -> list[int]:
-    """``n`` distinct free UDP ports, each below the kernel's ephemeral range (``free_base_port``)."""
-    ports: list[int] = []
-    while len(ports) < n:
-        port = free_base_port(1)
-        if port not in ports:
-            ports.append(port)
-    return ports
+    """``n`` free UDP ports below the kernel's ephemeral range (``free_base_port``)."""
+    base = free_base_port(n)
+    return list(range(base, base + n))
 
 
 def free_base_port(n: int = 4) -> int:
@@ -32,8 +29,6 @@ def free_base_port(n: int = 4) -> int:
     ephemeral range: a socket that sends unbound, or binds port 0, anywhere on the machine between this check and the
     flight's bind cannot take one of them (a flood's 200 sockets, started after the check, took the flight's
     ground-station port in CI: an ephemeral range of 28,232 ports, 200 sockets, 3 ports, about 2 % a flight)."""
-    import random
-
     try:
         low = int(Path("/proc/sys/net/ipv4/ip_local_port_range").read_text().split()[0])
     except (OSError, ValueError, IndexError):
